@@ -1,0 +1,15 @@
+//! mjsafe: a MuJoCo-backed vehicle safety testbed with delayed actuators and CBF safety
+//! filters. Modules mirror the blocks of the control diagram; see docs/ARCHITECTURE.md.
+
+pub mod analyze;
+pub mod barrier;
+pub mod cli;
+pub mod delay;
+pub mod episode;
+pub mod filter;
+pub mod log;
+pub mod mujoco;
+pub mod nominal;
+pub mod plant;
+pub mod scenario;
+pub mod vehicle;

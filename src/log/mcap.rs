@@ -1,0 +1,146 @@
+//! MCAP sink: one file per run, protobuf messages with their schema embedded, zstd chunks,
+//! log time = simulation time, written single-threaded so equal runs give equal bytes.
+//! The file is written as `<path>.partial` and renamed when finished, so a log under its
+//! final name is always complete and readable.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use mcap::records::MessageHeader;
+use mcap::{Compression, WriteOptions, Writer};
+
+use super::{LogError, Record, RunInfo, Sink, DESCRIPTOR_SET, LOG_FORMAT_VERSION, TOPICS};
+
+pub struct McapSink {
+    writer: Option<Writer<BufWriter<File>>>,
+    channel_ids: Vec<u16>,
+    sequence: u32,
+    partial_path: PathBuf,
+    final_path: PathBuf,
+}
+
+/// Nanoseconds of simulation time (log and publish time of every message).
+pub fn sim_time_ns(time: f64) -> u64 {
+    (time.max(0.0) * 1e9).round() as u64
+}
+
+impl McapSink {
+    pub fn create(path: &Path, info: &RunInfo) -> Result<McapSink, LogError> {
+        let err = |message: String| LogError::Write {
+            path: path.display().to_string(),
+            message,
+        };
+        if let Some(dir) = path.parent() {
+            if !dir.as_os_str().is_empty() {
+                std::fs::create_dir_all(dir).map_err(|e| err(format!("cannot create directory: {e}")))?;
+            }
+        }
+        let mut partial = path.as_os_str().to_owned();
+        partial.push(".partial");
+        let partial_path = PathBuf::from(partial);
+        let file = File::create(&partial_path).map_err(|e| err(e.to_string()))?;
+        let mut writer = WriteOptions::new()
+            .compression(Some(Compression::Zstd))
+            .chunk_size(Some(1 << 20))
+            .compression_threads(0)
+            .library(format!("mjsafe/{}", env!("CARGO_PKG_VERSION")))
+            .profile("")
+            .create(BufWriter::new(file))
+            .map_err(|e| err(e.to_string()))?;
+        let mut channel_ids = Vec::with_capacity(TOPICS.len());
+        for (topic, schema_name) in TOPICS {
+            let schema = writer
+                .add_schema(schema_name, "protobuf", DESCRIPTOR_SET)
+                .map_err(|e| err(e.to_string()))?;
+            let id = writer
+                .add_channel(schema, topic, "protobuf", &BTreeMap::new())
+                .map_err(|e| err(e.to_string()))?;
+            channel_ids.push(id);
+        }
+        let metadata = BTreeMap::from([
+            ("mjsafe_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("log_format_version".to_string(), LOG_FORMAT_VERSION.to_string()),
+            ("mujoco_version".to_string(), info.mujoco_version.clone()),
+            ("scenario_name".to_string(), info.scenario_name.clone()),
+            ("scenario_path".to_string(), info.scenario_path.clone()),
+            ("scenario".to_string(), info.scenario_text.clone()),
+            ("scenario_resolved".to_string(), info.scenario_resolved.clone()),
+            ("overrides".to_string(), info.overrides.join("\n")),
+            ("timestep".to_string(), format!("{}", info.timestep)),
+            ("control_period".to_string(), format!("{}", info.control_period)),
+        ]);
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: "mjsafe".to_string(),
+                metadata,
+            })
+            .map_err(|e| err(e.to_string()))?;
+        Ok(McapSink {
+            writer: Some(writer),
+            channel_ids,
+            sequence: 0,
+            partial_path,
+            final_path: path.to_path_buf(),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.final_path
+    }
+
+    fn error(&self, message: String) -> LogError {
+        LogError::Write {
+            path: self.final_path.display().to_string(),
+            message,
+        }
+    }
+}
+
+impl Sink for McapSink {
+    fn record(&mut self, record: &Record) -> Result<(), LogError> {
+        let Some(writer) = self.writer.as_mut() else {
+            return Err(self.error("record after finish".into()));
+        };
+        let time = sim_time_ns(record.time());
+        self.sequence += 1;
+        let header = MessageHeader {
+            channel_id: self.channel_ids[record.topic_index()],
+            sequence: self.sequence,
+            log_time: time,
+            publish_time: time,
+        };
+        let result = writer.write_to_known_channel(&header, &record.encode());
+        result.map_err(|e| self.error(e.to_string()))
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), LogError> {
+        let Some(mut writer) = self.writer.take() else {
+            return Ok(());
+        };
+        let status = BTreeMap::from([(
+            "complete".to_string(),
+            if complete { "true" } else { "false" }.to_string(),
+        )]);
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: "mjsafe_status".to_string(),
+                metadata: status,
+            })
+            .map_err(|e| self.error(e.to_string()))?;
+        writer.finish().map_err(|e| self.error(e.to_string()))?;
+        drop(writer);
+        std::fs::rename(&self.partial_path, &self.final_path)
+            .map_err(|e| self.error(format!("cannot move the finished log into place: {e}")))
+    }
+}
+
+impl Drop for McapSink {
+    fn drop(&mut self) {
+        // An episode that returned without finishing (a bug path) still leaves a valid file.
+        if self.writer.is_some() {
+            let _ = self.finish(false);
+        }
+    }
+}

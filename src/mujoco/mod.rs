@@ -1,0 +1,657 @@
+//! MuJoCo 2.2.2: generated FFI (`ffi`) and the safe wrapper the rest of mjsafe uses.
+//!
+//! This module is the only place with `unsafe`. It owns `mjModel`/`mjData` (freed on drop),
+//! exposes their arrays as slices, and routes MuJoCo's process-global `mjcb_control` to the
+//! [`ControlHook`] of the episode stepping on the *current thread* (see [`Simulation::step`]).
+
+#[allow(unsafe_op_in_unsafe_fn)]
+mod ffi;
+
+use std::cell::RefCell;
+use std::ffi::{CStr, CString};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::Path;
+use std::ptr::NonNull;
+use std::sync::Once;
+
+/// The MuJoCo version mjsafe is written and tested against (`mj_version()` value).
+pub const REQUIRED_VERSION: i32 = 222;
+
+#[derive(Debug, thiserror::Error)]
+pub enum MjError {
+    #[error("MuJoCo library version {found} is loaded, but mjsafe needs {REQUIRED_VERSION} (2.2.2, Debian package libmujoco-dev)")]
+    WrongVersion { found: i32 },
+    #[error("cannot read MJCF file {path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("MuJoCo rejected the MJCF model {origin}: {message}")]
+    Load { origin: String, message: String },
+    #[error("MJCF text for {origin} contains a NUL byte")]
+    NulInXml { origin: String },
+    #[error("the model has no {kind} named `{name}`")]
+    MissingName { kind: &'static str, name: String },
+    #[error("MuJoCo could not allocate mjData for the model")]
+    DataAllocation,
+    #[error("the control callback panicked at t = {time}: {message}")]
+    CallbackPanicked { time: f64, message: String },
+    #[error("MuJoCo warning during the step at t = {time}: {message}")]
+    Unstable { time: f64, message: String },
+}
+
+/// Checks that the linked library is MuJoCo 2.2.2.
+pub fn check_version() -> Result<(), MjError> {
+    let found = version();
+    if found == REQUIRED_VERSION {
+        Ok(())
+    } else {
+        Err(MjError::WrongVersion { found })
+    }
+}
+
+/// `mj_version()`: 222 for MuJoCo 2.2.2.
+pub fn version() -> i32 {
+    // SAFETY: no arguments, no state.
+    unsafe { ffi::mj_version() }
+}
+
+/// `mj_versionString()`, e.g. "2.2.2".
+pub fn version_string() -> String {
+    // SAFETY: returns a pointer to a static NUL-terminated string.
+    unsafe { CStr::from_ptr(ffi::mj_versionString()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// Object kinds for name lookups.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObjKind {
+    Body,
+    Joint,
+    Geom,
+    Site,
+    Actuator,
+    Numeric,
+}
+
+impl ObjKind {
+    fn raw(self) -> ffi::mjtObj {
+        match self {
+            ObjKind::Body => ffi::mjtObj::mjOBJ_BODY,
+            ObjKind::Joint => ffi::mjtObj::mjOBJ_JOINT,
+            ObjKind::Geom => ffi::mjtObj::mjOBJ_GEOM,
+            ObjKind::Site => ffi::mjtObj::mjOBJ_SITE,
+            ObjKind::Actuator => ffi::mjtObj::mjOBJ_ACTUATOR,
+            ObjKind::Numeric => ffi::mjtObj::mjOBJ_NUMERIC,
+        }
+    }
+    fn label(self) -> &'static str {
+        match self {
+            ObjKind::Body => "body",
+            ObjKind::Joint => "joint",
+            ObjKind::Geom => "geom",
+            ObjKind::Site => "site",
+            ObjKind::Actuator => "actuator",
+            ObjKind::Numeric => "custom numeric",
+        }
+    }
+}
+
+/// Numerical integrator selected in the model (`<option integrator=…>`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Integrator {
+    Euler,
+    Rk4,
+    Implicit,
+}
+
+impl Integrator {
+    /// Calls of `mjcb_control` per `mj_step` in 2.2.2.
+    pub fn callbacks_per_step(self) -> u32 {
+        match self {
+            Integrator::Rk4 => 4,
+            Integrator::Euler | Integrator::Implicit => 1,
+        }
+    }
+}
+
+/// A compiled MuJoCo model (`mjModel`), freed on drop.
+pub struct Model {
+    ptr: NonNull<ffi::mjModel>,
+}
+
+// SAFETY: an mjModel is plain heap data; mjsafe never shares one mutably across threads.
+unsafe impl Send for Model {}
+
+/// Size of MuJoCo's error buffer for `mj_loadXML`.
+const ERROR_BUFFER: usize = 1000;
+
+impl Model {
+    /// Loads and compiles an MJCF file.
+    pub fn from_xml_file(path: &Path) -> Result<Model, MjError> {
+        let xml = std::fs::read_to_string(path).map_err(|source| MjError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_xml_string(&xml, &path.display().to_string())
+    }
+
+    /// Compiles MJCF text held in memory (through MuJoCo's virtual file system).
+    /// `origin` names the text in error messages (e.g. the file it came from).
+    pub fn from_xml_string(xml: &str, origin: &str) -> Result<Model, MjError> {
+        check_version()?;
+        install_callback();
+        let bytes = xml.as_bytes();
+        if bytes.contains(&0) {
+            return Err(MjError::NulInXml {
+                origin: origin.to_string(),
+            });
+        }
+        let vfs_name = CString::new("mjsafe_model.xml").expect("static name");
+        let mut error = vec![0 as std::os::raw::c_char; ERROR_BUFFER];
+        // SAFETY: the VFS is heap-allocated (it is ~2 MB), initialised by mj_defaultVFS,
+        // the file buffer is sized by MuJoCo before we copy into it, and mj_deleteVFS frees it.
+        let raw = unsafe {
+            let mut vfs: Box<std::mem::MaybeUninit<ffi::mjVFS>> = Box::new_uninit();
+            ffi::mj_defaultVFS(vfs.as_mut_ptr());
+            let mut vfs = vfs.assume_init();
+            let size = bytes.len() as i32;
+            if ffi::mj_makeEmptyFileVFS(&mut *vfs, vfs_name.as_ptr(), size) != 0 {
+                return Err(MjError::Load {
+                    origin: origin.to_string(),
+                    message: "MuJoCo's virtual file system refused the model text".into(),
+                });
+            }
+            let slot = ffi::mj_findFileVFS(&*vfs, vfs_name.as_ptr());
+            let dest = vfs.filedata[slot as usize] as *mut u8;
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, bytes.len());
+            let model = ffi::mj_loadXML(
+                vfs_name.as_ptr(),
+                &*vfs,
+                error.as_mut_ptr(),
+                ERROR_BUFFER as i32,
+            );
+            ffi::mj_deleteVFS(&mut *vfs);
+            model
+        };
+        match NonNull::new(raw) {
+            Some(ptr) => Ok(Model { ptr }),
+            None => {
+                // SAFETY: MuJoCo NUL-terminates the error buffer.
+                let message = unsafe { CStr::from_ptr(error.as_ptr()) }
+                    .to_string_lossy()
+                    .trim()
+                    .to_string();
+                Err(MjError::Load {
+                    origin: origin.to_string(),
+                    message,
+                })
+            }
+        }
+    }
+
+    fn raw(&self) -> &ffi::mjModel {
+        // SAFETY: ptr is a live mjModel owned by self.
+        unsafe { self.ptr.as_ref() }
+    }
+
+    pub fn nq(&self) -> usize {
+        self.raw().nq as usize
+    }
+    pub fn nv(&self) -> usize {
+        self.raw().nv as usize
+    }
+    pub fn nu(&self) -> usize {
+        self.raw().nu as usize
+    }
+    pub fn na(&self) -> usize {
+        self.raw().na as usize
+    }
+    pub fn ngeom(&self) -> usize {
+        self.raw().ngeom as usize
+    }
+
+    pub fn timestep(&self) -> f64 {
+        self.raw().opt.timestep
+    }
+
+    pub fn set_timestep(&mut self, timestep: f64) {
+        // SAFETY: ptr is live and uniquely borrowed.
+        unsafe { self.ptr.as_mut() }.opt.timestep = timestep;
+    }
+
+    pub fn integrator(&self) -> Integrator {
+        match self.raw().opt.integrator {
+            x if x == ffi::mjtIntegrator::mjINT_RK4 as i32 => Integrator::Rk4,
+            x if x == ffi::mjtIntegrator::mjINT_IMPLICIT as i32 => Integrator::Implicit,
+            _ => Integrator::Euler,
+        }
+    }
+
+    /// Id of a named object, if it exists.
+    pub fn id(&self, kind: ObjKind, name: &str) -> Option<usize> {
+        let cname = CString::new(name).ok()?;
+        // SAFETY: live model, NUL-terminated name.
+        let id = unsafe { ffi::mj_name2id(self.ptr.as_ptr(), kind.raw() as i32, cname.as_ptr()) };
+        (id >= 0).then_some(id as usize)
+    }
+
+    /// Id of a named object, or an error naming what is missing.
+    pub fn require(&self, kind: ObjKind, name: &str) -> Result<usize, MjError> {
+        self.id(kind, name).ok_or_else(|| MjError::MissingName {
+            kind: kind.label(),
+            name: name.to_string(),
+        })
+    }
+
+    /// Name of an object by id.
+    pub fn name(&self, kind: ObjKind, id: usize) -> Option<String> {
+        // SAFETY: mj_id2name returns NULL or a pointer into the model's name buffer.
+        let p = unsafe { ffi::mj_id2name(self.ptr.as_ptr(), kind.raw() as i32, id as i32) };
+        if p.is_null() {
+            None
+        } else {
+            // SAFETY: non-null, NUL-terminated, lives as long as the model.
+            Some(unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
+        }
+    }
+
+    /// Address in `qpos` of a joint's first coordinate.
+    pub fn joint_qpos_addr(&self, joint: usize) -> usize {
+        self.int_array(self.raw().jnt_qposadr, self.raw().njnt)[joint] as usize
+    }
+
+    /// Address in `qvel` of a joint's first degree of freedom.
+    pub fn joint_dof_addr(&self, joint: usize) -> usize {
+        self.int_array(self.raw().jnt_dofadr, self.raw().njnt)[joint] as usize
+    }
+
+    /// Address in `act` of an actuator's activation, if it has one. In 2.2.2 stateful
+    /// actuators come last, so actuator i owns act[i - (nu - na)].
+    pub fn actuator_act_addr(&self, actuator: usize) -> Option<usize> {
+        let first_stateful = self.nu() - self.na();
+        (actuator >= first_stateful && actuator < self.nu()).then(|| actuator - first_stateful)
+    }
+
+    /// Size parameters of a geom (radius first for spheres and cylinders).
+    pub fn geom_size(&self, geom: usize) -> [f64; 3] {
+        let all = self.num_array(self.raw().geom_size, self.raw().ngeom * 3);
+        [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// Values of a `<custom><numeric>` field.
+    pub fn numeric(&self, name: &str) -> Option<Vec<f64>> {
+        let id = self.id(ObjKind::Numeric, name)?;
+        let m = self.raw();
+        let adr = self.int_array(m.numeric_adr, m.nnumeric)[id] as usize;
+        let size = self.int_array(m.numeric_size, m.nnumeric)[id] as usize;
+        let data = self.num_array(m.numeric_data, m.nnumericdata);
+        Some(data[adr..adr + size].to_vec())
+    }
+
+    fn int_array(&self, p: *const i32, len: i32) -> &[i32] {
+        if len <= 0 || p.is_null() {
+            return &[];
+        }
+        // SAFETY: MuJoCo model arrays of the documented length, alive with the model.
+        unsafe { std::slice::from_raw_parts(p, len as usize) }
+    }
+
+    fn num_array(&self, p: *const f64, len: i32) -> &[f64] {
+        if len <= 0 || p.is_null() {
+            return &[];
+        }
+        // SAFETY: as above.
+        unsafe { std::slice::from_raw_parts(p, len as usize) }
+    }
+}
+
+impl Drop for Model {
+    fn drop(&mut self) {
+        // SAFETY: we own the model; no Data outlives it (Simulation drops data first).
+        unsafe { ffi::mj_deleteModel(self.ptr.as_ptr()) }
+    }
+}
+
+/// One detected contact (after a step: the contacts of that step's collision phase).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contact {
+    pub geom1: usize,
+    pub geom2: usize,
+    /// Signed distance; negative is penetration.
+    pub dist: f64,
+    pub pos: [f64; 3],
+}
+
+/// Read and write access to an `mjData` of known sizes: what the step wrapper hands to a
+/// [`ControlHook`] and what [`Data`] offers outside a step.
+pub struct DataView<'a> {
+    d: &'a mut ffi::mjData,
+    nq: usize,
+    nv: usize,
+    nu: usize,
+    na: usize,
+}
+
+impl DataView<'_> {
+    pub fn time(&self) -> f64 {
+        self.d.time
+    }
+    pub fn qpos(&self) -> &[f64] {
+        slice(self.d.qpos, self.nq)
+    }
+    pub fn qvel(&self) -> &[f64] {
+        slice(self.d.qvel, self.nv)
+    }
+    pub fn act(&self) -> &[f64] {
+        slice(self.d.act, self.na)
+    }
+    pub fn ctrl(&self) -> &[f64] {
+        slice(self.d.ctrl, self.nu)
+    }
+    pub fn ctrl_mut(&mut self) -> &mut [f64] {
+        slice_mut(self.d.ctrl, self.nu)
+    }
+}
+
+fn slice<'a>(p: *const f64, len: usize) -> &'a [f64] {
+    if len == 0 || p.is_null() {
+        &[]
+    } else {
+        // SAFETY: mjData arrays of the model's sizes, alive while the view borrows the data.
+        unsafe { std::slice::from_raw_parts(p, len) }
+    }
+}
+
+fn slice_mut<'a>(p: *mut f64, len: usize) -> &'a mut [f64] {
+    if len == 0 || p.is_null() {
+        &mut []
+    } else {
+        // SAFETY: as above, and the view's &mut borrow makes this access unique.
+        unsafe { std::slice::from_raw_parts_mut(p, len) }
+    }
+}
+
+/// Simulation data (`mjData`) for one model, freed on drop.
+pub struct Data {
+    ptr: NonNull<ffi::mjData>,
+    nq: usize,
+    nv: usize,
+    nu: usize,
+    na: usize,
+}
+
+// SAFETY: plain heap data owned by one episode at a time.
+unsafe impl Send for Data {}
+
+impl Data {
+    pub fn new(model: &Model) -> Result<Data, MjError> {
+        // SAFETY: live model.
+        let raw = unsafe { ffi::mj_makeData(model.ptr.as_ptr()) };
+        let ptr = NonNull::new(raw).ok_or(MjError::DataAllocation)?;
+        Ok(Data {
+            ptr,
+            nq: model.nq(),
+            nv: model.nv(),
+            nu: model.nu(),
+            na: model.na(),
+        })
+    }
+
+    pub fn view(&mut self) -> DataView<'_> {
+        DataView {
+            // SAFETY: live data, uniquely borrowed through &mut self.
+            d: unsafe { self.ptr.as_mut() },
+            nq: self.nq,
+            nv: self.nv,
+            nu: self.nu,
+            na: self.na,
+        }
+    }
+
+    fn raw(&self) -> &ffi::mjData {
+        // SAFETY: live data owned by self.
+        unsafe { self.ptr.as_ref() }
+    }
+
+    pub fn time(&self) -> f64 {
+        self.raw().time
+    }
+    pub fn qpos(&self) -> &[f64] {
+        slice(self.raw().qpos, self.nq)
+    }
+    pub fn qvel(&self) -> &[f64] {
+        slice(self.raw().qvel, self.nv)
+    }
+    pub fn act(&self) -> &[f64] {
+        slice(self.raw().act, self.na)
+    }
+    pub fn ctrl(&self) -> &[f64] {
+        slice(self.raw().ctrl, self.nu)
+    }
+
+    /// Contacts found by the last collision phase.
+    pub fn contacts(&self) -> Vec<Contact> {
+        let d = self.raw();
+        let n = d.ncon.max(0) as usize;
+        if n == 0 || d.contact.is_null() {
+            return Vec::new();
+        }
+        // SAFETY: d.contact holds at least ncon entries.
+        let raw = unsafe { std::slice::from_raw_parts(d.contact, n) };
+        raw.iter()
+            .map(|c| Contact {
+                geom1: c.geom1 as usize,
+                geom2: c.geom2 as usize,
+                dist: c.dist,
+                pos: c.pos,
+            })
+            .collect()
+    }
+
+    /// Counts of MuJoCo's "bad number" warnings (qpos, qvel, qacc, ctrl) so far.
+    fn bad_number_warnings(&self) -> [i32; 4] {
+        let w = &self.raw().warning;
+        [
+            w[ffi::mjtWarning::mjWARN_BADQPOS as usize].number,
+            w[ffi::mjtWarning::mjWARN_BADQVEL as usize].number,
+            w[ffi::mjtWarning::mjWARN_BADQACC as usize].number,
+            w[ffi::mjtWarning::mjWARN_BADCTRL as usize].number,
+        ]
+    }
+}
+
+impl Drop for Data {
+    fn drop(&mut self) {
+        // SAFETY: we own the data.
+        unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) }
+    }
+}
+
+/// Where a `mjcb_control` call falls inside the current `mj_step`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CallbackContext {
+    /// Step counter set by [`Simulation::step`]: the step being taken is `step → step + 1`.
+    pub step: u64,
+    /// 0 for the call at the real state (start of the step), 1.. for RK4's trial stages.
+    pub call_in_step: u32,
+    /// `d->time` at the call.
+    pub time: f64,
+    /// `d->time` when the step began (so `time − step_start_time` is the stage offset).
+    pub step_start_time: f64,
+}
+
+/// Receives every `mjcb_control` call fired while [`Simulation::step`] runs on this thread.
+pub trait ControlHook {
+    /// Must only write `ctrl` (RK4 calls this at trial states).
+    fn on_control(&mut self, ctx: CallbackContext, data: &mut DataView<'_>);
+}
+
+struct ActiveHook {
+    hook: *mut (dyn ControlHook + 'static),
+    step: u64,
+    step_start_time: f64,
+    calls: u32,
+    nq: usize,
+    nv: usize,
+    nu: usize,
+    na: usize,
+}
+
+thread_local! {
+    /// The hook of the episode stepping on this thread, set only for the duration of a step.
+    static ACTIVE: RefCell<Option<ActiveHook>> = const { RefCell::new(None) };
+    /// The message of a panic caught inside the callback during the current step.
+    static CAUGHT_PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+static INSTALL: Once = Once::new();
+
+fn install_callback() {
+    INSTALL.call_once(|| {
+        // SAFETY: writing MuJoCo's global callback pointer once, before any step runs.
+        unsafe { ffi::mjcb_control = Some(control_trampoline) };
+    });
+}
+
+/// The process-wide `mjcb_control`: dispatches to the current thread's hook; catches panics.
+unsafe extern "C" fn control_trampoline(_m: *const ffi::mjModel, d: *mut ffi::mjData) {
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        ACTIVE.with(|cell| {
+            let mut active = cell.borrow_mut();
+            let Some(active) = active.as_mut() else {
+                return; // mj_forward outside a step, or another thread's plain MuJoCo use.
+            };
+            if CAUGHT_PANIC.with(|m| m.borrow().is_some()) {
+                return; // an earlier stage of this step panicked: leave ctrl as it is.
+            }
+            // SAFETY: MuJoCo passes the live mjData being stepped.
+            let d = unsafe { &mut *d };
+            let ctx = CallbackContext {
+                step: active.step,
+                call_in_step: active.calls,
+                time: d.time,
+                step_start_time: active.step_start_time,
+            };
+            active.calls += 1;
+            let mut view = DataView {
+                d,
+                nq: active.nq,
+                nv: active.nv,
+                nu: active.nu,
+                na: active.na,
+            };
+            // SAFETY: the hook pointer is valid for the duration of Simulation::step,
+            // which is the only time ACTIVE is Some.
+            let hook = unsafe { &mut *active.hook };
+            hook.on_control(ctx, &mut view);
+        })
+    }));
+    if let Err(payload) = result {
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "non-string panic payload".to_string());
+        CAUGHT_PANIC.with(|m| *m.borrow_mut() = Some(message));
+    }
+}
+
+/// A model with its data: the thing that steps.
+pub struct Simulation {
+    // Field order matters: data is dropped before the model it was made from.
+    data: Data,
+    model: Model,
+    step: u64,
+}
+
+impl Simulation {
+    pub fn new(model: Model) -> Result<Simulation, MjError> {
+        let data = Data::new(&model)?;
+        Ok(Simulation {
+            data,
+            model,
+            step: 0,
+        })
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+    pub fn data(&self) -> &Data {
+        &self.data
+    }
+
+    /// Steps taken so far.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// Sets time, qpos, qvel and act (the full state) and recomputes derived quantities
+    /// with `mj_forward` (no hook is active, so the control callback does nothing).
+    pub fn set_state(&mut self, time: f64, qpos: &[f64], qvel: &[f64], act: &[f64]) {
+        {
+            let v = self.data.view();
+            v.d.time = time;
+            slice_mut(v.d.qpos, v.nq).copy_from_slice(qpos);
+            slice_mut(v.d.qvel, v.nv).copy_from_slice(qvel);
+            slice_mut(v.d.act, v.na).copy_from_slice(act);
+        }
+        // SAFETY: live model and data of that model.
+        unsafe { ffi::mj_forward(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+    }
+
+    /// One `mj_step`, with `hook` receiving every control callback of the step.
+    /// A panic inside the hook is caught in the callback and returned here as an error;
+    /// so is any MuJoCo "bad number" warning (MuJoCo would silently reset the state).
+    pub fn step(&mut self, hook: &mut dyn ControlHook) -> Result<(), MjError> {
+        let warnings_before = self.data.bad_number_warnings();
+        let start_time = self.data.time();
+        // SAFETY (lifetime erasure): the pointer is removed from ACTIVE before this function
+        // returns, so it never outlives `hook`.
+        let hook_ptr: *mut (dyn ControlHook + '_) = hook;
+        let hook_ptr: *mut (dyn ControlHook + 'static) = unsafe { std::mem::transmute(hook_ptr) };
+        ACTIVE.with(|cell| {
+            *cell.borrow_mut() = Some(ActiveHook {
+                hook: hook_ptr,
+                step: self.step,
+                step_start_time: start_time,
+                calls: 0,
+                nq: self.data.nq,
+                nv: self.data.nv,
+                nu: self.data.nu,
+                na: self.data.na,
+            })
+        });
+        // SAFETY: live model and data of that model.
+        unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+        ACTIVE.with(|cell| *cell.borrow_mut() = None);
+        self.step += 1;
+        if let Some(message) = CAUGHT_PANIC.with(|m| m.borrow_mut().take()) {
+            return Err(MjError::CallbackPanicked {
+                time: start_time,
+                message,
+            });
+        }
+        let warnings_after = self.data.bad_number_warnings();
+        const WHAT: [&str; 4] = ["qpos", "qvel", "qacc", "ctrl"];
+        for (i, what) in WHAT.iter().enumerate() {
+            if warnings_after[i] > warnings_before[i] {
+                return Err(MjError::Unstable {
+                    time: start_time,
+                    message: format!(
+                        "NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops"
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Calls `mj_forward` (fires the callback only if a hook is active: never here).
+    pub fn forward(&mut self) {
+        // SAFETY: live model and data of that model.
+        unsafe { ffi::mj_forward(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+    }
+}

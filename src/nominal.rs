@@ -1,0 +1,198 @@
+//! Nominal (safety-agnostic) controllers u0(x), the input the safety filter corrects.
+
+use nalgebra::{DMatrix, DVector};
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum NominalError {
+    #[error("the Riccati solve did not converge (is (A, B) stabilisable and Q >= 0, R > 0?)")]
+    RiccatiNotConverged,
+    #[error("R is not invertible")]
+    SingularR,
+}
+
+/// Stabilising solution P of the continuous algebraic Riccati equation
+/// AᵀP + PA − PBR⁻¹BᵀP + Q = 0, by the matrix sign function of the Hamiltonian
+/// H = [[A, −BR⁻¹Bᵀ], [−Q, −Aᵀ]] (Newton iteration with determinant scaling).
+pub fn solve_care(
+    a: &DMatrix<f64>,
+    b: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+    r: &DMatrix<f64>,
+) -> Result<DMatrix<f64>, NominalError> {
+    let n = a.nrows();
+    let r_inv = r.clone().try_inverse().ok_or(NominalError::SingularR)?;
+    let mut z = DMatrix::zeros(2 * n, 2 * n);
+    z.view_mut((0, 0), (n, n)).copy_from(a);
+    z.view_mut((0, n), (n, n)).copy_from(&(-(b * &r_inv * b.transpose())));
+    z.view_mut((n, 0), (n, n)).copy_from(&(-q));
+    z.view_mut((n, n), (n, n)).copy_from(&(-a.transpose()));
+    let mut converged = false;
+    for _ in 0..100 {
+        let det = z.determinant().abs();
+        let inv = z.clone().try_inverse().ok_or(NominalError::RiccatiNotConverged)?;
+        let scale = if det > 0.0 && det.is_finite() {
+            det.powf(-1.0 / (2.0 * n as f64))
+        } else {
+            1.0
+        };
+        let next = (&z * scale + inv / scale) * 0.5;
+        let change = (&next - &z).norm() / next.norm();
+        z = next;
+        if change < 1e-13 {
+            converged = true;
+            break;
+        }
+    }
+    if !converged {
+        return Err(NominalError::RiccatiNotConverged);
+    }
+    // The stable subspace [I; P] satisfies (W + I)[I; P] = 0, with W = sign(H).
+    let w11 = z.view((0, 0), (n, n));
+    let w12 = z.view((0, n), (n, n));
+    let w21 = z.view((n, 0), (n, n));
+    let w22 = z.view((n, n), (n, n));
+    let mut lhs = DMatrix::zeros(2 * n, n);
+    lhs.view_mut((0, 0), (n, n)).copy_from(&w12);
+    lhs.view_mut((n, 0), (n, n))
+        .copy_from(&(w22 + DMatrix::identity(n, n)));
+    let mut rhs = DMatrix::zeros(2 * n, n);
+    rhs.view_mut((0, 0), (n, n))
+        .copy_from(&(-(w11 + DMatrix::identity(n, n))));
+    rhs.view_mut((n, 0), (n, n)).copy_from(&(-w21));
+    let p = lhs
+        .svd(true, true)
+        .solve(&rhs, 1e-14)
+        .map_err(|_| NominalError::RiccatiNotConverged)?;
+    let p = (&p + p.transpose()) * 0.5;
+    if p.iter().any(|v| !v.is_finite()) {
+        return Err(NominalError::RiccatiNotConverged);
+    }
+    Ok(p)
+}
+
+/// LQR gain K = R⁻¹BᵀP for u = −K e.
+pub fn lqr_gain(
+    a: &DMatrix<f64>,
+    b: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+    r: &DMatrix<f64>,
+) -> Result<DMatrix<f64>, NominalError> {
+    let p = solve_care(a, b, q, r)?;
+    let r_inv = r.clone().try_inverse().ok_or(NominalError::SingularR)?;
+    Ok(r_inv * b.transpose() * p)
+}
+
+/// Tracks a straight path at a reference speed with the kinematic bicycle (4.78), by LQR on
+/// the linearisation about the path: e = (cross-track error, heading error, speed error),
+/// ė = A e + B u with A = [[0, v̄, 0], [0, 0, 0], [0, 0, 0]], B = [[0, 0], [v̄/L, 0], [0, 1]].
+#[derive(Debug, Clone, PartialEq)]
+pub struct BicyclePathLqr {
+    pub path_point: [f64; 2],
+    pub path_heading: f64,
+    pub reference_speed: f64,
+    /// 2×3 gain.
+    pub gain: DMatrix<f64>,
+}
+
+impl BicyclePathLqr {
+    pub fn new(
+        path_point: [f64; 2],
+        path_heading: f64,
+        reference_speed: f64,
+        wheelbase: f64,
+        q_diag: [f64; 3],
+        r_diag: [f64; 2],
+    ) -> Result<BicyclePathLqr, NominalError> {
+        let v = reference_speed;
+        let a = DMatrix::from_row_slice(3, 3, &[0.0, v, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let b = DMatrix::from_row_slice(3, 2, &[0.0, 0.0, v / wheelbase, 0.0, 0.0, 1.0]);
+        let q = DMatrix::from_diagonal(&DVector::from_column_slice(&q_diag));
+        let r = DMatrix::from_diagonal(&DVector::from_column_slice(&r_diag));
+        Ok(BicyclePathLqr {
+            path_point,
+            path_heading,
+            reference_speed,
+            gain: lqr_gain(&a, &b, &q, &r)?,
+        })
+    }
+
+    /// Tracking error of state x = (x1, x2, heading, speed).
+    pub fn error(&self, x: &DVector<f64>) -> DVector<f64> {
+        let (s, c) = self.path_heading.sin_cos();
+        let cross_track = -s * (x[0] - self.path_point[0]) + c * (x[1] - self.path_point[1]);
+        let heading_error = wrap_angle(x[2] - self.path_heading);
+        DVector::from_column_slice(&[cross_track, heading_error, x[3] - self.reference_speed])
+    }
+
+    pub fn input(&self, x: &DVector<f64>) -> DVector<f64> {
+        -(&self.gain * self.error(x))
+    }
+}
+
+/// Angle in (−π, π].
+pub fn wrap_angle(angle: f64) -> f64 {
+    let two_pi = std::f64::consts::TAU;
+    let mut a = angle.rem_euclid(two_pi);
+    if a > std::f64::consts::PI {
+        a -= two_pi;
+    }
+    a
+}
+
+/// A nominal controller chosen by a scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Nominal {
+    PathLqr(BicyclePathLqr),
+    Constant(DVector<f64>),
+}
+
+impl Nominal {
+    pub fn input(&self, x: &DVector<f64>) -> DVector<f64> {
+        match self {
+            Nominal::PathLqr(lqr) => lqr.input(x),
+            Nominal::Constant(u) => u.clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn riccati_solution_satisfies_the_equation_and_stabilises() {
+        let v = 3.0;
+        let a = DMatrix::from_row_slice(3, 3, &[0.0, v, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let b = DMatrix::from_row_slice(3, 2, &[0.0, 0.0, v / 6.0, 0.0, 0.0, 1.0]);
+        let q = DMatrix::identity(3, 3);
+        let r = DMatrix::identity(2, 2);
+        let p = solve_care(&a, &b, &q, &r).unwrap();
+        let residual = a.transpose() * &p + &p * &a - &p * &b * b.transpose() * &p + &q;
+        assert!(residual.norm() < 1e-9, "CARE residual {}", residual.norm());
+        let k = lqr_gain(&a, &b, &q, &r).unwrap();
+        let closed = &a - &b * &k;
+        for ev in closed.complex_eigenvalues().iter() {
+            assert!(ev.re < 0.0, "closed-loop eigenvalue {ev}");
+        }
+    }
+
+    #[test]
+    fn scalar_riccati_matches_the_closed_form() {
+        // ẋ = a x + u, q, r = 1: P = a + sqrt(a² + q).
+        let (a, q) = (0.7, 2.0);
+        let p = solve_care(
+            &DMatrix::from_element(1, 1, a),
+            &DMatrix::from_element(1, 1, 1.0),
+            &DMatrix::from_element(1, 1, q),
+            &DMatrix::from_element(1, 1, 1.0),
+        )
+        .unwrap();
+        assert!((p[(0, 0)] - (a + (a * a + q).sqrt())).abs() < 1e-10);
+    }
+
+    #[test]
+    fn wrap_angle_stays_in_range() {
+        assert!((wrap_angle(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
+        assert!((wrap_angle(-0.5) + 0.5).abs() < 1e-12);
+    }
+}
