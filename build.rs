@@ -5,8 +5,15 @@ fn main() {
     println!("cargo:rerun-if-changed=proto/mjsafe.proto");
     println!("cargo:rerun-if-changed=build.rs");
 
-    let lib_dirs = ["/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib", "/usr/local/lib"];
-    let found = lib_dirs.iter().find(|dir| Path::new(dir).join("libmujoco.so").exists());
+    let lib_dirs = [
+        "/usr/lib/x86_64-linux-gnu",
+        "/usr/lib/aarch64-linux-gnu",
+        "/usr/lib",
+        "/usr/local/lib",
+    ];
+    let found = lib_dirs
+        .iter()
+        .find(|dir| Path::new(dir).join("libmujoco.so").exists());
     match found {
         Some(dir) => println!("cargo:rustc-link-search=native={dir}"),
         None => panic!(

@@ -39,8 +39,11 @@ pub enum AnalyzeError {
 /// First collision of a run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Collision {
+    /// Time of the first contact.
     pub time: f64,
+    /// The obstacle first touched.
     pub with: String,
+    /// Deepest penetration over all contacts of the run (MuJoCo contact distance), metres.
     pub depth: f64,
 }
 
@@ -71,7 +74,10 @@ pub struct RunMetrics {
 /// Reads and analyses one log file.
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io { file: file.clone(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io {
+        file: file.clone(),
+        source,
+    })?;
     analyze_bytes(&bytes, &file)
 }
 
@@ -96,7 +102,10 @@ struct Accumulator {
 /// Analyses log bytes; `file` names them in errors.
 pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
     let reader = ChunkFlattener::new_with_options(bytes, Options::ValidateChunkCrcs.into())
-        .map_err(|e| AnalyzeError::NotMcap { file: file.into(), message: e.to_string() })?;
+        .map_err(|e| AnalyzeError::NotMcap {
+            file: file.into(),
+            message: e.to_string(),
+        })?;
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();
     let mut acc = Accumulator::default();
@@ -105,9 +114,16 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
     for record in reader {
         let record = record.map_err(|e| {
             if messages == 0 && acc.states == 0 && channels.is_empty() {
-                AnalyzeError::NotMcap { file: file.into(), message: e.to_string() }
+                AnalyzeError::NotMcap {
+                    file: file.into(),
+                    message: e.to_string(),
+                }
             } else {
-                AnalyzeError::Corrupt { file: file.into(), messages, message: e.to_string() }
+                AnalyzeError::Corrupt {
+                    file: file.into(),
+                    messages,
+                    message: e.to_string(),
+                }
             }
         })?;
         match record {
@@ -156,7 +172,13 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
 }
 
 impl Accumulator {
-    fn add(&mut self, topic: &str, schema: &str, data: &[u8], file: &str) -> Result<(), AnalyzeError> {
+    fn add(
+        &mut self,
+        topic: &str,
+        schema: &str,
+        data: &[u8],
+        file: &str,
+    ) -> Result<(), AnalyzeError> {
         let decode_error = |e: prost::DecodeError| AnalyzeError::Decode {
             file: file.into(),
             topic: topic.into(),
@@ -193,9 +215,24 @@ impl Accumulator {
             "/event" => {
                 let m = proto::Event::decode(data).map_err(decode_error)?;
                 match m.kind.as_str() {
-                    "collision_start" if self.collision.is_none() => {
-                        let with = m.participants.iter().find(|p| *p != "vehicle").cloned().unwrap_or_default();
-                        self.collision = Some(Collision { time: m.time, with, depth: m.depth });
+                    "collision_start" | "collision_end" => {
+                        let with = m
+                            .participants
+                            .iter()
+                            .find(|p| *p != "vehicle")
+                            .cloned()
+                            .unwrap_or_default();
+                        match self.collision.as_mut() {
+                            Some(c) => c.depth = c.depth.max(m.depth),
+                            None if m.kind == "collision_start" => {
+                                self.collision = Some(Collision {
+                                    time: m.time,
+                                    with,
+                                    depth: m.depth,
+                                })
+                            }
+                            None => {}
+                        }
                     }
                     "error" if self.error.is_none() => self.error = Some(m.message),
                     _ => {}
@@ -215,7 +252,11 @@ impl Accumulator {
             collision: self.collision,
             min_h: self.min_h,
             time_h_negative: self.negative_steps as f64 * self.timestep.unwrap_or(0.0),
-            filter_active_fraction: if self.ticks > 0 { self.active_ticks as f64 / self.ticks as f64 } else { 0.0 },
+            filter_active_fraction: if self.ticks > 0 {
+                self.active_ticks as f64 / self.ticks as f64
+            } else {
+                0.0
+            },
             filter_infeasible_ticks: self.infeasible_ticks,
             max_correction: self.max_correction,
             complete: self.complete.unwrap_or(false) && self.error.is_none(),
@@ -227,7 +268,16 @@ impl Accumulator {
 /// Header and one row per run, as aligned text.
 pub fn table(runs: &[RunMetrics]) -> String {
     let header = [
-        "file", "scenario", "sim_time_s", "steps", "collision", "min_h", "t_h<0_s", "filter_active", "max|u-u_nom|", "status",
+        "file",
+        "scenario",
+        "sim_time_s",
+        "steps",
+        "collision",
+        "min_h",
+        "t_h<0_s",
+        "filter_active",
+        "max|u-u_nom|",
+        "status",
     ];
     let mut rows: Vec<Vec<String>> = vec![header.iter().map(|s| s.to_string()).collect()];
     for r in runs {
@@ -236,11 +286,17 @@ pub fn table(runs: &[RunMetrics]) -> String {
             r.scenario.clone(),
             format!("{:.3}", r.simulated_time),
             r.steps.to_string(),
-            r.collision.as_ref().map_or("none".into(), |c| format!("t={:.3} {}", c.time, c.with)),
+            r.collision
+                .as_ref()
+                .map_or("none".into(), |c| format!("t={:.3} {}", c.time, c.with)),
             r.min_h.map_or("-".into(), |h| format!("{h:.3}")),
             format!("{:.3}", r.time_h_negative),
             format!("{:.1}%", 100.0 * r.filter_active_fraction),
-            r.max_correction.iter().map(|(c, v)| format!("{c}={v:.3}")).collect::<Vec<_>>().join(" "),
+            r.max_correction
+                .iter()
+                .map(|(c, v)| format!("{c}={v:.3}"))
+                .collect::<Vec<_>>()
+                .join(" "),
             match (&r.error, r.complete) {
                 (Some(e), _) => format!("error: {e}"),
                 (None, true) => "complete".into(),

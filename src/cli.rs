@@ -13,7 +13,11 @@ use crate::log::Sink;
 use crate::scenario;
 
 #[derive(Debug, Parser)]
-#[command(name = "mjsafe", version, about = "MuJoCo vehicle safety testbed: delayed actuators, safety filters, MCAP logs")]
+#[command(
+    name = "mjsafe",
+    version,
+    about = "MuJoCo vehicle safety testbed: delayed actuators, safety filters, MCAP logs"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -56,7 +60,11 @@ pub fn run() -> ExitCode {
 
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
-        Command::Run { scenario, overrides, out } => run_scenario(&scenario, &overrides, out),
+        Command::Run {
+            scenario,
+            overrides,
+            out,
+        } => run_scenario(&scenario, &overrides, out),
         Command::Analyze { files, json } => Ok(analyze_files(&files, json)),
     }
 }
@@ -64,7 +72,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
 fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
     let mut episode = Episode::new(&loaded)?;
-    let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
+    let log_path =
+        out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
     let mut sink = McapSink::create(&log_path, episode.info())?;
     let summary = {
         let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
@@ -78,7 +87,10 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
         metrics
             .collision
             .as_ref()
-            .map_or("no collision".to_string(), |c| format!("COLLISION at t = {:.3} s with {} (depth {:.3} m)", c.time, c.with, c.depth)),
+            .map_or("no collision".to_string(), |c| format!(
+                "COLLISION at t = {:.3} s with {} (depth {:.3} m)",
+                c.time, c.with, c.depth
+            )),
         metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
         summary.steps,
         summary.simulated_time,
@@ -86,7 +98,9 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
         log_path.display()
     );
     if let Some(error) = summary.error {
-        eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
+        eprintln!(
+            "error: the episode stopped early: {error} (the log holds the run up to that point)"
+        );
         return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
@@ -105,7 +119,10 @@ fn analyze_files(files: &[PathBuf], json: bool) -> ExitCode {
         }
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise"));
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&runs).expect("metrics serialise")
+        );
     } else if !runs.is_empty() {
         println!("{}", analyze::table(&runs));
     }

@@ -18,7 +18,9 @@ use crate::filter::{self, FilterOutcome};
 use crate::log::{proto, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, CallbackContext, ControlHook, DataView, MjError, Model, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
-use crate::scenario::{FilterSpec, LoadedScenario, NominalSpec, ScenarioError};
+use crate::scenario::{
+    CbfQpSpec, ConstantSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec, ScenarioError,
+};
 use crate::vehicle::{self, Vehicle, VehicleKind};
 
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +46,8 @@ struct Obstacle {
     appear_at: f64,
     known: bool,
     in_contact: bool,
+    /// Deepest penetration of the current contact episode.
+    contact_depth: f64,
 }
 
 /// What one control tick computed (logged after the step).
@@ -76,7 +80,9 @@ struct ControlLoop {
 
 impl ControlLoop {
     fn control_tick(&mut self, time: f64, data: &DataView<'_>) {
-        let x = self.vehicle.read_state(data.qpos(), data.qvel(), data.act());
+        let x = self
+            .vehicle
+            .read_state(data.qpos(), data.qvel(), data.act());
         let nominal = self.nominal.input(&x);
         let outcome = match (self.form, self.known_barriers.first()) {
             (Some(form), Some(b)) => {
@@ -85,7 +91,9 @@ impl ControlLoop {
             }
             _ => None,
         };
-        let issued = outcome.as_ref().map_or_else(|| nominal.clone(), |o| o.input.clone());
+        let issued = outcome
+            .as_ref()
+            .map_or_else(|| nominal.clone(), |o| o.input.clone());
         for (queue, &value) in self.queues.iter_mut().zip(issued.iter()) {
             if let Err(e) = queue.push(time, value) {
                 self.error.get_or_insert(e);
@@ -109,7 +117,8 @@ impl ControlHook for ControlLoop {
         }
         // Sample at the call's offset inside this step, kept in [t_k, t_k + h): RK4's last
         // stage (at t_k + h) takes the left limit, so ctrl is constant over the step.
-        let offset = (ctx.time - ctx.step_start_time).clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
+        let offset =
+            (ctx.time - ctx.step_start_time).clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
         let sample_time = step_time + offset;
         self.applied_buffer.clear();
         for (i, queue) in self.queues.iter().enumerate() {
@@ -117,7 +126,10 @@ impl ControlHook for ControlLoop {
                 Ok(a) => a,
                 Err(e) => {
                     self.error.get_or_insert(e);
-                    crate::delay::Applied { value: 0.0, issued_at: f64::NAN }
+                    crate::delay::Applied {
+                        value: 0.0,
+                        issued_at: f64::NAN,
+                    }
                 }
             };
             if ctx.call_in_step == 0 {
@@ -166,7 +178,10 @@ fn model_with_obstacles(xml: &str, loaded: &LoadedScenario) -> Result<String, Sc
         return Ok(xml.to_string());
     }
     let Some(at) = xml.rfind("</worldbody>") else {
-        return Err(loaded.field_error("vehicle.model", "the MJCF has no <worldbody> to place obstacles in"));
+        return Err(loaded.field_error(
+            "vehicle.model",
+            "the MJCF has no <worldbody> to place obstacles in",
+        ));
     };
     let mut geoms = String::new();
     for (i, o) in obstacles.iter().enumerate() {
@@ -193,17 +208,31 @@ impl Episode {
         let file = loaded.path.display().to_string();
         let model_path = loaded.model_path();
         let xml = std::fs::read_to_string(&model_path).map_err(|e| {
-            loaded.field_error("vehicle.model", format!("cannot read MJCF file {}: {e}", model_path.display()))
+            loaded.field_error(
+                "vehicle.model",
+                format!("cannot read MJCF file {}: {e}", model_path.display()),
+            )
         })?;
         let xml = model_with_obstacles(&xml, loaded)?;
-        let mut model = Model::from_xml_string(&xml, &model_path.display().to_string())
-            .map_err(|source| EpisodeError::Model { file: file.clone(), source })?;
+        let mut model =
+            Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| {
+                EpisodeError::Model {
+                    file: file.clone(),
+                    source,
+                }
+            })?;
         if let Some(h) = sc.vehicle.timestep {
             model.set_timestep(h);
         }
+        if let Some(integrator) = sc.vehicle.integrator {
+            model.set_integrator(integrator);
+        }
         let timestep = model.timestep();
-        let vehicle = vehicle::bind(sc.vehicle.kind, &model)
-            .map_err(|source| EpisodeError::Model { file: file.clone(), source })?;
+        let vehicle =
+            vehicle::bind(sc.vehicle.kind, &model).map_err(|source| EpisodeError::Model {
+                file: file.clone(),
+                source,
+            })?;
 
         let n = vehicle.state_dim();
         if sc.vehicle.initial_state.len() != n {
@@ -222,7 +251,13 @@ impl Episode {
         for key in sc.delays.keys().chain(sc.initial_input.keys()) {
             if !channels.contains(&key.as_str()) {
                 return Err(loaded
-                    .field_error(key, format!("unknown input channel; this vehicle has: {}", channels.join(", ")))
+                    .field_error(
+                        key,
+                        format!(
+                            "unknown input channel; this vehicle has: {}",
+                            channels.join(", ")
+                        ),
+                    )
                     .into());
             }
         }
@@ -239,25 +274,53 @@ impl Episode {
         let ratio = period / timestep;
         if (ratio - ratio.round()).abs() > 1e-6 || ratio.round() < 1.0 {
             return Err(loaded
-                .field_error("control.period", format!("expected a whole multiple of the timestep {timestep} s, found {period}"))
+                .field_error(
+                    "control.period",
+                    format!(
+                        "expected a whole multiple of the timestep {timestep} s, found {period}"
+                    ),
+                )
                 .into());
         }
         let steps_per_tick = ratio.round() as u64;
 
         let nominal = match &sc.nominal {
-            NominalSpec::PathLqr { reference_speed, path_point, path_heading, q, r } => {
+            NominalSpec::PathLqr(PathLqrSpec {
+                reference_speed,
+                path_point,
+                path_heading,
+                q,
+                r,
+            }) => {
                 if sc.vehicle.kind != VehicleKind::Bicycle {
-                    return Err(loaded.field_error("nominal.kind", "path_lqr needs vehicle.kind = \"bicycle\"").into());
+                    return Err(loaded
+                        .field_error("nominal.kind", "path_lqr needs vehicle.kind = \"bicycle\"")
+                        .into());
                 }
-                let wheelbase = vehicle.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip();
-                let lqr = BicyclePathLqr::new(*path_point, *path_heading, *reference_speed, wheelbase, *q, *r)
-                    .map_err(|e| loaded.field_error("nominal", e.to_string()))?;
+                let wheelbase =
+                    vehicle.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip();
+                let lqr = BicyclePathLqr::new(
+                    *path_point,
+                    *path_heading,
+                    *reference_speed,
+                    wheelbase,
+                    *q,
+                    *r,
+                )
+                .map_err(|e| loaded.field_error("nominal", e.to_string()))?;
                 Nominal::PathLqr(lqr)
             }
-            NominalSpec::Constant { input } => {
+            NominalSpec::Constant(ConstantSpec { input }) => {
                 if input.len() != channels.len() {
                     return Err(loaded
-                        .field_error("nominal.input", format!("expected {} values ({})", channels.len(), channels.join(", ")))
+                        .field_error(
+                            "nominal.input",
+                            format!(
+                                "expected {} values ({})",
+                                channels.len(),
+                                channels.join(", ")
+                            ),
+                        )
                         .into());
                 }
                 Nominal::Constant(DVector::from_column_slice(input))
@@ -266,7 +329,7 @@ impl Episode {
 
         let form = match sc.filter {
             FilterSpec::None => None,
-            FilterSpec::CbfQp { l0, l1 } => {
+            FilterSpec::CbfQp(CbfQpSpec { l0, l1 }) => {
                 if sc.obstacles.len() > 1 {
                     return Err(loaded
                         .field_error("obstacles", "the closed-form CBF-QP (4.9) handles one obstacle; several need the QP solver of the distinct-delay filters")
@@ -280,7 +343,9 @@ impl Episode {
         let mut obstacles = Vec::with_capacity(sc.obstacles.len());
         for (i, o) in sc.obstacles.iter().enumerate() {
             let Some(position) = vehicle.planar_position() else {
-                return Err(loaded.field_error("obstacles", "this vehicle does not move in a plane").into());
+                return Err(loaded
+                    .field_error("obstacles", "this vehicle does not move in a plane")
+                    .into());
             };
             let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
             let barrier = CircularObstacle {
@@ -293,14 +358,27 @@ impl Episode {
                 return Err(loaded
                     .field_error(
                         &format!("obstacles[{i}]"),
-                        format!("the obstacle overlaps the vehicle at the start (clearance {:.3} m)", barrier.clearance(&x0)),
+                        format!(
+                            "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
+                            barrier.clearance(&x0)
+                        ),
                     )
                     .into());
             }
             let geom = model
                 .require(crate::mujoco::ObjKind::Geom, &obstacle_geom_name(i))
-                .map_err(|source| EpisodeError::Model { file: file.clone(), source })?;
-            obstacles.push(Obstacle { barrier, geom, appear_at: o.appear_at, known: false, in_contact: false });
+                .map_err(|source| EpisodeError::Model {
+                    file: file.clone(),
+                    source,
+                })?;
+            obstacles.push(Obstacle {
+                barrier,
+                geom,
+                appear_at: o.appear_at,
+                known: false,
+                in_contact: false,
+                contact_depth: 0.0,
+            });
         }
 
         let mut sim = Simulation::new(model)?;
@@ -381,30 +459,66 @@ impl Episode {
     }
 
     /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
-    fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<String>), EpisodeError> {
+    fn run_steps(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+    ) -> Result<(u64, Option<String>), EpisodeError> {
         let h = self.control.timestep;
-        let state_names: Vec<String> = self.control.vehicle.state_names().iter().map(|s| s.to_string()).collect();
-        let channels: Vec<String> = self.control.vehicle.channel_names().iter().map(|s| s.to_string()).collect();
+        let state_names: Vec<String> = self
+            .control
+            .vehicle
+            .state_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let channels: Vec<String> = self
+            .control
+            .vehicle
+            .channel_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
         let hull = self.control.vehicle.hull_geom();
 
         for k in 0..=self.steps {
             let time = k as f64 * h;
             // Obstacles become known to the controller at their appearance time.
-            for o in self.obstacles.iter_mut().filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h) {
+            for o in self
+                .obstacles
+                .iter_mut()
+                .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
+            {
                 o.known = true;
                 self.control.known_barriers.push(o.barrier.clone());
-                Self::emit(sinks, Record::Event(proto::Event {
-                    time,
-                    kind: "obstacle_appeared".into(),
-                    message: format!("{} at ({}, {}) becomes known to the controller", o.barrier.name, o.barrier.centre[0], o.barrier.centre[1]),
-                    participants: vec![o.barrier.name.clone()],
-                    depth: 0.0,
-                }))?;
+                Self::emit(
+                    sinks,
+                    Record::Event(proto::Event {
+                        time,
+                        kind: "obstacle_appeared".into(),
+                        message: format!(
+                            "{} at ({}, {}) becomes known to the controller",
+                            o.barrier.name, o.barrier.centre[0], o.barrier.centre[1]
+                        ),
+                        participants: vec![o.barrier.name.clone()],
+                        depth: 0.0,
+                    }),
+                )?;
             }
 
             let data = self.sim.data();
-            let x = self.control.vehicle.read_state(data.qpos(), data.qvel(), data.act());
-            Self::emit(sinks, Record::State(proto::State { time, step: k, names: state_names.clone(), values: x.iter().copied().collect() }))?;
+            let x = self
+                .control
+                .vehicle
+                .read_state(data.qpos(), data.qvel(), data.act());
+            Self::emit(
+                sinks,
+                Record::State(proto::State {
+                    time,
+                    step: k,
+                    names: state_names.clone(),
+                    values: x.iter().copied().collect(),
+                }),
+            )?;
             if x.iter().any(|v| !v.is_finite()) {
                 let message = format!("non-finite state {:?} at t = {time}", x.as_slice());
                 return self.stop_with_error(sinks, time, k, message);
@@ -422,29 +536,42 @@ impl Episode {
 
             // What happened during step k: tick, applied input, barriers, contacts.
             if let Some(tick) = self.control.tick.take() {
-                Self::emit(sinks, Record::Issued(proto::IssuedCommand {
-                    time: tick.time,
-                    channels: channels.clone(),
-                    nominal: tick.nominal.iter().copied().collect(),
-                    filtered: tick.issued.iter().copied().collect(),
-                }))?;
-                let (active, infeasible, mu) = tick.outcome.as_ref().map_or((false, false, f64::NAN), |o| (o.active, o.infeasible, o.mu));
-                Self::emit(sinks, Record::Filter(proto::Filter {
-                    time: tick.time,
-                    active,
-                    channels: channels.clone(),
-                    correction: (&tick.issued - &tick.nominal).iter().copied().collect(),
-                    infeasible,
-                    mu,
-                }))?;
+                Self::emit(
+                    sinks,
+                    Record::Issued(proto::IssuedCommand {
+                        time: tick.time,
+                        channels: channels.clone(),
+                        nominal: tick.nominal.iter().copied().collect(),
+                        filtered: tick.issued.iter().copied().collect(),
+                    }),
+                )?;
+                let (active, infeasible, mu) = tick
+                    .outcome
+                    .as_ref()
+                    .map_or((false, false, f64::NAN), |o| (o.active, o.infeasible, o.mu));
+                Self::emit(
+                    sinks,
+                    Record::Filter(proto::Filter {
+                        time: tick.time,
+                        active,
+                        channels: channels.clone(),
+                        correction: (&tick.issued - &tick.nominal).iter().copied().collect(),
+                        infeasible,
+                        mu,
+                    }),
+                )?;
             }
-            let applied = DVector::from_iterator(channels.len(), self.control.applied.iter().map(|a| a.0));
-            Self::emit(sinks, Record::Applied(proto::AppliedCommand {
-                time,
-                channels: channels.clone(),
-                values: applied.iter().copied().collect(),
-                issued_at: self.control.applied.iter().map(|a| a.1).collect(),
-            }))?;
+            let applied =
+                DVector::from_iterator(channels.len(), self.control.applied.iter().map(|a| a.0));
+            Self::emit(
+                sinks,
+                Record::Applied(proto::AppliedCommand {
+                    time,
+                    channels: channels.clone(),
+                    values: applied.iter().copied().collect(),
+                    issued_at: self.control.applied.iter().map(|a| a.1).collect(),
+                }),
+            )?;
             // Without a filter there is no barrier constraint: only h is meaningful.
             let form = self.control.form;
             let barriers = self
@@ -470,20 +597,28 @@ impl Episode {
             }
             self.check_contacts(sinks, time, hull)?;
         }
-        Self::emit(sinks, Record::Event(proto::Event {
-            time: self.steps as f64 * h,
-            kind: "episode_end".into(),
-            message: format!("completed {} steps", self.steps),
-            participants: vec![],
-            depth: 0.0,
-        }))?;
+        Self::emit(
+            sinks,
+            Record::Event(proto::Event {
+                time: self.steps as f64 * h,
+                kind: "episode_end".into(),
+                message: format!("completed {} steps", self.steps),
+                participants: vec![],
+                depth: 0.0,
+            }),
+        )?;
         Ok((self.steps, None))
     }
 
     /// Collision start/end events from MuJoCo's contacts between the hull and obstacles.
     /// The contacts after `mj_step` are those of the step's first collision phase, i.e. of
     /// the state at the start of the step (Euler/implicit), so they carry that time.
-    fn check_contacts(&mut self, sinks: &mut [&mut dyn Sink], time: f64, hull: usize) -> Result<(), LogError> {
+    fn check_contacts(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+        time: f64,
+        hull: usize,
+    ) -> Result<(), LogError> {
         if self.obstacles.is_empty() {
             return Ok(());
         }
@@ -491,24 +626,48 @@ impl Episode {
         for o in self.obstacles.iter_mut() {
             let depth = contacts
                 .iter()
-                .filter(|c| (c.geom1 == hull && c.geom2 == o.geom) || (c.geom2 == hull && c.geom1 == o.geom))
+                .filter(|c| {
+                    (c.geom1 == hull && c.geom2 == o.geom) || (c.geom2 == hull && c.geom1 == o.geom)
+                })
                 .map(|c| -c.dist)
-                .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))));
+                .fold(None, |acc: Option<f64>, d| {
+                    Some(acc.map_or(d, |a| a.max(d)))
+                });
             let touching = depth.is_some_and(|d| d > 0.0);
+            if touching {
+                o.contact_depth = o.contact_depth.max(depth.unwrap_or(0.0));
+            }
             if touching != o.in_contact {
                 o.in_contact = touching;
-                let (kind, message) = if touching {
-                    ("collision_start", format!("vehicle hull touches {}", o.barrier.name))
+                // collision_start carries the depth at first contact, collision_end the
+                // deepest penetration of the whole contact.
+                let (kind, message, depth) = if touching {
+                    (
+                        "collision_start",
+                        format!("vehicle hull touches {}", o.barrier.name),
+                        o.contact_depth,
+                    )
                 } else {
-                    ("collision_end", format!("vehicle hull clear of {}", o.barrier.name))
+                    let deepest = std::mem::take(&mut o.contact_depth);
+                    (
+                        "collision_end",
+                        format!(
+                            "vehicle hull clear of {} (deepest penetration {deepest:.4} m)",
+                            o.barrier.name
+                        ),
+                        deepest,
+                    )
                 };
-                Self::emit(sinks, Record::Event(proto::Event {
-                    time,
-                    kind: kind.into(),
-                    message,
-                    participants: vec!["vehicle".into(), o.barrier.name.clone()],
-                    depth: depth.unwrap_or(0.0),
-                }))?;
+                Self::emit(
+                    sinks,
+                    Record::Event(proto::Event {
+                        time,
+                        kind: kind.into(),
+                        message,
+                        participants: vec!["vehicle".into(), o.barrier.name.clone()],
+                        depth,
+                    }),
+                )?;
             }
         }
         Ok(())
@@ -521,13 +680,16 @@ impl Episode {
         steps: u64,
         message: String,
     ) -> Result<(u64, Option<String>), EpisodeError> {
-        Self::emit(sinks, Record::Event(proto::Event {
-            time,
-            kind: "error".into(),
-            message: message.clone(),
-            participants: vec![],
-            depth: 0.0,
-        }))?;
+        Self::emit(
+            sinks,
+            Record::Event(proto::Event {
+                time,
+                kind: "error".into(),
+                message: message.clone(),
+                participants: vec![],
+                depth: 0.0,
+            }),
+        )?;
         Ok((steps, Some(message)))
     }
 }
@@ -562,7 +724,12 @@ fn utc_stamp(secs: u64) -> String {
     let day = doy - (153 * mp + 2) / 5 + 1;
     let month = if mp < 10 { mp + 3 } else { mp - 9 };
     let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}{month:02}{day:02}T{:02}{:02}{:02}", rem / 3600, rem % 3600 / 60, rem % 60)
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
 }
 
 #[cfg(test)]

@@ -62,7 +62,10 @@ mod tests {
 
     #[test]
     fn inactive_when_the_nominal_is_safe() {
-        let out = cbf_qp(&constraint(1.0, &[1.0, 0.0]), &DVector::from_column_slice(&[0.5, 2.0]));
+        let out = cbf_qp(
+            &constraint(1.0, &[1.0, 0.0]),
+            &DVector::from_column_slice(&[0.5, 2.0]),
+        );
         assert!(!out.active);
         assert_eq!(out.input, DVector::from_column_slice(&[0.5, 2.0]));
     }
@@ -80,7 +83,10 @@ mod tests {
 
     #[test]
     fn zero_b_with_violation_is_reported_infeasible() {
-        let out = cbf_qp(&constraint(-1.0, &[0.0]), &DVector::from_column_slice(&[3.0]));
+        let out = cbf_qp(
+            &constraint(-1.0, &[0.0]),
+            &DVector::from_column_slice(&[3.0]),
+        );
         assert!(out.infeasible && !out.active);
     }
 }

@@ -23,13 +23,17 @@ pub fn solve_care(
     let r_inv = r.clone().try_inverse().ok_or(NominalError::SingularR)?;
     let mut z = DMatrix::zeros(2 * n, 2 * n);
     z.view_mut((0, 0), (n, n)).copy_from(a);
-    z.view_mut((0, n), (n, n)).copy_from(&(-(b * &r_inv * b.transpose())));
+    z.view_mut((0, n), (n, n))
+        .copy_from(&(-(b * &r_inv * b.transpose())));
     z.view_mut((n, 0), (n, n)).copy_from(&(-q));
     z.view_mut((n, n), (n, n)).copy_from(&(-a.transpose()));
     let mut converged = false;
     for _ in 0..100 {
         let det = z.determinant().abs();
-        let inv = z.clone().try_inverse().ok_or(NominalError::RiccatiNotConverged)?;
+        let inv = z
+            .clone()
+            .try_inverse()
+            .ok_or(NominalError::RiccatiNotConverged)?;
         let scale = if det > 0.0 && det.is_finite() {
             det.powf(-1.0 / (2.0 * n as f64))
         } else {

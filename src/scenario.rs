@@ -64,6 +64,9 @@ pub struct VehicleSpec {
     /// Overrides the model's `<option timestep>` (seconds).
     #[serde(default)]
     pub timestep: Option<f64>,
+    /// Overrides the model's `<option integrator>`: "euler", "rk4" or "implicit".
+    #[serde(default)]
+    pub integrator: Option<crate::mujoco::Integrator>,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -75,24 +78,36 @@ pub struct ControlSpec {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum NominalSpec {
     /// LQR tracking of a straight path (bicycle).
-    PathLqr {
-        reference_speed: f64,
-        #[serde(default)]
-        path_point: [f64; 2],
-        #[serde(default)]
-        path_heading: f64,
-        /// Diagonal of Q for (cross-track, heading, speed) errors.
-        #[serde(default = "default_q")]
-        q: [f64; 3],
-        /// Diagonal of R for (steering, acceleration).
-        #[serde(default = "default_r")]
-        r: [f64; 2],
-    },
+    PathLqr(PathLqrSpec),
     /// A constant input, one value per channel.
-    Constant { input: Vec<f64> },
+    Constant(ConstantSpec),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathLqrSpec {
+    pub reference_speed: f64,
+    /// A point of the straight path.
+    #[serde(default)]
+    pub path_point: [f64; 2],
+    /// Direction of the path (radians).
+    #[serde(default)]
+    pub path_heading: f64,
+    /// Diagonal of Q for (cross-track, heading, speed) errors.
+    #[serde(default = "default_q")]
+    pub q: [f64; 3],
+    /// Diagonal of R for (steering, acceleration).
+    #[serde(default = "default_r")]
+    pub r: [f64; 2],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConstantSpec {
+    pub input: Vec<f64>,
 }
 
 fn default_q() -> [f64; 3] {
@@ -103,14 +118,22 @@ fn default_r() -> [f64; 2] {
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum FilterSpec {
     /// No safety filter: the nominal input is issued as it is.
     #[default]
     None,
     /// Delay-free CBF-QP (4.6)–(4.11) on the current state, relative-degree-2 barrier
-    /// constraint (4.83) with gains l0, l1.
-    CbfQp { l0: f64, l1: f64 },
+    /// constraint (4.83).
+    CbfQp(CbfQpSpec),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CbfQpSpec {
+    /// Gains of ḧ + l1 ḣ + l0 h ≥ 0 (4.82).
+    pub l0: f64,
+    pub l1: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -180,21 +203,60 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, Scenari
 
 /// Parses scenario text; `file` names it in errors.
 pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, ScenarioError> {
-    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| ScenarioError::Syntax {
-        file: file.to_string(),
-        message: e.to_string().trim().replace('\n', " "),
-    })?;
+    let mut table: toml::Table =
+        text.parse()
+            .map_err(|e: toml::de::Error| ScenarioError::Syntax {
+                file: file.to_string(),
+                message: e.to_string().trim().replace('\n', " "),
+            })?;
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
-    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+    let whole = toml::Value::Table(table.clone());
+    serde_path_to_error::deserialize(whole).map_err(|e| {
         let key = e.path().to_string();
+        let (key, message) =
+            refine_tagged(&table, &key).unwrap_or((key, e.into_inner().to_string()));
         ScenarioError::Field {
             file: file.to_string(),
-            key: if key == "." { "(top level)".into() } else { key },
-            message: e.into_inner().to_string(),
+            key: if key == "." {
+                "(top level)".into()
+            } else {
+                key
+            },
+            message,
         }
     })
+}
+
+/// serde loses the field path inside internally tagged enums (`kind = …` sections): for an
+/// error in such a section, deserialize the chosen variant's own struct again to find the key.
+fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
+    let section = key.split('.').next()?;
+    let mut body = table.get(section)?.as_table()?.clone();
+    let kind = body.remove("kind")?.as_str()?.to_string();
+    fn check<T: serde::de::DeserializeOwned>(
+        section: &str,
+        body: toml::Table,
+    ) -> Option<(String, String)> {
+        serde_path_to_error::deserialize::<_, T>(toml::Value::Table(body))
+            .err()
+            .map(|e| {
+                let inner = e.path().to_string();
+                let key = if inner == "." {
+                    section.to_string()
+                } else {
+                    format!("{section}.{inner}")
+                };
+                (key, e.into_inner().to_string())
+            })
+    }
+    match (section, kind.as_str()) {
+        ("nominal", "path_lqr") => check::<PathLqrSpec>(section, body),
+        ("nominal", "constant") => check::<ConstantSpec>(section, body),
+        ("filter", "cbf_qp") => check::<CbfQpSpec>(section, body),
+        _ => None,
+    }
 }
 
 /// Applies one `a.b.c=VALUE` override; numeric segments index arrays (`obstacles.0.radius`).
@@ -228,12 +290,16 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
                 .entry(segment.to_string())
                 .or_insert_with(|| toml::Value::Table(Default::default())),
             toml::Value::Array(items) => {
-                let index: usize = segment
-                    .parse()
-                    .map_err(|_| err(format!("`{parent}` is an array: `{segment}` must be an index")))?;
+                let index: usize = segment.parse().map_err(|_| {
+                    err(format!(
+                        "`{parent}` is an array: `{segment}` must be an index"
+                    ))
+                })?;
                 let len = items.len();
                 items.get_mut(index).ok_or_else(|| {
-                    err(format!("`{parent}` has {len} entries, index {index} is out of range"))
+                    err(format!(
+                        "`{parent}` has {len} entries, index {index} is out of range"
+                    ))
                 })?
             }
             _ => return Err(err(format!("`{parent}` is a value, not a table"))),
@@ -252,11 +318,20 @@ fn positive_finite(x: f64) -> bool {
 fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
     if !positive_finite(sc.duration) {
-        return Err(s.field_error("duration", format!("expected a positive number of seconds, found {}", sc.duration)));
+        return Err(s.field_error(
+            "duration",
+            format!(
+                "expected a positive number of seconds, found {}",
+                sc.duration
+            ),
+        ));
     }
     if let Some(h) = sc.vehicle.timestep {
         if !positive_finite(h) {
-            return Err(s.field_error("vehicle.timestep", format!("expected a positive number of seconds, found {h}")));
+            return Err(s.field_error(
+                "vehicle.timestep",
+                format!("expected a positive number of seconds, found {h}"),
+            ));
         }
     }
     if sc.vehicle.initial_state.iter().any(|v| !v.is_finite()) {
@@ -272,18 +347,32 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     }
     for (channel, value) in &sc.initial_input {
         if !value.is_finite() {
-            return Err(s.field_error(&format!("initial_input.{channel}"), format!("expected a finite number, found {value}")));
+            return Err(s.field_error(
+                &format!("initial_input.{channel}"),
+                format!("expected a finite number, found {value}"),
+            ));
         }
     }
     if let Some(period) = sc.control.period {
         if !positive_finite(period) {
-            return Err(s.field_error("control.period", format!("expected a positive number of seconds, found {period}")));
+            return Err(s.field_error(
+                "control.period",
+                format!("expected a positive number of seconds, found {period}"),
+            ));
         }
     }
     match &sc.nominal {
-        NominalSpec::PathLqr { reference_speed, q, r, .. } => {
+        NominalSpec::PathLqr(PathLqrSpec {
+            reference_speed,
+            q,
+            r,
+            ..
+        }) => {
             if !positive_finite(*reference_speed) {
-                return Err(s.field_error("nominal.reference_speed", format!("expected a positive speed, found {reference_speed}")));
+                return Err(s.field_error(
+                    "nominal.reference_speed",
+                    format!("expected a positive speed, found {reference_speed}"),
+                ));
             }
             if q.iter().any(|v| !v.is_finite() || *v < 0.0) {
                 return Err(s.field_error("nominal.q", "expected three weights >= 0"));
@@ -292,13 +381,13 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 return Err(s.field_error("nominal.r", "expected two weights > 0"));
             }
         }
-        NominalSpec::Constant { input } => {
+        NominalSpec::Constant(ConstantSpec { input }) => {
             if input.iter().any(|v| !v.is_finite()) {
                 return Err(s.field_error("nominal.input", "expected finite numbers"));
             }
         }
     }
-    if let FilterSpec::CbfQp { l0, l1 } = sc.filter {
+    if let FilterSpec::CbfQp(CbfQpSpec { l0, l1 }) = sc.filter {
         // Roots of s² + l1 s + l0 negative real (below (4.83)): l0 > 0, l1 > 0, l1² ≥ 4 l0.
         if !(positive_finite(l0) && positive_finite(l1) && l1 * l1 >= 4.0 * l0) {
             return Err(s.field_error(
@@ -309,13 +398,22 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     }
     for (i, o) in sc.obstacles.iter().enumerate() {
         if !positive_finite(o.radius) {
-            return Err(s.field_error(&format!("obstacles[{i}].radius"), format!("expected a positive radius, found {}", o.radius)));
+            return Err(s.field_error(
+                &format!("obstacles[{i}].radius"),
+                format!("expected a positive radius, found {}", o.radius),
+            ));
         }
         if o.centre.iter().any(|v| !v.is_finite()) {
-            return Err(s.field_error(&format!("obstacles[{i}].centre"), "expected two finite coordinates"));
+            return Err(s.field_error(
+                &format!("obstacles[{i}].centre"),
+                "expected two finite coordinates",
+            ));
         }
         if !o.appear_at.is_finite() || o.appear_at < 0.0 {
-            return Err(s.field_error(&format!("obstacles[{i}].appear_at"), format!("expected a time >= 0, found {}", o.appear_at)));
+            return Err(s.field_error(
+                &format!("obstacles[{i}].appear_at"),
+                format!("expected a time >= 0, found {}", o.appear_at),
+            ));
         }
     }
     Ok(())
@@ -348,21 +446,42 @@ input = [1.0]
     fn unknown_key_is_named() {
         let text = format!("{MINIMAL}\n[control]\nperiod = 0.1\nrate = 3\n");
         let err = parse(&text, "t.toml", &[]).unwrap_err().to_string();
-        assert!(err.contains("t.toml") && err.contains("control") && err.contains("rate"), "{err}");
+        assert!(
+            err.contains("t.toml") && err.contains("control") && err.contains("rate"),
+            "{err}"
+        );
     }
 
     #[test]
     fn wrong_type_names_key_and_expectation() {
-        let err = parse(MINIMAL, "t.toml", &["duration='long'".into()]).unwrap_err().to_string();
-        assert!(err.contains("duration") && err.contains("expected"), "{err}");
+        let err = parse(MINIMAL, "t.toml", &["duration='long'".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("duration") && err.contains("expected"),
+            "{err}"
+        );
     }
 
     #[test]
     fn overrides_reach_nested_and_array_fields() {
-        let s = parse(MINIMAL, "t.toml", &["nominal.input=[2.5]".into(), "delays.acceleration=0.1".into()]).unwrap();
-        assert_eq!(s.nominal, NominalSpec::Constant { input: vec![2.5] });
+        let s = parse(
+            MINIMAL,
+            "t.toml",
+            &[
+                "nominal.input=[2.5]".into(),
+                "delays.acceleration=0.1".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!(
+            s.nominal,
+            NominalSpec::Constant(ConstantSpec { input: vec![2.5] })
+        );
         assert_eq!(s.delays["acceleration"], 0.1);
-        let err = parse(MINIMAL, "t.toml", &["nominal.input.3=1".into()]).unwrap_err().to_string();
+        let err = parse(MINIMAL, "t.toml", &["nominal.input.3=1".into()])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("out of range"), "{err}");
     }
 }

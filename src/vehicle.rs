@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use crate::mujoco::{DataView, Model, MjError, ObjKind, Simulation};
+use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
 
 /// The vehicle kinds mjsafe knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -13,8 +13,10 @@ pub enum VehicleKind {
     /// Kinematic bicycle (4.78): x = (x1, x2, heading, speed), u = (tan δ, acceleration).
     Bicycle,
     /// ẍ = u on a line: x = (position, velocity).
+    #[serde(rename = "double_integrator_1d")]
     DoubleIntegrator1d,
     /// ẍ = u in the plane: x = (x, y, vx, vy).
+    #[serde(rename = "double_integrator_2d")]
     DoubleIntegrator2d,
 }
 

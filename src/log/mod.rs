@@ -10,7 +10,8 @@ pub mod proto {
 }
 
 /// Serialized `FileDescriptorSet` of proto/mjsafe.proto, embedded as each channel's schema.
-pub const DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mjsafe_descriptor.bin"));
+pub const DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/mjsafe_descriptor.bin"));
 
 /// Schema version of the log contract in docs/log-format.md.
 pub const LOG_FORMAT_VERSION: &str = "1";

@@ -99,7 +99,8 @@ impl ObjKind {
 }
 
 /// Numerical integrator selected in the model (`<option integrator=…>`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Integrator {
     Euler,
     Rk4,
@@ -227,6 +228,16 @@ impl Model {
             x if x == ffi::mjtIntegrator::mjINT_IMPLICIT as i32 => Integrator::Implicit,
             _ => Integrator::Euler,
         }
+    }
+
+    pub fn set_integrator(&mut self, integrator: Integrator) {
+        let raw = match integrator {
+            Integrator::Euler => ffi::mjtIntegrator::mjINT_EULER,
+            Integrator::Rk4 => ffi::mjtIntegrator::mjINT_RK4,
+            Integrator::Implicit => ffi::mjtIntegrator::mjINT_IMPLICIT,
+        };
+        // SAFETY: ptr is live and uniquely borrowed.
+        unsafe { self.ptr.as_mut() }.opt.integrator = raw as i32;
     }
 
     /// Id of a named object, if it exists.

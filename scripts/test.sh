@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# README command 2: install what is missing (including the Python readers used as independent
+# checks), then run the whole test suite: format, lint, unit, integration and fidelity tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh --test
+export MJSAFE_PYTHON="${MJSAFE_VENV:-$HOME/.cache/mjsafe/venv}/bin/python"
+cargo fmt --check
+cargo clippy --quiet --all-targets -- -D warnings
+cargo test --all-targets -- --nocapture 2>&1 | tee "${MJSAFE_TEST_LOG:-/dev/null}"

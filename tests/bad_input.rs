@@ -1,0 +1,227 @@
+//! Bad input: a clear message naming the file, the key and what was expected, a non-zero
+//! exit, and nothing half-written left behind.
+
+mod common;
+use common::*;
+
+use std::path::Path;
+
+const BASE: &str = r#"
+name = "bad"
+duration = 1.0
+[vehicle]
+kind = "bicycle"
+model = "MODEL"
+initial_state = [-20.0, 0.0, 0.0, 3.0]
+[delays]
+steering = 0.2
+acceleration = 1.5
+[nominal]
+kind = "path_lqr"
+reference_speed = 3.0
+"#;
+
+fn base(model: &Path) -> String {
+    BASE.replace("MODEL", model.to_str().unwrap())
+}
+
+/// Runs the scenario text; asserts failure, that stderr has every `needle`, and that no
+/// log (or partial log) was left behind.
+fn expect_error(text: &str, needles: &[&str]) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let file = write(dir.path(), "case.toml", text);
+    let log = dir.path().join("out.mcap");
+    let o = mjsafe(&[
+        "run",
+        file.to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert!(
+        !o.status.success(),
+        "expected failure; stdout: {}",
+        stdout(&o)
+    );
+    for needle in needles {
+        assert!(err.contains(needle), "stderr lacks `{needle}`:\n{err}");
+    }
+    assert!(err.contains("case.toml"), "the file is named:\n{err}");
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(
+        leftovers,
+        vec![std::ffi::OsString::from("case.toml")],
+        "files left behind"
+    );
+    println!("{}", err.trim());
+    err
+}
+
+fn bicycle() -> std::path::PathBuf {
+    root().join("models/bicycle.xml")
+}
+
+#[test]
+fn malformed_toml() {
+    expect_error(
+        &format!("{}\n[filter\nkind = 1\n", base(&bicycle())),
+        &["invalid TOML", "line"],
+    );
+}
+
+#[test]
+fn unknown_key() {
+    expect_error(
+        &base(&bicycle()).replace("duration = 1.0", "duration = 1.0\nduraton = 2.0"),
+        &["duraton", "unknown field"],
+    );
+}
+
+#[test]
+fn missing_required_key() {
+    expect_error(
+        &base(&bicycle()).replace("duration = 1.0", ""),
+        &["missing field `duration`"],
+    );
+}
+
+#[test]
+fn wrong_type() {
+    expect_error(
+        &base(&bicycle()).replace("reference_speed = 3.0", "reference_speed = \"fast\""),
+        &["nominal.reference_speed", "expected f64"],
+    );
+}
+
+#[test]
+fn model_path_that_does_not_exist() {
+    expect_error(
+        &base(Path::new("/nonexistent/car.xml")),
+        &["vehicle.model", "/nonexistent/car.xml"],
+    );
+}
+
+#[test]
+fn model_that_mujoco_rejects_shows_mujocos_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "broken.xml",
+        "<mujoco><worldbody><geom type=\"sphere\"/></worldbody><bogus/></mujoco>",
+    );
+    expect_error(
+        &base(&model),
+        &["vehicle.model", "MuJoCo rejected", "bogus"],
+    );
+}
+
+#[test]
+fn negative_delay() {
+    expect_error(
+        &base(&bicycle()).replace("steering = 0.2", "steering = -0.2"),
+        &["delays.steering", ">= 0"],
+    );
+}
+
+#[test]
+fn delay_not_a_multiple_of_the_timestep() {
+    expect_error(
+        &base(&bicycle()).replace("steering = 0.2", "steering = 0.2013"),
+        &["delays.steering", "whole multiple of the timestep"],
+    );
+}
+
+#[test]
+fn unknown_channel_and_wrong_state_size() {
+    expect_error(
+        &base(&bicycle()).replace("steering = 0.2", "brake = 0.2"),
+        &["brake", "steering, acceleration"],
+    );
+    expect_error(
+        &base(&bicycle()).replace("[-20.0, 0.0, 0.0, 3.0]", "[1.0, 2.0]"),
+        &["vehicle.initial_state", "expected 4 values"],
+    );
+}
+
+#[test]
+fn obstacle_inside_the_vehicle_at_the_start() {
+    let text = format!(
+        "{}\n[[obstacles]]\ncentre = [-21.0, 0.0]\nradius = 1.0\n",
+        base(&bicycle())
+    );
+    expect_error(&text, &["obstacles[0]", "overlaps the vehicle"]);
+}
+
+#[test]
+fn bad_override() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = write(dir.path(), "case.toml", &base(&bicycle()));
+    let o = mjsafe(&["run", file.to_str().unwrap(), "--set", "duration=fast"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--set duration=fast") && stderr(&o).contains("not a TOML value"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn blow_up_during_a_run_stops_with_an_error_event_and_a_readable_log() {
+    // A huge initial acceleration on [-D, 0) drives the velocity past MuJoCo's limit (1e10)
+    // after about 1.1 s: MuJoCo would silently reset the state; mjsafe stops the episode.
+    let dir = tempfile::tempdir().unwrap();
+    let text = format!(
+        r#"
+name = "blowup"
+duration = 2.0
+[vehicle]
+kind = "double_integrator_1d"
+model = "{}"
+initial_state = [0.0, 0.0]
+[delays]
+acceleration = 1.5
+[initial_input]
+acceleration = 9e9
+[nominal]
+kind = "constant"
+input = [0.0]
+"#,
+        root().join("models/double_integrator_1d.xml").display()
+    );
+    let file = write(dir.path(), "blowup.toml", &text);
+    let log = dir.path().join("blowup.mcap");
+    let o = mjsafe(&[
+        "run",
+        file.to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "a blown-up run exits non-zero");
+    assert!(stderr(&o).contains("stopped early"), "{}", stderr(&o));
+    // The log is finished, readable, and says what happened.
+    let m = analyze_json(&log);
+    assert_eq!(m["complete"], false);
+    let error = m["error"].as_str().unwrap();
+    assert!(error.contains("qvel"), "{error}");
+    let stopped_at = m["simulated_time"].as_f64().unwrap();
+    assert!(
+        stopped_at > 1.0 && stopped_at < 1.5,
+        "stopped at {stopped_at}"
+    );
+    let o = std::process::Command::new(python())
+        .arg(root().join("tests/read_log.py"))
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "python reader: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let digest: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let events = digest["events"].as_array().unwrap();
+    assert_eq!(events.last().unwrap()["kind"], "error");
+}

@@ -1,0 +1,77 @@
+//! Helpers shared by the integration tests: drive the real `mjsafe` binary.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+pub fn scenario(name: &str) -> PathBuf {
+    root().join("scenarios").join(name)
+}
+
+/// Runs `mjsafe ARGS` in the repository root.
+pub fn mjsafe(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("mjsafe binary runs")
+}
+
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Runs a scenario into `out`, asserting success; returns stdout.
+pub fn run_ok(scenario: &Path, out: &Path, extra: &[&str]) -> String {
+    let mut args = vec![
+        "run",
+        scenario.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = mjsafe(&args);
+    assert!(
+        o.status.success(),
+        "mjsafe run failed:\nstdout: {}\nstderr: {}",
+        stdout(&o),
+        stderr(&o)
+    );
+    stdout(&o)
+}
+
+/// `mjsafe analyze --json FILE` parsed.
+pub fn analyze_json(file: &Path) -> serde_json::Value {
+    let o = mjsafe(&["analyze", "--json", file.to_str().unwrap()]);
+    assert!(o.status.success(), "analyze failed: {}", stderr(&o));
+    let runs: serde_json::Value =
+        serde_json::from_str(&stdout(&o)).expect("analyze --json prints JSON");
+    runs[0].clone()
+}
+
+/// The Python interpreter with the `mcap` readers (set by scripts/test.sh).
+pub fn python() -> String {
+    std::env::var("MJSAFE_PYTHON").unwrap_or_else(|_| {
+        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/venv/bin/python";
+        assert!(
+            Path::new(&venv).exists(),
+            "no Python with the mcap readers: run scripts/test.sh (it creates {venv}) or set MJSAFE_PYTHON"
+        );
+        venv
+    })
+}
+
+/// A text file written into a temporary directory.
+pub fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}

@@ -1,0 +1,189 @@
+//! The MCAP log: read by an independent reader (Python `mcap`, CRCs validated, messages
+//! decoded from the embedded schemas), byte-identical for equal inputs, and what `analyze`
+//! does with files that are not good mjsafe logs.
+
+mod common;
+use common::*;
+
+use std::process::Command;
+
+fn python_digest(log: &std::path::Path) -> serde_json::Value {
+    let o = Command::new(python())
+        .arg(root().join("tests/read_log.py"))
+        .arg(log)
+        .output()
+        .expect("python runs");
+    assert!(
+        o.status.success(),
+        "python reader failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+#[test]
+fn python_mcap_reads_and_decodes_the_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("run.mcap");
+    run_ok(&scenario("bicycle_obstacle.toml"), &log, &[]);
+    let d = python_digest(&log);
+
+    for (topic, schema) in [
+        ("/state", "mjsafe.State"),
+        ("/command/issued", "mjsafe.IssuedCommand"),
+        ("/command/applied", "mjsafe.AppliedCommand"),
+        ("/barrier", "mjsafe.Barrier"),
+        ("/filter", "mjsafe.Filter"),
+        ("/event", "mjsafe.Event"),
+    ] {
+        assert_eq!(d["schemas"][topic], schema, "{topic}");
+        assert_eq!(
+            d["encodings"][topic],
+            serde_json::json!(["protobuf", "protobuf"]),
+            "{topic}"
+        );
+    }
+    // 12 s at h = 0.002: 6000 steps, 6001 states, one tick per step.
+    assert_eq!(d["counts"]["/state"], 6001);
+    assert_eq!(d["counts"]["/command/issued"], 6000);
+    assert_eq!(d["counts"]["/command/applied"], 6000);
+    let first = &d["first_state"];
+    assert_eq!(
+        first["names"],
+        serde_json::json!(["x1", "x2", "heading", "speed"])
+    );
+    assert_eq!(first["values"], serde_json::json!([-20.0, 0.0, 0.0, 3.0]));
+    assert!((d["last_state"]["time"].as_f64().unwrap() - 12.0).abs() < 1e-9);
+
+    // Metadata: scenario text, versions.
+    let meta = &d["metadata"]["mjsafe"];
+    assert_eq!(meta["mujoco_version"], "2.2.2");
+    assert_eq!(meta["mjsafe_version"], env!("CARGO_PKG_VERSION"));
+    let text = std::fs::read_to_string(scenario("bicycle_obstacle.toml")).unwrap();
+    assert_eq!(meta["scenario"], text.as_str());
+    assert_eq!(d["metadata"]["mjsafe_status"]["complete"], "true");
+
+    // Events: the obstacle appears at 2.75 s, then a collision.
+    let events = d["events"].as_array().unwrap();
+    assert_eq!(events[0]["kind"], "obstacle_appeared");
+    assert!((events[0]["time"].as_f64().unwrap() - 2.75).abs() < 1e-9);
+    assert!(events.iter().any(|e| e["kind"] == "collision_start"));
+    assert_eq!(events.last().unwrap()["kind"], "episode_end");
+
+    // Delays: the acceleration command issued at t arrives at t + 1.5 and steering at t + 0.2;
+    // before that the initial input (issued_at = -D) applies.
+    let applied = d["applied"].as_array().unwrap();
+    let at = |t: f64| {
+        applied
+            .iter()
+            .find(|a| (a["time"].as_f64().unwrap() - t).abs() < 1e-9)
+            .unwrap()
+    };
+    assert_eq!(at(1.0)["issued_at"], serde_json::json!([0.8, -1.5]));
+    let a = at(5.0);
+    let issued_at: Vec<f64> = a["issued_at"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        (issued_at[0] - 4.8).abs() < 1e-9 && (issued_at[1] - 3.5).abs() < 1e-9,
+        "{issued_at:?}"
+    );
+    // The applied values equal the filtered commands issued then.
+    let issued = d["issued"].as_array().unwrap();
+    let issued_when = |t: f64| {
+        issued
+            .iter()
+            .find(|i| (i["time"].as_f64().unwrap() - t).abs() < 1e-9)
+            .unwrap()
+    };
+    assert_eq!(a["values"][0], issued_when(4.8)["filtered"][0]);
+    assert_eq!(a["values"][1], issued_when(3.5)["filtered"][1]);
+
+    // Barrier: unknown before 2.75 s, known after.
+    let barrier = d["barrier"].as_array().unwrap();
+    assert_eq!(barrier[0]["known"], serde_json::json!([false]));
+    assert_eq!(barrier.last().unwrap()["known"], serde_json::json!([true]));
+}
+
+#[test]
+fn same_inputs_give_byte_identical_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.mcap");
+    let b = dir.path().join("b.mcap");
+    run_ok(&scenario("bicycle_obstacle.toml"), &a, &[]);
+    run_ok(&scenario("bicycle_obstacle.toml"), &b, &[]);
+    assert!(
+        std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(),
+        "logs differ"
+    );
+    // And a different input gives a different log.
+    let c = dir.path().join("c.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle.toml"),
+        &c,
+        &["--set", "delays.steering=0.4"],
+    );
+    assert!(std::fs::read(&a).unwrap() != std::fs::read(&c).unwrap());
+}
+
+#[test]
+fn analyze_reports_good_files_and_names_bad_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.mcap");
+    run_ok(&scenario("bicycle_obstacle_nodelay.toml"), &good, &[]);
+    let bytes = std::fs::read(&good).unwrap();
+    let truncated = write(dir.path(), "truncated.mcap", "");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let not_mcap = write(dir.path(), "notes.mcap", "this is not an MCAP file\n");
+    // A valid MCAP that is not an mjsafe log.
+    let foreign = dir.path().join("foreign.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&foreign).unwrap(),
+        ))
+        .unwrap();
+        let ch = w
+            .add_channel(0, "/chatter", "json", &Default::default())
+            .unwrap();
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: 1,
+                log_time: 1,
+                publish_time: 1,
+            },
+            b"{}",
+        )
+        .unwrap();
+        w.finish().unwrap();
+    }
+    let o = mjsafe(&[
+        "analyze",
+        good.to_str().unwrap(),
+        truncated.to_str().unwrap(),
+        not_mcap.to_str().unwrap(),
+        foreign.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "bad files must give a non-zero exit");
+    let out = stdout(&o);
+    let err = stderr(&o);
+    assert!(
+        out.contains("good.mcap") && out.contains("bicycle_obstacle_nodelay"),
+        "good file still reported: {out}"
+    );
+    assert!(
+        err.contains("truncated.mcap") && err.contains("truncated or corrupt"),
+        "{err}"
+    );
+    assert!(
+        err.contains("notes.mcap") && err.contains("not a readable MCAP"),
+        "{err}"
+    );
+    assert!(
+        err.contains("foreign.mcap") && err.contains("not an mjsafe log"),
+        "{err}"
+    );
+}
