@@ -11,9 +11,7 @@ fn main() {
         "/usr/lib",
         "/usr/local/lib",
     ];
-    let found = lib_dirs
-        .iter()
-        .find(|dir| Path::new(dir).join("libmujoco.so").exists());
+    let found = lib_dirs.iter().find(|dir| Path::new(dir).join("libmujoco.so").exists());
     match found {
         Some(dir) => println!("cargo:rustc-link-search=native={dir}"),
         None => panic!(

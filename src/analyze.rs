@@ -13,10 +13,7 @@ use crate::log::{proto, TOPICS};
 #[derive(Debug, thiserror::Error)]
 pub enum AnalyzeError {
     #[error("{file}: cannot read: {source}")]
-    Io {
-        file: String,
-        source: std::io::Error,
-    },
+    Io { file: String, source: std::io::Error },
     #[error("{file}: not a readable MCAP file ({message})")]
     NotMcap { file: String, message: String },
     #[error("{file}: truncated or corrupt MCAP after {messages} messages ({message})")]
@@ -47,6 +44,17 @@ pub struct Collision {
     pub depth: f64,
 }
 
+/// Prediction consistency of one channel: |p_i(t) − x(φ_i⁻¹(t))| over the run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct PredictionStats {
+    pub count: u64,
+    pub max_error: f64,
+    pub rms_error: f64,
+    pub max_relative_error: f64,
+    #[serde(skip)]
+    sum_squares: f64,
+}
+
 /// Per-run metrics (see docs/log-format.md for the topics they come from).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunMetrics {
@@ -66,6 +74,8 @@ pub struct RunMetrics {
     pub filter_infeasible_ticks: u64,
     /// max |u − u_nom| per channel over the run.
     pub max_correction: BTreeMap<String, f64>,
+    /// Prediction consistency (Definition 4.3) per channel, from /prediction.
+    pub prediction: BTreeMap<String, PredictionStats>,
     /// Whether the run finished (false: stopped by an error or interrupted).
     pub complete: bool,
     pub error: Option<String>,
@@ -95,17 +105,19 @@ struct Accumulator {
     active_ticks: u64,
     infeasible_ticks: u64,
     max_correction: BTreeMap<String, f64>,
+    prediction: BTreeMap<String, PredictionStats>,
     complete: Option<bool>,
     error: Option<String>,
 }
 
 /// Analyses log bytes; `file` names them in errors.
 pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
-    let reader = ChunkFlattener::new_with_options(bytes, Options::ValidateChunkCrcs.into())
-        .map_err(|e| AnalyzeError::NotMcap {
+    let reader = ChunkFlattener::new_with_options(bytes, Options::ValidateChunkCrcs.into()).map_err(|e| {
+        AnalyzeError::NotMcap {
             file: file.into(),
             message: e.to_string(),
-        })?;
+        }
+    })?;
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();
     let mut acc = Accumulator::default();
@@ -172,13 +184,7 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
 }
 
 impl Accumulator {
-    fn add(
-        &mut self,
-        topic: &str,
-        schema: &str,
-        data: &[u8],
-        file: &str,
-    ) -> Result<(), AnalyzeError> {
+    fn add(&mut self, topic: &str, schema: &str, data: &[u8], file: &str) -> Result<(), AnalyzeError> {
         let decode_error = |e: prost::DecodeError| AnalyzeError::Decode {
             file: file.into(),
             topic: topic.into(),
@@ -211,6 +217,14 @@ impl Accumulator {
                     let entry = self.max_correction.entry(channel.clone()).or_insert(0.0);
                     *entry = entry.max(c.abs());
                 }
+            }
+            "/prediction" => {
+                let m = proto::Prediction::decode(data).map_err(decode_error)?;
+                let stats = self.prediction.entry(m.channel).or_default();
+                stats.count += 1;
+                stats.max_error = stats.max_error.max(m.error);
+                stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
+                stats.sum_squares += m.error * m.error;
             }
             "/event" => {
                 let m = proto::Event::decode(data).map_err(decode_error)?;
@@ -259,6 +273,14 @@ impl Accumulator {
             },
             filter_infeasible_ticks: self.infeasible_ticks,
             max_correction: self.max_correction,
+            prediction: self
+                .prediction
+                .into_iter()
+                .map(|(channel, mut stats)| {
+                    stats.rms_error = (stats.sum_squares / stats.count.max(1) as f64).sqrt();
+                    (channel, stats)
+                })
+                .collect(),
             complete: self.complete.unwrap_or(false) && self.error.is_none(),
             error: self.error,
         }
@@ -277,6 +299,7 @@ pub fn table(runs: &[RunMetrics]) -> String {
         "t_h<0_s",
         "filter_active",
         "max|u-u_nom|",
+        "prediction_err_max/rms",
         "status",
     ];
     let mut rows: Vec<Vec<String>> = vec![header.iter().map(|s| s.to_string()).collect()];
@@ -297,6 +320,15 @@ pub fn table(runs: &[RunMetrics]) -> String {
                 .map(|(c, v)| format!("{c}={v:.3}"))
                 .collect::<Vec<_>>()
                 .join(" "),
+            if r.prediction.is_empty() {
+                "-".to_string()
+            } else {
+                r.prediction
+                    .iter()
+                    .map(|(c, p)| format!("{c}={:.1e}/{:.1e}", p.max_error, p.rms_error))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            },
             match (&r.error, r.complete) {
                 (Some(e), _) => format!("error: {e}"),
                 (None, true) => "complete".into(),

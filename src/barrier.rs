@@ -1,50 +1,145 @@
-//! Control barrier functions and their constraint data a(x), b(x) for the CBF-QP
+//! Control barrier functions h(x) and their constraint data a(x), b(x) for the CBF-QP
 //! (4.6)–(4.8), including the relative-degree-2 form (4.82)–(4.86).
 
 use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
 
-use crate::vehicle::Vehicle;
+use crate::vehicle::Dynamics;
 
-/// Circular obstacle (4.81): h(x) = (p1 − c1)² + (p2 − c2)² − r², with p the vehicle's planar
-/// position and r the sum of the vehicle's and the obstacle's radii.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CircularObstacle {
-    pub name: String,
-    pub centre: [f64; 2],
-    /// r in (4.81): vehicle hull radius + obstacle radius.
-    pub radius_sum: f64,
-    /// Indices of the planar position in the state vector.
-    pub position: [usize; 2],
+/// The shape of a barrier's safe set (scenario `[[barriers]]`, with `kind = "ball"` or
+/// `kind = "half_space"`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Shape {
+    /// Distance from a ball in selected state components: outside, h = ‖x_S − c‖² − r²
+    /// ((4.81) for a circular obstacle), or inside, h = r² − ‖x_S − c‖² ((2.32)).
+    Ball {
+        indices: Vec<usize>,
+        centre: Vec<f64>,
+        radius: f64,
+        #[serde(default)]
+        inside: bool,
+    },
+    /// Half-space h = cᵀx + d ((2.47): h = x − x_bdry).
+    HalfSpace { coefficients: Vec<f64>, offset: f64 },
 }
 
-impl CircularObstacle {
-    pub fn h(&self, x: &DVector<f64>) -> f64 {
-        let dx = x[self.position[0]] - self.centre[0];
-        let dy = x[self.position[1]] - self.centre[1];
-        dx * dx + dy * dy - self.radius_sum * self.radius_sum
+/// A named barrier function.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Barrier {
+    pub name: String,
+    pub shape: Shape,
+}
+
+impl Barrier {
+    /// A circular obstacle (4.81) centred at `centre`, with r the sum of the radii.
+    pub fn circular_obstacle(name: &str, position: [usize; 2], centre: [f64; 2], radius_sum: f64) -> Barrier {
+        Barrier {
+            name: name.to_string(),
+            shape: Shape::Ball {
+                indices: position.to_vec(),
+                centre: centre.to_vec(),
+                radius: radius_sum,
+                inside: false,
+            },
+        }
     }
 
-    /// Distance between the two circles' boundaries (negative when overlapping).
+    /// Largest state index the barrier reads.
+    pub fn max_index(&self) -> usize {
+        match &self.shape {
+            Shape::Ball { indices, .. } => indices.iter().copied().max().unwrap_or(0),
+            Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
+        }
+    }
+
+    pub fn h(&self, x: &DVector<f64>) -> f64 {
+        match &self.shape {
+            Shape::Ball {
+                indices,
+                centre,
+                radius,
+                inside,
+            } => {
+                let d2: f64 = indices.iter().zip(centre).map(|(&i, c)| (x[i] - c).powi(2)).sum();
+                let h = d2 - radius * radius;
+                if *inside {
+                    -h
+                } else {
+                    h
+                }
+            }
+            Shape::HalfSpace { coefficients, offset } => {
+                coefficients.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + offset
+            }
+        }
+    }
+
+    /// Signed distance to the boundary for an outside ball (negative when overlapping).
     pub fn clearance(&self, x: &DVector<f64>) -> f64 {
-        let dx = x[self.position[0]] - self.centre[0];
-        let dy = x[self.position[1]] - self.centre[1];
-        dx.hypot(dy) - self.radius_sum
+        match &self.shape {
+            Shape::Ball {
+                indices,
+                centre,
+                radius,
+                inside,
+            } => {
+                let d = indices
+                    .iter()
+                    .zip(centre)
+                    .map(|(&i, c)| (x[i] - c).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                if *inside {
+                    radius - d
+                } else {
+                    d - radius
+                }
+            }
+            Shape::HalfSpace { coefficients, .. } => {
+                self.h(x)
+                    / coefficients
+                        .iter()
+                        .map(|c| c * c)
+                        .sum::<f64>()
+                        .sqrt()
+                        .max(f64::MIN_POSITIVE)
+            }
+        }
     }
 
     /// ∇h(x).
     pub fn gradient(&self, x: &DVector<f64>) -> DVector<f64> {
         let mut g = DVector::zeros(x.len());
-        for (axis, &i) in self.position.iter().enumerate() {
-            g[i] = 2.0 * (x[i] - self.centre[axis]);
+        match &self.shape {
+            Shape::Ball {
+                indices,
+                centre,
+                inside,
+                ..
+            } => {
+                let sign = if *inside { -2.0 } else { 2.0 };
+                for (&i, c) in indices.iter().zip(centre) {
+                    g[i] = sign * (x[i] - c);
+                }
+            }
+            Shape::HalfSpace { coefficients, .. } => {
+                for (i, c) in coefficients.iter().enumerate() {
+                    g[i] = *c;
+                }
+            }
         }
         g
     }
 
-    /// ∇²h(x): 2 on the position block.
+    /// ∇²h (constant for these shapes).
     pub fn hessian(&self, n: usize) -> DMatrix<f64> {
         let mut hess = DMatrix::zeros(n, n);
-        for &i in &self.position {
-            hess[(i, i)] = 2.0;
+        if let Shape::Ball { indices, inside, .. } = &self.shape {
+            let sign = if *inside { -2.0 } else { 2.0 };
+            for &i in indices {
+                hess[(i, i)] = sign;
+            }
         }
         hess
     }
@@ -84,7 +179,7 @@ impl Constraint {
     }
 }
 
-/// Lie derivatives of a circular-obstacle barrier along the vehicle's model.
+/// Lie derivatives of a barrier along a control-affine model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LieDerivatives {
     pub h: f64,
@@ -94,16 +189,12 @@ pub struct LieDerivatives {
     pub lg_lf_h: DVector<f64>,
 }
 
-pub fn lie_derivatives(
-    barrier: &CircularObstacle,
-    vehicle: &dyn Vehicle,
-    x: &DVector<f64>,
-) -> LieDerivatives {
-    let f = vehicle.drift(x);
-    let g = vehicle.input_matrix(x);
+pub fn lie_derivatives(barrier: &Barrier, model: &dyn Dynamics, x: &DVector<f64>) -> LieDerivatives {
+    let f = model.drift(x);
+    let g = model.input_matrix(x);
     let grad_h = barrier.gradient(x);
     // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
-    let grad_lf_h = barrier.hessian(x.len()) * &f + vehicle.drift_jacobian(x).transpose() * &grad_h;
+    let grad_lf_h = barrier.hessian(x.len()) * &f + model.drift_jacobian(x).transpose() * &grad_h;
     LieDerivatives {
         h: barrier.h(x),
         lf_h: grad_h.dot(&f),
@@ -114,13 +205,8 @@ pub fn lie_derivatives(
 }
 
 /// The constraint data (a, b) of `barrier` in `form` at state x.
-pub fn constraint(
-    barrier: &CircularObstacle,
-    form: BarrierForm,
-    vehicle: &dyn Vehicle,
-    x: &DVector<f64>,
-) -> Constraint {
-    let lie = lie_derivatives(barrier, vehicle, x);
+pub fn constraint(barrier: &Barrier, form: BarrierForm, model: &dyn Dynamics, x: &DVector<f64>) -> Constraint {
+    let lie = lie_derivatives(barrier, model, x);
     match form {
         BarrierForm::RelativeDegree1 { alpha } => Constraint {
             h: lie.h,
@@ -132,5 +218,46 @@ pub fn constraint(
             a: lie.lf2_h + l1 * lie.lf_h + l0 * lie.h,
             b: lie.lg_lf_h,
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vehicle::{BicycleModel, LinearModel};
+
+    #[test]
+    fn bicycle_lie_derivatives_match_4_88_to_4_90() {
+        let model = BicycleModel::new(6.0);
+        let b = Barrier::circular_obstacle("o", [0, 1], [-3.0, 0.5], 6.0);
+        let x = DVector::from_column_slice(&[-11.0, 0.7, 0.3, 2.5]);
+        let (dx, dy, th, v) = (x[0] + 3.0, x[1] - 0.5, x[2], x[3]);
+        let lie = lie_derivatives(&b, &model, &x);
+        let lf_h = 2.0 * dx * v * th.cos() + 2.0 * dy * v * th.sin(); // (4.88)
+        let lg1 = -2.0 / 6.0 * dx * v * v * th.sin() + 2.0 / 6.0 * dy * v * v * th.cos(); // (4.90)
+        let lg2 = 2.0 * dx * th.cos() + 2.0 * dy * th.sin();
+        assert!((lie.lf_h - lf_h).abs() < 1e-12);
+        assert!((lie.lf2_h - 2.0 * v * v).abs() < 1e-12); // (4.89)
+        assert!((lie.lg_lf_h[0] - lg1).abs() < 1e-12 && (lie.lg_lf_h[1] - lg2).abs() < 1e-12);
+        assert!((lie.lf_h - v * lie.lg_lf_h[1]).abs() < 1e-12); // (4.91)
+    }
+
+    #[test]
+    fn scalar_interval_barrier_matches_2_33_and_2_34() {
+        let model = LinearModel::new(DMatrix::from_element(1, 1, 1.0), DMatrix::from_element(1, 1, 1.0));
+        let b = Barrier {
+            name: "interval".into(),
+            shape: Shape::Ball {
+                indices: vec![0],
+                centre: vec![0.0],
+                radius: 2.0,
+                inside: true,
+            },
+        };
+        let x = DVector::from_element(1, 1.3);
+        let lie = lie_derivatives(&b, &model, &x);
+        assert!((lie.h - (4.0 - 1.69)).abs() < 1e-12); // (2.32)
+        assert!((lie.lf_h + 2.0 * 1.69).abs() < 1e-12); // (2.33)
+        assert!((lie.lg_h[0] + 2.6).abs() < 1e-12); // (2.34)
     }
 }

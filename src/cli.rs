@@ -72,8 +72,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
 fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
     let mut episode = Episode::new(&loaded)?;
-    let log_path =
-        out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
+    let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
     let mut sink = McapSink::create(&log_path, episode.info())?;
     let summary = {
         let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
@@ -98,9 +97,7 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
         log_path.display()
     );
     if let Some(error) = summary.error {
-        eprintln!(
-            "error: the episode stopped early: {error} (the log holds the run up to that point)"
-        );
+        eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
         return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
@@ -119,10 +116,7 @@ fn analyze_files(files: &[PathBuf], json: bool) -> ExitCode {
         }
     }
     if json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&runs).expect("metrics serialise")
-        );
+        println!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise"));
     } else if !runs.is_empty() {
         println!("{}", analyze::table(&runs));
     }

@@ -1,44 +1,282 @@
-//! Actuator delay queues: one per input channel, each with its own constant delay D_i.
+//! Actuator delays: per-channel delay profiles D(t) with delay time φ(t) = t − D(t) (2.2) and
+//! prediction time φ⁻¹(t), and the delay queue that turns issued commands into the applied
+//! input u(φ(t)).
 //!
-//! A command issued at tick time t reaches the actuator at exactly t + D_i and is held
-//! (zero-order hold) until the next command arrives. Before any command has arrived, the
-//! channel applies its initial input function on [−D_i, 0) ((4.79)/(4.80); constant,
-//! zero by default).
+//! A command issued at tick time s reaches the actuator at φ⁻¹(s) (for a constant delay,
+//! s + D) and is held (zero-order hold) until the next command arrives. Before any command
+//! has arrived, the channel applies its initial input function on [φ(0), 0) ((4.79)/(4.80);
+//! constant, zero by default).
 
 use std::collections::VecDeque;
+
+use serde::{Deserialize, Serialize};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DelayError {
     #[error("delay of channel `{channel}` is {delay} s: it must be finite and >= 0")]
     Negative { channel: String, delay: f64 },
     #[error("delay of channel `{channel}` is {delay} s: it must be a whole multiple of the timestep {timestep} s")]
-    NotMultiple {
+    NotMultiple { channel: String, delay: f64, timestep: f64 },
+    #[error("delay profile of channel `{channel}` has a non-finite or invalid parameter: {what}")]
+    BadParameter { channel: String, what: String },
+    #[error("delay profile of channel `{channel}` breaks {condition} at t = {time:.6} s")]
+    Assumption {
         channel: String,
-        delay: f64,
-        timestep: f64,
+        condition: &'static str,
+        time: f64,
     },
+    #[error("channel `{channel}`: the delay reaches {delay:.4} s, longer than the {history} s of input history kept (control.history)")]
+    HistoryTooShort { channel: String, delay: f64, history: f64 },
     #[error("channel `{channel}`: command issued at t = {time} is not after the previous one at t = {previous}")]
-    OutOfOrder {
-        channel: String,
-        time: f64,
-        previous: f64,
-    },
+    OutOfOrder { channel: String, time: f64, previous: f64 },
     #[error("channel `{channel}`: input at t = {time} needs history from t = {needed}, which was already discarded")]
-    HistoryGone {
-        channel: String,
-        time: f64,
-        needed: f64,
-    },
+    HistoryGone { channel: String, time: f64, needed: f64 },
 }
 
-/// Relative tolerance, in timesteps, for "is a whole multiple" and for comparing tick times.
+/// How one channel's delay varies with time (scenario key `delays.<channel>`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum DelayProfile {
+    /// D(t) = D, written as a plain number.
+    Constant(f64),
+    /// A time-varying profile, written as a table with `profile = …`.
+    Varying(VaryingDelay),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "profile", rename_all = "snake_case", deny_unknown_fields)]
+pub enum VaryingDelay {
+    /// φ⁻¹(t) = t + a + b cos(ω t), the form of (2.31) (a = 1, b = 1/2, ω = 1 there).
+    CosinePrediction { a: f64, b: f64, omega: f64 },
+    /// φ(t) = t − (1 + t)/(1 + 2t) (2.37), with φ' (2.38) and φ⁻¹ (2.39) in closed form.
+    Rational,
+    /// D(t) piecewise linear through (times[k], delays[k]); constant beyond the ends.
+    Table { times: Vec<f64>, delays: Vec<f64> },
+}
+
+/// Absolute tolerance of the root finder for φ and φ⁻¹ (seconds).
+pub const ROOT_TOLERANCE: f64 = 1e-13;
+
+impl DelayProfile {
+    pub fn constant(delay: f64) -> DelayProfile {
+        DelayProfile::Constant(delay)
+    }
+
+    /// Some(D) for a constant delay.
+    pub fn constant_delay(&self) -> Option<f64> {
+        match self {
+            DelayProfile::Constant(d) => Some(*d),
+            DelayProfile::Varying(_) => None,
+        }
+    }
+
+    /// D(t) = t − φ(t).
+    pub fn delay(&self, t: f64) -> f64 {
+        t - self.delay_time(t)
+    }
+
+    /// Delay time φ(t) (2.2): when the input arriving at t was issued.
+    pub fn delay_time(&self, t: f64) -> f64 {
+        match self {
+            DelayProfile::Constant(d) => t - d,
+            DelayProfile::Varying(VaryingDelay::Rational) => t - (1.0 + t) / (1.0 + 2.0 * t),
+            DelayProfile::Varying(VaryingDelay::Table { times, delays }) => t - table_delay(times, delays, t),
+            // φ = (φ⁻¹)⁻¹: solve φ⁻¹(s) = t for s by Newton's method ((φ⁻¹)' = 1 − bω sin ωs
+            // > 0 is checked at load time), with bisection as the fallback.
+            DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) => {
+                let mut s = t - a - b * (omega * (t - a)).cos();
+                for _ in 0..50 {
+                    let residual = s + a + b * (omega * s).cos() - t;
+                    if residual.abs() < ROOT_TOLERANCE {
+                        return s;
+                    }
+                    let slope = 1.0 - b * omega * (omega * s).sin();
+                    if slope.is_nan() || slope <= 1e-3 {
+                        break;
+                    }
+                    s -= residual / slope;
+                }
+                invert_increasing(|s| self.prediction_time(s), t, t - a - b.abs() - 1.0, t)
+            }
+        }
+    }
+
+    /// Prediction time φ⁻¹(t): when a command issued at t arrives.
+    pub fn prediction_time(&self, t: f64) -> f64 {
+        match self {
+            DelayProfile::Constant(d) => t + d,
+            DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) => t + a + b * (omega * t).cos(),
+            DelayProfile::Varying(VaryingDelay::Rational) => (t + (1.0 + (1.0 + t) * (1.0 + t)).sqrt()) / 2.0,
+            DelayProfile::Varying(VaryingDelay::Table { delays, .. }) => {
+                let longest = delays.iter().cloned().fold(0.0, f64::max);
+                invert_increasing(|s| self.delay_time(s), t, t, t + longest + 1.0)
+            }
+        }
+    }
+
+    /// φ'(t).
+    pub fn delay_time_derivative(&self, t: f64) -> f64 {
+        match self {
+            DelayProfile::Constant(_) => 1.0,
+            DelayProfile::Varying(VaryingDelay::Rational) => 1.0 + 1.0 / ((1.0 + 2.0 * t) * (1.0 + 2.0 * t)),
+            DelayProfile::Varying(VaryingDelay::Table { times, delays }) => 1.0 - table_slope(times, delays, t),
+            DelayProfile::Varying(VaryingDelay::CosinePrediction { b, omega, .. }) => {
+                // φ' = 1 / (φ⁻¹)'(φ(t)), (φ⁻¹)'(s) = 1 − b ω sin(ω s).
+                let s = self.delay_time(t);
+                1.0 / (1.0 - b * omega * (omega * s).sin())
+            }
+        }
+    }
+
+    /// Checks the parameters and Assumptions 1 and 2 of Ch. 2 ((2.4)–(2.7)) on [0, horizon]
+    /// (sampled every `step`), and that the delay never exceeds `history`. A constant delay
+    /// may be 0 (the delay-free case); a time-varying one must stay > 0.
+    pub fn check(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
+        let bad = |what: String| DelayError::BadParameter {
+            channel: channel.into(),
+            what,
+        };
+        match self {
+            DelayProfile::Constant(d) => {
+                if !d.is_finite() || *d < 0.0 {
+                    return Err(DelayError::Negative {
+                        channel: channel.into(),
+                        delay: *d,
+                    });
+                }
+            }
+            DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) => {
+                if !(a.is_finite() && b.is_finite() && omega.is_finite()) {
+                    return Err(bad(format!("a = {a}, b = {b}, omega = {omega}")));
+                }
+            }
+            DelayProfile::Varying(VaryingDelay::Rational) => {}
+            DelayProfile::Varying(VaryingDelay::Table { times, delays }) => {
+                if times.is_empty() || times.len() != delays.len() {
+                    return Err(bad(format!(
+                        "times and delays need the same, non-zero length ({} and {})",
+                        times.len(),
+                        delays.len()
+                    )));
+                }
+                if times.iter().chain(delays).any(|v| !v.is_finite()) {
+                    return Err(bad("times and delays must be finite numbers".into()));
+                }
+                if times.windows(2).any(|w| w[1] <= w[0]) {
+                    return Err(bad("times must be strictly increasing".into()));
+                }
+            }
+        }
+        let varying = self.constant_delay().is_none();
+        if let DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) = self {
+            // φ is defined through φ⁻¹, so (2.6) is (φ⁻¹)'(s) = 1 − b ω sin(ω s) > 0 for every
+            // issue time s in [φ(0), horizon] (φ(0) >= −a − |b|).
+            let first = -a - b.abs();
+            let samples = ((horizon - first) / step).ceil().max(0.0) as usize;
+            for k in 0..=samples {
+                let s = first + k as f64 * step;
+                if 1.0 - b * omega * (omega * s).sin() <= 0.0 {
+                    return Err(DelayError::Assumption {
+                        channel: channel.into(),
+                        condition: "(2.6) phi'(t) > 0 (here: d/ds phi^-1(s) = 1 - b omega sin(omega s) > 0)",
+                        time: s,
+                    });
+                }
+            }
+        }
+        let samples = (horizon / step).ceil() as usize;
+        for k in 0..=samples {
+            let t = (k as f64 * step).min(horizon);
+            let d = self.delay(t);
+            let fail = |condition| {
+                Err(DelayError::Assumption {
+                    channel: channel.into(),
+                    condition,
+                    time: t,
+                })
+            };
+            if !d.is_finite() {
+                return fail("finiteness of D(t)");
+            }
+            if varying && d <= 0.0 {
+                return fail("(2.4) phi(t) < t, i.e. D(t) > 0");
+            }
+            if d > history {
+                return Err(DelayError::HistoryTooShort {
+                    channel: channel.into(),
+                    delay: d,
+                    history,
+                });
+            }
+            let dphi = self.delay_time_derivative(t);
+            if dphi.is_nan() || dphi <= 0.0 {
+                return fail("(2.6) phi'(t) > 0, i.e. dD/dt < 1");
+            }
+            if !dphi.is_finite() || dphi > 1e6 {
+                return fail("(2.7) phi'(t) bounded");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// D(t) of a piecewise-linear table, constant beyond its ends.
+fn table_delay(times: &[f64], delays: &[f64], t: f64) -> f64 {
+    let k = times.partition_point(|&s| s <= t);
+    if k == 0 {
+        return delays[0];
+    }
+    if k == times.len() {
+        return delays[times.len() - 1];
+    }
+    let w = (t - times[k - 1]) / (times[k] - times[k - 1]);
+    delays[k - 1] + w * (delays[k] - delays[k - 1])
+}
+
+/// dD/dt of the table (right derivative at knots; 0 beyond the ends).
+fn table_slope(times: &[f64], delays: &[f64], t: f64) -> f64 {
+    let k = times.partition_point(|&s| s <= t);
+    if k == 0 || k == times.len() {
+        return 0.0;
+    }
+    (delays[k] - delays[k - 1]) / (times[k] - times[k - 1])
+}
+
+/// Solves g(s) = target for an increasing g by bisection on [lo, hi] (expanded if needed).
+fn invert_increasing(g: impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) -> f64 {
+    let mut span = (hi - lo).max(1.0);
+    while g(lo) > target {
+        lo -= span;
+        span *= 2.0;
+    }
+    while g(hi) < target {
+        hi += span;
+        span *= 2.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if g(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < ROOT_TOLERANCE {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Tolerance, as a fraction of the timestep, for comparing issue times: far below the margin
+/// (1e-6 h) by which the plant keeps its last RK4 stage inside the step, so a command issued
+/// exactly at the step's end is never picked up by that stage.
 const TIME_TOLERANCE: f64 = 1e-9;
 
 /// A value that reached (or will reach) an actuator, with when it was issued.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Applied {
     pub value: f64,
-    /// Issue time; −D_i for the initial input function.
+    /// Issue time; φ(0) (= −D for a constant delay) for the initial input function.
     pub issued_at: f64,
 }
 
@@ -46,7 +284,7 @@ pub struct Applied {
 #[derive(Debug, Clone)]
 pub struct DelayQueue {
     channel: String,
-    delay: f64,
+    profile: DelayProfile,
     initial_input: f64,
     /// Issued commands (issue time, value), oldest first.
     history: VecDeque<(f64, f64)>,
@@ -59,32 +297,40 @@ pub struct DelayQueue {
 
 impl DelayQueue {
     /// A queue with constant delay `delay`, which must be a whole multiple of `timestep`.
-    pub fn new(
-        channel: &str,
-        delay: f64,
-        initial_input: f64,
-        timestep: f64,
-    ) -> Result<DelayQueue, DelayError> {
+    pub fn new(channel: &str, delay: f64, initial_input: f64, timestep: f64) -> Result<DelayQueue, DelayError> {
         if !delay.is_finite() || delay < 0.0 {
             return Err(DelayError::Negative {
                 channel: channel.into(),
                 delay,
             });
         }
-        let steps = delay / timestep;
-        if (steps - steps.round()).abs() > 1e-6 {
-            return Err(DelayError::NotMultiple {
-                channel: channel.into(),
-                delay,
-                timestep,
-            });
+        Self::with_profile(channel, DelayProfile::constant(delay), initial_input, timestep)
+    }
+
+    /// A queue with any delay profile. Constant delays must be whole multiples of `timestep`
+    /// (so the input is constant over each physics step and RK4 keeps its order).
+    pub fn with_profile(
+        channel: &str,
+        profile: DelayProfile,
+        initial_input: f64,
+        timestep: f64,
+    ) -> Result<DelayQueue, DelayError> {
+        if let Some(delay) = profile.constant_delay() {
+            let steps = delay / timestep;
+            if (steps - steps.round()).abs() > 1e-6 {
+                return Err(DelayError::NotMultiple {
+                    channel: channel.into(),
+                    delay,
+                    timestep,
+                });
+            }
         }
         Ok(DelayQueue {
             channel: channel.into(),
-            delay,
+            profile,
             initial_input,
             history: VecDeque::new(),
-            eps: TIME_TOLERANCE.max(1e-6 * timestep),
+            eps: TIME_TOLERANCE * timestep,
             pruned: false,
         })
     }
@@ -92,8 +338,12 @@ impl DelayQueue {
     pub fn channel(&self) -> &str {
         &self.channel
     }
-    pub fn delay(&self) -> f64 {
-        self.delay
+    pub fn profile(&self) -> &DelayProfile {
+        &self.profile
+    }
+    /// The constant delay, if the profile is constant.
+    pub fn constant_delay(&self) -> Option<f64> {
+        self.profile.constant_delay()
     }
 
     /// Records a command issued at `time` (control ticks, increasing).
@@ -111,14 +361,15 @@ impl DelayQueue {
         Ok(())
     }
 
-    /// The applied input u_i(t − D_i): the latest command issued at or before t − D_i
-    /// (within a tolerance), or the initial input if none.
+    /// The applied input u_i(φ(t)): the latest command issued at or before φ(t) (within a
+    /// tolerance), or the initial input if none.
     pub fn applied(&self, time: f64) -> Result<Applied, DelayError> {
-        let source_time = time - self.delay;
-        // Latest entry with issue time <= source_time (+eps). History is sorted.
-        let idx = self
-            .history
-            .partition_point(|&(t, _)| t <= source_time + self.eps);
+        self.issued_at_or_before(self.profile.delay_time(time), time)
+    }
+
+    /// The command in force at issue time `source_time` (ZOH), `time` only names the request.
+    fn issued_at_or_before(&self, source_time: f64, time: f64) -> Result<Applied, DelayError> {
+        let idx = self.history.partition_point(|&(t, _)| t <= source_time + self.eps);
         if idx == 0 {
             if self.pruned {
                 return Err(DelayError::HistoryGone {
@@ -129,25 +380,21 @@ impl DelayQueue {
             }
             return Ok(Applied {
                 value: self.initial_input,
-                issued_at: -self.delay,
+                issued_at: self.profile.delay_time(0.0),
             });
         }
         let (issued_at, value) = self.history[idx - 1];
         Ok(Applied { value, issued_at })
     }
 
-    /// Discards commands no longer needed to answer `applied(t)` for any t >= `time`.
+    /// Discards commands no longer needed to answer `applied(t)` for any t >= `time`
+    /// (φ is increasing, so nothing issued before φ(time) is needed but the one in force).
     pub fn discard_before(&mut self, time: f64) {
-        let source_time = time - self.delay;
+        let source_time = self.profile.delay_time(time);
         while self.history.len() >= 2 && self.history[1].0 <= source_time + self.eps {
             self.history.pop_front();
             self.pruned = true;
         }
-    }
-
-    /// The latest command issued, if any.
-    pub fn last_issued(&self) -> Option<(f64, f64)> {
-        self.history.back().copied()
     }
 }
 
@@ -200,9 +447,104 @@ mod tests {
         }
         q.discard_before(0.9);
         assert_eq!(q.applied(0.9).unwrap().value, 8.0);
+        assert!(matches!(q.applied(0.3), Err(DelayError::HistoryGone { .. })));
+    }
+
+    fn assert_inverse_pair(profile: &DelayProfile) {
+        for k in 0..200 {
+            let t = k as f64 * 0.05;
+            let back = profile.delay_time(profile.prediction_time(t));
+            assert!((back - t).abs() < 1e-10, "{profile:?}: phi(phi^-1({t})) = {back}");
+            // φ' against a central difference.
+            let e = 1e-6;
+            let numeric = (profile.delay_time(t + e) - profile.delay_time(t - e)) / (2.0 * e);
+            if let DelayProfile::Varying(VaryingDelay::Table { .. }) = profile {
+                continue; // kinks at the knots
+            }
+            assert!(
+                (numeric - profile.delay_time_derivative(t)).abs() < 1e-6,
+                "{profile:?} phi'({t})"
+            );
+        }
+    }
+
+    #[test]
+    fn prediction_time_inverts_delay_time_for_every_profile() {
+        assert_inverse_pair(&DelayProfile::Constant(0.3));
+        assert_inverse_pair(&DelayProfile::Varying(VaryingDelay::CosinePrediction {
+            a: 1.0,
+            b: 0.5,
+            omega: 1.0,
+        }));
+        assert_inverse_pair(&DelayProfile::Varying(VaryingDelay::Rational));
+        assert_inverse_pair(&DelayProfile::Varying(VaryingDelay::Table {
+            times: vec![0.0, 2.0, 5.0],
+            delays: vec![0.5, 1.2, 0.8],
+        }));
+    }
+
+    #[test]
+    fn closed_forms_match_the_reference() {
+        let r = DelayProfile::Varying(VaryingDelay::Rational);
+        // (2.37) at t = 0: phi = -1; (2.39): phi^-1(0) = (0 + sqrt 2) / 2.
+        assert!((r.delay_time(0.0) + 1.0).abs() < 1e-15);
+        assert!((r.prediction_time(0.0) - 2f64.sqrt() / 2.0).abs() < 1e-15);
+        // (2.31): phi^-1(0) = 1.5 ("the controller kicks in at 1.5").
+        let c = DelayProfile::Varying(VaryingDelay::CosinePrediction {
+            a: 1.0,
+            b: 0.5,
+            omega: 1.0,
+        });
+        assert!((c.prediction_time(0.0) - 1.5).abs() < 1e-15);
+    }
+
+    #[test]
+    fn time_varying_queue_applies_u_at_phi_t() {
+        let profile = DelayProfile::Varying(VaryingDelay::Rational);
+        let mut q = DelayQueue::with_profile("u", profile.clone(), 7.0, 0.01).unwrap();
+        for k in 0..1000 {
+            q.push(k as f64 * 0.01, k as f64).unwrap();
+        }
+        assert_eq!(q.applied(0.5).unwrap().value, 7.0); // φ(0.5) < 0: initial input
+        let t = 4.0;
+        let issued = profile.delay_time(t);
+        assert_eq!(q.applied(t).unwrap().value, (issued / 0.01 + 1e-9).floor());
+    }
+
+    #[test]
+    fn assumption_violations_name_the_condition_and_time() {
+        // dD/dt = 1.5 > 1 between t = 1 and 2: (2.6) fails at t = 1.
+        let p = DelayProfile::Varying(VaryingDelay::Table {
+            times: vec![1.0, 2.0],
+            delays: vec![0.5, 2.0],
+        });
+        match p.check("u", 5.0, 0.01, 10.0) {
+            Err(DelayError::Assumption { condition, time, .. }) => {
+                assert!(condition.contains("(2.6)"));
+                assert!((time - 1.0).abs() < 0.011, "{time}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // |b ω| > 1 makes φ⁻¹ non-monotone.
+        let p = DelayProfile::Varying(VaryingDelay::CosinePrediction {
+            a: 3.0,
+            b: 2.0,
+            omega: 1.0,
+        });
+        assert!(p.check("u", 10.0, 0.01, 10.0).is_err());
+        // D reaches 0.
+        let p = DelayProfile::Varying(VaryingDelay::Table {
+            times: vec![0.0, 1.0],
+            delays: vec![0.5, 0.0],
+        });
+        assert!(
+            matches!(p.check("u", 2.0, 0.01, 10.0), Err(DelayError::Assumption { condition, .. }) if condition.contains("(2.4)"))
+        );
+        // Longer than the history kept.
         assert!(matches!(
-            q.applied(0.3),
-            Err(DelayError::HistoryGone { .. })
+            DelayProfile::Constant(3.0).check("u", 2.0, 0.01, 2.0),
+            Err(DelayError::HistoryTooShort { .. })
         ));
+        assert!(DelayProfile::Constant(0.0).check("u", 2.0, 0.01, 2.0).is_ok());
     }
 }

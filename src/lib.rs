@@ -11,5 +11,6 @@ pub mod log;
 pub mod mujoco;
 pub mod nominal;
 pub mod plant;
+pub mod predictor;
 pub mod scenario;
 pub mod vehicle;

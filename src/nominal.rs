@@ -23,17 +23,13 @@ pub fn solve_care(
     let r_inv = r.clone().try_inverse().ok_or(NominalError::SingularR)?;
     let mut z = DMatrix::zeros(2 * n, 2 * n);
     z.view_mut((0, 0), (n, n)).copy_from(a);
-    z.view_mut((0, n), (n, n))
-        .copy_from(&(-(b * &r_inv * b.transpose())));
+    z.view_mut((0, n), (n, n)).copy_from(&(-(b * &r_inv * b.transpose())));
     z.view_mut((n, 0), (n, n)).copy_from(&(-q));
     z.view_mut((n, n), (n, n)).copy_from(&(-a.transpose()));
     let mut converged = false;
     for _ in 0..100 {
         let det = z.determinant().abs();
-        let inv = z
-            .clone()
-            .try_inverse()
-            .ok_or(NominalError::RiccatiNotConverged)?;
+        let inv = z.clone().try_inverse().ok_or(NominalError::RiccatiNotConverged)?;
         let scale = if det > 0.0 && det.is_finite() {
             det.powf(-1.0 / (2.0 * n as f64))
         } else {
@@ -57,8 +53,7 @@ pub fn solve_care(
     let w22 = z.view((n, n), (n, n));
     let mut lhs = DMatrix::zeros(2 * n, n);
     lhs.view_mut((0, 0), (n, n)).copy_from(&w12);
-    lhs.view_mut((n, 0), (n, n))
-        .copy_from(&(w22 + DMatrix::identity(n, n)));
+    lhs.view_mut((n, 0), (n, n)).copy_from(&(w22 + DMatrix::identity(n, n)));
     let mut rhs = DMatrix::zeros(2 * n, n);
     rhs.view_mut((0, 0), (n, n))
         .copy_from(&(-(w11 + DMatrix::identity(n, n))));
@@ -143,19 +138,43 @@ pub fn wrap_angle(angle: f64) -> f64 {
     a
 }
 
+/// The stabilising time-varying predictor-feedback controller of Example 2 of [9] for the
+/// unicycle (2.40)–(2.43), evaluated at the prediction p = (p_x, p_y, p_θ) and the prediction
+/// time φ⁻¹(t).
+pub fn unicycle_stabilizer(prediction_time: f64, p: &DVector<f64>) -> DVector<f64> {
+    let (px, py, ptheta) = (p[0], p[1], p[2]);
+    let (s, c) = ptheta.sin_cos();
+    let a = px * c + py * s; // (2.42)
+    let b = px * s - py * c; // (2.43)
+    let (s3, c3) = (3.0 * prediction_time).sin_cos();
+    let turn_rate = -5.0 * a * a * c3 - a * b * (1.0 + 25.0 * c3 * c3) - ptheta; // (2.40)
+    let speed = -a + 5.0 * b * s3 - 5.0 * b * c3 + b * turn_rate; // (2.41)
+    DVector::from_column_slice(&[speed, turn_rate])
+}
+
 /// A nominal controller chosen by a scenario.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Nominal {
     PathLqr(BicyclePathLqr),
     Constant(DVector<f64>),
+    /// (2.40)–(2.43): always evaluated at the predicted state, even when the safety filter
+    /// is not delay-compensated (as in §2.4.2).
+    UnicycleStabilizer,
 }
 
 impl Nominal {
-    pub fn input(&self, x: &DVector<f64>) -> DVector<f64> {
+    /// u0 at time `time` and state x.
+    pub fn input(&self, time: f64, x: &DVector<f64>) -> DVector<f64> {
         match self {
             Nominal::PathLqr(lqr) => lqr.input(x),
             Nominal::Constant(u) => u.clone(),
+            Nominal::UnicycleStabilizer => unicycle_stabilizer(time, x),
         }
+    }
+
+    /// Whether the controller is itself a predictor-feedback law (evaluated at p(t), φ⁻¹(t)).
+    pub fn uses_prediction(&self) -> bool {
+        matches!(self, Nominal::UnicycleStabilizer)
     }
 }
 

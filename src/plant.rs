@@ -1,24 +1,196 @@
-//! Plants. The MuJoCo plant is [`crate::mujoco::Simulation`] with a vehicle bound to it
-//! (see [`crate::episode`]); this module holds the analytic reference: RK4 integration of a
-//! vehicle's control-affine model ẋ = f(x) + G(x) u, used to measure MuJoCo's fidelity.
+//! Plants: what the episode steps. [`MujocoPlant`] steps MuJoCo with the controller inside
+//! `mjcb_control`; [`OdePlant`] integrates the analytic model ẋ = f(x) + G(x) u with classical
+//! RK4 and asks the controller for the input at the same four stage times RK4 uses in MuJoCo.
+//! Both call the controller through [`Controller`], so the control loop is one code path.
+
+use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::vehicle::Vehicle;
+use crate::barrier::Barrier;
+use crate::mujoco::{CallbackContext, ControlHook, DataView, MjError, Simulation};
+use crate::vehicle::{Dynamics, MujocoVehicle};
+
+/// The control side, as a plant sees it.
+pub trait Controller {
+    /// The applied input at one evaluation of step `step` (call `call_in_step`, `offset`
+    /// seconds after the step's start). On call 0 of a control-tick step the controller runs
+    /// its tick on `state()` (the real state at the start of the step).
+    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn() -> DVector<f64>) -> &[f64];
+}
+
+/// Which plant a scenario runs on (scenario key `plant`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlantKind {
+    /// MuJoCo 2.2.2 stepping the vehicle's MJCF model.
+    #[default]
+    Mujoco,
+    /// Pure-Rust RK4 of the analytic model (the reference).
+    Ode,
+}
+
+pub trait Plant: Send {
+    fn timestep(&self) -> f64;
+    /// The state x at the current time.
+    fn state(&self) -> DVector<f64>;
+    /// One step of size `timestep()`.
+    fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError>;
+    /// Penetration depth (> 0) into each obstacle, or None when not touching.
+    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>>;
+}
+
+/// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model.
+pub struct MujocoPlant {
+    sim: Simulation,
+    vehicle: Box<dyn MujocoVehicle>,
+    obstacle_geoms: Vec<usize>,
+    input_buffer: Vec<f64>,
+}
+
+impl MujocoPlant {
+    pub fn new(
+        sim: Simulation,
+        vehicle: Box<dyn MujocoVehicle>,
+        obstacle_geoms: Vec<usize>,
+        x0: &DVector<f64>,
+    ) -> MujocoPlant {
+        let mut plant = MujocoPlant {
+            sim,
+            vehicle,
+            obstacle_geoms,
+            input_buffer: Vec::new(),
+        };
+        plant.vehicle.write_state(&mut plant.sim, x0);
+        plant
+    }
+}
+
+/// Routes MuJoCo's control callback to a [`Controller`] and maps its input to `ctrl`.
+struct CallbackAdapter<'a> {
+    controller: &'a mut dyn Controller,
+    vehicle: &'a dyn MujocoVehicle,
+    input: &'a mut Vec<f64>,
+}
+
+impl ControlHook for CallbackAdapter<'_> {
+    fn on_control(&mut self, ctx: CallbackContext, data: &mut DataView<'_>) {
+        {
+            let view: &DataView<'_> = data;
+            let read = || self.vehicle.read_state(view.qpos(), view.qvel(), view.act());
+            let input = self
+                .controller
+                .input(ctx.step, ctx.call_in_step, ctx.time - ctx.step_start_time, &read);
+            self.input.clear();
+            self.input.extend_from_slice(input);
+        }
+        self.vehicle.write_ctrl(data, self.input);
+    }
+}
+
+impl Plant for MujocoPlant {
+    fn timestep(&self) -> f64 {
+        self.sim.model().timestep()
+    }
+    fn state(&self) -> DVector<f64> {
+        let d = self.sim.data();
+        self.vehicle.read_state(d.qpos(), d.qvel(), d.act())
+    }
+    fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError> {
+        let mut adapter = CallbackAdapter {
+            controller,
+            vehicle: self.vehicle.as_ref(),
+            input: &mut self.input_buffer,
+        };
+        self.sim.step(&mut adapter)
+    }
+    /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
+    /// `mj_step` are those of the step's first collision phase (the state at its start).
+    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>> {
+        let hull = self.vehicle.hull_geom();
+        let contacts = self.sim.data().contacts();
+        self.obstacle_geoms
+            .iter()
+            .take(obstacles.len())
+            .map(|&geom| {
+                contacts
+                    .iter()
+                    .filter(|c| (c.geom1 == hull && c.geom2 == geom) || (c.geom2 == hull && c.geom1 == geom))
+                    .map(|c| -c.dist)
+                    .filter(|d| *d > 0.0)
+                    .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))))
+            })
+            .collect()
+    }
+}
+
+/// Reference plant: RK4 on the analytic model, input sampled at the stage times.
+pub struct OdePlant {
+    dynamics: Arc<dyn Dynamics>,
+    x: DVector<f64>,
+    timestep: f64,
+    step: u64,
+}
+
+impl OdePlant {
+    pub fn new(dynamics: Arc<dyn Dynamics>, x0: DVector<f64>, timestep: f64) -> OdePlant {
+        OdePlant {
+            dynamics,
+            x: x0,
+            timestep,
+            step: 0,
+        }
+    }
+}
+
+impl Plant for OdePlant {
+    fn timestep(&self) -> f64 {
+        self.timestep
+    }
+    fn state(&self) -> DVector<f64> {
+        self.x.clone()
+    }
+    fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError> {
+        let h = self.timestep;
+        let x = self.x.clone();
+        let model = self.dynamics.as_ref();
+        let mut derivative = |call: u32, offset: f64, stage: &DVector<f64>| {
+            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|| x.clone()));
+            model.dynamics(stage, &u)
+        };
+        let k1 = derivative(0, 0.0, &x);
+        let k2 = derivative(1, h / 2.0, &(&x + &k1 * (h / 2.0)));
+        let k3 = derivative(2, h / 2.0, &(&x + &k2 * (h / 2.0)));
+        let k4 = derivative(3, h, &(&x + &k3 * h));
+        self.x = &x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
+        self.step += 1;
+        Ok(())
+    }
+    /// Geometric: the overlap of the vehicle's hull circle with each obstacle.
+    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>> {
+        obstacles
+            .iter()
+            .map(|o| {
+                let depth = -o.clearance(&self.x);
+                (depth > 0.0).then_some(depth)
+            })
+            .collect()
+    }
+}
 
 /// One classical RK4 step of ẋ = f(x) + G(x) u with u held constant over the step.
-pub fn rk4_step(vehicle: &dyn Vehicle, x: &DVector<f64>, u: &DVector<f64>, h: f64) -> DVector<f64> {
-    let k1 = vehicle.dynamics(x, u);
-    let k2 = vehicle.dynamics(&(x + &k1 * (h / 2.0)), u);
-    let k3 = vehicle.dynamics(&(x + &k2 * (h / 2.0)), u);
-    let k4 = vehicle.dynamics(&(x + &k3 * h), u);
+pub fn rk4_step(model: &dyn Dynamics, x: &DVector<f64>, u: &DVector<f64>, h: f64) -> DVector<f64> {
+    let k1 = model.dynamics(x, u);
+    let k2 = model.dynamics(&(x + &k1 * (h / 2.0)), u);
+    let k3 = model.dynamics(&(x + &k2 * (h / 2.0)), u);
+    let k4 = model.dynamics(&(x + &k3 * h), u);
     x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0)
 }
 
 /// Integrates from x0 over `inputs.len()` steps of size h, input k held on [k h, (k+1) h),
 /// with `substeps` RK4 steps per input step. Returns the states at the step boundaries.
 pub fn integrate(
-    vehicle: &dyn Vehicle,
+    model: &dyn Dynamics,
     x0: &DVector<f64>,
     inputs: &[DVector<f64>],
     h: f64,
@@ -30,7 +202,7 @@ pub fn integrate(
     let dt = h / substeps as f64;
     for u in inputs {
         for _ in 0..substeps {
-            x = rk4_step(vehicle, &x, u, dt);
+            x = rk4_step(model, &x, u, dt);
         }
         states.push(x.clone());
     }

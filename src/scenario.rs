@@ -6,23 +6,19 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::barrier::{BarrierForm, Shape};
+use crate::delay::DelayProfile;
+use crate::plant::PlantKind;
 use crate::vehicle::VehicleKind;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
     #[error("{file}: cannot read the scenario: {source}")]
-    Io {
-        file: String,
-        source: std::io::Error,
-    },
+    Io { file: String, source: std::io::Error },
     #[error("{file}: invalid TOML: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: key `{key}`: {message}")]
-    Field {
-        file: String,
-        key: String,
-        message: String,
-    },
+    Field { file: String, key: String, message: String },
     #[error("--set {spec}: {message}")]
     Override { spec: String, message: String },
 }
@@ -37,10 +33,14 @@ pub struct Scenario {
     pub description: String,
     /// Simulated time in seconds.
     pub duration: f64,
-    pub vehicle: VehicleSpec,
-    /// Constant delay per input channel in seconds (channels not listed: no delay).
+    /// `mujoco` (default) or `ode` (the analytic model integrated by RK4).
     #[serde(default)]
-    pub delays: BTreeMap<String, f64>,
+    pub plant: PlantKind,
+    pub vehicle: VehicleSpec,
+    /// Delay per input channel (channels not listed: no delay): seconds for a constant delay,
+    /// or a table `{ profile = "cosine_prediction" | "rational" | "table", … }`.
+    #[serde(default)]
+    pub delays: BTreeMap<String, DelayProfile>,
     /// Initial input function per channel on [−D_i, 0) (constant; channels not listed: 0).
     #[serde(default)]
     pub initial_input: BTreeMap<String, f64>,
@@ -51,17 +51,26 @@ pub struct Scenario {
     pub filter: FilterSpec,
     #[serde(default)]
     pub obstacles: Vec<ObstacleSpec>,
+    /// State constraints h(x) >= 0 that are not physical obstacles.
+    #[serde(default)]
+    pub barriers: Vec<Shape>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VehicleSpec {
     pub kind: VehicleKind,
-    /// MJCF file, relative to the scenario file.
-    pub model: PathBuf,
+    /// MJCF file, relative to the scenario file (all kinds but `linear`).
+    #[serde(default)]
+    pub model: Option<PathBuf>,
+    /// A and B of ẋ = A x + B u (kind `linear`), as arrays of rows.
+    #[serde(default)]
+    pub a: Option<Vec<Vec<f64>>>,
+    #[serde(default)]
+    pub b: Option<Vec<Vec<f64>>>,
     /// Initial state x(0), in the vehicle's state order.
     pub initial_state: Vec<f64>,
-    /// Overrides the model's `<option timestep>` (seconds).
+    /// Overrides the model's `<option timestep>` (seconds); required for `linear`.
     #[serde(default)]
     pub timestep: Option<f64>,
     /// Overrides the model's `<option integrator>`: "euler", "rk4" or "implicit".
@@ -69,12 +78,28 @@ pub struct VehicleSpec {
     pub integrator: Option<crate::mujoco::Integrator>,
 }
 
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlSpec {
     /// Control period in seconds, a whole multiple of the timestep (default: the timestep).
     #[serde(default)]
     pub period: Option<f64>,
+    /// Seconds of issued-input history kept; a delay longer than this is an error.
+    #[serde(default = "default_history")]
+    pub history: f64,
+}
+
+impl Default for ControlSpec {
+    fn default() -> Self {
+        ControlSpec {
+            period: None,
+            history: default_history(),
+        }
+    }
+}
+
+fn default_history() -> f64 {
+    30.0
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -84,6 +109,8 @@ pub enum NominalSpec {
     PathLqr(PathLqrSpec),
     /// A constant input, one value per channel.
     Constant(ConstantSpec),
+    /// The unicycle's predictor-feedback stabiliser (2.40)–(2.46).
+    UnicycleStabilizer,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -131,9 +158,37 @@ pub enum FilterSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CbfQpSpec {
-    /// Gains of ḧ + l1 ḣ + l0 h ≥ 0 (4.82).
-    pub l0: f64,
-    pub l1: f64,
+    /// Relative degree 1: α(h) = alpha·h in ḣ + α(h) ≥ 0.
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    /// Relative degree 2: gains of ḧ + l1 ḣ + l0 h ≥ 0 (4.82).
+    #[serde(default)]
+    pub l0: Option<f64>,
+    #[serde(default)]
+    pub l1: Option<f64>,
+    /// `none`: the filter acts on the current state ((2.16)); `predictor`: on the predicted
+    /// state of each channel ((2.26), and (4.34) for distinct delays).
+    #[serde(default)]
+    pub compensation: Compensation,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Compensation {
+    #[default]
+    None,
+    Predictor,
+}
+
+impl CbfQpSpec {
+    /// The barrier form the gains describe (validated at load time).
+    pub fn form(&self) -> Option<BarrierForm> {
+        match (self.alpha, self.l0, self.l1) {
+            (Some(alpha), None, None) => Some(BarrierForm::RelativeDegree1 { alpha }),
+            (None, Some(l0), Some(l1)) => Some(BarrierForm::RelativeDegree2 { l0, l1 }),
+            _ => None,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -163,9 +218,9 @@ pub struct LoadedScenario {
 
 impl LoadedScenario {
     /// The model path resolved against the scenario file's directory.
-    pub fn model_path(&self) -> PathBuf {
+    pub fn model_path(&self) -> Option<PathBuf> {
         let dir = self.path.parent().unwrap_or_else(|| Path::new("."));
-        dir.join(&self.scenario.vehicle.model)
+        self.scenario.vehicle.model.as_ref().map(|m| dir.join(m))
     }
 
     /// The error for a field of this scenario.
@@ -203,27 +258,20 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, Scenari
 
 /// Parses scenario text; `file` names it in errors.
 pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, ScenarioError> {
-    let mut table: toml::Table =
-        text.parse()
-            .map_err(|e: toml::de::Error| ScenarioError::Syntax {
-                file: file.to_string(),
-                message: e.to_string().trim().replace('\n', " "),
-            })?;
+    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| ScenarioError::Syntax {
+        file: file.to_string(),
+        message: e.to_string().trim().replace('\n', " "),
+    })?;
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
     let whole = toml::Value::Table(table.clone());
     serde_path_to_error::deserialize(whole).map_err(|e| {
         let key = e.path().to_string();
-        let (key, message) =
-            refine_tagged(&table, &key).unwrap_or((key, e.into_inner().to_string()));
+        let (key, message) = refine_tagged(&table, &key).unwrap_or((key, e.into_inner().to_string()));
         ScenarioError::Field {
             file: file.to_string(),
-            key: if key == "." {
-                "(top level)".into()
-            } else {
-                key
-            },
+            key: if key == "." { "(top level)".into() } else { key },
             message,
         }
     })
@@ -235,10 +283,7 @@ fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
     let section = key.split('.').next()?;
     let mut body = table.get(section)?.as_table()?.clone();
     let kind = body.remove("kind")?.as_str()?.to_string();
-    fn check<T: serde::de::DeserializeOwned>(
-        section: &str,
-        body: toml::Table,
-    ) -> Option<(String, String)> {
+    fn check<T: serde::de::DeserializeOwned>(section: &str, body: toml::Table) -> Option<(String, String)> {
         serde_path_to_error::deserialize::<_, T>(toml::Value::Table(body))
             .err()
             .map(|e| {
@@ -290,17 +335,13 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
                 .entry(segment.to_string())
                 .or_insert_with(|| toml::Value::Table(Default::default())),
             toml::Value::Array(items) => {
-                let index: usize = segment.parse().map_err(|_| {
-                    err(format!(
-                        "`{parent}` is an array: `{segment}` must be an index"
-                    ))
-                })?;
+                let index: usize = segment
+                    .parse()
+                    .map_err(|_| err(format!("`{parent}` is an array: `{segment}` must be an index")))?;
                 let len = items.len();
-                items.get_mut(index).ok_or_else(|| {
-                    err(format!(
-                        "`{parent}` has {len} entries, index {index} is out of range"
-                    ))
-                })?
+                items
+                    .get_mut(index)
+                    .ok_or_else(|| err(format!("`{parent}` has {len} entries, index {index} is out of range")))?
             }
             _ => return Err(err(format!("`{parent}` is a value, not a table"))),
         };
@@ -320,10 +361,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if !positive_finite(sc.duration) {
         return Err(s.field_error(
             "duration",
-            format!(
-                "expected a positive number of seconds, found {}",
-                sc.duration
-            ),
+            format!("expected a positive number of seconds, found {}", sc.duration),
         ));
     }
     if let Some(h) = sc.vehicle.timestep {
@@ -337,11 +375,55 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if sc.vehicle.initial_state.iter().any(|v| !v.is_finite()) {
         return Err(s.field_error("vehicle.initial_state", "expected finite numbers"));
     }
-    for (channel, delay) in &sc.delays {
-        if !delay.is_finite() || *delay < 0.0 {
+    for (channel, profile) in &sc.delays {
+        if let DelayProfile::Constant(delay) = profile {
+            if !delay.is_finite() || *delay < 0.0 {
+                return Err(s.field_error(
+                    &format!("delays.{channel}"),
+                    format!("expected a delay >= 0 seconds, found {delay}"),
+                ));
+            }
+        }
+    }
+    if !positive_finite(sc.control.history) {
+        return Err(s.field_error(
+            "control.history",
+            format!("expected a positive number of seconds, found {}", sc.control.history),
+        ));
+    }
+    if sc.vehicle.kind.has_mjcf() && sc.vehicle.model.is_none() {
+        return Err(s.field_error(
+            "vehicle.model",
+            format!("expected the MJCF file of the {:?} model", sc.vehicle.kind),
+        ));
+    }
+    if sc.vehicle.kind == VehicleKind::Linear {
+        if sc.plant != PlantKind::Ode {
             return Err(s.field_error(
-                &format!("delays.{channel}"),
-                format!("expected a delay >= 0 seconds, found {delay}"),
+                "plant",
+                "vehicle.kind = \"linear\" has no MJCF model: expected plant = \"ode\"",
+            ));
+        }
+        let (Some(a), Some(b)) = (&sc.vehicle.a, &sc.vehicle.b) else {
+            return Err(s.field_error(
+                "vehicle.a",
+                "kind = \"linear\" needs both vehicle.a and vehicle.b (arrays of rows)",
+            ));
+        };
+        let n = a.len();
+        if n == 0 || a.iter().any(|row| row.len() != n) {
+            return Err(s.field_error("vehicle.a", "expected a square matrix (array of equal-length rows)"));
+        }
+        if b.len() != n || b.iter().any(|row| row.len() != b[0].len()) || b[0].is_empty() {
+            return Err(s.field_error("vehicle.b", format!("expected {n} rows of equal, non-zero length")));
+        }
+        if a.iter().chain(b).flatten().any(|v| !v.is_finite()) {
+            return Err(s.field_error("vehicle.a", "matrix entries must be finite"));
+        }
+        if sc.vehicle.timestep.is_none() {
+            return Err(s.field_error(
+                "vehicle.timestep",
+                "kind = \"linear\" has no model file: expected the integration step in seconds",
             ));
         }
     }
@@ -363,10 +445,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     }
     match &sc.nominal {
         NominalSpec::PathLqr(PathLqrSpec {
-            reference_speed,
-            q,
-            r,
-            ..
+            reference_speed, q, r, ..
         }) => {
             if !positive_finite(*reference_speed) {
                 return Err(s.field_error(
@@ -386,13 +465,56 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 return Err(s.field_error("nominal.input", "expected finite numbers"));
             }
         }
+        NominalSpec::UnicycleStabilizer => {
+            if sc.vehicle.kind != VehicleKind::Unicycle {
+                return Err(s.field_error("nominal.kind", "unicycle_stabilizer needs vehicle.kind = \"unicycle\""));
+            }
+        }
     }
-    if let FilterSpec::CbfQp(CbfQpSpec { l0, l1 }) = sc.filter {
-        // Roots of s² + l1 s + l0 negative real (below (4.83)): l0 > 0, l1 > 0, l1² ≥ 4 l0.
-        if !(positive_finite(l0) && positive_finite(l1) && l1 * l1 >= 4.0 * l0) {
+    if let FilterSpec::CbfQp(spec) = &sc.filter {
+        match spec.form() {
+            None => {
+                return Err(s.field_error(
+                    "filter",
+                    "expected either alpha (relative degree 1) or both l0 and l1 (relative degree 2)",
+                ))
+            }
+            Some(BarrierForm::RelativeDegree1 { alpha }) if !positive_finite(alpha) => {
+                return Err(s.field_error("filter.alpha", format!("expected alpha > 0, found {alpha}")))
+            }
+            // Roots of s² + l1 s + l0 negative real (below (4.83)): l0 > 0, l1 > 0, l1² ≥ 4 l0.
+            Some(BarrierForm::RelativeDegree2 { l0, l1 })
+                if !(positive_finite(l0) && positive_finite(l1) && l1 * l1 >= 4.0 * l0) =>
+            {
+                return Err(s.field_error(
+                    "filter",
+                    format!("expected l0 > 0, l1 > 0 and l1² >= 4 l0 (negative real roots of s² + l1 s + l0), found l0 = {l0}, l1 = {l1}"),
+                ));
+            }
+            Some(_) => {}
+        }
+    }
+    for (i, b) in sc.barriers.iter().enumerate() {
+        let ok = match b {
+            Shape::Ball {
+                indices,
+                centre,
+                radius,
+                ..
+            } => {
+                !indices.is_empty()
+                    && indices.len() == centre.len()
+                    && centre.iter().all(|c| c.is_finite())
+                    && positive_finite(*radius)
+            }
+            Shape::HalfSpace { coefficients, offset } => {
+                !coefficients.is_empty() && coefficients.iter().all(|c| c.is_finite()) && offset.is_finite()
+            }
+        };
+        if !ok {
             return Err(s.field_error(
-                "filter",
-                format!("expected l0 > 0, l1 > 0 and l1² >= 4 l0 (negative real roots of s² + l1 s + l0), found l0 = {l0}, l1 = {l1}"),
+                &format!("barriers[{i}]"),
+                "expected a ball (indices and centre of equal length, radius > 0) or a half-space (finite coefficients and offset)",
             ));
         }
     }
@@ -404,10 +526,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
         if o.centre.iter().any(|v| !v.is_finite()) {
-            return Err(s.field_error(
-                &format!("obstacles[{i}].centre"),
-                "expected two finite coordinates",
-            ));
+            return Err(s.field_error(&format!("obstacles[{i}].centre"), "expected two finite coordinates"));
         }
         if !o.appear_at.is_finite() || o.appear_at < 0.0 {
             return Err(s.field_error(
@@ -457,10 +576,7 @@ input = [1.0]
         let err = parse(MINIMAL, "t.toml", &["duration='long'".into()])
             .unwrap_err()
             .to_string();
-        assert!(
-            err.contains("duration") && err.contains("expected"),
-            "{err}"
-        );
+        assert!(err.contains("duration") && err.contains("expected"), "{err}");
     }
 
     #[test]
@@ -468,17 +584,11 @@ input = [1.0]
         let s = parse(
             MINIMAL,
             "t.toml",
-            &[
-                "nominal.input=[2.5]".into(),
-                "delays.acceleration=0.1".into(),
-            ],
+            &["nominal.input=[2.5]".into(), "delays.acceleration=0.1".into()],
         )
         .unwrap();
-        assert_eq!(
-            s.nominal,
-            NominalSpec::Constant(ConstantSpec { input: vec![2.5] })
-        );
-        assert_eq!(s.delays["acceleration"], 0.1);
+        assert_eq!(s.nominal, NominalSpec::Constant(ConstantSpec { input: vec![2.5] }));
+        assert_eq!(s.delays["acceleration"], DelayProfile::Constant(0.1));
         let err = parse(MINIMAL, "t.toml", &["nominal.input.3=1".into()])
             .unwrap_err()
             .to_string();

@@ -1,51 +1,55 @@
-//! Vehicles: the analytic control-affine model ẋ = f(x) + G(x) u that filters use, and the
-//! binding of that state and input to a MuJoCo model in `models/`.
+//! Vehicles and other plants: the analytic control-affine model ẋ = f(x) + G(x) u that filters
+//! and predictors use ([`Dynamics`]), and, for vehicles with an MJCF model, the binding of that
+//! state and input to MuJoCo ([`MujocoVehicle`]).
+
+use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
 
-/// The vehicle kinds mjsafe knows.
+/// The systems mjsafe knows (scenario key `vehicle.kind`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum VehicleKind {
     /// Kinematic bicycle (4.78): x = (x1, x2, heading, speed), u = (tan δ, acceleration).
     Bicycle,
+    /// Nonholonomic unicycle (2.36): x = (x, y, θ), u = (v, ω).
+    Unicycle,
     /// ẍ = u on a line: x = (position, velocity).
     #[serde(rename = "double_integrator_1d")]
     DoubleIntegrator1d,
     /// ẍ = u in the plane: x = (x, y, vx, vy).
     #[serde(rename = "double_integrator_2d")]
     DoubleIntegrator2d,
+    /// ẋ = A x + B u with A, B from the scenario (ODE plant only), e.g. (2.30), (3.34).
+    Linear,
 }
 
-/// A vehicle: its analytic model plus how its state and inputs live in MuJoCo.
-pub trait Vehicle: Send {
-    fn kind(&self) -> VehicleKind;
+impl VehicleKind {
+    /// Whether the kind has an MJCF model (and so can run on the MuJoCo plant).
+    pub fn has_mjcf(self) -> bool {
+        !matches!(self, VehicleKind::Linear)
+    }
+}
+
+/// The analytic control-affine model ẋ = f(x) + G(x) u.
+pub trait Dynamics: Send + Sync {
     /// Names of the state components, in order.
-    fn state_names(&self) -> &'static [&'static str];
+    fn state_names(&self) -> &[String];
     /// Names of the input channels, in order.
-    fn channel_names(&self) -> &'static [&'static str];
+    fn channel_names(&self) -> &[String];
     /// Drift f(x).
     fn drift(&self, x: &DVector<f64>) -> DVector<f64>;
     /// Jacobian ∂f/∂x, used for Lie derivatives of relative-degree-2 barriers.
     fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64>;
-    /// Input matrix G(x).
+    /// Input matrix G(x) = [g_1(x), …, g_r(x)].
     fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64>;
-    /// Indices of the planar position (x, y) in the state, if the vehicle moves in a plane.
-    fn planar_position(&self) -> Option<[usize; 2]>;
-    /// Radius of the collision geom `hull` (the vehicle's share of r in (4.81)).
-    fn hull_radius(&self) -> f64;
-    /// Id of the `hull` geom, for contact detection.
-    fn hull_geom(&self) -> usize;
-    /// State x read from MuJoCo data.
-    fn read_state(&self, qpos: &[f64], qvel: &[f64], act: &[f64]) -> DVector<f64>;
-    /// Sets MuJoCo's state (time 0) to x.
-    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>);
-    /// Maps the applied input u (one value per channel) to MuJoCo's `ctrl`, given the data
-    /// at the current (possibly RK4 trial) state. Writes only ctrl.
-    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]);
+    /// Indices of the planar position (x, y) in the state, if the system moves in a plane.
+    fn planar_position(&self) -> Option<[usize; 2]> {
+        None
+    }
 
     /// ẋ = f(x) + G(x) u.
     fn dynamics(&self, x: &DVector<f64>, u: &DVector<f64>) -> DVector<f64> {
@@ -59,13 +63,41 @@ pub trait Vehicle: Send {
     }
 }
 
+/// A vehicle bound to a MuJoCo model: how its state and inputs live in `mjData`.
+pub trait MujocoVehicle: Send {
+    /// The analytic model of this vehicle (parameters read from the MJCF).
+    fn dynamics(&self) -> Arc<dyn Dynamics>;
+    /// Radius of the collision geom `hull` (the vehicle's share of r in (4.81)).
+    fn hull_radius(&self) -> f64;
+    /// Id of the `hull` geom, for contact detection.
+    fn hull_geom(&self) -> usize;
+    /// State x read from MuJoCo data.
+    fn read_state(&self, qpos: &[f64], qvel: &[f64], act: &[f64]) -> DVector<f64>;
+    /// Sets MuJoCo's state (time 0) to x.
+    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>);
+    /// Maps the applied input u (one value per channel) to MuJoCo's `ctrl`, given the data at
+    /// the current (possibly RK4 trial) state. Writes only ctrl.
+    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]);
+}
+
 /// Builds the vehicle of `kind` on `model`, resolving joints and actuators by name.
-pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn Vehicle>, MjError> {
+pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, MjError> {
     Ok(match kind {
-        VehicleKind::Bicycle => Box::new(Bicycle::bind(model)?),
-        VehicleKind::DoubleIntegrator1d => Box::new(DoubleIntegrator1d::bind(model)?),
-        VehicleKind::DoubleIntegrator2d => Box::new(DoubleIntegrator2d::bind(model)?),
+        VehicleKind::Bicycle => Box::new(MujocoBicycle::bind(model)?),
+        VehicleKind::Unicycle => Box::new(MujocoUnicycle::bind(model)?),
+        VehicleKind::DoubleIntegrator1d => Box::new(MujocoDoubleIntegrator::bind(model, 1)?),
+        VehicleKind::DoubleIntegrator2d => Box::new(MujocoDoubleIntegrator::bind(model, 2)?),
+        VehicleKind::Linear => {
+            return Err(MjError::MissingName {
+                kind: "MJCF binding for vehicle kind",
+                name: "linear".into(),
+            })
+        }
     })
+}
+
+fn names(list: &[&str]) -> Vec<String> {
+    list.iter().map(|s| s.to_string()).collect()
 }
 
 fn hull(model: &Model) -> Result<(usize, f64), MjError> {
@@ -73,68 +105,30 @@ fn hull(model: &Model) -> Result<(usize, f64), MjError> {
     Ok((geom, model.geom_size(geom)[0]))
 }
 
-/// Kinematic bicycle (4.78) with wheelbase L from the model's custom numeric `wheelbase`.
-pub struct Bicycle {
+/// Kinematic bicycle (4.78) with wheelbase L.
+#[derive(Debug, Clone)]
+pub struct BicycleModel {
     pub wheelbase: f64,
-    qpos_x: usize,
-    qpos_y: usize,
-    qpos_yaw: usize,
-    dof_x: usize,
-    dof_y: usize,
-    dof_yaw: usize,
-    ctrl_yaw_rate: usize,
-    ctrl_speed: usize,
-    act_speed: usize,
-    hull_geom: usize,
-    hull_radius: f64,
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
 }
 
-impl Bicycle {
-    pub fn bind(model: &Model) -> Result<Bicycle, MjError> {
-        let joint = |name| model.require(ObjKind::Joint, name);
-        let (jx, jy, jyaw) = (joint("x")?, joint("y")?, joint("yaw")?);
-        let yaw_rate = model.require(ObjKind::Actuator, "yaw_rate")?;
-        let speed = model.require(ObjKind::Actuator, "speed")?;
-        let act_speed = model
-            .actuator_act_addr(speed)
-            .ok_or_else(|| MjError::MissingName {
-                kind: "stateful actuator (dyntype=\"integrator\")",
-                name: "speed".into(),
-            })?;
-        let wheelbase = model
-            .numeric("wheelbase")
-            .and_then(|v| v.first().copied())
-            .ok_or_else(|| MjError::MissingName {
-                kind: "custom numeric",
-                name: "wheelbase".into(),
-            })?;
-        let (hull_geom, hull_radius) = hull(model)?;
-        Ok(Bicycle {
+impl BicycleModel {
+    pub fn new(wheelbase: f64) -> BicycleModel {
+        BicycleModel {
             wheelbase,
-            qpos_x: model.joint_qpos_addr(jx),
-            qpos_y: model.joint_qpos_addr(jy),
-            qpos_yaw: model.joint_qpos_addr(jyaw),
-            dof_x: model.joint_dof_addr(jx),
-            dof_y: model.joint_dof_addr(jy),
-            dof_yaw: model.joint_dof_addr(jyaw),
-            ctrl_yaw_rate: yaw_rate,
-            ctrl_speed: speed,
-            act_speed,
-            hull_geom,
-            hull_radius,
-        })
+            state_names: names(&["x1", "x2", "heading", "speed"]),
+            channel_names: names(&["steering", "acceleration"]),
+        }
     }
 }
 
-impl Vehicle for Bicycle {
-    fn kind(&self) -> VehicleKind {
-        VehicleKind::Bicycle
+impl Dynamics for BicycleModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
     }
-    fn state_names(&self) -> &'static [&'static str] {
-        &["x1", "x2", "heading", "speed"]
-    }
-    fn channel_names(&self) -> &'static [&'static str] {
-        &["steering", "acceleration"]
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
     }
     fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
         DVector::from_column_slice(&[x[3] * x[2].cos(), x[3] * x[2].sin(), 0.0, 0.0])
@@ -157,6 +151,64 @@ impl Vehicle for Bicycle {
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
     }
+}
+
+/// The bicycle on `models/bicycle.xml` (body at the rear axle; see the model's comments).
+pub struct MujocoBicycle {
+    model: Arc<BicycleModel>,
+    qpos: [usize; 3],
+    dof: [usize; 3],
+    ctrl_yaw_rate: usize,
+    ctrl_speed: usize,
+    act_speed: usize,
+    hull_geom: usize,
+    hull_radius: f64,
+}
+
+/// qpos and dof addresses of the planar joints x, y, yaw.
+fn planar_joints(model: &Model) -> Result<([usize; 3], [usize; 3]), MjError> {
+    let joint = |name| model.require(ObjKind::Joint, name);
+    let ids = [joint("x")?, joint("y")?, joint("yaw")?];
+    Ok((
+        ids.map(|j| model.joint_qpos_addr(j)),
+        ids.map(|j| model.joint_dof_addr(j)),
+    ))
+}
+
+impl MujocoBicycle {
+    pub fn bind(model: &Model) -> Result<MujocoBicycle, MjError> {
+        let (qpos, dof) = planar_joints(model)?;
+        let yaw_rate = model.require(ObjKind::Actuator, "yaw_rate")?;
+        let speed = model.require(ObjKind::Actuator, "speed")?;
+        let act_speed = model.actuator_act_addr(speed).ok_or_else(|| MjError::MissingName {
+            kind: "stateful actuator (dyntype=\"integrator\")",
+            name: "speed".into(),
+        })?;
+        let wheelbase = model
+            .numeric("wheelbase")
+            .and_then(|v| v.first().copied())
+            .ok_or_else(|| MjError::MissingName {
+                kind: "custom numeric",
+                name: "wheelbase".into(),
+            })?;
+        let (hull_geom, hull_radius) = hull(model)?;
+        Ok(MujocoBicycle {
+            model: Arc::new(BicycleModel::new(wheelbase)),
+            qpos,
+            dof,
+            ctrl_yaw_rate: yaw_rate,
+            ctrl_speed: speed,
+            act_speed,
+            hull_geom,
+            hull_radius,
+        })
+    }
+}
+
+impl MujocoVehicle for MujocoBicycle {
+    fn dynamics(&self) -> Arc<dyn Dynamics> {
+        self.model.clone()
+    }
     fn hull_radius(&self) -> f64 {
         self.hull_radius
     }
@@ -164,23 +216,20 @@ impl Vehicle for Bicycle {
         self.hull_geom
     }
     fn read_state(&self, qpos: &[f64], qvel: &[f64], _act: &[f64]) -> DVector<f64> {
-        let heading = qpos[self.qpos_yaw];
+        let heading = qpos[self.qpos[2]];
         let (s, c) = heading.sin_cos();
         // Longitudinal velocity of the rear axle, measured from the body's motion.
-        let speed = qvel[self.dof_x] * c + qvel[self.dof_y] * s;
-        DVector::from_column_slice(&[qpos[self.qpos_x], qpos[self.qpos_y], heading, speed])
+        let speed = qvel[self.dof[0]] * c + qvel[self.dof[1]] * s;
+        DVector::from_column_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], heading, speed])
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
         let model = sim.model();
-        let mut qpos = vec![0.0; model.nq()];
-        let mut qvel = vec![0.0; model.nv()];
-        let mut act = vec![0.0; model.na()];
-        qpos[self.qpos_x] = x[0];
-        qpos[self.qpos_y] = x[1];
-        qpos[self.qpos_yaw] = x[2];
-        qvel[self.dof_x] = x[3] * x[2].cos();
-        qvel[self.dof_y] = x[3] * x[2].sin();
-        qvel[self.dof_yaw] = 0.0;
+        let (mut qpos, mut qvel, mut act) = (vec![0.0; model.nq()], vec![0.0; model.nv()], vec![0.0; model.na()]);
+        qpos[self.qpos[0]] = x[0];
+        qpos[self.qpos[1]] = x[1];
+        qpos[self.qpos[2]] = x[2];
+        qvel[self.dof[0]] = x[3] * x[2].cos();
+        qvel[self.dof[1]] = x[3] * x[2].sin();
         act[self.act_speed] = x[3];
         sim.set_state(0.0, &qpos, &qvel, &act);
     }
@@ -189,134 +238,205 @@ impl Vehicle for Bicycle {
         // the body's velocity follows); speed rate = u2.
         let commanded_speed = data.act()[self.act_speed];
         let ctrl = data.ctrl_mut();
-        ctrl[self.ctrl_yaw_rate] = commanded_speed * applied_input[0] / self.wheelbase;
+        ctrl[self.ctrl_yaw_rate] = commanded_speed * applied_input[0] / self.model.wheelbase;
         ctrl[self.ctrl_speed] = applied_input[1];
     }
 }
 
-/// ẍ = u on a line.
-pub struct DoubleIntegrator1d {
-    qpos_x: usize,
-    dof_x: usize,
-    ctrl: usize,
-    hull_geom: usize,
-    hull_radius: f64,
+/// Nonholonomic unicycle (2.36): ẋ = v cos θ, ẏ = v sin θ, θ̇ = ω.
+#[derive(Debug, Clone)]
+pub struct UnicycleModel {
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
 }
 
-impl DoubleIntegrator1d {
-    pub fn bind(model: &Model) -> Result<DoubleIntegrator1d, MjError> {
-        let jx = model.require(ObjKind::Joint, "x")?;
-        let (hull_geom, hull_radius) = hull(model)?;
-        Ok(DoubleIntegrator1d {
-            qpos_x: model.joint_qpos_addr(jx),
-            dof_x: model.joint_dof_addr(jx),
-            ctrl: model.require(ObjKind::Actuator, "acceleration")?,
-            hull_geom,
-            hull_radius,
-        })
+impl Default for UnicycleModel {
+    fn default() -> Self {
+        UnicycleModel {
+            state_names: names(&["x", "y", "heading"]),
+            channel_names: names(&["speed", "turn_rate"]),
+        }
     }
 }
 
-impl Vehicle for DoubleIntegrator1d {
-    fn kind(&self) -> VehicleKind {
-        VehicleKind::DoubleIntegrator1d
+impl Dynamics for UnicycleModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
     }
-    fn state_names(&self) -> &'static [&'static str] {
-        &["position", "velocity"]
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
     }
-    fn channel_names(&self) -> &'static [&'static str] {
-        &["acceleration"]
-    }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_column_slice(&[x[1], 0.0])
+    fn drift(&self, _x: &DVector<f64>) -> DVector<f64> {
+        DVector::zeros(3)
     }
     fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0])
+        DMatrix::zeros(3, 3)
     }
-    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_column_slice(2, 1, &[0.0, 1.0])
-    }
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        None
-    }
-    fn hull_radius(&self) -> f64 {
-        self.hull_radius
-    }
-    fn hull_geom(&self) -> usize {
-        self.hull_geom
-    }
-    fn read_state(&self, qpos: &[f64], qvel: &[f64], _act: &[f64]) -> DVector<f64> {
-        DVector::from_column_slice(&[qpos[self.qpos_x], qvel[self.dof_x]])
-    }
-    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
-        let model = sim.model();
-        let mut qpos = vec![0.0; model.nq()];
-        let mut qvel = vec![0.0; model.nv()];
-        let act = vec![0.0; model.na()];
-        qpos[self.qpos_x] = x[0];
-        qvel[self.dof_x] = x[1];
-        sim.set_state(0.0, &qpos, &qvel, &act);
-    }
-    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
-        data.ctrl_mut()[self.ctrl] = applied_input[0];
-    }
-}
-
-/// ẍ = u in the plane.
-pub struct DoubleIntegrator2d {
-    qpos: [usize; 2],
-    dof: [usize; 2],
-    ctrl: [usize; 2],
-    hull_geom: usize,
-    hull_radius: f64,
-}
-
-impl DoubleIntegrator2d {
-    pub fn bind(model: &Model) -> Result<DoubleIntegrator2d, MjError> {
-        let jx = model.require(ObjKind::Joint, "x")?;
-        let jy = model.require(ObjKind::Joint, "y")?;
-        let (hull_geom, hull_radius) = hull(model)?;
-        Ok(DoubleIntegrator2d {
-            qpos: [model.joint_qpos_addr(jx), model.joint_qpos_addr(jy)],
-            dof: [model.joint_dof_addr(jx), model.joint_dof_addr(jy)],
-            ctrl: [
-                model.require(ObjKind::Actuator, "acceleration_x")?,
-                model.require(ObjKind::Actuator, "acceleration_y")?,
-            ],
-            hull_geom,
-            hull_radius,
-        })
-    }
-}
-
-impl Vehicle for DoubleIntegrator2d {
-    fn kind(&self) -> VehicleKind {
-        VehicleKind::DoubleIntegrator2d
-    }
-    fn state_names(&self) -> &'static [&'static str] {
-        &["x", "y", "vx", "vy"]
-    }
-    fn channel_names(&self) -> &'static [&'static str] {
-        &["acceleration_x", "acceleration_y"]
-    }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_column_slice(&[x[2], x[3], 0.0, 0.0])
-    }
-    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(4, 4);
-        j[(0, 2)] = 1.0;
-        j[(1, 3)] = 1.0;
-        j
-    }
-    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        let mut g = DMatrix::zeros(4, 2);
-        g[(2, 0)] = 1.0;
-        g[(3, 1)] = 1.0;
-        g
+    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        let (s, c) = x[2].sin_cos();
+        DMatrix::from_row_slice(3, 2, &[c, 0.0, s, 0.0, 0.0, 1.0])
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
     }
+}
+
+/// The unicycle on `models/unicycle.xml`: speed and yaw-rate velocity servos plus a lateral
+/// no-slip damper on a body with planar joints.
+pub struct MujocoUnicycle {
+    model: Arc<UnicycleModel>,
+    qpos: [usize; 3],
+    dof: [usize; 3],
+    ctrl_speed: usize,
+    ctrl_turn_rate: usize,
+    hull_geom: usize,
+    hull_radius: f64,
+}
+
+impl MujocoUnicycle {
+    pub fn bind(model: &Model) -> Result<MujocoUnicycle, MjError> {
+        let (qpos, dof) = planar_joints(model)?;
+        let (hull_geom, hull_radius) = hull(model)?;
+        Ok(MujocoUnicycle {
+            model: Arc::new(UnicycleModel::default()),
+            qpos,
+            dof,
+            ctrl_speed: model.require(ObjKind::Actuator, "speed")?,
+            ctrl_turn_rate: model.require(ObjKind::Actuator, "turn_rate")?,
+            hull_geom,
+            hull_radius,
+        })
+    }
+}
+
+impl MujocoVehicle for MujocoUnicycle {
+    fn dynamics(&self) -> Arc<dyn Dynamics> {
+        self.model.clone()
+    }
+    fn hull_radius(&self) -> f64 {
+        self.hull_radius
+    }
+    fn hull_geom(&self) -> usize {
+        self.hull_geom
+    }
+    fn read_state(&self, qpos: &[f64], _qvel: &[f64], _act: &[f64]) -> DVector<f64> {
+        DVector::from_column_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], qpos[self.qpos[2]]])
+    }
+    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
+        let model = sim.model();
+        let (mut qpos, qvel, act) = (vec![0.0; model.nq()], vec![0.0; model.nv()], vec![0.0; model.na()]);
+        qpos[self.qpos[0]] = x[0];
+        qpos[self.qpos[1]] = x[1];
+        qpos[self.qpos[2]] = x[2];
+        let _ = self.dof;
+        sim.set_state(0.0, &qpos, &qvel, &act);
+    }
+    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
+        let ctrl = data.ctrl_mut();
+        ctrl[self.ctrl_speed] = applied_input[0];
+        ctrl[self.ctrl_turn_rate] = applied_input[1];
+    }
+}
+
+/// ẍ = u in `dim` dimensions: x = (positions, velocities).
+#[derive(Debug, Clone)]
+pub struct DoubleIntegratorModel {
+    dim: usize,
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
+}
+
+impl DoubleIntegratorModel {
+    pub fn new(dim: usize) -> DoubleIntegratorModel {
+        let (state_names, channel_names) = if dim == 1 {
+            (names(&["position", "velocity"]), names(&["acceleration"]))
+        } else {
+            (
+                names(&["x", "y", "vx", "vy"]),
+                names(&["acceleration_x", "acceleration_y"]),
+            )
+        };
+        DoubleIntegratorModel {
+            dim,
+            state_names,
+            channel_names,
+        }
+    }
+}
+
+impl Dynamics for DoubleIntegratorModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
+    }
+    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
+        let mut f = DVector::zeros(2 * self.dim);
+        f.rows_mut(0, self.dim).copy_from(&x.rows(self.dim, self.dim));
+        f
+    }
+    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
+        let mut j = DMatrix::zeros(2 * self.dim, 2 * self.dim);
+        for i in 0..self.dim {
+            j[(i, self.dim + i)] = 1.0;
+        }
+        j
+    }
+    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
+        let mut g = DMatrix::zeros(2 * self.dim, self.dim);
+        for i in 0..self.dim {
+            g[(self.dim + i, i)] = 1.0;
+        }
+        g
+    }
+    fn planar_position(&self) -> Option<[usize; 2]> {
+        (self.dim == 2).then_some([0, 1])
+    }
+}
+
+/// Double integrator on `models/double_integrator_{1d,2d}.xml`: slide joints and motors.
+pub struct MujocoDoubleIntegrator {
+    model: Arc<DoubleIntegratorModel>,
+    qpos: Vec<usize>,
+    dof: Vec<usize>,
+    ctrl: Vec<usize>,
+    hull_geom: usize,
+    hull_radius: f64,
+}
+
+impl MujocoDoubleIntegrator {
+    pub fn bind(model: &Model, dim: usize) -> Result<MujocoDoubleIntegrator, MjError> {
+        let axes: &[(&str, &str)] = if dim == 1 {
+            &[("x", "acceleration")]
+        } else {
+            &[("x", "acceleration_x"), ("y", "acceleration_y")]
+        };
+        let mut qpos = Vec::new();
+        let mut dof = Vec::new();
+        let mut ctrl = Vec::new();
+        for (joint, actuator) in axes {
+            let j = model.require(ObjKind::Joint, joint)?;
+            qpos.push(model.joint_qpos_addr(j));
+            dof.push(model.joint_dof_addr(j));
+            ctrl.push(model.require(ObjKind::Actuator, actuator)?);
+        }
+        let (hull_geom, hull_radius) = hull(model)?;
+        Ok(MujocoDoubleIntegrator {
+            model: Arc::new(DoubleIntegratorModel::new(dim)),
+            qpos,
+            dof,
+            ctrl,
+            hull_geom,
+            hull_radius,
+        })
+    }
+}
+
+impl MujocoVehicle for MujocoDoubleIntegrator {
+    fn dynamics(&self) -> Arc<dyn Dynamics> {
+        self.model.clone()
+    }
     fn hull_radius(&self) -> f64 {
         self.hull_radius
     }
@@ -324,27 +444,68 @@ impl Vehicle for DoubleIntegrator2d {
         self.hull_geom
     }
     fn read_state(&self, qpos: &[f64], qvel: &[f64], _act: &[f64]) -> DVector<f64> {
-        DVector::from_column_slice(&[
-            qpos[self.qpos[0]],
-            qpos[self.qpos[1]],
-            qvel[self.dof[0]],
-            qvel[self.dof[1]],
-        ])
+        let positions = self.qpos.iter().map(|&i| qpos[i]);
+        let velocities = self.dof.iter().map(|&i| qvel[i]);
+        DVector::from_iterator(2 * self.qpos.len(), positions.chain(velocities))
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
         let model = sim.model();
-        let mut qpos = vec![0.0; model.nq()];
-        let mut qvel = vec![0.0; model.nv()];
-        let act = vec![0.0; model.na()];
-        qpos[self.qpos[0]] = x[0];
-        qpos[self.qpos[1]] = x[1];
-        qvel[self.dof[0]] = x[2];
-        qvel[self.dof[1]] = x[3];
+        let (mut qpos, mut qvel, act) = (vec![0.0; model.nq()], vec![0.0; model.nv()], vec![0.0; model.na()]);
+        let dim = self.qpos.len();
+        for i in 0..dim {
+            qpos[self.qpos[i]] = x[i];
+            qvel[self.dof[i]] = x[dim + i];
+        }
         sim.set_state(0.0, &qpos, &qvel, &act);
     }
     fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
         let ctrl = data.ctrl_mut();
-        ctrl[self.ctrl[0]] = applied_input[0];
-        ctrl[self.ctrl[1]] = applied_input[1];
+        for (&c, &u) in self.ctrl.iter().zip(applied_input) {
+            ctrl[c] = u;
+        }
+    }
+}
+
+/// ẋ = A x + B u.
+#[derive(Debug, Clone)]
+pub struct LinearModel {
+    pub a: DMatrix<f64>,
+    pub b: DMatrix<f64>,
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
+}
+
+impl LinearModel {
+    /// A linear model; state components are named x1…xn and channels u1…um.
+    pub fn new(a: DMatrix<f64>, b: DMatrix<f64>) -> LinearModel {
+        let state_names = (1..=a.nrows()).map(|i| format!("x{i}")).collect();
+        let channel_names = (1..=b.ncols()).map(|i| format!("u{i}")).collect();
+        LinearModel {
+            a,
+            b,
+            state_names,
+            channel_names,
+        }
+    }
+}
+
+impl Dynamics for LinearModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
+    }
+    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
+        &self.a * x
+    }
+    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
+        self.a.clone()
+    }
+    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
+        self.b.clone()
+    }
+    fn planar_position(&self) -> Option<[usize; 2]> {
+        (self.a.nrows() >= 2).then_some([0, 1])
     }
 }

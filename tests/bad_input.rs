@@ -31,18 +31,9 @@ fn expect_error(text: &str, needles: &[&str]) -> String {
     let dir = tempfile::tempdir().unwrap();
     let file = write(dir.path(), "case.toml", text);
     let log = dir.path().join("out.mcap");
-    let o = mjsafe(&[
-        "run",
-        file.to_str().unwrap(),
-        "--out",
-        log.to_str().unwrap(),
-    ]);
+    let o = mjsafe(&["run", file.to_str().unwrap(), "--out", log.to_str().unwrap()]);
     let err = stderr(&o);
-    assert!(
-        !o.status.success(),
-        "expected failure; stdout: {}",
-        stdout(&o)
-    );
+    assert!(!o.status.success(), "expected failure; stdout: {}", stdout(&o));
     for needle in needles {
         assert!(err.contains(needle), "stderr lacks `{needle}`:\n{err}");
     }
@@ -112,10 +103,7 @@ fn model_that_mujoco_rejects_shows_mujocos_message() {
         "broken.xml",
         "<mujoco><worldbody><geom type=\"sphere\"/></worldbody><bogus/></mujoco>",
     );
-    expect_error(
-        &base(&model),
-        &["vehicle.model", "MuJoCo rejected", "bogus"],
-    );
+    expect_error(&base(&model), &["vehicle.model", "MuJoCo rejected", "bogus"]);
 }
 
 #[test]
@@ -193,12 +181,7 @@ input = [0.0]
     );
     let file = write(dir.path(), "blowup.toml", &text);
     let log = dir.path().join("blowup.mcap");
-    let o = mjsafe(&[
-        "run",
-        file.to_str().unwrap(),
-        "--out",
-        log.to_str().unwrap(),
-    ]);
+    let o = mjsafe(&["run", file.to_str().unwrap(), "--out", log.to_str().unwrap()]);
     assert!(!o.status.success(), "a blown-up run exits non-zero");
     assert!(stderr(&o).contains("stopped early"), "{}", stderr(&o));
     // The log is finished, readable, and says what happened.
@@ -207,10 +190,7 @@ input = [0.0]
     let error = m["error"].as_str().unwrap();
     assert!(error.contains("qvel"), "{error}");
     let stopped_at = m["simulated_time"].as_f64().unwrap();
-    assert!(
-        stopped_at > 1.0 && stopped_at < 1.5,
-        "stopped at {stopped_at}"
-    );
+    assert!(stopped_at > 1.0 && stopped_at < 1.5, "stopped at {stopped_at}");
     let o = std::process::Command::new(python())
         .arg(root().join("tests/read_log.py"))
         .arg(&log)

@@ -9,9 +9,7 @@ use std::path::Path;
 use mjsafe::episode::Episode;
 use mjsafe::log::mcap::McapSink;
 use mjsafe::log::Sink;
-use mjsafe::mujoco::{
-    CallbackContext, ControlHook, DataView, Integrator, MjError, Model, Simulation,
-};
+use mjsafe::mujoco::{CallbackContext, ControlHook, DataView, Integrator, MjError, Model, Simulation};
 
 #[derive(Default)]
 struct Counter {
@@ -55,11 +53,7 @@ fn rk4_fires_four_calls_per_step_but_the_same_ticks_as_euler() {
     let h = 0.002;
     let expected = [0.0, h / 2.0, h / 2.0, h];
     for (got, want) in rk4.times_in_step.iter().zip(expected) {
-        assert!(
-            (got - want).abs() < 1e-12,
-            "stage offsets {:?}",
-            rk4.times_in_step
-        );
+        assert!((got - want).abs() < 1e-12, "stage offsets {:?}", rk4.times_in_step);
     }
 }
 
@@ -98,11 +92,7 @@ fn episode_issues_one_command_per_tick_with_rk4_and_euler() {
     let mut finals = Vec::new();
     for integrator in ["rk4", "euler"] {
         let log = dir.path().join(format!("{integrator}.mcap"));
-        run_ok(
-            &file,
-            &log,
-            &["--set", &format!("vehicle.integrator='{integrator}'")],
-        );
+        run_ok(&file, &log, &["--set", &format!("vehicle.integrator='{integrator}'")]);
         let counts = topic_counts(&log);
         // 1 s at a 0.01 s control period: 100 ticks; 500 steps of 0.002 s.
         assert_eq!(counts["/command/issued"], 100, "{integrator}: {counts:?}");
@@ -164,10 +154,7 @@ fn two_episodes_on_two_threads_log_the_same_as_one_after_the_other() {
     });
     let read = |p: &Path| std::fs::read(p).unwrap();
     assert_ne!(read(&seq_a), read(&seq_b), "the two scenarios differ");
-    assert!(
-        read(&seq_a) == read(&par_a),
-        "delayed run differs when run in parallel"
-    );
+    assert!(read(&seq_a) == read(&par_a), "delayed run differs when run in parallel");
     assert!(
         read(&seq_b) == read(&par_b),
         "no-delay run differs when run in parallel"

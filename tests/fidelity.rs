@@ -5,12 +5,12 @@ use std::path::Path;
 
 use mjsafe::mujoco::{CallbackContext, ControlHook, DataView, Model, Simulation};
 use mjsafe::plant;
-use mjsafe::vehicle::{self, Vehicle, VehicleKind};
+use mjsafe::vehicle::{self, MujocoVehicle, VehicleKind};
 use nalgebra::DVector;
 
 /// Writes input k (held over step k) at every callback call of step k.
 struct Replay<'a> {
-    vehicle: &'a dyn Vehicle,
+    vehicle: &'a dyn MujocoVehicle,
     inputs: &'a [DVector<f64>],
 }
 
@@ -29,23 +29,17 @@ fn compare(
     duration: f64,
     input: impl Fn(f64) -> Vec<f64>,
 ) -> (f64, DVector<f64>) {
-    let model = Model::from_xml_file(
-        &Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(model_file),
-    )
-    .unwrap();
+    let model = Model::from_xml_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join(model_file)).unwrap();
     let h = model.timestep();
     let vehicle = vehicle::bind(kind, &model).unwrap();
     let mut sim = Simulation::new(model).unwrap();
     let x0 = DVector::from_column_slice(x0);
     vehicle.write_state(&mut sim, &x0);
     let steps = (duration / h).round() as usize;
-    let inputs: Vec<DVector<f64>> = (0..steps)
-        .map(|k| DVector::from_vec(input(k as f64 * h)))
-        .collect();
-    let reference = plant::integrate(vehicle.as_ref(), &x0, &inputs, h, 10);
-    let position = vehicle.planar_position().map_or(vec![0], |p| p.to_vec());
+    let inputs: Vec<DVector<f64>> = (0..steps).map(|k| DVector::from_vec(input(k as f64 * h))).collect();
+    let model = vehicle.dynamics();
+    let reference = plant::integrate(model.as_ref(), &x0, &inputs, h, 10);
+    let position = model.planar_position().map_or(vec![0], |p| p.to_vec());
     let mut max_position_error: f64 = 0.0;
     let mut hook = Replay {
         vehicle: vehicle.as_ref(),
@@ -57,11 +51,7 @@ fn compare(
         let d = sim.data();
         let x = vehicle.read_state(d.qpos(), d.qvel(), d.act());
         let err = &x - &reference[k + 1];
-        let pos_err = position
-            .iter()
-            .map(|&i| err[i] * err[i])
-            .sum::<f64>()
-            .sqrt();
+        let pos_err = position.iter().map(|&i| err[i] * err[i]).sum::<f64>().sqrt();
         max_position_error = max_position_error.max(pos_err);
         last = err;
     }
@@ -99,13 +89,9 @@ fn double_integrator_2d_matches_the_ode_to_1e_9() {
 #[test]
 fn bicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
     // Speed 3, steering u1 = tan(delta) sweeping +-0.5, no acceleration.
-    let (max_err, last) = compare(
-        VehicleKind::Bicycle,
-        "bicycle.xml",
-        &[0.0, 0.0, 0.0, 3.0],
-        10.0,
-        |t| vec![0.5 * (2.0 * std::f64::consts::PI * t / 5.0).sin(), 0.0],
-    );
+    let (max_err, last) = compare(VehicleKind::Bicycle, "bicycle.xml", &[0.0, 0.0, 0.0, 3.0], 10.0, |t| {
+        vec![0.5 * (2.0 * std::f64::consts::PI * t / 5.0).sin(), 0.0]
+    });
     println!(
         "fidelity bicycle (implicit, h = 0.002, 10 s, v = 3, u1 = 0.5 sin(2 pi t / 5)): max position error = {max_err:.4} m, final error (x1, x2, heading, speed) = {:?}",
         last.as_slice()
@@ -122,6 +108,18 @@ fn bicycle_follows_the_kinematic_model_while_accelerating() {
         10.0,
         |t| vec![0.3 * (0.9 * t).sin(), if t < 5.0 { 0.4 } else { -0.6 }],
     );
-    println!("fidelity bicycle accelerating/braking: max position error = {max_err:.4} m, final error = {:?}", last.as_slice());
+    println!(
+        "fidelity bicycle accelerating/braking: max position error = {max_err:.4} m, final error = {:?}",
+        last.as_slice()
+    );
+    assert!(max_err <= 0.05, "position error {max_err}");
+}
+
+#[test]
+fn unicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
+    let (max_err, last) = compare(VehicleKind::Unicycle, "unicycle.xml", &[1.0, 1.0, 1.0], 10.0, |t| {
+        vec![1.0 + 0.5 * (0.8 * t).sin(), 0.8 * (1.3 * t).cos()]
+    });
+    println!("fidelity unicycle (implicit, h = 0.002, 10 s, v = 1 + 0.5 sin 0.8t, w = 0.8 cos 1.3t): max position error = {max_err:.4} m, final error = {:?}", last.as_slice());
     assert!(max_err <= 0.05, "position error {max_err}");
 }

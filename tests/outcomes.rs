@@ -34,10 +34,7 @@ fn delayed_bicycle_with_delay_free_filter_hits_the_obstacle() {
     let out = run_ok(&scenario("bicycle_obstacle.toml"), &log, &[]);
     assert!(out.contains("COLLISION"), "{out}");
     let m = analyze_json(&log);
-    println!(
-        "bicycle_obstacle: collision {}, min h = {}",
-        m["collision"], m["min_h"]
-    );
+    println!("bicycle_obstacle: collision {}, min h = {}", m["collision"], m["min_h"]);
     let t = m["collision"]["time"].as_f64().unwrap();
     // The obstacle is known from 2.75 s; the first delayed steering input arrives at 2.95 s.
     assert!(t > 2.75, "collision at {t}");

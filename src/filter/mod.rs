@@ -1,5 +1,6 @@
 //! Safety filters. The delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form.
 
+pub mod prescribed_time;
 use nalgebra::DVector;
 
 use crate::barrier::Constraint;
@@ -62,10 +63,7 @@ mod tests {
 
     #[test]
     fn inactive_when_the_nominal_is_safe() {
-        let out = cbf_qp(
-            &constraint(1.0, &[1.0, 0.0]),
-            &DVector::from_column_slice(&[0.5, 2.0]),
-        );
+        let out = cbf_qp(&constraint(1.0, &[1.0, 0.0]), &DVector::from_column_slice(&[0.5, 2.0]));
         assert!(!out.active);
         assert_eq!(out.input, DVector::from_column_slice(&[0.5, 2.0]));
     }
@@ -83,10 +81,7 @@ mod tests {
 
     #[test]
     fn zero_b_with_violation_is_reported_infeasible() {
-        let out = cbf_qp(
-            &constraint(-1.0, &[0.0]),
-            &DVector::from_column_slice(&[3.0]),
-        );
+        let out = cbf_qp(&constraint(-1.0, &[0.0]), &DVector::from_column_slice(&[3.0]));
         assert!(out.infeasible && !out.active);
     }
 }

@@ -34,8 +34,7 @@ impl McapSink {
         };
         if let Some(dir) = path.parent() {
             if !dir.as_os_str().is_empty() {
-                std::fs::create_dir_all(dir)
-                    .map_err(|e| err(format!("cannot create directory: {e}")))?;
+                std::fs::create_dir_all(dir).map_err(|e| err(format!("cannot create directory: {e}")))?;
             }
         }
         let mut partial = path.as_os_str().to_owned();
@@ -61,28 +60,16 @@ impl McapSink {
             channel_ids.push(id);
         }
         let metadata = BTreeMap::from([
-            (
-                "mjsafe_version".to_string(),
-                env!("CARGO_PKG_VERSION").to_string(),
-            ),
-            (
-                "log_format_version".to_string(),
-                LOG_FORMAT_VERSION.to_string(),
-            ),
+            ("mjsafe_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("log_format_version".to_string(), LOG_FORMAT_VERSION.to_string()),
             ("mujoco_version".to_string(), info.mujoco_version.clone()),
             ("scenario_name".to_string(), info.scenario_name.clone()),
             ("scenario_path".to_string(), info.scenario_path.clone()),
             ("scenario".to_string(), info.scenario_text.clone()),
-            (
-                "scenario_resolved".to_string(),
-                info.scenario_resolved.clone(),
-            ),
+            ("scenario_resolved".to_string(), info.scenario_resolved.clone()),
             ("overrides".to_string(), info.overrides.join("\n")),
             ("timestep".to_string(), format!("{}", info.timestep)),
-            (
-                "control_period".to_string(),
-                format!("{}", info.control_period),
-            ),
+            ("control_period".to_string(), format!("{}", info.control_period)),
         ]);
         writer
             .write_metadata(&mcap::records::Metadata {

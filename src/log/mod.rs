@@ -10,8 +10,7 @@ pub mod proto {
 }
 
 /// Serialized `FileDescriptorSet` of proto/mjsafe.proto, embedded as each channel's schema.
-pub const DESCRIPTOR_SET: &[u8] =
-    include_bytes!(concat!(env!("OUT_DIR"), "/mjsafe_descriptor.bin"));
+pub const DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mjsafe_descriptor.bin"));
 
 /// Schema version of the log contract in docs/log-format.md.
 pub const LOG_FORMAT_VERSION: &str = "1";
@@ -25,16 +24,18 @@ pub enum Record {
     Barrier(proto::Barrier),
     Filter(proto::Filter),
     Event(proto::Event),
+    Prediction(proto::Prediction),
 }
 
 /// Topic, protobuf full name of the message type.
-pub const TOPICS: [(&str, &str); 6] = [
+pub const TOPICS: [(&str, &str); 7] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
     ("/command/applied", "mjsafe.AppliedCommand"),
     ("/barrier", "mjsafe.Barrier"),
     ("/filter", "mjsafe.Filter"),
     ("/event", "mjsafe.Event"),
+    ("/prediction", "mjsafe.Prediction"),
 ];
 
 impl Record {
@@ -47,6 +48,7 @@ impl Record {
             Record::Barrier(_) => 3,
             Record::Filter(_) => 4,
             Record::Event(_) => 5,
+            Record::Prediction(_) => 6,
         }
     }
 
@@ -63,6 +65,7 @@ impl Record {
             Record::Barrier(m) => m.time,
             Record::Filter(m) => m.time,
             Record::Event(m) => m.time,
+            Record::Prediction(m) => m.time,
         }
     }
 
@@ -75,6 +78,7 @@ impl Record {
             Record::Barrier(m) => m.encode_to_vec(),
             Record::Filter(m) => m.encode_to_vec(),
             Record::Event(m) => m.encode_to_vec(),
+            Record::Prediction(m) => m.encode_to_vec(),
         }
     }
 }

@@ -22,10 +22,7 @@ pub enum MjError {
     #[error("MuJoCo library version {found} is loaded, but mjsafe needs {REQUIRED_VERSION} (2.2.2, Debian package libmujoco-dev)")]
     WrongVersion { found: i32 },
     #[error("cannot read MJCF file {path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    Io { path: String, source: std::io::Error },
     #[error("MuJoCo rejected the MJCF model {origin}: {message}")]
     Load { origin: String, message: String },
     #[error("MJCF text for {origin} contains a NUL byte")]
@@ -167,12 +164,7 @@ impl Model {
             let slot = ffi::mj_findFileVFS(&*vfs, vfs_name.as_ptr());
             let dest = vfs.filedata[slot as usize] as *mut u8;
             std::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, bytes.len());
-            let model = ffi::mj_loadXML(
-                vfs_name.as_ptr(),
-                &*vfs,
-                error.as_mut_ptr(),
-                ERROR_BUFFER as i32,
-            );
+            let model = ffi::mj_loadXML(vfs_name.as_ptr(), &*vfs, error.as_mut_ptr(), ERROR_BUFFER as i32);
             ffi::mj_deleteVFS(&mut *vfs);
             model
         };
@@ -580,11 +572,7 @@ pub struct Simulation {
 impl Simulation {
     pub fn new(model: Model) -> Result<Simulation, MjError> {
         let data = Data::new(&model)?;
-        Ok(Simulation {
-            data,
-            model,
-            step: 0,
-        })
+        Ok(Simulation { data, model, step: 0 })
     }
 
     pub fn model(&self) -> &Model {
@@ -651,9 +639,7 @@ impl Simulation {
             if warnings_after[i] > warnings_before[i] {
                 return Err(MjError::Unstable {
                     time: start_time,
-                    message: format!(
-                        "NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops"
-                    ),
+                    message: format!("NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops"),
                 });
             }
         }

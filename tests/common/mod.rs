@@ -31,12 +31,7 @@ pub fn stderr(o: &Output) -> String {
 
 /// Runs a scenario into `out`, asserting success; returns stdout.
 pub fn run_ok(scenario: &Path, out: &Path, extra: &[&str]) -> String {
-    let mut args = vec![
-        "run",
-        scenario.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ];
+    let mut args = vec!["run", scenario.to_str().unwrap(), "--out", out.to_str().unwrap()];
     args.extend_from_slice(extra);
     let o = mjsafe(&args);
     assert!(
@@ -52,8 +47,7 @@ pub fn run_ok(scenario: &Path, out: &Path, extra: &[&str]) -> String {
 pub fn analyze_json(file: &Path) -> serde_json::Value {
     let o = mjsafe(&["analyze", "--json", file.to_str().unwrap()]);
     assert!(o.status.success(), "analyze failed: {}", stderr(&o));
-    let runs: serde_json::Value =
-        serde_json::from_str(&stdout(&o)).expect("analyze --json prints JSON");
+    let runs: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("analyze --json prints JSON");
     runs[0].clone()
 }
 
@@ -74,4 +68,15 @@ pub fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
     p
+}
+
+/// Every message of `topic`, decoded with mjsafe's own schema types.
+pub fn read_topic<T: prost::Message + Default>(file: &Path, topic: &str) -> Vec<T> {
+    let bytes = std::fs::read(file).unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == topic)
+        .map(|m| T::decode(&m.data[..]).unwrap())
+        .collect()
 }

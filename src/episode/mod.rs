@@ -1,0 +1,692 @@
+//! The episode loop: builds the plant (MuJoCo or the analytic ODE) and the controller for a
+//! scenario, steps the plant, and reports every step to the log sinks. See
+//! docs/ARCHITECTURE.md for the data flow of one control tick.
+
+mod control;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::barrier::{self, Barrier};
+use crate::delay::{DelayProfile, DelayQueue};
+use crate::log::{proto, LogError, Record, RunInfo, Sink};
+use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
+use crate::nominal::{BicyclePathLqr, Nominal};
+use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
+use crate::scenario::{ConstantSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec, ScenarioError};
+use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
+
+pub use control::{Consistency, ControlLoop, Tick, TICK_TOLERANCE};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EpisodeError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Log(#[from] LogError),
+    #[error("{file}: key `vehicle.model`: {source}")]
+    Model { file: String, source: MjError },
+    #[error(transparent)]
+    Mujoco(#[from] MjError),
+}
+
+/// An obstacle of the episode: its barrier, whether the controller knows it, contact state.
+#[derive(Debug, Clone)]
+struct Obstacle {
+    barrier: Barrier,
+    appear_at: f64,
+    known: bool,
+    in_contact: bool,
+    /// Deepest penetration of the current contact episode.
+    contact_depth: f64,
+}
+
+/// Result of a finished (or stopped) episode.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeSummary {
+    pub steps: u64,
+    pub simulated_time: f64,
+    pub wall_seconds: f64,
+    /// The error that stopped the episode early, if any.
+    pub error: Option<String>,
+}
+
+impl EpisodeSummary {
+    pub fn real_time_factor(&self) -> f64 {
+        if self.wall_seconds > 0.0 {
+            self.simulated_time / self.wall_seconds
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// An episode ready to run.
+pub struct Episode {
+    plant: Box<dyn Plant>,
+    control: ControlLoop,
+    obstacles: Vec<Obstacle>,
+    /// State constraints that are not obstacles (always known).
+    barriers: Vec<Barrier>,
+    steps: u64,
+    info: RunInfo,
+}
+
+/// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
+/// (contype 0, conaffinity 1: it collides with the vehicle hull and nothing else).
+fn model_with_obstacles(xml: &str, loaded: &LoadedScenario) -> Result<String, ScenarioError> {
+    let obstacles = &loaded.scenario.obstacles;
+    if obstacles.is_empty() {
+        return Ok(xml.to_string());
+    }
+    let Some(at) = xml.rfind("</worldbody>") else {
+        return Err(loaded.field_error("vehicle.model", "the MJCF has no <worldbody> to place obstacles in"));
+    };
+    let mut geoms = String::new();
+    for (i, o) in obstacles.iter().enumerate() {
+        geoms.push_str(&format!(
+            "    <geom name=\"{}\" type=\"sphere\" pos=\"{} {} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n",
+            obstacle_geom_name(i),
+            o.centre[0],
+            o.centre[1],
+            o.radius
+        ));
+    }
+    Ok(format!("{}{}{}", &xml[..at], geoms, &xml[at..]))
+}
+
+fn obstacle_geom_name(index: usize) -> String {
+    format!("obstacle_{index}")
+}
+
+/// The plant's pieces before it is built: model (MuJoCo kinds), analytic dynamics, hull.
+struct PlantParts {
+    model: Option<Model>,
+    vehicle: Option<Box<dyn vehicle::MujocoVehicle>>,
+    dynamics: Arc<dyn Dynamics>,
+    hull_radius: f64,
+    timestep: f64,
+}
+
+fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError> {
+    let sc = &loaded.scenario;
+    let file = loaded.path.display().to_string();
+    if let Some(model_path) = loaded.model_path() {
+        let xml = std::fs::read_to_string(&model_path).map_err(|e| {
+            loaded.field_error(
+                "vehicle.model",
+                format!("cannot read MJCF file {}: {e}", model_path.display()),
+            )
+        })?;
+        let xml = model_with_obstacles(&xml, loaded)?;
+        let mut model =
+            Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| EpisodeError::Model {
+                file: file.clone(),
+                source,
+            })?;
+        if let Some(h) = sc.vehicle.timestep {
+            model.set_timestep(h);
+        }
+        if let Some(integrator) = sc.vehicle.integrator {
+            model.set_integrator(integrator);
+        }
+        let bound = vehicle::bind(sc.vehicle.kind, &model).map_err(|source| EpisodeError::Model { file, source })?;
+        return Ok(PlantParts {
+            dynamics: bound.dynamics(),
+            hull_radius: bound.hull_radius(),
+            timestep: model.timestep(),
+            model: Some(model),
+            vehicle: Some(bound),
+        });
+    }
+    // Validation guarantees: kind linear with A, B and a timestep.
+    let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
+    let (a, b) = (
+        sc.vehicle.a.as_ref().expect("validated"),
+        sc.vehicle.b.as_ref().expect("validated"),
+    );
+    Ok(PlantParts {
+        model: None,
+        vehicle: None,
+        dynamics: Arc::new(LinearModel::new(rows(a), rows(b))),
+        hull_radius: 0.0,
+        timestep: sc.vehicle.timestep.expect("validated"),
+    })
+}
+
+impl Episode {
+    /// Loads the model, builds plant and controller, and checks everything that depends on
+    /// the model (state size, channel names, delays against the timestep and Assumptions 1–2).
+    pub fn new(loaded: &LoadedScenario) -> Result<Episode, EpisodeError> {
+        mujoco::check_version()?;
+        let sc = &loaded.scenario;
+        let parts = load_plant_parts(loaded)?;
+        let model = parts.dynamics.clone();
+        let timestep = parts.timestep;
+
+        let n = model.state_dim();
+        if sc.vehicle.initial_state.len() != n {
+            return Err(loaded
+                .field_error(
+                    "vehicle.initial_state",
+                    format!(
+                        "expected {n} values ({}), found {}",
+                        model.state_names().join(", "),
+                        sc.vehicle.initial_state.len()
+                    ),
+                )
+                .into());
+        }
+        let channels: Vec<String> = model.channel_names().to_vec();
+        for (section, keys) in [
+            ("delays", sc.delays.keys().collect::<Vec<_>>()),
+            ("initial_input", sc.initial_input.keys().collect()),
+        ] {
+            for key in keys {
+                if !channels.contains(key) {
+                    return Err(loaded
+                        .field_error(
+                            &format!("{section}.{key}"),
+                            format!("unknown input channel; this vehicle has: {}", channels.join(", ")),
+                        )
+                        .into());
+                }
+            }
+        }
+
+        let period = sc.control.period.unwrap_or(timestep);
+        let ratio = period / timestep;
+        if (ratio - ratio.round()).abs() > 1e-6 || ratio.round() < 1.0 {
+            return Err(loaded
+                .field_error(
+                    "control.period",
+                    format!("expected a whole multiple of the timestep {timestep} s, found {period}"),
+                )
+                .into());
+        }
+        let steps_per_tick = ratio.round() as u64;
+
+        let mut queues = Vec::with_capacity(channels.len());
+        for channel in &channels {
+            let profile = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
+            let key = format!("delays.{channel}");
+            profile
+                .check(channel, sc.duration, timestep, sc.control.history)
+                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+            let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
+            let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
+                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+            queues.push(queue);
+        }
+        let structure = control::predictor_structure(&queues, period).map_err(|e| loaded.field_error("delays", e))?;
+
+        let nominal = match &sc.nominal {
+            NominalSpec::PathLqr(PathLqrSpec {
+                reference_speed,
+                path_point,
+                path_heading,
+                q,
+                r,
+            }) => {
+                if sc.vehicle.kind != VehicleKind::Bicycle {
+                    return Err(loaded
+                        .field_error("nominal.kind", "path_lqr needs vehicle.kind = \"bicycle\"")
+                        .into());
+                }
+                let wheelbase = model.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip();
+                let lqr = BicyclePathLqr::new(*path_point, *path_heading, *reference_speed, wheelbase, *q, *r)
+                    .map_err(|e| loaded.field_error("nominal", e.to_string()))?;
+                Nominal::PathLqr(lqr)
+            }
+            NominalSpec::Constant(ConstantSpec { input }) => {
+                if input.len() != channels.len() {
+                    return Err(loaded
+                        .field_error(
+                            "nominal.input",
+                            format!("expected {} values ({})", channels.len(), channels.join(", ")),
+                        )
+                        .into());
+                }
+                Nominal::Constant(DVector::from_column_slice(input))
+            }
+            NominalSpec::UnicycleStabilizer => Nominal::UnicycleStabilizer,
+        };
+
+        let (form, compensation) = match &sc.filter {
+            FilterSpec::None => (None, Default::default()),
+            FilterSpec::CbfQp(spec) => {
+                if sc.obstacles.len() + sc.barriers.len() > 1 {
+                    return Err(loaded
+                        .field_error("obstacles", "the closed-form CBF-QP (4.9) handles one barrier; several need the QP solver of the distinct-delay filters")
+                        .into());
+                }
+                (spec.form(), spec.compensation)
+            }
+        };
+
+        let x0 = DVector::from_column_slice(&sc.vehicle.initial_state);
+        let mut barriers = Vec::with_capacity(sc.barriers.len());
+        for (i, shape) in sc.barriers.iter().enumerate() {
+            let b = Barrier {
+                name: format!("barrier_{i}"),
+                shape: shape.clone(),
+            };
+            if b.max_index() >= n {
+                return Err(loaded
+                    .field_error(
+                        &format!("barriers[{i}]"),
+                        format!("refers to state index {}, the state has {n} components", b.max_index()),
+                    )
+                    .into());
+            }
+            barriers.push(b);
+        }
+        let mut obstacles = Vec::with_capacity(sc.obstacles.len());
+        for (i, o) in sc.obstacles.iter().enumerate() {
+            let Some(position) = model.planar_position() else {
+                return Err(loaded
+                    .field_error("obstacles", "this vehicle does not move in a plane")
+                    .into());
+            };
+            let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
+            let barrier = Barrier::circular_obstacle(&name, position, o.centre, parts.hull_radius + o.radius);
+            if barrier.h(&x0) < 0.0 {
+                return Err(loaded
+                    .field_error(
+                        &format!("obstacles[{i}]"),
+                        format!(
+                            "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
+                            barrier.clearance(&x0)
+                        ),
+                    )
+                    .into());
+            }
+            obstacles.push(Obstacle {
+                barrier,
+                appear_at: o.appear_at,
+                known: false,
+                in_contact: false,
+                contact_depth: 0.0,
+            });
+        }
+
+        let file = loaded.path.display().to_string();
+        let plant: Box<dyn Plant> = match sc.plant {
+            PlantKind::Mujoco => {
+                let model = parts.model.expect("MuJoCo kinds have a model (validated)");
+                let geoms = (0..obstacles.len())
+                    .map(|i| model.require(ObjKind::Geom, &obstacle_geom_name(i)))
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|source| EpisodeError::Model {
+                        file: file.clone(),
+                        source,
+                    })?;
+                let sim = Simulation::new(model)?;
+                Box::new(MujocoPlant::new(
+                    sim,
+                    parts.vehicle.expect("bound with the model"),
+                    geoms,
+                    &x0,
+                ))
+            }
+            PlantKind::Ode => Box::new(OdePlant::new(model.clone(), x0.clone(), timestep)),
+        };
+
+        let mut control = ControlLoop::new(
+            model,
+            nominal,
+            form,
+            compensation,
+            queues,
+            structure,
+            timestep,
+            steps_per_tick,
+        );
+        // Non-obstacle barriers are known from the start.
+        control.known_barriers.extend(barriers.iter().cloned());
+
+        let steps = (sc.duration / timestep - TICK_TOLERANCE).ceil() as u64;
+        let info = RunInfo {
+            scenario_name: sc.name.clone(),
+            scenario_path: loaded.path.display().to_string(),
+            scenario_text: loaded.source_text.clone(),
+            scenario_resolved: loaded.resolved_toml(),
+            overrides: loaded.overrides.clone(),
+            mujoco_version: mujoco::version_string(),
+            timestep,
+            control_period: period,
+        };
+        Ok(Episode {
+            plant,
+            control,
+            obstacles,
+            barriers,
+            steps,
+            info,
+        })
+    }
+
+    pub fn info(&self) -> &RunInfo {
+        &self.info
+    }
+
+    /// Steps the episode will take.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Runs to the end (or to the first error inside the run, which is logged as an `/event`
+    /// error and returned in the summary) and finishes every sink.
+    pub fn run(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<EpisodeSummary, EpisodeError> {
+        let started = Instant::now();
+        let (steps, error) = match self.run_steps(sinks) {
+            Ok(outcome) => outcome,
+            Err(e) => {
+                for sink in sinks.iter_mut() {
+                    let _ = sink.finish(false);
+                }
+                return Err(e);
+            }
+        };
+        let complete = error.is_none();
+        for sink in sinks.iter_mut() {
+            sink.finish(complete)?;
+        }
+        Ok(EpisodeSummary {
+            steps,
+            simulated_time: steps as f64 * self.control.timestep,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            error,
+        })
+    }
+
+    fn emit(sinks: &mut [&mut dyn Sink], record: Record) -> Result<(), LogError> {
+        for sink in sinks.iter_mut() {
+            sink.record(&record)?;
+        }
+        Ok(())
+    }
+
+    fn event(time: f64, kind: &str, message: String, participants: Vec<String>, depth: f64) -> Record {
+        Record::Event(proto::Event {
+            time,
+            kind: kind.into(),
+            message,
+            participants,
+            depth,
+        })
+    }
+
+    /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
+    fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<String>), EpisodeError> {
+        let h = self.control.timestep;
+        let state_names = self.control.model.state_names().to_vec();
+        let channels = self.control.model.channel_names().to_vec();
+
+        for k in 0..=self.steps {
+            let time = k as f64 * h;
+            // Obstacles become known to the controller at their appearance time.
+            for o in self
+                .obstacles
+                .iter_mut()
+                .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
+            {
+                o.known = true;
+                self.control.known_barriers.push(o.barrier.clone());
+                let message = format!("{} becomes known to the controller", o.barrier.name);
+                Self::emit(
+                    sinks,
+                    Self::event(time, "obstacle_appeared", message, vec![o.barrier.name.clone()], 0.0),
+                )?;
+            }
+
+            let x = self.plant.state();
+            Self::emit(
+                sinks,
+                Record::State(proto::State {
+                    time,
+                    step: k,
+                    names: state_names.clone(),
+                    values: x.iter().copied().collect(),
+                }),
+            )?;
+            if x.iter().any(|v| !v.is_finite()) {
+                return self.stop_with_error(
+                    sinks,
+                    time,
+                    k,
+                    format!("non-finite state {:?} at t = {time}", x.as_slice()),
+                );
+            }
+            match self.control.realize(time, &x) {
+                Ok(done) => {
+                    for c in done {
+                        Self::emit(sinks, prediction_record(&c, &channels))?;
+                    }
+                }
+                Err(e) => return self.stop_with_error(sinks, time, k, e.to_string()),
+            }
+            if k == self.steps {
+                break;
+            }
+
+            if let Err(e) = self.plant.step(&mut self.control) {
+                return self.stop_with_error(sinks, time, k, e.to_string());
+            }
+            if let Some(e) = self.control.error.take() {
+                return self.stop_with_error(sinks, time, k, e.to_string());
+            }
+
+            // What happened during step k: tick, applied input, barriers, contacts.
+            if let Some(tick) = self.control.tick.take() {
+                self.emit_tick(sinks, &tick, &channels)?;
+            }
+            let applied = DVector::from_iterator(channels.len(), self.control.applied.iter().map(|a| a.0));
+            Self::emit(
+                sinks,
+                Record::Applied(proto::AppliedCommand {
+                    time,
+                    channels: channels.clone(),
+                    values: applied.iter().copied().collect(),
+                    issued_at: self.control.applied.iter().map(|a| a.1).collect(),
+                }),
+            )?;
+            self.emit_barriers(sinks, time, &x, &applied)?;
+            self.check_contacts(sinks, time)?;
+        }
+        let end = self.steps as f64 * h;
+        Self::emit(
+            sinks,
+            Self::event(
+                end,
+                "episode_end",
+                format!("completed {} steps", self.steps),
+                vec![],
+                0.0,
+            ),
+        )?;
+        Ok((self.steps, None))
+    }
+
+    fn emit_tick(&self, sinks: &mut [&mut dyn Sink], tick: &Tick, channels: &[String]) -> Result<(), LogError> {
+        Self::emit(
+            sinks,
+            Record::Issued(proto::IssuedCommand {
+                time: tick.time,
+                channels: channels.to_vec(),
+                nominal: tick.nominal.iter().copied().collect(),
+                filtered: tick.issued.iter().copied().collect(),
+            }),
+        )?;
+        let solved = tick.outcomes.iter().flatten();
+        let active = solved.clone().any(|o| o.active);
+        let infeasible = solved.clone().any(|o| o.infeasible);
+        let mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
+        Self::emit(
+            sinks,
+            Record::Filter(proto::Filter {
+                time: tick.time,
+                active,
+                channels: channels.to_vec(),
+                correction: (&tick.issued - &tick.nominal).iter().copied().collect(),
+                infeasible,
+                mu,
+            }),
+        )
+    }
+
+    /// Every barrier at x(t_k), with its constraint evaluated at the applied input (without a
+    /// filter there is no barrier constraint: only h is meaningful).
+    fn emit_barriers(
+        &self,
+        sinks: &mut [&mut dyn Sink],
+        time: f64,
+        x: &DVector<f64>,
+        applied: &DVector<f64>,
+    ) -> Result<(), LogError> {
+        let form = self.control.form;
+        let model = self.control.model.as_ref();
+        let entries = self
+            .obstacles
+            .iter()
+            .map(|o| (&o.barrier, o.known))
+            .chain(self.barriers.iter().map(|b| (b, true)));
+        let barriers: Vec<proto::BarrierValue> = entries
+            .map(|(b, known)| {
+                let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
+                    (
+                        barrier::constraint(b, form, model, x).value(applied),
+                        form.relative_degree(),
+                    )
+                });
+                proto::BarrierValue {
+                    name: b.name.clone(),
+                    h: b.h(x),
+                    constraint,
+                    known,
+                    relative_degree,
+                }
+            })
+            .collect();
+        if barriers.is_empty() {
+            return Ok(());
+        }
+        Self::emit(sinks, Record::Barrier(proto::Barrier { time, barriers }))
+    }
+
+    /// Collision start/end events from the plant's penetrations of the obstacles.
+    fn check_contacts(&mut self, sinks: &mut [&mut dyn Sink], time: f64) -> Result<(), LogError> {
+        if self.obstacles.is_empty() {
+            return Ok(());
+        }
+        let barriers: Vec<Barrier> = self.obstacles.iter().map(|o| o.barrier.clone()).collect();
+        let depths = self.plant.penetrations(&barriers);
+        for (o, depth) in self.obstacles.iter_mut().zip(depths) {
+            let touching = depth.is_some();
+            if let Some(d) = depth {
+                o.contact_depth = o.contact_depth.max(d);
+            }
+            if touching == o.in_contact {
+                continue;
+            }
+            o.in_contact = touching;
+            let participants = vec!["vehicle".to_string(), o.barrier.name.clone()];
+            // collision_start carries the depth at first contact, collision_end the deepest
+            // penetration of the whole contact.
+            let record = if touching {
+                Self::event(
+                    time,
+                    "collision_start",
+                    format!("vehicle hull touches {}", o.barrier.name),
+                    participants,
+                    o.contact_depth,
+                )
+            } else {
+                let deepest = std::mem::take(&mut o.contact_depth);
+                let message = format!(
+                    "vehicle hull clear of {} (deepest penetration {deepest:.4} m)",
+                    o.barrier.name
+                );
+                Self::event(time, "collision_end", message, participants, deepest)
+            };
+            Self::emit(sinks, record)?;
+        }
+        Ok(())
+    }
+
+    fn stop_with_error(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+        time: f64,
+        steps: u64,
+        message: String,
+    ) -> Result<(u64, Option<String>), EpisodeError> {
+        Self::emit(sinks, Self::event(time, "error", message.clone(), vec![], 0.0))?;
+        Ok((steps, Some(message)))
+    }
+}
+
+fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
+    let error = (&c.prediction.state - &c.realized).norm();
+    Record::Prediction(proto::Prediction {
+        time: c.prediction.target_time,
+        channel: channels[c.prediction.channel].clone(),
+        issued_at: c.prediction.issued_at,
+        horizon: c.prediction.target_time - c.prediction.issued_at,
+        predicted: c.prediction.state.iter().copied().collect(),
+        realized: c.realized.iter().copied().collect(),
+        error,
+        relative_error: error / c.realized.norm().max(1.0),
+    })
+}
+
+/// Default log path: `logs/<scenario name>-<UTC timestamp>.mcap`, never overwriting a file.
+pub fn default_log_path(dir: &std::path::Path, name: &str) -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let stamp = utc_stamp(secs);
+    let mut path = dir.join(format!("{name}-{stamp}.mcap"));
+    let mut n = 2;
+    while path.exists() {
+        path = dir.join(format!("{name}-{stamp}-{n}.mcap"));
+        n += 1;
+    }
+    path
+}
+
+/// `YYYYmmddTHHMMSS` for seconds since the Unix epoch (UTC).
+fn utc_stamp(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn utc_stamp_matches_known_dates() {
+        assert_eq!(super::utc_stamp(0), "19700101T000000");
+        assert_eq!(super::utc_stamp(1_700_000_000), "20231114T221320");
+        assert_eq!(super::utc_stamp(951_782_400), "20000229T000000");
+    }
+}
