@@ -22,6 +22,8 @@ pub enum Shape {
     },
     /// Half-space h = cᵀx + d ((2.47): h = x − x_bdry).
     HalfSpace { coefficients: Vec<f64>, offset: f64 },
+    /// Quadratic h = xᵀQx + cᵀx + d ((4.53): h = x2² − x1 + 1), Q as an array of rows.
+    Quadratic { q: Vec<Vec<f64>>, c: Vec<f64>, d: f64 },
 }
 
 /// A named barrier function.
@@ -50,6 +52,7 @@ impl Barrier {
         match &self.shape {
             Shape::Ball { indices, .. } => indices.iter().copied().max().unwrap_or(0),
             Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
+            Shape::Quadratic { q, c, .. } => q.len().max(c.len()).saturating_sub(1),
         }
     }
 
@@ -71,6 +74,14 @@ impl Barrier {
             }
             Shape::HalfSpace { coefficients, offset } => {
                 coefficients.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + offset
+            }
+            Shape::Quadratic { q, c, d } => {
+                let quadratic: f64 = q
+                    .iter()
+                    .enumerate()
+                    .map(|(i, row)| row.iter().enumerate().map(|(j, v)| x[i] * v * x[j]).sum::<f64>())
+                    .sum();
+                quadratic + c.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + d
             }
         }
     }
@@ -105,6 +116,8 @@ impl Barrier {
                         .sqrt()
                         .max(f64::MIN_POSITIVE)
             }
+            // First-order distance estimate h / ‖∇h‖.
+            Shape::Quadratic { .. } => self.h(x) / self.gradient(x).norm().max(f64::MIN_POSITIVE),
         }
     }
 
@@ -128,6 +141,18 @@ impl Barrier {
                     g[i] = *c;
                 }
             }
+            // ∇(xᵀQx + cᵀx) = (Q + Qᵀ)x + c.
+            Shape::Quadratic { q, c, .. } => {
+                for (i, row) in q.iter().enumerate() {
+                    for (j, v) in row.iter().enumerate() {
+                        g[i] += v * x[j];
+                        g[j] += v * x[i];
+                    }
+                }
+                for (i, c) in c.iter().enumerate() {
+                    g[i] += c;
+                }
+            }
         }
         g
     }
@@ -135,11 +160,22 @@ impl Barrier {
     /// ∇²h (constant for these shapes).
     pub fn hessian(&self, n: usize) -> DMatrix<f64> {
         let mut hess = DMatrix::zeros(n, n);
-        if let Shape::Ball { indices, inside, .. } = &self.shape {
-            let sign = if *inside { -2.0 } else { 2.0 };
-            for &i in indices {
-                hess[(i, i)] = sign;
+        match &self.shape {
+            Shape::Ball { indices, inside, .. } => {
+                let sign = if *inside { -2.0 } else { 2.0 };
+                for &i in indices {
+                    hess[(i, i)] = sign;
+                }
             }
+            Shape::Quadratic { q, .. } => {
+                for (i, row) in q.iter().enumerate() {
+                    for (j, v) in row.iter().enumerate() {
+                        hess[(i, j)] += v;
+                        hess[(j, i)] += v;
+                    }
+                }
+            }
+            Shape::HalfSpace { .. } => {}
         }
         hess
     }
@@ -240,6 +276,26 @@ mod tests {
         assert!((lie.lf2_h - 2.0 * v * v).abs() < 1e-12); // (4.89)
         assert!((lie.lg_lf_h[0] - lg1).abs() < 1e-12 && (lie.lg_lf_h[1] - lg2).abs() < 1e-12);
         assert!((lie.lf_h - v * lie.lg_lf_h[1]).abs() < 1e-12); // (4.91)
+    }
+
+    #[test]
+    fn example1_barrier_matches_4_54_and_4_55() {
+        let model = crate::vehicle::NonlinearExample1::default();
+        let b = Barrier {
+            name: "h".into(),
+            shape: Shape::Quadratic {
+                q: vec![vec![0.0, 0.0], vec![0.0, 1.0]],
+                c: vec![-1.0, 0.0],
+                d: 1.0,
+            },
+        };
+        let x = DVector::from_column_slice(&[1.3, -0.85]);
+        let lie = lie_derivatives(&b, &model, &x);
+        let (x1, x2) = (x[0], x[1]);
+        assert!((lie.h - (x2 * x2 - x1 + 1.0)).abs() < 1e-12); // (4.53)
+        assert!((lie.lf_h - (x1 + x2 + 2.0 * x1.powi(3) * x2)).abs() < 1e-12); // (4.54)
+        assert!((lie.lg_h[0] + 1.0).abs() < 1e-12 && (lie.lg_h[1] - 2.0 * x2 * x2).abs() < 1e-12);
+        // (4.55)
     }
 
     #[test]

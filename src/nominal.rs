@@ -160,6 +160,33 @@ pub enum Nominal {
     /// (2.40)–(2.43): always evaluated at the predicted state, even when the safety filter
     /// is not delay-compensated (as in §2.4.2).
     UnicycleStabilizer,
+    /// Pointwise min-norm CLF controller (4.58) for V = x1⁴/4 + x2²/2 (4.57).
+    QuarticClf(std::sync::Arc<dyn crate::vehicle::Dynamics>),
+}
+
+impl std::fmt::Debug for dyn crate::vehicle::Dynamics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Dynamics({:?})", self.state_names())
+    }
+}
+
+impl PartialEq for dyn crate::vehicle::Dynamics {
+    fn eq(&self, other: &Self) -> bool {
+        std::ptr::eq(self as *const _ as *const u8, other as *const _ as *const u8)
+    }
+}
+
+/// (4.58): u0 = −(L_f V + ‖x‖²) L_g Vᵀ / ‖L_g V‖² (0 where L_g V = 0), V = x1⁴/4 + x2²/2 (4.57),
+/// which gives V̇ ≤ −‖x‖² (4.59).
+pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &DVector<f64>) -> DVector<f64> {
+    let grad_v = DVector::from_column_slice(&[x[0].powi(3), x[1]]);
+    let lf_v = grad_v.dot(&model.drift(x));
+    let lg_v = model.input_matrix(x).transpose() * &grad_v;
+    let norm2 = lg_v.norm_squared();
+    if norm2 < 1e-14 {
+        return DVector::zeros(lg_v.len());
+    }
+    -lg_v * ((lf_v + x.norm_squared()) / norm2)
 }
 
 impl Nominal {
@@ -169,6 +196,7 @@ impl Nominal {
             Nominal::PathLqr(lqr) => lqr.input(x),
             Nominal::Constant(u) => u.clone(),
             Nominal::UnicycleStabilizer => unicycle_stabilizer(time, x),
+            Nominal::QuarticClf(model) => quartic_clf(model.as_ref(), x),
         }
     }
 

@@ -111,6 +111,8 @@ pub enum NominalSpec {
     Constant(ConstantSpec),
     /// The unicycle's predictor-feedback stabiliser (2.40)–(2.46).
     UnicycleStabilizer,
+    /// CLF controller (4.58) with V = x1⁴/4 + x2²/2 (4.57) (two-state systems).
+    QuarticClf,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -150,9 +152,33 @@ pub enum FilterSpec {
     /// No safety filter: the nominal input is issued as it is.
     #[default]
     None,
-    /// Delay-free CBF-QP (4.6)–(4.11) on the current state, relative-degree-2 barrier
-    /// constraint (4.83).
+    /// CBF-QP (4.6)–(4.11) over all channels, at x(t) or at each channel's prediction.
     CbfQp(CbfQpSpec),
+    /// Fixed-channel robust filter (4.39)–(4.47), at the predictions.
+    FixedChannel(FixedChannelSpec),
+    /// Variable-channel γm filter (4.60)–(4.68), at the predictions.
+    GammaM(GammaMSpec),
+}
+
+impl FilterSpec {
+    /// The barrier form the gains describe (None without a filter or with invalid gains).
+    pub fn form(&self) -> Option<BarrierForm> {
+        match self {
+            FilterSpec::None => None,
+            FilterSpec::CbfQp(s) => barrier_form(s.alpha, s.l0, s.l1),
+            FilterSpec::FixedChannel(s) => barrier_form(s.alpha, s.l0, s.l1),
+            FilterSpec::GammaM(s) => barrier_form(s.alpha, s.l0, s.l1),
+        }
+    }
+}
+
+/// Relative degree 1 with α(h) = alpha·h, or 2 with gains l0, l1 of (4.82).
+fn barrier_form(alpha: Option<f64>, l0: Option<f64>, l1: Option<f64>) -> Option<BarrierForm> {
+    match (alpha, l0, l1) {
+        (Some(alpha), None, None) => Some(BarrierForm::RelativeDegree1 { alpha }),
+        (None, Some(l0), Some(l1)) => Some(BarrierForm::RelativeDegree2 { l0, l1 }),
+        _ => None,
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -180,15 +206,52 @@ pub enum Compensation {
     Predictor,
 }
 
-impl CbfQpSpec {
-    /// The barrier form the gains describe (validated at load time).
-    pub fn form(&self) -> Option<BarrierForm> {
-        match (self.alpha, self.l0, self.l1) {
-            (Some(alpha), None, None) => Some(BarrierForm::RelativeDegree1 { alpha }),
-            (None, Some(l0), Some(l1)) => Some(BarrierForm::RelativeDegree2 { l0, l1 }),
-            _ => None,
-        }
-    }
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedChannelSpec {
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    #[serde(default)]
+    pub l0: Option<f64>,
+    #[serde(default)]
+    pub l1: Option<f64>,
+    /// φ (4.41): how many of the shortest-delayed channels suffice everywhere. Declared here
+    /// (verified on `phi_box` if given) or, if absent, found on `phi_box`.
+    #[serde(default)]
+    pub phi: Option<usize>,
+    #[serde(default)]
+    pub phi_box: Option<StateBox>,
+}
+
+/// An axis-aligned box of states, sampled on a grid to verify or find φ (4.40).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateBox {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    /// Grid points per axis (default 9).
+    #[serde(default = "default_box_points")]
+    pub points: usize,
+}
+
+fn default_box_points() -> usize {
+    9
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GammaMSpec {
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    #[serde(default)]
+    pub l0: Option<f64>,
+    #[serde(default)]
+    pub l1: Option<f64>,
+    /// Slack penalty m ≥ 1 (4.60).
+    pub m: f64,
+    /// γ ≥ 1 of γ_f (4.61); default (m + 1)/m (Remark 4.5).
+    #[serde(default)]
+    pub gamma: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -300,6 +363,8 @@ fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
         ("nominal", "path_lqr") => check::<PathLqrSpec>(section, body),
         ("nominal", "constant") => check::<ConstantSpec>(section, body),
         ("filter", "cbf_qp") => check::<CbfQpSpec>(section, body),
+        ("filter", "fixed_channel") => check::<FixedChannelSpec>(section, body),
+        ("filter", "gamma_m") => check::<GammaMSpec>(section, body),
         _ => None,
     }
 }
@@ -465,14 +530,15 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 return Err(s.field_error("nominal.input", "expected finite numbers"));
             }
         }
+        NominalSpec::QuarticClf => {}
         NominalSpec::UnicycleStabilizer => {
             if sc.vehicle.kind != VehicleKind::Unicycle {
                 return Err(s.field_error("nominal.kind", "unicycle_stabilizer needs vehicle.kind = \"unicycle\""));
             }
         }
     }
-    if let FilterSpec::CbfQp(spec) = &sc.filter {
-        match spec.form() {
+    if sc.filter != FilterSpec::None {
+        match sc.filter.form() {
             None => {
                 return Err(s.field_error(
                     "filter",
@@ -494,6 +560,38 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             Some(_) => {}
         }
     }
+    if let FilterSpec::GammaM(spec) = &sc.filter {
+        if !(spec.m.is_finite() && spec.m >= 1.0) {
+            return Err(s.field_error("filter.m", format!("expected m >= 1 (4.60), found {}", spec.m)));
+        }
+        if let Some(gamma) = spec.gamma {
+            if !(gamma.is_finite() && gamma >= 1.0) {
+                return Err(s.field_error("filter.gamma", format!("expected gamma >= 1 (4.61), found {gamma}")));
+            }
+        }
+    }
+    if let FilterSpec::FixedChannel(spec) = &sc.filter {
+        if spec.phi == Some(0) {
+            return Err(s.field_error("filter.phi", "expected phi >= 1 (a number of input channels, (4.41))"));
+        }
+        if spec.phi.is_none() && spec.phi_box.is_none() {
+            return Err(s.field_error("filter.phi", "declare phi (4.41) or give filter.phi_box to find it"));
+        }
+        if let Some(b) = &spec.phi_box {
+            let ok = b.lower.len() == b.upper.len()
+                && b.points >= 2
+                && b.lower
+                    .iter()
+                    .zip(&b.upper)
+                    .all(|(l, u)| l.is_finite() && u.is_finite() && l <= u);
+            if !ok {
+                return Err(s.field_error(
+                    "filter.phi_box",
+                    "expected lower <= upper of equal lengths, finite, and points >= 2",
+                ));
+            }
+        }
+    }
     for (i, b) in sc.barriers.iter().enumerate() {
         let ok = match b {
             Shape::Ball {
@@ -509,6 +607,11 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             }
             Shape::HalfSpace { coefficients, offset } => {
                 !coefficients.is_empty() && coefficients.iter().all(|c| c.is_finite()) && offset.is_finite()
+            }
+            Shape::Quadratic { q, c, d } => {
+                q.iter().all(|row| row.len() == q.len())
+                    && q.iter().flatten().chain(c).all(|v| v.is_finite())
+                    && d.is_finite()
             }
         };
         if !ok {

@@ -25,12 +25,14 @@ pub enum VehicleKind {
     DoubleIntegrator2d,
     /// ẋ = A x + B u with A, B from the scenario (ODE plant only), e.g. (2.30), (3.34).
     Linear,
+    /// Example 1 of Ch. 4 (4.52): ẋ1 = −x1 − x2 + u1, ẋ2 = x1³ + x2 u2 (ODE plant only).
+    NonlinearExample1,
 }
 
 impl VehicleKind {
     /// Whether the kind has an MJCF model (and so can run on the MuJoCo plant).
     pub fn has_mjcf(self) -> bool {
-        !matches!(self, VehicleKind::Linear)
+        !matches!(self, VehicleKind::Linear | VehicleKind::NonlinearExample1)
     }
 }
 
@@ -87,10 +89,10 @@ pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, 
         VehicleKind::Unicycle => Box::new(MujocoUnicycle::bind(model)?),
         VehicleKind::DoubleIntegrator1d => Box::new(MujocoDoubleIntegrator::bind(model, 1)?),
         VehicleKind::DoubleIntegrator2d => Box::new(MujocoDoubleIntegrator::bind(model, 2)?),
-        VehicleKind::Linear => {
+        VehicleKind::Linear | VehicleKind::NonlinearExample1 => {
             return Err(MjError::MissingName {
                 kind: "MJCF binding for vehicle kind",
-                name: "linear".into(),
+                name: format!("{kind:?}"),
             })
         }
     })
@@ -507,5 +509,39 @@ impl Dynamics for LinearModel {
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         (self.a.nrows() >= 2).then_some([0, 1])
+    }
+}
+
+/// Example 1 of Ch. 4 (4.52): ẋ1 = −x1 − x2 + u1, ẋ2 = x1³ + x2 u2.
+#[derive(Debug, Clone)]
+pub struct NonlinearExample1 {
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
+}
+
+impl Default for NonlinearExample1 {
+    fn default() -> Self {
+        NonlinearExample1 {
+            state_names: names(&["x1", "x2"]),
+            channel_names: names(&["u1", "u2"]),
+        }
+    }
+}
+
+impl Dynamics for NonlinearExample1 {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
+    }
+    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
+        DVector::from_column_slice(&[-x[0] - x[1], x[0].powi(3)])
+    }
+    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        DMatrix::from_row_slice(2, 2, &[-1.0, -1.0, 3.0 * x[0] * x[0], 0.0])
+    }
+    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, x[1]])
     }
 }

@@ -11,17 +11,46 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::barrier::{self, Barrier, BarrierForm};
+use crate::barrier::{self, Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
-use crate::filter::{self, FilterOutcome};
+use crate::filter::{self, ChannelOutcome};
 use crate::nominal::Nominal;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, Structure};
-use crate::scenario::Compensation;
 use crate::vehicle::Dynamics;
 
 /// Fraction of a step below which two times are the same instant.
 pub const TICK_TOLERANCE: f64 = 1e-6;
+
+/// The safety filter a controller applies (built from the scenario's `filter` table).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FilterRule {
+    /// The nominal input is issued as it is.
+    None,
+    /// CBF-QP (4.9) over all channels at x(t) ((2.16)) or, `predicted`, at each channel's
+    /// prediction p_i(t) ((2.26), and (4.34)–(4.37) for distinct delays).
+    DelayFree { form: BarrierForm, predicted: bool },
+    /// (4.44)–(4.47) at p_i(t); the first φ channels suffice everywhere (4.41).
+    FixedChannel { form: BarrierForm, phi: usize },
+    /// (4.60)–(4.68) at p_i(t).
+    GammaM { form: BarrierForm, m: f64, gamma: f64 },
+}
+
+impl FilterRule {
+    pub fn form(&self) -> Option<BarrierForm> {
+        match *self {
+            FilterRule::None => None,
+            FilterRule::DelayFree { form, .. }
+            | FilterRule::FixedChannel { form, .. }
+            | FilterRule::GammaM { form, .. } => Some(form),
+        }
+    }
+
+    /// Whether the filter acts on predictions p_i(t) rather than on x(t).
+    pub fn uses_prediction(&self) -> bool {
+        !matches!(self, FilterRule::None | FilterRule::DelayFree { predicted: false, .. })
+    }
+}
 
 /// What one control tick computed (logged after the step).
 #[derive(Debug, Clone)]
@@ -31,8 +60,8 @@ pub struct Tick {
     pub nominal: DVector<f64>,
     /// Issued command per channel.
     pub issued: DVector<f64>,
-    /// The filter outcome per channel (None when no barrier is known or no filter is set).
-    pub outcomes: Vec<Option<FilterOutcome>>,
+    /// The filter's decision per channel (None when no barrier is known or no filter is set).
+    pub outcomes: Vec<Option<ChannelOutcome>>,
 }
 
 /// A prediction compared with the realised state (Definition 4.3).
@@ -45,9 +74,8 @@ pub struct Consistency {
 pub struct ControlLoop {
     pub model: Arc<dyn Dynamics>,
     pub nominal: Nominal,
-    /// The safety filter's barrier form, None without a filter.
-    pub form: Option<BarrierForm>,
-    pub compensation: Compensation,
+    /// The safety filter.
+    pub rule: FilterRule,
     pub queues: Vec<DelayQueue>,
     pub structure: Structure,
     /// Barriers currently known to the controller.
@@ -71,8 +99,7 @@ impl ControlLoop {
     pub fn new(
         model: Arc<dyn Dynamics>,
         nominal: Nominal,
-        form: Option<BarrierForm>,
-        compensation: Compensation,
+        rule: FilterRule,
         queues: Vec<DelayQueue>,
         structure: Structure,
         timestep: f64,
@@ -82,8 +109,7 @@ impl ControlLoop {
         ControlLoop {
             model,
             nominal,
-            form,
-            compensation,
+            rule,
             queues,
             structure,
             known_barriers: Vec::new(),
@@ -98,22 +124,26 @@ impl ControlLoop {
         }
     }
 
-    /// The delay-free safe law κ^DF (4.29): u0 + ū (4.9) at state z (nominal at time `time`).
-    fn delay_free(
+    /// u0 and the constraint data of the first known barrier at state z (nominal at `time`,
+    /// evaluated at `nominal_state`), or None without a filter or a known barrier.
+    fn nominal_and_constraint(
         &self,
         time: f64,
         nominal_state: &DVector<f64>,
         z: &DVector<f64>,
-    ) -> (DVector<f64>, Option<FilterOutcome>) {
+    ) -> (DVector<f64>, Option<Constraint>) {
         let u0 = self.nominal.input(time, nominal_state);
-        match (self.form, self.known_barriers.first()) {
-            (Some(form), Some(b)) => {
-                let c = barrier::constraint(b, form, self.model.as_ref(), z);
-                let outcome = filter::cbf_qp(&c, &u0);
-                (u0, Some(outcome))
-            }
-            _ => (u0, None),
-        }
+        let constraint = match (self.rule.form(), self.known_barriers.first()) {
+            (Some(form), Some(b)) => Some(barrier::constraint(b, form, self.model.as_ref(), z)),
+            _ => None,
+        };
+        (u0, constraint)
+    }
+
+    /// The delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9).
+    fn delay_free(&self, time: f64, z: &DVector<f64>) -> DVector<f64> {
+        let (u0, constraint) = self.nominal_and_constraint(time, z, z);
+        constraint.map_or(u0.clone(), |c| filter::cbf_qp(&c, &u0).input)
     }
 
     fn control_tick(&mut self, t: f64, x: &DVector<f64>) -> Result<(), DelayError> {
@@ -123,14 +153,13 @@ impl ControlLoop {
             timestep: self.timestep,
             control_period: self.control_period,
         };
-        // κ_j for commands not yet issued inside a recursive predictor's window.
-        let law = |time: f64, z: &DVector<f64>| {
-            let (u0, outcome) = self.delay_free(time, z, z);
-            outcome.map_or(u0, |o| o.input)
-        };
+        // κ_j for commands not yet issued inside a recursive predictor's window: the
+        // delay-free law (4.29) (exact for (4.30); for (4.44) and (4.67) the commands equal it
+        // once predictions are consistent, Lemma 4.7).
+        let law = |time: f64, z: &DVector<f64>| self.delay_free(time, z);
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
-        let uses_prediction = self.compensation == Compensation::Predictor || self.nominal.uses_prediction();
+        let uses_prediction = self.rule.uses_prediction() || self.nominal.uses_prediction();
         let structure = if uses_prediction {
             &self.structure
         } else {
@@ -142,43 +171,18 @@ impl ControlLoop {
         let mut nominal = DVector::zeros(r);
         let mut issued = DVector::zeros(r);
         let mut outcomes = Vec::with_capacity(r);
-        // Channels sharing an evaluation point share one filter solve.
-        struct Solved {
-            nominal_time: f64,
-            nominal_state: DVector<f64>,
-            eval_state: DVector<f64>,
-            u0: DVector<f64>,
-            outcome: Option<FilterOutcome>,
-        }
-        let mut solved: Vec<Solved> = Vec::new();
         for (i, p) in predictions.iter().enumerate() {
-            let eval_state = match self.compensation {
-                Compensation::Predictor => &p.state,
-                Compensation::None => x,
-            };
+            let eval_state = if self.rule.uses_prediction() { &p.state } else { x };
             let (nominal_time, nominal_state) = if self.nominal.uses_prediction() {
                 (p.target_time, &p.state)
             } else {
                 (t, eval_state)
             };
-            let found = solved.iter().position(|s| {
-                s.nominal_time == nominal_time && &s.nominal_state == nominal_state && &s.eval_state == eval_state
-            });
-            let k = found.unwrap_or_else(|| {
-                let (u0, outcome) = self.delay_free(nominal_time, nominal_state, eval_state);
-                solved.push(Solved {
-                    nominal_time,
-                    nominal_state: nominal_state.clone(),
-                    eval_state: eval_state.clone(),
-                    u0,
-                    outcome,
-                });
-                solved.len() - 1
-            });
-            let s = &solved[k];
-            nominal[i] = s.u0[i];
-            issued[i] = s.outcome.as_ref().map_or(s.u0[i], |o| o.input[i]);
-            outcomes.push(s.outcome.clone());
+            let (u0, constraint) = self.nominal_and_constraint(nominal_time, nominal_state, eval_state);
+            let outcome = constraint.map(|c| self.filter_channel(i, t, &c, &u0)).transpose()?;
+            nominal[i] = u0[i];
+            issued[i] = outcome.map_or(u0[i], |o| o.input);
+            outcomes.push(outcome);
         }
         for (i, queue) in self.queues.iter_mut().enumerate() {
             queue.push(t, issued[i])?;
@@ -196,6 +200,52 @@ impl ControlLoop {
             outcomes,
         });
         Ok(())
+    }
+
+    /// The filter's decision for channel i at tick t, from the constraint at the channel's
+    /// evaluation state and u0 there.
+    fn filter_channel(
+        &self,
+        i: usize,
+        t: f64,
+        c: &Constraint,
+        u0: &DVector<f64>,
+    ) -> Result<ChannelOutcome, DelayError> {
+        // ω_j: commands already issued for the later channels that reach the plant together
+        // with u_i(t), i.e. u_j(t − D_{j,i}) = channel j's applied input at t + D_i.
+        let omega = |from: usize| -> Result<DVector<f64>, DelayError> {
+            let arrival = self.queues[i].profile().prediction_time(t);
+            let mut omega = DVector::zeros(u0.len());
+            for j in from..u0.len() {
+                omega[j] = self.queues[j].applied(arrival)?.value;
+            }
+            Ok(omega)
+        };
+        Ok(match self.rule {
+            FilterRule::None => unreachable!("no constraint without a filter"),
+            FilterRule::DelayFree { .. } => {
+                let o = filter::cbf_qp(c, u0);
+                ChannelOutcome {
+                    input: o.input[i],
+                    active: o.active,
+                    infeasible: o.infeasible,
+                    mu: o.mu,
+                }
+            }
+            FilterRule::FixedChannel { phi, .. } => {
+                let s = phi.max(i + 1);
+                filter::fixed_channel(c, u0, &omega(s)?, i, s)
+            }
+            FilterRule::GammaM { m, gamma, .. } => {
+                // k (4.68): the last channel with the same delay as i.
+                let delay_i = self.queues[i].constant_delay();
+                let k = (i..u0.len())
+                    .take_while(|&j| self.queues[j].constant_delay() == delay_i)
+                    .last()
+                    .unwrap_or(i);
+                filter::gamma_m(c, u0, &omega(k + 1)?, i, k, m, gamma)
+            }
+        })
     }
 
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:

@@ -12,14 +12,17 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::barrier::{self, Barrier};
 use crate::delay::{DelayProfile, DelayQueue};
+use crate::filter;
 use crate::log::{proto, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
-use crate::scenario::{ConstantSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec, ScenarioError};
+use crate::scenario::{
+    Compensation, ConstantSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec, ScenarioError,
+};
 use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
 
-pub use control::{Consistency, ControlLoop, Tick, TICK_TOLERANCE};
+pub use control::{Consistency, ControlLoop, FilterRule, Tick, TICK_TOLERANCE};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EpisodeError {
@@ -142,16 +145,22 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
             vehicle: Some(bound),
         });
     }
-    // Validation guarantees: kind linear with A, B and a timestep.
-    let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
-    let (a, b) = (
-        sc.vehicle.a.as_ref().expect("validated"),
-        sc.vehicle.b.as_ref().expect("validated"),
-    );
+    // Validation guarantees a timestep, and A and B for kind linear.
+    let dynamics: Arc<dyn Dynamics> = match sc.vehicle.kind {
+        VehicleKind::NonlinearExample1 => Arc::new(vehicle::NonlinearExample1::default()),
+        _ => {
+            let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
+            let (a, b) = (
+                sc.vehicle.a.as_ref().expect("validated"),
+                sc.vehicle.b.as_ref().expect("validated"),
+            );
+            Arc::new(LinearModel::new(rows(a), rows(b)))
+        }
+    };
     Ok(PlantParts {
         model: None,
         vehicle: None,
-        dynamics: Arc::new(LinearModel::new(rows(a), rows(b))),
+        dynamics,
         hull_radius: 0.0,
         timestep: sc.vehicle.timestep.expect("validated"),
     })
@@ -253,19 +262,25 @@ impl Episode {
                 Nominal::Constant(DVector::from_column_slice(input))
             }
             NominalSpec::UnicycleStabilizer => Nominal::UnicycleStabilizer,
-        };
-
-        let (form, compensation) = match &sc.filter {
-            FilterSpec::None => (None, Default::default()),
-            FilterSpec::CbfQp(spec) => {
-                if sc.obstacles.len() + sc.barriers.len() > 1 {
+            NominalSpec::QuarticClf => {
+                if n != 2 {
                     return Err(loaded
-                        .field_error("obstacles", "the closed-form CBF-QP (4.9) handles one barrier; several need the QP solver of the distinct-delay filters")
+                        .field_error("nominal.kind", "quartic_clf (4.57)/(4.58) needs a two-state system")
                         .into());
                 }
-                (spec.form(), spec.compensation)
+                Nominal::QuarticClf(model.clone())
             }
         };
+
+        let rule = filter_rule(loaded, model.as_ref(), &queues)?;
+        if !matches!(rule, FilterRule::None) && sc.obstacles.len() + sc.barriers.len() > 1 {
+            return Err(loaded
+                .field_error(
+                    "obstacles",
+                    "the closed-form filters handle one barrier; several need a QP solver",
+                )
+                .into());
+        }
 
         let x0 = DVector::from_column_slice(&sc.vehicle.initial_state);
         let mut barriers = Vec::with_capacity(sc.barriers.len());
@@ -335,16 +350,7 @@ impl Episode {
             PlantKind::Ode => Box::new(OdePlant::new(model.clone(), x0.clone(), timestep)),
         };
 
-        let mut control = ControlLoop::new(
-            model,
-            nominal,
-            form,
-            compensation,
-            queues,
-            structure,
-            timestep,
-            steps_per_tick,
-        );
+        let mut control = ControlLoop::new(model, nominal, rule, queues, structure, timestep, steps_per_tick);
         // Non-obstacle barriers are known from the start.
         control.known_barriers.extend(barriers.iter().cloned());
 
@@ -547,7 +553,7 @@ impl Episode {
         x: &DVector<f64>,
         applied: &DVector<f64>,
     ) -> Result<(), LogError> {
-        let form = self.control.form;
+        let form = self.control.rule.form();
         let model = self.control.model.as_ref();
         let entries = self
             .obstacles
@@ -626,6 +632,113 @@ impl Episode {
     ) -> Result<(u64, Option<String>), EpisodeError> {
         Self::emit(sinks, Self::event(time, "error", message.clone(), vec![], 0.0))?;
         Ok((steps, Some(message)))
+    }
+}
+
+/// The filter rule of the scenario, with the checks that need the model and the queues:
+/// distinct-delay filters need constant delays in non-decreasing channel order (D_1 ≤ … ≤ D_r),
+/// and φ (4.41) declared (verified on `phi_box` if given) or found on `phi_box`.
+fn filter_rule(
+    loaded: &LoadedScenario,
+    model: &dyn Dynamics,
+    queues: &[DelayQueue],
+) -> Result<FilterRule, EpisodeError> {
+    let sc = &loaded.scenario;
+    let Some(form) = sc.filter.form() else {
+        return Ok(FilterRule::None);
+    };
+    let ordered_delays = || -> Result<(), EpisodeError> {
+        let mut previous: Option<(&str, f64)> = None;
+        for q in queues {
+            let Some(d) = q.constant_delay() else {
+                return Err(loaded
+                    .field_error(
+                        &format!("delays.{}", q.channel()),
+                        "the distinct-delay filters need constant delays",
+                    )
+                    .into());
+            };
+            if let Some((name, p)) = previous {
+                if d < p {
+                    return Err(loaded
+                        .field_error(
+                            &format!("delays.{}", q.channel()),
+                            format!("the filter assumes D_1 <= ... <= D_r in channel order, but `{}` ({d} s) comes after `{name}` ({p} s)", q.channel()),
+                        )
+                        .into());
+                }
+            }
+            previous = Some((q.channel(), d));
+        }
+        Ok(())
+    };
+    Ok(match &sc.filter {
+        FilterSpec::None => FilterRule::None,
+        FilterSpec::CbfQp(spec) => FilterRule::DelayFree {
+            form,
+            predicted: spec.compensation == Compensation::Predictor,
+        },
+        FilterSpec::GammaM(spec) => {
+            ordered_delays()?;
+            FilterRule::GammaM {
+                form,
+                m: spec.m,
+                gamma: spec.gamma.unwrap_or((spec.m + 1.0) / spec.m),
+            }
+        }
+        FilterSpec::FixedChannel(spec) => {
+            ordered_delays()?;
+            let r = queues.len();
+            let barrier = first_barrier(loaded, model)?;
+            let phi = match (&spec.phi_box, spec.phi) {
+                (Some(b), declared) => {
+                    if b.lower.len() != model.state_dim() {
+                        return Err(loaded
+                            .field_error(
+                                "filter.phi_box",
+                                format!("expected {} bounds per side", model.state_dim()),
+                            )
+                            .into());
+                    }
+                    let b_at = |x: &DVector<f64>| barrier::constraint(&barrier, form, model, x).b;
+                    let found = filter::minimal_channels(filter::box_grid(&b.lower, &b.upper, b.points), b_at);
+                    match declared {
+                        Some(phi) if phi < found => {
+                            return Err(loaded
+                                .field_error("filter.phi", format!("phi = {phi} is too small: on phi_box the first {phi} channels cannot act on the barrier everywhere (the box needs {found})"))
+                                .into())
+                        }
+                        Some(phi) => phi,
+                        None => found,
+                    }
+                }
+                (None, Some(phi)) => phi,
+                (None, None) => unreachable!("validated"),
+            };
+            if phi > r {
+                return Err(loaded
+                    .field_error("filter.phi", format!("expected at most {r} channels, found {phi}"))
+                    .into());
+            }
+            FilterRule::FixedChannel { form, phi }
+        }
+    })
+}
+
+/// The barrier the filter acts on (the scenario's only one), for checks before the run.
+fn first_barrier(loaded: &LoadedScenario, model: &dyn Dynamics) -> Result<Barrier, EpisodeError> {
+    let sc = &loaded.scenario;
+    if let Some(shape) = sc.barriers.first() {
+        return Ok(Barrier {
+            name: "barrier_0".into(),
+            shape: shape.clone(),
+        });
+    }
+    match (sc.obstacles.first(), model.planar_position()) {
+        (Some(o), Some(position)) => Ok(Barrier::circular_obstacle("obstacle_0", position, o.centre, o.radius)),
+        _ => Err(loaded
+            .field_error("filter", "a filter needs a barrier or an obstacle")
+            .into()),
     }
 }
 

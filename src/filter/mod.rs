@@ -1,4 +1,13 @@
-//! Safety filters. The delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form.
+//! Safety filters, as pure functions of the constraint data a + b·u ≥ 0 at the state they act
+//! on (x(t), or a prediction p_i(t)); the relative-degree-2 form enters through (a, b)
+//! ((4.85)/(4.86)).
+//!
+//! - [`cbf_qp`]: the delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form; applied
+//!   per channel at p_i it is the full-consistency filter (4.34)–(4.37).
+//! - [`fixed_channel`]: the fixed-channel robust filter (4.39)–(4.47).
+//! - [`gamma_m`]: the variable-channel γm filter (4.60)–(4.68).
+//!
+//! Channel indices are positions in delay order (D_1 ≤ … ≤ D_r), 0-based here.
 
 pub mod prescribed_time;
 use nalgebra::DVector;
@@ -49,6 +58,140 @@ pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome 
     }
 }
 
+/// What a per-channel filter decided for channel i.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChannelOutcome {
+    /// u_i = u0_i + ū_i.
+    pub input: f64,
+    /// The constraint was active (ū ≠ 0 for some channel of the QP).
+    pub active: bool,
+    /// The constraint was violated but no channel of the QP can act on it.
+    pub infeasible: bool,
+    /// The constraint value the decision was based on (μ_s (4.47) or ζ_i (4.64)).
+    pub mu: f64,
+}
+
+/// Fixed-channel robust filter (4.44)–(4.47) for channel `i`: the first `s` = max{φ, i+1}
+/// channels enforce the barrier; the already-issued inputs ω_j of the later channels (arriving
+/// with u_i) enter as known disturbances. `omega[j]` is read for j ≥ s.
+pub fn fixed_channel(c: &Constraint, u0: &DVector<f64>, omega: &DVector<f64>, i: usize, s: usize) -> ChannelOutcome {
+    let r = u0.len();
+    // μ_s (4.47).
+    let mu = c.a + (0..s).map(|j| c.b[j] * u0[j]).sum::<f64>() + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+    let b_used: f64 = (0..s).map(|j| c.b[j] * c.b[j]).sum();
+    if mu >= 0.0 {
+        return ChannelOutcome {
+            input: u0[i],
+            active: false,
+            infeasible: false,
+            mu,
+        };
+    }
+    if b_used < DEGENERATE_B {
+        return ChannelOutcome {
+            input: u0[i],
+            active: false,
+            infeasible: true,
+            mu,
+        };
+    }
+    // ū_i (4.46).
+    ChannelOutcome {
+        input: u0[i] - mu * c.b[i] / b_used,
+        active: true,
+        infeasible: false,
+        mu,
+    }
+}
+
+/// The smallest i such that ‖b_{1:i}(x)‖ > 0 at every sample x (the set Φ and φ of (4.40)/
+/// (4.41), on a finite sample of the state space), where b(x) is the constraint's input row
+/// (L_G h, or L_G L_f h for relative degree 2). Returns r if no strict subset suffices.
+pub fn minimal_channels(
+    samples: impl Iterator<Item = DVector<f64>>,
+    b_at: impl Fn(&DVector<f64>) -> DVector<f64>,
+) -> usize {
+    let mut smallest_norm: Option<Vec<f64>> = None;
+    for x in samples {
+        let b = b_at(&x);
+        let partial: Vec<f64> = (1..=b.len()).map(|i| b.rows(0, i).norm()).collect();
+        smallest_norm = Some(match smallest_norm {
+            None => partial,
+            Some(prev) => prev.iter().zip(&partial).map(|(p, q)| p.min(*q)).collect(),
+        });
+    }
+    let Some(norms) = smallest_norm else { return 1 };
+    let r = norms.len();
+    (1..r).find(|&i| norms[i - 1] > DEGENERATE_B.sqrt()).unwrap_or(r)
+}
+
+/// The grid of `points` per axis in the box [lower, upper].
+pub fn box_grid<'a>(lower: &'a [f64], upper: &'a [f64], points: usize) -> impl Iterator<Item = DVector<f64>> + 'a {
+    let n = lower.len();
+    let total = points.pow(n as u32);
+    (0..total).map(move |mut index| {
+        let mut x = DVector::zeros(n);
+        for d in 0..n {
+            let k = index % points;
+            index /= points;
+            x[d] = lower[d] + (upper[d] - lower[d]) * k as f64 / (points - 1) as f64;
+        }
+        x
+    })
+}
+
+/// γ_f (4.61): γ s for s ≤ 0, s otherwise.
+pub fn gamma_f(gamma: f64, s: f64) -> f64 {
+    if s <= 0.0 {
+        gamma * s
+    } else {
+        s
+    }
+}
+
+/// Variable-channel γm filter (4.60)–(4.68) for channel `i`: QP_k with k the last channel
+/// with the same delay as i (4.68); channels after k enter with their already-issued inputs
+/// ω (4.64); slack penalty m ≥ 1, γ ≥ 1 (γ = (m+1)/m by default, Remark 4.5).
+pub fn gamma_m(
+    c: &Constraint,
+    u0: &DVector<f64>,
+    omega: &DVector<f64>,
+    i: usize,
+    k: usize,
+    m: f64,
+    gamma: f64,
+) -> ChannelOutcome {
+    let r = u0.len();
+    let used = k + 1;
+    // z_k (4.66), ζ_k (4.64), ξ_k (4.65).
+    let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
+    let zeta = gamma_f(gamma, z) + (used..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+    let xi = (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m;
+    if zeta >= 0.0 {
+        return ChannelOutcome {
+            input: u0[i],
+            active: false,
+            infeasible: false,
+            mu: zeta,
+        };
+    }
+    if xi < DEGENERATE_B {
+        return ChannelOutcome {
+            input: u0[i],
+            active: false,
+            infeasible: true,
+            mu: zeta,
+        };
+    }
+    // ū_i of QP_k (4.62), applied as (4.67).
+    ChannelOutcome {
+        input: u0[i] - zeta / xi * c.b[i],
+        active: true,
+        infeasible: false,
+        mu: zeta,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,6 +220,49 @@ mod tests {
         assert!(c.value(&out.input).abs() < 1e-12);
         // The correction is parallel to b (KKT): v = 3/5 (1, 2).
         assert!((out.input[0] - 0.6).abs() < 1e-12 && (out.input[1] - 1.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn fixed_channel_with_all_channels_and_no_disturbance_is_the_delay_free_qp() {
+        let c = constraint(-3.0, &[1.0, 2.0]);
+        let u0 = DVector::from_column_slice(&[0.5, -0.2]);
+        let full = cbf_qp(&c, &u0);
+        for i in 0..2 {
+            let out = fixed_channel(&c, &u0, &DVector::zeros(2), i, 2);
+            assert!((out.input - full.input[i]).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn fixed_channel_uses_only_the_first_channels_and_counts_issued_inputs() {
+        // s = 1: channel 0 alone must make a + b0 u0 + b1 ω ≥ 0.
+        let c = constraint(-1.0, &[2.0, 1.0]);
+        let u0 = DVector::from_column_slice(&[0.0, 5.0]);
+        let omega = DVector::from_column_slice(&[0.0, -3.0]);
+        let out = fixed_channel(&c, &u0, &omega, 0, 1);
+        // μ_1 = −1 + 0 + (−3) = −4; ū_0 = 4·2/4 = 2.
+        assert!((out.mu + 4.0).abs() < 1e-12 && (out.input - 2.0).abs() < 1e-12);
+        assert!((c.a + c.b[0] * out.input + c.b[1] * omega[1]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn gamma_m_matches_the_full_qp_when_all_channels_are_used_and_gamma_is_m_plus_1_over_m() {
+        // With i = r and γ = (m+1)/m, ū = −γ z b / (‖b‖² (1 + 1/m)) = −z b/‖b‖²: (4.9).
+        let c = constraint(-3.0, &[1.0, 2.0]);
+        let u0 = DVector::from_column_slice(&[0.5, -0.2]);
+        let full = cbf_qp(&c, &u0);
+        let m = 50.0;
+        for i in 0..2 {
+            let out = gamma_m(&c, &u0, &DVector::zeros(2), i, 1, m, (m + 1.0) / m);
+            assert!((out.input - full.input[i]).abs() < 1e-12, "{out:?} vs {full:?}");
+        }
+        // Channel 0 alone (QP_1): constraint uses its own channel plus the issued ω_1.
+        let omega = DVector::from_column_slice(&[0.0, 1.0]);
+        let out = gamma_m(&c, &u0, &omega, 0, 0, m, (m + 1.0) / m);
+        let z = c.a + c.b[0] * u0[0];
+        let zeta = (m + 1.0) / m * z + c.b[1] * omega[1];
+        let xi = 1.0 + 5.0 / m;
+        assert!((out.input - (u0[0] - zeta / xi)).abs() < 1e-12);
     }
 
     #[test]

@@ -1,0 +1,126 @@
+//! Distinct input delays (Ch. 4): the outcomes of Example 1 (Figs. 4.1–4.3) and Example 2
+//! (Figs. 4.6, 4.7, 4.9), on MuJoCo and on the analytic model, and filter bad input.
+
+mod common;
+use common::*;
+
+use mjsafe::log::proto;
+
+fn run(scenario_file: &str, extra: &[&str]) -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("run.mcap");
+    run_ok(&scenario(scenario_file), &log, extra);
+    (dir, log)
+}
+
+const FULL_CONSISTENCY: &str = "filter={kind='cbf_qp', alpha=1.0, compensation='predictor'}";
+
+/// min h over [from, to] and the final |x| of a nonlinear_example1 run.
+fn example1(extra: &[&str]) -> (f64, f64) {
+    let (_dir, log) = run("nonlinear_example1.toml", extra);
+    let states = read_topic::<proto::State>(&log, "/state");
+    let h = |x: &[f64]| x[1] * x[1] - x[0] + 1.0; // (4.53)
+    let min_h = states.iter().filter(|s| s.time >= 0.2 && s.time <= 1.0).map(|s| h(&s.values)).fold(f64::INFINITY, f64::min);
+    let last = &states.last().unwrap().values;
+    (min_h, (last[0] * last[0] + last[1] * last[1]).sqrt())
+}
+
+#[test]
+fn example1_fixed_channel_keeps_h_nonnegative_while_full_consistency_violates() {
+    let (fixed, fixed_final) = example1(&[]);
+    let (full, full_final) = example1(&["--set", FULL_CONSISTENCY]);
+    let (gamma, gamma_final) = example1(&["--set", "filter={kind='gamma_m', alpha=1.0, m=50.0}"]);
+    println!(
+        "nonlinear_example1 min h on [0.2, 1]: (4.44)/(4.46) {fixed:.4}, (4.34)/(4.36) {full:.4}, (4.67) {gamma:.4}; |x(10)| = {fixed_final:.1e}, {full_final:.1e}, {gamma_final:.1e}"
+    );
+    assert!(fixed >= 0.0, "(4.44) violated: {fixed}");
+    assert!(full < 0.0, "(4.34) did not violate: {full}");
+    assert!(gamma >= 0.0, "(4.67) violated: {gamma}");
+    // Both reach the origin once the constraint has been cleared (Fig. 4.2, bottom).
+    for f in [fixed_final, full_final, gamma_final] {
+        assert!(f < 1e-2, "|x(10)| = {f}");
+    }
+}
+
+#[test]
+fn phi_is_found_on_the_box_and_a_too_small_declared_phi_is_rejected() {
+    // Example 1: L_g1 h = −1 everywhere, so φ = 1 (4.56) is found without declaring it.
+    let (_dir, log) = run("nonlinear_example1.toml", &["--set", "filter.phi_box={lower=[-3.0,-3.0], upper=[3.0,3.0]}"]);
+    assert!(analyze_json(&log)["complete"].as_bool().unwrap());
+    // The bicycle: L_g1 L_f h = 0 where x4 = 0, so φ = 2 (Table 4.1 text): φ = 1 is refused.
+    let o = mjsafe(&[
+        "run",
+        "scenarios/bicycle_obstacle.toml",
+        "--set",
+        "filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=1, phi_box={lower=[-30.0,-10.0,-3.2,0.0], upper=[10.0,10.0,3.2,6.0]}}",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("filter.phi") && stderr(&o).contains("needs 2"), "{}", stderr(&o));
+}
+
+#[test]
+fn bicycle_gamma_m_avoids_the_obstacle_and_full_consistency_collides_on_both_plants() {
+    // Tolerance of "no collision": min h >= 0 up to the MuJoCo bicycle's model error (fidelity
+    // test: ~2e-3 m position error, i.e. h = d² − r² within ~2·6·2e-3).
+    const H_TOLERANCE: f64 = 0.03;
+    for plant in ["mujoco", "ode"] {
+        let plant_set = format!("plant='{plant}'");
+        let (_d1, gamma) = run("bicycle_obstacle_gamma_m.toml", &["--set", &plant_set]);
+        let (_d2, full) = run(
+            "bicycle_obstacle.toml",
+            &["--set", &plant_set, "--set", "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}"],
+        );
+        let (_d3, fixed) = run(
+            "bicycle_obstacle.toml",
+            &["--set", &plant_set, "--set", "filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=2}"],
+        );
+        let (_d4, uncompensated) = run("bicycle_obstacle.toml", &["--set", &plant_set]);
+        let g = analyze_json(&gamma);
+        let f = analyze_json(&full);
+        println!(
+            "bicycle_obstacle on {plant}: (4.67) min h = {}, collision {}; (4.34) min h = {}, collision {}; uncompensated collision {}",
+            g["min_h"], g["collision"], f["min_h"], f["collision"], analyze_json(&uncompensated)["collision"]
+        );
+        assert!(g["collision"].is_null() && g["min_h"].as_f64().unwrap() >= -H_TOLERANCE, "{plant}: {g}");
+        assert!(!f["collision"].is_null(), "{plant}: (4.34) should collide: {f}");
+        // φ = 2 here, so (4.44) is (4.34) (Table 4.1 text).
+        assert!(!analyze_json(&fixed)["collision"].is_null(), "{plant}: (4.44) with phi = 2 should collide");
+        assert!(!analyze_json(&uncompensated)["collision"].is_null(), "{plant}: uncompensated should collide");
+    }
+}
+
+#[test]
+fn gamma_m_steers_first_the_acceleration_channel_cannot_help_in_time() {
+    // Fig. 4.8: the correction comes from the short-delayed steering channel.
+    let (_dir, log) = run("bicycle_obstacle_gamma_m.toml", &[]);
+    let m = analyze_json(&log);
+    let steering = m["max_correction"]["steering"].as_f64().unwrap();
+    println!("bicycle_obstacle_gamma_m: max |u - u_nom| = {}", m["max_correction"]);
+    assert!(steering > 0.1, "{m}");
+    let filters = read_topic::<proto::Filter>(&log, "/filter");
+    let first_active = filters.iter().find(|f| f.active).expect("the filter acts");
+    assert!(first_active.time >= 2.75 - 1e-9, "acts only once the obstacle is known: {}", first_active.time);
+}
+
+fn expect_error(set: &[&str], needles: &[&str]) {
+    let mut args = vec!["run", "scenarios/bicycle_obstacle_gamma_m.toml"];
+    for s in set {
+        args.extend_from_slice(&["--set", s]);
+    }
+    let o = mjsafe(&args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "expected failure");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
+    }
+    println!("{}", err.trim());
+}
+
+#[test]
+fn filter_bad_input_is_rejected_before_the_run() {
+    expect_error(&["delays.steering=2.0"], &["delays.acceleration", "D_1 <= ... <= D_r", "steering"]);
+    expect_error(&["filter.m=0.5"], &["filter.m", "m >= 1"]);
+    expect_error(&["filter.gamma=0.9"], &["filter.gamma", "gamma >= 1"]);
+    expect_error(&["filter.l1=1.0"], &["filter", "l1² >= 4 l0"]);
+    expect_error(&["obstacles.0.centre=[-20.0, 1.0]"], &["obstacles[0]", "overlaps the vehicle"]);
+}
