@@ -298,6 +298,7 @@ pub fn table(runs: &[RunMetrics]) -> String {
         "min_h",
         "t_h<0_s",
         "filter_active",
+        "qp_infeasible",
         "max|u-u_nom|",
         "prediction_err_max/rms",
         "status",
@@ -315,6 +316,7 @@ pub fn table(runs: &[RunMetrics]) -> String {
             r.min_h.map_or("-".into(), |h| format!("{h:.3}")),
             format!("{:.3}", r.time_h_negative),
             format!("{:.1}%", 100.0 * r.filter_active_fraction),
+            r.filter_infeasible_ticks.to_string(),
             r.max_correction
                 .iter()
                 .map(|(c, v)| format!("{c}={v:.3}"))

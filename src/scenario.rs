@@ -196,6 +196,17 @@ pub struct CbfQpSpec {
     /// state of each channel ((2.26), and (4.34) for distinct delays).
     #[serde(default)]
     pub compensation: Compensation,
+    /// Actuator limits per channel; with them (or several barriers) the QP is solved
+    /// numerically (`filter::qp`).
+    #[serde(default)]
+    pub input_limits: Option<InputLimits>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputLimits {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]

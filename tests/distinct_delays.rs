@@ -20,7 +20,11 @@ fn example1(extra: &[&str]) -> (f64, f64) {
     let (_dir, log) = run("nonlinear_example1.toml", extra);
     let states = read_topic::<proto::State>(&log, "/state");
     let h = |x: &[f64]| x[1] * x[1] - x[0] + 1.0; // (4.53)
-    let min_h = states.iter().filter(|s| s.time >= 0.2 && s.time <= 1.0).map(|s| h(&s.values)).fold(f64::INFINITY, f64::min);
+    let min_h = states
+        .iter()
+        .filter(|s| s.time >= 0.2 && s.time <= 1.0)
+        .map(|s| h(&s.values))
+        .fold(f64::INFINITY, f64::min);
     let last = &states.last().unwrap().values;
     (min_h, (last[0] * last[0] + last[1] * last[1]).sqrt())
 }
@@ -45,7 +49,10 @@ fn example1_fixed_channel_keeps_h_nonnegative_while_full_consistency_violates() 
 #[test]
 fn phi_is_found_on_the_box_and_a_too_small_declared_phi_is_rejected() {
     // Example 1: L_g1 h = −1 everywhere, so φ = 1 (4.56) is found without declaring it.
-    let (_dir, log) = run("nonlinear_example1.toml", &["--set", "filter.phi_box={lower=[-3.0,-3.0], upper=[3.0,3.0]}"]);
+    let (_dir, log) = run(
+        "nonlinear_example1.toml",
+        &["--set", "filter.phi_box={lower=[-3.0,-3.0], upper=[3.0,3.0]}"],
+    );
     assert!(analyze_json(&log)["complete"].as_bool().unwrap());
     // The bicycle: L_g1 L_f h = 0 where x4 = 0, so φ = 2 (Table 4.1 text): φ = 1 is refused.
     let o = mjsafe(&[
@@ -55,7 +62,11 @@ fn phi_is_found_on_the_box_and_a_too_small_declared_phi_is_rejected() {
         "filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=1, phi_box={lower=[-30.0,-10.0,-3.2,0.0], upper=[10.0,10.0,3.2,6.0]}}",
     ]);
     assert!(!o.status.success());
-    assert!(stderr(&o).contains("filter.phi") && stderr(&o).contains("needs 2"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("filter.phi") && stderr(&o).contains("needs 2"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -68,11 +79,21 @@ fn bicycle_gamma_m_avoids_the_obstacle_and_full_consistency_collides_on_both_pla
         let (_d1, gamma) = run("bicycle_obstacle_gamma_m.toml", &["--set", &plant_set]);
         let (_d2, full) = run(
             "bicycle_obstacle.toml",
-            &["--set", &plant_set, "--set", "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}"],
+            &[
+                "--set",
+                &plant_set,
+                "--set",
+                "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}",
+            ],
         );
         let (_d3, fixed) = run(
             "bicycle_obstacle.toml",
-            &["--set", &plant_set, "--set", "filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=2}"],
+            &[
+                "--set",
+                &plant_set,
+                "--set",
+                "filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=2}",
+            ],
         );
         let (_d4, uncompensated) = run("bicycle_obstacle.toml", &["--set", &plant_set]);
         let g = analyze_json(&gamma);
@@ -81,11 +102,20 @@ fn bicycle_gamma_m_avoids_the_obstacle_and_full_consistency_collides_on_both_pla
             "bicycle_obstacle on {plant}: (4.67) min h = {}, collision {}; (4.34) min h = {}, collision {}; uncompensated collision {}",
             g["min_h"], g["collision"], f["min_h"], f["collision"], analyze_json(&uncompensated)["collision"]
         );
-        assert!(g["collision"].is_null() && g["min_h"].as_f64().unwrap() >= -H_TOLERANCE, "{plant}: {g}");
+        assert!(
+            g["collision"].is_null() && g["min_h"].as_f64().unwrap() >= -H_TOLERANCE,
+            "{plant}: {g}"
+        );
         assert!(!f["collision"].is_null(), "{plant}: (4.34) should collide: {f}");
         // φ = 2 here, so (4.44) is (4.34) (Table 4.1 text).
-        assert!(!analyze_json(&fixed)["collision"].is_null(), "{plant}: (4.44) with phi = 2 should collide");
-        assert!(!analyze_json(&uncompensated)["collision"].is_null(), "{plant}: uncompensated should collide");
+        assert!(
+            !analyze_json(&fixed)["collision"].is_null(),
+            "{plant}: (4.44) with phi = 2 should collide"
+        );
+        assert!(
+            !analyze_json(&uncompensated)["collision"].is_null(),
+            "{plant}: uncompensated should collide"
+        );
     }
 }
 
@@ -99,7 +129,11 @@ fn gamma_m_steers_first_the_acceleration_channel_cannot_help_in_time() {
     assert!(steering > 0.1, "{m}");
     let filters = read_topic::<proto::Filter>(&log, "/filter");
     let first_active = filters.iter().find(|f| f.active).expect("the filter acts");
-    assert!(first_active.time >= 2.75 - 1e-9, "acts only once the obstacle is known: {}", first_active.time);
+    assert!(
+        first_active.time >= 2.75 - 1e-9,
+        "acts only once the obstacle is known: {}",
+        first_active.time
+    );
 }
 
 fn expect_error(set: &[&str], needles: &[&str]) {
@@ -118,9 +152,72 @@ fn expect_error(set: &[&str], needles: &[&str]) {
 
 #[test]
 fn filter_bad_input_is_rejected_before_the_run() {
-    expect_error(&["delays.steering=2.0"], &["delays.acceleration", "D_1 <= ... <= D_r", "steering"]);
+    expect_error(
+        &["delays.steering=2.0"],
+        &["delays.acceleration", "D_1 <= ... <= D_r", "steering"],
+    );
     expect_error(&["filter.m=0.5"], &["filter.m", "m >= 1"]);
     expect_error(&["filter.gamma=0.9"], &["filter.gamma", "gamma >= 1"]);
     expect_error(&["filter.l1=1.0"], &["filter", "l1² >= 4 l0"]);
-    expect_error(&["obstacles.0.centre=[-20.0, 1.0]"], &["obstacles[0]", "overlaps the vehicle"]);
+    expect_error(
+        &["obstacles.0.centre=[-20.0, 1.0]"],
+        &["obstacles[0]", "overlaps the vehicle"],
+    );
+}
+
+#[test]
+fn two_obstacles_with_actuator_limits_are_avoided_by_the_qp_filter() {
+    let (_d1, filtered) = run("bicycle_two_obstacles.toml", &[]);
+    let (_d2, nominal) = run("bicycle_two_obstacles.toml", &["--set", "filter={kind='none'}"]);
+    let f = analyze_json(&filtered);
+    let n = analyze_json(&nominal);
+    println!(
+        "bicycle_two_obstacles: QP filter min h = {}, infeasible ticks {}; nominal alone collision {}",
+        f["min_h"], f["filter_infeasible_ticks"], n["collision"]
+    );
+    assert!(f["collision"].is_null() && f["min_h"].as_f64().unwrap() >= -0.03, "{f}");
+    assert!(!n["collision"].is_null(), "{n}");
+    // Both barriers were constraints: each obstacle's h stays >= 0 and the inputs stay within
+    // the limits.
+    for b in read_topic::<proto::Barrier>(&filtered, "/barrier") {
+        assert_eq!(b.barriers.len(), 2);
+    }
+    for c in read_topic::<proto::IssuedCommand>(&filtered, "/command/issued") {
+        assert!(
+            c.filtered[0] >= -1.0 - 1e-6 && c.filtered[0] <= 1.0 + 1e-6,
+            "steering {}",
+            c.filtered[0]
+        );
+        assert!(
+            c.filtered[1] >= -3.0 - 1e-6 && c.filtered[1] <= 2.0 + 1e-6,
+            "acceleration {}",
+            c.filtered[1]
+        );
+    }
+}
+
+#[test]
+fn an_infeasible_qp_is_reported_and_the_run_goes_on() {
+    // Steering limited to ±0.05: no input within the limits keeps both constraints.
+    let (_dir, log) = run(
+        "bicycle_two_obstacles.toml",
+        &[
+            "--set",
+            "filter.input_limits={lower=[-0.05,-0.5], upper=[0.05,0.5]}",
+            "--set",
+            "duration=8.0",
+        ],
+    );
+    let m = analyze_json(&log);
+    println!(
+        "bicycle_two_obstacles with tight limits: infeasible ticks {}, collision {}",
+        m["filter_infeasible_ticks"], m["collision"]
+    );
+    assert!(m["filter_infeasible_ticks"].as_u64().unwrap() > 0, "{m}");
+    assert_eq!(m["complete"], true);
+    let infeasible = read_topic::<proto::Filter>(&log, "/filter")
+        .into_iter()
+        .filter(|f| f.infeasible)
+        .count();
+    assert_eq!(infeasible as u64, m["filter_infeasible_ticks"].as_u64().unwrap());
 }

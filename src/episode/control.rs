@@ -23,13 +23,19 @@ use crate::vehicle::Dynamics;
 pub const TICK_TOLERANCE: f64 = 1e-6;
 
 /// The safety filter a controller applies (built from the scenario's `filter` table).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum FilterRule {
     /// The nominal input is issued as it is.
     None,
     /// CBF-QP (4.9) over all channels at x(t) ((2.16)) or, `predicted`, at each channel's
     /// prediction p_i(t) ((2.26), and (4.34)–(4.37) for distinct delays).
-    DelayFree { form: BarrierForm, predicted: bool },
+    /// With several barriers or actuator `limits` (lower, upper) it is solved numerically
+    /// ([`filter::qp`]).
+    DelayFree {
+        form: BarrierForm,
+        predicted: bool,
+        limits: Option<(Vec<f64>, Vec<f64>)>,
+    },
     /// (4.44)–(4.47) at p_i(t); the first φ channels suffice everywhere (4.41).
     FixedChannel { form: BarrierForm, phi: usize },
     /// (4.60)–(4.68) at p_i(t).
@@ -124,26 +130,53 @@ impl ControlLoop {
         }
     }
 
-    /// u0 and the constraint data of the first known barrier at state z (nominal at `time`,
-    /// evaluated at `nominal_state`), or None without a filter or a known barrier.
-    fn nominal_and_constraint(
+    /// u0 (nominal at `time`, evaluated at `nominal_state`) and the constraint data of every
+    /// known barrier at state z (empty without a filter).
+    fn nominal_and_constraints(
         &self,
         time: f64,
         nominal_state: &DVector<f64>,
         z: &DVector<f64>,
-    ) -> (DVector<f64>, Option<Constraint>) {
+    ) -> (DVector<f64>, Vec<Constraint>) {
         let u0 = self.nominal.input(time, nominal_state);
-        let constraint = match (self.rule.form(), self.known_barriers.first()) {
-            (Some(form), Some(b)) => Some(barrier::constraint(b, form, self.model.as_ref(), z)),
+        let constraints = match self.rule.form() {
+            Some(form) => self
+                .known_barriers
+                .iter()
+                .map(|b| barrier::constraint(b, form, self.model.as_ref(), z))
+                .collect(),
+            None => Vec::new(),
+        };
+        (u0, constraints)
+    }
+
+    /// The delay-free CBF-QP over all channels: closed form (4.9) for one barrier without
+    /// limits, otherwise the numerical QP.
+    fn delay_free_qp(&self, constraints: &[Constraint], u0: &DVector<f64>) -> (DVector<f64>, bool, bool, f64) {
+        let limits = match &self.rule {
+            FilterRule::DelayFree { limits, .. } => limits.as_ref(),
             _ => None,
         };
-        (u0, constraint)
+        match (constraints, limits) {
+            ([c], None) => {
+                let o = filter::cbf_qp(c, u0);
+                (o.input, o.active, o.infeasible, o.mu)
+            }
+            _ => {
+                let o =
+                    filter::qp::cbf_qp_multi(constraints, u0, limits.map(|(lo, hi)| (lo.as_slice(), hi.as_slice())));
+                (o.input, o.active, o.infeasible, o.mu)
+            }
+        }
     }
 
     /// The delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9).
     fn delay_free(&self, time: f64, z: &DVector<f64>) -> DVector<f64> {
-        let (u0, constraint) = self.nominal_and_constraint(time, z, z);
-        constraint.map_or(u0.clone(), |c| filter::cbf_qp(&c, &u0).input)
+        let (u0, constraints) = self.nominal_and_constraints(time, z, z);
+        if constraints.is_empty() {
+            return u0;
+        }
+        self.delay_free_qp(&constraints, &u0).0
     }
 
     fn control_tick(&mut self, t: f64, x: &DVector<f64>) -> Result<(), DelayError> {
@@ -178,8 +211,12 @@ impl ControlLoop {
             } else {
                 (t, eval_state)
             };
-            let (u0, constraint) = self.nominal_and_constraint(nominal_time, nominal_state, eval_state);
-            let outcome = constraint.map(|c| self.filter_channel(i, t, &c, &u0)).transpose()?;
+            let (u0, constraints) = self.nominal_and_constraints(nominal_time, nominal_state, eval_state);
+            let outcome = if constraints.is_empty() {
+                None
+            } else {
+                Some(self.filter_channel(i, t, &constraints, &u0)?)
+            };
             nominal[i] = u0[i];
             issued[i] = outcome.map_or(u0[i], |o| o.input);
             outcomes.push(outcome);
@@ -202,13 +239,14 @@ impl ControlLoop {
         Ok(())
     }
 
-    /// The filter's decision for channel i at tick t, from the constraint at the channel's
-    /// evaluation state and u0 there.
+    /// The filter's decision for channel i at tick t, from the constraints at the channel's
+    /// evaluation state and u0 there. The distinct-delay filters take one barrier (checked
+    /// when the episode is built).
     fn filter_channel(
         &self,
         i: usize,
         t: f64,
-        c: &Constraint,
+        constraints: &[Constraint],
         u0: &DVector<f64>,
     ) -> Result<ChannelOutcome, DelayError> {
         // ω_j: commands already issued for the later channels that reach the plant together
@@ -221,20 +259,20 @@ impl ControlLoop {
             }
             Ok(omega)
         };
-        Ok(match self.rule {
+        Ok(match &self.rule {
             FilterRule::None => unreachable!("no constraint without a filter"),
             FilterRule::DelayFree { .. } => {
-                let o = filter::cbf_qp(c, u0);
+                let (input, active, infeasible, mu) = self.delay_free_qp(constraints, u0);
                 ChannelOutcome {
-                    input: o.input[i],
-                    active: o.active,
-                    infeasible: o.infeasible,
-                    mu: o.mu,
+                    input: input[i],
+                    active,
+                    infeasible,
+                    mu,
                 }
             }
             FilterRule::FixedChannel { phi, .. } => {
-                let s = phi.max(i + 1);
-                filter::fixed_channel(c, u0, &omega(s)?, i, s)
+                let s = (*phi).max(i + 1);
+                filter::fixed_channel(&constraints[0], u0, &omega(s)?, i, s)
             }
             FilterRule::GammaM { m, gamma, .. } => {
                 // k (4.68): the last channel with the same delay as i.
@@ -243,7 +281,7 @@ impl ControlLoop {
                     .take_while(|&j| self.queues[j].constant_delay() == delay_i)
                     .last()
                     .unwrap_or(i);
-                filter::gamma_m(c, u0, &omega(k + 1)?, i, k, m, gamma)
+                filter::gamma_m(&constraints[0], u0, &omega(k + 1)?, i, k, *m, *gamma)
             }
         })
     }

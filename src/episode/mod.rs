@@ -273,11 +273,12 @@ impl Episode {
         };
 
         let rule = filter_rule(loaded, model.as_ref(), &queues)?;
-        if !matches!(rule, FilterRule::None) && sc.obstacles.len() + sc.barriers.len() > 1 {
+        let distinct_delay_filter = matches!(rule, FilterRule::FixedChannel { .. } | FilterRule::GammaM { .. });
+        if distinct_delay_filter && sc.obstacles.len() + sc.barriers.len() > 1 {
             return Err(loaded
                 .field_error(
                     "obstacles",
-                    "the closed-form filters handle one barrier; several need a QP solver",
+                    "the distinct-delay filters (4.44) and (4.67) take one barrier; for several, use kind = \"cbf_qp\" (solved as a QP)",
                 )
                 .into());
         }
@@ -674,10 +675,34 @@ fn filter_rule(
     };
     Ok(match &sc.filter {
         FilterSpec::None => FilterRule::None,
-        FilterSpec::CbfQp(spec) => FilterRule::DelayFree {
-            form,
-            predicted: spec.compensation == Compensation::Predictor,
-        },
+        FilterSpec::CbfQp(spec) => {
+            let limits = match &spec.input_limits {
+                Some(l) => {
+                    let r = queues.len();
+                    if l.lower.len() != r
+                        || l.upper.len() != r
+                        || l.lower
+                            .iter()
+                            .zip(&l.upper)
+                            .any(|(lo, hi)| lo.is_nan() || hi.is_nan() || lo > hi)
+                    {
+                        return Err(loaded
+                            .field_error(
+                                "filter.input_limits",
+                                format!("expected lower <= upper, {r} values each (one per channel)"),
+                            )
+                            .into());
+                    }
+                    Some((l.lower.clone(), l.upper.clone()))
+                }
+                None => None,
+            };
+            FilterRule::DelayFree {
+                form,
+                predicted: spec.compensation == Compensation::Predictor,
+                limits,
+            }
+        }
         FilterSpec::GammaM(spec) => {
             ordered_delays()?;
             FilterRule::GammaM {

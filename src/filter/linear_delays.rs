@@ -49,6 +49,8 @@ pub enum LinearDelaysError {
     DelayCountMismatch { count: usize, channels: usize },
     #[error("delay τ_{channel} = {delay} of channel {channel} must be finite and >= 0 (3.1)")]
     NegativeDelay { channel: usize, delay: f64 },
+    #[error("longest delay τ_r = {delay} must be finite and >= 0 ((3.26))")]
+    NegativeLongestDelay { delay: f64 },
     #[error("delays must be non-decreasing, 0 ≤ τ_1 ≤ … ≤ τ_r (3.1), but τ_{channel} = {delay} < τ_{previous_channel} = {previous}; order the channels by delay")]
     DelaysNotNondecreasing {
         channel: usize,
@@ -456,7 +458,10 @@ impl DiskBarrier {
     /// safety are compatible (Theorem 3.3, item 4).
     pub fn new(centre: DVector<f64>, radius: f64) -> Result<Self> {
         check_positive("disk radius ρ", radius)?;
-        check_finite("disk centre", &DMatrix::from_column_slice(centre.len(), 1, centre.as_slice()))?;
+        check_finite(
+            "disk centre",
+            &DMatrix::from_column_slice(centre.len(), 1, centre.as_slice()),
+        )?;
         let distance = centre.norm();
         if distance <= radius {
             return Err(LinearDelaysError::OriginNotAdmissible { distance, radius });
@@ -551,10 +556,7 @@ pub fn robust_buffer_bound(inputs: &BufferInputs<'_>) -> Result<f64> {
         });
     }
     if !(longest_delay >= 0.0 && longest_delay.is_finite()) {
-        return Err(LinearDelaysError::NegativeDelay {
-            channel: 0,
-            delay: longest_delay,
-        });
+        return Err(LinearDelaysError::NegativeLongestDelay { delay: longest_delay });
     }
     if !(max_gradient_norm_on_boundary >= 0.0 && max_gradient_norm_on_boundary.is_finite()) {
         return Err(LinearDelaysError::NotPositive {
@@ -729,13 +731,21 @@ impl ConstrainedStabilizer {
     /// u_L,i(t) = κ_pmn,i(a1(p_i), b1(p_i)) (3.11); `predictions[i]` = p_i(t) = x(t + τ_i).
     pub fn clf_inputs(&self, predictions: &[DVector<f64>]) -> Result<Vec<f64>> {
         self.check_predictions(predictions)?;
-        Ok(predictions.iter().enumerate().map(|(i, p)| self.clf_pmn(p).input[i]).collect())
+        Ok(predictions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| self.clf_pmn(p).input[i])
+            .collect())
     }
 
     /// u_B,i(t) = κ_pmn,i(a2(p_i), b2(p_i)) (3.19).
     pub fn cbf_inputs(&self, predictions: &[DVector<f64>]) -> Result<Vec<f64>> {
         self.check_predictions(predictions)?;
-        Ok(predictions.iter().enumerate().map(|(i, p)| self.cbf_pmn(p).input[i]).collect())
+        Ok(predictions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| self.cbf_pmn(p).input[i])
+            .collect())
     }
 
     /// u_i(t) = κ_LB,i(p_i(t)) (3.33), with the case of QP-LB solved at p_i.
@@ -882,4 +892,638 @@ fn sign(s: f64) -> f64 {
 pub fn disturbance_3_49(t: f64) -> DVector<f64> {
     let w1 = std::f64::consts::FRAC_1_SQRT_2 * (0.4 * std::f64::consts::PI * t).sin();
     DVector::from_column_slice(&[w1, std::f64::consts::FRAC_1_SQRT_2 * sign(w1)])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    fn vector(values: &[f64]) -> DVector<f64> {
+        DVector::from_column_slice(values)
+    }
+
+    fn constraint(a: f64, b: &[f64]) -> AffineConstraint {
+        AffineConstraint { a, b: vector(b) }
+    }
+
+    /// Deterministic pseudo-random numbers in [−1, 1) (xorshift64*).
+    struct Noise(u64);
+
+    impl Noise {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let bits = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11;
+            bits as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        }
+    }
+
+    #[test]
+    fn gamma_f_scales_only_the_positive_side() {
+        assert_eq!(gamma_f(2.25, 2.0), 4.5);
+        assert_eq!(gamma_f(2.25, -2.0), -2.0);
+        assert_eq!(gamma_f(2.25, 0.0), 0.0);
+    }
+
+    #[test]
+    fn pmn_is_zero_when_inactive_and_the_minimum_norm_solution_when_active() {
+        let inactive = pmn(&constraint(-1.0, &[1.0, 2.0]));
+        assert!(!inactive.active && !inactive.infeasible);
+        assert_eq!(inactive.input, DVector::zeros(2));
+
+        let c = constraint(5.0, &[1.0, 2.0]);
+        let active = pmn(&c);
+        assert!(active.active && !active.infeasible);
+        // (3.7): −a bᵀ/‖b‖² = −(1, 2).
+        assert!((active.input.clone() - vector(&[-1.0, -2.0])).amax() < 1e-12);
+        assert!(c.value(&active.input).abs() < 1e-12);
+        // No feasible input is shorter.
+        let mut noise = Noise(7);
+        for _ in 0..1000 {
+            let v = vector(&[4.0 * noise.next(), 4.0 * noise.next()]);
+            if c.value(&v) <= 0.0 {
+                assert!(v.norm() >= active.input.norm() - 1e-12);
+            }
+        }
+
+        let impossible = pmn(&constraint(1.0, &[0.0, 0.0]));
+        assert!(impossible.infeasible && !impossible.active);
+    }
+
+    /// QP-LB (3.27) solved by enumerating active sets with a generic KKT solve, in the
+    /// variables z = (v, σ): min zᵀWz, W = diag(I, m I), s.t. g_k z + a_k ≤ 0.
+    fn brute_force_qp(a1_bar: f64, b1: &DVector<f64>, a2: f64, b2: &DVector<f64>, m: f64) -> DVector<f64> {
+        let r = b1.len();
+        let mut g = DMatrix::zeros(2, 2 * r);
+        for j in 0..r {
+            g[(0, j)] = b1[j];
+            g[(0, r + j)] = b1[j];
+            g[(1, j)] = b2[j];
+        }
+        let offsets = [a1_bar, a2];
+        let weights = DVector::from_fn(2 * r, |k, _| if k < r { 1.0 } else { m });
+        let objective = |z: &DVector<f64>| (0..2 * r).map(|k| weights[k] * z[k] * z[k]).sum::<f64>();
+        let mut best: Option<DVector<f64>> = None;
+        for active in [vec![], vec![0], vec![1], vec![0, 1]] {
+            let q = active.len();
+            let size = 2 * r + q;
+            let mut kkt = DMatrix::zeros(size, size);
+            let mut rhs = DVector::zeros(size);
+            for k in 0..2 * r {
+                kkt[(k, k)] = 2.0 * weights[k];
+            }
+            for (row, &c) in active.iter().enumerate() {
+                for k in 0..2 * r {
+                    kkt[(2 * r + row, k)] = g[(c, k)];
+                    kkt[(k, 2 * r + row)] = g[(c, k)];
+                }
+                rhs[2 * r + row] = -offsets[c];
+            }
+            let Some(solution) = kkt.lu().solve(&rhs) else { continue };
+            let z = solution.rows(0, 2 * r).into_owned();
+            let multipliers_ok = (0..q).all(|row| solution[2 * r + row] >= -1e-9);
+            let feasible = (0..2).all(|c| offsets[c] + (g.row(c) * &z)[0] <= 1e-9 * (1.0 + offsets[c].abs()));
+            if multipliers_ok && feasible && best.as_ref().is_none_or(|b| objective(&z) < objective(b) - 1e-12) {
+                best = Some(z);
+            }
+        }
+        best.expect("QP-LB is feasible when b1, b2 ≠ 0")
+    }
+
+    #[test]
+    fn closed_form_cases_a_to_d_match_a_brute_force_qp_solution() {
+        let mut noise = Noise(0x9E37_79B9_7F4A_7C15);
+        let mut seen: HashMap<QpCase, usize> = HashMap::new();
+        for trial in 0..4000 {
+            let r = 1 + trial % 3;
+            let m = 1.0 + 9.0 * (noise.next() + 1.0) / 2.0;
+            let gamma = 1.0 + 3.0 * (noise.next() + 1.0) / 2.0;
+            let params = GammaM::new(m, gamma).unwrap();
+            let clf = AffineConstraint {
+                a: 3.0 * noise.next(),
+                b: DVector::from_fn(r, |_, _| noise.next()),
+            };
+            let mut cbf = AffineConstraint {
+                a: 3.0 * noise.next(),
+                b: DVector::from_fn(r, |_, _| noise.next()),
+            };
+            if trial % 5 == 0 {
+                // Nearly parallel constraint rows stress Case D.
+                cbf.b = &clf.b * (2.0 * noise.next()) + DVector::from_fn(r, |_, _| 1e-3 * noise.next());
+            }
+            let out = gamma_m_qp(&clf, &cbf, &params);
+            assert!(!out.infeasible);
+            let a1_bar = gamma_f(gamma, clf.a);
+            assert_eq!(out.a1_bar, a1_bar);
+            let expected = brute_force_qp(a1_bar, &clf.b, cbf.a, &cbf.b, m);
+            let got = DVector::from_iterator(2 * r, out.input.iter().chain(out.relaxation.iter()).copied());
+            let scale = 1.0 + expected.amax();
+            assert!(
+                (&got - &expected).amax() < 1e-7 * scale,
+                "trial {trial}, case {}: closed form {got} vs brute force {expected}",
+                out.case
+            );
+            // F1, F2 of (3.27) hold.
+            assert!(a1_bar + clf.b.dot(&(&out.input + &out.relaxation)) <= 1e-9 * scale);
+            assert!(cbf.value(&out.input) <= 1e-9 * scale);
+            *seen.entry(out.case).or_default() += 1;
+        }
+        println!("QP-LB cases over 4000 random instances: {seen:?}");
+        for case in [QpCase::A, QpCase::B, QpCase::C, QpCase::D] {
+            assert!(
+                seen.get(&case).copied().unwrap_or(0) > 100,
+                "case {case} rarely reached: {seen:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn hand_picked_instances_land_in_each_case() {
+        let params = GammaM::new(8.0, 2.25).unwrap();
+        let b = [1.0, 0.0];
+        let orthogonal = [0.0, 1.0];
+        // A: both satisfied at v = 0.
+        let out = gamma_m_qp(&constraint(-1.0, &b), &constraint(-1.0, &orthogonal), &params);
+        assert_eq!((out.case, out.input.clone()), (QpCase::A, DVector::zeros(2)));
+        // B (3.30): ā1 = 2.25, v = −(8/9)·2.25 b1ᵀ = (−2, 0).
+        let out = gamma_m_qp(&constraint(1.0, &b), &constraint(-1.0, &orthogonal), &params);
+        assert_eq!(out.case, QpCase::B);
+        assert!((out.input.clone() - vector(&[-2.0, 0.0])).amax() < 1e-12);
+        // C (3.31): v = −a2 b2ᵀ/‖b2‖² = (0, −3).
+        let out = gamma_m_qp(&constraint(-1.0, &b), &constraint(3.0, &orthogonal), &params);
+        assert_eq!(out.case, QpCase::C);
+        assert!((out.input.clone() - vector(&[0.0, -3.0])).amax() < 1e-12);
+        // D (3.32) with orthogonal rows: the two corrections add, (−2, −3).
+        let out = gamma_m_qp(&constraint(1.0, &b), &constraint(3.0, &orthogonal), &params);
+        assert_eq!(out.case, QpCase::D);
+        assert!((out.input.clone() - vector(&[-2.0, -3.0])).amax() < 1e-12);
+        assert_eq!(QpCase::D.to_string(), "D (CLF and CBF active)");
+    }
+
+    #[test]
+    fn degenerate_rows_drop_the_constraint_and_flag_infeasibility() {
+        let params = GammaM::new(8.0, 2.25).unwrap();
+        // x = 0 for the CLF: b1 = 0, a1 = 0 is satisfied; the CBF alone acts (Case C).
+        let out = gamma_m_qp(&constraint(0.0, &[0.0, 0.0]), &constraint(2.0, &[0.0, 1.0]), &params);
+        assert_eq!(out.case, QpCase::C);
+        assert!(!out.infeasible);
+        assert!((out.input.clone() - vector(&[0.0, -2.0])).amax() < 1e-12);
+        // x = c for the CBF: b2 = 0 with a2 > 0 cannot be met.
+        let out = gamma_m_qp(&constraint(-1.0, &[1.0, 0.0]), &constraint(2.0, &[0.0, 0.0]), &params);
+        assert!(out.infeasible);
+        assert_eq!(out.case, QpCase::A);
+    }
+
+    #[test]
+    fn with_gamma_m_over_m_plus_one_equal_to_one_the_qp_is_the_pmn_clf_law() {
+        // Theorem 3.3, item 3: F2 inactive and γm/(m+1) = 1 give κ_LB = κ_pmn(a1, b1) (3.7).
+        let example = table_3_1();
+        let params = GammaM::matching_pmn(example.m).unwrap();
+        assert!((params.gamma() * params.m() / (params.m() + 1.0) - 1.0).abs() < 1e-15);
+        let mut noise = Noise(3);
+        let mut compared = 0;
+        for _ in 0..500 {
+            let clf = AffineConstraint {
+                a: 2.0 * noise.next(),
+                b: DVector::from_fn(2, |_, _| noise.next()),
+            };
+            let cbf = constraint(-100.0, &[noise.next(), noise.next()]);
+            let lb = gamma_m_qp(&clf, &cbf, &params);
+            assert!(matches!(lb.case, QpCase::A | QpCase::B));
+            assert!((lb.input - pmn(&clf).input).amax() < 1e-12);
+            compared += 1;
+        }
+        assert_eq!(compared, 500);
+    }
+
+    #[test]
+    fn delay_integral_matches_closed_forms() {
+        // Scalar: ∫₀^τ e^{aθ} dθ = (e^{aτ} − 1)/a.
+        let v = delay_integral(&DMatrix::from_element(1, 1, -1.5), 0.8);
+        assert!((v[(0, 0)] - ((-1.5f64 * 0.8).exp() - 1.0) / -1.5).abs() < 1e-13);
+        // A = 0: τ I.
+        let v = delay_integral(&DMatrix::zeros(2, 2), 0.8);
+        assert!((v - DMatrix::identity(2, 2) * 0.8).amax() < 1e-15);
+    }
+
+    /// |(e^{λτ} − 1)/λ| (|1 + λ/l0| + 1/l0) ω̄ 2ρ for A ≅ λ = −1 + 0.5i (a scaled rotation, so
+    /// every matrix in (3.25) is a complex number and the norms are moduli).
+    fn buffer_bound_by_complex_arithmetic(tau: f64, l0: f64, omega_bar: f64, radius: f64) -> f64 {
+        let (re, im) = (-1.0f64, -0.5f64);
+        let growth = (re * tau).exp();
+        let (e_re, e_im) = (growth * (im * tau).cos() - 1.0, growth * (im * tau).sin());
+        let v = (e_re * e_re + e_im * e_im).sqrt() / (re * re + im * im).sqrt();
+        let shaped = ((1.0 + re / l0).powi(2) + (im / l0).powi(2)).sqrt();
+        2.0 * radius * (v * shaped + 1.0 / l0) * omega_bar
+    }
+
+    #[test]
+    fn robust_buffer_of_table_3_1_is_8_06() {
+        let example = table_3_1();
+        let bound = example.robust_buffer_bound().unwrap();
+        let independent = buffer_bound_by_complex_arithmetic(0.8, example.l0, example.omega_bar, example.radius);
+        println!(
+            "η bound (3.25) for Table 3.1: {bound:.6} (complex-arithmetic check {independent:.6}); Table 3.1 η = {}",
+            example.eta
+        );
+        assert!((bound - independent).abs() < 1e-12);
+        // The text: "(3.25) lead[s] to η ≥ 8.06".
+        assert!((bound - 8.06).abs() < 0.005, "η bound {bound}");
+        assert_eq!((bound * 100.0).ceil() / 100.0, 8.06);
+        let design = example.stabilizer().unwrap();
+        assert_eq!(design.check_buffer(&example.b_omega, example.omega_bar), Ok(bound));
+        // A larger disturbance bound needs a larger η.
+        assert!(matches!(
+            design.check_buffer(&example.b_omega, 1.1),
+            Err(LinearDelaysError::BufferBelowBound { .. })
+        ));
+    }
+
+    #[test]
+    fn bad_parameters_are_rejected_with_clear_errors() {
+        assert_eq!(GammaM::new(0.5, 2.0), Err(LinearDelaysError::WeightBelowOne { m: 0.5 }));
+        assert_eq!(
+            GammaM::new(8.0, 0.9),
+            Err(LinearDelaysError::GammaBelowOne { gamma: 0.9 })
+        );
+        assert!(GammaM::new(f64::NAN, 2.0).is_err());
+        let err = validate_delays(&[0.8, 0.2], 2).unwrap_err();
+        assert_eq!(
+            err,
+            LinearDelaysError::DelaysNotNondecreasing {
+                channel: 2,
+                delay: 0.2,
+                previous_channel: 1,
+                previous: 0.8
+            }
+        );
+        println!("{err}");
+        assert!(err.to_string().contains("τ_2 = 0.2 < τ_1 = 0.8"));
+        assert_eq!(
+            validate_delays(&[-0.1, 0.2], 2),
+            Err(LinearDelaysError::NegativeDelay {
+                channel: 1,
+                delay: -0.1
+            })
+        );
+        assert_eq!(
+            validate_delays(&[0.1], 2),
+            Err(LinearDelaysError::DelayCountMismatch { count: 1, channels: 2 })
+        );
+        assert!(validate_delays(&[0.2, 0.2, 0.8], 3).is_ok());
+
+        let example = table_3_1();
+        let mut bad = example.clone();
+        bad.delays = vec![0.8, 0.2];
+        assert!(matches!(
+            bad.stabilizer(),
+            Err(LinearDelaysError::DelaysNotNondecreasing { .. })
+        ));
+        bad = example.clone();
+        bad.m = 0.0;
+        assert!(matches!(
+            bad.stabilizer(),
+            Err(LinearDelaysError::WeightBelowOne { .. })
+        ));
+        bad = example.clone();
+        bad.centre_offset = 4.0;
+        assert!(matches!(
+            bad.stabilizer(),
+            Err(LinearDelaysError::OriginNotAdmissible { .. })
+        ));
+        bad = example.clone();
+        bad.p = -0.4;
+        assert_eq!(
+            bad.stabilizer(),
+            Err(LinearDelaysError::NotPositiveDefinite { which: "P" })
+        );
+        assert!(QuadraticClf::new(
+            DMatrix::from_row_slice(2, 2, &[1.0, 0.5, 0.0, 1.0]),
+            DMatrix::identity(2, 2)
+        )
+        .is_err());
+        assert!(matches!(
+            LinearSystem::new(DMatrix::zeros(2, 3), DMatrix::identity(2, 2)),
+            Err(LinearDelaysError::DimensionMismatch { what: "A", .. })
+        ));
+        let design = example.stabilizer().unwrap();
+        assert_eq!(
+            design.lb_inputs(std::slice::from_ref(&example.initial_state)),
+            Err(LinearDelaysError::PredictionCountMismatch { count: 1, channels: 2 })
+        );
+        let err = ConstrainedStabilizer::new(
+            example.system().unwrap(),
+            example.delays.clone(),
+            example.clf().unwrap(),
+            example.barrier().unwrap(),
+            example.l0,
+            -1.0,
+            GammaM::new(8.0, 2.25).unwrap(),
+        )
+        .unwrap_err();
+        assert_eq!(err, LinearDelaysError::NegativeBuffer { eta: -1.0 });
+    }
+
+    #[test]
+    fn example_constraints_follow_3_41_to_3_46() {
+        let example = table_3_1();
+        let design = example.stabilizer().unwrap();
+        let x = vector(&[3.0, -2.0]);
+        let c = vector(&[6.0, 0.0]);
+        let a = &example.a;
+        let h = (&x - &c).norm_squared() - 25.0;
+        assert_eq!(design.h(&x), h);
+        let cbf = design.cbf_constraint(&x);
+        let expected_a2 = -2.0 * (&x - &c).dot(&(a * &x)) - 2.0 * (h - 8.06);
+        assert!((cbf.a - expected_a2).abs() < 1e-12);
+        assert!((cbf.b.clone() + (&x - &c) * 2.0).amax() < 1e-12);
+        let clf = design.clf_constraint(&x);
+        // AᵀP + PA = p(A + Aᵀ) = −2p I: a1 = (q − 2p)‖x‖² (3.43)–(3.45 before γ_f).
+        assert!((clf.a - (example.q - 2.0 * example.p) * x.norm_squared()).abs() < 1e-12);
+        assert!((clf.b.clone() - &x * (2.0 * example.p)).amax() < 1e-12);
+    }
+
+    /// The closed loop (3.34), (3.33) at control step Δt: RK4 plant with a zero-order hold per
+    /// step, per-channel issued-input buffers, and the recursive predictors (3.3) for the linear
+    /// case integrated with the same RK4 and hold (channels j < i in the window of p_i take
+    /// κ_LB,j at the predicted state). The predictors do not know the disturbance.
+    struct ClosedLoop {
+        min_h: f64,
+        min_h_time: f64,
+        min_buffered_h: f64,
+        min_buffered_h_time: f64,
+        final_norm: f64,
+        /// max ‖x‖ over the last 5 s.
+        tail_norm: f64,
+        cases: HashMap<QpCase, usize>,
+        /// max ‖p_i(t_k) − x(t_k + τ_i)‖ over channels and ticks.
+        prediction_error: f64,
+        infeasible: usize,
+    }
+
+    fn rk4_step(
+        system: &LinearSystem,
+        b_omega: &DMatrix<f64>,
+        x: &DVector<f64>,
+        u: &DVector<f64>,
+        t: f64,
+        dt: f64,
+        disturbance: &dyn Fn(f64) -> DVector<f64>,
+    ) -> DVector<f64> {
+        let f = |s: f64, y: &DVector<f64>| system.a() * y + system.b() * u + b_omega * disturbance(s);
+        let k1 = f(t, x);
+        let k2 = f(t + dt / 2.0, &(x + &k1 * (dt / 2.0)));
+        let k3 = f(t + dt / 2.0, &(x + &k2 * (dt / 2.0)));
+        let k4 = f(t + dt, &(x + &k3 * dt));
+        x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (dt / 6.0)
+    }
+
+    fn no_disturbance(_: f64) -> DVector<f64> {
+        DVector::zeros(2)
+    }
+
+    /// Which per-channel law the closed loop runs.
+    #[derive(Clone, Copy, PartialEq)]
+    enum Law {
+        /// PMN CLF (3.11).
+        Clf,
+        /// PMN CBF (3.19).
+        Cbf,
+        /// γm CLF-CBF QP (3.33).
+        Qp,
+    }
+
+    fn simulate(
+        example: &Example35,
+        law_kind: Law,
+        disturbance: &dyn Fn(f64) -> DVector<f64>,
+        duration: f64,
+    ) -> ClosedLoop {
+        let design = example.stabilizer().unwrap();
+        let system = design.system();
+        let r = system.input_count();
+        let dt = example.timestep;
+        let delay_steps: Vec<usize> = design
+            .delays()
+            .iter()
+            .map(|d| {
+                let steps = d / dt;
+                assert!((steps - steps.round()).abs() < 1e-9, "delay {d} off the Δt grid");
+                steps.round() as usize
+            })
+            .collect();
+        let steps = (duration / dt).round() as usize;
+        // issued[j][k]: command of channel j issued at tick k; zero before t = 0 ((3.47)/(3.48)).
+        let mut issued: Vec<Vec<f64>> = vec![Vec::with_capacity(steps); r];
+        let issued_at = |issued: &Vec<Vec<f64>>, j: usize, tick: isize| -> f64 {
+            if tick < 0 {
+                0.0
+            } else {
+                issued[j][tick as usize]
+            }
+        };
+        let mut states = vec![example.initial_state.clone()];
+        let mut predictions: Vec<Vec<DVector<f64>>> = Vec::with_capacity(steps);
+        let mut run = ClosedLoop {
+            min_h: design.h(&example.initial_state),
+            min_h_time: 0.0,
+            min_buffered_h: design.buffered_h(&example.initial_state),
+            min_buffered_h_time: 0.0,
+            final_norm: 0.0,
+            tail_norm: 0.0,
+            cases: HashMap::new(),
+            prediction_error: 0.0,
+            infeasible: 0,
+        };
+        let law = |x: &DVector<f64>| match law_kind {
+            Law::Clf => design.clf_pmn(x).input,
+            Law::Cbf => design.cbf_pmn(x).input,
+            Law::Qp => design.kappa_lb(x).input,
+        };
+        for k in 0..steps {
+            let x = states[k].clone();
+            // Recursive predictors (3.3): p_i from p_{i−1} over arrivals [k + d_{i−1}, k + d_i).
+            let mut p = x.clone();
+            let mut reached = 0;
+            let mut channel_predictions = Vec::with_capacity(r);
+            for i in 0..r {
+                for s in (k + reached)..(k + delay_steps[i]) {
+                    let at_step_start = if i > 0 { Some(law(&p)) } else { None };
+                    let u = DVector::from_fn(r, |j, _| {
+                        if j < i {
+                            at_step_start.as_ref().unwrap()[j]
+                        } else {
+                            issued_at(&issued, j, s as isize - delay_steps[j] as isize)
+                        }
+                    });
+                    p = rk4_step(system, &example.b_omega, &p, &u, s as f64 * dt, dt, &no_disturbance);
+                }
+                reached = delay_steps[i];
+                channel_predictions.push(p.clone());
+            }
+            match law_kind {
+                Law::Clf | Law::Cbf => {
+                    let inputs = if law_kind == Law::Clf {
+                        design.clf_inputs(&channel_predictions)
+                    } else {
+                        design.cbf_inputs(&channel_predictions)
+                    };
+                    for (j, input) in inputs.unwrap().into_iter().enumerate() {
+                        issued[j].push(input);
+                    }
+                }
+                Law::Qp => {
+                    for (j, decision) in design.lb_inputs(&channel_predictions).unwrap().iter().enumerate() {
+                        issued[j].push(decision.input);
+                        *run.cases.entry(decision.case).or_default() += 1;
+                        run.infeasible += usize::from(decision.infeasible);
+                    }
+                }
+            }
+            predictions.push(channel_predictions);
+            let applied = DVector::from_fn(r, |j, _| issued_at(&issued, j, k as isize - delay_steps[j] as isize));
+            let next = rk4_step(system, &example.b_omega, &x, &applied, k as f64 * dt, dt, disturbance);
+            let t = (k + 1) as f64 * dt;
+            let (h, buffered) = (design.h(&next), design.buffered_h(&next));
+            if h < run.min_h {
+                (run.min_h, run.min_h_time) = (h, t);
+            }
+            if buffered < run.min_buffered_h {
+                (run.min_buffered_h, run.min_buffered_h_time) = (buffered, t);
+            }
+            if t > duration - 5.0 {
+                run.tail_norm = run.tail_norm.max(next.norm());
+            }
+            states.push(next);
+        }
+        run.final_norm = states[steps].norm();
+        for (k, channel_predictions) in predictions.iter().enumerate() {
+            for (i, p) in channel_predictions.iter().enumerate() {
+                if let Some(x) = states.get(k + delay_steps[i]) {
+                    run.prediction_error = run.prediction_error.max((p - x).norm());
+                }
+            }
+        }
+        run
+    }
+
+    /// min h along the uncontrolled drift from x(0): the disk is in the way.
+    fn drift_min_h(example: &Example35) -> f64 {
+        let design = example.stabilizer().unwrap();
+        let mut x = example.initial_state.clone();
+        let mut min_h = design.h(&x);
+        for k in 0..2000 {
+            x = rk4_step(
+                design.system(),
+                &example.b_omega,
+                &x,
+                &DVector::zeros(2),
+                k as f64 * example.timestep,
+                example.timestep,
+                &no_disturbance,
+            );
+            min_h = min_h.min(design.h(&x));
+        }
+        min_h
+    }
+
+    fn report(label: &str, run: &ClosedLoop) {
+        println!(
+            "{label}: min h = {:.4} (t = {:.3}), min h − η = {:.4} (t = {:.3}), final ‖x‖ = {:.3e}, max ‖x‖ over last 5 s = {:.3e}, max prediction error = {:.3e}, cases (channel-ticks) = {:?}, infeasible = {}",
+            run.min_h,
+            run.min_h_time,
+            run.min_buffered_h,
+            run.min_buffered_h_time,
+            run.final_norm,
+            run.tail_norm,
+            run.prediction_error,
+            run.cases,
+            run.infeasible
+        );
+    }
+
+    #[test]
+    fn example_3_5_without_disturbance_keeps_c_and_c_eta_and_converges() {
+        let example = table_3_1();
+        let drift = drift_min_h(&example);
+        println!("uncontrolled drift from x(0) = (16, 6): min h = {drift:.3}");
+        assert!(
+            drift < 0.0,
+            "the drift alone must cross the disk for the test to mean anything"
+        );
+        let run = simulate(&example, Law::Qp, &no_disturbance, 20.0);
+        report("§3.5 without disturbance", &run);
+        // The predictors are exact without disturbance ((3.3): p_i(t) = x(t + τ_i)).
+        assert!(run.prediction_error < 1e-9, "prediction error {}", run.prediction_error);
+        assert!(
+            run.cases.get(&QpCase::C).copied().unwrap_or(0) > 0,
+            "the barrier never acted"
+        );
+        assert_eq!(run.infeasible, 0);
+        // Fig. 3.1 top: C_η and C are kept invariant, and the state reaches the origin.
+        assert!(run.min_h > 0.0, "entered the disk: min h = {}", run.min_h);
+        assert!(
+            run.min_buffered_h >= -1e-6,
+            "left C_η: min h − η = {}",
+            run.min_buffered_h
+        );
+        assert!(run.final_norm < 1e-4, "final ‖x‖ = {}", run.final_norm);
+    }
+
+    #[test]
+    fn example_3_5_with_disturbance_3_49_keeps_c_and_reaches_a_neighbourhood_of_the_origin() {
+        let example = table_3_1();
+        // ‖ω(t)‖ ≤ ω̄ = 1.
+        for k in 0..10_000 {
+            assert!(disturbance_3_49(k as f64 * 1e-3).norm() <= example.omega_bar + 1e-15);
+        }
+        assert_eq!(disturbance_3_49(0.0), DVector::zeros(2));
+        let run = simulate(&example, Law::Qp, &disturbance_3_49, 20.0);
+        report("§3.5 with disturbance (3.49)/(3.50)", &run);
+        assert!(
+            run.prediction_error > 1e-3,
+            "the disturbance should spoil the predictions"
+        );
+        assert_eq!(run.infeasible, 0);
+        // Fig. 3.1 bottom: C is never left.
+        assert!(run.min_h > 0.0, "entered the disk: min h = {}", run.min_h);
+        // "… even though the buffer is violated": the unknown disturbance spoils the
+        // predictions, so C_η is left; η (3.25) absorbs it.
+        assert!(
+            run.min_buffered_h < 0.0,
+            "C_η was never left: min h − η = {}",
+            run.min_buffered_h
+        );
+        // ω does not vanish, so x converges to a neighbourhood of the origin: near 0 the barrier
+        // is inactive (h(0) − η > 0) and so is the CLF (a1 < 0 everywhere), so ẋ = A x + ω with
+        // A + Aᵀ = −2I gives d‖x‖/dt ≤ −‖x‖ + ω̄: limsup ‖x‖ ≤ ω̄.
+        assert!(
+            run.tail_norm <= example.omega_bar,
+            "max ‖x‖ over the last 5 s = {}",
+            run.tail_norm
+        );
+    }
+
+    #[test]
+    fn example_3_5_pmn_laws_alone_clf_crosses_the_disk_cbf_keeps_c() {
+        let example = table_3_1();
+        // (3.11): a1 = (q − 2p)‖x‖² < 0 everywhere, so the PMN CLF law never acts and the
+        // drift carries the state through the disk.
+        let clf = simulate(&example, Law::Clf, &no_disturbance, 20.0);
+        report("§3.5, PMN CLF (3.11) alone", &clf);
+        assert!(clf.min_h < 0.0, "min h = {}", clf.min_h);
+        // (3.19): the PMN CBF law keeps C (and C_η) without disturbance.
+        let cbf = simulate(&example, Law::Cbf, &no_disturbance, 20.0);
+        report("§3.5, PMN CBF (3.19) alone", &cbf);
+        assert!(cbf.prediction_error < 1e-9, "prediction error {}", cbf.prediction_error);
+        assert!(cbf.min_h > 0.0, "entered the disk: min h = {}", cbf.min_h);
+        assert!(
+            cbf.min_buffered_h >= -1e-6,
+            "left C_η: min h − η = {}",
+            cbf.min_buffered_h
+        );
+        assert!(cbf.final_norm < 1e-4, "final ‖x‖ = {}", cbf.final_norm);
+    }
 }

@@ -9,7 +9,9 @@
 //!
 //! Channel indices are positions in delay order (D_1 ≤ … ≤ D_r), 0-based here.
 
+pub mod linear_delays;
 pub mod prescribed_time;
+pub mod qp;
 use nalgebra::DVector;
 
 use crate::barrier::Constraint;
