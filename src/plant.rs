@@ -130,7 +130,11 @@ pub struct OdePlant {
     x: DVector<f64>,
     timestep: f64,
     step: u64,
+    disturbance: Option<Disturbance>,
 }
+
+/// An additive disturbance w(t) on ẋ (e.g. B_ω ω(t) of (3.24)).
+pub type Disturbance = Box<dyn Fn(f64) -> DVector<f64> + Send>;
 
 impl OdePlant {
     pub fn new(dynamics: Arc<dyn Dynamics>, x0: DVector<f64>, timestep: f64) -> OdePlant {
@@ -139,7 +143,14 @@ impl OdePlant {
             x: x0,
             timestep,
             step: 0,
+            disturbance: None,
         }
+    }
+
+    /// Adds w(t) to ẋ at every RK4 stage.
+    pub fn with_disturbance(mut self, disturbance: Disturbance) -> OdePlant {
+        self.disturbance = Some(disturbance);
+        self
     }
 }
 
@@ -154,9 +165,15 @@ impl Plant for OdePlant {
         let h = self.timestep;
         let x = self.x.clone();
         let model = self.dynamics.as_ref();
+        let step_time = self.step as f64 * h;
+        let disturbance = self.disturbance.as_ref();
         let mut derivative = |call: u32, offset: f64, stage: &DVector<f64>| {
             let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|| x.clone()));
-            model.dynamics(stage, &u)
+            let dx = model.dynamics(stage, &u);
+            match disturbance {
+                Some(w) => dx + w(step_time + offset),
+                None => dx,
+            }
         };
         let k1 = derivative(0, 0.0, &x);
         let k2 = derivative(1, h / 2.0, &(&x + &k1 * (h / 2.0)));

@@ -54,6 +54,16 @@ pub struct Scenario {
     /// State constraints h(x) >= 0 that are not physical obstacles.
     #[serde(default)]
     pub barriers: Vec<Shape>,
+    /// An additive disturbance B_ω ω(t) on the ODE plant ((3.24), (4.12)).
+    #[serde(default)]
+    pub disturbance: Option<DisturbanceSpec>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum DisturbanceSpec {
+    /// (3.49)/(3.50): ω1 = sin(0.4πt)/√2, ω2 = sgn(ω1)/√2, entering every state (B_ω = I).
+    Example349,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -158,6 +168,9 @@ pub enum FilterSpec {
     FixedChannel(FixedChannelSpec),
     /// Variable-channel γm filter (4.60)–(4.68), at the predictions.
     GammaM(GammaMSpec),
+    /// Ch. 3 constrained stabiliser for linear systems: the γm CLF-CBF QP (3.27)–(3.33) at
+    /// the recursive predictions (3.3)/(3.4), with buffer η (3.25) and a disk barrier.
+    ClfCbfQp(ClfCbfQpSpec),
 }
 
 impl FilterSpec {
@@ -168,6 +181,7 @@ impl FilterSpec {
             FilterSpec::CbfQp(s) => barrier_form(s.alpha, s.l0, s.l1),
             FilterSpec::FixedChannel(s) => barrier_form(s.alpha, s.l0, s.l1),
             FilterSpec::GammaM(s) => barrier_form(s.alpha, s.l0, s.l1),
+            FilterSpec::ClfCbfQp(s) => Some(BarrierForm::RelativeDegree1 { alpha: s.l0 }),
         }
     }
 }
@@ -247,6 +261,25 @@ pub struct StateBox {
 
 fn default_box_points() -> usize {
     9
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClfCbfQpSpec {
+    /// CLF V = xᵀPx with P = p·I, decay rate Q = q·I (Definition 3.1).
+    pub p: f64,
+    pub q: f64,
+    /// α_h(H) = l0·H (3.40).
+    pub l0: f64,
+    /// Buffer η: a number, or absent to use the bound (3.25) for `omega_bar`.
+    #[serde(default)]
+    pub eta: Option<f64>,
+    /// ω̄ of (3.24) for the bound (3.25) (default 0: no disturbance).
+    #[serde(default)]
+    pub omega_bar: f64,
+    /// QP-LB penalty m and γ of γ_f (3.28).
+    pub m: f64,
+    pub gamma: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -376,6 +409,7 @@ fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
         ("filter", "cbf_qp") => check::<CbfQpSpec>(section, body),
         ("filter", "fixed_channel") => check::<FixedChannelSpec>(section, body),
         ("filter", "gamma_m") => check::<GammaMSpec>(section, body),
+        ("filter", "clf_cbf_qp") => check::<ClfCbfQpSpec>(section, body),
         _ => None,
     }
 }
@@ -580,6 +614,29 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 return Err(s.field_error("filter.gamma", format!("expected gamma >= 1 (4.61), found {gamma}")));
             }
         }
+    }
+    if let FilterSpec::ClfCbfQp(spec) = &sc.filter {
+        if !(spec.m.is_finite() && spec.m >= 1.0) {
+            return Err(s.field_error("filter.m", format!("expected m >= 1, found {}", spec.m)));
+        }
+        if !(spec.gamma.is_finite() && spec.gamma >= 1.0) {
+            return Err(s.field_error("filter.gamma", format!("expected gamma >= 1, found {}", spec.gamma)));
+        }
+        if sc.vehicle.kind != VehicleKind::Linear {
+            return Err(s.field_error("filter.kind", "clf_cbf_qp (Ch. 3) needs vehicle.kind = \"linear\""));
+        }
+        if !matches!(&sc.nominal, NominalSpec::Constant(c) if c.input.iter().all(|v| *v == 0.0)) {
+            return Err(s.field_error(
+                "nominal",
+                "clf_cbf_qp stabilises through its CLF (3.27): expected a zero constant nominal",
+            ));
+        }
+    }
+    if sc.disturbance.is_some() && sc.plant != PlantKind::Ode {
+        return Err(s.field_error(
+            "disturbance",
+            "disturbances act on the ODE plant: expected plant = \"ode\"",
+        ));
     }
     if let FilterSpec::FixedChannel(spec) = &sc.filter {
         if spec.phi == Some(0) {

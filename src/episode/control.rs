@@ -13,6 +13,7 @@ use nalgebra::DVector;
 
 use crate::barrier::{self, Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
+use crate::filter::linear_delays::{ConstrainedStabilizer, QpCase};
 use crate::filter::{self, ChannelOutcome};
 use crate::nominal::Nominal;
 use crate::plant::Controller;
@@ -40,12 +41,15 @@ pub enum FilterRule {
     FixedChannel { form: BarrierForm, phi: usize },
     /// (4.60)–(4.68) at p_i(t).
     GammaM { form: BarrierForm, m: f64, gamma: f64 },
+    /// Ch. 3: u_i = κ_LB,i(p_i(t)) (3.33), the γm CLF-CBF QP (3.27) at each prediction. It
+    /// stabilises through its own CLF (the nominal is zero).
+    LinearClfCbf(Arc<ConstrainedStabilizer>),
 }
 
 impl FilterRule {
     pub fn form(&self) -> Option<BarrierForm> {
         match *self {
-            FilterRule::None => None,
+            FilterRule::None | FilterRule::LinearClfCbf(_) => None,
             FilterRule::DelayFree { form, .. }
             | FilterRule::FixedChannel { form, .. }
             | FilterRule::GammaM { form, .. } => Some(form),
@@ -170,8 +174,11 @@ impl ControlLoop {
         }
     }
 
-    /// The delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9).
+    /// The delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9) (κ_LB (3.27) for Ch. 3).
     fn delay_free(&self, time: f64, z: &DVector<f64>) -> DVector<f64> {
+        if let FilterRule::LinearClfCbf(stabilizer) = &self.rule {
+            return stabilizer.kappa_lb(z).input;
+        }
         let (u0, constraints) = self.nominal_and_constraints(time, z, z);
         if constraints.is_empty() {
             return u0;
@@ -205,6 +212,18 @@ impl ControlLoop {
         let mut issued = DVector::zeros(r);
         let mut outcomes = Vec::with_capacity(r);
         for (i, p) in predictions.iter().enumerate() {
+            if let FilterRule::LinearClfCbf(stabilizer) = &self.rule {
+                // (3.33): channel i takes component i of QP-LB solved at p_i(t).
+                let outcome = stabilizer.kappa_lb(&p.state);
+                issued[i] = outcome.input[i];
+                outcomes.push(Some(ChannelOutcome {
+                    input: issued[i],
+                    active: outcome.case != QpCase::A,
+                    infeasible: outcome.infeasible,
+                    mu: f64::NAN,
+                }));
+                continue;
+            }
             let eval_state = if self.rule.uses_prediction() { &p.state } else { x };
             let (nominal_time, nominal_state) = if self.nominal.uses_prediction() {
                 (p.target_time, &p.state)
@@ -260,7 +279,7 @@ impl ControlLoop {
             Ok(omega)
         };
         Ok(match &self.rule {
-            FilterRule::None => unreachable!("no constraint without a filter"),
+            FilterRule::None | FilterRule::LinearClfCbf(_) => unreachable!("no constraints for these rules"),
             FilterRule::DelayFree { .. } => {
                 let (input, active, infeasible, mu) = self.delay_free_qp(constraints, u0);
                 ChannelOutcome {

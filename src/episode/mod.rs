@@ -13,12 +13,14 @@ use nalgebra::{DMatrix, DVector};
 use crate::barrier::{self, Barrier};
 use crate::delay::{DelayProfile, DelayQueue};
 use crate::filter;
+use crate::filter::linear_delays;
 use crate::log::{proto, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::scenario::{
-    Compensation, ConstantSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec, ScenarioError,
+    ClfCbfQpSpec, Compensation, ConstantSpec, DisturbanceSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec,
+    ScenarioError,
 };
 use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
 
@@ -348,7 +350,15 @@ impl Episode {
                     &x0,
                 ))
             }
-            PlantKind::Ode => Box::new(OdePlant::new(model.clone(), x0.clone(), timestep)),
+            PlantKind::Ode => {
+                let plant = OdePlant::new(model.clone(), x0.clone(), timestep);
+                Box::new(match &sc.disturbance {
+                    Some(DisturbanceSpec::Example349) => {
+                        plant.with_disturbance(Box::new(linear_delays::disturbance_3_49))
+                    }
+                    None => plant,
+                })
+            }
         };
 
         let mut control = ControlLoop::new(model, nominal, rule, queues, structure, timestep, steps_per_tick);
@@ -703,6 +713,7 @@ fn filter_rule(
                 limits,
             }
         }
+        FilterSpec::ClfCbfQp(spec) => FilterRule::LinearClfCbf(Arc::new(linear_stabilizer(loaded, spec, queues)?)),
         FilterSpec::GammaM(spec) => {
             ordered_delays()?;
             FilterRule::GammaM {
@@ -748,6 +759,68 @@ fn filter_rule(
             FilterRule::FixedChannel { form, phi }
         }
     })
+}
+
+/// The Ch. 3 design from the scenario: the linear model, the channel delays, V = p xᵀx,
+/// the disk barrier (the scenario's only barrier: a ball, outside, over the whole state) and η
+/// (given, or the bound (3.25) for ω̄ with B_ω = I).
+fn linear_stabilizer(
+    loaded: &LoadedScenario,
+    spec: &ClfCbfQpSpec,
+    queues: &[DelayQueue],
+) -> Result<linear_delays::ConstrainedStabilizer, EpisodeError> {
+    let sc = &loaded.scenario;
+    let err =
+        |key: &str, e: linear_delays::LinearDelaysError| EpisodeError::from(loaded.field_error(key, e.to_string()));
+    let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
+    let (a, b) = (
+        rows(sc.vehicle.a.as_ref().expect("validated")),
+        rows(sc.vehicle.b.as_ref().expect("validated")),
+    );
+    let n = a.nrows();
+    let system = linear_delays::LinearSystem::new(a, b).map_err(|e| err("vehicle.a", e))?;
+    let delays: Vec<f64> = queues.iter().map(|q| q.constant_delay().unwrap_or(f64::NAN)).collect();
+    let clf = linear_delays::QuadraticClf::new(DMatrix::identity(n, n) * spec.p, DMatrix::identity(n, n) * spec.q)
+        .map_err(|e| err("filter.p", e))?;
+    let disk = match sc.barriers.as_slice() {
+        [crate::barrier::Shape::Ball {
+            indices,
+            centre,
+            radius,
+            inside: false,
+        }] if indices.iter().copied().eq(0..n) => {
+            linear_delays::DiskBarrier::new(DVector::from_column_slice(centre), *radius)
+                .map_err(|e| err("barriers[0]", e))?
+        }
+        _ => {
+            return Err(loaded
+                .field_error(
+                    "barriers",
+                    "clf_cbf_qp needs exactly one barrier: kind = \"ball\", inside = false, over every state index",
+                )
+                .into())
+        }
+    };
+    let qp = linear_delays::GammaM::new(spec.m, spec.gamma).map_err(|e| err("filter.m", e))?;
+    let build = |eta: f64| {
+        linear_delays::ConstrainedStabilizer::new(
+            system.clone(),
+            delays.clone(),
+            clf.clone(),
+            disk.clone(),
+            spec.l0,
+            eta,
+            qp.clone(),
+        )
+        .map_err(|e| err("filter", e))
+    };
+    let eta = match spec.eta {
+        Some(eta) => eta,
+        None => build(0.0)?
+            .robust_buffer_bound(&DMatrix::identity(n, n), spec.omega_bar)
+            .map_err(|e| err("filter.omega_bar", e))?,
+    };
+    build(eta)
 }
 
 /// The barrier the filter acts on (the scenario's only one), for checks before the run.
