@@ -810,7 +810,7 @@ fn linear_stabilizer(
             disk.clone(),
             spec.l0,
             eta,
-            qp.clone(),
+            qp,
         )
         .map_err(|e| err("filter", e))
     };
