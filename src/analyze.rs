@@ -6,6 +6,7 @@ use std::path::Path;
 use mcap::read::{ChunkFlattener, Options};
 use mcap::records::Record as McapRecord;
 use prost::Message;
+use serde::Deserialize;
 use serde::Serialize;
 
 use crate::log::{proto, TOPICS};
@@ -55,6 +56,18 @@ pub struct PredictionStats {
     sum_squares: f64,
 }
 
+/// Values at the prescribed time T (Ch. 5): barrier value(s) and the "soft landing" residuals.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct PrescribedTimeMetrics {
+    pub time: f64,
+    /// min over barriers of h(x(T)).
+    pub barrier: Option<f64>,
+    /// |x_i(T)| per state component.
+    pub state_residuals: Vec<f64>,
+    /// |u(T)| (the command issued at T, max over channels).
+    pub input_residual: Option<f64>,
+}
+
 /// Per-run metrics (see docs/log-format.md for the topics they come from).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunMetrics {
@@ -76,6 +89,15 @@ pub struct RunMetrics {
     pub max_correction: BTreeMap<String, f64>,
     /// Prediction consistency (Definition 4.3) per channel, from /prediction.
     pub prediction: BTreeMap<String, PredictionStats>,
+    /// Intervention and comfort: first control tick at which the filter changed the nominal,
+    /// total time it did so, max |du/dt| of the issued input (over channels) overall and
+    /// across ticks where the filter was overriding.
+    pub first_override_time: Option<f64>,
+    pub override_duration: f64,
+    pub max_jerk: f64,
+    pub max_jerk_overriding: f64,
+    /// Prescribed-time runs (metadata `prescribed_time` = T): values at T.
+    pub at_prescribed_time: Option<PrescribedTimeMetrics>,
     /// Whether the run finished (false: stopped by an error or interrupted).
     pub complete: bool,
     pub error: Option<String>,
@@ -106,6 +128,16 @@ struct Accumulator {
     infeasible_ticks: u64,
     max_correction: BTreeMap<String, f64>,
     prediction: BTreeMap<String, PredictionStats>,
+    prescribed_time: Option<f64>,
+    control_period: Option<f64>,
+    first_override_time: Option<f64>,
+    active_ticks_time: f64,
+    /// Previous issued command (time, values, overriding) for du/dt.
+    previous_command: Option<(f64, Vec<f64>)>,
+    /// Filter activity per tick time (ns), to pair with /command/issued.
+    overriding_at: BTreeMap<u64, bool>,
+    jerk_samples: Vec<(u64, u64, f64)>,
+    terminal: PrescribedTimeMetrics,
     complete: Option<bool>,
     error: Option<String>,
 }
@@ -150,6 +182,8 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
                 saw_mjsafe_metadata = true;
                 acc.scenario = m.metadata.get("scenario_name").cloned().unwrap_or_default();
                 acc.timestep = m.metadata.get("timestep").and_then(|s| s.parse().ok());
+                acc.control_period = m.metadata.get("control_period").and_then(|s| s.parse().ok());
+                acc.prescribed_time = m.metadata.get("prescribed_time").and_then(|s| s.parse().ok());
             }
             McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
                 acc.complete = Some(m.metadata.get("complete").is_some_and(|v| v == "true"));
@@ -194,6 +228,9 @@ impl Accumulator {
         match topic {
             "/state" => {
                 let m = proto::State::decode(data).map_err(decode_error)?;
+                if self.is_prescribed_time(m.time) {
+                    self.terminal.state_residuals = m.values.iter().map(|v| v.abs()).collect();
+                }
                 self.states += 1;
                 self.last_time = self.last_time.max(m.time);
                 self.last_step = self.last_step.max(m.step);
@@ -201,6 +238,9 @@ impl Accumulator {
             "/barrier" => {
                 let m = proto::Barrier::decode(data).map_err(decode_error)?;
                 let step_min = m.barriers.iter().map(|b| b.h).fold(f64::INFINITY, f64::min);
+                if self.is_prescribed_time(m.time) && step_min.is_finite() {
+                    self.terminal.barrier = Some(step_min);
+                }
                 if step_min.is_finite() {
                     self.min_h = Some(self.min_h.map_or(step_min, |h| h.min(step_min)));
                     if step_min < 0.0 {
@@ -212,11 +252,37 @@ impl Accumulator {
                 let m = proto::Filter::decode(data).map_err(decode_error)?;
                 self.ticks += 1;
                 self.active_ticks += u64::from(m.active);
+                if m.active {
+                    self.first_override_time.get_or_insert(m.time);
+                    self.active_ticks_time += self.control_period.unwrap_or(0.0);
+                }
+                self.overriding_at
+                    .insert(crate::log::mcap::sim_time_ns(m.time), m.active);
                 self.infeasible_ticks += u64::from(m.infeasible);
                 for (channel, c) in m.channels.iter().zip(&m.correction) {
                     let entry = self.max_correction.entry(channel.clone()).or_insert(0.0);
                     *entry = entry.max(c.abs());
                 }
+            }
+            "/command/issued" => {
+                let m = proto::IssuedCommand::decode(data).map_err(decode_error)?;
+                if let Some((previous_time, previous)) = &self.previous_command {
+                    let dt = m.time - previous_time;
+                    if dt > 0.0 {
+                        let jerk = m
+                            .filtered
+                            .iter()
+                            .zip(previous)
+                            .map(|(u, p)| ((u - p) / dt).abs())
+                            .fold(0.0, f64::max);
+                        let key = |t: f64| crate::log::mcap::sim_time_ns(t);
+                        self.jerk_samples.push((key(*previous_time), key(m.time), jerk));
+                    }
+                }
+                if self.is_prescribed_time(m.time) {
+                    self.terminal.input_residual = m.filtered.iter().map(|u| u.abs()).reduce(f64::max);
+                }
+                self.previous_command = Some((m.time, m.filtered));
             }
             "/prediction" => {
                 let m = proto::Prediction::decode(data).map_err(decode_error)?;
@@ -257,7 +323,27 @@ impl Accumulator {
         Ok(())
     }
 
+    /// Whether `time` is the prescribed time T (within half a timestep).
+    fn is_prescribed_time(&self, time: f64) -> bool {
+        match (self.prescribed_time, self.timestep) {
+            (Some(t), Some(h)) => (time - t).abs() < 0.5 * h,
+            _ => false,
+        }
+    }
+
     fn finish(self, file: &str) -> RunMetrics {
+        let max_jerk = self.jerk_samples.iter().map(|s| s.2).fold(0.0, f64::max);
+        let overriding = |t: &u64| self.overriding_at.get(t).copied().unwrap_or(false);
+        let max_jerk_overriding = self
+            .jerk_samples
+            .iter()
+            .filter(|(a, b, _)| overriding(a) || overriding(b))
+            .map(|s| s.2)
+            .fold(0.0, f64::max);
+        let at_prescribed_time = self.prescribed_time.map(|time| PrescribedTimeMetrics {
+            time,
+            ..self.terminal.clone()
+        });
         RunMetrics {
             file: file.into(),
             scenario: self.scenario,
@@ -273,6 +359,11 @@ impl Accumulator {
             },
             filter_infeasible_ticks: self.infeasible_ticks,
             max_correction: self.max_correction,
+            first_override_time: self.first_override_time,
+            override_duration: self.active_ticks_time,
+            max_jerk,
+            max_jerk_overriding,
+            at_prescribed_time,
             prediction: self
                 .prediction
                 .into_iter()
@@ -353,4 +444,422 @@ pub fn table(runs: &[RunMetrics]) -> String {
         })
         .collect::<Vec<_>>()
         .join("\n")
+}
+
+/// `Some(x)` for a finite x (JSON has no NaN or infinity: those are `null`, CSV leaves them empty).
+fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+/// A run's metrics as one flat record (no nesting beyond per-channel maps): the rows of
+/// `analyze --csv`, `analyze --compare` and the sweep summaries. Floats that are not finite
+/// are `None`. Definitions: docs/metrics.md.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlatMetrics {
+    pub scenario: String,
+    pub simulated_time: Option<f64>,
+    pub steps: u64,
+    pub collision_time: Option<f64>,
+    pub collision_with: Option<String>,
+    pub collision_depth: Option<f64>,
+    pub min_h: Option<f64>,
+    pub time_h_negative: Option<f64>,
+    pub filter_active_fraction: Option<f64>,
+    pub filter_infeasible_ticks: u64,
+    pub max_correction: BTreeMap<String, Option<f64>>,
+    pub prediction_count: BTreeMap<String, u64>,
+    pub prediction_max_error: BTreeMap<String, Option<f64>>,
+    pub prediction_rms_error: BTreeMap<String, Option<f64>>,
+    pub prediction_max_relative_error: BTreeMap<String, Option<f64>>,
+    pub complete: bool,
+    pub error: Option<String>,
+}
+
+/// One value of a [`FlatMetrics`] column.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cell {
+    Num(Option<f64>),
+    Int(Option<u64>),
+    Text(Option<String>),
+    Bool(Option<bool>),
+}
+
+/// The fixed scalar columns of [`FlatMetrics`] before the per-channel groups.
+const SCALAR_COLUMNS: [&str; 10] = [
+    "scenario",
+    "simulated_time",
+    "steps",
+    "collision_time",
+    "collision_with",
+    "collision_depth",
+    "min_h",
+    "time_h_negative",
+    "filter_active_fraction",
+    "filter_infeasible_ticks",
+];
+
+/// Per-channel column groups: a column is `<group>.<channel>`.
+const CHANNEL_GROUPS: [&str; 5] = [
+    "max_correction",
+    "prediction_count",
+    "prediction_max_error",
+    "prediction_rms_error",
+    "prediction_max_relative_error",
+];
+
+impl From<&RunMetrics> for FlatMetrics {
+    fn from(m: &RunMetrics) -> FlatMetrics {
+        let per_channel = |f: &dyn Fn(&PredictionStats) -> f64| {
+            m.prediction
+                .iter()
+                .map(|(c, p)| (c.clone(), finite(f(p))))
+                .collect::<BTreeMap<_, _>>()
+        };
+        FlatMetrics {
+            scenario: m.scenario.clone(),
+            simulated_time: finite(m.simulated_time),
+            steps: m.steps,
+            collision_time: m.collision.as_ref().and_then(|c| finite(c.time)),
+            collision_with: m.collision.as_ref().map(|c| c.with.clone()),
+            collision_depth: m.collision.as_ref().and_then(|c| finite(c.depth)),
+            min_h: m.min_h.and_then(finite),
+            time_h_negative: finite(m.time_h_negative),
+            filter_active_fraction: finite(m.filter_active_fraction),
+            filter_infeasible_ticks: m.filter_infeasible_ticks,
+            max_correction: m.max_correction.iter().map(|(c, v)| (c.clone(), finite(*v))).collect(),
+            prediction_count: m.prediction.iter().map(|(c, p)| (c.clone(), p.count)).collect(),
+            prediction_max_error: per_channel(&|p| p.max_error),
+            prediction_rms_error: per_channel(&|p| p.rms_error),
+            prediction_max_relative_error: per_channel(&|p| p.max_relative_error),
+            complete: m.complete,
+            error: m.error.clone(),
+        }
+    }
+}
+
+impl FlatMetrics {
+    /// Column names covering `rows`: the scalar columns, then per group the union of the
+    /// channels (sorted), then `complete` and `error`.
+    pub fn columns<'a>(rows: impl IntoIterator<Item = &'a FlatMetrics> + Clone) -> Vec<String> {
+        let mut names: Vec<String> = SCALAR_COLUMNS.iter().map(|s| s.to_string()).collect();
+        for group in CHANNEL_GROUPS {
+            let channels: std::collections::BTreeSet<&String> =
+                rows.clone().into_iter().flat_map(|r| r.channels(group)).collect();
+            names.extend(channels.into_iter().map(|c| format!("{group}.{c}")));
+        }
+        names.push("complete".into());
+        names.push("error".into());
+        names
+    }
+
+    fn channels(&self, group: &str) -> Vec<&String> {
+        match group {
+            "max_correction" => self.max_correction.keys().collect(),
+            "prediction_count" => self.prediction_count.keys().collect(),
+            "prediction_max_error" => self.prediction_max_error.keys().collect(),
+            "prediction_rms_error" => self.prediction_rms_error.keys().collect(),
+            "prediction_max_relative_error" => self.prediction_max_relative_error.keys().collect(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// The value of one column (as named by [`FlatMetrics::columns`]); a channel this run
+    /// does not have is an empty cell.
+    pub fn cell(&self, column: &str) -> Cell {
+        match column {
+            "scenario" => Cell::Text(Some(self.scenario.clone())),
+            "simulated_time" => Cell::Num(self.simulated_time),
+            "steps" => Cell::Int(Some(self.steps)),
+            "collision_time" => Cell::Num(self.collision_time),
+            "collision_with" => Cell::Text(self.collision_with.clone()),
+            "collision_depth" => Cell::Num(self.collision_depth),
+            "min_h" => Cell::Num(self.min_h),
+            "time_h_negative" => Cell::Num(self.time_h_negative),
+            "filter_active_fraction" => Cell::Num(self.filter_active_fraction),
+            "filter_infeasible_ticks" => Cell::Int(Some(self.filter_infeasible_ticks)),
+            "complete" => Cell::Bool(Some(self.complete)),
+            "error" => Cell::Text(self.error.clone()),
+            _ => {
+                let Some((group, channel)) = column.split_once('.') else {
+                    return Cell::Text(None);
+                };
+                let num = |m: &BTreeMap<String, Option<f64>>| Cell::Num(m.get(channel).copied().flatten());
+                match group {
+                    "max_correction" => num(&self.max_correction),
+                    "prediction_count" => Cell::Int(self.prediction_count.get(channel).copied()),
+                    "prediction_max_error" => num(&self.prediction_max_error),
+                    "prediction_rms_error" => num(&self.prediction_rms_error),
+                    "prediction_max_relative_error" => num(&self.prediction_max_relative_error),
+                    _ => Cell::Text(None),
+                }
+            }
+        }
+    }
+}
+
+impl Cell {
+    /// The CSV text: floats in Rust's shortest round-trip form (`0.1`, `1e-15`), empty for none.
+    pub fn csv(&self) -> String {
+        match self {
+            Cell::Num(v) => v.map_or(String::new(), |x| format!("{x:?}")),
+            Cell::Int(v) => v.map_or(String::new(), |x| x.to_string()),
+            Cell::Text(v) => v.clone().unwrap_or_default(),
+            Cell::Bool(v) => v.map_or(String::new(), |b| b.to_string()),
+        }
+    }
+
+    /// Short human-readable text for aligned tables (`-` for none).
+    pub fn display(&self) -> String {
+        match self {
+            Cell::Num(Some(x)) => short_number(*x),
+            Cell::Num(None) | Cell::Int(None) | Cell::Text(None) | Cell::Bool(None) => "-".into(),
+            _ => self.csv(),
+        }
+    }
+
+    /// The value as JSON (`null` for none).
+    pub fn json(&self) -> serde_json::Value {
+        match self {
+            Cell::Num(v) => v.map_or(serde_json::Value::Null, serde_json::Value::from),
+            Cell::Int(v) => v.map_or(serde_json::Value::Null, serde_json::Value::from),
+            Cell::Text(v) => v.clone().map_or(serde_json::Value::Null, serde_json::Value::from),
+            Cell::Bool(v) => v.map_or(serde_json::Value::Null, serde_json::Value::from),
+        }
+    }
+
+    /// `other − self` for numbers; for text and flags `same` or `differs`; `None` when
+    /// either side is missing.
+    pub fn difference(&self, other: &Cell) -> Option<Cell> {
+        match (self, other) {
+            (Cell::Num(Some(a)), Cell::Num(Some(b))) => Some(Cell::Num(finite(b - a))),
+            (Cell::Int(Some(a)), Cell::Int(Some(b))) => Some(Cell::Num(Some(*b as f64 - *a as f64))),
+            (Cell::Num(None), Cell::Num(None))
+            | (Cell::Int(None), Cell::Int(None))
+            | (Cell::Text(None), Cell::Text(None))
+            | (Cell::Bool(None), Cell::Bool(None)) => Some(Cell::Text(Some("same".into()))),
+            (Cell::Text(a), Cell::Text(b)) => Some(Cell::Text(Some(if a == b { "same" } else { "differs" }.into()))),
+            (Cell::Bool(a), Cell::Bool(b)) => Some(Cell::Text(Some(if a == b { "same" } else { "differs" }.into()))),
+            _ => None,
+        }
+    }
+}
+
+/// A number in at most 6 significant digits, without trailing zeros.
+fn short_number(x: f64) -> String {
+    if x == 0.0 {
+        return "0".into();
+    }
+    let a = x.abs();
+    if (1e-3..1e6).contains(&a) {
+        let decimals = (5 - a.log10().floor() as i32).max(0) as usize;
+        let s = format!("{x:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{x:.3e}")
+    }
+}
+
+/// One CSV field, quoted when it holds a comma, quote or line break.
+pub fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+/// Lines of CSV fields joined, ending with a newline.
+pub fn csv_lines(rows: &[Vec<String>]) -> String {
+    rows.iter()
+        .map(|r| r.iter().map(|f| csv_field(f)).collect::<Vec<_>>().join(",") + "\n")
+        .collect()
+}
+
+/// `analyze --csv`: one row per run, `file` then every [`FlatMetrics`] column.
+pub fn csv(runs: &[RunMetrics]) -> String {
+    let flat: Vec<FlatMetrics> = runs.iter().map(FlatMetrics::from).collect();
+    let columns = FlatMetrics::columns(&flat);
+    let mut rows = vec![std::iter::once("file".to_string())
+        .chain(columns.iter().cloned())
+        .collect()];
+    for (run, f) in runs.iter().zip(&flat) {
+        rows.push(
+            std::iter::once(run.file.clone())
+                .chain(columns.iter().map(|c| f.cell(c).csv()))
+                .collect(),
+        );
+    }
+    csv_lines(&rows)
+}
+
+/// One line of a comparison: a metric and its values in runs A and B.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Comparison {
+    pub metric: String,
+    pub a: Cell,
+    pub b: Cell,
+    /// B − A for numbers, `same`/`differs` otherwise; `None` when one side lacks the metric.
+    pub difference: Option<Cell>,
+}
+
+/// `analyze --compare A B`: every metric of either run, side by side.
+pub fn compare(a: &RunMetrics, b: &RunMetrics) -> Vec<Comparison> {
+    let (fa, fb) = (FlatMetrics::from(a), FlatMetrics::from(b));
+    FlatMetrics::columns([&fa, &fb])
+        .into_iter()
+        .map(|metric| {
+            let (ca, cb) = (fa.cell(&metric), fb.cell(&metric));
+            let difference = ca.difference(&cb);
+            Comparison {
+                metric,
+                a: ca,
+                b: cb,
+                difference,
+            }
+        })
+        .collect()
+}
+
+/// A comparison as aligned text: header `metric  A  B  B-A`.
+pub fn comparison_table(rows: &[Comparison]) -> String {
+    let mut cells: Vec<[String; 4]> = vec![["metric".into(), "A".into(), "B".into(), "B-A".into()]];
+    for r in rows {
+        cells.push([
+            r.metric.clone(),
+            r.a.display(),
+            r.b.display(),
+            r.difference.as_ref().map_or("-".into(), Cell::display),
+        ]);
+    }
+    let widths: Vec<usize> = (0..4)
+        .map(|c| cells.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
+        .collect();
+    cells
+        .iter()
+        .map(|r| {
+            r.iter()
+                .enumerate()
+                .map(|(c, cell)| format!("{cell:<width$}", width = widths[c]))
+                .collect::<Vec<_>>()
+                .join("  ")
+                .trim_end()
+                .to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// A comparison as CSV: `metric,a,b,difference`.
+pub fn comparison_csv(rows: &[Comparison]) -> String {
+    let mut lines = vec![vec!["metric".to_string(), "a".into(), "b".into(), "difference".into()]];
+    for r in rows {
+        lines.push(vec![
+            r.metric.clone(),
+            r.a.csv(),
+            r.b.csv(),
+            r.difference.as_ref().map_or(String::new(), Cell::csv),
+        ]);
+    }
+    csv_lines(&lines)
+}
+
+/// A comparison as JSON: `[{metric, a, b, difference}, …]`.
+pub fn comparison_json(rows: &[Comparison]) -> serde_json::Value {
+    serde_json::Value::Array(
+        rows.iter()
+            .map(|r| {
+                serde_json::json!({
+                    "metric": r.metric,
+                    "a": r.a.json(),
+                    "b": r.b.json(),
+                    "difference": r.difference.as_ref().map_or(serde_json::Value::Null, Cell::json),
+                })
+            })
+            .collect(),
+    )
+}
+
+/// One channel of a log, from its summary section.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChannelInfo {
+    pub id: u16,
+    pub topic: String,
+    pub schema: String,
+    pub schema_encoding: String,
+    pub message_encoding: String,
+    pub messages: u64,
+}
+
+/// What `mjsafe info` shows: the summary section of a log and its metadata records.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LogInfo {
+    pub file: String,
+    pub bytes: u64,
+    pub messages: u64,
+    pub chunks: u32,
+    /// Log time of the first and last message, seconds (simulation time in mjsafe logs).
+    pub start: f64,
+    pub end: f64,
+    pub channels: Vec<ChannelInfo>,
+    /// Metadata records by name (`mjsafe`, `mjsafe_status`), in file order.
+    pub metadata: Vec<(String, BTreeMap<String, String>)>,
+}
+
+/// Reads the summary section (statistics, channels, schemas, metadata index) of a log
+/// without decoding its messages.
+pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
+    let file = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    let not_mcap = |message: String| AnalyzeError::NotMcap {
+        file: file.clone(),
+        message,
+    };
+    let summary = mcap::read::Summary::read(&bytes)
+        .map_err(|e| not_mcap(e.to_string()))?
+        .ok_or_else(|| not_mcap("no summary section: the file was not finished".into()))?;
+    let stats = summary.stats.clone().ok_or_else(|| AnalyzeError::Foreign {
+        file: file.clone(),
+        message: "the summary has no statistics record".into(),
+    })?;
+    let mut channels: Vec<ChannelInfo> = summary
+        .channels
+        .values()
+        .map(|c| ChannelInfo {
+            id: c.id,
+            topic: c.topic.clone(),
+            schema: c.schema.as_ref().map_or(String::new(), |s| s.name.clone()),
+            schema_encoding: c.schema.as_ref().map_or(String::new(), |s| s.encoding.clone()),
+            message_encoding: c.message_encoding.clone(),
+            messages: stats.channel_message_counts.get(&c.id).copied().unwrap_or(0),
+        })
+        .collect();
+    channels.sort_by_key(|c| c.id);
+    let mut metadata = Vec::new();
+    let mut indexes = summary.metadata_indexes.clone();
+    indexes.sort_by_key(|i| i.offset);
+    for index in &indexes {
+        let record = mcap::read::metadata(&bytes, index).map_err(|e| AnalyzeError::Corrupt {
+            file: file.clone(),
+            messages: 0,
+            message: format!("metadata record {}: {e}", index.name),
+        })?;
+        metadata.push((record.name, record.metadata));
+    }
+    Ok(LogInfo {
+        file,
+        bytes: bytes.len() as u64,
+        messages: stats.message_count,
+        chunks: stats.chunk_count,
+        start: stats.message_start_time as f64 * 1e-9,
+        end: stats.message_end_time as f64 * 1e-9,
+        channels,
+        metadata,
+    })
 }

@@ -162,6 +162,10 @@ pub enum Nominal {
     UnicycleStabilizer,
     /// Pointwise min-norm CLF controller (4.58) for V = x1⁴/4 + x2²/2 (4.57).
     QuarticClf(std::sync::Arc<dyn crate::vehicle::Dynamics>),
+    /// Red-light tracking (5.20)–(5.22) for the double integrator.
+    RedLight(crate::filter::prescribed_time::RedLightNominal),
+    /// Prescribed-time stabiliser (5.87)/(5.88) of (5.82) in z-coordinates, mapped back (5.91).
+    Pts(crate::filter::prescribed_time::PtsNominal),
 }
 
 impl std::fmt::Debug for dyn crate::vehicle::Dynamics {
@@ -197,6 +201,18 @@ impl Nominal {
             Nominal::Constant(u) => u.clone(),
             Nominal::UnicycleStabilizer => unicycle_stabilizer(time, x),
             Nominal::QuarticClf(model) => quartic_clf(model.as_ref(), x),
+            Nominal::RedLight(red_light) => {
+                DVector::from_element(1, red_light.control(time, &nalgebra::Vector2::new(x[0], x[1])))
+            }
+            Nominal::Pts(pts) => {
+                use crate::filter::prescribed_time::StrictFeedbackSystem;
+                let state = nalgebra::Vector2::new(x[0], x[1]);
+                let z = StrictFeedbackSystem.to_chain(&state);
+                // With the clip required by the scenario, μ2 is defined for all t; NaN would
+                // stop the episode with an error rather than pass silently.
+                let v = pts.control(time, &z).unwrap_or(f64::NAN);
+                DVector::from_element(1, StrictFeedbackSystem.plant_input(&state, v))
+            }
         }
     }
 

@@ -123,6 +123,34 @@ pub enum NominalSpec {
     UnicycleStabilizer,
     /// CLF controller (4.58) with V = x1⁴/4 + x2²/2 (4.57) (two-state systems).
     QuarticClf,
+    /// Red-light tracking controller (5.20)–(5.22) for the double integrator.
+    RedLight(RedLightSpec),
+    /// Prescribed-time stabiliser (5.87)/(5.88) of the strict-feedback system (5.82), in
+    /// z-coordinates and mapped back by (5.91).
+    Pts(PtsSpec),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RedLightSpec {
+    /// u = −k1 z1 − k2 z2, z1 = x1 + a sin(ωt) + b, z2 = x2 + aω cos(ωt).
+    pub k1: f64,
+    pub k2: f64,
+    pub a: f64,
+    pub b: f64,
+    pub omega: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PtsSpec {
+    /// v = −μ2(t)[ω², 2ζω] z on [0, T).
+    pub omega: f64,
+    pub zeta: f64,
+    pub horizon: f64,
+    /// Clip of μ2 (default: none).
+    #[serde(default)]
+    pub clip: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -171,6 +199,52 @@ pub enum FilterSpec {
     /// Ch. 3 constrained stabiliser for linear systems: the γm CLF-CBF QP (3.27)–(3.33) at
     /// the recursive predictions (3.3)/(3.4), with buffer η (3.25) and a disk barrier.
     ClfCbfQp(ClfCbfQpSpec),
+    /// Ch. 5 prescribed-time safety filter (5.23)–(5.29) keeping y = x1 < 0 on [0, T).
+    Ptsf(PtsfSpec),
+    /// Ch. 5 exponential safety filter u = min{u_nom, −k x} (5.89), poles −ρ, …, −nρ.
+    Esf(EsfSpec),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PtsfSpec {
+    /// T: the prescribed time (the filter starts at t0 = 0).
+    pub horizon: f64,
+    /// Margin added to the lower bounds (5.32)–(5.34) of the gains c_i (computed from x(0)).
+    pub margin: f64,
+    /// Clip of μ2 (§5.4 uses 1000); none if absent.
+    #[serde(default)]
+    pub clip: Option<f64>,
+    /// Order n of the chain; checked against the model if given.
+    #[serde(default)]
+    pub order: Option<usize>,
+    /// Ramp g (5.28) after T: exponent m, duration T̄, and |y(T)| tolerance for "y(T) = 0".
+    #[serde(default = "default_ramp_exponent")]
+    pub ramp_exponent: u32,
+    #[serde(default = "default_ramp_duration")]
+    pub ramp_duration: f64,
+    #[serde(default = "default_ramp_tolerance")]
+    pub ramp_tolerance: f64,
+}
+
+fn default_ramp_exponent() -> u32 {
+    2
+}
+fn default_ramp_duration() -> f64 {
+    0.5
+}
+fn default_ramp_tolerance() -> f64 {
+    1e-9
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EsfSpec {
+    /// ρ.
+    pub rate: f64,
+    /// T for the prescribed-time metrics (barrier and residuals at T); optional.
+    #[serde(default)]
+    pub horizon: Option<f64>,
 }
 
 impl FilterSpec {
@@ -182,6 +256,8 @@ impl FilterSpec {
             FilterSpec::FixedChannel(s) => barrier_form(s.alpha, s.l0, s.l1),
             FilterSpec::GammaM(s) => barrier_form(s.alpha, s.l0, s.l1),
             FilterSpec::ClfCbfQp(s) => Some(BarrierForm::RelativeDegree1 { alpha: s.l0 }),
+            // The chain filters have their own barrier chains ((5.24), (5.15)/(5.16)).
+            FilterSpec::Ptsf(_) | FilterSpec::Esf(_) => None,
         }
     }
 }
@@ -410,6 +486,10 @@ fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
         ("filter", "fixed_channel") => check::<FixedChannelSpec>(section, body),
         ("filter", "gamma_m") => check::<GammaMSpec>(section, body),
         ("filter", "clf_cbf_qp") => check::<ClfCbfQpSpec>(section, body),
+        ("filter", "ptsf") => check::<PtsfSpec>(section, body),
+        ("filter", "esf") => check::<EsfSpec>(section, body),
+        ("nominal", "red_light") => check::<RedLightSpec>(section, body),
+        ("nominal", "pts") => check::<PtsSpec>(section, body),
         _ => None,
     }
 }
@@ -575,14 +655,15 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 return Err(s.field_error("nominal.input", "expected finite numbers"));
             }
         }
-        NominalSpec::QuarticClf => {}
+        NominalSpec::QuarticClf | NominalSpec::RedLight(_) | NominalSpec::Pts(_) => {}
         NominalSpec::UnicycleStabilizer => {
             if sc.vehicle.kind != VehicleKind::Unicycle {
                 return Err(s.field_error("nominal.kind", "unicycle_stabilizer needs vehicle.kind = \"unicycle\""));
             }
         }
     }
-    if sc.filter != FilterSpec::None {
+    let has_gains = !matches!(sc.filter, FilterSpec::None | FilterSpec::Ptsf(_) | FilterSpec::Esf(_));
+    if has_gains {
         match sc.filter.form() {
             None => {
                 return Err(s.field_error(
@@ -613,6 +694,24 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             if !(gamma.is_finite() && gamma >= 1.0) {
                 return Err(s.field_error("filter.gamma", format!("expected gamma >= 1 (4.61), found {gamma}")));
             }
+        }
+    }
+    if let FilterSpec::Ptsf(spec) = &sc.filter {
+        if !positive_finite(spec.horizon) {
+            return Err(s.field_error("filter.horizon", format!("expected T > 0, found {}", spec.horizon)));
+        }
+        if !positive_finite(spec.margin) {
+            return Err(s.field_error("filter.margin", format!("expected a margin > 0, found {}", spec.margin)));
+        }
+        if let Some(clip) = spec.clip {
+            if !(clip.is_finite() && clip > 1.0) {
+                return Err(s.field_error("filter.clip", format!("expected a clip > 1 for mu_2, found {clip}")));
+            }
+        }
+    }
+    if let FilterSpec::Esf(spec) = &sc.filter {
+        if !positive_finite(spec.rate) {
+            return Err(s.field_error("filter.rate", format!("expected rho > 0, found {}", spec.rate)));
         }
     }
     if let FilterSpec::ClfCbfQp(spec) = &sc.filter {

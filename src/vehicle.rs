@@ -27,12 +27,17 @@ pub enum VehicleKind {
     Linear,
     /// Example 1 of Ch. 4 (4.52): ẋ1 = −x1 − x2 + u1, ẋ2 = x1³ + x2 u2 (ODE plant only).
     NonlinearExample1,
+    /// The strict-feedback system (5.82): ẋ1 = x1² + x2, ẋ2 = u (ODE plant only).
+    StrictFeedback,
 }
 
 impl VehicleKind {
     /// Whether the kind has an MJCF model (and so can run on the MuJoCo plant).
     pub fn has_mjcf(self) -> bool {
-        !matches!(self, VehicleKind::Linear | VehicleKind::NonlinearExample1)
+        !matches!(
+            self,
+            VehicleKind::Linear | VehicleKind::NonlinearExample1 | VehicleKind::StrictFeedback
+        )
     }
 }
 
@@ -89,7 +94,7 @@ pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, 
         VehicleKind::Unicycle => Box::new(MujocoUnicycle::bind(model)?),
         VehicleKind::DoubleIntegrator1d => Box::new(MujocoDoubleIntegrator::bind(model, 1)?),
         VehicleKind::DoubleIntegrator2d => Box::new(MujocoDoubleIntegrator::bind(model, 2)?),
-        VehicleKind::Linear | VehicleKind::NonlinearExample1 => {
+        VehicleKind::Linear | VehicleKind::NonlinearExample1 | VehicleKind::StrictFeedback => {
             return Err(MjError::MissingName {
                 kind: "MJCF binding for vehicle kind",
                 name: format!("{kind:?}"),
@@ -543,5 +548,39 @@ impl Dynamics for NonlinearExample1 {
     }
     fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
         DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, x[1]])
+    }
+}
+
+/// The strict-feedback system (5.82): ẋ1 = x1² + x2, ẋ2 = u, output y = x1.
+#[derive(Debug, Clone)]
+pub struct StrictFeedbackModel {
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
+}
+
+impl Default for StrictFeedbackModel {
+    fn default() -> Self {
+        StrictFeedbackModel {
+            state_names: names(&["x1", "x2"]),
+            channel_names: names(&["u"]),
+        }
+    }
+}
+
+impl Dynamics for StrictFeedbackModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
+    }
+    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
+        DVector::from_column_slice(&[x[0] * x[0] + x[1], 0.0])
+    }
+    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        DMatrix::from_row_slice(2, 2, &[2.0 * x[0], 1.0, 0.0, 0.0])
+    }
+    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
+        DMatrix::from_column_slice(2, 1, &[0.0, 1.0])
     }
 }

@@ -14,11 +14,13 @@ use nalgebra::DVector;
 use crate::barrier::{self, Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
 use crate::filter::linear_delays::{ConstrainedStabilizer, QpCase};
+use crate::filter::prescribed_time::{EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem};
 use crate::filter::{self, ChannelOutcome};
 use crate::nominal::Nominal;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, Structure};
 use crate::vehicle::Dynamics;
+use nalgebra::Vector2;
 
 /// Fraction of a step below which two times are the same instant.
 pub const TICK_TOLERANCE: f64 = 1e-6;
@@ -44,12 +46,69 @@ pub enum FilterRule {
     /// Ch. 3: u_i = κ_LB,i(p_i(t)) (3.33), the γm CLF-CBF QP (3.27) at each prediction. It
     /// stabilises through its own CLF (the nominal is zero).
     LinearClfCbf(Arc<ConstrainedStabilizer>),
+    /// Ch. 5: PTSf (5.27)/(5.28) or ESf (5.89) on the chain of integrators z = T(x) (the
+    /// identity, or (5.83)/(5.84) for the strict-feedback system), mapped back by (5.91).
+    Chain {
+        filter: ChainFilter,
+        transform: ChainTransform,
+    },
+}
+
+/// The Ch. 5 filter on a chain of integrators.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ChainFilter {
+    Ptsf(Arc<PtsfFilter>),
+    Esf(Arc<EsfFilter>),
+}
+
+/// How the plant's state and input map to a chain of integrators.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ChainTransform {
+    /// The plant is the chain.
+    Identity,
+    /// (5.82) → (5.85) by (5.83)/(5.84), inputs by (5.86)/(5.91).
+    StrictFeedback,
+}
+
+impl ChainTransform {
+    pub fn to_chain(&self, x: &DVector<f64>) -> DVector<f64> {
+        match self {
+            ChainTransform::Identity => x.clone(),
+            ChainTransform::StrictFeedback => {
+                let z = StrictFeedbackSystem.to_chain(&Vector2::new(x[0], x[1]));
+                DVector::from_column_slice(z.as_slice())
+            }
+        }
+    }
+    /// The chain input v for plant input u at x ((5.86)).
+    pub fn chain_input(&self, x: &DVector<f64>, u: f64) -> f64 {
+        match self {
+            ChainTransform::Identity => u,
+            ChainTransform::StrictFeedback => StrictFeedbackSystem.chain_input(&Vector2::new(x[0], x[1]), u),
+        }
+    }
+    /// The plant input u for chain input v at x ((5.91)).
+    pub fn plant_input(&self, x: &DVector<f64>, v: f64) -> f64 {
+        match self {
+            ChainTransform::Identity => v,
+            ChainTransform::StrictFeedback => StrictFeedbackSystem.plant_input(&Vector2::new(x[0], x[1]), v),
+        }
+    }
+}
+
+/// An error raised inside the control tick (reported after the step; the episode stops).
+#[derive(Debug, thiserror::Error)]
+pub enum ControlError {
+    #[error(transparent)]
+    Delay(#[from] DelayError),
+    #[error("prescribed-time filter: {0}")]
+    PrescribedTime(#[from] PrescribedTimeError),
 }
 
 impl FilterRule {
     pub fn form(&self) -> Option<BarrierForm> {
         match *self {
-            FilterRule::None | FilterRule::LinearClfCbf(_) => None,
+            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => None,
             FilterRule::DelayFree { form, .. }
             | FilterRule::FixedChannel { form, .. }
             | FilterRule::GammaM { form, .. } => Some(form),
@@ -58,7 +117,10 @@ impl FilterRule {
 
     /// Whether the filter acts on predictions p_i(t) rather than on x(t).
     pub fn uses_prediction(&self) -> bool {
-        !matches!(self, FilterRule::None | FilterRule::DelayFree { predicted: false, .. })
+        !matches!(
+            self,
+            FilterRule::None | FilterRule::DelayFree { predicted: false, .. } | FilterRule::Chain { .. }
+        )
     }
 }
 
@@ -101,7 +163,9 @@ pub struct ControlLoop {
     /// Predictions waiting for their target time, per channel.
     pending: Vec<VecDeque<Prediction>>,
     /// An error raised inside the callback (reported after the step).
-    pub error: Option<DelayError>,
+    pub error: Option<ControlError>,
+    /// y(t0 + T) = z1 at the prescribed time, once reached (the ramp (5.28) needs it).
+    output_at_end: Option<f64>,
 }
 
 impl ControlLoop {
@@ -131,6 +195,7 @@ impl ControlLoop {
             applied_buffer: Vec::with_capacity(r),
             pending: vec![VecDeque::new(); r],
             error: None,
+            output_at_end: None,
         }
     }
 
@@ -186,7 +251,49 @@ impl ControlLoop {
         self.delay_free_qp(&constraints, &u0).0
     }
 
-    fn control_tick(&mut self, t: f64, x: &DVector<f64>) -> Result<(), DelayError> {
+    /// Ch. 5 tick: u = T⁻¹(filter(t, z, v_nom)) for a scalar-input chain (no delays).
+    fn chain_tick(
+        &mut self,
+        t: f64,
+        x: &DVector<f64>,
+        filter: &ChainFilter,
+        transform: ChainTransform,
+    ) -> Result<(), ControlError> {
+        let u_nom = self.nominal.input(t, x)[0];
+        let z = transform.to_chain(x);
+        let v_nom = transform.chain_input(x, u_nom);
+        let decision = match filter {
+            ChainFilter::Ptsf(ptsf) => {
+                if t >= ptsf.blow_up().end_time() - TICK_TOLERANCE * self.timestep && self.output_at_end.is_none() {
+                    self.output_at_end = Some(z[0]);
+                }
+                ptsf.control(t, &z, v_nom, self.output_at_end)?
+            }
+            ChainFilter::Esf(esf) => esf.control(&z, v_nom)?,
+        };
+        let u = transform.plant_input(x, decision.input);
+        self.queues[0].push(t, u)?;
+        self.queues[0].discard_before(t);
+        let outcome = ChannelOutcome {
+            input: u,
+            active: decision.overriding,
+            infeasible: false,
+            mu: f64::NAN,
+        };
+        self.tick = Some(Tick {
+            time: t,
+            nominal: DVector::from_element(1, u_nom),
+            issued: DVector::from_element(1, u),
+            outcomes: vec![Some(outcome)],
+        });
+        Ok(())
+    }
+
+    fn control_tick(&mut self, t: f64, x: &DVector<f64>) -> Result<(), ControlError> {
+        if let FilterRule::Chain { filter, transform } = &self.rule {
+            let (filter, transform) = (filter.clone(), *transform);
+            return self.chain_tick(t, x, &filter, transform);
+        }
         let context = PredictorContext {
             model: self.model.as_ref(),
             queues: &self.queues,
@@ -279,7 +386,9 @@ impl ControlLoop {
             Ok(omega)
         };
         Ok(match &self.rule {
-            FilterRule::None | FilterRule::LinearClfCbf(_) => unreachable!("no constraints for these rules"),
+            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => {
+                unreachable!("no constraints for these rules")
+            }
             FilterRule::DelayFree { .. } => {
                 let (input, active, infeasible, mu) = self.delay_free_qp(constraints, u0);
                 ChannelOutcome {
@@ -356,7 +465,7 @@ impl Controller for ControlLoop {
             let applied = match queue.applied(sample_time) {
                 Ok(a) => a,
                 Err(e) => {
-                    self.error.get_or_insert(e);
+                    self.error.get_or_insert(e.into());
                     crate::delay::Applied {
                         value: 0.0,
                         issued_at: f64::NAN,

@@ -14,6 +14,9 @@ use crate::barrier::{self, Barrier};
 use crate::delay::{DelayProfile, DelayQueue};
 use crate::filter;
 use crate::filter::linear_delays;
+use crate::filter::prescribed_time::{
+    BlowUp, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsNominal, PtsfFilter, RedLightNominal,
+};
 use crate::log::{proto, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
@@ -24,7 +27,7 @@ use crate::scenario::{
 };
 use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
 
-pub use control::{Consistency, ControlLoop, FilterRule, Tick, TICK_TOLERANCE};
+pub use control::{ChainFilter, ChainTransform, Consistency, ControlLoop, FilterRule, Tick, TICK_TOLERANCE};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EpisodeError {
@@ -150,6 +153,7 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
     // Validation guarantees a timestep, and A and B for kind linear.
     let dynamics: Arc<dyn Dynamics> = match sc.vehicle.kind {
         VehicleKind::NonlinearExample1 => Arc::new(vehicle::NonlinearExample1::default()),
+        VehicleKind::StrictFeedback => Arc::new(vehicle::StrictFeedbackModel::default()),
         _ => {
             let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
             let (a, b) = (
@@ -272,9 +276,49 @@ impl Episode {
                 }
                 Nominal::QuarticClf(model.clone())
             }
+            NominalSpec::RedLight(spec) => {
+                if sc.vehicle.kind != VehicleKind::DoubleIntegrator1d && n != 2 {
+                    return Err(loaded
+                        .field_error("nominal.kind", "red_light (5.20) needs a double integrator")
+                        .into());
+                }
+                Nominal::RedLight(RedLightNominal {
+                    position_gain: spec.k1,
+                    velocity_gain: spec.k2,
+                    amplitude: spec.a,
+                    offset: spec.b,
+                    frequency: spec.omega,
+                })
+            }
+            NominalSpec::Pts(spec) => {
+                if sc.vehicle.kind != VehicleKind::StrictFeedback {
+                    return Err(loaded
+                        .field_error("nominal.kind", "pts (5.87) needs vehicle.kind = \"strict_feedback\"")
+                        .into());
+                }
+                let clip = spec.clip.ok_or_else(|| {
+                    loaded.field_error(
+                        "nominal.clip",
+                        "the nominal (5.87) blows up at T: expected a clip of mu_2 (e.g. 1000)",
+                    )
+                })?;
+                let blow_up = BlowUp::new(0.0, spec.horizon)
+                    .and_then(|b| b.with_mu2_clip(clip))
+                    .map_err(|e| loaded.field_error("nominal", e.to_string()))?;
+                Nominal::Pts(PtsNominal {
+                    natural_frequency: spec.omega,
+                    damping_ratio: spec.zeta,
+                    blow_up,
+                })
+            }
         };
 
-        let rule = filter_rule(loaded, model.as_ref(), &queues)?;
+        let rule = filter_rule(
+            loaded,
+            model.as_ref(),
+            &queues,
+            &DVector::from_column_slice(&sc.vehicle.initial_state),
+        )?;
         let distinct_delay_filter = matches!(rule, FilterRule::FixedChannel { .. } | FilterRule::GammaM { .. });
         if distinct_delay_filter && sc.obstacles.len() + sc.barriers.len() > 1 {
             return Err(loaded
@@ -375,6 +419,11 @@ impl Episode {
             mujoco_version: mujoco::version_string(),
             timestep,
             control_period: period,
+            prescribed_time: match &sc.filter {
+                FilterSpec::Ptsf(spec) => Some(spec.horizon),
+                FilterSpec::Esf(spec) => spec.horizon,
+                _ => None,
+            },
         };
         Ok(Episode {
             plant,
@@ -653,8 +702,12 @@ fn filter_rule(
     loaded: &LoadedScenario,
     model: &dyn Dynamics,
     queues: &[DelayQueue],
+    x0: &DVector<f64>,
 ) -> Result<FilterRule, EpisodeError> {
     let sc = &loaded.scenario;
+    if let FilterSpec::Ptsf(_) | FilterSpec::Esf(_) = &sc.filter {
+        return chain_rule(loaded, model, queues, x0);
+    }
     let Some(form) = sc.filter.form() else {
         return Ok(FilterRule::None);
     };
@@ -684,7 +737,7 @@ fn filter_rule(
         Ok(())
     };
     Ok(match &sc.filter {
-        FilterSpec::None => FilterRule::None,
+        FilterSpec::None | FilterSpec::Ptsf(_) | FilterSpec::Esf(_) => FilterRule::None,
         FilterSpec::CbfQp(spec) => {
             let limits = match &spec.input_limits {
                 Some(l) => {
@@ -759,6 +812,68 @@ fn filter_rule(
             FilterRule::FixedChannel { form, phi }
         }
     })
+}
+
+/// The Ch. 5 filters: one input channel without delay, a model that is a chain of integrators
+/// of order n (or the strict-feedback system (5.82), mapped to one), gains from x(0).
+fn chain_rule(
+    loaded: &LoadedScenario,
+    model: &dyn Dynamics,
+    queues: &[DelayQueue],
+    x0: &DVector<f64>,
+) -> Result<FilterRule, EpisodeError> {
+    let sc = &loaded.scenario;
+    if queues.len() != 1 || queues[0].constant_delay() != Some(0.0) {
+        return Err(loaded
+            .field_error("filter.kind", "the Ch. 5 filters need one input channel without delay")
+            .into());
+    }
+    let n = model.state_dim();
+    let transform = if sc.vehicle.kind == VehicleKind::StrictFeedback {
+        ChainTransform::StrictFeedback
+    } else {
+        // ẋ_i = x_{i+1}, ẋ_n = u: check f and G at a generic state.
+        let probe = DVector::from_iterator(n, (0..n).map(|i| 0.37 * (i as f64 + 1.0)));
+        let f = model.drift(&probe);
+        let g = model.input_matrix(&probe);
+        let is_chain = (0..n).all(|i| {
+            let expected_f = if i + 1 < n { probe[i + 1] } else { 0.0 };
+            let expected_g = if i + 1 == n { 1.0 } else { 0.0 };
+            (f[i] - expected_f).abs() < 1e-12 && (g[(i, 0)] - expected_g).abs() < 1e-12
+        });
+        if !is_chain {
+            return Err(loaded.field_error("vehicle", "the Ch. 5 filters need a chain of integrators (x_i' = x_{i+1}, x_n' = u) or kind = \"strict_feedback\"").into());
+        }
+        ChainTransform::Identity
+    };
+    let filter_error = |e: PrescribedTimeError| EpisodeError::from(loaded.field_error("filter", e.to_string()));
+    let filter = match &sc.filter {
+        FilterSpec::Ptsf(spec) => {
+            if let Some(order) = spec.order {
+                if order != n {
+                    return Err(loaded
+                        .field_error(
+                            "filter.order",
+                            format!("the model is a chain of order {n}, not {order}"),
+                        )
+                        .into());
+                }
+            }
+            let mut blow_up = BlowUp::new(0.0, spec.horizon).map_err(filter_error)?;
+            if let Some(clip) = spec.clip {
+                blow_up = blow_up.with_mu2_clip(clip).map_err(filter_error)?;
+            }
+            let ramp = ContinuityRamp::new(spec.ramp_exponent, spec.ramp_duration, spec.ramp_tolerance)
+                .map_err(filter_error)?;
+            let z0 = transform.to_chain(x0);
+            ChainFilter::Ptsf(Arc::new(
+                PtsfFilter::from_initial_state(blow_up, &z0, spec.margin, ramp).map_err(filter_error)?,
+            ))
+        }
+        FilterSpec::Esf(spec) => ChainFilter::Esf(Arc::new(EsfFilter::new(n, spec.rate).map_err(filter_error)?)),
+        _ => unreachable!("called for the chain filters only"),
+    };
+    Ok(FilterRule::Chain { filter, transform })
 }
 
 /// The Ch. 3 design from the scenario: the linear model, the channel delays, V = p xᵀx,

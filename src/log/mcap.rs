@@ -71,6 +71,10 @@ impl McapSink {
             ("timestep".to_string(), format!("{}", info.timestep)),
             ("control_period".to_string(), format!("{}", info.control_period)),
         ]);
+        let mut metadata = metadata;
+        if let Some(t) = info.prescribed_time {
+            metadata.insert("prescribed_time".to_string(), format!("{t}"));
+        }
         writer
             .write_metadata(&mcap::records::Metadata {
                 name: "mjsafe".to_string(),

@@ -96,6 +96,8 @@ pub struct RunInfo {
     pub mujoco_version: String,
     pub timestep: f64,
     pub control_period: f64,
+    /// T of a prescribed-time scenario (for the metrics at T).
+    pub prescribed_time: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
