@@ -13,4 +13,5 @@ pub mod nominal;
 pub mod plant;
 pub mod predictor;
 pub mod scenario;
+pub mod sweep;
 pub mod vehicle;

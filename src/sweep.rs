@@ -1,0 +1,911 @@
+//! Parameter sweeps: a scenario expanded into runs (the cartesian product of grids of
+//! `--set` values and/or seeded random draws of declared ranges), executed in parallel, each
+//! run logged and analysed, and a summary table of every run written as CSV and JSON.
+//! Shards of one sweep (`index % count == shard`) run anywhere and merge into the same table.
+//! See docs/sweeps.md.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc;
+
+use serde::{Deserialize, Serialize};
+
+use crate::analyze::{self, csv_lines, Cell, FlatMetrics};
+use crate::episode::Episode;
+use crate::log::mcap::McapSink;
+use crate::log::Sink;
+use crate::scenario;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    #[error("--grid {arg}: {message}")]
+    Grid { arg: String, message: String },
+    #[error("--range {arg}: {message}")]
+    Range { arg: String, message: String },
+    #[error("--shard {arg}: {message}")]
+    Shard { arg: String, message: String },
+    #[error("{file}: {message}")]
+    File { file: String, message: String },
+    #[error("{0}")]
+    Spec(String),
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("{file}: not a sweep summary: {message}")]
+    Summary { file: String, message: String },
+    #[error("cannot merge: {0}")]
+    Merge(String),
+}
+
+/// One grid axis: an override key (dotted path, as `--set` takes) and its values (TOML text).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Grid {
+    pub key: String,
+    pub values: Vec<String>,
+}
+
+/// A range drawn uniformly: in [lo, hi), or with `step` from {lo, lo + step, …} ≤ hi.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Range {
+    pub key: String,
+    pub lo: f64,
+    pub hi: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub step: Option<f64>,
+}
+
+/// `count` seeded draws of every range.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Random {
+    pub count: usize,
+    pub seed: u64,
+    pub ranges: Vec<Range>,
+}
+
+/// A sweep, fully resolved: everything that decides its runs (shards must agree on it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepSpec {
+    /// Prefix of the log files: `<name>-<index>.mcap`.
+    pub name: String,
+    /// The scenario file, as given (or joined to the sweep file's directory).
+    pub scenario: String,
+    /// FNV-1a 64 of the scenario file's bytes (shards must have read the same file).
+    pub scenario_fnv1a: String,
+    /// Overrides applied to every run, before the run's own.
+    pub set: Vec<String>,
+    pub grids: Vec<Grid>,
+    pub random: Option<Random>,
+    /// Total number of runs (all shards).
+    pub runs: usize,
+}
+
+/// One run of a sweep: its overrides in order (base, grids, ranges) and its parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Run {
+    pub index: usize,
+    pub overrides: Vec<String>,
+    /// Sweep key → value (TOML text), grid keys then range keys.
+    pub parameters: Vec<(String, String)>,
+}
+
+/// What the command line (or a test) gives to build a [`SweepSpec`].
+#[derive(Debug, Clone, Default)]
+pub struct SweepArgs {
+    pub scenario: Option<PathBuf>,
+    pub sweep_file: Option<PathBuf>,
+    pub set: Vec<String>,
+    pub grids: Vec<String>,
+    pub random: Option<usize>,
+    pub seed: Option<u64>,
+    pub ranges: Vec<String>,
+}
+
+/// A sweep file (TOML); paths relative to the file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SweepFile {
+    scenario: Option<String>,
+    name: Option<String>,
+    #[serde(default)]
+    set: Vec<String>,
+    #[serde(default)]
+    grid: Vec<GridEntry>,
+    #[serde(default)]
+    range: Vec<RangeEntry>,
+    random: Option<RandomEntry>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GridEntry {
+    key: String,
+    values: Vec<toml::Value>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RangeEntry {
+    key: String,
+    lo: f64,
+    hi: f64,
+    step: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RandomEntry {
+    count: usize,
+    #[serde(default)]
+    seed: u64,
+}
+
+/// Splits `v1,v2,…` at the commas outside brackets, braces and quotes, so TOML arrays,
+/// inline tables and strings may contain commas. Every value is trimmed and non-empty.
+pub fn split_values(text: &str) -> Result<Vec<String>, String> {
+    let mut values = Vec::new();
+    let mut current = String::new();
+    let mut closers: Vec<char> = Vec::new();
+    let mut quote: Option<char> = None;
+    let mut chars = text.chars();
+    while let Some(c) = chars.next() {
+        current.push(c);
+        if let Some(q) = quote {
+            if c == '\\' && q == '"' {
+                if let Some(escaped) = chars.next() {
+                    current.push(escaped);
+                }
+            } else if c == q {
+                quote = None;
+            }
+            continue;
+        }
+        match c {
+            '\'' | '"' => quote = Some(c),
+            '[' => closers.push(']'),
+            '{' => closers.push('}'),
+            ']' | '}' => {
+                if closers.pop() != Some(c) {
+                    return Err(format!("unbalanced `{c}`"));
+                }
+            }
+            ',' if closers.is_empty() => {
+                current.pop();
+                values.push(std::mem::take(&mut current));
+            }
+            _ => {}
+        }
+    }
+    if let Some(q) = quote {
+        return Err(format!("unterminated string (missing closing {q})"));
+    }
+    if let Some(c) = closers.last() {
+        return Err(format!("missing closing `{c}`"));
+    }
+    values.push(current);
+    let values: Vec<String> = values.into_iter().map(|v| v.trim().to_string()).collect();
+    if let Some(i) = values.iter().position(|v| v.is_empty()) {
+        return Err(format!("value {} of {} is empty", i + 1, values.len()));
+    }
+    Ok(values)
+}
+
+/// Checks that `value` is one TOML value (as `--set` needs it).
+fn check_toml_value(value: &str) -> Result<(), String> {
+    format!("value = {value}")
+        .parse::<toml::Table>()
+        .map(|_| ())
+        .map_err(|_| {
+            format!("`{value}` is not a TOML value (numbers as 0.4, strings quoted as 'cbf_qp', arrays as [1, 2], tables as {{kind='none'}})")
+        })
+}
+
+fn check_key(key: &str) -> Result<(), String> {
+    if key.is_empty() || key.split('.').any(|s| s.trim().is_empty() || s.contains(char::is_whitespace)) {
+        return Err(format!("`{key}` is not a dotted key such as delays.steering"));
+    }
+    Ok(())
+}
+
+/// Parses `KEY=V1,V2,…`.
+pub fn parse_grid(arg: &str) -> Result<Grid, SweepError> {
+    let err = |message: String| SweepError::Grid {
+        arg: arg.to_string(),
+        message,
+    };
+    let (key, values) = arg
+        .split_once('=')
+        .ok_or_else(|| err("expected KEY=V1,V2,… e.g. delays.steering=0.1,0.2,0.4".into()))?;
+    let key = key.trim();
+    check_key(key).map_err(err)?;
+    let values = split_values(values).map_err(err)?;
+    for v in &values {
+        check_toml_value(v).map_err(err)?;
+    }
+    Ok(Grid {
+        key: key.to_string(),
+        values,
+    })
+}
+
+/// Parses `KEY=LO..HI` or `KEY=LO..HI:STEP`.
+pub fn parse_range(arg: &str) -> Result<Range, SweepError> {
+    let err = |message: String| SweepError::Range {
+        arg: arg.to_string(),
+        message,
+    };
+    let expected = "expected KEY=LO..HI or KEY=LO..HI:STEP, e.g. delays.steering=0.0..0.5:0.01";
+    let (key, spec) = arg.split_once('=').ok_or_else(|| err(expected.into()))?;
+    let key = key.trim();
+    check_key(key).map_err(err)?;
+    let (bounds, step) = match spec.split_once(':') {
+        Some((b, s)) => (b, Some(s)),
+        None => (spec, None),
+    };
+    let (lo, hi) = bounds.split_once("..").ok_or_else(|| err(expected.into()))?;
+    let number = |s: &str, what: &str| {
+        s.trim()
+            .parse::<f64>()
+            .map_err(|_| err(format!("{what} `{}` is not a number ({expected})", s.trim())))
+    };
+    let range = Range {
+        key: key.to_string(),
+        lo: number(lo, "LO")?,
+        hi: number(hi, "HI")?,
+        step: step.map(|s| number(s, "STEP")).transpose()?,
+    };
+    check_range(&range).map_err(err)?;
+    Ok(range)
+}
+
+fn check_range(r: &Range) -> Result<(), String> {
+    if !(r.lo.is_finite() && r.hi.is_finite() && r.lo <= r.hi) {
+        return Err(format!("expected finite LO <= HI, found {}..{}", r.lo, r.hi));
+    }
+    if let Some(step) = r.step {
+        if !(step.is_finite() && step > 0.0) {
+            return Err(format!("expected STEP > 0, found {step}"));
+        }
+    }
+    Ok(())
+}
+
+/// Parses `i/N` (0-based: 0 <= i < N).
+pub fn parse_shard(arg: &str) -> Result<Shard, SweepError> {
+    let err = |message: &str| SweepError::Shard {
+        arg: arg.to_string(),
+        message: message.to_string(),
+    };
+    let (i, n) = arg
+        .split_once('/')
+        .ok_or_else(|| err("expected INDEX/COUNT with 0 <= INDEX < COUNT, e.g. 0/4"))?;
+    let index: usize = i.trim().parse().map_err(|_| err("INDEX is not a whole number"))?;
+    let count: usize = n.trim().parse().map_err(|_| err("COUNT is not a whole number"))?;
+    if count == 0 || index >= count {
+        return Err(err("expected 0 <= INDEX < COUNT (shards are numbered from 0)"));
+    }
+    Ok(Shard { index, count })
+}
+
+/// FNV-1a 64-bit hash, as 16 hex digits.
+fn fnv1a(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// SplitMix64 (Steele, Lea, Flood 2014): the generator of the random draws.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1) with 53 random bits.
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+}
+
+/// The generator of draw `draw` of a sweep seeded `seed`: depends on nothing else, so a draw
+/// is the same whatever the thread count, shard or order of execution.
+fn draw_generator(seed: u64, draw: usize) -> SplitMix64 {
+    let key = SplitMix64(seed).next_u64() ^ (draw as u64).wrapping_mul(0xd1b5_4a32_d192_ed03);
+    let mut g = SplitMix64(key);
+    g.next_u64();
+    g
+}
+
+/// The value of `range` for a uniform `u` in [0, 1), as TOML text.
+fn range_value(range: &Range, u: f64) -> String {
+    match range.step {
+        None => format!("{:?}", range.lo + u * (range.hi - range.lo)),
+        Some(step) => {
+            let choices = ((range.hi - range.lo) / step + 1e-9).floor() as u64 + 1;
+            let k = ((u * choices as f64) as u64).min(choices - 1);
+            let v = range.lo + k as f64 * step;
+            // 12 significant digits drop the round-off of k·step (0.30000000000000004 → 0.3).
+            let v: f64 = format!("{v:.11e}").parse().expect("formatted float parses");
+            format!("{v:?}")
+        }
+    }
+}
+
+impl SweepSpec {
+    /// Builds the sweep from a sweep file and/or command-line arguments (the arguments add
+    /// grids and ranges after the file's, and `--random`/`--seed` replace the file's).
+    pub fn build(args: &SweepArgs) -> Result<SweepSpec, SweepError> {
+        let mut scenario_path: Option<PathBuf> = args.scenario.clone();
+        let mut name = None;
+        let mut set = Vec::new();
+        let mut grids = Vec::new();
+        let mut ranges = Vec::new();
+        let mut random_count = None;
+        let mut seed = None;
+        if let Some(path) = &args.sweep_file {
+            let file = path.display().to_string();
+            let err = |message: String| SweepError::File {
+                file: file.clone(),
+                message,
+            };
+            let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+                path: file.clone(),
+                source,
+            })?;
+            let parsed: SweepFile = toml::from_str(&text).map_err(|e| err(e.to_string().trim().replace('\n', " ")))?;
+            if let Some(s) = parsed.scenario {
+                if scenario_path.is_some() {
+                    return Err(err(format!(
+                        "key `scenario`: the sweep file names the scenario ({s}) and so does the command line; give it once"
+                    )));
+                }
+                scenario_path = Some(path.parent().unwrap_or(Path::new("")).join(s));
+            }
+            name = parsed.name;
+            set = parsed.set;
+            for (i, g) in parsed.grid.into_iter().enumerate() {
+                check_key(&g.key).map_err(|m| err(format!("key `grid[{i}].key`: {m}")))?;
+                if g.values.is_empty() {
+                    return Err(err(format!("key `grid[{i}].values`: expected at least one value")));
+                }
+                grids.push(Grid {
+                    key: g.key,
+                    values: g.values.iter().map(|v| v.to_string()).collect(),
+                });
+            }
+            for (i, r) in parsed.range.into_iter().enumerate() {
+                let range = Range {
+                    key: r.key,
+                    lo: r.lo,
+                    hi: r.hi,
+                    step: r.step,
+                };
+                check_key(&range.key).map_err(|m| err(format!("key `range[{i}].key`: {m}")))?;
+                check_range(&range).map_err(|m| err(format!("key `range[{i}]`: {m}")))?;
+                ranges.push(range);
+            }
+            if let Some(r) = parsed.random {
+                random_count = Some(r.count);
+                seed = Some(r.seed);
+            }
+        }
+        let scenario_path = scenario_path.ok_or_else(|| {
+            SweepError::Spec("no scenario: give SCENARIO or a sweep file with `scenario = \"…\"`".into())
+        })?;
+        set.extend(args.set.iter().cloned());
+        for g in &args.grids {
+            grids.push(parse_grid(g)?);
+        }
+        for r in &args.ranges {
+            ranges.push(parse_range(r)?);
+        }
+        random_count = args.random.or(random_count);
+        seed = args.seed.or(seed);
+
+        let mut keys = BTreeSet::new();
+        for key in grids.iter().map(|g| &g.key).chain(ranges.iter().map(|r| &r.key)) {
+            if !keys.insert(key.clone()) {
+                return Err(SweepError::Spec(format!(
+                    "`{key}` is swept twice (each key takes one --grid or one --range)"
+                )));
+            }
+        }
+        let random = match (random_count, ranges.is_empty()) {
+            (None, true) => None,
+            (None, false) => {
+                return Err(SweepError::Spec(
+                    "--range needs --random N (how many draws) and --seed S".into(),
+                ))
+            }
+            (Some(_), true) => return Err(SweepError::Spec("--random needs at least one --range KEY=LO..HI".into())),
+            (Some(0), false) => return Err(SweepError::Spec("--random: expected at least one draw".into())),
+            (Some(count), false) => Some(Random {
+                count,
+                seed: seed.unwrap_or(0),
+                ranges,
+            }),
+        };
+        if grids.is_empty() && random.is_none() {
+            return Err(SweepError::Spec(
+                "nothing to sweep: give --grid KEY=V1,V2,…, or --random N with --range KEY=LO..HI, or a sweep file".into(),
+            ));
+        }
+        let text = std::fs::read(&scenario_path).map_err(|source| SweepError::Io {
+            path: scenario_path.display().to_string(),
+            source,
+        })?;
+        let name = match name {
+            Some(n) => n,
+            // The base scenario's name; if the base alone does not load, the file's stem.
+            None => scenario::load(&scenario_path, &set)
+                .map(|l| l.scenario.name)
+                .unwrap_or_else(|_| {
+                    scenario_path
+                        .file_stem()
+                        .map_or("sweep".into(), |s| s.to_string_lossy().into_owned())
+                }),
+        };
+        let grid_points: usize = grids.iter().map(|g| g.values.len()).product();
+        let runs = grid_points * random.as_ref().map_or(1, |r| r.count);
+        Ok(SweepSpec {
+            name,
+            scenario: scenario_path.display().to_string(),
+            scenario_fnv1a: fnv1a(&text),
+            set,
+            grids,
+            random,
+            runs,
+        })
+    }
+
+    /// Sweep keys in column order: grid keys, then range keys.
+    pub fn keys(&self) -> Vec<String> {
+        self.grids
+            .iter()
+            .map(|g| g.key.clone())
+            .chain(self.random.iter().flat_map(|r| r.ranges.iter().map(|r| r.key.clone())))
+            .collect()
+    }
+
+    /// Run `index`: grid point `index / draws` (the first grid varies slowest) with random
+    /// draw `index % draws` (every grid point gets the same draws).
+    pub fn run(&self, index: usize) -> Run {
+        let draws = self.random.as_ref().map_or(1, |r| r.count);
+        let mut point = index / draws;
+        let mut grid_values = vec![String::new(); self.grids.len()];
+        for (i, g) in self.grids.iter().enumerate().rev() {
+            grid_values[i] = g.values[point % g.values.len()].clone();
+            point /= g.values.len();
+        }
+        let mut parameters: Vec<(String, String)> = self.grids.iter().map(|g| g.key.clone()).zip(grid_values).collect();
+        if let Some(random) = &self.random {
+            let mut g = draw_generator(random.seed, index % draws);
+            for r in &random.ranges {
+                parameters.push((r.key.clone(), range_value(r, g.next_f64())));
+            }
+        }
+        let overrides = self
+            .set
+            .iter()
+            .cloned()
+            .chain(parameters.iter().map(|(k, v)| format!("{k}={v}")))
+            .collect();
+        Run {
+            index,
+            overrides,
+            parameters,
+        }
+    }
+
+    /// The log file name of run `index`, zero padded to the digits of the last index (at least 3).
+    pub fn log_name(&self, index: usize) -> String {
+        let width = self.runs.saturating_sub(1).to_string().len().max(3);
+        format!("{}-{index:0width$}.mcap", self.name)
+    }
+
+    /// The run indices of a shard (all runs without one).
+    pub fn indices(&self, shard: Option<Shard>) -> Vec<usize> {
+        (0..self.runs)
+            .filter(|i| shard.is_none_or(|s| i % s.count == s.index))
+            .collect()
+    }
+}
+
+/// Shard `index` of `count` (0-based): the runs with run index % count == index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+/// One row of a sweep summary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Row {
+    pub index: usize,
+    /// Sweep key → value (TOML text).
+    pub parameters: BTreeMap<String, String>,
+    /// Log file name, relative to the sweep directory (none when no log was written).
+    pub log: Option<String>,
+    /// Metrics of the log (none when the run has no readable log).
+    pub metrics: Option<FlatMetrics>,
+    /// Why the run failed (scenario rejected, episode error, stopped early); none when it completed.
+    pub error: Option<String>,
+}
+
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".into())
+}
+
+/// Runs one run of the sweep into `dir` and analyses its log. Never fails: a failure is the
+/// row's `error`.
+pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
+    let log_name = spec.log_name(run.index);
+    let log_path = dir.join(&log_name);
+    let mut row = Row {
+        index: run.index,
+        parameters: run.parameters.iter().cloned().collect(),
+        log: None,
+        metrics: None,
+        error: None,
+    };
+    // A log of an earlier sweep under this name must not pass for this run's.
+    let _ = std::fs::remove_file(&log_path);
+    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Option<String>, String> {
+        let loaded = scenario::load(Path::new(&spec.scenario), &run.overrides).map_err(|e| e.to_string())?;
+        let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
+        let mut sink = McapSink::create(&log_path, episode.info()).map_err(|e| e.to_string())?;
+        let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
+        let summary = episode.run(&mut sinks).map_err(|e| e.to_string())?;
+        Ok(summary.error)
+    }));
+    let error = match outcome {
+        Ok(Ok(in_run)) => in_run,
+        Ok(Err(e)) => Some(e),
+        Err(payload) => Some(format!("the run panicked: {}", panic_message(payload.as_ref()))),
+    };
+    if log_path.exists() {
+        row.log = Some(log_name);
+        match analyze::analyze_file(&log_path) {
+            Ok(m) => row.metrics = Some(FlatMetrics::from(&m)),
+            Err(e) => row.error = Some(e.to_string()),
+        }
+    }
+    row.error = error
+        .or(row.error)
+        .or_else(|| row.metrics.as_ref().and_then(|m| m.error.clone()))
+        .or_else(|| {
+            row.metrics
+                .as_ref()
+                .filter(|m| !m.complete)
+                .map(|_| "the log is incomplete".to_string())
+        });
+    row
+}
+
+/// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared
+/// counter), calling `done` on the calling thread as each run finishes. Rows come back in the
+/// order of `indices`, whatever the thread count.
+pub fn execute(
+    spec: &SweepSpec,
+    indices: &[usize],
+    dir: &Path,
+    threads: usize,
+    mut done: impl FnMut(&Row),
+) -> Result<Vec<Row>, SweepError> {
+    std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
+        path: dir.display().to_string(),
+        source,
+    })?;
+    let next = AtomicUsize::new(0);
+    let mut rows: Vec<Option<Row>> = vec![None; indices.len()];
+    std::thread::scope(|scope| -> Result<(), SweepError> {
+        let (tx, rx) = mpsc::channel::<(usize, Row)>();
+        for worker in 0..threads.clamp(1, indices.len().max(1)) {
+            let tx = tx.clone();
+            let next = &next;
+            std::thread::Builder::new()
+                .name(format!("sweep-{worker}"))
+                .stack_size(16 << 20)
+                .spawn_scoped(scope, move || loop {
+                    let position = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&index) = indices.get(position) else {
+                        break;
+                    };
+                    let row = execute_run(spec, &spec.run(index), dir);
+                    if tx.send((position, row)).is_err() {
+                        break;
+                    }
+                })
+                .map_err(|source| SweepError::Io {
+                    path: "(worker thread)".into(),
+                    source,
+                })?;
+        }
+        drop(tx);
+        for (position, row) in rx {
+            done(&row);
+            rows[position] = Some(row);
+        }
+        Ok(())
+    })?;
+    Ok(rows
+        .into_iter()
+        .zip(indices)
+        .map(|(row, &index)| {
+            row.unwrap_or_else(|| Row {
+                index,
+                parameters: spec.run(index).parameters.into_iter().collect(),
+                log: None,
+                metrics: None,
+                error: Some("the worker running this index stopped".into()),
+            })
+        })
+        .collect())
+}
+
+/// A sweep summary: the sweep, which shard (none: all runs), and one row per run by index.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub mjsafe_version: String,
+    pub sweep: SweepSpec,
+    pub shard: Option<Shard>,
+    /// Sweep keys in column order.
+    pub parameters: Vec<String>,
+    pub runs: Vec<Row>,
+}
+
+impl Summary {
+    pub fn new(spec: &SweepSpec, shard: Option<Shard>, mut runs: Vec<Row>) -> Summary {
+        runs.sort_by_key(|r| r.index);
+        Summary {
+            mjsafe_version: env!("CARGO_PKG_VERSION").to_string(),
+            sweep: spec.clone(),
+            shard,
+            parameters: spec.keys(),
+            runs,
+        }
+    }
+
+    /// Base name of the summary files: `summary` or `summary-shard-<i>-of-<N>`.
+    pub fn file_stem(&self) -> String {
+        match self.shard {
+            None => "summary".into(),
+            Some(s) => format!("summary-shard-{}-of-{}", s.index, s.count),
+        }
+    }
+
+    pub fn failures(&self) -> usize {
+        self.runs.iter().filter(|r| r.error.is_some()).count()
+    }
+
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("summaries serialise") + "\n"
+    }
+
+    /// Columns: index, log, the sweep keys, every metric column, error.
+    pub fn to_csv(&self) -> String {
+        let metrics: Vec<&FlatMetrics> = self.runs.iter().filter_map(|r| r.metrics.as_ref()).collect();
+        let metric_columns: Vec<String> = FlatMetrics::columns(metrics.iter().copied())
+            .into_iter()
+            .filter(|c| c != "error")
+            .collect();
+        let mut header = vec!["index".to_string(), "log".into()];
+        header.extend(self.parameters.iter().cloned());
+        header.extend(metric_columns.iter().cloned());
+        header.push("error".into());
+        let mut lines = vec![header];
+        for r in &self.runs {
+            let mut line = vec![r.index.to_string(), r.log.clone().unwrap_or_default()];
+            line.extend(
+                self.parameters
+                    .iter()
+                    .map(|k| r.parameters.get(k).cloned().unwrap_or_default()),
+            );
+            line.extend(metric_columns.iter().map(|c| match &r.metrics {
+                Some(m) => m.cell(c).csv(),
+                None if c == "complete" => Cell::Bool(Some(false)).csv(),
+                None => String::new(),
+            }));
+            line.push(r.error.clone().unwrap_or_default());
+            lines.push(line);
+        }
+        csv_lines(&lines)
+    }
+
+    /// Writes `<stem>.json` and `<stem>.csv` into `dir`; returns their paths.
+    pub fn write(&self, dir: &Path) -> Result<(PathBuf, PathBuf), SweepError> {
+        std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let json = dir.join(format!("{}.json", self.file_stem()));
+        let csv = dir.join(format!("{}.csv", self.file_stem()));
+        for (path, text) in [(&json, self.to_json()), (&csv, self.to_csv())] {
+            std::fs::write(path, text).map_err(|source| SweepError::Io {
+                path: path.display().to_string(),
+                source,
+            })?;
+        }
+        Ok((json, csv))
+    }
+
+    /// Reads a `summary*.json`.
+    pub fn read(path: &Path) -> Result<Summary, SweepError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
+            path: file.clone(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|e| SweepError::Summary {
+            file,
+            message: e.to_string(),
+        })
+    }
+
+    /// Files a `--merge` argument stands for: a directory's `summary-shard-*.json` (sorted),
+    /// or the file itself.
+    pub fn merge_inputs(arg: &Path) -> Result<Vec<PathBuf>, SweepError> {
+        if !arg.is_dir() {
+            return Ok(vec![arg.to_path_buf()]);
+        }
+        let entries = std::fs::read_dir(arg).map_err(|source| SweepError::Io {
+            path: arg.display().to_string(),
+            source,
+        })?;
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("summary-shard-") && n.ends_with(".json"))
+            })
+            .collect();
+        files.sort();
+        if files.is_empty() {
+            return Err(SweepError::Merge(format!(
+                "{} holds no summary-shard-*.json",
+                arg.display()
+            )));
+        }
+        Ok(files)
+    }
+
+    /// Merges shard summaries (`(file, summary)`) of one sweep into the summary of the whole
+    /// sweep; also returns the run indices no input holds. The inputs must agree on the
+    /// sweep and mjsafe version; a run index may appear only once.
+    pub fn merge(inputs: &[(String, Summary)]) -> Result<(Summary, Vec<usize>), SweepError> {
+        let Some((first_file, first)) = inputs.first() else {
+            return Err(SweepError::Merge("no summaries given".into()));
+        };
+        let mut rows: BTreeMap<usize, (&str, Row)> = BTreeMap::new();
+        for (file, s) in inputs {
+            if s.sweep != first.sweep {
+                return Err(SweepError::Merge(format!(
+                    "{file} and {first_file} are summaries of different sweeps ({})",
+                    describe_difference(&first.sweep, &s.sweep)
+                )));
+            }
+            if s.mjsafe_version != first.mjsafe_version {
+                return Err(SweepError::Merge(format!(
+                    "{file} was written by mjsafe {}, {first_file} by mjsafe {}",
+                    s.mjsafe_version, first.mjsafe_version
+                )));
+            }
+            for r in &s.runs {
+                if r.index >= s.sweep.runs {
+                    return Err(SweepError::Merge(format!(
+                        "{file} has run {} but the sweep has {} runs",
+                        r.index, s.sweep.runs
+                    )));
+                }
+                if let Some((other, _)) = rows.get(&r.index) {
+                    return Err(SweepError::Merge(format!(
+                        "run {} is in both {other} and {file}",
+                        r.index
+                    )));
+                }
+                rows.insert(r.index, (file, r.clone()));
+            }
+        }
+        let missing: Vec<usize> = (0..first.sweep.runs).filter(|i| !rows.contains_key(i)).collect();
+        let merged = Summary {
+            mjsafe_version: first.mjsafe_version.clone(),
+            sweep: first.sweep.clone(),
+            shard: None,
+            parameters: first.parameters.clone(),
+            runs: rows.into_values().map(|(_, r)| r).collect(),
+        };
+        Ok((merged, missing))
+    }
+}
+
+/// Which field of two sweeps differs, for the merge error.
+fn describe_difference(a: &SweepSpec, b: &SweepSpec) -> String {
+    let fields: [(&str, bool); 7] = [
+        ("name", a.name != b.name),
+        ("scenario", a.scenario != b.scenario),
+        ("scenario file contents", a.scenario_fnv1a != b.scenario_fnv1a),
+        ("--set", a.set != b.set),
+        ("grids", a.grids != b.grids),
+        ("random draws", a.random != b.random),
+        ("run count", a.runs != b.runs),
+    ];
+    let differing: Vec<&str> = fields.iter().filter(|(_, d)| *d).map(|(n, _)| *n).collect();
+    format!("they differ in: {}", differing.join(", "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splits_values_outside_brackets_and_quotes() {
+        assert_eq!(split_values("0.1, 0.2,0.4").unwrap(), ["0.1", "0.2", "0.4"]);
+        assert_eq!(
+            split_values("{kind='cbf_qp', l0=4.0},{kind='none'}").unwrap(),
+            ["{kind='cbf_qp', l0=4.0}", "{kind='none'}"]
+        );
+        assert_eq!(split_values("[1, 2],[3]").unwrap(), ["[1, 2]", "[3]"]);
+        assert_eq!(split_values("'a,b',\"c,\\\"d\"").unwrap(), ["'a,b'", "\"c,\\\"d\""]);
+        assert!(split_values("[1, 2").unwrap_err().contains("missing closing `]`"));
+        assert!(split_values("1],2").unwrap_err().contains("unbalanced"));
+        assert!(split_values("'a,b").unwrap_err().contains("unterminated"));
+        assert!(split_values("1,,2").unwrap_err().contains("value 2 of 3 is empty"));
+    }
+
+    #[test]
+    fn parses_grids_ranges_and_shards() {
+        let g = parse_grid("filter.kind='cbf_qp','gamma_m'").unwrap();
+        assert_eq!(g.key, "filter.kind");
+        assert_eq!(g.values, ["'cbf_qp'", "'gamma_m'"]);
+        let e = parse_grid("filter.kind=cbf_qp").unwrap_err().to_string();
+        assert!(e.starts_with("--grid filter.kind=cbf_qp:") && e.contains("not a TOML value"), "{e}");
+        assert!(parse_grid("delays.steering").unwrap_err().to_string().contains("KEY=V1,V2"));
+        let r = parse_range("delays.steering=0.0..0.5:0.01").unwrap();
+        assert_eq!((r.lo, r.hi, r.step), (0.0, 0.5, Some(0.01)));
+        assert!(parse_range("x=1..0").is_err());
+        assert!(parse_range("x=0..1:0").is_err());
+        assert_eq!(parse_shard("1/4").unwrap(), Shard { index: 1, count: 4 });
+        assert!(parse_shard("4/4").is_err());
+        assert!(parse_shard("1-4").is_err());
+    }
+
+    #[test]
+    fn draws_are_keyed_by_seed_and_draw_only() {
+        let range = Range {
+            key: "x".into(),
+            lo: 0.0,
+            hi: 0.5,
+            step: Some(0.1),
+        };
+        let a: Vec<String> = (0..50)
+            .map(|j| range_value(&range, draw_generator(7, j).next_f64()))
+            .collect();
+        let b: Vec<String> = (0..50)
+            .map(|j| range_value(&range, draw_generator(7, j).next_f64()))
+            .collect();
+        assert_eq!(a, b);
+        let allowed = ["0.0", "0.1", "0.2", "0.3", "0.4", "0.5"];
+        assert!(a.iter().all(|v| allowed.contains(&v.as_str())), "{a:?}");
+        for v in allowed {
+            assert!(a.iter().any(|x| x == v), "{v} never drawn in {a:?}");
+        }
+        let c: Vec<String> = (0..50)
+            .map(|j| range_value(&range, draw_generator(8, j).next_f64()))
+            .collect();
+        assert_ne!(a, c);
+    }
+}
