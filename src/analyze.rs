@@ -314,7 +314,7 @@ impl Accumulator {
                             None => {}
                         }
                     }
-                    "error" if self.error.is_none() => self.error = Some(m.message),
+                    "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message),
                     _ => {}
                 }
             }
@@ -471,6 +471,15 @@ pub struct FlatMetrics {
     pub prediction_max_error: BTreeMap<String, Option<f64>>,
     pub prediction_rms_error: BTreeMap<String, Option<f64>>,
     pub prediction_max_relative_error: BTreeMap<String, Option<f64>>,
+    pub first_override_time: Option<f64>,
+    pub override_duration: Option<f64>,
+    pub max_jerk: Option<f64>,
+    pub max_jerk_overriding: Option<f64>,
+    /// The prescribed time T (Ch. 5 runs only) and the values at T.
+    pub prescribed_time: Option<f64>,
+    pub prescribed_time_barrier: Option<f64>,
+    pub prescribed_time_input_residual: Option<f64>,
+    pub prescribed_time_state_residual: Vec<Option<f64>>,
     pub complete: bool,
     pub error: Option<String>,
 }
@@ -485,7 +494,7 @@ pub enum Cell {
 }
 
 /// The fixed scalar columns of [`FlatMetrics`] before the per-channel groups.
-const SCALAR_COLUMNS: [&str; 10] = [
+const SCALAR_COLUMNS: [&str; 17] = [
     "scenario",
     "simulated_time",
     "steps",
@@ -496,15 +505,24 @@ const SCALAR_COLUMNS: [&str; 10] = [
     "time_h_negative",
     "filter_active_fraction",
     "filter_infeasible_ticks",
+    "first_override_time",
+    "override_duration",
+    "max_jerk",
+    "max_jerk_overriding",
+    "prescribed_time",
+    "prescribed_time_barrier",
+    "prescribed_time_input_residual",
 ];
 
-/// Per-channel column groups: a column is `<group>.<channel>`.
-const CHANNEL_GROUPS: [&str; 5] = [
+/// Per-channel column groups: a column is `<group>.<channel>` (`<group>.<state index>` for
+/// the state residuals at the prescribed time).
+const CHANNEL_GROUPS: [&str; 6] = [
     "max_correction",
     "prediction_count",
     "prediction_max_error",
     "prediction_rms_error",
     "prediction_max_relative_error",
+    "prescribed_time_state_residual",
 ];
 
 impl From<&RunMetrics> for FlatMetrics {
@@ -531,6 +549,20 @@ impl From<&RunMetrics> for FlatMetrics {
             prediction_max_error: per_channel(&|p| p.max_error),
             prediction_rms_error: per_channel(&|p| p.rms_error),
             prediction_max_relative_error: per_channel(&|p| p.max_relative_error),
+            first_override_time: m.first_override_time.and_then(finite),
+            override_duration: finite(m.override_duration),
+            max_jerk: finite(m.max_jerk),
+            max_jerk_overriding: finite(m.max_jerk_overriding),
+            prescribed_time: m.at_prescribed_time.as_ref().and_then(|p| finite(p.time)),
+            prescribed_time_barrier: m.at_prescribed_time.as_ref().and_then(|p| p.barrier.and_then(finite)),
+            prescribed_time_input_residual: m
+                .at_prescribed_time
+                .as_ref()
+                .and_then(|p| p.input_residual.and_then(finite)),
+            prescribed_time_state_residual: m
+                .at_prescribed_time
+                .as_ref()
+                .map_or(Vec::new(), |p| p.state_residuals.iter().map(|v| finite(*v)).collect()),
             complete: m.complete,
             error: m.error.clone(),
         }
@@ -543,6 +575,15 @@ impl FlatMetrics {
     pub fn columns<'a>(rows: impl IntoIterator<Item = &'a FlatMetrics> + Clone) -> Vec<String> {
         let mut names: Vec<String> = SCALAR_COLUMNS.iter().map(|s| s.to_string()).collect();
         for group in CHANNEL_GROUPS {
+            if group == "prescribed_time_state_residual" {
+                let n = rows
+                    .clone()
+                    .into_iter()
+                    .map(|r| r.prescribed_time_state_residual.len())
+                    .max();
+                names.extend((0..n.unwrap_or(0)).map(|i| format!("{group}.{i}")));
+                continue;
+            }
             let channels: std::collections::BTreeSet<&String> =
                 rows.clone().into_iter().flat_map(|r| r.channels(group)).collect();
             names.extend(channels.into_iter().map(|c| format!("{group}.{c}")));
@@ -577,6 +618,13 @@ impl FlatMetrics {
             "time_h_negative" => Cell::Num(self.time_h_negative),
             "filter_active_fraction" => Cell::Num(self.filter_active_fraction),
             "filter_infeasible_ticks" => Cell::Int(Some(self.filter_infeasible_ticks)),
+            "first_override_time" => Cell::Num(self.first_override_time),
+            "override_duration" => Cell::Num(self.override_duration),
+            "max_jerk" => Cell::Num(self.max_jerk),
+            "max_jerk_overriding" => Cell::Num(self.max_jerk_overriding),
+            "prescribed_time" => Cell::Num(self.prescribed_time),
+            "prescribed_time_barrier" => Cell::Num(self.prescribed_time_barrier),
+            "prescribed_time_input_residual" => Cell::Num(self.prescribed_time_input_residual),
             "complete" => Cell::Bool(Some(self.complete)),
             "error" => Cell::Text(self.error.clone()),
             _ => {
@@ -590,6 +638,12 @@ impl FlatMetrics {
                     "prediction_max_error" => num(&self.prediction_max_error),
                     "prediction_rms_error" => num(&self.prediction_rms_error),
                     "prediction_max_relative_error" => num(&self.prediction_max_relative_error),
+                    "prescribed_time_state_residual" => Cell::Num(
+                        channel
+                            .parse::<usize>()
+                            .ok()
+                            .and_then(|i| self.prescribed_time_state_residual.get(i).copied().flatten()),
+                    ),
                     _ => Cell::Text(None),
                 }
             }

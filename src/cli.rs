@@ -1,9 +1,11 @@
-//! The `mjsafe` command line: run, analyze.
+//! The `mjsafe` command line: run, sweep, analyze, info.
 
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 
 use crate::analyze::{self, RunMetrics};
@@ -11,6 +13,7 @@ use crate::episode::{self, Episode};
 use crate::log::mcap::McapSink;
 use crate::log::Sink;
 use crate::scenario;
+use crate::sweep::{self, Row, Summary, SweepArgs, SweepSpec};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -36,11 +39,74 @@ pub enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// Per-run metrics of MCAP logs.
+    /// Per-run metrics of MCAP logs; or two runs compared; or sweep shard summaries merged.
     Analyze {
+        /// Logs (.mcap); with --merge, sweep directories or summary-shard-*.json files.
         #[arg(required = true)]
         files: Vec<PathBuf>,
         /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Print CSV instead of a table.
+        #[arg(long, conflicts_with = "json")]
+        csv: bool,
+        /// Compare two logs A B: one row per metric with A, B and B − A.
+        #[arg(long, conflicts_with = "merge")]
+        compare: bool,
+        /// Merge the shard summaries of one sweep (checks they agree, reports missing runs).
+        #[arg(long)]
+        merge: bool,
+        /// With --merge: also write DIR/summary.csv and DIR/summary.json.
+        #[arg(long, value_name = "DIR", requires = "merge")]
+        out: Option<PathBuf>,
+    },
+    /// Run a scenario over a grid of overrides and/or seeded random draws, in parallel;
+    /// writes one log per run and summary.csv / summary.json (see docs/sweeps.md).
+    Sweep {
+        /// Scenario file (TOML); or name it in the sweep file.
+        scenario: Option<PathBuf>,
+        /// A grid axis: KEY=V1,V2,… (values in TOML syntax; commas inside [], {} and quotes
+        /// are part of a value). Runs are the cartesian product of all grids (repeatable).
+        #[arg(long = "grid", value_name = "KEY=V1,V2,…")]
+        grids: Vec<String>,
+        /// Sweep file (TOML): scenario, set, [[grid]], [[range]], [random] (see docs/sweeps.md).
+        #[arg(long = "sweep", value_name = "FILE")]
+        sweep_file: Option<PathBuf>,
+        /// Override applied to every run: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// Number of random draws of the --range keys (per grid point).
+        #[arg(long, value_name = "N")]
+        random: Option<usize>,
+        /// Seed of the random draws (default 0).
+        #[arg(long, value_name = "S")]
+        seed: Option<u64>,
+        /// A range drawn uniformly: KEY=LO..HI, or KEY=LO..HI:STEP for multiples of STEP from LO (repeatable).
+        #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]")]
+        ranges: Vec<String>,
+        /// Runs executed at once (default: all cores).
+        #[arg(long, value_name = "K")]
+        threads: Option<usize>,
+        /// Run only the indices with index % N == I (0 <= I < N); writes summary-shard-I-of-N.*.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<String>,
+        /// Directory of the logs and summaries (default: logs/sweep-<name>).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Print progress on stderr even when it is not a terminal (one line per finished run).
+        #[arg(long)]
+        progress: bool,
+        /// List the runs (index, log, overrides) without running them.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Topics, message counts, schemas, time span, mjsafe metadata and scenario of a log.
+    Info {
+        file: PathBuf,
+        /// Also print the effective scenario (after --set overrides).
+        #[arg(long)]
+        resolved: bool,
+        /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
     },
@@ -65,11 +131,80 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             overrides,
             out,
         } => run_scenario(&scenario, &overrides, out),
-        Command::Analyze { files, json } => Ok(analyze_files(&files, json)),
+        Command::Analyze {
+            files,
+            json,
+            csv,
+            compare,
+            merge,
+            out,
+        } => {
+            let format = if json {
+                Format::Json
+            } else if csv {
+                Format::Csv
+            } else {
+                Format::Table
+            };
+            if compare {
+                compare_files(&files, format)
+            } else if merge {
+                merge_summaries(&files, format, out.as_deref())
+            } else {
+                Ok(analyze_files(&files, format))
+            }
+        }
+        Command::Sweep {
+            scenario,
+            grids,
+            sweep_file,
+            overrides,
+            random,
+            seed,
+            ranges,
+            threads,
+            shard,
+            out,
+            progress,
+            dry_run,
+        } => {
+            let args = SweepArgs {
+                scenario,
+                sweep_file,
+                set: overrides,
+                grids,
+                random,
+                seed,
+                ranges,
+            };
+            let options = SweepOptions {
+                threads,
+                shard,
+                out,
+                progress,
+                dry_run,
+            };
+            run_sweep(&args, &options)
+        }
+        Command::Info { file, resolved, json } => info(&file, resolved, json),
     }
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Table,
+    Json,
+    Csv,
+}
+
+/// Ctrl-C and SIGTERM ask running episodes to stop; their logs are finished as incomplete.
+fn install_stop_handler() {
+    // A second installation (e.g. in tests driving the library) is not an error worth failing.
+    let _ = ctrlc::set_handler(episode::request_stop);
+}
+
 fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Result<ExitCode> {
+    install_stop_handler();
     let loaded = scenario::load(path, overrides)?;
     let mut episode = Episode::new(&loaded)?;
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
@@ -98,12 +233,13 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
     );
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
-        return Ok(ExitCode::FAILURE);
+        // 130: the shell's convention for a run ended by a signal.
+        return Ok(if error == episode::INTERRUPTED { ExitCode::from(130) } else { ExitCode::FAILURE });
     }
     Ok(ExitCode::SUCCESS)
 }
 
-fn analyze_files(files: &[PathBuf], json: bool) -> ExitCode {
+fn analyze_files(files: &[PathBuf], format: Format) -> ExitCode {
     let mut runs: Vec<RunMetrics> = Vec::new();
     let mut failed = false;
     for file in files {
@@ -115,14 +251,335 @@ fn analyze_files(files: &[PathBuf], json: bool) -> ExitCode {
             }
         }
     }
-    if json {
-        println!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise"));
-    } else if !runs.is_empty() {
-        println!("{}", analyze::table(&runs));
+    match format {
+        Format::Json => println!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
+        Format::Csv if !runs.is_empty() => print!("{}", analyze::csv(&runs)),
+        Format::Table if !runs.is_empty() => println!("{}", analyze::table(&runs)),
+        _ => {}
     }
     if failed {
         ExitCode::FAILURE
     } else {
         ExitCode::SUCCESS
     }
+}
+
+fn compare_files(files: &[PathBuf], format: Format) -> Result<ExitCode> {
+    let [a, b] = files else {
+        bail!("--compare takes exactly two logs A B, {} given", files.len());
+    };
+    let ma = analyze::analyze_file(a)?;
+    let mb = analyze::analyze_file(b)?;
+    let rows = analyze::compare(&ma, &mb);
+    match format {
+        Format::Json => {
+            let value = serde_json::json!({
+                "a": a.display().to_string(),
+                "b": b.display().to_string(),
+                "metrics": analyze::comparison_json(&rows),
+            });
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&value).expect("JSON values serialise")
+            );
+        }
+        Format::Csv => print!("{}", analyze::comparison_csv(&rows)),
+        Format::Table => {
+            println!("A: {}\nB: {}\n", a.display(), b.display());
+            println!("{}", analyze::comparison_table(&rows));
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Result<ExitCode> {
+    let mut inputs = Vec::new();
+    for arg in args {
+        for file in Summary::merge_inputs(arg)? {
+            let summary = Summary::read(&file)?;
+            inputs.push((file.display().to_string(), summary));
+        }
+    }
+    let (merged, missing) = Summary::merge(&inputs)?;
+    print_summary(&merged, format);
+    let mut shards: Vec<String> = inputs
+        .iter()
+        .map(|(_, s)| s.shard.map_or("all".into(), |s| format!("{}/{}", s.index, s.count)))
+        .collect();
+    shards.dedup();
+    if !missing.is_empty() {
+        eprintln!(
+            "error: {} of {} runs are missing from the merge: {} (shards given: {}){}",
+            missing.len(),
+            merged.sweep.runs,
+            abbreviate(&missing),
+            shards.join(", "),
+            if out.is_some() { "; nothing written" } else { "" }
+        );
+        return Ok(ExitCode::FAILURE);
+    }
+    if let Some(dir) = out {
+        let (json, csv) = merged.write(dir)?;
+        eprintln!(
+            "merged {} summaries ({} runs): {}, {}",
+            inputs.len(),
+            merged.runs.len(),
+            csv.display(),
+            json.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `1, 2, 3, …` cut after 20 entries.
+fn abbreviate(indices: &[usize]) -> String {
+    let mut text: Vec<String> = indices.iter().take(20).map(|i| i.to_string()).collect();
+    if indices.len() > 20 {
+        text.push(format!("… ({} more)", indices.len() - 20));
+    }
+    text.join(", ")
+}
+
+fn print_summary(summary: &Summary, format: Format) {
+    match format {
+        Format::Json => print!("{}", summary.to_json()),
+        Format::Csv => print!("{}", summary.to_csv()),
+        Format::Table => println!("{}", sweep_table(summary)),
+    }
+}
+
+/// A short aligned table of a sweep: index, parameters, collision, min h, status.
+fn sweep_table(summary: &Summary) -> String {
+    let mut header: Vec<String> = vec!["index".into()];
+    header.extend(summary.parameters.iter().cloned());
+    header.extend(["collision".into(), "min_h".into(), "status".into()]);
+    let mut rows = vec![header];
+    for r in &summary.runs {
+        let mut line = vec![r.index.to_string()];
+        line.extend(
+            summary
+                .parameters
+                .iter()
+                .map(|k| r.parameters.get(k).cloned().unwrap_or_default()),
+        );
+        let m = r.metrics.as_ref();
+        line.push(m.map_or("-".into(), |m| match (m.collision_time, &m.collision_with) {
+            (Some(t), Some(with)) => format!("t={t:.3} {with}"),
+            _ => "none".into(),
+        }));
+        line.push(m.and_then(|m| m.min_h).map_or("-".into(), |h| format!("{h:.3}")));
+        line.push(match &r.error {
+            Some(e) => format!("error: {e}"),
+            None => "complete".into(),
+        });
+        rows.push(line);
+    }
+    let widths: Vec<usize> = (0..rows[0].len())
+        .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
+        .collect();
+    rows.iter()
+        .map(|r| {
+            r.iter()
+                .enumerate()
+                .map(|(c, cell)| format!("{cell:<width$}", width = widths[c]))
+                .collect::<Vec<_>>()
+                .join("  ")
+                .trim_end()
+                .to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+struct SweepOptions {
+    threads: Option<usize>,
+    shard: Option<String>,
+    out: Option<PathBuf>,
+    progress: bool,
+    dry_run: bool,
+}
+
+fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
+    let spec = SweepSpec::build(args)?;
+    let shard = options.shard.as_deref().map(sweep::parse_shard).transpose()?;
+    let threads = match options.threads {
+        Some(0) => bail!("--threads: expected at least 1"),
+        Some(k) => k,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    let dir = options
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new("logs").join(format!("sweep-{}", spec.name)));
+    let indices = spec.indices(shard);
+    if options.dry_run {
+        for &i in &indices {
+            let run = spec.run(i);
+            println!(
+                "{i}  {}  {}",
+                dir.join(spec.log_name(i)).display(),
+                run.overrides.join(" ")
+            );
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
+    let terminal = std::io::stderr().is_terminal();
+    let mut progress = Progress {
+        enabled: terminal || options.progress,
+        terminal,
+        total: indices.len(),
+        done: 0,
+        failed: 0,
+        started: Instant::now(),
+    };
+    progress.show();
+    let rows = sweep::execute(&spec, &indices, &dir, threads, |row| progress.update(row))
+        .with_context(|| format!("running the sweep into {}", dir.display()))?;
+    progress.finish();
+    let summary = Summary::new(&spec, shard, rows);
+    let (json, csv) = summary
+        .write(&dir)
+        .with_context(|| format!("writing the summary into {}", dir.display()))?;
+    println!("{}", sweep_table(&summary));
+    let failures = summary.failures();
+    println!(
+        "{}: {} of {} runs{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",
+        spec.name,
+        indices.len(),
+        spec.runs,
+        shard.map_or(String::new(), |s| format!(" (shard {}/{})", s.index, s.count)),
+        progress.started.elapsed().as_secs_f64(),
+        threads.min(indices.len().max(1)),
+        failures,
+        dir.display(),
+        csv.display(),
+        json.display()
+    );
+    if failures > 0 {
+        eprintln!(
+            "error: {failures} of {} runs failed (their rows hold the error)",
+            indices.len()
+        );
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The progress line on stderr: rewritten in place on a terminal, one line per run otherwise.
+struct Progress {
+    enabled: bool,
+    terminal: bool,
+    total: usize,
+    done: usize,
+    failed: usize,
+    started: Instant,
+}
+
+impl Progress {
+    fn line(&self) -> String {
+        let elapsed = self.started.elapsed().as_secs_f64();
+        let eta = if self.done > 0 {
+            format!("{:.0} s", elapsed / self.done as f64 * (self.total - self.done) as f64)
+        } else {
+            "?".into()
+        };
+        format!(
+            "sweep: {}/{} done, {} failed, {:.0} s elapsed, ETA {eta}",
+            self.done, self.total, self.failed, elapsed
+        )
+    }
+
+    fn show(&self) {
+        if self.enabled && self.terminal {
+            eprint!("\r{}\x1b[K", self.line());
+            let _ = std::io::stderr().flush();
+        }
+    }
+
+    fn update(&mut self, row: &Row) {
+        self.done += 1;
+        self.failed += usize::from(row.error.is_some());
+        if !self.enabled {
+            return;
+        }
+        if self.terminal {
+            self.show();
+        } else {
+            eprintln!("{} (run {})", self.line(), row.index);
+        }
+    }
+
+    fn finish(&self) {
+        if self.enabled && self.terminal {
+            eprintln!();
+        }
+    }
+}
+
+fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
+    let info = analyze::log_info(file)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&info).expect("info serialises"));
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("file:      {} ({} bytes)", info.file, info.bytes);
+    println!("messages:  {} in {} chunks", info.messages, info.chunks);
+    println!(
+        "time:      {:.3} .. {:.3} s ({:.3} s of simulation time)",
+        info.start,
+        info.end,
+        info.end - info.start
+    );
+    println!("channels:");
+    let topic_width = info.channels.iter().map(|c| c.topic.len()).max().unwrap_or(0);
+    let count_width = info
+        .channels
+        .iter()
+        .map(|c| c.messages.to_string().len())
+        .max()
+        .unwrap_or(0);
+    for c in &info.channels {
+        println!(
+            "  ({}) {:<topic_width$}  {:>count_width$} msgs  {} [{}]",
+            c.id, c.topic, c.messages, c.schema, c.schema_encoding
+        );
+    }
+    let mut scenario_text = None;
+    let mut resolved_text = None;
+    for (name, entries) in &info.metadata {
+        println!("metadata {name}:");
+        let width = entries.keys().map(|k| k.len()).max().unwrap_or(0);
+        for (key, value) in entries {
+            match key.as_str() {
+                "scenario" if name == "mjsafe" => scenario_text = Some(value.clone()),
+                "scenario_resolved" if name == "mjsafe" => resolved_text = Some(value.clone()),
+                _ => {
+                    let mut lines = value.lines();
+                    let first = lines.next().unwrap_or(if key == "overrides" { "(none)" } else { "" });
+                    println!("  {key:<width$}  {first}");
+                    for line in lines {
+                        println!("  {:<width$}  {line}", "");
+                    }
+                }
+            }
+        }
+    }
+    if let Some(text) = scenario_text {
+        println!("scenario (as written):");
+        for line in text.lines() {
+            println!("  | {line}");
+        }
+    }
+    if resolved {
+        match resolved_text {
+            Some(text) => {
+                println!("scenario (resolved, after overrides):");
+                for line in text.lines() {
+                    println!("  | {line}");
+                }
+            }
+            None => eprintln!("warning: the log holds no resolved scenario"),
+        }
+    }
+    Ok(ExitCode::SUCCESS)
 }

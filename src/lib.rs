@@ -12,6 +12,7 @@ pub mod mujoco;
 pub mod nominal;
 pub mod plant;
 pub mod predictor;
+pub mod random;
 pub mod scenario;
 pub mod sweep;
 pub mod vehicle;

@@ -36,6 +36,10 @@ pub struct Scenario {
     /// `mujoco` (default) or `ode` (the analytic model integrated by RK4).
     #[serde(default)]
     pub plant: PlantKind,
+    /// Seed of every random variation (initial-state perturbation, obstacle appearance
+    /// jitter, random disturbances): the same seed gives the same run, bit for bit.
+    #[serde(default)]
+    pub seed: u64,
     pub vehicle: VehicleSpec,
     /// Delay per input channel (channels not listed: no delay): seconds for a constant delay,
     /// or a table `{ profile = "cosine_prediction" | "rational" | "table", … }`.
@@ -64,6 +68,12 @@ pub struct Scenario {
 pub enum DisturbanceSpec {
     /// (3.49)/(3.50): ω1 = sin(0.4πt)/√2, ω2 = sgn(ω1)/√2, entering every state (B_ω = I).
     Example349,
+    /// A bounded random disturbance ‖ω‖ ≤ `bound` entering with the inputs (Z = G in (4.12)),
+    /// piecewise constant over `hold` seconds, seeded. Both plants.
+    RandomInput { bound: f64, hold: f64 },
+    /// A bounded random disturbance ‖ω‖ ≤ `bound` on every state (B_ω = I in (3.24)),
+    /// piecewise constant over `hold` seconds, seeded. ODE plant.
+    RandomState { bound: f64, hold: f64 },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -80,6 +90,9 @@ pub struct VehicleSpec {
     pub b: Option<Vec<Vec<f64>>>,
     /// Initial state x(0), in the vehicle's state order.
     pub initial_state: Vec<f64>,
+    /// Uniform random perturbation of x(0): component i moves by up to ± this (seeded).
+    #[serde(default)]
+    pub initial_perturbation: Option<Vec<f64>>,
     /// Overrides the model's `<option timestep>` (seconds); required for `linear`.
     #[serde(default)]
     pub timestep: Option<f64>,
@@ -385,6 +398,9 @@ pub struct ObstacleSpec {
     /// When the obstacle becomes known to the controller (seconds).
     #[serde(default)]
     pub appear_at: f64,
+    /// Uniform random jitter of `appear_at` (± seconds, seeded; the result is kept >= 0).
+    #[serde(default)]
+    pub appear_jitter: f64,
 }
 
 /// A scenario with where it came from: what the episode and the log need.
@@ -731,11 +747,27 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
-    if sc.disturbance.is_some() && sc.plant != PlantKind::Ode {
-        return Err(s.field_error(
-            "disturbance",
-            "disturbances act on the ODE plant: expected plant = \"ode\"",
-        ));
+    match &sc.disturbance {
+        Some(DisturbanceSpec::RandomInput { bound, hold }) | Some(DisturbanceSpec::RandomState { bound, hold })
+            if !(bound.is_finite() && *bound >= 0.0 && positive_finite(*hold)) =>
+        {
+            return Err(s.field_error(
+                "disturbance",
+                format!("expected bound >= 0 and hold > 0, found bound = {bound}, hold = {hold}"),
+            ));
+        }
+        Some(DisturbanceSpec::Example349) | Some(DisturbanceSpec::RandomState { .. }) if sc.plant != PlantKind::Ode => {
+            return Err(s.field_error("disturbance", "this disturbance acts on the state of the ODE plant: expected plant = \"ode\" (or kind = \"random_input\")"));
+        }
+        _ => {}
+    }
+    if let Some(p) = &sc.vehicle.initial_perturbation {
+        if p.len() != sc.vehicle.initial_state.len() || p.iter().any(|v| !v.is_finite() || *v < 0.0) {
+            return Err(s.field_error(
+                "vehicle.initial_perturbation",
+                "expected one bound >= 0 per initial_state component",
+            ));
+        }
     }
     if let FilterSpec::FixedChannel(spec) = &sc.filter {
         if spec.phi == Some(0) {
@@ -797,6 +829,12 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
         }
         if o.centre.iter().any(|v| !v.is_finite()) {
             return Err(s.field_error(&format!("obstacles[{i}].centre"), "expected two finite coordinates"));
+        }
+        if !o.appear_jitter.is_finite() || o.appear_jitter < 0.0 {
+            return Err(s.field_error(
+                &format!("obstacles[{i}].appear_jitter"),
+                format!("expected a jitter >= 0, found {}", o.appear_jitter),
+            ));
         }
         if !o.appear_at.is_finite() || o.appear_at < 0.0 {
             return Err(s.field_error(

@@ -201,7 +201,11 @@ fn check_toml_value(value: &str) -> Result<(), String> {
 }
 
 fn check_key(key: &str) -> Result<(), String> {
-    if key.is_empty() || key.split('.').any(|s| s.trim().is_empty() || s.contains(char::is_whitespace)) {
+    if key.is_empty()
+        || key
+            .split('.')
+            .any(|s| s.trim().is_empty() || s.contains(char::is_whitespace))
+    {
         return Err(format!("`{key}` is not a dotted key such as delays.steering"));
     }
     Ok(())
@@ -426,7 +430,11 @@ impl SweepSpec {
                     "--range needs --random N (how many draws) and --seed S".into(),
                 ))
             }
-            (Some(_), true) => return Err(SweepError::Spec("--random needs at least one --range KEY=LO..HI".into())),
+            (Some(_), true) => {
+                return Err(SweepError::Spec(
+                    "--random needs at least one --range KEY=LO..HI".into(),
+                ))
+            }
             (Some(0), false) => return Err(SweepError::Spec("--random: expected at least one draw".into())),
             (Some(count), false) => Some(Random {
                 count,
@@ -436,7 +444,8 @@ impl SweepSpec {
         };
         if grids.is_empty() && random.is_none() {
             return Err(SweepError::Spec(
-                "nothing to sweep: give --grid KEY=V1,V2,…, or --random N with --range KEY=LO..HI, or a sweep file".into(),
+                "nothing to sweep: give --grid KEY=V1,V2,…, or --random N with --range KEY=LO..HI, or a sweep file"
+                    .into(),
             ));
         }
         let text = std::fs::read(&scenario_path).map_err(|source| SweepError::Io {
@@ -872,8 +881,14 @@ mod tests {
         assert_eq!(g.key, "filter.kind");
         assert_eq!(g.values, ["'cbf_qp'", "'gamma_m'"]);
         let e = parse_grid("filter.kind=cbf_qp").unwrap_err().to_string();
-        assert!(e.starts_with("--grid filter.kind=cbf_qp:") && e.contains("not a TOML value"), "{e}");
-        assert!(parse_grid("delays.steering").unwrap_err().to_string().contains("KEY=V1,V2"));
+        assert!(
+            e.starts_with("--grid filter.kind=cbf_qp:") && e.contains("not a TOML value"),
+            "{e}"
+        );
+        assert!(parse_grid("delays.steering")
+            .unwrap_err()
+            .to_string()
+            .contains("KEY=V1,V2"));
         let r = parse_range("delays.steering=0.0..0.5:0.01").unwrap();
         assert_eq!((r.lo, r.hi, r.step), (0.0, 0.5, Some(0.01)));
         assert!(parse_range("x=1..0").is_err());

@@ -166,6 +166,9 @@ pub struct ControlLoop {
     pub error: Option<ControlError>,
     /// y(t0 + T) = z1 at the prescribed time, once reached (the ramp (5.28) needs it).
     output_at_end: Option<f64>,
+    /// A disturbance ω(t) added to the applied input ((4.12) with Z = G); unknown to the
+    /// predictors.
+    pub input_disturbance: Option<Box<dyn Fn(f64) -> DVector<f64> + Send>>,
 }
 
 impl ControlLoop {
@@ -196,6 +199,7 @@ impl ControlLoop {
             pending: vec![VecDeque::new(); r],
             error: None,
             output_at_end: None,
+            input_disturbance: None,
         }
     }
 
@@ -461,6 +465,7 @@ impl Controller for ControlLoop {
         let offset = offset.clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
         let sample_time = step_time + offset;
         self.applied_buffer.clear();
+        let disturbance = self.input_disturbance.as_ref().map(|w| w(sample_time));
         for (i, queue) in self.queues.iter().enumerate() {
             let applied = match queue.applied(sample_time) {
                 Ok(a) => a,
@@ -472,10 +477,11 @@ impl Controller for ControlLoop {
                     }
                 }
             };
+            let value = applied.value + disturbance.as_ref().map_or(0.0, |w| w[i]);
             if call_in_step == 0 {
-                self.applied[i] = (applied.value, applied.issued_at);
+                self.applied[i] = (value, applied.issued_at);
             }
-            self.applied_buffer.push(applied.value);
+            self.applied_buffer.push(value);
         }
         &self.applied_buffer
     }

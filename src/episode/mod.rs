@@ -21,6 +21,7 @@ use crate::log::{proto, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
+use crate::random::{self, Stream};
 use crate::scenario::{
     ClfCbfQpSpec, Compensation, ConstantSpec, DisturbanceSpec, FilterSpec, LoadedScenario, NominalSpec, PathLqrSpec,
     ScenarioError,
@@ -329,7 +330,12 @@ impl Episode {
                 .into());
         }
 
-        let x0 = DVector::from_column_slice(&sc.vehicle.initial_state);
+        let mut x0 = DVector::from_column_slice(&sc.vehicle.initial_state);
+        if let Some(bounds) = &sc.vehicle.initial_perturbation {
+            for (i, bound) in bounds.iter().enumerate() {
+                x0[i] += bound * random::symmetric_unit(sc.seed, Stream::InitialState, 0, i as u64);
+            }
+        }
         let mut barriers = Vec::with_capacity(sc.barriers.len());
         for (i, shape) in sc.barriers.iter().enumerate() {
             let b = Barrier {
@@ -368,7 +374,9 @@ impl Episode {
             }
             obstacles.push(Obstacle {
                 barrier,
-                appear_at: o.appear_at,
+                appear_at: (o.appear_at
+                    + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
+                .max(0.0),
                 known: false,
                 in_contact: false,
                 contact_depth: 0.0,
@@ -400,12 +408,25 @@ impl Episode {
                     Some(DisturbanceSpec::Example349) => {
                         plant.with_disturbance(Box::new(linear_delays::disturbance_3_49))
                     }
-                    None => plant,
+                    Some(DisturbanceSpec::RandomState { bound, hold }) => {
+                        let (seed, bound, hold) = (sc.seed, *bound, *hold);
+                        plant.with_disturbance(Box::new(move |t| {
+                            random_vector(seed, Stream::StateDisturbance, bound, hold, t, n)
+                        }))
+                    }
+                    Some(DisturbanceSpec::RandomInput { .. }) | None => plant,
                 })
             }
         };
 
         let mut control = ControlLoop::new(model, nominal, rule, queues, structure, timestep, steps_per_tick);
+        if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
+            let (seed, bound, hold) = (sc.seed, *bound, *hold);
+            let r = channels.len();
+            control.input_disturbance = Some(Box::new(move |t| {
+                random_vector(seed, Stream::InputDisturbance, bound, hold, t, r)
+            }));
+        }
         // Non-obstacle barriers are known from the start.
         control.known_barriers.extend(barriers.iter().cloned());
 
@@ -494,6 +515,10 @@ impl Episode {
 
         for k in 0..=self.steps {
             let time = k as f64 * h;
+            if stop_requested() {
+                Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
+                return Ok((k, Some(INTERRUPTED.into())));
+            }
             // Obstacles become known to the controller at their appearance time.
             for o in self
                 .obstacles
@@ -954,6 +979,33 @@ fn first_barrier(loaded: &LoadedScenario, model: &dyn Dynamics) -> Result<Barrie
             .into()),
     }
 }
+
+/// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
+fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize) -> DVector<f64> {
+    let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
+    let scale = bound / (dim as f64).sqrt();
+    DVector::from_iterator(
+        dim,
+        (0..dim).map(|i| scale * random::symmetric_unit(seed, stream, interval, i as u64)),
+    )
+}
+
+/// Set by a signal handler: every running episode stops at its next step, logs an
+/// `interrupted` event and finishes its log as incomplete.
+static STOP_REQUESTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks every running episode to stop (Ctrl-C, SIGTERM).
+pub fn request_stop() {
+    STOP_REQUESTED.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Whether a stop was requested.
+pub fn stop_requested() -> bool {
+    STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// The message of an episode stopped by [`request_stop`].
+pub const INTERRUPTED: &str = "interrupted by a signal";
 
 fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
     let error = (&c.prediction.state - &c.realized).norm();
