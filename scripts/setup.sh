@@ -12,6 +12,7 @@ command -v protoc >/dev/null 2>&1 || need_apt+=(protobuf-compiler)
 command -v cc >/dev/null 2>&1 || need_apt+=(build-essential)
 command -v pkg-config >/dev/null 2>&1 || need_apt+=(pkg-config)
 if [ "$want_test" = 1 ]; then
+  [ -x /usr/bin/time ] || need_apt+=(time)   # GNU time: peak-memory checks in the tests
   command -v python3 >/dev/null 2>&1 || need_apt+=(python3)
   python3 -m venv --help >/dev/null 2>&1 || need_apt+=(python3-venv)
 fi

@@ -3,8 +3,10 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use mcap::read::{ChunkFlattener, Options};
+use std::io::Read;
+
 use mcap::records::Record as McapRecord;
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use prost::Message;
 use serde::Deserialize;
 use serde::Serialize;
@@ -104,13 +106,49 @@ pub struct RunMetrics {
 }
 
 /// Reads and analyses one log file.
+/// Streams through the file: memory stays bounded by the largest chunk, whatever the log's
+/// length.
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io {
+    let reader = std::fs::File::open(path).map_err(|source| AnalyzeError::Io {
         file: file.clone(),
         source,
     })?;
-    analyze_bytes(&bytes, &file)
+    analyze_reader(std::io::BufReader::with_capacity(1 << 16, reader), &file)
+}
+
+/// Every record of an MCAP stream (chunks decompressed, chunk CRCs validated), fed to `visit`.
+/// Errors carry whether any record had been read (to tell "not MCAP" from "truncated").
+fn for_each_record(
+    mut input: impl Read,
+    mut visit: impl FnMut(McapRecord<'_>) -> Result<(), AnalyzeError>,
+) -> Result<(), (bool, String, Option<AnalyzeError>)> {
+    let options = LinearReaderOptions::default().with_validate_chunk_crcs(true);
+    let mut reader = LinearReader::new_with_options(options);
+    let mut any = false;
+    while let Some(event) = reader.next_event() {
+        match event.map_err(|e| (any, e.to_string(), None))? {
+            LinearReadEvent::ReadRequest(wanted) => {
+                let buffer = reader.insert(wanted.max(1 << 16));
+                let read = input.read(buffer).map_err(|e| (any, e.to_string(), None))?;
+                reader.notify_read(read);
+                if read == 0 {
+                    return Err((any, "unexpected end of file".into(), None));
+                }
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                let record = mcap::parse_record(opcode, data).map_err(|e| (any, e.to_string(), None))?;
+                any = true;
+                visit(record).map_err(|e| (true, String::new(), Some(e)))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Analyses log bytes; `file` names them in errors.
+pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
+    analyze_reader(bytes, file)
 }
 
 #[derive(Default)]
@@ -134,42 +172,25 @@ struct Accumulator {
     active_ticks_time: f64,
     /// Previous issued command (time, values, overriding) for du/dt.
     previous_command: Option<(f64, Vec<f64>)>,
-    /// Filter activity per tick time (ns), to pair with /command/issued.
-    overriding_at: BTreeMap<u64, bool>,
-    jerk_samples: Vec<(u64, u64, f64)>,
+    /// |du/dt| between the last two issued commands, waiting for the /filter record of the
+    /// later tick (written right after it) to know whether the filter was overriding.
+    pending_jerk: Option<(f64, f64)>,
+    previous_overriding: bool,
+    max_jerk: f64,
+    max_jerk_overriding: f64,
     terminal: PrescribedTimeMetrics,
     complete: Option<bool>,
     error: Option<String>,
 }
 
-/// Analyses log bytes; `file` names them in errors.
-pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
-    let reader = ChunkFlattener::new_with_options(bytes, Options::ValidateChunkCrcs.into()).map_err(|e| {
-        AnalyzeError::NotMcap {
-            file: file.into(),
-            message: e.to_string(),
-        }
-    })?;
+/// Analyses an MCAP stream; `file` names it in errors.
+pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, AnalyzeError> {
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();
     let mut acc = Accumulator::default();
     let mut messages = 0u64;
     let mut saw_mjsafe_metadata = false;
-    for record in reader {
-        let record = record.map_err(|e| {
-            if messages == 0 && acc.states == 0 && channels.is_empty() {
-                AnalyzeError::NotMcap {
-                    file: file.into(),
-                    message: e.to_string(),
-                }
-            } else {
-                AnalyzeError::Corrupt {
-                    file: file.into(),
-                    messages,
-                    message: e.to_string(),
-                }
-            }
-        })?;
+    let result = for_each_record(input, |record| {
         match record {
             McapRecord::Schema { header, .. } => {
                 schemas.insert(header.id, header.name);
@@ -191,7 +212,7 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
             McapRecord::Message { header, data } => {
                 messages += 1;
                 let Some((topic, schema)) = channels.get(&header.channel_id) else {
-                    continue;
+                    return Ok(());
                 };
                 let expected = TOPICS.iter().find(|(t, _)| t == topic).map(|(_, s)| *s);
                 match expected {
@@ -207,6 +228,21 @@ pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeErro
             }
             _ => {}
         }
+        Ok(())
+    });
+    if let Err((any_record, message, inner)) = result {
+        return Err(match inner {
+            Some(e) => e,
+            None if !any_record => AnalyzeError::NotMcap {
+                file: file.into(),
+                message,
+            },
+            None => AnalyzeError::Corrupt {
+                file: file.into(),
+                messages,
+                message,
+            },
+        });
     }
     if !saw_mjsafe_metadata || acc.states == 0 {
         return Err(AnalyzeError::Foreign {
@@ -256,8 +292,12 @@ impl Accumulator {
                     self.first_override_time.get_or_insert(m.time);
                     self.active_ticks_time += self.control_period.unwrap_or(0.0);
                 }
-                self.overriding_at
-                    .insert(crate::log::mcap::sim_time_ns(m.time), m.active);
+                if let Some((time, jerk)) = self.pending_jerk.take() {
+                    if (time - m.time).abs() < 1e-9 && (m.active || self.previous_overriding) {
+                        self.max_jerk_overriding = self.max_jerk_overriding.max(jerk);
+                    }
+                }
+                self.previous_overriding = m.active;
                 self.infeasible_ticks += u64::from(m.infeasible);
                 for (channel, c) in m.channels.iter().zip(&m.correction) {
                     let entry = self.max_correction.entry(channel.clone()).or_insert(0.0);
@@ -275,8 +315,8 @@ impl Accumulator {
                             .zip(previous)
                             .map(|(u, p)| ((u - p) / dt).abs())
                             .fold(0.0, f64::max);
-                        let key = |t: f64| crate::log::mcap::sim_time_ns(t);
-                        self.jerk_samples.push((key(*previous_time), key(m.time), jerk));
+                        self.max_jerk = self.max_jerk.max(jerk);
+                        self.pending_jerk = Some((m.time, jerk));
                     }
                 }
                 if self.is_prescribed_time(m.time) {
@@ -332,14 +372,7 @@ impl Accumulator {
     }
 
     fn finish(self, file: &str) -> RunMetrics {
-        let max_jerk = self.jerk_samples.iter().map(|s| s.2).fold(0.0, f64::max);
-        let overriding = |t: &u64| self.overriding_at.get(t).copied().unwrap_or(false);
-        let max_jerk_overriding = self
-            .jerk_samples
-            .iter()
-            .filter(|(a, b, _)| overriding(a) || overriding(b))
-            .map(|s| s.2)
-            .fold(0.0, f64::max);
+        let (max_jerk, max_jerk_overriding) = (self.max_jerk, self.max_jerk_overriding);
         let at_prescribed_time = self.prescribed_time.map(|time| PrescribedTimeMetrics {
             time,
             ..self.terminal.clone()

@@ -164,11 +164,7 @@ pub fn split_values(text: &str) -> Result<Vec<String>, String> {
             '\'' | '"' => quote = Some(c),
             '[' => closers.push(']'),
             '{' => closers.push('}'),
-            ']' | '}' => {
-                if closers.pop() != Some(c) {
-                    return Err(format!("unbalanced `{c}`"));
-                }
-            }
+            ']' | '}' if closers.pop() != Some(c) => return Err(format!("unbalanced `{c}`")),
             ',' if closers.is_empty() => {
                 current.pop();
                 values.push(std::mem::take(&mut current));

@@ -176,3 +176,42 @@ fn analyze_reports_good_files_and_names_bad_ones() {
         "{err}"
     );
 }
+
+/// Peak resident memory (kB) of `mjsafe analyze FILE`, measured by GNU time.
+fn analyze_peak_kb(file: &std::path::Path) -> u64 {
+    let o = Command::new("/usr/bin/time")
+        .args(["-f", "%M", env!("CARGO_BIN_EXE_mjsafe"), "analyze"])
+        .arg(file)
+        .output()
+        .expect("GNU time (/usr/bin/time; scripts/setup.sh --test installs it)");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    err.lines().last().unwrap().trim().parse().unwrap()
+}
+
+#[test]
+fn analyze_memory_does_not_grow_with_log_length() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = dir.path().join("short.mcap");
+    let long = dir.path().join("long.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle_nodelay.toml"),
+        &short,
+        &["--set", "duration=30.0"],
+    );
+    run_ok(
+        &scenario("bicycle_obstacle_nodelay.toml"),
+        &long,
+        &["--set", "duration=300.0"],
+    );
+    let size = |p: &std::path::Path| std::fs::metadata(p).unwrap().len();
+    let (short_kb, long_kb) = (analyze_peak_kb(&short), analyze_peak_kb(&long));
+    println!(
+        "analyze peak RSS: {short_kb} kB for {} kB of log, {long_kb} kB for {} kB of log",
+        size(&short) / 1024,
+        size(&long) / 1024
+    );
+    assert!(size(&long) > 8 * size(&short));
+    // Flat: the ten times longer log costs less than 2 MB more (the short log is ~1.5 MB).
+    assert!(long_kb < short_kb + 2048, "{short_kb} kB -> {long_kb} kB");
+}

@@ -281,6 +281,7 @@ fn random_draws_are_seeded_and_in_range() {
         read(&dir.path().join("a/summary.json")) == read(&dir.path().join("b/summary.json")),
         "same seed, different summaries"
     );
+    assert_eq!(a, b);
     let draws = |s: &Value, key: &str| -> Vec<f64> {
         s["runs"]
             .as_array()
