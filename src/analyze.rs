@@ -117,29 +117,37 @@ pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     analyze_reader(std::io::BufReader::with_capacity(1 << 16, reader), &file)
 }
 
+/// Why streaming the records stopped.
+enum StreamError {
+    /// The bytes are not (or no longer) valid MCAP; `any_record`: some record was read first.
+    Read { any_record: bool, message: String },
+    /// The visitor refused a record.
+    Visit(Box<AnalyzeError>),
+}
+
 /// Every record of an MCAP stream (chunks decompressed, chunk CRCs validated), fed to `visit`.
-/// Errors carry whether any record had been read (to tell "not MCAP" from "truncated").
 fn for_each_record(
     mut input: impl Read,
     mut visit: impl FnMut(McapRecord<'_>) -> Result<(), AnalyzeError>,
-) -> Result<(), (bool, String, Option<AnalyzeError>)> {
+) -> Result<(), StreamError> {
     let options = LinearReaderOptions::default().with_validate_chunk_crcs(true);
     let mut reader = LinearReader::new_with_options(options);
-    let mut any = false;
+    let mut any_record = false;
+    let read_error = |any_record: bool, message: String| StreamError::Read { any_record, message };
     while let Some(event) = reader.next_event() {
-        match event.map_err(|e| (any, e.to_string(), None))? {
+        match event.map_err(|e| read_error(any_record, e.to_string()))? {
             LinearReadEvent::ReadRequest(wanted) => {
                 let buffer = reader.insert(wanted.max(1 << 16));
-                let read = input.read(buffer).map_err(|e| (any, e.to_string(), None))?;
+                let read = input.read(buffer).map_err(|e| read_error(any_record, e.to_string()))?;
                 reader.notify_read(read);
                 if read == 0 {
-                    return Err((any, "unexpected end of file".into(), None));
+                    return Err(read_error(any_record, "unexpected end of file".into()));
                 }
             }
             LinearReadEvent::Record { data, opcode } => {
-                let record = mcap::parse_record(opcode, data).map_err(|e| (any, e.to_string(), None))?;
-                any = true;
-                visit(record).map_err(|e| (true, String::new(), Some(e)))?;
+                let record = mcap::parse_record(opcode, data).map_err(|e| read_error(any_record, e.to_string()))?;
+                any_record = true;
+                visit(record).map_err(|e| StreamError::Visit(Box::new(e)))?;
             }
         }
     }
@@ -230,19 +238,28 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
         }
         Ok(())
     });
-    if let Err((any_record, message, inner)) = result {
-        return Err(match inner {
-            Some(e) => e,
-            None if !any_record => AnalyzeError::NotMcap {
+    match result {
+        Ok(()) => {}
+        Err(StreamError::Visit(e)) => return Err(*e),
+        Err(StreamError::Read {
+            any_record: false,
+            message,
+        }) => {
+            return Err(AnalyzeError::NotMcap {
                 file: file.into(),
                 message,
-            },
-            None => AnalyzeError::Corrupt {
+            })
+        }
+        Err(StreamError::Read {
+            any_record: true,
+            message,
+        }) => {
+            return Err(AnalyzeError::Corrupt {
                 file: file.into(),
                 messages,
                 message,
-            },
-        });
+            })
+        }
     }
     if !saw_mjsafe_metadata || acc.states == 0 {
         return Err(AnalyzeError::Foreign {

@@ -234,7 +234,11 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
         // 130: the shell's convention for a run ended by a signal.
-        return Ok(if error == episode::INTERRUPTED { ExitCode::from(130) } else { ExitCode::FAILURE });
+        return Ok(if error == episode::INTERRUPTED {
+            ExitCode::from(130)
+        } else {
+            ExitCode::FAILURE
+        });
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -423,6 +427,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
+    install_stop_handler();
     let terminal = std::io::stderr().is_terminal();
     let mut progress = Progress {
         enabled: terminal || options.progress,
@@ -455,6 +460,10 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         csv.display(),
         json.display()
     );
+    if episode::stop_requested() {
+        eprintln!("error: the sweep was interrupted; the summary holds the runs finished before it");
+        return Ok(ExitCode::from(130));
+    }
     if failures > 0 {
         eprintln!(
             "error: {failures} of {} runs failed (their rows hold the error)",

@@ -602,7 +602,8 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
 
 /// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared
 /// counter), calling `done` on the calling thread as each run finishes. Rows come back in the
-/// order of `indices`, whatever the thread count.
+/// order of `indices`, whatever the thread count. After [`crate::episode::request_stop`] no
+/// new run starts; the runs not started are rows with that error.
 pub fn execute(
     spec: &SweepSpec,
     indices: &[usize],
@@ -625,6 +626,10 @@ pub fn execute(
                 .name(format!("sweep-{worker}"))
                 .stack_size(16 << 20)
                 .spawn_scoped(scope, move || loop {
+                    // After Ctrl-C / SIGTERM the running episodes stop; start no new ones.
+                    if crate::episode::stop_requested() {
+                        break;
+                    }
                     let position = next.fetch_add(1, Ordering::Relaxed);
                     let Some(&index) = indices.get(position) else {
                         break;
@@ -655,7 +660,11 @@ pub fn execute(
                 parameters: spec.run(index).parameters.into_iter().collect(),
                 log: None,
                 metrics: None,
-                error: Some("the worker running this index stopped".into()),
+                error: Some(if crate::episode::stop_requested() {
+                    "not run: the sweep was interrupted".into()
+                } else {
+                    "not run: its worker thread stopped".into()
+                }),
             })
         })
         .collect())

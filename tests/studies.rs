@@ -83,7 +83,7 @@ fn seeded_variations_rerun_bit_identically_and_stay_in_their_bounds() {
 fn sigterm_finishes_the_log_as_incomplete_and_exits_130() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("long.mcap");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
         .args([
             "run",
             "scenarios/bicycle_obstacle_nodelay.toml",
