@@ -155,6 +155,10 @@ pub struct ControlLoop {
     pub timestep: f64,
     pub control_period: f64,
     pub steps_per_tick: u64,
+    /// RK4 step of the predictors: the control period when every delay is constant and a
+    /// whole multiple of it (the applied inputs are then constant on that grid, so the coarser
+    /// step loses only RK4 truncation error, measured by the consistency check), else h.
+    pub predictor_step: f64,
     /// Set at the tick of the current step, taken by the episode after the step.
     pub tick: Option<Tick>,
     /// Applied input at the start of the current step (value, issue time) per channel.
@@ -183,7 +187,20 @@ impl ControlLoop {
         steps_per_tick: u64,
     ) -> ControlLoop {
         let r = queues.len();
+        let control_period = steps_per_tick as f64 * timestep;
+        let on_tick_grid = |q: &DelayQueue| {
+            q.constant_delay().is_some_and(|d| {
+                let ticks = d / control_period;
+                (ticks - ticks.round()).abs() < 1e-6
+            })
+        };
+        let predictor_step = if queues.iter().all(on_tick_grid) {
+            control_period
+        } else {
+            timestep
+        };
         ControlLoop {
+            predictor_step,
             model,
             nominal,
             rule,
@@ -191,7 +208,7 @@ impl ControlLoop {
             structure,
             known_barriers: Vec::new(),
             timestep,
-            control_period: steps_per_tick as f64 * timestep,
+            control_period,
             steps_per_tick,
             tick: None,
             applied: vec![(0.0, 0.0); r],
@@ -301,7 +318,7 @@ impl ControlLoop {
         let context = PredictorContext {
             model: self.model.as_ref(),
             queues: &self.queues,
-            timestep: self.timestep,
+            timestep: self.predictor_step,
             control_period: self.control_period,
         };
         // κ_j for commands not yet issued inside a recursive predictor's window: the
