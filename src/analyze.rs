@@ -98,6 +98,19 @@ pub struct RunMetrics {
     pub override_duration: f64,
     pub max_jerk: f64,
     pub max_jerk_overriding: f64,
+    /// Safety: smallest clearance to any obstacle (metres; negative = overlap), smallest
+    /// constant-velocity time to collision with a known obstacle, and time with h < 0 of an
+    /// obstacle while the delays since it appeared were not yet compensated (within the
+    /// longest delay after its appearance).
+    pub min_clearance: Option<f64>,
+    pub min_time_to_collision: Option<f64>,
+    pub delay_attributed_violation_time: f64,
+    /// Intervention: ∫‖u − u_nom‖ dt over the control ticks.
+    pub intervention_integral: f64,
+    /// Comfort: max |jerk| of the planar motion along and across the velocity (third
+    /// differences of the positions at the control ticks; planar vehicles only).
+    pub max_longitudinal_jerk: Option<f64>,
+    pub max_lateral_jerk: Option<f64>,
     /// Prescribed-time runs (metadata `prescribed_time` = T): values at T.
     pub at_prescribed_time: Option<PrescribedTimeMetrics>,
     /// Whether the run finished (false: stopped by an error or interrupted).
@@ -187,6 +200,18 @@ struct Accumulator {
     max_jerk: f64,
     max_jerk_overriding: f64,
     terminal: PrescribedTimeMetrics,
+    max_delay: f64,
+    min_clearance: Option<f64>,
+    min_time_to_collision: Option<f64>,
+    /// Appearance time per obstacle name.
+    appeared: BTreeMap<String, f64>,
+    delay_attributed_steps: u64,
+    intervention_integral: f64,
+    /// Last four planar positions (time, x, y) for the jerk, and the position indices.
+    planar: Option<[usize; 2]>,
+    recent_positions: std::collections::VecDeque<(f64, f64, f64)>,
+    max_longitudinal_jerk: Option<f64>,
+    max_lateral_jerk: Option<f64>,
     complete: Option<bool>,
     error: Option<String>,
 }
@@ -213,6 +238,7 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
                 acc.timestep = m.metadata.get("timestep").and_then(|s| s.parse().ok());
                 acc.control_period = m.metadata.get("control_period").and_then(|s| s.parse().ok());
                 acc.prescribed_time = m.metadata.get("prescribed_time").and_then(|s| s.parse().ok());
+                acc.max_delay = m.metadata.get("max_delay").and_then(|s| s.parse().ok()).unwrap_or(0.0);
             }
             McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
                 acc.complete = Some(m.metadata.get("complete").is_some_and(|v| v == "true"));
@@ -284,6 +310,7 @@ impl Accumulator {
                 if self.is_prescribed_time(m.time) {
                     self.terminal.state_residuals = m.values.iter().map(|v| v.abs()).collect();
                 }
+                self.track_jerk(&m);
                 self.states += 1;
                 self.last_time = self.last_time.max(m.time);
                 self.last_step = self.last_step.max(m.step);
@@ -294,6 +321,21 @@ impl Accumulator {
                 if self.is_prescribed_time(m.time) && step_min.is_finite() {
                     self.terminal.barrier = Some(step_min);
                 }
+                for b in m.barriers.iter().filter(|b| b.obstacle) {
+                    self.min_clearance = Some(self.min_clearance.map_or(b.clearance, |c| c.min(b.clearance)));
+                    if b.known && !b.time_to_collision.is_nan() {
+                        let ttc = b.time_to_collision;
+                        self.min_time_to_collision = Some(self.min_time_to_collision.map_or(ttc, |c| c.min(ttc)));
+                    }
+                }
+                let uncompensated_violation = m.barriers.iter().any(|b| {
+                    b.h < 0.0
+                        && self
+                            .appeared
+                            .get(&b.name)
+                            .is_some_and(|t| m.time >= *t && m.time < t + self.max_delay)
+                });
+                self.delay_attributed_steps += u64::from(uncompensated_violation);
                 if step_min.is_finite() {
                     self.min_h = Some(self.min_h.map_or(step_min, |h| h.min(step_min)));
                     if step_min < 0.0 {
@@ -316,6 +358,8 @@ impl Accumulator {
                 }
                 self.previous_overriding = m.active;
                 self.infeasible_ticks += u64::from(m.infeasible);
+                let correction = m.correction.iter().map(|c| c * c).sum::<f64>().sqrt();
+                self.intervention_integral += correction * self.control_period.unwrap_or(0.0);
                 for (channel, c) in m.channels.iter().zip(&m.correction) {
                     let entry = self.max_correction.entry(channel.clone()).or_insert(0.0);
                     *entry = entry.max(c.abs());
@@ -352,6 +396,11 @@ impl Accumulator {
             "/event" => {
                 let m = proto::Event::decode(data).map_err(decode_error)?;
                 match m.kind.as_str() {
+                    "obstacle_appeared" => {
+                        for name in &m.participants {
+                            self.appeared.entry(name.clone()).or_insert(m.time);
+                        }
+                    }
                     "collision_start" | "collision_end" => {
                         let with = m
                             .participants
@@ -378,6 +427,51 @@ impl Accumulator {
             _ => {}
         }
         Ok(())
+    }
+
+    /// Longitudinal and lateral jerk from the last four planar positions (x1, x2 or x, y).
+    fn track_jerk(&mut self, m: &proto::State) {
+        if self.planar.is_none() {
+            let names: Vec<&str> = m.names.iter().map(|s| s.as_str()).collect();
+            self.planar = match names.as_slice() {
+                ["x1", "x2", ..] | ["x", "y", ..] if names.len() >= 3 => Some([0, 1]),
+                _ => return,
+            };
+        }
+        // Sample on the control-tick grid: the commanded acceleration is piecewise constant on
+        // it, so the jerk is resolved at the control period (not at the physics step).
+        if let Some(period) = self.control_period {
+            let ticks = m.time / period;
+            if (ticks - ticks.round()).abs() > 1e-6 {
+                return;
+            }
+        }
+        let [i, j] = self.planar.expect("set above");
+        self.recent_positions.push_back((m.time, m.values[i], m.values[j]));
+        if self.recent_positions.len() > 4 {
+            self.recent_positions.pop_front();
+        }
+        if self.recent_positions.len() < 4 {
+            return;
+        }
+        let p: Vec<(f64, f64, f64)> = self.recent_positions.iter().copied().collect();
+        let dt = (p[3].0 - p[0].0) / 3.0;
+        if dt <= 0.0 {
+            return;
+        }
+        // Third differences → jerk; the velocity direction (central difference) splits it.
+        let third = |f: fn(&(f64, f64, f64)) -> f64| f(&p[3]) - 3.0 * f(&p[2]) + 3.0 * f(&p[1]) - f(&p[0]);
+        let (jx, jy) = (third(|q| q.1) / dt.powi(3), third(|q| q.2) / dt.powi(3));
+        let (vx, vy) = (p[2].1 - p[1].1, p[2].2 - p[1].2);
+        let speed = vx.hypot(vy);
+        if speed <= 1e-12 {
+            return;
+        }
+        let (ux, uy) = (vx / speed, vy / speed);
+        let longitudinal = (jx * ux + jy * uy).abs();
+        let lateral = (-jx * uy + jy * ux).abs();
+        self.max_longitudinal_jerk = Some(self.max_longitudinal_jerk.map_or(longitudinal, |v| v.max(longitudinal)));
+        self.max_lateral_jerk = Some(self.max_lateral_jerk.map_or(lateral, |v| v.max(lateral)));
     }
 
     /// Whether `time` is the prescribed time T (within half a timestep).
@@ -413,6 +507,12 @@ impl Accumulator {
             override_duration: self.active_ticks_time,
             max_jerk,
             max_jerk_overriding,
+            min_clearance: self.min_clearance,
+            min_time_to_collision: self.min_time_to_collision,
+            delay_attributed_violation_time: self.delay_attributed_steps as f64 * self.timestep.unwrap_or(0.0),
+            intervention_integral: self.intervention_integral,
+            max_longitudinal_jerk: self.max_longitudinal_jerk,
+            max_lateral_jerk: self.max_lateral_jerk,
             at_prescribed_time,
             prediction: self
                 .prediction
@@ -525,6 +625,12 @@ pub struct FlatMetrics {
     pub override_duration: Option<f64>,
     pub max_jerk: Option<f64>,
     pub max_jerk_overriding: Option<f64>,
+    pub min_clearance: Option<f64>,
+    pub min_time_to_collision: Option<f64>,
+    pub delay_attributed_violation_time: Option<f64>,
+    pub intervention_integral: Option<f64>,
+    pub max_longitudinal_jerk: Option<f64>,
+    pub max_lateral_jerk: Option<f64>,
     /// The prescribed time T (Ch. 5 runs only) and the values at T.
     pub prescribed_time: Option<f64>,
     pub prescribed_time_barrier: Option<f64>,
@@ -544,7 +650,7 @@ pub enum Cell {
 }
 
 /// The fixed scalar columns of [`FlatMetrics`] before the per-channel groups.
-const SCALAR_COLUMNS: [&str; 17] = [
+const SCALAR_COLUMNS: [&str; 23] = [
     "scenario",
     "simulated_time",
     "steps",
@@ -559,6 +665,12 @@ const SCALAR_COLUMNS: [&str; 17] = [
     "override_duration",
     "max_jerk",
     "max_jerk_overriding",
+    "min_clearance",
+    "min_time_to_collision",
+    "delay_attributed_violation_time",
+    "intervention_integral",
+    "max_longitudinal_jerk",
+    "max_lateral_jerk",
     "prescribed_time",
     "prescribed_time_barrier",
     "prescribed_time_input_residual",
@@ -603,6 +715,12 @@ impl From<&RunMetrics> for FlatMetrics {
             override_duration: finite(m.override_duration),
             max_jerk: finite(m.max_jerk),
             max_jerk_overriding: finite(m.max_jerk_overriding),
+            min_clearance: m.min_clearance.and_then(finite),
+            min_time_to_collision: m.min_time_to_collision.and_then(finite),
+            delay_attributed_violation_time: finite(m.delay_attributed_violation_time),
+            intervention_integral: finite(m.intervention_integral),
+            max_longitudinal_jerk: m.max_longitudinal_jerk.and_then(finite),
+            max_lateral_jerk: m.max_lateral_jerk.and_then(finite),
             prescribed_time: m.at_prescribed_time.as_ref().and_then(|p| finite(p.time)),
             prescribed_time_barrier: m.at_prescribed_time.as_ref().and_then(|p| p.barrier.and_then(finite)),
             prescribed_time_input_residual: m
@@ -672,6 +790,12 @@ impl FlatMetrics {
             "override_duration" => Cell::Num(self.override_duration),
             "max_jerk" => Cell::Num(self.max_jerk),
             "max_jerk_overriding" => Cell::Num(self.max_jerk_overriding),
+            "min_clearance" => Cell::Num(self.min_clearance),
+            "min_time_to_collision" => Cell::Num(self.min_time_to_collision),
+            "delay_attributed_violation_time" => Cell::Num(self.delay_attributed_violation_time),
+            "intervention_integral" => Cell::Num(self.intervention_integral),
+            "max_longitudinal_jerk" => Cell::Num(self.max_longitudinal_jerk),
+            "max_lateral_jerk" => Cell::Num(self.max_lateral_jerk),
             "prescribed_time" => Cell::Num(self.prescribed_time),
             "prescribed_time_barrier" => Cell::Num(self.prescribed_time_barrier),
             "prescribed_time_input_residual" => Cell::Num(self.prescribed_time_input_residual),

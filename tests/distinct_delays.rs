@@ -255,3 +255,36 @@ fn linear_example_avoids_the_disk_and_converges_and_the_disturbance_only_eats_th
     assert!(d_min_h_eta < 0.0, "the disturbance was expected to enter the buffer");
     assert!(d_final <= 1.0);
 }
+
+#[test]
+fn safety_intervention_and_comfort_metrics_tell_the_filters_apart() {
+    let (_d1, delayed) = run("bicycle_obstacle.toml", &[]);
+    let (_d2, gamma) = run("bicycle_obstacle_gamma_m.toml", &[]);
+    let d = analyze_json(&delayed);
+    let g = analyze_json(&gamma);
+    let num = |m: &serde_json::Value, k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k}: {m}"));
+    println!(
+        "metrics delayed / gamma-m: min clearance {:.3} / {:.3} m, min TTC {:.3} / {:.3} s, delay-attributed violation {:.3} / {:.3} s, \
+         intervention {:.2} / {:.2}, lateral jerk {:.0} / {:.0}",
+        num(&d, "min_clearance"),
+        num(&g, "min_clearance"),
+        num(&d, "min_time_to_collision"),
+        num(&g, "min_time_to_collision"),
+        num(&d, "delay_attributed_violation_time"),
+        num(&g, "delay_attributed_violation_time"),
+        num(&d, "intervention_integral"),
+        num(&g, "intervention_integral"),
+        num(&d, "max_lateral_jerk"),
+        num(&g, "max_lateral_jerk"),
+    );
+    // The delayed, uncompensated run overlaps the obstacle while its delays are uncompensated.
+    assert!(num(&d, "min_clearance") < 0.0);
+    assert_eq!(num(&d, "min_time_to_collision"), 0.0);
+    assert!(num(&d, "delay_attributed_violation_time") > 0.0);
+    // γm keeps a gap, never reaches contact under constant velocity, no violation at all.
+    assert!(num(&g, "min_clearance") > -0.01);
+    assert!(num(&g, "min_time_to_collision") > 0.0);
+    assert_eq!(num(&g, "delay_attributed_violation_time"), 0.0);
+    assert!(num(&g, "intervention_integral") > 0.0);
+    assert!(num(&g, "max_lateral_jerk") > 0.0 && num(&g, "max_longitudinal_jerk") > 0.0);
+}

@@ -440,6 +440,14 @@ impl Episode {
             mujoco_version: mujoco::version_string(),
             timestep,
             control_period: period,
+            max_delay: control
+                .queues
+                .iter()
+                .flat_map(|q| {
+                    let samples = (sc.duration / timestep).ceil() as usize;
+                    (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)))
+                })
+                .fold(0.0, f64::max),
             prescribed_time: match &sc.filter {
                 FilterSpec::Ptsf(spec) => Some(spec.horizon),
                 FilterSpec::Esf(spec) => spec.horizon,
@@ -643,22 +651,43 @@ impl Episode {
         let entries = self
             .obstacles
             .iter()
-            .map(|o| (&o.barrier, o.known))
-            .chain(self.barriers.iter().map(|b| (b, true)));
+            .map(|o| (&o.barrier, o.known, true))
+            .chain(self.barriers.iter().map(|b| (b, true, false)));
+        // World velocity of the planar position (for time-to-collision): ṗ from the model.
+        let velocity = model.planar_position().map(|[i, j]| {
+            let xdot = model.dynamics(x, applied);
+            [xdot[i], xdot[j]]
+        });
         let barriers: Vec<proto::BarrierValue> = entries
-            .map(|(b, known)| {
+            .map(|(b, known, obstacle)| {
                 let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
                     (
                         barrier::constraint(b, form, model, x).value(applied),
                         form.relative_degree(),
                     )
                 });
+                let time_to_collision = match (obstacle, velocity, &b.shape) {
+                    (
+                        true,
+                        Some(v),
+                        crate::barrier::Shape::Ball {
+                            indices,
+                            centre,
+                            radius,
+                            ..
+                        },
+                    ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
+                    _ => f64::NAN,
+                };
                 proto::BarrierValue {
                     name: b.name.clone(),
                     h: b.h(x),
                     constraint,
                     known,
                     relative_degree,
+                    clearance: b.clearance(x),
+                    time_to_collision,
+                    obstacle,
                 }
             })
             .collect();
@@ -980,6 +1009,22 @@ fn first_barrier(loaded: &LoadedScenario, model: &dyn Dynamics) -> Result<Barrie
     }
 }
 
+/// Smallest τ ≥ 0 with |d + v τ| = r (relative position d, velocity v held): 0 when already
+/// within r, +inf when never.
+fn time_to_contact(d: [f64; 2], v: [f64; 2], r: f64) -> f64 {
+    let c = d[0] * d[0] + d[1] * d[1] - r * r;
+    if c <= 0.0 {
+        return 0.0;
+    }
+    let a = v[0] * v[0] + v[1] * v[1];
+    let b = 2.0 * (d[0] * v[0] + d[1] * v[1]);
+    let discriminant = b * b - 4.0 * a * c;
+    if a == 0.0 || b >= 0.0 || discriminant < 0.0 {
+        return f64::INFINITY;
+    }
+    (-b - discriminant.sqrt()) / (2.0 * a)
+}
+
 /// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
 fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize) -> DVector<f64> {
     let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
@@ -1061,6 +1106,15 @@ fn utc_stamp(secs: u64) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn time_to_contact_solves_the_constant_velocity_geometry() {
+        // 10 m away head-on at 2 m/s, r = 6: contact after (10 − 6)/2 = 2 s.
+        assert!((super::time_to_contact([-10.0, 0.0], [2.0, 0.0], 6.0) - 2.0).abs() < 1e-12);
+        assert_eq!(super::time_to_contact([-10.0, 0.0], [-2.0, 0.0], 6.0), f64::INFINITY);
+        assert_eq!(super::time_to_contact([-10.0, 7.0], [2.0, 0.0], 6.0), f64::INFINITY);
+        assert_eq!(super::time_to_contact([-1.0, 0.0], [0.0, 0.0], 6.0), 0.0);
+    }
+
     #[test]
     fn utc_stamp_matches_known_dates() {
         assert_eq!(super::utc_stamp(0), "19700101T000000");

@@ -72,6 +72,7 @@ impl McapSink {
             ("control_period".to_string(), format!("{}", info.control_period)),
         ]);
         let mut metadata = metadata;
+        metadata.insert("max_delay".to_string(), format!("{}", info.max_delay));
         if let Some(t) = info.prescribed_time {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
         }

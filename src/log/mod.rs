@@ -98,6 +98,8 @@ pub struct RunInfo {
     pub control_period: f64,
     /// T of a prescribed-time scenario (for the metrics at T).
     pub prescribed_time: Option<f64>,
+    /// The longest input delay over the run (for delay-attributed violations).
+    pub max_delay: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
