@@ -57,6 +57,10 @@ pub trait Dynamics: Send + Sync {
     fn planar_position(&self) -> Option<[usize; 2]> {
         None
     }
+    /// Index of the heading angle in the state, if the system has one.
+    fn heading_index(&self) -> Option<usize> {
+        None
+    }
 
     /// ẋ = f(x) + G(x) u.
     fn dynamics(&self, x: &DVector<f64>, u: &DVector<f64>) -> DVector<f64> {
@@ -157,6 +161,9 @@ impl Dynamics for BicycleModel {
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
+    }
+    fn heading_index(&self) -> Option<usize> {
+        Some(2)
     }
 }
 
@@ -285,6 +292,9 @@ impl Dynamics for UnicycleModel {
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
+    }
+    fn heading_index(&self) -> Option<usize> {
+        Some(2)
     }
 }
 

@@ -99,6 +99,15 @@ fn python_mcap_reads_and_decodes_the_log() {
     assert_eq!(a["values"][0], issued_when(4.8)["filtered"][0]);
     assert_eq!(a["values"][1], issued_when(3.5)["filtered"][1]);
 
+    // The Foxglove view: well-known schemas, the vehicle, its trail, the obstacle, the path.
+    assert_eq!(d["schemas"]["/scene"], "foxglove.SceneUpdate");
+    assert_eq!(d["schemas"]["/tf"], "foxglove.FrameTransform");
+    assert_eq!(d["counts"]["/tf"], 1201);
+    assert_eq!(
+        d["scene_ids"],
+        serde_json::json!(["obstacle_0", "reference_path", "trail", "vehicle"])
+    );
+
     // Barrier: unknown before 2.75 s, known after.
     let barrier = d["barrier"].as_array().unwrap();
     assert_eq!(barrier[0]["known"], serde_json::json!([false]));

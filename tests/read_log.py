@@ -15,11 +15,20 @@ def main(path):
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         counts, schemas, encodings = {}, {}, {}
         first, last, events, applied, issued, barrier = {}, {}, [], [], [], []
+        scene_ids = set()
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             topic = channel.topic
             counts[topic] = counts.get(topic, 0) + 1
             schemas[topic] = schema.name
             encodings[topic] = [schema.encoding, channel.message_encoding]
+            if schema.name.startswith("foxglove."):
+                stamps = [e.timestamp for e in decoded.entities] if topic == "/scene" else [decoded.timestamp]
+                for stamp in stamps:
+                    if message.log_time != stamp.seconds * 1_000_000_000 + stamp.nanos:
+                        raise SystemExit(f"{topic}: log_time {message.log_time} != timestamp {stamp}")
+                if topic == "/scene":
+                    scene_ids.update(e.id for e in decoded.entities)
+                continue
             if message.log_time != round(decoded.time * 1e9):
                 raise SystemExit(f"{topic}: log_time {message.log_time} != time {decoded.time}")
             if topic == "/state":
@@ -46,6 +55,7 @@ def main(path):
         "applied": applied,
         "issued": issued,
         "barrier": barrier,
+        "scene_ids": sorted(scene_ids),
     }))
 
 

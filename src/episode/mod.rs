@@ -17,7 +17,7 @@ use crate::filter::linear_delays;
 use crate::filter::prescribed_time::{
     BlowUp, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsNominal, PtsfFilter, RedLightNominal,
 };
-use crate::log::{proto, LogError, Record, RunInfo, Sink};
+use crate::log::{proto, scene, LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError, Model, ObjKind, Simulation};
 use crate::nominal::{BicyclePathLqr, Nominal};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
@@ -46,6 +46,8 @@ pub enum EpisodeError {
 #[derive(Debug, Clone)]
 struct Obstacle {
     barrier: Barrier,
+    /// The obstacle's own radius (the barrier's r also includes the hull).
+    radius: f64,
     appear_at: f64,
     known: bool,
     in_contact: bool,
@@ -82,7 +84,21 @@ pub struct Episode {
     barriers: Vec<Barrier>,
     steps: u64,
     info: RunInfo,
+    scene: SceneState,
 }
+
+/// What the Foxglove 3D view needs beyond the state.
+struct SceneState {
+    hull_radius: f64,
+    /// A straight reference path (point, heading), drawn as a line.
+    path: Option<([f64; 2], f64)>,
+    /// Positions at every fifth control tick.
+    trail: Vec<[f64; 2]>,
+}
+
+/// Control ticks between trail points, and trail points between `/scene` trail updates.
+const TRAIL_EVERY_TICKS: u64 = 5;
+const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
 
 /// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
 /// (contype 0, conaffinity 1: it collides with the vehicle hull and nothing else).
@@ -374,6 +390,7 @@ impl Episode {
             }
             obstacles.push(Obstacle {
                 barrier,
+                radius: o.radius,
                 appear_at: (o.appear_at
                     + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
                 .max(0.0),
@@ -454,6 +471,10 @@ impl Episode {
                 _ => None,
             },
         };
+        let path = match &sc.nominal {
+            NominalSpec::PathLqr(p) => Some((p.path_point, p.path_heading)),
+            _ => None,
+        };
         Ok(Episode {
             plant,
             control,
@@ -461,6 +482,11 @@ impl Episode {
             barriers,
             steps,
             info,
+            scene: SceneState {
+                hull_radius: parts.hull_radius,
+                path,
+                trail: Vec::new(),
+            },
         })
     }
 
@@ -540,9 +566,11 @@ impl Episode {
                     sinks,
                     Self::event(time, "obstacle_appeared", message, vec![o.barrier.name.clone()], 0.0),
                 )?;
+                Self::emit(sinks, obstacle_scene(time, o))?;
             }
 
             let x = self.plant.state();
+            self.emit_scene(sinks, k, time, &x)?;
             Self::emit(
                 sinks,
                 Record::State(proto::State {
@@ -608,6 +636,54 @@ impl Episode {
             ),
         )?;
         Ok((self.steps, None))
+    }
+
+    /// Foxglove view: static entities at the start, then the vehicle and `/tf` at every
+    /// control tick and the trail every few ticks (planar vehicles only).
+    fn emit_scene(&mut self, sinks: &mut [&mut dyn Sink], k: u64, time: f64, x: &DVector<f64>) -> Result<(), LogError> {
+        let model = self.control.model.clone();
+        let Some([i, j]) = model.planar_position() else {
+            return Ok(());
+        };
+        let position = [x[i], x[j]];
+        if k == 0 {
+            if let Some((point, heading)) = self.scene.path {
+                let (s, c) = heading.sin_cos();
+                let ends = [
+                    [point[0] - 200.0 * c, point[1] - 200.0 * s],
+                    [point[0] + 200.0 * c, point[1] + 200.0 * s],
+                ];
+                Self::emit(
+                    sinks,
+                    Record::Scene(time, scene::polyline(time, "reference_path", &ends, scene::PATH, 0.1)),
+                )?;
+            }
+            for o in &self.obstacles {
+                Self::emit(sinks, obstacle_scene(time, o))?;
+            }
+        }
+        let tick = k / self.control.steps_per_tick;
+        if k % self.control.steps_per_tick != 0 {
+            return Ok(());
+        }
+        let heading = model.heading_index().map_or(0.0, |h| x[h]);
+        Self::emit(
+            sinks,
+            Record::Scene(time, scene::vehicle(time, position, heading, self.scene.hull_radius)),
+        )?;
+        Self::emit(
+            sinks,
+            Record::Transform(time, scene::transform(time, position, heading)),
+        )?;
+        if tick % TRAIL_EVERY_TICKS == 0 {
+            self.scene.trail.push(position);
+            if self.scene.trail.len() % TRAIL_PUBLISH_EVERY_POINTS == 1 || k + self.control.steps_per_tick > self.steps
+            {
+                let trail = scene::polyline(time, "trail", &self.scene.trail, scene::TRAIL, 0.15);
+                Self::emit(sinks, Record::Scene(time, trail))?;
+            }
+        }
+        Ok(())
     }
 
     fn emit_tick(&self, sinks: &mut [&mut dyn Sink], tick: &Tick, channels: &[String]) -> Result<(), LogError> {
@@ -1051,6 +1127,15 @@ pub fn stop_requested() -> bool {
 
 /// The message of an episode stopped by [`request_stop`].
 pub const INTERRUPTED: &str = "interrupted by a signal";
+
+/// An obstacle as a Foxglove entity (grey until known, red after).
+fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
+    let (centre, radius) = match &o.barrier.shape {
+        crate::barrier::Shape::Ball { centre, .. } => ([centre[0], centre[1]], o.radius),
+        _ => ([0.0, 0.0], o.radius),
+    };
+    Record::Scene(time, scene::obstacle(time, &o.barrier.name, centre, radius, o.known))
+}
 
 fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
     let error = (&c.prediction.state - &c.realized).norm();

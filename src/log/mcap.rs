@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::MessageHeader;
 use mcap::{Compression, WriteOptions, Writer};
 
-use super::{LogError, Record, RunInfo, Sink, DESCRIPTOR_SET, LOG_FORMAT_VERSION, TOPICS};
+use super::{LogError, Record, RunInfo, Sink, LOG_FORMAT_VERSION, TOPICS};
 
 pub struct McapSink {
     writer: Option<Writer<BufWriter<File>>>,
@@ -50,9 +50,9 @@ impl McapSink {
             .create(BufWriter::new(file))
             .map_err(|e| err(e.to_string()))?;
         let mut channel_ids = Vec::with_capacity(TOPICS.len());
-        for (topic, schema_name) in TOPICS {
+        for (index, (topic, schema_name)) in TOPICS.into_iter().enumerate() {
             let schema = writer
-                .add_schema(schema_name, "protobuf", DESCRIPTOR_SET)
+                .add_schema(schema_name, "protobuf", &super::schema_data(index))
                 .map_err(|e| err(e.to_string()))?;
             let id = writer
                 .add_channel(schema, topic, "protobuf", &BTreeMap::new())

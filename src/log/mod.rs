@@ -3,6 +3,7 @@
 //! as a second sink.
 
 pub mod mcap;
+pub mod scene;
 
 /// The protobuf messages of the log (generated from proto/mjsafe.proto by build.rs).
 pub mod proto {
@@ -25,10 +26,13 @@ pub enum Record {
     Filter(proto::Filter),
     Event(proto::Event),
     Prediction(proto::Prediction),
+    /// Foxglove 3D scene (`/scene`) and transform (`/tf`), at a time.
+    Scene(f64, foxglove::messages::SceneUpdate),
+    Transform(f64, foxglove::messages::FrameTransform),
 }
 
 /// Topic, protobuf full name of the message type.
-pub const TOPICS: [(&str, &str); 7] = [
+pub const TOPICS: [(&str, &str); 9] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
     ("/command/applied", "mjsafe.AppliedCommand"),
@@ -36,7 +40,27 @@ pub const TOPICS: [(&str, &str); 7] = [
     ("/filter", "mjsafe.Filter"),
     ("/event", "mjsafe.Event"),
     ("/prediction", "mjsafe.Prediction"),
+    ("/scene", "foxglove.SceneUpdate"),
+    ("/tf", "foxglove.FrameTransform"),
 ];
+
+/// The schema data (a serialized FileDescriptorSet) of a topic in [`TOPICS`].
+pub fn schema_data(topic_index: usize) -> std::borrow::Cow<'static, [u8]> {
+    use foxglove::Encode;
+    match TOPICS[topic_index].0 {
+        "/scene" => {
+            foxglove::messages::SceneUpdate::get_schema()
+                .expect("Foxglove schemas are embedded")
+                .data
+        }
+        "/tf" => {
+            foxglove::messages::FrameTransform::get_schema()
+                .expect("Foxglove schemas are embedded")
+                .data
+        }
+        _ => std::borrow::Cow::Borrowed(DESCRIPTOR_SET),
+    }
+}
 
 impl Record {
     /// Index into [`TOPICS`].
@@ -49,6 +73,8 @@ impl Record {
             Record::Filter(_) => 4,
             Record::Event(_) => 5,
             Record::Prediction(_) => 6,
+            Record::Scene(..) => 7,
+            Record::Transform(..) => 8,
         }
     }
 
@@ -66,6 +92,7 @@ impl Record {
             Record::Filter(m) => m.time,
             Record::Event(m) => m.time,
             Record::Prediction(m) => m.time,
+            Record::Scene(t, _) | Record::Transform(t, _) => *t,
         }
     }
 
@@ -79,6 +106,8 @@ impl Record {
             Record::Filter(m) => m.encode_to_vec(),
             Record::Event(m) => m.encode_to_vec(),
             Record::Prediction(m) => m.encode_to_vec(),
+            Record::Scene(_, m) => m.encode_to_vec(),
+            Record::Transform(_, m) => m.encode_to_vec(),
         }
     }
 }
