@@ -131,7 +131,7 @@ pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
 }
 
 /// Why streaming the records stopped.
-enum StreamError {
+pub(crate) enum StreamError {
     /// The bytes are not (or no longer) valid MCAP; `any_record`: some record was read first.
     Read { any_record: bool, message: String },
     /// The visitor refused a record.
@@ -139,7 +139,7 @@ enum StreamError {
 }
 
 /// Every record of an MCAP stream (chunks decompressed, chunk CRCs validated), fed to `visit`.
-fn for_each_record(
+pub(crate) fn for_each_record(
     mut input: impl Read,
     mut visit: impl FnMut(McapRecord<'_>) -> Result<(), AnalyzeError>,
 ) -> Result<(), StreamError> {

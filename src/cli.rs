@@ -59,6 +59,10 @@ pub enum Command {
         /// With --merge: also write DIR/summary.csv and DIR/summary.json.
         #[arg(long, value_name = "DIR", requires = "merge")]
         out: Option<PathBuf>,
+        /// Also write PNG plots of each log into DIR (h(t), issued vs applied inputs,
+        /// trajectory with obstacles and reference path).
+        #[arg(long, value_name = "DIR", conflicts_with = "merge")]
+        plot: Option<PathBuf>,
     },
     /// Run a scenario over a grid of overrides and/or seeded random draws, in parallel;
     /// writes one log per run and summary.csv / summary.json (see docs/sweeps.md).
@@ -138,7 +142,27 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             compare,
             merge,
             out,
+            plot,
         } => {
+            if let Some(dir) = &plot {
+                let mut failed = false;
+                for file in &files {
+                    match crate::plot::plot_log(file, dir) {
+                        Ok(written) => {
+                            for w in written {
+                                eprintln!("plot: {}", w.display());
+                            }
+                        }
+                        Err(e) => {
+                            eprintln!("error: {e}");
+                            failed = true;
+                        }
+                    }
+                }
+                if failed {
+                    return Ok(ExitCode::FAILURE);
+                }
+            }
             let format = if json {
                 Format::Json
             } else if csv {

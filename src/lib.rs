@@ -11,6 +11,7 @@ pub mod log;
 pub mod mujoco;
 pub mod nominal;
 pub mod plant;
+pub mod plot;
 pub mod predictor;
 pub mod random;
 pub mod scenario;

@@ -121,3 +121,18 @@ fn sigterm_finishes_the_log_as_incomplete_and_exits_130() {
     let events = read_topic::<proto::Event>(&log, "/event");
     assert_eq!(events.last().unwrap().kind, "interrupted");
 }
+
+#[test]
+fn analyze_plot_writes_the_three_pngs_from_the_log_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("gamma.mcap");
+    run_ok(&scenario("bicycle_obstacle_gamma_m.toml"), &log, &[]);
+    let plots = dir.path().join("plots");
+    let o = mjsafe(&["analyze", log.to_str().unwrap(), "--plot", plots.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for kind in ["barriers", "inputs", "trajectory"] {
+        let png = std::fs::read(plots.join(format!("gamma-{kind}.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{kind} is not a PNG");
+        assert!(png.len() > 10_000, "{kind}: {} bytes", png.len());
+    }
+}
