@@ -24,6 +24,8 @@ pub enum AnalyzeError {
         file: String,
         messages: u64,
         message: String,
+        /// The metrics of what could be read before the damage (an mjsafe log only).
+        partial: Option<Box<RunMetrics>>,
     },
     #[error("{file}: an MCAP file, but not an mjsafe log ({message})")]
     Foreign { file: String, message: String },
@@ -280,11 +282,18 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
             any_record: true,
             message,
         }) => {
+            let partial = (saw_mjsafe_metadata && acc.states > 0).then(|| {
+                let mut m = acc.finish(file);
+                m.complete = false;
+                m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
+                Box::new(m)
+            });
             return Err(AnalyzeError::Corrupt {
                 file: file.into(),
                 messages,
                 message,
-            })
+                partial,
+            });
         }
     }
     if !saw_mjsafe_metadata || acc.states == 0 {
@@ -1077,6 +1086,7 @@ pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
             file: file.clone(),
             messages: 0,
             message: format!("metadata record {}: {e}", index.name),
+            partial: None,
         })?;
         metadata.push((record.name, record.metadata));
     }

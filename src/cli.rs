@@ -273,6 +273,16 @@ fn analyze_files(files: &[PathBuf], format: Format) -> ExitCode {
     for file in files {
         match analyze::analyze_file(file) {
             Ok(m) => runs.push(m),
+            Err(analyze::AnalyzeError::Corrupt {
+                file,
+                messages,
+                message,
+                partial,
+            }) => {
+                eprintln!("error: {file}: truncated or corrupt MCAP after {messages} messages ({message}); reporting what was read");
+                runs.extend(partial.map(|m| *m));
+                failed = true;
+            }
             Err(e) => {
                 eprintln!("error: {e}");
                 failed = true;
