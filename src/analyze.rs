@@ -169,6 +169,16 @@ pub(crate) fn for_each_record(
     Ok(())
 }
 
+/// Indices of the planar position in a logged state, recognised by the state names of the
+/// planar vehicles (bicycle: x1, x2, heading, speed; unicycle, 2D double integrator: x, y, …).
+pub fn planar_position(names: &[String]) -> Option<[usize; 2]> {
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    match names.as_slice() {
+        ["x1", "x2", ..] | ["x", "y", ..] if names.len() >= 3 => Some([0, 1]),
+        _ => None,
+    }
+}
+
 /// Analyses log bytes; `file` names them in errors.
 pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
     analyze_reader(bytes, file)
@@ -441,11 +451,10 @@ impl Accumulator {
     /// Longitudinal and lateral jerk from the last four planar positions (x1, x2 or x, y).
     fn track_jerk(&mut self, m: &proto::State) {
         if self.planar.is_none() {
-            let names: Vec<&str> = m.names.iter().map(|s| s.as_str()).collect();
-            self.planar = match names.as_slice() {
-                ["x1", "x2", ..] | ["x", "y", ..] if names.len() >= 3 => Some([0, 1]),
-                _ => return,
-            };
+            self.planar = planar_position(&m.names);
+            if self.planar.is_none() {
+                return;
+            }
         }
         // Sample on the control-tick grid: the commanded acceleration is piecewise constant on
         // it, so the jerk is resolved at the control period (not at the physics step).
@@ -588,12 +597,25 @@ pub fn table(runs: &[RunMetrics]) -> String {
             },
         ]);
     }
-    let widths: Vec<usize> = (0..header.len())
-        .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
+    align_columns(&rows)
+}
+
+/// Rows of cells as text with every column left-aligned to its widest cell.
+pub fn align_columns<Row: AsRef<[String]>>(rows: &[Row]) -> String {
+    let columns = rows.iter().map(|r| r.as_ref().len()).max().unwrap_or(0);
+    let widths: Vec<usize> = (0..columns)
+        .map(|c| {
+            rows.iter()
+                .filter_map(|r| r.as_ref().get(c))
+                .map(|cell| cell.chars().count())
+                .max()
+                .unwrap_or(0)
+        })
         .collect();
     rows.iter()
         .map(|r| {
-            r.iter()
+            r.as_ref()
+                .iter()
                 .enumerate()
                 .map(|(c, cell)| format!("{cell:<width$}", width = widths[c]))
                 .collect::<Vec<_>>()
@@ -972,22 +994,7 @@ pub fn comparison_table(rows: &[Comparison]) -> String {
             r.difference.as_ref().map_or("-".into(), Cell::display),
         ]);
     }
-    let widths: Vec<usize> = (0..4)
-        .map(|c| cells.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
-        .collect();
-    cells
-        .iter()
-        .map(|r| {
-            r.iter()
-                .enumerate()
-                .map(|(c, cell)| format!("{cell:<width$}", width = widths[c]))
-                .collect::<Vec<_>>()
-                .join("  ")
-                .trim_end()
-                .to_string()
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
+    align_columns(&cells)
 }
 
 /// A comparison as CSV: `metric,a,b,difference`.

@@ -1,4 +1,4 @@
-//! The `mjsafe` command line: run, sweep, analyze, info.
+//! The `mjsafe` command line: run, sweep, analyze, info (and replay, with the `rerun` feature).
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -38,6 +38,21 @@ pub enum Command {
         /// Log file (default: logs/<name>-<UTC time>.mcap).
         #[arg(long)]
         out: Option<PathBuf>,
+        #[command(flatten)]
+        rerun: RerunArgs,
+    },
+    /// Rebuild the rerun recording of a run from its MCAP log alone (no re-simulation):
+    /// save it (--rrd), stream it to a viewer (--connect), or spawn a viewer (default).
+    #[cfg(feature = "rerun")]
+    Replay {
+        /// The run's log (.mcap).
+        file: PathBuf,
+        /// Save the recording to this .rrd file.
+        #[arg(long, value_name = "OUT", conflicts_with = "connect")]
+        rrd: Option<PathBuf>,
+        /// Stream to a running rerun viewer or server (e.g. rerun+http://127.0.0.1:9876/proxy).
+        #[arg(long, value_name = "URL")]
+        connect: Option<String>,
     },
     /// Per-run metrics of MCAP logs; or two runs compared; or sweep shard summaries merged.
     Analyze {
@@ -116,6 +131,54 @@ pub enum Command {
     },
 }
 
+/// Rerun outputs of `mjsafe run` (with the `rerun` feature); none given: nothing is built or sent.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct RerunArgs {
+    /// Spawn a rerun viewer (a `rerun` binary on PATH) and stream the run to it.
+    #[cfg(feature = "rerun")]
+    #[arg(long)]
+    pub rerun: bool,
+    /// Stream the run to a running rerun viewer or server (e.g. rerun+http://127.0.0.1:9876/proxy).
+    #[cfg(feature = "rerun")]
+    #[arg(long, value_name = "URL")]
+    pub rerun_connect: Option<String>,
+    /// Save the run as a rerun recording (.rrd) next to the MCAP log.
+    #[cfg(feature = "rerun")]
+    #[arg(long, value_name = "FILE")]
+    pub rrd: Option<PathBuf>,
+}
+
+impl RerunArgs {
+    /// The rerun sinks asked for (none without the `rerun` feature).
+    #[cfg(feature = "rerun")]
+    fn sinks(&self, log_path: &Path, timestep: f64) -> Result<Vec<crate::log::rerun::RerunSink>> {
+        use crate::log::rerun::{recording_id, RerunSink, RerunTarget};
+        let mut targets = Vec::new();
+        if self.rerun {
+            targets.push(RerunTarget::Spawn);
+        }
+        if let Some(url) = &self.rerun_connect {
+            targets.push(RerunTarget::Connect(url.clone()));
+        }
+        if let Some(file) = &self.rrd {
+            targets.push(RerunTarget::Save(file.clone()));
+        }
+        let id = recording_id(log_path);
+        targets
+            .into_iter()
+            .map(|t| {
+                let what = t.to_string();
+                RerunSink::create(t, &id, timestep).with_context(|| format!("opening the recording for {what}"))
+            })
+            .collect()
+    }
+
+    #[cfg(not(feature = "rerun"))]
+    fn sinks(&self, _log_path: &Path, _timestep: f64) -> Result<Vec<McapSink>> {
+        Ok(Vec::new())
+    }
+}
+
 /// Parses arguments, runs the command, returns the process exit code.
 pub fn run() -> ExitCode {
     let cli = Cli::parse();
@@ -134,7 +197,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             scenario,
             overrides,
             out,
-        } => run_scenario(&scenario, &overrides, out),
+            rerun,
+        } => run_scenario(&scenario, &overrides, out, &rerun),
+        #[cfg(feature = "rerun")]
+        Command::Replay { file, rrd, connect } => replay(&file, rrd, connect),
         Command::Analyze {
             files,
             json,
@@ -227,14 +293,16 @@ fn install_stop_handler() {
     let _ = ctrlc::set_handler(episode::request_stop);
 }
 
-fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Result<ExitCode> {
+fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: &RerunArgs) -> Result<ExitCode> {
     install_stop_handler();
     let loaded = scenario::load(path, overrides)?;
     let mut episode = Episode::new(&loaded)?;
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
     let mut sink = McapSink::create(&log_path, episode.info())?;
+    let mut extra_sinks = rerun.sinks(&log_path, episode.info().timestep)?;
     let summary = {
-        let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
+        let mut sinks: Vec<&mut dyn Sink> = vec![&mut sink];
+        sinks.extend(extra_sinks.iter_mut().map(|s| s as &mut dyn Sink));
         episode.run(&mut sinks)?
     };
     let metrics = analyze::analyze_file(&log_path)
@@ -264,6 +332,25 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>) -> Resu
             ExitCode::FAILURE
         });
     }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(feature = "rerun")]
+fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>) -> Result<ExitCode> {
+    use crate::log::rerun::RerunTarget;
+    let target = match (rrd, connect) {
+        (Some(out), _) => RerunTarget::Save(out),
+        (None, Some(url)) => RerunTarget::Connect(url),
+        (None, None) => RerunTarget::Spawn,
+    };
+    let what = target.to_string();
+    let summary = crate::log::rerun::replay(file, target)?;
+    println!(
+        "replayed {} messages of {}{} into {what}",
+        summary.messages,
+        file.display(),
+        if summary.complete { "" } else { " (an incomplete run)" }
+    );
     Ok(ExitCode::SUCCESS)
 }
 
@@ -412,21 +499,7 @@ fn sweep_table(summary: &Summary) -> String {
         });
         rows.push(line);
     }
-    let widths: Vec<usize> = (0..rows[0].len())
-        .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
-        .collect();
-    rows.iter()
-        .map(|r| {
-            r.iter()
-                .enumerate()
-                .map(|(c, cell)| format!("{cell:<width$}", width = widths[c]))
-                .collect::<Vec<_>>()
-                .join("  ")
-                .trim_end()
-                .to_string()
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
+    analyze::align_columns(&rows)
 }
 
 struct SweepOptions {

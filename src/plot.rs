@@ -46,7 +46,6 @@ struct Series {
 fn read_series(input: impl Read, file: &str) -> Result<Series, PlotError> {
     let mut channels: std::collections::HashMap<u16, String> = Default::default();
     let mut series = Series::default();
-    let mut planar = false;
     let err = |message: String| PlotError::Read {
         file: file.into(),
         message,
@@ -61,13 +60,8 @@ fn read_series(input: impl Read, file: &str) -> Result<Series, PlotError> {
                 match topic {
                     "/state" => {
                         if let Ok(m) = proto::State::decode(&data[..]) {
-                            planar = planar
-                                || matches!(
-                                    m.names.iter().map(String::as_str).collect::<Vec<_>>().as_slice(),
-                                    ["x1", "x2", ..] | ["x", "y", ..]
-                                );
-                            if planar {
-                                series.path.push((m.values[0], m.values[1]));
+                            if let Some([i, j]) = crate::analyze::planar_position(&m.names) {
+                                series.path.push((m.values[i], m.values[j]));
                             }
                         }
                     }

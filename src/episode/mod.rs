@@ -172,12 +172,11 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
         VehicleKind::NonlinearExample1 => Arc::new(vehicle::NonlinearExample1::default()),
         VehicleKind::StrictFeedback => Arc::new(vehicle::StrictFeedbackModel::default()),
         _ => {
-            let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
             let (a, b) = (
                 sc.vehicle.a.as_ref().expect("validated"),
                 sc.vehicle.b.as_ref().expect("validated"),
             );
-            Arc::new(LinearModel::new(rows(a), rows(b)))
+            Arc::new(LinearModel::new(matrix_from_rows(a), matrix_from_rows(b)))
         }
     };
     Ok(PlantParts {
@@ -1017,10 +1016,9 @@ fn linear_stabilizer(
     let sc = &loaded.scenario;
     let err =
         |key: &str, e: linear_delays::LinearDelaysError| EpisodeError::from(loaded.field_error(key, e.to_string()));
-    let rows = |m: &Vec<Vec<f64>>| DMatrix::from_row_iterator(m.len(), m[0].len(), m.iter().flatten().copied());
     let (a, b) = (
-        rows(sc.vehicle.a.as_ref().expect("validated")),
-        rows(sc.vehicle.b.as_ref().expect("validated")),
+        matrix_from_rows(sc.vehicle.a.as_ref().expect("validated")),
+        matrix_from_rows(sc.vehicle.b.as_ref().expect("validated")),
     );
     let n = a.nrows();
     let system = linear_delays::LinearSystem::new(a, b).map_err(|e| err("vehicle.a", e))?;
@@ -1083,6 +1081,11 @@ fn first_barrier(loaded: &LoadedScenario, model: &dyn Dynamics) -> Result<Barrie
             .field_error("filter", "a filter needs a barrier or an obstacle")
             .into()),
     }
+}
+
+/// A matrix from a scenario's array of rows (validated rectangular and non-empty).
+fn matrix_from_rows(rows: &[Vec<f64>]) -> DMatrix<f64> {
+    DMatrix::from_row_iterator(rows.len(), rows[0].len(), rows.iter().flatten().copied())
 }
 
 /// Smallest τ ≥ 0 with |d + v τ| = r (relative position d, velocity v held): 0 when already
