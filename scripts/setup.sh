@@ -44,8 +44,13 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf' >/dev/null 2>&1; then
-    echo "setup: installing Python readers (mcap, mcap-protobuf-support) into $venv"
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf' >/dev/null 2>&1 \
+    || ! "$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | grep -qx 'Version: 0.36.3' \
+    || [ ! -x "$venv/bin/rerun" ]; then
+    echo "setup: installing Python readers (mcap, mcap-protobuf-support) and the rerun CLI (rerun-sdk) into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check -r scripts/requirements-test.txt
   fi
+  # No usage data from the rerun CLI the tests run (it would try the network).
+  [ -f "${XDG_CONFIG_HOME:-$HOME/.config}/rerun/analytics.json" ] \
+    || CI=1 "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || true
 fi

@@ -151,7 +151,7 @@ pub struct RerunArgs {
 impl RerunArgs {
     /// The rerun sinks asked for (none without the `rerun` feature).
     #[cfg(feature = "rerun")]
-    fn sinks(&self, log_path: &Path, timestep: f64) -> Result<Vec<crate::log::rerun::RerunSink>> {
+    fn sinks(&self, log_path: &Path, timestep: f64) -> Result<Vec<Box<dyn Sink>>> {
         use crate::log::rerun::{recording_id, RerunSink, RerunTarget};
         let mut targets = Vec::new();
         if self.rerun {
@@ -168,13 +168,15 @@ impl RerunArgs {
             .into_iter()
             .map(|t| {
                 let what = t.to_string();
-                RerunSink::create(t, &id, timestep).with_context(|| format!("opening the recording for {what}"))
+                let sink =
+                    RerunSink::create(t, &id, timestep).with_context(|| format!("opening the recording for {what}"))?;
+                Ok(Box::new(sink) as Box<dyn Sink>)
             })
             .collect()
     }
 
     #[cfg(not(feature = "rerun"))]
-    fn sinks(&self, _log_path: &Path, _timestep: f64) -> Result<Vec<McapSink>> {
+    fn sinks(&self, _log_path: &Path, _timestep: f64) -> Result<Vec<Box<dyn Sink>>> {
         Ok(Vec::new())
     }
 }
@@ -302,7 +304,9 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
     let mut extra_sinks = rerun.sinks(&log_path, episode.info().timestep)?;
     let summary = {
         let mut sinks: Vec<&mut dyn Sink> = vec![&mut sink];
-        sinks.extend(extra_sinks.iter_mut().map(|s| s as &mut dyn Sink));
+        for extra in extra_sinks.iter_mut() {
+            sinks.push(extra.as_mut());
+        }
         episode.run(&mut sinks)?
     };
     let metrics = analyze::analyze_file(&log_path)

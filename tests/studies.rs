@@ -136,3 +136,61 @@ fn analyze_plot_writes_the_three_pngs_from_the_log_alone() {
         assert!(png.len() > 10_000, "{kind}: {} bytes", png.len());
     }
 }
+
+#[test]
+fn sigterm_during_a_sweep_finishes_the_running_logs_and_says_which_runs_did_not_finish() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sweep");
+    // Two long runs on one thread: the first is interrupted, the second never starts.
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args([
+            "sweep",
+            "scenarios/bicycle_obstacle_nodelay.toml",
+            "--set",
+            "duration=100000.0",
+            "--grid",
+            "delays.steering=0.0,0.2",
+            "--threads",
+            "1",
+            "--out",
+        ])
+        .arg(&out)
+        .current_dir(root())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2000));
+    assert!(std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let output = child.wait_with_output().unwrap();
+    assert_eq!(
+        output.status.code(),
+        Some(130),
+        "stderr: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary written")).unwrap();
+    let text = summary.to_string();
+    println!("interrupted sweep summary: {}", &text[..text.len().min(400)]);
+    assert!(
+        text.contains("interrupted by a signal"),
+        "the running run is marked interrupted"
+    );
+    assert!(
+        text.contains("not run: the sweep was interrupted"),
+        "the unstarted run is named"
+    );
+    // The interrupted run's log is a finished, readable MCAP marked incomplete.
+    let logs: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    assert_eq!(logs.len(), 1, "{logs:?}");
+    assert_eq!(analyze_json(&logs[0])["complete"], false);
+}

@@ -3,6 +3,8 @@
 //! as a second sink.
 
 pub mod mcap;
+#[cfg(feature = "rerun")]
+pub mod rerun;
 pub mod scene;
 
 /// The protobuf messages of the log (generated from proto/mjsafe.proto by build.rs).

@@ -1,0 +1,658 @@
+//! Rerun sink: turns every [`Record`] into rerun data on two timelines, `sim_time` (duration)
+//! and `step` (sequence), with rerun's wall-clock `log_time` and `log_tick` turned off, so the
+//! recording depends on the records alone. A live run (`mjsafe run --rerun/--rrd`) and a
+//! replay of its MCAP log (`mjsafe replay`) feed the same records and give the same data.
+//!
+//! Layout (entity paths):
+//! - `world/<scene entity id>`: the Foxglove `/scene` entities drawn in 2D in the world frame:
+//!   cylinders as circles, cubes as rectangles turning with their yaw (the vehicle footprint),
+//!   lines as line strips (trail, reference path), each in its Foxglove colour (obstacles grey
+//!   until known, red after).
+//! - `world/prediction/<channel>`: the predicted position p_i(t) of each `/prediction`, at its
+//!   issue time t.
+//! - `world/collisions`: the vehicle position at every `collision_start` event.
+//! - `plots/barrier/<name>`: h and the constraint a + b·u; `plots/input/<channel>`: issued and
+//!   applied input; `plots/command/<channel>`: nominal and filtered; `plots/filter`: active,
+//!   infeasible; `plots/prediction/<channel>`: prediction error.
+//! - `events`: every `/event` as a text log entry.
+//!
+//! A blueprint (2D view left, time series and events right) is sent when the stream opens.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+use ::rerun::blueprint::{Blueprint, Horizontal, Spatial2DView, TextLogView, TimeSeriesView, Vertical};
+use ::rerun::{EntityPath, EntityPathPart, RecordingStream, RecordingStreamBuilder};
+use foxglove::messages::{line_primitive, scene_entity_deletion, Color, Pose, SceneEntity, SceneUpdate};
+
+use super::{proto, LogError, Record, Sink};
+
+/// Application id of every mjsafe recording.
+pub const APPLICATION_ID: &str = "mjsafe";
+
+/// Where a recording goes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RerunTarget {
+    /// Spawn a viewer (a `rerun` binary on PATH) and stream to it.
+    Spawn,
+    /// Stream to a running viewer or server at this URL (`rerun+http://HOST:PORT/proxy`).
+    Connect(String),
+    /// Save an `.rrd` file.
+    Save(PathBuf),
+}
+
+impl std::fmt::Display for RerunTarget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RerunTarget::Spawn => write!(f, "rerun viewer (spawned)"),
+            RerunTarget::Connect(url) => write!(f, "rerun viewer at {url}"),
+            RerunTarget::Save(path) => write!(f, "{}", path.display()),
+        }
+    }
+}
+
+/// Circle and ellipse outlines are drawn with this many segments.
+const CIRCLE_SEGMENTS: usize = 48;
+/// Half-width of outlines (scene units, metres).
+const OUTLINE_RADIUS: f32 = 0.04;
+/// Radius of prediction points and collision markers.
+const POINT_RADIUS: f32 = 0.12;
+
+pub struct RerunSink {
+    stream: Option<RecordingStream>,
+    target: RerunTarget,
+    /// Simulation timestep: `step` = round(time / timestep).
+    timestep: f64,
+    /// Indices of the planar position in the state vector (from the `/state` names, as `analyze`
+    /// recognises them).
+    position_index: Option<[usize; 2]>,
+    /// Last vehicle position (from `/tf`), where collision markers are drawn.
+    vehicle_position: Option<[f64; 2]>,
+    collisions: Vec<[f32; 2]>,
+    /// Entities whose static series styling has been logged.
+    styled: HashSet<EntityPath>,
+}
+
+fn path(parts: &[&str]) -> EntityPath {
+    EntityPath::new(parts.iter().map(|p| EntityPathPart::new(*p)).collect())
+}
+
+fn rgba(c: Option<&Color>) -> ::rerun::Color {
+    let c = c.cloned().unwrap_or(Color {
+        r: 0.5,
+        g: 0.5,
+        b: 0.5,
+        a: 1.0,
+    });
+    let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    ::rerun::Color::from_unmultiplied_rgba(byte(c.r), byte(c.g), byte(c.b), byte(c.a))
+}
+
+/// Position (x, y) and yaw of a Foxglove pose.
+fn planar_pose(pose: Option<&Pose>) -> ([f64; 2], f64) {
+    let Some(pose) = pose else {
+        return ([0.0, 0.0], 0.0);
+    };
+    let p = pose.position.as_ref().map_or([0.0, 0.0], |v| [v.x, v.y]);
+    let yaw = pose.orientation.as_ref().map_or(0.0, |q| {
+        (2.0 * (q.w * q.z + q.x * q.y)).atan2(1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    });
+    (p, yaw)
+}
+
+/// A local point (x, y) of a pose's frame in world coordinates.
+fn place(origin: [f64; 2], yaw: f64, local: [f64; 2]) -> [f32; 2] {
+    let (s, c) = yaw.sin_cos();
+    [
+        (origin[0] + c * local[0] - s * local[1]) as f32,
+        (origin[1] + s * local[0] + c * local[1]) as f32,
+    ]
+}
+
+/// The closed outlines and polylines of one Foxglove scene entity, with their colours and radii.
+fn entity_strips(entity: &SceneEntity) -> (Vec<Vec<[f32; 2]>>, Vec<::rerun::Color>, Vec<f32>) {
+    let mut strips = Vec::new();
+    let mut colors = Vec::new();
+    let mut radii = Vec::new();
+    for cylinder in &entity.cylinders {
+        let (origin, yaw) = planar_pose(cylinder.pose.as_ref());
+        let (a, b) = cylinder.size.as_ref().map_or((0.5, 0.5), |s| (s.x / 2.0, s.y / 2.0));
+        let outline = (0..=CIRCLE_SEGMENTS)
+            .map(|k| {
+                let theta = std::f64::consts::TAU * k as f64 / CIRCLE_SEGMENTS as f64;
+                place(origin, yaw, [a * theta.cos(), b * theta.sin()])
+            })
+            .collect();
+        strips.push(outline);
+        colors.push(rgba(cylinder.color.as_ref()));
+        radii.push(OUTLINE_RADIUS);
+    }
+    for cube in &entity.cubes {
+        let (origin, yaw) = planar_pose(cube.pose.as_ref());
+        let (a, b) = cube.size.as_ref().map_or((0.5, 0.5), |s| (s.x / 2.0, s.y / 2.0));
+        let corners = [[a, b], [-a, b], [-a, -b], [a, -b], [a, b]];
+        strips.push(corners.iter().map(|&c| place(origin, yaw, c)).collect());
+        colors.push(rgba(cube.color.as_ref()));
+        radii.push(OUTLINE_RADIUS);
+    }
+    for line in &entity.lines {
+        let (origin, yaw) = planar_pose(line.pose.as_ref());
+        let points: Vec<[f32; 2]> = line.points.iter().map(|p| place(origin, yaw, [p.x, p.y])).collect();
+        let radius = (line.thickness / 2.0).max(0.01) as f32;
+        let color = rgba(line.color.as_ref());
+        match line_primitive::Type::try_from(line.r#type).unwrap_or(line_primitive::Type::LineStrip) {
+            line_primitive::Type::LineStrip => strips.push(points),
+            line_primitive::Type::LineLoop => {
+                let mut closed = points;
+                if let Some(&first) = closed.first() {
+                    closed.push(first);
+                }
+                strips.push(closed);
+            }
+            line_primitive::Type::LineList => {
+                for pair in points.chunks_exact(2) {
+                    strips.push(pair.to_vec());
+                    colors.push(color);
+                    radii.push(radius);
+                }
+                continue;
+            }
+        }
+        colors.push(color);
+        radii.push(radius);
+    }
+    (strips, colors, radii)
+}
+
+/// The blueprint: the 2D world view on the left, the time series and the events on the right.
+pub fn blueprint() -> Blueprint {
+    let plots = Vertical::new([
+        TimeSeriesView::new("barriers: h, constraint")
+            .with_origin("plots/barrier")
+            .into(),
+        TimeSeriesView::new("input: issued vs applied")
+            .with_origin("plots/input")
+            .into(),
+        TimeSeriesView::new("command: nominal vs filtered")
+            .with_origin("plots/command")
+            .into(),
+        TimeSeriesView::new("filter").with_origin("plots/filter").into(),
+        TimeSeriesView::new("prediction error")
+            .with_origin("plots/prediction")
+            .into(),
+        TextLogView::new("events").with_origin("events").into(),
+    ]);
+    Blueprint::new(
+        Horizontal::new([Spatial2DView::new("world").with_origin("world").into(), plots.into()])
+            .with_column_shares([1.0, 1.0]),
+    )
+}
+
+impl RerunSink {
+    /// Opens a recording. `recording_id` names it (the same for a run and the replay of its
+    /// log, e.g. the log's file stem); `timestep` is the simulation timestep (for `step`).
+    pub fn create(target: RerunTarget, recording_id: &str, timestep: f64) -> Result<RerunSink, LogError> {
+        let builder = RecordingStreamBuilder::new(APPLICATION_ID)
+            .recording_id(recording_id)
+            .enabled(true)
+            .with_blueprint(blueprint());
+        let stream = match &target {
+            RerunTarget::Spawn => builder.spawn(),
+            RerunTarget::Connect(url) => builder.connect_grpc_opts(url.clone()),
+            RerunTarget::Save(file) => {
+                // Chunks cut by row count only (never by elapsed wall-clock time): a run and the
+                // replay of its log write the same chunks.
+                let builder = builder.batcher_config(::rerun::log::ChunkBatcherConfig {
+                    flush_tick: std::time::Duration::from_secs(365 * 24 * 3600),
+                    flush_num_bytes: u64::MAX,
+                    flush_num_rows: 4096,
+                    ..::rerun::log::ChunkBatcherConfig::DEFAULT
+                });
+                if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    std::fs::create_dir_all(dir).map_err(|e| LogError::Write {
+                        path: file.display().to_string(),
+                        message: format!("cannot create directory: {e}"),
+                    })?;
+                }
+                builder.save(file)
+            }
+        }
+        .map_err(|e| LogError::Write {
+            path: target.to_string(),
+            message: e.to_string(),
+        })?;
+        stream.set_log_time_enabled(false);
+        stream.set_log_tick_enabled(false);
+        Ok(RerunSink {
+            stream: Some(stream),
+            target,
+            timestep,
+            position_index: None,
+            vehicle_position: None,
+            collisions: Vec::new(),
+            styled: HashSet::new(),
+        })
+    }
+
+    pub fn target(&self) -> &RerunTarget {
+        &self.target
+    }
+
+    fn error(&self, message: String) -> LogError {
+        LogError::Write {
+            path: self.target.to_string(),
+            message,
+        }
+    }
+
+    fn set_time(&self, stream: &RecordingStream, time: f64) {
+        let ns = super::mcap::sim_time_ns(time);
+        stream.set_time("sim_time", std::time::Duration::from_nanos(ns));
+        let step = if self.timestep > 0.0 {
+            (time.max(0.0) / self.timestep).round() as i64
+        } else {
+            0
+        };
+        stream.set_time_sequence("step", step);
+    }
+
+    /// Logs `values` on a time series entity, naming its lines once (static).
+    fn series(
+        &mut self,
+        stream: &RecordingStream,
+        entity: EntityPath,
+        names: &[&str],
+        values: &[f64],
+    ) -> Result<(), ::rerun::RecordingStreamError> {
+        if !self.styled.contains(&entity) {
+            stream.log_static(
+                entity.clone(),
+                &::rerun::SeriesLines::new().with_names(names.iter().map(|n| n.to_string())),
+            )?;
+            self.styled.insert(entity.clone());
+        }
+        stream.log(entity, &::rerun::Scalars::new(values.iter().copied()))
+    }
+
+    fn scene(&mut self, stream: &RecordingStream, update: &SceneUpdate) -> Result<(), ::rerun::RecordingStreamError> {
+        for deletion in &update.deletions {
+            match scene_entity_deletion::Type::try_from(deletion.r#type) {
+                Ok(scene_entity_deletion::Type::All) => stream.log(path(&["world"]), &::rerun::Clear::recursive())?,
+                _ => stream.log(path(&["world", &deletion.id]), &::rerun::Clear::flat())?,
+            }
+        }
+        for entity in &update.entities {
+            let (strips, colors, radii) = entity_strips(entity);
+            let mut archetype = ::rerun::LineStrips2D::new(strips).with_colors(colors).with_radii(radii);
+            if entity.lines.is_empty() && entity.cubes.is_empty() && entity.cylinders.len() == 1 {
+                archetype = archetype.with_labels([entity.id.clone()]);
+            }
+            stream.log(path(&["world", &entity.id]), &archetype)?;
+        }
+        Ok(())
+    }
+
+    fn log(&mut self, stream: &RecordingStream, record: &Record) -> Result<(), ::rerun::RecordingStreamError> {
+        self.set_time(stream, record.time());
+        match record {
+            Record::State(m) => {
+                if self.position_index.is_none() {
+                    self.position_index = crate::analyze::planar_position(&m.names);
+                }
+            }
+            Record::Issued(m) => {
+                for (i, channel) in m.channels.iter().enumerate() {
+                    let (nominal, filtered) = (value(&m.nominal, i), value(&m.filtered, i));
+                    self.series(
+                        stream,
+                        path(&["plots", "command", channel]),
+                        &["nominal", "filtered"],
+                        &[nominal, filtered],
+                    )?;
+                    self.series(
+                        stream,
+                        path(&["plots", "input", channel, "issued"]),
+                        &["issued"],
+                        &[filtered],
+                    )?;
+                }
+            }
+            Record::Applied(m) => {
+                for (i, channel) in m.channels.iter().enumerate() {
+                    self.series(
+                        stream,
+                        path(&["plots", "input", channel, "applied"]),
+                        &["applied"],
+                        &[value(&m.values, i)],
+                    )?;
+                }
+            }
+            Record::Barrier(m) => {
+                for b in &m.barriers {
+                    self.series(
+                        stream,
+                        path(&["plots", "barrier", &b.name]),
+                        &["h", "constraint"],
+                        &[b.h, b.constraint],
+                    )?;
+                }
+            }
+            Record::Filter(m) => {
+                self.series(
+                    stream,
+                    path(&["plots", "filter"]),
+                    &["active", "infeasible"],
+                    &[f64::from(u8::from(m.active)), f64::from(u8::from(m.infeasible))],
+                )?;
+            }
+            Record::Prediction(m) => {
+                self.series(
+                    stream,
+                    path(&["plots", "prediction", &m.channel]),
+                    &["error"],
+                    &[m.error],
+                )?;
+                if let Some([i, j]) = self.position_index {
+                    if let (Some(x), Some(y)) = (m.predicted.get(i), m.predicted.get(j)) {
+                        // The prediction made at `issued_at`, shown at that time.
+                        self.set_time(stream, m.issued_at);
+                        stream.log(
+                            path(&["world", "prediction", &m.channel]),
+                            &::rerun::Points2D::new([[*x as f32, *y as f32]])
+                                .with_radii([POINT_RADIUS])
+                                .with_labels([m.channel.clone()]),
+                        )?;
+                    }
+                }
+            }
+            Record::Event(m) => self.event(stream, m)?,
+            Record::Scene(_, update) => self.scene(stream, update)?,
+            Record::Transform(_, transform) => {
+                if let Some(t) = &transform.translation {
+                    self.vehicle_position = Some([t.x, t.y]);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn event(&mut self, stream: &RecordingStream, m: &proto::Event) -> Result<(), ::rerun::RecordingStreamError> {
+        let level = match m.kind.as_str() {
+            "error" => ::rerun::TextLogLevel::ERROR,
+            "collision_start" | "collision_end" => ::rerun::TextLogLevel::WARN,
+            _ => ::rerun::TextLogLevel::INFO,
+        };
+        let mut text = m.kind.clone();
+        if !m.participants.is_empty() {
+            text.push_str(&format!(" [{}]", m.participants.join(", ")));
+        }
+        if m.depth != 0.0 {
+            text.push_str(&format!(" depth {:.4} m", m.depth));
+        }
+        if !m.message.is_empty() {
+            text.push_str(&format!(": {}", m.message));
+        }
+        stream.log(path(&["events"]), &::rerun::TextLog::new(text).with_level(level))?;
+        if m.kind == "collision_start" {
+            if let Some(p) = self.vehicle_position {
+                self.collisions.push([p[0] as f32, p[1] as f32]);
+                stream.log(
+                    path(&["world", "collisions"]),
+                    &::rerun::Points2D::new(self.collisions.clone())
+                        .with_radii([2.0 * POINT_RADIUS])
+                        .with_colors([::rerun::Color::from_rgb(255, 140, 0)]),
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn value(values: &[f64], i: usize) -> f64 {
+    values.get(i).copied().unwrap_or(f64::NAN)
+}
+
+impl Sink for RerunSink {
+    fn record(&mut self, record: &Record) -> Result<(), LogError> {
+        let Some(stream) = self.stream.take() else {
+            return Err(self.error("record after finish".into()));
+        };
+        let result = self.log(&stream, record);
+        self.stream = Some(stream);
+        result.map_err(|e| self.error(e.to_string()))
+    }
+
+    fn finish(&mut self, _complete: bool) -> Result<(), LogError> {
+        let Some(stream) = self.stream.take() else {
+            return Ok(());
+        };
+        let flushed = stream.flush_blocking();
+        // Dropping the last handle closes the sink (an .rrd file is completed and closed).
+        drop(stream);
+        flushed.map_err(|e| self.error(format!("flushing the recording: {e}")))
+    }
+}
+
+impl Drop for RerunSink {
+    fn drop(&mut self) {
+        let _ = self.finish(false);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cube_outline_turns_with_the_yaw() {
+        let update = crate::log::scene::vehicle(0.0, [1.0, 2.0], std::f64::consts::FRAC_PI_2, 1.0);
+        let (strips, colors, radii) = entity_strips(&update.entities[0]);
+        assert_eq!((strips.len(), colors.len(), radii.len()), (2, 2, 2));
+        // Body box: 1.6 r long along the heading (here +y), 0.7 r wide, centred 0.5 r ahead.
+        let body = &strips[1];
+        assert_eq!(body.first(), body.last());
+        let (xs, ys): (Vec<f32>, Vec<f32>) = body.iter().map(|p| (p[0], p[1])).unzip();
+        let span = |v: &[f32]| v.iter().cloned().fold(f32::MIN, f32::max) - v.iter().cloned().fold(f32::MAX, f32::min);
+        assert!((span(&ys) - 1.6).abs() < 1e-5 && (span(&xs) - 0.7).abs() < 1e-5);
+        let cy = ys.iter().take(4).sum::<f32>() / 4.0;
+        assert!((cy - 2.5).abs() < 1e-5);
+        // Hull: a circle of radius r around the position.
+        assert!(strips[0]
+            .iter()
+            .all(|p| ((p[0] - 1.0).hypot(p[1] - 2.0) - 1.0).abs() < 1e-5));
+    }
+}
+
+/// Why a replay failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("{file}: cannot read: {source}")]
+    Io { file: String, source: std::io::Error },
+    #[error("{file}: not a readable MCAP file ({message})")]
+    NotMcap { file: String, message: String },
+    #[error("{file}: truncated or corrupt MCAP after {messages} messages ({message})")]
+    Corrupt {
+        file: String,
+        messages: u64,
+        message: String,
+    },
+    #[error("{file}: not an mjsafe log ({message})")]
+    Foreign { file: String, message: String },
+    #[error("{file}: message on {topic} does not decode as {schema}: {message}")]
+    Decode {
+        file: String,
+        topic: String,
+        schema: String,
+        message: String,
+    },
+    #[error(transparent)]
+    Log(#[from] LogError),
+}
+
+/// What a replay fed to the sink.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplaySummary {
+    pub messages: u64,
+    pub complete: bool,
+}
+
+/// The recording id of a log: its file stem (a run and the replay of its log share it).
+pub fn recording_id(log: &Path) -> String {
+    log.file_stem()
+        .map_or_else(|| "mjsafe".to_string(), |s| s.to_string_lossy().into_owned())
+}
+
+/// Decodes one MCAP message of an mjsafe log into the [`Record`] the episode emitted.
+/// `log_time` (ns) is the time of the Foxglove records.
+pub fn decode_record(topic: &str, data: &[u8], log_time: u64) -> Result<Option<Record>, prost::DecodeError> {
+    use prost::Message;
+    let time = log_time as f64 / 1e9;
+    Ok(Some(match topic {
+        "/state" => Record::State(proto::State::decode(data)?),
+        "/command/issued" => Record::Issued(proto::IssuedCommand::decode(data)?),
+        "/command/applied" => Record::Applied(proto::AppliedCommand::decode(data)?),
+        "/barrier" => Record::Barrier(proto::Barrier::decode(data)?),
+        "/filter" => Record::Filter(proto::Filter::decode(data)?),
+        "/event" => Record::Event(proto::Event::decode(data)?),
+        "/prediction" => Record::Prediction(proto::Prediction::decode(data)?),
+        "/scene" => Record::Scene(time, SceneUpdate::decode(data)?),
+        "/tf" => Record::Transform(time, foxglove::messages::FrameTransform::decode(data)?),
+        _ => return Ok(None),
+    }))
+}
+
+/// Rebuilds the rerun recording of a run from its MCAP log alone (no re-simulation): every
+/// message is decoded into its [`Record`] and fed to a [`RerunSink`] in log order.
+pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayError> {
+    use mcap::records::Record as McapRecord;
+    use std::collections::HashMap;
+
+    use crate::analyze::{for_each_record, AnalyzeError, StreamError};
+
+    let file = log.display().to_string();
+    let input = std::fs::File::open(log).map_err(|source| ReplayError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    let mut schemas: HashMap<u16, String> = HashMap::new();
+    let mut channels: HashMap<u16, (String, String)> = HashMap::new();
+    let mut sink: Option<RerunSink> = None;
+    let mut target = Some(target);
+    let mut messages = 0u64;
+    let mut complete = false;
+    // The sink opens at the `mjsafe` metadata record (written before any message): it holds
+    // the timestep. Errors of this visitor are carried out through `failure`.
+    let mut failure: Option<ReplayError> = None;
+    let visit_error = |e: ReplayError, failure: &mut Option<ReplayError>| {
+        *failure = Some(e);
+        AnalyzeError::Foreign {
+            file: file.clone(),
+            message: "replay stopped".into(),
+        }
+    };
+    let result = for_each_record(std::io::BufReader::with_capacity(1 << 16, input), |record| {
+        match record {
+            McapRecord::Schema { header, .. } => {
+                schemas.insert(header.id, header.name);
+            }
+            McapRecord::Channel(c) => {
+                let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                channels.insert(c.id, (c.topic, schema));
+            }
+            McapRecord::Metadata(m) if m.name == "mjsafe" => {
+                let timestep = m.metadata.get("timestep").and_then(|s| s.parse::<f64>().ok());
+                let Some(timestep) = timestep else {
+                    let e = ReplayError::Foreign {
+                        file: file.clone(),
+                        message: "the mjsafe metadata has no timestep".into(),
+                    };
+                    return Err(visit_error(e, &mut failure));
+                };
+                if let Some(target) = target.take() {
+                    match RerunSink::create(target, &recording_id(log), timestep) {
+                        Ok(s) => sink = Some(s),
+                        Err(e) => return Err(visit_error(e.into(), &mut failure)),
+                    }
+                }
+            }
+            McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
+                complete = m.metadata.get("complete").is_some_and(|v| v == "true");
+            }
+            McapRecord::Message { header, data } => {
+                messages += 1;
+                let Some((topic, schema)) = channels.get(&header.channel_id) else {
+                    return Ok(());
+                };
+                let Some(sink) = sink.as_mut() else {
+                    let e = ReplayError::Foreign {
+                        file: file.clone(),
+                        message: "a message before the mjsafe metadata record".into(),
+                    };
+                    return Err(visit_error(e, &mut failure));
+                };
+                let expected = super::TOPICS.iter().find(|(t, _)| t == topic).map(|(_, s)| *s);
+                if expected.is_some_and(|s| s != schema) {
+                    let e = ReplayError::Foreign {
+                        file: file.clone(),
+                        message: format!("topic {topic} has schema {schema}, expected {}", expected.unwrap_or("")),
+                    };
+                    return Err(visit_error(e, &mut failure));
+                }
+                match decode_record(topic, &data, header.log_time) {
+                    Ok(Some(record)) => {
+                        if let Err(e) = sink.record(&record) {
+                            return Err(visit_error(e.into(), &mut failure));
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(e) => {
+                        let e = ReplayError::Decode {
+                            file: file.clone(),
+                            topic: topic.clone(),
+                            schema: schema.clone(),
+                            message: e.to_string(),
+                        };
+                        return Err(visit_error(e, &mut failure));
+                    }
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) => {}
+        Err(StreamError::Visit(e)) => {
+            return Err(failure.unwrap_or_else(|| ReplayError::Foreign {
+                file: file.clone(),
+                message: e.to_string(),
+            }))
+        }
+        Err(StreamError::Read {
+            any_record: false,
+            message,
+        }) => return Err(ReplayError::NotMcap { file, message }),
+        Err(StreamError::Read {
+            any_record: true,
+            message,
+        }) => {
+            // Keep what was read (the recording is finished), report the damage.
+            if let Some(mut s) = sink {
+                s.finish(false)?;
+            }
+            return Err(ReplayError::Corrupt {
+                file,
+                messages,
+                message,
+            });
+        }
+    }
+    let Some(mut sink) = sink else {
+        return Err(ReplayError::Foreign {
+            file,
+            message: "no mjsafe metadata record".into(),
+        });
+    };
+    sink.finish(complete)?;
+    Ok(ReplaySummary { messages, complete })
+}
