@@ -463,28 +463,12 @@ mod tests {
     }
 }
 
-/// Why a replay failed.
+/// Why a replay failed: the log could not be read as an mjsafe log (the same errors as
+/// `analyze`), or the recording could not be written.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
-    #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
-    #[error("{file}: not a readable MCAP file ({message})")]
-    NotMcap { file: String, message: String },
-    #[error("{file}: truncated or corrupt MCAP after {messages} messages ({message})")]
-    Corrupt {
-        file: String,
-        messages: u64,
-        message: String,
-    },
-    #[error("{file}: not an mjsafe log ({message})")]
-    Foreign { file: String, message: String },
-    #[error("{file}: message on {topic} does not decode as {schema}: {message}")]
-    Decode {
-        file: String,
-        topic: String,
-        schema: String,
-        message: String,
-    },
+    #[error(transparent)]
+    Read(#[from] crate::analyze::AnalyzeError),
     #[error(transparent)]
     Log(#[from] LogError),
 }
@@ -530,7 +514,7 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
     use crate::analyze::{for_each_record, AnalyzeError, StreamError};
 
     let file = log.display().to_string();
-    let input = std::fs::File::open(log).map_err(|source| ReplayError::Io {
+    let input = std::fs::File::open(log).map_err(|source| AnalyzeError::Io {
         file: file.clone(),
         source,
     })?;
@@ -541,10 +525,14 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
     let mut messages = 0u64;
     let mut complete = false;
     // The sink opens at the `mjsafe` metadata record (written before any message): it holds
-    // the timestep. Errors of this visitor are carried out through `failure`.
+    // the timestep. Recording errors of this visitor are carried out through `failure`.
     let mut failure: Option<ReplayError> = None;
-    let visit_error = |e: ReplayError, failure: &mut Option<ReplayError>| {
-        *failure = Some(e);
+    let foreign = |message: String| AnalyzeError::Foreign {
+        file: file.clone(),
+        message,
+    };
+    let visit_error = |e: LogError, failure: &mut Option<ReplayError>| {
+        *failure = Some(e.into());
         AnalyzeError::Foreign {
             file: file.clone(),
             message: "replay stopped".into(),
@@ -562,16 +550,12 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
             McapRecord::Metadata(m) if m.name == "mjsafe" => {
                 let timestep = m.metadata.get("timestep").and_then(|s| s.parse::<f64>().ok());
                 let Some(timestep) = timestep else {
-                    let e = ReplayError::Foreign {
-                        file: file.clone(),
-                        message: "the mjsafe metadata has no timestep".into(),
-                    };
-                    return Err(visit_error(e, &mut failure));
+                    return Err(foreign("the mjsafe metadata has no timestep".into()));
                 };
                 if let Some(target) = target.take() {
                     match RerunSink::create(target, &recording_id(log), timestep) {
                         Ok(s) => sink = Some(s),
-                        Err(e) => return Err(visit_error(e.into(), &mut failure)),
+                        Err(e) => return Err(visit_error(e, &mut failure)),
                     }
                 }
             }
@@ -584,35 +568,29 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
                     return Ok(());
                 };
                 let Some(sink) = sink.as_mut() else {
-                    let e = ReplayError::Foreign {
-                        file: file.clone(),
-                        message: "a message before the mjsafe metadata record".into(),
-                    };
-                    return Err(visit_error(e, &mut failure));
+                    return Err(foreign("a message before the mjsafe metadata record".into()));
                 };
                 let expected = super::TOPICS.iter().find(|(t, _)| t == topic).map(|(_, s)| *s);
                 if expected.is_some_and(|s| s != schema) {
-                    let e = ReplayError::Foreign {
-                        file: file.clone(),
-                        message: format!("topic {topic} has schema {schema}, expected {}", expected.unwrap_or("")),
-                    };
-                    return Err(visit_error(e, &mut failure));
+                    return Err(foreign(format!(
+                        "topic {topic} has schema {schema}, expected {}",
+                        expected.unwrap_or("")
+                    )));
                 }
                 match decode_record(topic, &data, header.log_time) {
                     Ok(Some(record)) => {
                         if let Err(e) = sink.record(&record) {
-                            return Err(visit_error(e.into(), &mut failure));
+                            return Err(visit_error(e, &mut failure));
                         }
                     }
                     Ok(None) => {}
                     Err(e) => {
-                        let e = ReplayError::Decode {
+                        return Err(AnalyzeError::Decode {
                             file: file.clone(),
                             topic: topic.clone(),
                             schema: schema.clone(),
                             message: e.to_string(),
-                        };
-                        return Err(visit_error(e, &mut failure));
+                        });
                     }
                 }
             }
@@ -622,16 +600,11 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
     });
     match result {
         Ok(()) => {}
-        Err(StreamError::Visit(e)) => {
-            return Err(failure.unwrap_or_else(|| ReplayError::Foreign {
-                file: file.clone(),
-                message: e.to_string(),
-            }))
-        }
+        Err(StreamError::Visit(e)) => return Err(failure.unwrap_or(ReplayError::Read(*e))),
         Err(StreamError::Read {
             any_record: false,
             message,
-        }) => return Err(ReplayError::NotMcap { file, message }),
+        }) => return Err(AnalyzeError::NotMcap { file, message }.into()),
         Err(StreamError::Read {
             any_record: true,
             message,
@@ -640,18 +613,21 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
             if let Some(mut s) = sink {
                 s.finish(false)?;
             }
-            return Err(ReplayError::Corrupt {
+            return Err(AnalyzeError::Corrupt {
                 file,
                 messages,
                 message,
-            });
+                partial: None,
+            }
+            .into());
         }
     }
     let Some(mut sink) = sink else {
-        return Err(ReplayError::Foreign {
+        return Err(AnalyzeError::Foreign {
             file,
             message: "no mjsafe metadata record".into(),
-        });
+        }
+        .into());
     };
     sink.finish(complete)?;
     Ok(ReplaySummary { messages, complete })
