@@ -64,8 +64,7 @@ impl Barrier {
                 radius,
                 inside,
             } => {
-                let d2: f64 = indices.iter().zip(centre).map(|(&i, c)| (x[i] - c).powi(2)).sum();
-                let h = d2 - radius * radius;
+                let h = squared_distance(indices, centre, x) - radius * radius;
                 if *inside {
                     -h
                 } else {
@@ -95,12 +94,7 @@ impl Barrier {
                 radius,
                 inside,
             } => {
-                let d = indices
-                    .iter()
-                    .zip(centre)
-                    .map(|(&i, c)| (x[i] - c).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
+                let d = squared_distance(indices, centre, x).sqrt();
                 if *inside {
                     radius - d
                 } else {
@@ -179,6 +173,11 @@ impl Barrier {
         }
         hess
     }
+}
+
+/// ‖x_S − c‖² over the selected state components.
+fn squared_distance(indices: &[usize], centre: &[f64], x: &DVector<f64>) -> f64 {
+    indices.iter().zip(centre).map(|(&i, c)| (x[i] - c).powi(2)).sum()
 }
 
 /// How the barrier condition is imposed.

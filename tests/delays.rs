@@ -156,23 +156,7 @@ fn bicycle_outcomes_hold_on_the_analytic_model_too() {
 }
 
 fn expect_delay_error(set: &[&str], needles: &[&str]) {
-    let mut args = vec![
-        "run",
-        "scenarios/scalar_tv_delay.toml",
-        "--out",
-        "/nonexistent-dir/never.mcap",
-    ];
-    for s in set {
-        args.push("--set");
-        args.push(s);
-    }
-    let o = mjsafe(&args);
-    let err = stderr(&o);
-    assert!(!o.status.success());
-    for n in needles {
-        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
-    }
-    println!("{}", err.trim());
+    run_expecting_failure("scalar_tv_delay.toml", set, needles);
 }
 
 #[test]

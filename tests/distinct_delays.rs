@@ -137,17 +137,7 @@ fn gamma_m_steers_first_the_acceleration_channel_cannot_help_in_time() {
 }
 
 fn expect_error(set: &[&str], needles: &[&str]) {
-    let mut args = vec!["run", "scenarios/bicycle_obstacle_gamma_m.toml"];
-    for s in set {
-        args.extend_from_slice(&["--set", s]);
-    }
-    let o = mjsafe(&args);
-    let err = stderr(&o);
-    assert!(!o.status.success(), "expected failure");
-    for n in needles {
-        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
-    }
-    println!("{}", err.trim());
+    run_expecting_failure("bicycle_obstacle_gamma_m.toml", set, needles);
 }
 
 #[test]

@@ -136,19 +136,7 @@ fn third_order_chain_ptsf_holds_y_below_zero_with_bounded_control() {
 }
 
 fn expect_error(file: &str, set: &[&str], needles: &[&str]) {
-    let mut args = vec!["run".to_string(), format!("scenarios/{file}")];
-    for s in set {
-        args.push("--set".into());
-        args.push(s.to_string());
-    }
-    let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
-    let o = mjsafe(&args);
-    let err = stderr(&o);
-    assert!(!o.status.success());
-    for n in needles {
-        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
-    }
-    println!("{}", err.trim());
+    run_expecting_failure(file, set, needles);
 }
 
 #[test]

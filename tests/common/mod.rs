@@ -80,3 +80,21 @@ pub fn read_topic<T: prost::Message + Default>(file: &Path, topic: &str) -> Vec<
         .map(|m| T::decode(&m.data[..]).unwrap())
         .collect()
 }
+
+/// Runs `mjsafe run scenarios/FILE --set …` expecting a failure whose stderr holds every
+/// needle; returns stderr.
+pub fn run_expecting_failure(file: &str, sets: &[&str], needles: &[&str]) -> String {
+    let scenario = format!("scenarios/{file}");
+    let mut args = vec!["run", scenario.as_str()];
+    for s in sets {
+        args.extend_from_slice(&["--set", s]);
+    }
+    let o = mjsafe(&args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "expected failure; stdout: {}", stdout(&o));
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
+    }
+    println!("{}", err.trim());
+    err
+}
