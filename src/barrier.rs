@@ -57,6 +57,11 @@ impl Barrier {
     }
 
     pub fn h(&self, x: &DVector<f64>) -> f64 {
+        self.h_at(x.as_slice())
+    }
+
+    /// h(x) for a state given as a slice.
+    pub fn h_at(&self, x: &[f64]) -> f64 {
         match &self.shape {
             Shape::Ball {
                 indices,
@@ -94,7 +99,7 @@ impl Barrier {
                 radius,
                 inside,
             } => {
-                let d = squared_distance(indices, centre, x).sqrt();
+                let d = squared_distance(indices, centre, x.as_slice()).sqrt();
                 if *inside {
                     radius - d
                 } else {
@@ -118,6 +123,13 @@ impl Barrier {
     /// ∇h(x).
     pub fn gradient(&self, x: &DVector<f64>) -> DVector<f64> {
         let mut g = DVector::zeros(x.len());
+        self.gradient_into(x.as_slice(), g.as_mut_slice());
+        g
+    }
+
+    /// g ← ∇h(x).
+    pub fn gradient_into(&self, x: &[f64], g: &mut [f64]) {
+        g.fill(0.0);
         match &self.shape {
             Shape::Ball {
                 indices,
@@ -148,35 +160,33 @@ impl Barrier {
                 }
             }
         }
-        g
     }
 
-    /// ∇²h (constant for these shapes).
-    pub fn hessian(&self, n: usize) -> DMatrix<f64> {
-        let mut hess = DMatrix::zeros(n, n);
+    /// out ← out + ∇²h v (∇²h is constant for these shapes).
+    pub fn add_hessian_times(&self, v: &[f64], out: &mut [f64]) {
         match &self.shape {
             Shape::Ball { indices, inside, .. } => {
                 let sign = if *inside { -2.0 } else { 2.0 };
                 for &i in indices {
-                    hess[(i, i)] = sign;
+                    out[i] += sign * v[i];
                 }
             }
+            // (Q + Qᵀ) v.
             Shape::Quadratic { q, .. } => {
                 for (i, row) in q.iter().enumerate() {
-                    for (j, v) in row.iter().enumerate() {
-                        hess[(i, j)] += v;
-                        hess[(j, i)] += v;
+                    for (j, q_ij) in row.iter().enumerate() {
+                        out[i] += q_ij * v[j];
+                        out[j] += q_ij * v[i];
                     }
                 }
             }
             Shape::HalfSpace { .. } => {}
         }
-        hess
     }
 }
 
 /// ‖x_S − c‖² over the selected state components.
-fn squared_distance(indices: &[usize], centre: &[f64], x: &DVector<f64>) -> f64 {
+fn squared_distance(indices: &[usize], centre: &[f64], x: &[f64]) -> f64 {
     indices.iter().zip(centre).map(|(&i, c)| (x[i] - c).powi(2)).sum()
 }
 
@@ -208,6 +218,15 @@ pub struct Constraint {
 }
 
 impl Constraint {
+    /// A constraint for `channels` inputs, to be filled by [`constraint_into`].
+    pub fn zeros(channels: usize) -> Constraint {
+        Constraint {
+            h: 0.0,
+            a: 0.0,
+            b: DVector::zeros(channels),
+        }
+    }
+
     /// a + b·u.
     pub fn value(&self, u: &DVector<f64>) -> f64 {
         self.a + self.b.dot(u)
@@ -224,36 +243,93 @@ pub struct LieDerivatives {
     pub lg_lf_h: DVector<f64>,
 }
 
-pub fn lie_derivatives(barrier: &Barrier, model: &dyn Dynamics, x: &DVector<f64>) -> LieDerivatives {
-    let f = model.drift(x);
-    let g = model.input_matrix(x);
-    let grad_h = barrier.gradient(x);
-    // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
-    let grad_lf_h = barrier.hessian(x.len()) * &f + model.drift_jacobian(x).transpose() * &grad_h;
-    LieDerivatives {
-        h: barrier.h(x),
-        lf_h: grad_h.dot(&f),
-        lg_h: g.transpose() * &grad_h,
-        lf2_h: grad_lf_h.dot(&f),
-        lg_lf_h: g.transpose() * grad_lf_h,
+/// Scratch space and result of one Lie-derivative evaluation, sized for one model and reused
+/// (no allocation per evaluation: the predictors evaluate barriers many times per tick).
+#[derive(Debug, Clone)]
+pub struct LieWorkspace {
+    f: DVector<f64>,
+    g: DMatrix<f64>,
+    jacobian: DMatrix<f64>,
+    grad_h: DVector<f64>,
+    grad_lf_h: DVector<f64>,
+    /// The derivatives at the last evaluated state.
+    pub lie: LieDerivatives,
+}
+
+impl LieWorkspace {
+    pub fn new(model: &dyn Dynamics) -> LieWorkspace {
+        let (n, r) = (model.state_dim(), model.input_dim());
+        LieWorkspace {
+            f: DVector::zeros(n),
+            g: DMatrix::zeros(n, r),
+            jacobian: DMatrix::zeros(n, n),
+            grad_h: DVector::zeros(n),
+            grad_lf_h: DVector::zeros(n),
+            lie: LieDerivatives {
+                h: 0.0,
+                lf_h: 0.0,
+                lg_h: DVector::zeros(r),
+                lf2_h: 0.0,
+                lg_lf_h: DVector::zeros(r),
+            },
+        }
     }
+
+    /// self.lie ← the Lie derivatives of `barrier` along `model` at x.
+    pub fn evaluate(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
+        model.drift_into(x, self.f.as_mut_slice());
+        self.g.fill(0.0);
+        model.input_matrix_into(x, &mut self.g);
+        self.jacobian.fill(0.0);
+        model.drift_jacobian_into(x, &mut self.jacobian);
+        barrier.gradient_into(x, self.grad_h.as_mut_slice());
+        // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
+        self.grad_lf_h.gemv_tr(1.0, &self.jacobian, &self.grad_h, 0.0);
+        barrier.add_hessian_times(self.f.as_slice(), self.grad_lf_h.as_mut_slice());
+        let lie = &mut self.lie;
+        lie.h = barrier.h_at(x);
+        lie.lf_h = self.grad_h.dot(&self.f);
+        lie.lg_h.gemv_tr(1.0, &self.g, &self.grad_h, 0.0);
+        lie.lf2_h = self.grad_lf_h.dot(&self.f);
+        lie.lg_lf_h.gemv_tr(1.0, &self.g, &self.grad_lf_h, 0.0);
+    }
+
+    /// out ← the constraint data (a, b) of `barrier` in `form` at x.
+    pub fn constraint_into(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) {
+        self.evaluate(barrier, model, x);
+        let lie = &self.lie;
+        out.h = lie.h;
+        match form {
+            BarrierForm::RelativeDegree1 { alpha } => {
+                out.a = lie.lf_h + alpha * lie.h;
+                out.b.copy_from(&lie.lg_h);
+            }
+            BarrierForm::RelativeDegree2 { l0, l1 } => {
+                out.a = lie.lf2_h + l1 * lie.lf_h + l0 * lie.h;
+                out.b.copy_from(&lie.lg_lf_h);
+            }
+        }
+    }
+}
+
+pub fn lie_derivatives(barrier: &Barrier, model: &dyn Dynamics, x: &DVector<f64>) -> LieDerivatives {
+    let mut workspace = LieWorkspace::new(model);
+    workspace.evaluate(barrier, model, x.as_slice());
+    workspace.lie
 }
 
 /// The constraint data (a, b) of `barrier` in `form` at state x.
 pub fn constraint(barrier: &Barrier, form: BarrierForm, model: &dyn Dynamics, x: &DVector<f64>) -> Constraint {
-    let lie = lie_derivatives(barrier, model, x);
-    match form {
-        BarrierForm::RelativeDegree1 { alpha } => Constraint {
-            h: lie.h,
-            a: lie.lf_h + alpha * lie.h,
-            b: lie.lg_h,
-        },
-        BarrierForm::RelativeDegree2 { l0, l1 } => Constraint {
-            h: lie.h,
-            a: lie.lf2_h + l1 * lie.lf_h + l0 * lie.h,
-            b: lie.lg_lf_h,
-        },
-    }
+    let mut out = Constraint::zeros(model.input_dim());
+    LieWorkspace::new(model).constraint_into(barrier, form, model, x.as_slice(), &mut out);
+    out
 }
 
 #[cfg(test)]

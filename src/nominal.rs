@@ -116,15 +116,19 @@ impl BicyclePathLqr {
     }
 
     /// Tracking error of state x = (x1, x2, heading, speed).
-    pub fn error(&self, x: &DVector<f64>) -> DVector<f64> {
+    pub fn error(&self, x: &[f64]) -> [f64; 3] {
         let (s, c) = self.path_heading.sin_cos();
         let cross_track = -s * (x[0] - self.path_point[0]) + c * (x[1] - self.path_point[1]);
         let heading_error = wrap_angle(x[2] - self.path_heading);
-        DVector::from_column_slice(&[cross_track, heading_error, x[3] - self.reference_speed])
+        [cross_track, heading_error, x[3] - self.reference_speed]
     }
 
-    pub fn input(&self, x: &DVector<f64>) -> DVector<f64> {
-        -(&self.gain * self.error(x))
+    /// u ← −K e(x).
+    pub fn input_into(&self, x: &[f64], u: &mut [f64]) {
+        let error = self.error(x);
+        for (i, u) in u.iter_mut().enumerate() {
+            *u = -(0..3).map(|j| self.gain[(i, j)] * error[j]).sum::<f64>();
+        }
     }
 }
 
@@ -141,7 +145,7 @@ pub fn wrap_angle(angle: f64) -> f64 {
 /// The stabilising time-varying predictor-feedback controller of Example 2 of [9] for the
 /// unicycle (2.40)–(2.43), evaluated at the prediction p = (p_x, p_y, p_θ) and the prediction
 /// time φ⁻¹(t).
-pub fn unicycle_stabilizer(prediction_time: f64, p: &DVector<f64>) -> DVector<f64> {
+pub fn unicycle_stabilizer(prediction_time: f64, p: &[f64]) -> [f64; 2] {
     let (px, py, ptheta) = (p[0], p[1], p[2]);
     let (s, c) = ptheta.sin_cos();
     let a = px * c + py * s; // (2.42)
@@ -149,7 +153,7 @@ pub fn unicycle_stabilizer(prediction_time: f64, p: &DVector<f64>) -> DVector<f6
     let (s3, c3) = (3.0 * prediction_time).sin_cos();
     let turn_rate = -5.0 * a * a * c3 - a * b * (1.0 + 25.0 * c3 * c3) - ptheta; // (2.40)
     let speed = -a + 5.0 * b * s3 - 5.0 * b * c3 + b * turn_rate; // (2.41)
-    DVector::from_column_slice(&[speed, turn_rate])
+    [speed, turn_rate]
 }
 
 /// A nominal controller chosen by a scenario.
@@ -182,28 +186,56 @@ impl PartialEq for dyn crate::vehicle::Dynamics {
 
 /// (4.58): u0 = −(L_f V + ‖x‖²) L_g Vᵀ / ‖L_g V‖² (0 where L_g V = 0), V = x1⁴/4 + x2²/2 (4.57),
 /// which gives V̇ ≤ −‖x‖² (4.59).
-pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &DVector<f64>) -> DVector<f64> {
-    let grad_v = DVector::from_column_slice(&[x[0].powi(3), x[1]]);
-    let lf_v = grad_v.dot(&model.drift(x));
-    let lg_v = model.input_matrix(x).transpose() * &grad_v;
-    let norm2 = lg_v.norm_squared();
-    if norm2 < 1e-14 {
-        return DVector::zeros(lg_v.len());
+/// For a two-state, two-input system (checked when the scenario is built).
+pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &[f64]) -> [f64; 2] {
+    let grad_v = [x[0].powi(3), x[1]];
+    let dot = |a: &[f64; 2], b: &[f64; 2]| a[0] * b[0] + a[1] * b[1];
+    let mut f = [0.0; 2];
+    model.drift_into(x, &mut f);
+    let lf_v = dot(&grad_v, &f);
+    // L_g V component j = ∇V · g_j, with g_j = G e_j.
+    let mut lg_v = [0.0; 2];
+    for (j, lg_v_j) in lg_v.iter_mut().enumerate() {
+        let mut g_j = [0.0; 2];
+        let mut e_j = [0.0; 2];
+        e_j[j] = 1.0;
+        model.add_input_term(x, &e_j, &mut g_j);
+        *lg_v_j = dot(&grad_v, &g_j);
     }
-    -lg_v * ((lf_v + x.norm_squared()) / norm2)
+    let norm2 = dot(&lg_v, &lg_v);
+    if norm2 < 1e-14 {
+        return [0.0; 2];
+    }
+    let scale = -(lf_v + x[0] * x[0] + x[1] * x[1]) / norm2;
+    [lg_v[0] * scale, lg_v[1] * scale]
 }
 
 impl Nominal {
     /// u0 at time `time` and state x.
     pub fn input(&self, time: f64, x: &DVector<f64>) -> DVector<f64> {
+        let mut u = DVector::zeros(self.channels());
+        self.input_into(time, x.as_slice(), u.as_mut_slice());
+        u
+    }
+
+    /// Number of input channels the controller drives.
+    pub fn channels(&self) -> usize {
         match self {
-            Nominal::PathLqr(lqr) => lqr.input(x),
-            Nominal::Constant(u) => u.clone(),
-            Nominal::UnicycleStabilizer => unicycle_stabilizer(time, x),
-            Nominal::QuarticClf(model) => quartic_clf(model.as_ref(), x),
-            Nominal::RedLight(red_light) => {
-                DVector::from_element(1, red_light.control(time, &nalgebra::Vector2::new(x[0], x[1])))
-            }
+            Nominal::PathLqr(lqr) => lqr.gain.nrows(),
+            Nominal::Constant(u) => u.len(),
+            Nominal::UnicycleStabilizer | Nominal::QuarticClf(_) => 2,
+            Nominal::RedLight(_) | Nominal::Pts(_) => 1,
+        }
+    }
+
+    /// u ← u0 at time `time` and state x (no allocation: called inside the predictors).
+    pub fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        match self {
+            Nominal::PathLqr(lqr) => lqr.input_into(x, u),
+            Nominal::Constant(value) => u.copy_from_slice(value.as_slice()),
+            Nominal::UnicycleStabilizer => u.copy_from_slice(&unicycle_stabilizer(time, x)),
+            Nominal::QuarticClf(model) => u.copy_from_slice(&quartic_clf(model.as_ref(), x)),
+            Nominal::RedLight(red_light) => u[0] = red_light.control(time, &nalgebra::Vector2::new(x[0], x[1])),
             Nominal::Pts(pts) => {
                 use crate::filter::prescribed_time::StrictFeedbackSystem;
                 let state = nalgebra::Vector2::new(x[0], x[1]);
@@ -211,7 +243,7 @@ impl Nominal {
                 // With the clip required by the scenario, μ2 is defined for all t; NaN would
                 // stop the episode with an error rather than pass silently.
                 let v = pts.control(time, &z).unwrap_or(f64::NAN);
-                DVector::from_element(1, StrictFeedbackSystem.plant_input(&state, v))
+                u[0] = StrictFeedbackSystem.plant_input(&state, v);
             }
         }
     }

@@ -15,8 +15,8 @@ use crate::vehicle::{Dynamics, MujocoVehicle};
 pub trait Controller {
     /// The applied input at one evaluation of step `step` (call `call_in_step`, `offset`
     /// seconds after the step's start). On call 0 of a control-tick step the controller runs
-    /// its tick on `state()` (the real state at the start of the step).
-    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn() -> DVector<f64>) -> &[f64];
+    /// its tick on the state `state` writes (the real state at the start of the step).
+    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64];
 }
 
 /// Which plant a scenario runs on (scenario key `plant`).
@@ -77,7 +77,7 @@ impl ControlHook for CallbackAdapter<'_> {
     fn on_control(&mut self, ctx: CallbackContext, data: &mut DataView<'_>) {
         {
             let view: &DataView<'_> = data;
-            let read = || self.vehicle.read_state(view.qpos(), view.qvel(), view.act());
+            let read = |x: &mut [f64]| self.vehicle.read_state_into(view.qpos(), view.qvel(), view.act(), x);
             let input = self
                 .controller
                 .input(ctx.step, ctx.call_in_step, ctx.time - ctx.step_start_time, &read);
@@ -168,7 +168,7 @@ impl Plant for OdePlant {
         let step_time = self.step as f64 * h;
         let disturbance = self.disturbance.as_ref();
         let mut derivative = |call: u32, offset: f64, stage: &DVector<f64>| {
-            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|| x.clone()));
+            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|out: &mut [f64]| out.copy_from_slice(x.as_slice())));
             let dx = model.dynamics(stage, &u);
             match disturbance {
                 Some(w) => dx + w(step_time + offset),

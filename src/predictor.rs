@@ -79,10 +79,6 @@ pub struct PredictorContext<'a> {
     pub control_period: f64,
 }
 
-/// The input of every channel at one RK4 stage: (state at the step's start, the step, stage
-/// time).
-type StageInput<'a> = dyn FnMut(&DVector<f64>, Step, f64) -> Result<Vec<f64>, DelayError> + 'a;
-
 /// One integration step [start, end) of the predictor; `first_stage` marks its first RK4 stage.
 #[derive(Debug, Clone, Copy)]
 struct Step {
@@ -91,8 +87,54 @@ struct Step {
     first_stage: bool,
 }
 
-/// The control law κ(t, x) used for commands not yet issued (recursive predictor only).
-pub type ControlLaw<'a> = dyn Fn(f64, &DVector<f64>) -> DVector<f64> + 'a;
+/// u ← κ(t, x): the control law used for commands not yet issued (recursive predictor only).
+pub type ControlLaw<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
+
+/// RK4 buffers: the integrated state, the stage state, the four slopes and the stage input.
+#[derive(Debug, Clone)]
+struct Rk4Buffers {
+    state: Vec<f64>,
+    stage: Vec<f64>,
+    slopes: [Vec<f64>; 4],
+    input: Vec<f64>,
+}
+
+/// Scratch space of the predictors, sized once for a model (a prediction then allocates
+/// nothing: it runs inside the control callback).
+#[derive(Debug, Clone)]
+pub struct PredictorWorkspace {
+    rk4: Rk4Buffers,
+    /// Per channel: the command κ_j holds inside a recursive predictor's window.
+    held: Vec<Option<f64>>,
+    law_input: Vec<f64>,
+}
+
+impl PredictorWorkspace {
+    pub fn new(states: usize, channels: usize) -> PredictorWorkspace {
+        PredictorWorkspace {
+            rk4: Rk4Buffers {
+                state: vec![0.0; states],
+                stage: vec![0.0; states],
+                slopes: std::array::from_fn(|_| vec![0.0; states]),
+                input: vec![0.0; channels],
+            },
+            held: vec![None; channels],
+            law_input: vec![0.0; channels],
+        }
+    }
+
+    /// One prediction per channel, ready for [`PredictorContext::predict_into`].
+    pub fn predictions(&self) -> Vec<Prediction> {
+        (0..self.held.len())
+            .map(|channel| Prediction {
+                channel,
+                issued_at: 0.0,
+                target_time: 0.0,
+                state: DVector::zeros(self.rk4.state.len()),
+            })
+            .collect()
+    }
+}
 
 impl PredictorContext<'_> {
     /// The applied input of channel j at stage time `time` of the step [step_start, step_end),
@@ -104,127 +146,172 @@ impl PredictorContext<'_> {
         Ok(self.queues[j].applied(sample)?.value)
     }
 
-    /// Predictions for every channel, made at tick time t from state x.
+    /// Predictions for every channel, made at tick time t from state x (allocating form of
+    /// [`PredictorContext::predict_into`]).
     pub fn predict(
         &self,
         structure: &Structure,
         t: f64,
         x: &DVector<f64>,
-        law: &ControlLaw<'_>,
+        law: &mut ControlLaw<'_>,
     ) -> Result<Vec<Prediction>, DelayError> {
+        let mut workspace = PredictorWorkspace::new(x.len(), self.queues.len());
+        let mut out = workspace.predictions();
+        self.predict_into(structure, t, x.as_slice(), law, &mut workspace, &mut out)?;
+        Ok(out)
+    }
+
+    /// out[i] ← p_i(t), made at tick time t from state x; `out` holds one prediction per
+    /// channel (from [`PredictorWorkspace::predictions`]). Allocates nothing.
+    pub fn predict_into(
+        &self,
+        structure: &Structure,
+        t: f64,
+        x: &[f64],
+        law: &mut ControlLaw<'_>,
+        workspace: &mut PredictorWorkspace,
+        out: &mut [Prediction],
+    ) -> Result<(), DelayError> {
         let r = self.queues.len();
+        let PredictorWorkspace {
+            rk4,
+            held,
+            law_input,
+        } = workspace;
+        let set = |p: &mut Prediction, channel: usize, target_time: f64, state: &[f64]| {
+            p.channel = channel;
+            p.issued_at = t;
+            p.target_time = target_time;
+            p.state.copy_from_slice(state);
+        };
         match structure {
-            Structure::None => Ok((0..r)
-                .map(|channel| Prediction {
-                    channel,
-                    issued_at: t,
-                    target_time: t,
-                    state: x.clone(),
-                })
-                .collect()),
+            Structure::None => {
+                for (channel, p) in out.iter_mut().enumerate() {
+                    set(p, channel, t, x);
+                }
+            }
             Structure::Shared => {
                 let target = self.queues[0].profile().prediction_time(t);
-                let state = self.advance_with_history(x, t, target)?;
-                Ok((0..r)
-                    .map(|channel| Prediction {
-                        channel,
-                        issued_at: t,
-                        target_time: target,
-                        state: state.clone(),
-                    })
-                    .collect())
+                rk4.state.copy_from_slice(x);
+                self.integrate(rk4, t, target, &mut |_, step, stage_time, u| {
+                    self.history_inputs(step, stage_time, u)
+                })?;
+                for (channel, p) in out.iter_mut().enumerate() {
+                    set(p, channel, target, &rk4.state);
+                }
             }
             Structure::Recursive { order, delays } => {
-                let mut out: Vec<Option<Prediction>> = vec![None; r];
-                let mut state = x.clone();
+                rk4.state.copy_from_slice(x);
                 // D_{i-1}: how far the chain of predictions has reached.
                 let mut reached = 0.0;
                 // Channels whose commands inside the current window are predicted by κ_j,
                 // with the value held since their last tick.
-                let mut held: Vec<Option<f64>> = vec![None; r];
+                held.fill(None);
                 for &i in order {
                     let d_i = delays[i];
                     if d_i > reached {
-                        let predicted: Vec<usize> = order.iter().copied().filter(|&j| delays[j] < d_i).collect();
-                        let mut input = |step_state: &DVector<f64>, step: Step, stage_time: f64| {
+                        let mut input = |step_state: &[f64], step: Step, stage_time: f64, u: &mut [f64]| {
                             // κ_j ticks when the command reaching the plant now was issued at
                             // a tick: (s − D_j) on the control-period grid.
                             if step.first_stage {
-                                let mut law_value: Option<DVector<f64>> = None;
-                                for &j in &predicted {
+                                let mut law_evaluated = false;
+                                for &j in order.iter().filter(|&&j| delays[j] < d_i) {
                                     let ticks = (step.start - t - delays[j]) / self.control_period;
                                     if (ticks - ticks.round()).abs() < GRID_TOLERANCE || held[j].is_none() {
-                                        let u = law_value.get_or_insert_with(|| law(step.start, step_state));
-                                        held[j] = Some(u[j]);
+                                        if !law_evaluated {
+                                            law(step.start, step_state, law_input);
+                                            law_evaluated = true;
+                                        }
+                                        held[j] = Some(law_input[j]);
                                     }
                                 }
                             }
-                            (0..r)
-                                .map(|j| match held[j] {
-                                    Some(v) if delays[j] < d_i => Ok(v),
-                                    _ => self.history_input(j, step.start, step.end, stage_time),
-                                })
-                                .collect()
+                            for (j, u_j) in u.iter_mut().enumerate().take(r) {
+                                *u_j = match held[j] {
+                                    Some(v) if delays[j] < d_i => v,
+                                    _ => self.history_input(j, step.start, step.end, stage_time)?,
+                                };
+                            }
+                            Ok(())
                         };
-                        state = self.integrate(&state, t + reached, t + d_i, &mut input)?;
+                        self.integrate(rk4, t + reached, t + d_i, &mut input)?;
                         reached = d_i;
                     }
-                    out[i] = Some(Prediction {
-                        channel: i,
-                        issued_at: t,
-                        target_time: t + d_i,
-                        state: state.clone(),
-                    });
+                    set(&mut out[i], i, t + d_i, &rk4.state);
                 }
-                Ok(out.into_iter().map(|p| p.expect("every channel predicted")).collect())
             }
         }
+        Ok(())
+    }
+
+    /// u ← every channel's issued history at one RK4 stage.
+    fn history_inputs(&self, step: Step, stage_time: f64, u: &mut [f64]) -> Result<(), DelayError> {
+        for (j, u_j) in u.iter_mut().enumerate() {
+            *u_j = self.history_input(j, step.start, step.end, stage_time)?;
+        }
+        Ok(())
     }
 
     /// x advanced from `from` to `to` with every channel's issued history (no new commands).
     pub fn advance_with_history(&self, x: &DVector<f64>, from: f64, to: f64) -> Result<DVector<f64>, DelayError> {
-        let r = self.queues.len();
-        self.integrate(x, from, to, &mut |_, step, stage_time| {
-            (0..r)
-                .map(|j| self.history_input(j, step.start, step.end, stage_time))
-                .collect()
-        })
+        let mut rk4 = PredictorWorkspace::new(x.len(), self.queues.len()).rk4;
+        rk4.state.copy_from_slice(x.as_slice());
+        self.integrate(&mut rk4, from, to, &mut |_, step, stage_time, u| {
+            self.history_inputs(step, stage_time, u)
+        })?;
+        Ok(DVector::from_vec(rk4.state))
     }
 
-    /// RK4 from `x` at `from` to `to` on the grid of step h (a final partial step if `to` is
-    /// off the grid). `input(step_state, step_start, stage_time, is_step_start)` gives u.
+    /// RK4 of `rk4.state` from `from` to `to` on the grid of step h (a final partial step if
+    /// `to` is off the grid). `input(step_start_state, step, stage_time, u)` writes u.
     fn integrate(
         &self,
-        x: &DVector<f64>,
+        rk4: &mut Rk4Buffers,
         from: f64,
         to: f64,
-        input: &mut StageInput<'_>,
-    ) -> Result<DVector<f64>, DelayError> {
+        input: &mut dyn FnMut(&[f64], Step, f64, &mut [f64]) -> Result<(), DelayError>,
+    ) -> Result<(), DelayError> {
         let h = self.timestep;
-        let mut state = x.clone();
+        let Rk4Buffers {
+            state,
+            stage,
+            slopes,
+            input: u,
+        } = rk4;
+        let [k1, k2, k3, k4] = slopes;
         let mut s = from;
         while s < to - h * GRID_TOLERANCE {
             let dt = (to - s).min(h);
             let dt = if (h - dt) < h * GRID_TOLERANCE { h } else { dt };
             let end = if dt < h { to } else { s + h };
-            let mut stage =
-                |stage_time: f64, y: &DVector<f64>, first_stage: bool| -> Result<DVector<f64>, DelayError> {
-                    let step = Step {
-                        start: s,
-                        end,
-                        first_stage,
-                    };
-                    let u = DVector::from_vec(input(&state, step, stage_time)?);
-                    Ok(self.model.dynamics(y, &u))
-                };
-            let k1 = stage(s, &state, true)?;
-            let k2 = stage(s + dt / 2.0, &(&state + &k1 * (dt / 2.0)), false)?;
-            let k3 = stage(s + dt / 2.0, &(&state + &k2 * (dt / 2.0)), false)?;
-            let k4 = stage(s + dt, &(&state + &k3 * dt), false)?;
-            state = &state + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (dt / 6.0);
+            let step = |first_stage| Step {
+                start: s,
+                end,
+                first_stage,
+            };
+            input(state, step(true), s, u)?;
+            self.model.dynamics_into(state, u, k1);
+            for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k1.iter())) {
+                *stage = x + k * (dt / 2.0);
+            }
+            input(state, step(false), s + dt / 2.0, u)?;
+            self.model.dynamics_into(stage, u, k2);
+            for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k2.iter())) {
+                *stage = x + k * (dt / 2.0);
+            }
+            input(state, step(false), s + dt / 2.0, u)?;
+            self.model.dynamics_into(stage, u, k3);
+            for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k3.iter())) {
+                *stage = x + k * dt;
+            }
+            input(state, step(false), s + dt, u)?;
+            self.model.dynamics_into(stage, u, k4);
+            for (i, x) in state.iter_mut().enumerate() {
+                *x += (k1[i] + k2[i] * 2.0 + k3[i] * 2.0 + k4[i]) * (dt / 6.0);
+            }
             s += dt;
         }
-        Ok(state)
+        Ok(())
     }
 }
 
@@ -308,8 +395,8 @@ mod tests {
             timestep: h,
             control_period: h,
         };
-        let law = |_: f64, _: &DVector<f64>| DVector::zeros(1);
-        let numerical = context.predict(&Structure::Shared, t, &x, &law).unwrap();
+        let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.fill(0.0);
+        let numerical = context.predict(&Structure::Shared, t, &x, &mut law).unwrap();
         assert!((numerical[0].target_time - profile.prediction_time(t)).abs() < 1e-12);
         let issued = |s: f64| {
             let tick = ((s / h) + 1e-9).floor() * h;
@@ -365,9 +452,9 @@ mod tests {
         };
         // κ_1 = −1 (a known constant law): p_2 velocity = 0 + 2·0.3 (channel 2 history), position
         // = 0.1·1 (history) + 0.2·(−1) (law) + ∫ velocity.
-        let law = |_: f64, _: &DVector<f64>| DVector::from_column_slice(&[-1.0, 99.0]);
+        let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.copy_from_slice(&[-1.0, 99.0]);
         let t = 1.0;
-        let p = context.predict(&s, t, &DVector::zeros(2), &law).unwrap();
+        let p = context.predict(&s, t, &DVector::zeros(2), &mut law).unwrap();
         assert!((p[0].target_time - 1.1).abs() < 1e-12 && (p[1].target_time - 1.3).abs() < 1e-12);
         let v = 2.0 * 0.3;
         let position = 0.1 - 0.2 + 0.5 * 2.0 * 0.3 * 0.3;

@@ -42,17 +42,22 @@ impl VehicleKind {
 }
 
 /// The analytic control-affine model ẋ = f(x) + G(x) u.
+///
+/// Models implement the in-place forms (no allocation: predictors and filters call them many
+/// times per control tick); the allocating forms are derived from them.
 pub trait Dynamics: Send + Sync {
     /// Names of the state components, in order.
     fn state_names(&self) -> &[String];
     /// Names of the input channels, in order.
     fn channel_names(&self) -> &[String];
-    /// Drift f(x).
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64>;
-    /// Jacobian ∂f/∂x, used for Lie derivatives of relative-degree-2 barriers.
-    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64>;
-    /// Input matrix G(x) = [g_1(x), …, g_r(x)].
-    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64>;
+    /// f ← f(x).
+    fn drift_into(&self, x: &[f64], f: &mut [f64]);
+    /// ẋ ← ẋ + G(x) u, without forming G.
+    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]);
+    /// j ← ∂f/∂x (j arrives zeroed; used for Lie derivatives of relative-degree-2 barriers).
+    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>);
+    /// g ← G(x) = [g_1(x), …, g_r(x)] (g arrives zeroed).
+    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>);
     /// Indices of the planar position (x, y) in the state, if the system moves in a plane.
     fn planar_position(&self) -> Option<[usize; 2]> {
         None
@@ -62,9 +67,34 @@ pub trait Dynamics: Send + Sync {
         None
     }
 
+    /// ẋ ← f(x) + G(x) u.
+    fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        self.drift_into(x, xdot);
+        self.add_input_term(x, u, xdot);
+    }
+    /// Drift f(x).
+    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
+        let mut f = DVector::zeros(x.len());
+        self.drift_into(x.as_slice(), f.as_mut_slice());
+        f
+    }
+    /// Jacobian ∂f/∂x.
+    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        let mut j = DMatrix::zeros(x.len(), x.len());
+        self.drift_jacobian_into(x.as_slice(), &mut j);
+        j
+    }
+    /// Input matrix G(x).
+    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        let mut g = DMatrix::zeros(x.len(), self.input_dim());
+        self.input_matrix_into(x.as_slice(), &mut g);
+        g
+    }
     /// ẋ = f(x) + G(x) u.
     fn dynamics(&self, x: &DVector<f64>, u: &DVector<f64>) -> DVector<f64> {
-        self.drift(x) + self.input_matrix(x) * u
+        let mut xdot = DVector::zeros(x.len());
+        self.dynamics_into(x.as_slice(), u.as_slice(), xdot.as_mut_slice());
+        xdot
     }
     fn state_dim(&self) -> usize {
         self.state_names().len()
@@ -82,8 +112,14 @@ pub trait MujocoVehicle: Send {
     fn hull_radius(&self) -> f64;
     /// Id of the `hull` geom, for contact detection.
     fn hull_geom(&self) -> usize;
+    /// x ← the state read from MuJoCo data (no allocation: called in the control callback).
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], act: &[f64], x: &mut [f64]);
     /// State x read from MuJoCo data.
-    fn read_state(&self, qpos: &[f64], qvel: &[f64], act: &[f64]) -> DVector<f64>;
+    fn read_state(&self, qpos: &[f64], qvel: &[f64], act: &[f64]) -> DVector<f64> {
+        let mut x = DVector::zeros(self.dynamics().state_dim());
+        self.read_state_into(qpos, qvel, act, x.as_mut_slice());
+        x
+    }
     /// Sets MuJoCo's state (time 0) to x.
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>);
     /// Maps the applied input u (one value per channel) to MuJoCo's `ctrl`, given the data at
@@ -141,23 +177,24 @@ impl Dynamics for BicycleModel {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_column_slice(&[x[3] * x[2].cos(), x[3] * x[2].sin(), 0.0, 0.0])
-    }
-    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
         let (s, c) = x[2].sin_cos();
-        let mut j = DMatrix::zeros(4, 4);
+        f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
+    }
+    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        xdot[2] += x[3] / self.wheelbase * u[0];
+        xdot[3] += u[1];
+    }
+    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
+        let (s, c) = x[2].sin_cos();
         j[(0, 2)] = -x[3] * s;
         j[(0, 3)] = c;
         j[(1, 2)] = x[3] * c;
         j[(1, 3)] = s;
-        j
     }
-    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        let mut g = DMatrix::zeros(4, 2);
+    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
         g[(2, 0)] = x[3] / self.wheelbase;
         g[(3, 1)] = 1.0;
-        g
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
@@ -229,12 +266,12 @@ impl MujocoVehicle for MujocoBicycle {
     fn hull_geom(&self) -> usize {
         self.hull_geom
     }
-    fn read_state(&self, qpos: &[f64], qvel: &[f64], _act: &[f64]) -> DVector<f64> {
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], _act: &[f64], x: &mut [f64]) {
         let heading = qpos[self.qpos[2]];
         let (s, c) = heading.sin_cos();
         // Longitudinal velocity of the rear axle, measured from the body's motion.
         let speed = qvel[self.dof[0]] * c + qvel[self.dof[1]] * s;
-        DVector::from_column_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], heading, speed])
+        x.copy_from_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], heading, speed]);
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
         let model = sim.model();
@@ -280,15 +317,21 @@ impl Dynamics for UnicycleModel {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, _x: &DVector<f64>) -> DVector<f64> {
-        DVector::zeros(3)
+    fn drift_into(&self, _x: &[f64], f: &mut [f64]) {
+        f.fill(0.0);
     }
-    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::zeros(3, 3)
-    }
-    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
+    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
         let (s, c) = x[2].sin_cos();
-        DMatrix::from_row_slice(3, 2, &[c, 0.0, s, 0.0, 0.0, 1.0])
+        xdot[0] += c * u[0];
+        xdot[1] += s * u[0];
+        xdot[2] += u[1];
+    }
+    fn drift_jacobian_into(&self, _x: &[f64], _j: &mut DMatrix<f64>) {}
+    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
+        let (s, c) = x[2].sin_cos();
+        g[(0, 0)] = c;
+        g[(1, 0)] = s;
+        g[(2, 1)] = 1.0;
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
@@ -336,8 +379,8 @@ impl MujocoVehicle for MujocoUnicycle {
     fn hull_geom(&self) -> usize {
         self.hull_geom
     }
-    fn read_state(&self, qpos: &[f64], _qvel: &[f64], _act: &[f64]) -> DVector<f64> {
-        DVector::from_column_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], qpos[self.qpos[2]]])
+    fn read_state_into(&self, qpos: &[f64], _qvel: &[f64], _act: &[f64], x: &mut [f64]) {
+        x.copy_from_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], qpos[self.qpos[2]]]);
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
         let model = sim.model();
@@ -388,24 +431,25 @@ impl Dynamics for DoubleIntegratorModel {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        let mut f = DVector::zeros(2 * self.dim);
-        f.rows_mut(0, self.dim).copy_from(&x.rows(self.dim, self.dim));
-        f
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+        let (positions, velocities) = f.split_at_mut(self.dim);
+        positions.copy_from_slice(&x[self.dim..]);
+        velocities.fill(0.0);
     }
-    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(2 * self.dim, 2 * self.dim);
+    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        for (v, u) in xdot[self.dim..].iter_mut().zip(u) {
+            *v += u;
+        }
+    }
+    fn drift_jacobian_into(&self, _x: &[f64], j: &mut DMatrix<f64>) {
         for i in 0..self.dim {
             j[(i, self.dim + i)] = 1.0;
         }
-        j
     }
-    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        let mut g = DMatrix::zeros(2 * self.dim, self.dim);
+    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
         for i in 0..self.dim {
             g[(self.dim + i, i)] = 1.0;
         }
-        g
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         (self.dim == 2).then_some([0, 1])
@@ -460,10 +504,12 @@ impl MujocoVehicle for MujocoDoubleIntegrator {
     fn hull_geom(&self) -> usize {
         self.hull_geom
     }
-    fn read_state(&self, qpos: &[f64], qvel: &[f64], _act: &[f64]) -> DVector<f64> {
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], _act: &[f64], x: &mut [f64]) {
         let positions = self.qpos.iter().map(|&i| qpos[i]);
         let velocities = self.dof.iter().map(|&i| qvel[i]);
-        DVector::from_iterator(2 * self.qpos.len(), positions.chain(velocities))
+        for (x, v) in x.iter_mut().zip(positions.chain(velocities)) {
+            *x = v;
+        }
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
         let model = sim.model();
@@ -513,14 +559,21 @@ impl Dynamics for LinearModel {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        &self.a * x
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+        for (i, fi) in f.iter_mut().enumerate() {
+            *fi = self.a.row(i).iter().zip(x).map(|(a, x)| a * x).sum();
+        }
     }
-    fn drift_jacobian(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        self.a.clone()
+    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        for (i, v) in xdot.iter_mut().enumerate() {
+            *v += self.b.row(i).iter().zip(u).map(|(b, u)| b * u).sum::<f64>();
+        }
     }
-    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        self.b.clone()
+    fn drift_jacobian_into(&self, _x: &[f64], j: &mut DMatrix<f64>) {
+        j.copy_from(&self.a);
+    }
+    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
+        g.copy_from(&self.b);
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         (self.a.nrows() >= 2).then_some([0, 1])
@@ -550,14 +603,19 @@ impl Dynamics for NonlinearExample1 {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_column_slice(&[-x[0] - x[1], x[0].powi(3)])
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+        f.copy_from_slice(&[-x[0] - x[1], x[0].powi(3)]);
     }
-    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_row_slice(2, 2, &[-1.0, -1.0, 3.0 * x[0] * x[0], 0.0])
+    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        xdot[0] += u[0];
+        xdot[1] += x[1] * u[1];
     }
-    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, x[1]])
+    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
+        j.copy_from_slice(&[-1.0, 3.0 * x[0] * x[0], -1.0, 0.0]);
+    }
+    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
+        g[(0, 0)] = 1.0;
+        g[(1, 1)] = x[1];
     }
 }
 
@@ -584,13 +642,17 @@ impl Dynamics for StrictFeedbackModel {
     fn channel_names(&self) -> &[String] {
         &self.channel_names
     }
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_column_slice(&[x[0] * x[0] + x[1], 0.0])
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+        f.copy_from_slice(&[x[0] * x[0] + x[1], 0.0]);
     }
-    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_row_slice(2, 2, &[2.0 * x[0], 1.0, 0.0, 0.0])
+    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        xdot[1] += u[0];
     }
-    fn input_matrix(&self, _x: &DVector<f64>) -> DMatrix<f64> {
-        DMatrix::from_column_slice(2, 1, &[0.0, 1.0])
+    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
+        j[(0, 0)] = 2.0 * x[0];
+        j[(0, 1)] = 1.0;
+    }
+    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
+        g[(1, 0)] = 1.0;
     }
 }

@@ -11,14 +11,14 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::barrier::{self, Barrier, BarrierForm, Constraint};
+use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::filter::linear_delays::{ConstrainedStabilizer, QpCase};
 use crate::filter::prescribed_time::{EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem};
 use crate::filter::{self, ChannelOutcome};
 use crate::nominal::Nominal;
 use crate::plant::Controller;
-use crate::predictor::{self, Prediction, PredictorContext, Structure};
+use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
 use crate::vehicle::Dynamics;
 use nalgebra::Vector2;
 
@@ -143,6 +143,146 @@ pub struct Consistency {
     pub realized: DVector<f64>,
 }
 
+/// Scratch space of one control tick, sized when the loop is built (and when a barrier becomes
+/// known, outside the callback), so that a tick allocates nothing.
+struct TickWorkspace {
+    /// x(t) at the tick.
+    state: DVector<f64>,
+    predictions: Vec<Prediction>,
+    predictor: PredictorWorkspace,
+    law: LawWorkspace,
+    /// ω (4.45)/(4.62): commands already issued for the later channels.
+    omega: DVector<f64>,
+    /// States of realised predictions, reused for new pending ones.
+    spare_states: Vec<DVector<f64>>,
+}
+
+/// Scratch space of the delay-free law and the per-channel filters.
+struct LawWorkspace {
+    lie: LieWorkspace,
+    /// One per known barrier.
+    constraints: Vec<Constraint>,
+    /// u0.
+    nominal: DVector<f64>,
+    /// The filtered input u.
+    input: DVector<f64>,
+}
+
+/// What the control laws read, borrowed apart from the loop's scratch space.
+struct Laws<'a> {
+    model: &'a dyn Dynamics,
+    nominal: &'a Nominal,
+    rule: &'a FilterRule,
+    barriers: &'a [Barrier],
+}
+
+impl Laws<'_> {
+    /// work.nominal ← u0 (nominal at `time`, evaluated at `nominal_state`) and
+    /// work.constraints ← the constraint data of every known barrier at state z. Returns
+    /// the number of constraints (0 without a filter).
+    fn nominal_and_constraints(&self, time: f64, nominal_state: &[f64], z: &[f64], work: &mut LawWorkspace) -> usize {
+        self.nominal.input_into(time, nominal_state, work.nominal.as_mut_slice());
+        let Some(form) = self.rule.form() else {
+            return 0;
+        };
+        for (b, c) in self.barriers.iter().zip(work.constraints.iter_mut()) {
+            work.lie.constraint_into(b, form, self.model, z, c);
+        }
+        self.barriers.len()
+    }
+
+    /// work.input ← the delay-free CBF-QP over all channels from work.nominal and the first
+    /// `count` constraints: closed form (4.9) for one barrier without limits (no allocation),
+    /// otherwise the numerical QP. Returns (active, infeasible, μ).
+    fn delay_free_qp(&self, work: &mut LawWorkspace, count: usize) -> (bool, bool, f64) {
+        let limits = match self.rule {
+            FilterRule::DelayFree { limits, .. } => limits.as_ref(),
+            _ => None,
+        };
+        work.input.copy_from(&work.nominal);
+        match (&work.constraints[..count], limits) {
+            ([c], None) => filter::cbf_qp_in_place(c, &mut work.input),
+            (constraints, _) => {
+                let o = filter::qp::cbf_qp_multi(
+                    constraints,
+                    &work.nominal,
+                    limits.map(|(lo, hi)| (lo.as_slice(), hi.as_slice())),
+                );
+                work.input.copy_from(&o.input);
+                (o.active, o.infeasible, o.mu)
+            }
+        }
+    }
+
+    /// u ← the delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9) (κ_LB (3.27) for Ch. 3).
+    fn delay_free(&self, time: f64, z: &[f64], work: &mut LawWorkspace, u: &mut [f64]) {
+        if let FilterRule::LinearClfCbf(stabilizer) = self.rule {
+            u.copy_from_slice(stabilizer.kappa_lb(&DVector::from_column_slice(z)).input.as_slice());
+            return;
+        }
+        let count = self.nominal_and_constraints(time, z, z, work);
+        if count == 0 {
+            u.copy_from_slice(work.nominal.as_slice());
+            return;
+        }
+        self.delay_free_qp(work, count);
+        u.copy_from_slice(work.input.as_slice());
+    }
+
+    /// The filter's decision for channel i at tick t, from work.constraints and work.nominal
+    /// at the channel's evaluation state. The distinct-delay filters take one barrier
+    /// (checked when the episode is built).
+    fn filter_channel(
+        &self,
+        queues: &[DelayQueue],
+        i: usize,
+        t: f64,
+        work: &mut LawWorkspace,
+        count: usize,
+        omega: &mut DVector<f64>,
+    ) -> Result<ChannelOutcome, DelayError> {
+        // ω_j: commands already issued for the later channels that reach the plant together
+        // with u_i(t), i.e. u_j(t − D_{j,i}) = channel j's applied input at t + D_i.
+        let mut fill_omega = |from: usize| -> Result<(), DelayError> {
+            let arrival = queues[i].profile().prediction_time(t);
+            omega.fill(0.0);
+            for j in from..queues.len() {
+                omega[j] = queues[j].applied(arrival)?.value;
+            }
+            Ok(())
+        };
+        Ok(match self.rule {
+            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => {
+                unreachable!("no constraints for these rules")
+            }
+            FilterRule::DelayFree { .. } => {
+                let (active, infeasible, mu) = self.delay_free_qp(work, count);
+                ChannelOutcome {
+                    input: work.input[i],
+                    active,
+                    infeasible,
+                    mu,
+                }
+            }
+            FilterRule::FixedChannel { phi, .. } => {
+                let s = (*phi).max(i + 1);
+                fill_omega(s)?;
+                filter::fixed_channel(&work.constraints[0], &work.nominal, omega, i, s)
+            }
+            FilterRule::GammaM { m, gamma, .. } => {
+                // k (4.68): the last channel with the same delay as i.
+                let delay_i = queues[i].constant_delay();
+                let k = (i..queues.len())
+                    .take_while(|&j| queues[j].constant_delay() == delay_i)
+                    .last()
+                    .unwrap_or(i);
+                fill_omega(k + 1)?;
+                filter::gamma_m(&work.constraints[0], &work.nominal, omega, i, k, *m, *gamma)
+            }
+        })
+    }
+}
+
 pub struct ControlLoop {
     pub model: Arc<dyn Dynamics>,
     pub nominal: Nominal,
@@ -150,29 +290,32 @@ pub struct ControlLoop {
     pub rule: FilterRule,
     pub queues: Vec<DelayQueue>,
     pub structure: Structure,
-    /// Barriers currently known to the controller.
-    pub known_barriers: Vec<Barrier>,
+    /// Barriers currently known to the controller (add with [`ControlLoop::add_barrier`]).
+    known_barriers: Vec<Barrier>,
     pub timestep: f64,
     pub control_period: f64,
     pub steps_per_tick: u64,
-    /// RK4 step of the predictors: the control period when every delay is constant and a
-    /// whole multiple of it (the applied inputs are then constant on that grid, so the coarser
-    /// step loses only RK4 truncation error, measured by the consistency check), else h.
+    /// RK4 step of the predictors: by default the control period when every delay is constant
+    /// and a whole multiple of it (the applied inputs are then constant on that grid, so the
+    /// coarser step loses only RK4 truncation error, measured by the consistency check), else
+    /// h. A scenario may set a coarser multiple of the control period (`predictor.step`).
     pub predictor_step: f64,
-    /// Set at the tick of the current step, taken by the episode after the step.
-    pub tick: Option<Tick>,
+    /// What the last control tick computed; `tick_ready` until the episode takes it.
+    tick: Tick,
+    tick_ready: bool,
     /// Applied input at the start of the current step (value, issue time) per channel.
     pub applied: Vec<(f64, f64)>,
     applied_buffer: Vec<f64>,
     /// Predictions waiting for their target time, per channel.
     pending: Vec<VecDeque<Prediction>>,
+    work: TickWorkspace,
     /// An error raised inside the callback (reported after the step).
     pub error: Option<ControlError>,
     /// y(t0 + T) = z1 at the prescribed time, once reached (the ramp (5.28) needs it).
     output_at_end: Option<f64>,
-    /// A disturbance ω(t) added to the applied input ((4.12) with Z = G); unknown to the
-    /// predictors.
-    pub input_disturbance: Option<Box<dyn Fn(f64) -> DVector<f64> + Send>>,
+    /// A disturbance ω_i(t) added to channel i's applied input ((4.12) with Z = G); unknown
+    /// to the predictors.
+    pub input_disturbance: Option<Box<dyn Fn(f64, usize) -> f64 + Send>>,
 }
 
 impl ControlLoop {
@@ -187,17 +330,26 @@ impl ControlLoop {
         steps_per_tick: u64,
     ) -> ControlLoop {
         let r = queues.len();
+        let n = model.state_dim();
         let control_period = steps_per_tick as f64 * timestep;
-        let on_tick_grid = |q: &DelayQueue| {
-            q.constant_delay().is_some_and(|d| {
-                let ticks = d / control_period;
-                (ticks - ticks.round()).abs() < 1e-6
-            })
-        };
-        let predictor_step = if queues.iter().all(on_tick_grid) {
+        let predictor_step = if queues.iter().all(|q| on_tick_grid(q, control_period)) {
             control_period
         } else {
             timestep
+        };
+        let predictor = PredictorWorkspace::new(n, r);
+        let work = TickWorkspace {
+            state: DVector::zeros(n),
+            predictions: predictor.predictions(),
+            predictor,
+            law: LawWorkspace {
+                lie: LieWorkspace::new(model.as_ref()),
+                constraints: Vec::new(),
+                nominal: DVector::zeros(r),
+                input: DVector::zeros(r),
+            },
+            omega: DVector::zeros(r),
+            spare_states: Vec::new(),
         };
         ControlLoop {
             predictor_step,
@@ -210,76 +362,53 @@ impl ControlLoop {
             timestep,
             control_period,
             steps_per_tick,
-            tick: None,
+            tick: Tick {
+                time: 0.0,
+                nominal: DVector::zeros(r),
+                issued: DVector::zeros(r),
+                outcomes: vec![None; r],
+            },
+            tick_ready: false,
             applied: vec![(0.0, 0.0); r],
             applied_buffer: Vec::with_capacity(r),
             pending: vec![VecDeque::new(); r],
+            work,
             error: None,
             output_at_end: None,
             input_disturbance: None,
         }
     }
 
-    /// u0 (nominal at `time`, evaluated at `nominal_state`) and the constraint data of every
-    /// known barrier at state z (empty without a filter).
-    fn nominal_and_constraints(
-        &self,
-        time: f64,
-        nominal_state: &DVector<f64>,
-        z: &DVector<f64>,
-    ) -> (DVector<f64>, Vec<Constraint>) {
-        let u0 = self.nominal.input(time, nominal_state);
-        let constraints = match self.rule.form() {
-            Some(form) => self
-                .known_barriers
-                .iter()
-                .map(|b| barrier::constraint(b, form, self.model.as_ref(), z))
-                .collect(),
-            None => Vec::new(),
-        };
-        (u0, constraints)
+    /// Makes a barrier known to the controller (outside the callback: sizes the scratch space).
+    pub fn add_barrier(&mut self, barrier: Barrier) {
+        self.known_barriers.push(barrier);
+        self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
     }
 
-    /// The delay-free CBF-QP over all channels: closed form (4.9) for one barrier without
-    /// limits, otherwise the numerical QP.
-    fn delay_free_qp(&self, constraints: &[Constraint], u0: &DVector<f64>) -> (DVector<f64>, bool, bool, f64) {
-        let limits = match &self.rule {
-            FilterRule::DelayFree { limits, .. } => limits.as_ref(),
-            _ => None,
-        };
-        match (constraints, limits) {
-            ([c], None) => {
-                let o = filter::cbf_qp(c, u0);
-                (o.input, o.active, o.infeasible, o.mu)
-            }
-            _ => {
-                let o =
-                    filter::qp::cbf_qp_multi(constraints, u0, limits.map(|(lo, hi)| (lo.as_slice(), hi.as_slice())));
-                (o.input, o.active, o.infeasible, o.mu)
-            }
-        }
+    pub fn known_barriers(&self) -> &[Barrier] {
+        &self.known_barriers
     }
 
-    /// The delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9) (κ_LB (3.27) for Ch. 3).
-    fn delay_free(&self, time: f64, z: &DVector<f64>) -> DVector<f64> {
-        if let FilterRule::LinearClfCbf(stabilizer) = &self.rule {
-            return stabilizer.kappa_lb(z).input;
+    /// Sets the predictors' RK4 step to `multiple` control periods. Only valid when every
+    /// delay is constant and a whole multiple of the control period (the applied inputs are
+    /// then constant on the control grid; a coarser step holds κ_j's commands for `multiple`
+    /// periods inside the recursive window, an approximation the consistency records measure).
+    pub fn set_predictor_step(&mut self, multiple: u32) -> Result<(), String> {
+        if !self.queues.iter().all(|q| on_tick_grid(q, self.control_period)) {
+            return Err("a predictor step other than the default needs constant delays that are whole multiples of the control period".into());
         }
-        let (u0, constraints) = self.nominal_and_constraints(time, z, z);
-        if constraints.is_empty() {
-            return u0;
-        }
-        self.delay_free_qp(&constraints, &u0).0
+        self.predictor_step = multiple as f64 * self.control_period;
+        Ok(())
+    }
+
+    /// The last tick's record, once (after the step in which it ran).
+    pub fn take_tick(&mut self) -> Option<&Tick> {
+        std::mem::take(&mut self.tick_ready).then_some(&self.tick)
     }
 
     /// Ch. 5 tick: u = T⁻¹(filter(t, z, v_nom)) for a scalar-input chain (no delays).
-    fn chain_tick(
-        &mut self,
-        t: f64,
-        x: &DVector<f64>,
-        filter: &ChainFilter,
-        transform: ChainTransform,
-    ) -> Result<(), ControlError> {
+    fn chain_tick(&mut self, t: f64, filter: &ChainFilter, transform: ChainTransform) -> Result<(), ControlError> {
+        let x = &self.work.state;
         let u_nom = self.nominal.input(t, x)[0];
         let z = transform.to_chain(x);
         let v_nom = transform.chain_input(x, u_nom);
@@ -295,148 +424,129 @@ impl ControlLoop {
         let u = transform.plant_input(x, decision.input);
         self.queues[0].push(t, u)?;
         self.queues[0].discard_before(t);
-        let outcome = ChannelOutcome {
+        self.tick.time = t;
+        self.tick.nominal[0] = u_nom;
+        self.tick.issued[0] = u;
+        self.tick.outcomes[0] = Some(ChannelOutcome {
             input: u,
             active: decision.overriding,
             infeasible: false,
             mu: f64::NAN,
-        };
-        self.tick = Some(Tick {
-            time: t,
-            nominal: DVector::from_element(1, u_nom),
-            issued: DVector::from_element(1, u),
-            outcomes: vec![Some(outcome)],
         });
+        self.tick_ready = true;
         Ok(())
     }
 
-    fn control_tick(&mut self, t: f64, x: &DVector<f64>) -> Result<(), ControlError> {
+    /// One control tick at time t from the state in `work.state`.
+    fn control_tick(&mut self, t: f64) -> Result<(), ControlError> {
         if let FilterRule::Chain { filter, transform } = &self.rule {
             let (filter, transform) = (filter.clone(), *transform);
-            return self.chain_tick(t, x, &filter, transform);
+            return self.chain_tick(t, &filter, transform);
         }
-        let context = PredictorContext {
-            model: self.model.as_ref(),
-            queues: &self.queues,
-            timestep: self.predictor_step,
-            control_period: self.control_period,
+        let ControlLoop {
+            model,
+            nominal,
+            rule,
+            queues,
+            structure,
+            known_barriers,
+            timestep,
+            control_period,
+            predictor_step,
+            tick,
+            tick_ready,
+            pending,
+            work,
+            ..
+        } = self;
+        let TickWorkspace {
+            state,
+            predictions,
+            predictor,
+            law: law_work,
+            omega,
+            spare_states,
+        } = work;
+        let (model, nominal, rule, known_barriers) = (&*model, &*nominal, &*rule, &*known_barriers);
+        let laws = Laws {
+            model: model.as_ref(),
+            nominal,
+            rule,
+            barriers: known_barriers,
         };
-        // κ_j for commands not yet issued inside a recursive predictor's window: the
-        // delay-free law (4.29) (exact for (4.30); for (4.44) and (4.67) the commands equal it
-        // once predictions are consistent, Lemma 4.7).
-        let law = |time: f64, z: &DVector<f64>| self.delay_free(time, z);
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
-        let uses_prediction = self.rule.uses_prediction() || self.nominal.uses_prediction();
-        let structure = if uses_prediction {
-            &self.structure
-        } else {
-            &Structure::None
-        };
-        let predictions = context.predict(structure, t, x, &law)?;
+        let uses_prediction = rule.uses_prediction() || nominal.uses_prediction();
+        let structure = if uses_prediction { &*structure } else { &Structure::None };
+        {
+            let context = PredictorContext {
+                model: model.as_ref(),
+                queues,
+                timestep: *predictor_step,
+                control_period: *control_period,
+            };
+            // κ_j for commands not yet issued inside a recursive predictor's window: the
+            // delay-free law (4.29) (exact for (4.30); for (4.44) and (4.67) the commands equal
+            // it once predictions are consistent, Lemma 4.7).
+            let mut kappa = |time: f64, z: &[f64], u: &mut [f64]| laws.delay_free(time, z, law_work, u);
+            context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
+        }
 
-        let r = self.queues.len();
-        let mut nominal = DVector::zeros(r);
-        let mut issued = DVector::zeros(r);
-        let mut outcomes = Vec::with_capacity(r);
         for (i, p) in predictions.iter().enumerate() {
-            if let FilterRule::LinearClfCbf(stabilizer) = &self.rule {
+            if let FilterRule::LinearClfCbf(stabilizer) = rule {
                 // (3.33): channel i takes component i of QP-LB solved at p_i(t).
                 let outcome = stabilizer.kappa_lb(&p.state);
-                issued[i] = outcome.input[i];
-                outcomes.push(Some(ChannelOutcome {
-                    input: issued[i],
+                tick.nominal[i] = 0.0;
+                tick.issued[i] = outcome.input[i];
+                tick.outcomes[i] = Some(ChannelOutcome {
+                    input: outcome.input[i],
                     active: outcome.case != QpCase::A,
                     infeasible: outcome.infeasible,
                     mu: f64::NAN,
-                }));
+                });
                 continue;
             }
-            let eval_state = if self.rule.uses_prediction() { &p.state } else { x };
-            let (nominal_time, nominal_state) = if self.nominal.uses_prediction() {
+            let eval_state = if rule.uses_prediction() { &p.state } else { &*state };
+            let (nominal_time, nominal_state) = if nominal.uses_prediction() {
                 (p.target_time, &p.state)
             } else {
                 (t, eval_state)
             };
-            let (u0, constraints) = self.nominal_and_constraints(nominal_time, nominal_state, eval_state);
-            let outcome = if constraints.is_empty() {
+            let count =
+                laws.nominal_and_constraints(nominal_time, nominal_state.as_slice(), eval_state.as_slice(), law_work);
+            let outcome = if count == 0 {
                 None
             } else {
-                Some(self.filter_channel(i, t, &constraints, &u0)?)
+                Some(laws.filter_channel(queues, i, t, law_work, count, omega)?)
             };
-            nominal[i] = u0[i];
-            issued[i] = outcome.map_or(u0[i], |o| o.input);
-            outcomes.push(outcome);
+            tick.nominal[i] = law_work.nominal[i];
+            tick.issued[i] = outcome.map_or(law_work.nominal[i], |o| o.input);
+            tick.outcomes[i] = outcome;
         }
-        for (i, queue) in self.queues.iter_mut().enumerate() {
-            queue.push(t, issued[i])?;
+        for (i, queue) in queues.iter_mut().enumerate() {
+            queue.push(t, tick.issued[i])?;
             queue.discard_before(t);
         }
-        for p in predictions {
-            if p.target_time > t + TICK_TOLERANCE * self.timestep {
-                self.pending[p.channel].push_back(p);
+        for p in predictions.iter() {
+            if p.target_time > t + TICK_TOLERANCE * *timestep {
+                let mut state = spare_states.pop().unwrap_or_else(|| p.state.clone());
+                state.copy_from(&p.state);
+                pending[p.channel].push_back(Prediction {
+                    channel: p.channel,
+                    issued_at: p.issued_at,
+                    target_time: p.target_time,
+                    state,
+                });
             }
         }
-        self.tick = Some(Tick {
-            time: t,
-            nominal,
-            issued,
-            outcomes,
-        });
+        tick.time = t;
+        *tick_ready = true;
         Ok(())
-    }
-
-    /// The filter's decision for channel i at tick t, from the constraints at the channel's
-    /// evaluation state and u0 there. The distinct-delay filters take one barrier (checked
-    /// when the episode is built).
-    fn filter_channel(
-        &self,
-        i: usize,
-        t: f64,
-        constraints: &[Constraint],
-        u0: &DVector<f64>,
-    ) -> Result<ChannelOutcome, DelayError> {
-        // ω_j: commands already issued for the later channels that reach the plant together
-        // with u_i(t), i.e. u_j(t − D_{j,i}) = channel j's applied input at t + D_i.
-        let omega = |from: usize| -> Result<DVector<f64>, DelayError> {
-            let arrival = self.queues[i].profile().prediction_time(t);
-            let mut omega = DVector::zeros(u0.len());
-            for j in from..u0.len() {
-                omega[j] = self.queues[j].applied(arrival)?.value;
-            }
-            Ok(omega)
-        };
-        Ok(match &self.rule {
-            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => {
-                unreachable!("no constraints for these rules")
-            }
-            FilterRule::DelayFree { .. } => {
-                let (input, active, infeasible, mu) = self.delay_free_qp(constraints, u0);
-                ChannelOutcome {
-                    input: input[i],
-                    active,
-                    infeasible,
-                    mu,
-                }
-            }
-            FilterRule::FixedChannel { phi, .. } => {
-                let s = (*phi).max(i + 1);
-                filter::fixed_channel(&constraints[0], u0, &omega(s)?, i, s)
-            }
-            FilterRule::GammaM { m, gamma, .. } => {
-                // k (4.68): the last channel with the same delay as i.
-                let delay_i = self.queues[i].constant_delay();
-                let k = (i..u0.len())
-                    .take_while(|&j| self.queues[j].constant_delay() == delay_i)
-                    .last()
-                    .unwrap_or(i);
-                filter::gamma_m(&constraints[0], u0, &omega(k + 1)?, i, k, *m, *gamma)
-            }
-        })
     }
 
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:
     /// x(t_k) itself, or x(t_k) advanced to an off-grid target with the applied inputs.
+    /// Hand them back with [`ControlLoop::recycle`] once logged.
     pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>) -> Result<Vec<Consistency>, DelayError> {
         let h = self.timestep;
         let mut out = Vec::new();
@@ -465,14 +575,27 @@ impl ControlLoop {
         }
         Ok(out)
     }
+
+    /// Returns a realised prediction's storage for reuse by later ticks.
+    pub fn recycle(&mut self, consistency: Consistency) {
+        self.work.spare_states.push(consistency.prediction.state);
+    }
+}
+
+/// Whether the queue's delay is constant and a whole multiple of the control period.
+fn on_tick_grid(queue: &DelayQueue, control_period: f64) -> bool {
+    queue.constant_delay().is_some_and(|d| {
+        let ticks = d / control_period;
+        (ticks - ticks.round()).abs() < 1e-6
+    })
 }
 
 impl Controller for ControlLoop {
-    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn() -> DVector<f64>) -> &[f64] {
+    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
         let step_time = step as f64 * self.timestep;
         if call_in_step == 0 && step % self.steps_per_tick == 0 && self.error.is_none() {
-            let x = state();
-            if let Err(e) = self.control_tick(step_time, &x) {
+            state(self.work.state.as_mut_slice());
+            if let Err(e) = self.control_tick(step_time) {
                 self.error = Some(e);
             }
         }
@@ -482,7 +605,6 @@ impl Controller for ControlLoop {
         let offset = offset.clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
         let sample_time = step_time + offset;
         self.applied_buffer.clear();
-        let disturbance = self.input_disturbance.as_ref().map(|w| w(sample_time));
         for (i, queue) in self.queues.iter().enumerate() {
             let applied = match queue.applied(sample_time) {
                 Ok(a) => a,
@@ -494,7 +616,7 @@ impl Controller for ControlLoop {
                     }
                 }
             };
-            let value = applied.value + disturbance.as_ref().map_or(0.0, |w| w[i]);
+            let value = applied.value + self.input_disturbance.as_ref().map_or(0.0, |w| w(sample_time, i));
             if call_in_step == 0 {
                 self.applied[i] = (value, applied.issued_at);
             }

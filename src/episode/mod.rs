@@ -439,12 +439,14 @@ impl Episode {
         if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
             let (seed, bound, hold) = (sc.seed, *bound, *hold);
             let r = channels.len();
-            control.input_disturbance = Some(Box::new(move |t| {
-                random_vector(seed, Stream::InputDisturbance, bound, hold, t, r)
+            control.input_disturbance = Some(Box::new(move |t, channel| {
+                random_component(seed, Stream::InputDisturbance, bound, hold, t, r, channel)
             }));
         }
         // Non-obstacle barriers are known from the start.
-        control.known_barriers.extend(barriers.iter().cloned());
+        for barrier in &barriers {
+            control.add_barrier(barrier.clone());
+        }
 
         let steps = (sc.duration / timestep - TICK_TOLERANCE).ceil() as u64;
         let info = RunInfo {
@@ -559,7 +561,7 @@ impl Episode {
                 .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
             {
                 o.known = true;
-                self.control.known_barriers.push(o.barrier.clone());
+                self.control.add_barrier(o.barrier.clone());
                 let message = format!("{} becomes known to the controller", o.barrier.name);
                 Self::emit(
                     sinks,
@@ -591,6 +593,7 @@ impl Episode {
                 Ok(done) => {
                     for c in done {
                         Self::emit(sinks, prediction_record(&c, &channels))?;
+                        self.control.recycle(c);
                     }
                 }
                 Err(e) => return self.stop_with_error(sinks, time, k, e.to_string()),
@@ -607,8 +610,8 @@ impl Episode {
             }
 
             // What happened during step k: tick, applied input, barriers, contacts.
-            if let Some(tick) = self.control.tick.take() {
-                self.emit_tick(sinks, &tick, &channels)?;
+            if let Some(tick) = self.control.take_tick() {
+                Self::emit_tick(sinks, tick, &channels)?;
             }
             let applied = DVector::from_iterator(channels.len(), self.control.applied.iter().map(|a| a.0));
             Self::emit(
@@ -685,7 +688,7 @@ impl Episode {
         Ok(())
     }
 
-    fn emit_tick(&self, sinks: &mut [&mut dyn Sink], tick: &Tick, channels: &[String]) -> Result<(), LogError> {
+    fn emit_tick(sinks: &mut [&mut dyn Sink], tick: &Tick, channels: &[String]) -> Result<(), LogError> {
         Self::emit(
             sinks,
             Record::Issued(proto::IssuedCommand {
@@ -705,7 +708,7 @@ impl Episode {
                 time: tick.time,
                 active,
                 channels: channels.to_vec(),
-                correction: (&tick.issued - &tick.nominal).iter().copied().collect(),
+                correction: tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0).collect(),
                 infeasible,
                 mu,
             }),
@@ -1106,12 +1109,17 @@ fn time_to_contact(d: [f64; 2], v: [f64; 2], r: f64) -> f64 {
 
 /// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
 fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize) -> DVector<f64> {
-    let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
-    let scale = bound / (dim as f64).sqrt();
     DVector::from_iterator(
         dim,
-        (0..dim).map(|i| scale * random::symmetric_unit(seed, stream, interval, i as u64)),
+        (0..dim).map(|i| random_component(seed, stream, bound, hold, t, dim, i)),
     )
+}
+
+/// Component i of [`random_vector`] (no allocation: the input disturbance is sampled in the
+/// control callback).
+fn random_component(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize, i: usize) -> f64 {
+    let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
+    bound / (dim as f64).sqrt() * random::symmetric_unit(seed, stream, interval, i as u64)
 }
 
 /// Set by a signal handler: every running episode stops at its next step, logs an

@@ -34,30 +34,29 @@ const DEGENERATE_B: f64 = 1e-12;
 
 /// Closed-form solution (4.9) of min ‖v‖² s.t. a + b (u0 + v) ≥ 0, applied as (4.11).
 pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome {
-    let mu = constraint.value(nominal);
+    let mut input = nominal.clone();
+    let (active, infeasible, mu) = cbf_qp_in_place(constraint, &mut input);
+    FilterOutcome {
+        input,
+        active,
+        infeasible,
+        mu,
+    }
+}
+
+/// [`cbf_qp`] without allocation: `input` holds u0 on entry and u on return. Returns
+/// (active, infeasible, μ) as in [`FilterOutcome`].
+pub fn cbf_qp_in_place(constraint: &Constraint, input: &mut DVector<f64>) -> (bool, bool, f64) {
+    let mu = constraint.value(input);
     if mu >= 0.0 {
-        return FilterOutcome {
-            input: nominal.clone(),
-            active: false,
-            infeasible: false,
-            mu,
-        };
+        return (false, false, mu);
     }
     let bb = constraint.b.norm_squared();
     if bb < DEGENERATE_B {
-        return FilterOutcome {
-            input: nominal.clone(),
-            active: false,
-            infeasible: true,
-            mu,
-        };
+        return (false, true, mu);
     }
-    FilterOutcome {
-        input: nominal - &constraint.b * (mu / bb),
-        active: true,
-        infeasible: false,
-        mu,
-    }
+    input.axpy(-mu / bb, &constraint.b, 1.0);
+    (true, false, mu)
 }
 
 /// What a per-channel filter decided for channel i.
