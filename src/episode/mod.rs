@@ -1201,6 +1201,9 @@ fn utc_stamp(secs: u64) -> String {
 }
 
 #[cfg(test)]
+mod alloc_tests;
+
+#[cfg(test)]
 mod tests {
     #[test]
     fn time_to_contact_solves_the_constant_velocity_geometry() {

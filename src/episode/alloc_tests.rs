@@ -1,0 +1,144 @@
+//! The control callback allocates nothing once an episode is in steady state (issue 9): a
+//! counting global allocator (this test binary only) counts the allocations made on this
+//! thread while the controller runs inside the plant's step.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+
+use super::{Episode, TICK_TOLERANCE};
+use crate::plant::Controller;
+use crate::scenario;
+
+struct CountingAllocator;
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static COUNT: Cell<u64> = const { Cell::new(0) };
+}
+
+fn note_allocation() {
+    // try_with: the allocator may run while thread-locals are being torn down.
+    let _ = COUNTING.try_with(|on| {
+        if on.get() {
+            let _ = COUNT.try_with(|n| n.set(n.get() + 1));
+        }
+    });
+}
+
+// SAFETY: delegates every call to the system allocator unchanged.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note_allocation();
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note_allocation();
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note_allocation();
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+/// Counts the allocations of the wrapped controller's calls (the body of the control callback).
+struct Counted<'a>(&'a mut dyn Controller);
+
+impl Controller for Counted<'_> {
+    fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
+        COUNTING.with(|on| on.set(true));
+        let input = self.0.input(step, call_in_step, offset, state);
+        COUNTING.with(|on| on.set(false));
+        input
+    }
+}
+
+/// Runs the episode's control loop as `Episode::run` does (without sinks) and returns the
+/// allocations counted in the controller during steps starting at or after `steady_from`,
+/// and before it.
+fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u64, u64) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(file);
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let loaded = scenario::load(&path, &overrides).unwrap();
+    let mut episode = Episode::new(&loaded).unwrap();
+    let h = episode.control.timestep;
+    let (mut warm_up, mut steady) = (0, 0);
+    for k in 0..episode.steps {
+        let time = k as f64 * h;
+        for o in episode
+            .obstacles
+            .iter_mut()
+            .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
+        {
+            o.known = true;
+            episode.control.add_barrier(o.barrier.clone());
+        }
+        let x = episode.plant.state();
+        for c in episode.control.realize(time, &x).unwrap() {
+            episode.control.recycle(c);
+        }
+        COUNT.with(|n| n.set(0));
+        episode.plant.step(&mut Counted(&mut episode.control)).unwrap();
+        assert!(episode.control.error.is_none(), "{file}: {:?}", episode.control.error);
+        let counted = COUNT.with(|n| n.get());
+        if time >= steady_from {
+            steady += counted;
+        } else {
+            warm_up += counted;
+        }
+        episode.control.take_tick();
+    }
+    (warm_up, steady)
+}
+
+#[test]
+fn control_callback_allocates_nothing_in_steady_state() {
+    // (scenario, overrides, steady state from): after the longest delay has filled the
+    // pending predictions and the obstacle (t = 2.75 s) is known.
+    let cases: &[(&str, &[&str], f64)] = &[
+        ("bicycle_obstacle.toml", &[], 3.0),
+        ("bicycle_obstacle_gamma_m.toml", &[], 3.0),
+        (
+            "bicycle_obstacle.toml",
+            &["filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=2}"],
+            3.0,
+        ),
+        (
+            "bicycle_obstacle.toml",
+            &["filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}"],
+            3.0,
+        ),
+        ("bicycle_obstacle_nodelay.toml", &[], 3.0),
+        ("unicycle_tv_delay.toml", &["duration=4.0"], 2.0),
+        ("nonlinear_example1.toml", &[], 1.0),
+        ("scalar_tv_delay.toml", &["duration=4.0"], 2.0),
+    ];
+    for (file, overrides, steady_from) in cases {
+        let (warm_up, steady) = callback_allocations(file, overrides, *steady_from);
+        println!("{file} {overrides:?}: {warm_up} allocations while warming up, {steady} from t = {steady_from} s");
+        assert_eq!(steady, 0, "{file} {overrides:?}: the control callback allocated {steady} times");
+    }
+}
+
+#[test]
+fn the_counter_sees_allocations() {
+    // The harness itself: an allocating controller is counted.
+    struct Allocating(Vec<f64>);
+    impl Controller for Allocating {
+        fn input(&mut self, _: u64, _: u32, _: f64, _: &dyn Fn(&mut [f64])) -> &[f64] {
+            self.0 = vec![0.0; 2];
+            &self.0
+        }
+    }
+    let mut inner = Allocating(Vec::new());
+    COUNT.with(|n| n.set(0));
+    Counted(&mut inner).input(0, 0, 0.0, &|_| {});
+    assert_eq!(COUNT.with(|n| n.get()), 1);
+}
