@@ -129,6 +129,30 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// End-to-end speed of a scenario on this thread: the bare physics loop over its model,
+    /// the full pipeline, and the pipeline with MCAP logging (median of --repeat runs), as
+    /// real-time factors and ratios to the bare loop (docs/performance.md).
+    Bench {
+        /// Scenario file (TOML).
+        #[arg(default_value = "scenarios/bicycle_obstacle_gamma_m.toml")]
+        scenario: PathBuf,
+        /// Override a field: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// Predictor RK4 steps (seconds, multiples of the control period) to compare, one row
+        /// each with its measured prediction error (default: the scenario's).
+        #[arg(long = "predictor-step", value_name = "S1,S2,…", value_delimiter = ',')]
+        predictor_steps: Vec<f64>,
+        /// Runs per configuration (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+        /// Directory for the benchmark's MCAP logs.
+        #[arg(long, default_value = "logs")]
+        log_dir: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Rerun outputs of `mjsafe run` (with the `rerun` feature); none given: nothing is built or sent.
@@ -279,6 +303,28 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             run_sweep(&args, &options)
         }
         Command::Info { file, resolved, json } => info(&file, resolved, json),
+        Command::Bench {
+            scenario,
+            overrides,
+            predictor_steps,
+            repeat,
+            log_dir,
+            json,
+        } => {
+            let steps: Vec<Option<f64>> = if predictor_steps.is_empty() {
+                vec![None]
+            } else {
+                predictor_steps.into_iter().map(Some).collect()
+            };
+            let rows = crate::bench::run(&scenario, &overrides, &steps, repeat, &log_dir)
+                .with_context(|| format!("benchmarking {}", scenario.display()))?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", crate::bench::table(&rows));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -367,9 +367,30 @@ impl DelayQueue {
         self.issued_at_or_before(self.profile.delay_time(time), time)
     }
 
+    /// [`DelayQueue::applied`] at `time`, with the interval [from, until) of source times φ(s)
+    /// over which that command stays in force (while no command is pushed): a caller sampling
+    /// at increasing times can skip the search while φ(s) stays inside it.
+    pub fn applied_span(&self, time: f64) -> Result<(Applied, f64, f64), DelayError> {
+        let source_time = self.profile.delay_time(time);
+        let applied = self.issued_at_or_before(source_time, time)?;
+        let idx = self.in_force_index(source_time);
+        let from = if idx == 0 {
+            f64::NEG_INFINITY
+        } else {
+            self.history[idx - 1].0 - self.eps
+        };
+        let until = self.history.get(idx).map_or(f64::INFINITY, |&(t, _)| t - self.eps);
+        Ok((applied, from, until))
+    }
+
+    /// Number of commands issued at or before `source_time` (within the tolerance).
+    fn in_force_index(&self, source_time: f64) -> usize {
+        self.history.partition_point(|&(t, _)| t <= source_time + self.eps)
+    }
+
     /// The command in force at issue time `source_time` (ZOH), `time` only names the request.
     fn issued_at_or_before(&self, source_time: f64, time: f64) -> Result<Applied, DelayError> {
-        let idx = self.history.partition_point(|&(t, _)| t <= source_time + self.eps);
+        let idx = self.in_force_index(source_time);
         if idx == 0 {
             if self.pruned {
                 return Err(DelayError::HistoryGone {

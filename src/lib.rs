@@ -3,6 +3,7 @@
 
 pub mod analyze;
 pub mod barrier;
+pub mod bench;
 pub mod cli;
 pub mod delay;
 pub mod episode;

@@ -36,6 +36,9 @@ pub trait Plant: Send {
     fn state(&self) -> DVector<f64>;
     /// One step of size `timestep()`.
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError>;
+    /// One step with no controller (the input stays as it is; zero for the ODE plant): the
+    /// bare physics loop of the benchmarks.
+    fn step_uncontrolled(&mut self);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
     fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>>;
 }
@@ -103,6 +106,9 @@ impl Plant for MujocoPlant {
             input: &mut self.input_buffer,
         };
         self.sim.step(&mut adapter)
+    }
+    fn step_uncontrolled(&mut self) {
+        self.sim.step_without_hook();
     }
     /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
     /// `mj_step` are those of the step's first collision phase (the state at its start).
@@ -182,6 +188,11 @@ impl Plant for OdePlant {
         self.x = &x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
         self.step += 1;
         Ok(())
+    }
+    fn step_uncontrolled(&mut self) {
+        let zero = DVector::zeros(self.dynamics.input_dim());
+        self.x = rk4_step(self.dynamics.as_ref(), &self.x, &zero, self.timestep);
+        self.step += 1;
     }
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle.
     fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>> {

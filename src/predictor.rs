@@ -99,11 +99,29 @@ struct Rk4Buffers {
     input: Vec<f64>,
 }
 
+/// The last history sample of one channel: its value holds while φ(s) ∈ [from, until), so the
+/// RK4 stages that follow skip the queue search (a prediction samples at increasing times).
+#[derive(Debug, Clone, Copy)]
+struct HistoryCursor {
+    from: f64,
+    until: f64,
+    value: f64,
+}
+
+impl HistoryCursor {
+    const EMPTY: HistoryCursor = HistoryCursor {
+        from: f64::INFINITY,
+        until: f64::NEG_INFINITY,
+        value: 0.0,
+    };
+}
+
 /// Scratch space of the predictors, sized once for a model (a prediction then allocates
 /// nothing: it runs inside the control callback).
 #[derive(Debug, Clone)]
 pub struct PredictorWorkspace {
     rk4: Rk4Buffers,
+    cursors: Vec<HistoryCursor>,
     /// Per channel: the command κ_j holds inside a recursive predictor's window.
     held: Vec<Option<f64>>,
     law_input: Vec<f64>,
@@ -118,6 +136,7 @@ impl PredictorWorkspace {
                 slopes: std::array::from_fn(|_| vec![0.0; states]),
                 input: vec![0.0; channels],
             },
+            cursors: vec![HistoryCursor::EMPTY; channels],
             held: vec![None; channels],
             law_input: vec![0.0; channels],
         }
@@ -140,10 +159,28 @@ impl PredictorContext<'_> {
     /// The applied input of channel j at stage time `time` of the step [step_start, step_end),
     /// sampled like the plant: clamped into the half-open step, so the last stage takes the
     /// left limit (for a final partial step, the left limit at the target time).
-    fn history_input(&self, j: usize, step_start: f64, step_end: f64, time: f64) -> Result<f64, DelayError> {
+    fn history_input(
+        &self,
+        j: usize,
+        cursor: &mut HistoryCursor,
+        step_start: f64,
+        step_end: f64,
+        time: f64,
+    ) -> Result<f64, DelayError> {
         let margin = self.timestep * GRID_TOLERANCE;
         let sample = time.clamp(step_start, step_end - margin);
-        Ok(self.queues[j].applied(sample)?.value)
+        let queue = &self.queues[j];
+        let source_time = queue.profile().delay_time(sample);
+        if cursor.from <= source_time && source_time < cursor.until {
+            return Ok(cursor.value);
+        }
+        let (applied, from, until) = queue.applied_span(sample)?;
+        *cursor = HistoryCursor {
+            from,
+            until,
+            value: applied.value,
+        };
+        Ok(applied.value)
     }
 
     /// Predictions for every channel, made at tick time t from state x (allocating form of
@@ -175,9 +212,11 @@ impl PredictorContext<'_> {
         let r = self.queues.len();
         let PredictorWorkspace {
             rk4,
+            cursors,
             held,
             law_input,
         } = workspace;
+        cursors.fill(HistoryCursor::EMPTY);
         let set = |p: &mut Prediction, channel: usize, target_time: f64, state: &[f64]| {
             p.channel = channel;
             p.issued_at = t;
@@ -194,7 +233,7 @@ impl PredictorContext<'_> {
                 let target = self.queues[0].profile().prediction_time(t);
                 rk4.state.copy_from_slice(x);
                 self.integrate(rk4, t, target, &mut |_, step, stage_time, u| {
-                    self.history_inputs(step, stage_time, u)
+                    self.history_inputs(cursors, step, stage_time, u)
                 })?;
                 for (channel, p) in out.iter_mut().enumerate() {
                     set(p, channel, target, &rk4.state);
@@ -229,7 +268,7 @@ impl PredictorContext<'_> {
                             for (j, u_j) in u.iter_mut().enumerate().take(r) {
                                 *u_j = match held[j] {
                                     Some(v) if delays[j] < d_i => v,
-                                    _ => self.history_input(j, step.start, step.end, stage_time)?,
+                                    _ => self.history_input(j, &mut cursors[j], step.start, step.end, stage_time)?,
                                 };
                             }
                             Ok(())
@@ -245,19 +284,27 @@ impl PredictorContext<'_> {
     }
 
     /// u ← every channel's issued history at one RK4 stage.
-    fn history_inputs(&self, step: Step, stage_time: f64, u: &mut [f64]) -> Result<(), DelayError> {
-        for (j, u_j) in u.iter_mut().enumerate() {
-            *u_j = self.history_input(j, step.start, step.end, stage_time)?;
+    fn history_inputs(
+        &self,
+        cursors: &mut [HistoryCursor],
+        step: Step,
+        stage_time: f64,
+        u: &mut [f64],
+    ) -> Result<(), DelayError> {
+        for (j, (u_j, cursor)) in u.iter_mut().zip(cursors.iter_mut()).enumerate() {
+            *u_j = self.history_input(j, cursor, step.start, step.end, stage_time)?;
         }
         Ok(())
     }
 
     /// x advanced from `from` to `to` with every channel's issued history (no new commands).
     pub fn advance_with_history(&self, x: &DVector<f64>, from: f64, to: f64) -> Result<DVector<f64>, DelayError> {
-        let mut rk4 = PredictorWorkspace::new(x.len(), self.queues.len()).rk4;
+        let PredictorWorkspace {
+            mut rk4, mut cursors, ..
+        } = PredictorWorkspace::new(x.len(), self.queues.len());
         rk4.state.copy_from_slice(x.as_slice());
         self.integrate(&mut rk4, from, to, &mut |_, step, stage_time, u| {
-            self.history_inputs(step, stage_time, u)
+            self.history_inputs(&mut cursors, step, stage_time, u)
         })?;
         Ok(DVector::from_vec(rk4.state))
     }

@@ -110,12 +110,18 @@ pub struct ControlSpec {
     /// Seconds of issued-input history kept; a delay longer than this is an error.
     #[serde(default = "default_history")]
     pub history: f64,
+    /// RK4 step of the predictors in seconds, a whole multiple of the period (default: the
+    /// period when every delay is constant and a whole multiple of it, else the timestep).
+    /// Coarser is faster; the log's /prediction records measure what it costs in accuracy.
+    #[serde(default)]
+    pub predictor_step: Option<f64>,
 }
 
 impl Default for ControlSpec {
     fn default() -> Self {
         ControlSpec {
             period: None,
+            predictor_step: None,
             history: default_history(),
         }
     }

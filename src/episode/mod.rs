@@ -436,6 +436,20 @@ impl Episode {
         };
 
         let mut control = ControlLoop::new(model, nominal, rule, queues, structure, timestep, steps_per_tick);
+        if let Some(step) = sc.control.predictor_step {
+            let multiple = step / period;
+            if !(multiple >= 0.5 && (multiple - multiple.round()).abs() < 1e-6) {
+                return Err(loaded
+                    .field_error(
+                        "control.predictor_step",
+                        format!("expected a whole multiple of the control period {period} s, got {step}"),
+                    )
+                    .into());
+            }
+            control
+                .set_predictor_step(multiple.round() as u32)
+                .map_err(|e| loaded.field_error("control.predictor_step", e))?;
+        }
         if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
             let (seed, bound, hold) = (sc.seed, *bound, *hold);
             let r = channels.len();
@@ -498,6 +512,19 @@ impl Episode {
     /// Steps the episode will take.
     pub fn steps(&self) -> u64 {
         self.steps
+    }
+
+    /// The RK4 step the predictors use (seconds).
+    pub fn predictor_step(&self) -> f64 {
+        self.control.predictor_step
+    }
+
+    /// Steps the plant `steps` times with no controller: the bare physics loop over this
+    /// episode's model (benchmarks compare the pipeline against it).
+    pub fn step_plant_uncontrolled(&mut self, steps: u64) {
+        for _ in 0..steps {
+            self.plant.step_uncontrolled();
+        }
     }
 
     /// Runs to the end (or to the first error inside the run, which is logged as an `/event`

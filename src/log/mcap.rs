@@ -43,6 +43,7 @@ impl McapSink {
         let file = File::create(&partial_path).map_err(|e| err(e.to_string()))?;
         let mut writer = WriteOptions::new()
             .compression(Some(Compression::Zstd))
+            .compression_level(1)
             .chunk_size(Some(1 << 20))
             .compression_threads(0)
             .library(format!("mjsafe/{}", env!("CARGO_PKG_VERSION")))

@@ -646,6 +646,14 @@ impl Simulation {
         Ok(())
     }
 
+    /// One `mj_step` with no hook: the control callback returns at once and `ctrl` keeps its
+    /// value (the bare physics loop benchmarks compare against).
+    pub fn step_without_hook(&mut self) {
+        // SAFETY: live model and data of that model.
+        unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+        self.step += 1;
+    }
+
     /// Calls `mj_forward` (fires the callback only if a hook is active: never here).
     pub fn forward(&mut self) {
         // SAFETY: live model and data of that model.

@@ -1,0 +1,197 @@
+//! End-to-end speed of one scenario (issue 9), measured in one process on one thread:
+//!
+//! - `bare`: `mj_step` (or the ODE plant's RK4) over the episode's own model for the same number
+//!   of steps, with no controller and no logging;
+//! - `pipeline`: the full episode (delay queues, predictors, filters, nominal, events) with
+//!   no sink;
+//! - `pipeline_mcap`: the same with the MCAP sink writing the complete log.
+//!
+//! Each is repeated and the median wall time reported, with the real-time factor (simulated
+//! time / wall time) and the ratio to `bare`. Several predictor steps can be compared in one
+//! call: each row then also reports the prediction error the log measures (Definition 4.3).
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::analyze;
+use crate::episode::{Episode, EpisodeError};
+use crate::log::mcap::McapSink;
+use crate::log::{LogError, Sink};
+use crate::scenario::{self, LoadedScenario, ScenarioError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Episode(#[from] EpisodeError),
+    #[error(transparent)]
+    Log(#[from] LogError),
+    #[error(transparent)]
+    Analyze(#[from] analyze::AnalyzeError),
+    #[error("the episode stopped early: {0}")]
+    Stopped(String),
+}
+
+/// Median wall time of one configuration and what follows from it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Timing {
+    pub wall_seconds: f64,
+    pub real_time_factor: f64,
+    pub microseconds_per_step: f64,
+    /// Wall time / the bare loop's wall time.
+    pub ratio_to_bare: f64,
+}
+
+/// One benchmarked configuration (scenario with one predictor step).
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    pub scenario: String,
+    /// RK4 step of the predictors, seconds.
+    pub predictor_step: f64,
+    pub steps: u64,
+    pub simulated_time: f64,
+    pub repeats: usize,
+    pub bare: Timing,
+    pub pipeline: Timing,
+    pub pipeline_mcap: Timing,
+    pub log_bytes: u64,
+    /// Largest |p_i(t) − x(t + D_i)| over the run, per channel (from the log).
+    pub max_prediction_error: std::collections::BTreeMap<String, f64>,
+    pub min_h: Option<f64>,
+    pub collision: bool,
+}
+
+fn median(mut samples: Vec<f64>) -> f64 {
+    samples.sort_by(f64::total_cmp);
+    let n = samples.len();
+    if n % 2 == 1 {
+        samples[n / 2]
+    } else {
+        0.5 * (samples[n / 2 - 1] + samples[n / 2])
+    }
+}
+
+fn timing(wall_seconds: f64, simulated_time: f64, steps: u64, bare_seconds: f64) -> Timing {
+    Timing {
+        wall_seconds,
+        real_time_factor: simulated_time / wall_seconds,
+        microseconds_per_step: wall_seconds / steps as f64 * 1e6,
+        ratio_to_bare: wall_seconds / bare_seconds,
+    }
+}
+
+/// Runs one episode of `loaded` with `sinks` and returns its wall time.
+fn timed_run(loaded: &LoadedScenario, sinks: &mut [&mut dyn Sink]) -> Result<f64, BenchError> {
+    let mut episode = Episode::new(loaded)?;
+    let started = Instant::now();
+    let summary = episode.run(sinks)?;
+    let wall = started.elapsed().as_secs_f64();
+    match summary.error {
+        Some(e) => Err(BenchError::Stopped(e)),
+        None => Ok(wall),
+    }
+}
+
+/// Benchmarks `scenario` (with `overrides`) `repeats` times per configuration; the MCAP logs
+/// go to `log_dir` (the last one of each configuration is kept and analysed).
+pub fn run(
+    scenario_path: &Path,
+    overrides: &[String],
+    predictor_steps: &[Option<f64>],
+    repeats: usize,
+    log_dir: &Path,
+) -> Result<Vec<BenchRow>, BenchError> {
+    let repeats = repeats.max(1);
+    let mut rows = Vec::new();
+    for step in predictor_steps {
+        let mut overrides = overrides.to_vec();
+        if let Some(step) = step {
+            overrides.push(format!("control.predictor_step={step}"));
+        }
+        let loaded = scenario::load(scenario_path, &overrides)?;
+        let probe = Episode::new(&loaded)?;
+        let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
+        let simulated_time = steps as f64 * probe.info().timestep;
+        drop(probe);
+
+        let mut bare = Vec::new();
+        let mut pipeline = Vec::new();
+        let mut pipeline_mcap = Vec::new();
+        let log_path = log_dir.join(format!("bench-{}-{}.mcap", loaded.scenario.name, predictor_step));
+        for _ in 0..repeats {
+            let mut episode = Episode::new(&loaded)?;
+            let started = Instant::now();
+            episode.step_plant_uncontrolled(steps);
+            bare.push(started.elapsed().as_secs_f64());
+
+            pipeline.push(timed_run(&loaded, &mut [])?);
+
+            let probe = Episode::new(&loaded)?;
+            let mut sink = McapSink::create(&log_path, probe.info())?;
+            drop(probe);
+            pipeline_mcap.push(timed_run(&loaded, &mut [&mut sink])?);
+        }
+        let bare = median(bare);
+        let metrics = analyze::analyze_file(&log_path)?;
+        rows.push(BenchRow {
+            scenario: loaded.scenario.name.clone(),
+            predictor_step,
+            steps,
+            simulated_time,
+            repeats,
+            bare: timing(bare, simulated_time, steps, bare),
+            pipeline: timing(median(pipeline), simulated_time, steps, bare),
+            pipeline_mcap: timing(median(pipeline_mcap), simulated_time, steps, bare),
+            log_bytes: std::fs::metadata(&log_path).map(|m| m.len()).unwrap_or(0),
+            max_prediction_error: metrics
+                .prediction
+                .iter()
+                .map(|(channel, stats)| (channel.clone(), stats.max_error))
+                .collect(),
+            min_h: metrics.min_h,
+            collision: metrics.collision.is_some(),
+        });
+    }
+    Ok(rows)
+}
+
+/// The rows as an aligned text table.
+pub fn table(rows: &[BenchRow]) -> String {
+    let mut lines = vec![[
+        "scenario",
+        "predictor step",
+        "bare RTF",
+        "pipeline RTF",
+        "+MCAP RTF",
+        "+MCAP / bare",
+        "us/step",
+        "log MB",
+        "max prediction error",
+        "min h",
+    ]
+    .map(String::from)
+    .to_vec()];
+    for r in rows {
+        let errors: Vec<String> = r
+            .max_prediction_error
+            .iter()
+            .map(|(channel, e)| format!("{channel} {e:.1e}"))
+            .collect();
+        lines.push(vec![
+            r.scenario.clone(),
+            format!("{}", r.predictor_step),
+            format!("{:.0}x", r.bare.real_time_factor),
+            format!("{:.0}x", r.pipeline.real_time_factor),
+            format!("{:.0}x", r.pipeline_mcap.real_time_factor),
+            format!("{:.2}", r.pipeline_mcap.ratio_to_bare),
+            format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
+            format!("{:.2}", r.log_bytes as f64 / 1e6),
+            if errors.is_empty() { "-".into() } else { errors.join(", ") },
+            r.min_h.map_or("-".into(), |h| format!("{h:.4}")),
+        ]);
+    }
+    analyze::align_columns(&lines)
+}
