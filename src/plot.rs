@@ -96,7 +96,7 @@ fn read_series(input: impl Read, file: &str) -> Result<Series, PlotError> {
                                             series.reference = Some([(a.x, a.y), (b.x, b.y)]);
                                         }
                                     }
-                                } else if e.id != "vehicle" && e.id != "trail" {
+                                } else if e.id != "vehicle" && !e.id.starts_with("trail") {
                                     if let Some(c) = e.cylinders.first() {
                                         let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
                                         let p = pose.position.unwrap_or_default();

@@ -389,15 +389,16 @@ impl ControlLoop {
         &self.known_barriers
     }
 
-    /// Sets the predictors' RK4 step to `multiple` control periods. Only valid when every
-    /// delay is constant and a whole multiple of the control period (the applied inputs are
-    /// then constant on the control grid; a coarser step holds κ_j's commands for `multiple`
-    /// periods inside the recursive window, an approximation the consistency records measure).
-    pub fn set_predictor_step(&mut self, multiple: u32) -> Result<(), String> {
-        if !self.queues.iter().all(|q| on_tick_grid(q, self.control_period)) {
-            return Err("a predictor step other than the default needs constant delays that are whole multiples of the control period".into());
+    /// Sets the predictors' RK4 step to `steps` plant steps. The plant step h is always valid;
+    /// anything else needs every delay constant and a whole multiple of the control period
+    /// (the applied inputs are then constant on the control grid, so a step of one period is
+    /// exact up to RK4 truncation; a coarser one switches inputs inside its RK4 steps and holds
+    /// κ_j's commands over several periods, an approximation the /prediction records measure).
+    pub fn set_predictor_step(&mut self, steps: u32) -> Result<(), String> {
+        if steps != 1 && !self.queues.iter().all(|q| on_tick_grid(q, self.control_period)) {
+            return Err("a predictor step other than the timestep needs constant delays that are whole multiples of the control period".into());
         }
-        self.predictor_step = multiple as f64 * self.control_period;
+        self.predictor_step = steps as f64 * self.timestep;
         Ok(())
     }
 

@@ -92,11 +92,16 @@ struct SceneState {
     hull_radius: f64,
     /// A straight reference path (point, heading), drawn as a line.
     path: Option<([f64; 2], f64)>,
-    /// Positions at every fifth control tick.
+    /// Positions at every fifth control tick since the last published trail segment (which
+    /// starts with the previous segment's last point, so the segments join up).
     trail: Vec<[f64; 2]>,
+    /// Trail segments published so far (entities `trail/0`, `trail/1`, …: each is
+    /// published once and persists, so the log and the memory grow linearly, not
+    /// quadratically, with the episode's length).
+    trail_segments: u64,
 }
 
-/// Control ticks between trail points, and trail points between `/scene` trail updates.
+/// Control ticks between trail points, and trail intervals per published trail segment.
 const TRAIL_EVERY_TICKS: u64 = 5;
 const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
 
@@ -437,17 +442,17 @@ impl Episode {
 
         let mut control = ControlLoop::new(model, nominal, rule, queues, structure, timestep, steps_per_tick);
         if let Some(step) = sc.control.predictor_step {
-            let multiple = step / period;
-            if !(multiple >= 0.5 && (multiple - multiple.round()).abs() < 1e-6) {
+            let steps = step / timestep;
+            if !(steps >= 0.5 && (steps - steps.round()).abs() < 1e-6) {
                 return Err(loaded
                     .field_error(
                         "control.predictor_step",
-                        format!("expected a whole multiple of the control period {period} s, got {step}"),
+                        format!("expected a whole multiple of the timestep {timestep} s, got {step}"),
                     )
                     .into());
             }
             control
-                .set_predictor_step(multiple.round() as u32)
+                .set_predictor_step(steps.round() as u32)
                 .map_err(|e| loaded.field_error("control.predictor_step", e))?;
         }
         if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
@@ -476,7 +481,11 @@ impl Episode {
                 .queues
                 .iter()
                 .flat_map(|q| {
-                    let samples = (sc.duration / timestep).ceil() as usize;
+                    // Sampled over the run for a time-varying delay; a constant one is itself.
+                    let samples = match q.constant_delay() {
+                        Some(_) => 0,
+                        None => (sc.duration / timestep).ceil() as usize,
+                    };
                     (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)))
                 })
                 .fold(0.0, f64::max),
@@ -501,6 +510,7 @@ impl Episode {
                 hull_radius: parts.hull_radius,
                 path,
                 trail: Vec::new(),
+                trail_segments: 0,
             },
         })
     }
@@ -577,10 +587,6 @@ impl Episode {
 
         for k in 0..=self.steps {
             let time = k as f64 * h;
-            if stop_requested() {
-                Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
-                return Ok((k, Some(INTERRUPTED.into())));
-            }
             // Obstacles become known to the controller at their appearance time.
             for o in self
                 .obstacles
@@ -608,6 +614,12 @@ impl Episode {
                     values: x.iter().copied().collect(),
                 }),
             )?;
+            // Checked after the state is logged, so even a run stopped before its first step
+            // leaves a log with its initial state.
+            if stop_requested() {
+                Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
+                return Ok((k, Some(INTERRUPTED.into())));
+            }
             if x.iter().any(|v| !v.is_finite()) {
                 return self.stop_with_error(
                     sinks,
@@ -706,10 +718,14 @@ impl Episode {
         )?;
         if tick % TRAIL_EVERY_TICKS == 0 {
             self.scene.trail.push(position);
-            if self.scene.trail.len() % TRAIL_PUBLISH_EVERY_POINTS == 1 || k + self.control.steps_per_tick > self.steps
-            {
-                let trail = scene::polyline(time, "trail", &self.scene.trail, scene::TRAIL, 0.15);
+            let last_tick = k + self.control.steps_per_tick > self.steps;
+            let points = self.scene.trail.len();
+            if points > TRAIL_PUBLISH_EVERY_POINTS || (last_tick && points >= 2) {
+                let id = format!("trail/{}", self.scene.trail_segments);
+                let trail = scene::polyline(time, &id, &self.scene.trail, scene::TRAIL, 0.15);
                 Self::emit(sinks, Record::Scene(time, trail))?;
+                self.scene.trail_segments += 1;
+                self.scene.trail.drain(..points - 1);
             }
         }
         Ok(())

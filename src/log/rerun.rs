@@ -77,6 +77,12 @@ fn path(parts: &[&str]) -> EntityPath {
     EntityPath::new(parts.iter().map(|p| EntityPathPart::new(*p)).collect())
 }
 
+/// /world/<scene entity id>, with `/` in the id as path separators (`trail/3`).
+fn world_path(id: &str) -> EntityPath {
+    let parts: Vec<&str> = std::iter::once("world").chain(id.split('/')).collect();
+    path(&parts)
+}
+
 fn rgba(c: Option<&Color>) -> ::rerun::Color {
     let c = c.cloned().unwrap_or(Color {
         r: 0.5,
@@ -278,7 +284,7 @@ impl RerunSink {
         for deletion in &update.deletions {
             match scene_entity_deletion::Type::try_from(deletion.r#type) {
                 Ok(scene_entity_deletion::Type::All) => stream.log(path(&["world"]), &::rerun::Clear::recursive())?,
-                _ => stream.log(path(&["world", &deletion.id]), &::rerun::Clear::flat())?,
+                _ => stream.log(world_path(&deletion.id), &::rerun::Clear::flat())?,
             }
         }
         for entity in &update.entities {
@@ -287,7 +293,7 @@ impl RerunSink {
             if entity.lines.is_empty() && entity.cubes.is_empty() && entity.cylinders.len() == 1 {
                 archetype = archetype.with_labels([entity.id.clone()]);
             }
-            stream.log(path(&["world", &entity.id]), &archetype)?;
+            stream.log(world_path(&entity.id), &archetype)?;
         }
         Ok(())
     }
