@@ -121,15 +121,18 @@ pub struct RunMetrics {
 }
 
 /// Reads and analyses one log file.
-/// Streams through the file: memory stays bounded by the largest chunk, whatever the log's
-/// length.
+/// Streams through the file: memory stays bounded by the largest chunk (and the read size),
+/// whatever the log's length.
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
-    let reader = std::fs::File::open(path).map_err(|source| AnalyzeError::Io {
-        file: file.clone(),
-        source,
-    })?;
-    analyze_reader(std::io::BufReader::with_capacity(1 << 16, reader), &file)
+    let open = || {
+        std::fs::File::open(path).map_err(|source| AnalyzeError::Io {
+            file: file.clone(),
+            source,
+        })
+    };
+    // No BufReader: the analysis reads in large blocks itself.
+    analyze_rereadable(open, &file)
 }
 
 /// Why streaming the records stopped.
@@ -181,7 +184,7 @@ pub fn planar_position(names: &[String]) -> Option<[usize; 2]> {
 
 /// Analyses log bytes; `file` names them in errors.
 pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
-    analyze_reader(bytes, file)
+    analyze_rereadable(|| Ok(bytes), file)
 }
 
 #[derive(Default)]
@@ -228,24 +231,92 @@ struct Accumulator {
     error: Option<String>,
 }
 
-/// Analyses an MCAP stream; `file` names it in errors.
-pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, AnalyzeError> {
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, (String, String)> = HashMap::new();
-    let mut acc = Accumulator::default();
-    let mut messages = 0u64;
-    let mut saw_mjsafe_metadata = false;
-    let result = for_each_record(input, |record| {
+/// Bytes asked of the input per read (256 KiB): large enough that system calls and the reader's
+/// bookkeeping cost little per byte (1 MiB is no faster), small enough to add little memory.
+const READ_SIZE: usize = 1 << 18;
+
+/// Length of the fixed part of an MCAP Message record (channel id, sequence, log and
+/// publish time) before the message data.
+const MESSAGE_HEADER_LEN: usize = 2 + 4 + 8 + 8;
+
+/// What to do with the messages of one channel (decided once, when the channel is seen).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Route {
+    /// A topic that is not part of the log format: skipped.
+    Ignore,
+    /// A log topic with the expected schema; `Topic` says which metrics it feeds.
+    Topic(Topic),
+    /// A log topic with an unexpected schema: the first message on it is an error.
+    WrongSchema(&'static str),
+}
+
+/// The log topics the metrics read.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Topic {
+    State,
+    Barrier,
+    Filter,
+    Issued,
+    Prediction,
+    Event,
+    /// A log topic no metric reads (/command/applied, /scene, /tf).
+    Unused,
+}
+
+struct ChannelRoute {
+    topic: String,
+    schema: String,
+    route: Route,
+}
+
+impl ChannelRoute {
+    fn new(topic: String, schema: String) -> Self {
+        let route = match TOPICS.iter().find(|(t, _)| *t == topic) {
+            None => Route::Ignore,
+            Some((_, s)) if *s != schema => Route::WrongSchema(s),
+            Some((t, _)) => Route::Topic(match *t {
+                "/state" => Topic::State,
+                "/barrier" => Topic::Barrier,
+                "/filter" => Topic::Filter,
+                "/command/issued" => Topic::Issued,
+                "/prediction" => Topic::Prediction,
+                "/event" => Topic::Event,
+                _ => Topic::Unused,
+            }),
+        };
+        ChannelRoute { topic, schema, route }
+    }
+}
+
+/// The state of one analysis: the channels seen so far and the metrics.
+struct Analysis<'f> {
+    file: &'f str,
+    schemas: HashMap<u16, String>,
+    /// Indexed by channel id.
+    channels: Vec<Option<ChannelRoute>>,
+    acc: Accumulator,
+    scratch: Scratch,
+    messages: u64,
+    saw_mjsafe_metadata: bool,
+}
+
+impl Analysis<'_> {
+    fn record(&mut self, record: McapRecord<'_>) -> Result<(), AnalyzeError> {
+        let acc = &mut self.acc;
         match record {
             McapRecord::Schema { header, .. } => {
-                schemas.insert(header.id, header.name);
+                self.schemas.insert(header.id, header.name);
             }
             McapRecord::Channel(c) => {
-                let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                channels.insert(c.id, (c.topic, schema));
+                let schema = self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                let id = usize::from(c.id);
+                if self.channels.len() <= id {
+                    self.channels.resize_with(id + 1, || None);
+                }
+                self.channels[id] = Some(ChannelRoute::new(c.topic, schema));
             }
             McapRecord::Metadata(m) if m.name == "mjsafe" => {
-                saw_mjsafe_metadata = true;
+                self.saw_mjsafe_metadata = true;
                 acc.scenario = m.metadata.get("scenario_name").cloned().unwrap_or_default();
                 acc.timestep = m.metadata.get("timestep").and_then(|s| s.parse().ok());
                 acc.control_period = m.metadata.get("control_period").and_then(|s| s.parse().ok());
@@ -255,197 +326,610 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
             McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
                 acc.complete = Some(m.metadata.get("complete").is_some_and(|v| v == "true"));
             }
-            McapRecord::Message { header, data } => {
-                messages += 1;
-                let Some((topic, schema)) = channels.get(&header.channel_id) else {
-                    return Ok(());
-                };
-                let expected = TOPICS.iter().find(|(t, _)| t == topic).map(|(_, s)| *s);
-                match expected {
-                    Some(s) if s == schema => acc.add(topic, schema, &data, file)?,
-                    Some(s) => {
-                        return Err(AnalyzeError::Foreign {
-                            file: file.into(),
-                            message: format!("topic {topic} has schema {schema}, expected {s}"),
+            McapRecord::Message { header, data } => self.message(header.channel_id, &data)?,
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// One message (its data) on channel `channel_id`.
+    fn message(&mut self, channel_id: u16, data: &[u8]) -> Result<(), AnalyzeError> {
+        self.messages += 1;
+        let Some(Some(channel)) = self.channels.get(usize::from(channel_id)) else {
+            return Ok(());
+        };
+        match channel.route {
+            Route::Ignore | Route::Topic(Topic::Unused) => Ok(()),
+            Route::Topic(topic) => self.acc.add(&mut self.scratch, topic, channel, data, self.file),
+            Route::WrongSchema(expected) => Err(AnalyzeError::Foreign {
+                file: self.file.into(),
+                message: format!(
+                    "topic {} has schema {}, expected {expected}",
+                    channel.topic, channel.schema
+                ),
+            }),
+        }
+    }
+
+    /// Every record of the stream (chunks decompressed, chunk CRCs validated), as
+    /// [`for_each_record`] reads them, except that Message records, the bulk of a log, are
+    /// taken apart here directly (no record parsing, no copy) and routed by channel id.
+    fn read(&mut self, mut input: impl Read, mode: ReadMode) -> Result<(), StreamError> {
+        let options = match mode {
+            ReadMode::Streaming => LinearReaderOptions::default().with_validate_chunk_crcs(true),
+            ReadMode::WholeChunks => LinearReaderOptions::default().with_prevalidate_chunk_crcs(true),
+        };
+        let mut reader = LinearReader::new_with_options(options);
+        let mut any_record = false;
+        let read_error = |any_record: bool, message: String| StreamError::Read { any_record, message };
+        while let Some(event) = reader.next_event() {
+            match event.map_err(|e| read_error(any_record, e.to_string()))? {
+                LinearReadEvent::ReadRequest(wanted) => {
+                    let buffer = reader.insert(wanted.max(READ_SIZE));
+                    let read = read_some(&mut input, buffer).map_err(|e| read_error(any_record, e.to_string()))?;
+                    reader.notify_read(read);
+                    if read == 0 {
+                        return Err(read_error(any_record, "unexpected end of file".into()));
+                    }
+                }
+                LinearReadEvent::Record { data, opcode } => {
+                    let visited = if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
+                        any_record = true;
+                        self.message(u16::from_le_bytes([data[0], data[1]]), &data[MESSAGE_HEADER_LEN..])
+                    } else if opcode == mcap::records::op::MESSAGE_INDEX && message_index_parses(data) {
+                        // Not used by the metrics: skipped once known to parse.
+                        any_record = true;
+                        Ok(())
+                    } else {
+                        let record =
+                            mcap::parse_record(opcode, data).map_err(|e| read_error(any_record, e.to_string()))?;
+                        any_record = true;
+                        self.record(record)
+                    };
+                    visited.map_err(|e| StreamError::Visit(Box::new(e)))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How chunks are read.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum ReadMode {
+    /// Records are decompressed and visited one by one; a chunk's CRC is checked after its last
+    /// record: on a damaged or truncated log, every record before the damage is visited.
+    Streaming,
+    /// Each chunk is decompressed whole and its CRC checked before its records are visited
+    /// (several times faster: one decompression call per chunk instead of two per record).
+    /// On an intact log the records visited are the same as when streaming.
+    WholeChunks,
+}
+
+/// Analyses an MCAP stream; `file` names it in errors.
+pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, AnalyzeError> {
+    let mut analysis = Analysis::new(file);
+    let result = analysis.read(input, ReadMode::Streaming);
+    analysis.conclude(result)
+}
+
+/// Analyses a log that `open` can give twice: chunk by chunk first, and, should that fail to
+/// read (damaged or truncated log), again streaming record by record, so that what is reported
+/// (error, messages read, partial metrics) is what [`analyze_reader`] reports.
+fn analyze_rereadable<R: Read>(
+    mut open: impl FnMut() -> Result<R, AnalyzeError>,
+    file: &str,
+) -> Result<RunMetrics, AnalyzeError> {
+    let mut analysis = Analysis::new(file);
+    match analysis.read(open()?, ReadMode::WholeChunks) {
+        Err(StreamError::Read { .. }) => analyze_reader(open()?, file),
+        result => analysis.conclude(result),
+    }
+}
+
+impl<'f> Analysis<'f> {
+    fn new(file: &'f str) -> Self {
+        Analysis {
+            file,
+            schemas: HashMap::new(),
+            channels: Vec::new(),
+            acc: Accumulator::default(),
+            scratch: Scratch::default(),
+            messages: 0,
+            saw_mjsafe_metadata: false,
+        }
+    }
+
+    /// The metrics, or the error, once the records have been read.
+    fn conclude(self, result: Result<(), StreamError>) -> Result<RunMetrics, AnalyzeError> {
+        let Analysis {
+            file,
+            acc,
+            messages,
+            saw_mjsafe_metadata,
+            ..
+        } = self;
+        match result {
+            Ok(()) => {}
+            Err(StreamError::Visit(e)) => return Err(*e),
+            Err(StreamError::Read {
+                any_record: false,
+                message,
+            }) => {
+                return Err(AnalyzeError::NotMcap {
+                    file: file.into(),
+                    message,
+                })
+            }
+            Err(StreamError::Read {
+                any_record: true,
+                message,
+            }) => {
+                let partial = (saw_mjsafe_metadata && acc.states > 0).then(|| {
+                    let mut m = acc.finish(file);
+                    m.complete = false;
+                    m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
+                    Box::new(m)
+                });
+                return Err(AnalyzeError::Corrupt {
+                    file: file.into(),
+                    messages,
+                    message,
+                    partial,
+                });
+            }
+        }
+        if !saw_mjsafe_metadata || acc.states == 0 {
+            return Err(AnalyzeError::Foreign {
+                file: file.into(),
+                message: "no mjsafe metadata record or no /state messages".into(),
+            });
+        }
+        Ok(acc.finish(file))
+    }
+}
+
+/// Whether a Message Index record parses (as `mcap::parse_record` would): channel id (u16),
+/// then the byte length (u32) of its 16-byte entries, all present.
+fn message_index_parses(data: &[u8]) -> bool {
+    match data.get(2..6) {
+        Some(len) => {
+            let len = u32::from_le_bytes(len.try_into().expect("4 bytes")) as usize;
+            len % 16 == 0 && len <= data.len() - 6
+        }
+        None => false,
+    }
+}
+
+/// One `read` of the input, retried when interrupted (as `Read::read_exact` does).
+fn read_some(input: &mut impl Read, buffer: &mut [u8]) -> std::io::Result<usize> {
+    loop {
+        match input.read(buffer) {
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            other => return other,
+        }
+    }
+}
+
+/// Decoding of the frequent messages into reused buffers, without allocating once the buffers
+/// have their size (the channel and state names repeat from message to message).
+///
+/// Each `merge_*` accepts the plain encoding prost writes (known fields with their proto3 wire
+/// types, packed or unpacked doubles, UTF-8 strings) and gives the message prost would decode;
+/// anything else (unknown fields, other wire types, malformed bytes) makes it return `None`, and
+/// the caller decodes with prost, which then gives the same message or the same error as before.
+mod wire {
+    use crate::log::proto;
+
+    const VARINT: u64 = 0;
+    const FIXED64: u64 = 1;
+    const LEN: u64 = 2;
+
+    struct Fields<'a> {
+        buf: &'a [u8],
+        pos: usize,
+    }
+
+    impl<'a> Fields<'a> {
+        fn new(buf: &'a [u8]) -> Self {
+            Fields { buf, pos: 0 }
+        }
+
+        fn done(&self) -> bool {
+            self.pos >= self.buf.len()
+        }
+
+        /// A varint as prost reads it (at most 10 bytes, the 10th at most 1).
+        fn varint(&mut self) -> Option<u64> {
+            let mut value = 0u64;
+            for i in 0..10 {
+                let b = *self.buf.get(self.pos)?;
+                self.pos += 1;
+                if i == 9 && b > 1 {
+                    return None;
+                }
+                value |= u64::from(b & 0x7f) << (7 * i);
+                if b < 0x80 {
+                    return Some(value);
+                }
+            }
+            None
+        }
+
+        /// (field number, wire type) of the next field.
+        fn key(&mut self) -> Option<(u64, u64)> {
+            let key = self.varint()?;
+            Some((key >> 3, key & 7))
+        }
+
+        fn f64(&mut self) -> Option<f64> {
+            let bytes = self.buf.get(self.pos..self.pos + 8)?;
+            self.pos += 8;
+            Some(f64::from_le_bytes(bytes.try_into().ok()?))
+        }
+
+        fn bytes(&mut self) -> Option<&'a [u8]> {
+            let len = usize::try_from(self.varint()?).ok()?;
+            let end = self.pos.checked_add(len)?;
+            let bytes = self.buf.get(self.pos..end)?;
+            self.pos = end;
+            Some(bytes)
+        }
+
+        /// Packed doubles, appended to `out`.
+        fn packed_f64(&mut self, out: &mut Vec<f64>) -> Option<()> {
+            let bytes = self.bytes()?;
+            if bytes.len() % 8 != 0 {
+                return None;
+            }
+            out.extend(
+                bytes
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
+            );
+            Some(())
+        }
+
+        /// A repeated double field (packed or not), appended to `out`.
+        fn repeated_f64(&mut self, wire: u64, out: &mut Vec<f64>) -> Option<()> {
+            match wire {
+                LEN => self.packed_f64(out),
+                FIXED64 => {
+                    out.push(self.f64()?);
+                    Some(())
+                }
+                _ => None,
+            }
+        }
+    }
+
+    /// Element `k` of a repeated string field := `bytes` (UTF-8, else `None`), reusing the
+    /// element's buffer; an unchanged string (the usual case) is only compared.
+    fn set_string(list: &mut Vec<String>, k: usize, bytes: &[u8]) -> Option<()> {
+        match list.get_mut(k) {
+            Some(old) => set_str(old, bytes)?,
+            None => list.push(std::str::from_utf8(bytes).ok()?.to_owned()),
+        }
+        Some(())
+    }
+
+    fn set_str(old: &mut String, bytes: &[u8]) -> Option<()> {
+        if old.as_bytes() != bytes {
+            let s = std::str::from_utf8(bytes).ok()?;
+            old.clear();
+            old.push_str(s);
+        }
+        Some(())
+    }
+
+    pub(super) fn merge_state(buf: &[u8], m: &mut proto::State) -> Option<()> {
+        let mut r = Fields::new(buf);
+        let mut names = 0;
+        m.time = 0.0;
+        m.step = 0;
+        m.values.clear();
+        while !r.done() {
+            match r.key()? {
+                (1, FIXED64) => m.time = r.f64()?,
+                (2, VARINT) => m.step = r.varint()?,
+                (3, LEN) => {
+                    set_string(&mut m.names, names, r.bytes()?)?;
+                    names += 1;
+                }
+                (4, wire) => r.repeated_f64(wire, &mut m.values)?,
+                _ => return None,
+            }
+        }
+        m.names.truncate(names);
+        Some(())
+    }
+
+    pub(super) fn merge_issued(buf: &[u8], m: &mut proto::IssuedCommand) -> Option<()> {
+        let mut r = Fields::new(buf);
+        let mut channels = 0;
+        m.time = 0.0;
+        m.nominal.clear();
+        m.filtered.clear();
+        while !r.done() {
+            match r.key()? {
+                (1, FIXED64) => m.time = r.f64()?,
+                (2, LEN) => {
+                    set_string(&mut m.channels, channels, r.bytes()?)?;
+                    channels += 1;
+                }
+                (3, wire) => r.repeated_f64(wire, &mut m.nominal)?,
+                (4, wire) => r.repeated_f64(wire, &mut m.filtered)?,
+                _ => return None,
+            }
+        }
+        m.channels.truncate(channels);
+        Some(())
+    }
+
+    pub(super) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
+        let mut r = Fields::new(buf);
+        let mut channels = 0;
+        m.time = 0.0;
+        m.active = false;
+        m.correction.clear();
+        m.infeasible = false;
+        m.mu = 0.0;
+        while !r.done() {
+            match r.key()? {
+                (1, FIXED64) => m.time = r.f64()?,
+                (2, VARINT) => m.active = r.varint()? != 0,
+                (3, LEN) => {
+                    set_string(&mut m.channels, channels, r.bytes()?)?;
+                    channels += 1;
+                }
+                (4, wire) => r.repeated_f64(wire, &mut m.correction)?,
+                (5, VARINT) => m.infeasible = r.varint()? != 0,
+                (6, FIXED64) => m.mu = r.f64()?,
+                _ => return None,
+            }
+        }
+        m.channels.truncate(channels);
+        Some(())
+    }
+
+    pub(super) fn merge_barrier(buf: &[u8], m: &mut proto::Barrier) -> Option<()> {
+        let mut r = Fields::new(buf);
+        let mut barriers = 0;
+        m.time = 0.0;
+        while !r.done() {
+            match r.key()? {
+                (1, FIXED64) => m.time = r.f64()?,
+                (2, LEN) => {
+                    let bytes = r.bytes()?;
+                    if barriers == m.barriers.len() {
+                        m.barriers.push(proto::BarrierValue::default());
+                    }
+                    merge_barrier_value(bytes, &mut m.barriers[barriers])?;
+                    barriers += 1;
+                }
+                _ => return None,
+            }
+        }
+        m.barriers.truncate(barriers);
+        Some(())
+    }
+
+    fn merge_barrier_value(buf: &[u8], m: &mut proto::BarrierValue) -> Option<()> {
+        let mut r = Fields::new(buf);
+        let mut name = None;
+        m.h = 0.0;
+        m.constraint = 0.0;
+        m.known = false;
+        m.relative_degree = 0;
+        m.clearance = 0.0;
+        m.time_to_collision = 0.0;
+        m.obstacle = false;
+        while !r.done() {
+            match r.key()? {
+                (1, LEN) if name.is_none() => name = Some(r.bytes()?),
+                (2, FIXED64) => m.h = r.f64()?,
+                (3, FIXED64) => m.constraint = r.f64()?,
+                (4, VARINT) => m.known = r.varint()? != 0,
+                (5, VARINT) => m.relative_degree = r.varint()? as u32,
+                (6, FIXED64) => m.clearance = r.f64()?,
+                (7, FIXED64) => m.time_to_collision = r.f64()?,
+                (8, VARINT) => m.obstacle = r.varint()? != 0,
+                _ => return None,
+            }
+        }
+        set_str(&mut m.name, name.unwrap_or(b""))?;
+        Some(())
+    }
+}
+
+/// Reused decoding buffers for the frequent messages (see [`wire`]).
+#[derive(Default)]
+struct Scratch {
+    state: proto::State,
+    barrier: proto::Barrier,
+    filter: proto::Filter,
+    issued: proto::IssuedCommand,
+}
+
+/// Decodes `data` into `m`: the allocation-free path, or prost when that declines.
+fn decode_into<M: Message + Default>(
+    data: &[u8],
+    m: &mut M,
+    fast: fn(&[u8], &mut M) -> Option<()>,
+) -> Result<(), prost::DecodeError> {
+    if fast(data, m).is_none() {
+        *m = M::decode(data)?;
+    }
+    Ok(())
+}
+
+impl Accumulator {
+    fn add(
+        &mut self,
+        scratch: &mut Scratch,
+        topic: Topic,
+        channel: &ChannelRoute,
+        data: &[u8],
+        file: &str,
+    ) -> Result<(), AnalyzeError> {
+        let decode_error = |e: prost::DecodeError| AnalyzeError::Decode {
+            file: file.into(),
+            topic: channel.topic.clone(),
+            schema: channel.schema.clone(),
+            message: e.to_string(),
+        };
+        match topic {
+            Topic::State => {
+                decode_into(data, &mut scratch.state, wire::merge_state).map_err(decode_error)?;
+                self.add_state(&scratch.state);
+            }
+            Topic::Barrier => {
+                decode_into(data, &mut scratch.barrier, wire::merge_barrier).map_err(decode_error)?;
+                self.add_barrier(&scratch.barrier);
+            }
+            Topic::Filter => {
+                decode_into(data, &mut scratch.filter, wire::merge_filter).map_err(decode_error)?;
+                self.add_filter(&scratch.filter);
+            }
+            Topic::Issued => {
+                decode_into(data, &mut scratch.issued, wire::merge_issued).map_err(decode_error)?;
+                self.add_issued(&scratch.issued);
+            }
+            Topic::Prediction => self.add_prediction(proto::Prediction::decode(data).map_err(decode_error)?),
+            Topic::Event => self.add_event(proto::Event::decode(data).map_err(decode_error)?),
+            Topic::Unused => {}
+        }
+        Ok(())
+    }
+
+    fn add_state(&mut self, m: &proto::State) {
+        if self.is_prescribed_time(m.time) {
+            self.terminal.state_residuals = m.values.iter().map(|v| v.abs()).collect();
+        }
+        self.track_jerk(m);
+        self.states += 1;
+        self.last_time = self.last_time.max(m.time);
+        self.last_step = self.last_step.max(m.step);
+    }
+
+    fn add_barrier(&mut self, m: &proto::Barrier) {
+        let step_min = m.barriers.iter().map(|b| b.h).fold(f64::INFINITY, f64::min);
+        if self.is_prescribed_time(m.time) && step_min.is_finite() {
+            self.terminal.barrier = Some(step_min);
+        }
+        for b in m.barriers.iter().filter(|b| b.obstacle) {
+            self.min_clearance = Some(self.min_clearance.map_or(b.clearance, |c| c.min(b.clearance)));
+            if b.known && !b.time_to_collision.is_nan() {
+                let ttc = b.time_to_collision;
+                self.min_time_to_collision = Some(self.min_time_to_collision.map_or(ttc, |c| c.min(ttc)));
+            }
+        }
+        let uncompensated_violation = m.barriers.iter().any(|b| {
+            b.h < 0.0
+                && self
+                    .appeared
+                    .get(&b.name)
+                    .is_some_and(|t| m.time >= *t && m.time < t + self.max_delay)
+        });
+        self.delay_attributed_steps += u64::from(uncompensated_violation);
+        if step_min.is_finite() {
+            self.min_h = Some(self.min_h.map_or(step_min, |h| h.min(step_min)));
+            if step_min < 0.0 {
+                self.negative_steps += 1;
+            }
+        }
+    }
+
+    fn add_filter(&mut self, m: &proto::Filter) {
+        self.ticks += 1;
+        self.active_ticks += u64::from(m.active);
+        if m.active {
+            self.first_override_time.get_or_insert(m.time);
+            self.active_ticks_time += self.control_period.unwrap_or(0.0);
+        }
+        if let Some((time, jerk)) = self.pending_jerk.take() {
+            if (time - m.time).abs() < 1e-9 && (m.active || self.previous_overriding) {
+                self.max_jerk_overriding = self.max_jerk_overriding.max(jerk);
+            }
+        }
+        self.previous_overriding = m.active;
+        self.infeasible_ticks += u64::from(m.infeasible);
+        let correction = m.correction.iter().map(|c| c * c).sum::<f64>().sqrt();
+        self.intervention_integral += correction * self.control_period.unwrap_or(0.0);
+        for (channel, c) in m.channels.iter().zip(&m.correction) {
+            match self.max_correction.get_mut(channel) {
+                Some(entry) => *entry = entry.max(c.abs()),
+                None => {
+                    self.max_correction.insert(channel.clone(), 0.0f64.max(c.abs()));
+                }
+            }
+        }
+    }
+
+    fn add_issued(&mut self, m: &proto::IssuedCommand) {
+        if let Some((previous_time, previous)) = &self.previous_command {
+            let dt = m.time - previous_time;
+            if dt > 0.0 {
+                let jerk = m
+                    .filtered
+                    .iter()
+                    .zip(previous)
+                    .map(|(u, p)| ((u - p) / dt).abs())
+                    .fold(0.0, f64::max);
+                self.max_jerk = self.max_jerk.max(jerk);
+                self.pending_jerk = Some((m.time, jerk));
+            }
+        }
+        if self.is_prescribed_time(m.time) {
+            self.terminal.input_residual = m.filtered.iter().map(|u| u.abs()).reduce(f64::max);
+        }
+        match &mut self.previous_command {
+            Some((time, previous)) => {
+                *time = m.time;
+                previous.clear();
+                previous.extend_from_slice(&m.filtered);
+            }
+            None => self.previous_command = Some((m.time, m.filtered.clone())),
+        }
+    }
+
+    fn add_prediction(&mut self, m: proto::Prediction) {
+        let stats = self.prediction.entry(m.channel).or_default();
+        stats.count += 1;
+        stats.max_error = stats.max_error.max(m.error);
+        stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
+        stats.sum_squares += m.error * m.error;
+    }
+
+    fn add_event(&mut self, m: proto::Event) {
+        match m.kind.as_str() {
+            "obstacle_appeared" => {
+                for name in &m.participants {
+                    self.appeared.entry(name.clone()).or_insert(m.time);
+                }
+            }
+            "collision_start" | "collision_end" => {
+                let with = m
+                    .participants
+                    .iter()
+                    .find(|p| *p != "vehicle")
+                    .cloned()
+                    .unwrap_or_default();
+                match self.collision.as_mut() {
+                    Some(c) => c.depth = c.depth.max(m.depth),
+                    None if m.kind == "collision_start" => {
+                        self.collision = Some(Collision {
+                            time: m.time,
+                            with,
+                            depth: m.depth,
                         })
                     }
                     None => {}
                 }
             }
+            "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message),
             _ => {}
         }
-        Ok(())
-    });
-    match result {
-        Ok(()) => {}
-        Err(StreamError::Visit(e)) => return Err(*e),
-        Err(StreamError::Read {
-            any_record: false,
-            message,
-        }) => {
-            return Err(AnalyzeError::NotMcap {
-                file: file.into(),
-                message,
-            })
-        }
-        Err(StreamError::Read {
-            any_record: true,
-            message,
-        }) => {
-            let partial = (saw_mjsafe_metadata && acc.states > 0).then(|| {
-                let mut m = acc.finish(file);
-                m.complete = false;
-                m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
-                Box::new(m)
-            });
-            return Err(AnalyzeError::Corrupt {
-                file: file.into(),
-                messages,
-                message,
-                partial,
-            });
-        }
-    }
-    if !saw_mjsafe_metadata || acc.states == 0 {
-        return Err(AnalyzeError::Foreign {
-            file: file.into(),
-            message: "no mjsafe metadata record or no /state messages".into(),
-        });
-    }
-    Ok(acc.finish(file))
-}
-
-impl Accumulator {
-    fn add(&mut self, topic: &str, schema: &str, data: &[u8], file: &str) -> Result<(), AnalyzeError> {
-        let decode_error = |e: prost::DecodeError| AnalyzeError::Decode {
-            file: file.into(),
-            topic: topic.into(),
-            schema: schema.into(),
-            message: e.to_string(),
-        };
-        match topic {
-            "/state" => {
-                let m = proto::State::decode(data).map_err(decode_error)?;
-                if self.is_prescribed_time(m.time) {
-                    self.terminal.state_residuals = m.values.iter().map(|v| v.abs()).collect();
-                }
-                self.track_jerk(&m);
-                self.states += 1;
-                self.last_time = self.last_time.max(m.time);
-                self.last_step = self.last_step.max(m.step);
-            }
-            "/barrier" => {
-                let m = proto::Barrier::decode(data).map_err(decode_error)?;
-                let step_min = m.barriers.iter().map(|b| b.h).fold(f64::INFINITY, f64::min);
-                if self.is_prescribed_time(m.time) && step_min.is_finite() {
-                    self.terminal.barrier = Some(step_min);
-                }
-                for b in m.barriers.iter().filter(|b| b.obstacle) {
-                    self.min_clearance = Some(self.min_clearance.map_or(b.clearance, |c| c.min(b.clearance)));
-                    if b.known && !b.time_to_collision.is_nan() {
-                        let ttc = b.time_to_collision;
-                        self.min_time_to_collision = Some(self.min_time_to_collision.map_or(ttc, |c| c.min(ttc)));
-                    }
-                }
-                let uncompensated_violation = m.barriers.iter().any(|b| {
-                    b.h < 0.0
-                        && self
-                            .appeared
-                            .get(&b.name)
-                            .is_some_and(|t| m.time >= *t && m.time < t + self.max_delay)
-                });
-                self.delay_attributed_steps += u64::from(uncompensated_violation);
-                if step_min.is_finite() {
-                    self.min_h = Some(self.min_h.map_or(step_min, |h| h.min(step_min)));
-                    if step_min < 0.0 {
-                        self.negative_steps += 1;
-                    }
-                }
-            }
-            "/filter" => {
-                let m = proto::Filter::decode(data).map_err(decode_error)?;
-                self.ticks += 1;
-                self.active_ticks += u64::from(m.active);
-                if m.active {
-                    self.first_override_time.get_or_insert(m.time);
-                    self.active_ticks_time += self.control_period.unwrap_or(0.0);
-                }
-                if let Some((time, jerk)) = self.pending_jerk.take() {
-                    if (time - m.time).abs() < 1e-9 && (m.active || self.previous_overriding) {
-                        self.max_jerk_overriding = self.max_jerk_overriding.max(jerk);
-                    }
-                }
-                self.previous_overriding = m.active;
-                self.infeasible_ticks += u64::from(m.infeasible);
-                let correction = m.correction.iter().map(|c| c * c).sum::<f64>().sqrt();
-                self.intervention_integral += correction * self.control_period.unwrap_or(0.0);
-                for (channel, c) in m.channels.iter().zip(&m.correction) {
-                    let entry = self.max_correction.entry(channel.clone()).or_insert(0.0);
-                    *entry = entry.max(c.abs());
-                }
-            }
-            "/command/issued" => {
-                let m = proto::IssuedCommand::decode(data).map_err(decode_error)?;
-                if let Some((previous_time, previous)) = &self.previous_command {
-                    let dt = m.time - previous_time;
-                    if dt > 0.0 {
-                        let jerk = m
-                            .filtered
-                            .iter()
-                            .zip(previous)
-                            .map(|(u, p)| ((u - p) / dt).abs())
-                            .fold(0.0, f64::max);
-                        self.max_jerk = self.max_jerk.max(jerk);
-                        self.pending_jerk = Some((m.time, jerk));
-                    }
-                }
-                if self.is_prescribed_time(m.time) {
-                    self.terminal.input_residual = m.filtered.iter().map(|u| u.abs()).reduce(f64::max);
-                }
-                self.previous_command = Some((m.time, m.filtered));
-            }
-            "/prediction" => {
-                let m = proto::Prediction::decode(data).map_err(decode_error)?;
-                let stats = self.prediction.entry(m.channel).or_default();
-                stats.count += 1;
-                stats.max_error = stats.max_error.max(m.error);
-                stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
-                stats.sum_squares += m.error * m.error;
-            }
-            "/event" => {
-                let m = proto::Event::decode(data).map_err(decode_error)?;
-                match m.kind.as_str() {
-                    "obstacle_appeared" => {
-                        for name in &m.participants {
-                            self.appeared.entry(name.clone()).or_insert(m.time);
-                        }
-                    }
-                    "collision_start" | "collision_end" => {
-                        let with = m
-                            .participants
-                            .iter()
-                            .find(|p| *p != "vehicle")
-                            .cloned()
-                            .unwrap_or_default();
-                        match self.collision.as_mut() {
-                            Some(c) => c.depth = c.depth.max(m.depth),
-                            None if m.kind == "collision_start" => {
-                                self.collision = Some(Collision {
-                                    time: m.time,
-                                    with,
-                                    depth: m.depth,
-                                })
-                            }
-                            None => {}
-                        }
-                    }
-                    "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message),
-                    _ => {}
-                }
-            }
-            _ => {}
-        }
-        Ok(())
     }
 
     /// Longitudinal and lateral jerk from the last four planar positions (x1, x2 or x, y).
@@ -472,7 +956,8 @@ impl Accumulator {
         if self.recent_positions.len() < 4 {
             return;
         }
-        let p: Vec<(f64, f64, f64)> = self.recent_positions.iter().copied().collect();
+        let q = &self.recent_positions;
+        let p = [q[0], q[1], q[2], q[3]];
         let dt = (p[3].0 - p[0].0) / 3.0;
         if dt <= 0.0 {
             return;

@@ -284,14 +284,14 @@ impl LieWorkspace {
         model.drift_jacobian_into(x, &mut self.jacobian);
         barrier.gradient_into(x, self.grad_h.as_mut_slice());
         // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
-        self.grad_lf_h.gemv_tr(1.0, &self.jacobian, &self.grad_h, 0.0);
+        transpose_times(&self.jacobian, self.grad_h.as_slice(), self.grad_lf_h.as_mut_slice());
         barrier.add_hessian_times(self.f.as_slice(), self.grad_lf_h.as_mut_slice());
         let lie = &mut self.lie;
         lie.h = barrier.h_at(x);
-        lie.lf_h = self.grad_h.dot(&self.f);
-        lie.lg_h.gemv_tr(1.0, &self.g, &self.grad_h, 0.0);
-        lie.lf2_h = self.grad_lf_h.dot(&self.f);
-        lie.lg_lf_h.gemv_tr(1.0, &self.g, &self.grad_lf_h, 0.0);
+        lie.lf_h = dot(self.grad_h.as_slice(), self.f.as_slice());
+        transpose_times(&self.g, self.grad_h.as_slice(), lie.lg_h.as_mut_slice());
+        lie.lf2_h = dot(self.grad_lf_h.as_slice(), self.f.as_slice());
+        transpose_times(&self.g, self.grad_lf_h.as_slice(), lie.lg_lf_h.as_mut_slice());
     }
 
     /// out ← the constraint data (a, b) of `barrier` in `form` at x.
@@ -316,6 +316,17 @@ impl LieWorkspace {
                 out.b.copy_from(&lie.lg_lf_h);
             }
         }
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).fold(0.0, |sum, (a, b)| sum + a * b)
+}
+
+/// out ← mᵀ v (column-wise dot products of the column-major storage).
+fn transpose_times(m: &DMatrix<f64>, v: &[f64], out: &mut [f64]) {
+    for (out, column) in out.iter_mut().zip(m.as_slice().chunks_exact(m.nrows())) {
+        *out = dot(column, v);
     }
 }
 

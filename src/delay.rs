@@ -373,16 +373,31 @@ impl DelayQueue {
     /// over which that command stays in force (while no command is pushed): a caller sampling
     /// at increasing times can skip the search while φ(s) stays inside it.
     pub fn applied_span(&self, time: f64) -> Result<(Applied, f64, f64), DelayError> {
+        self.applied_span_near(time, 0).map(|(applied, from, until, _)| (applied, from, until))
+    }
+
+    /// [`DelayQueue::applied_span`], trying first the command after the one at index `hint`
+    /// (what a caller sampling at increasing times needs next); also returns the index to
+    /// pass as the next hint.
+    pub fn applied_span_near(&self, time: f64, hint: usize) -> Result<(Applied, f64, f64, usize), DelayError> {
         let source_time = self.profile.delay_time(time);
-        let applied = self.issued_at_or_before(source_time, time)?;
-        let idx = self.in_force_index(source_time);
+        let in_force = |idx: usize| {
+            idx <= self.history.len()
+                && (idx == 0 || self.history[idx - 1].0 <= source_time + self.eps)
+                && (idx == self.history.len() || self.history[idx].0 > source_time + self.eps)
+        };
+        let idx = [hint + 1, hint]
+            .into_iter()
+            .find(|&idx| in_force(idx))
+            .unwrap_or_else(|| self.in_force_index(source_time));
+        let applied = self.applied_at_index(idx, source_time, time)?;
         let from = if idx == 0 {
             f64::NEG_INFINITY
         } else {
             self.history[idx - 1].0 - self.eps
         };
         let until = self.history.get(idx).map_or(f64::INFINITY, |&(t, _)| t - self.eps);
-        Ok((applied, from, until))
+        Ok((applied, from, until, idx))
     }
 
     /// Number of commands issued at or before `source_time` (within the tolerance).
@@ -392,7 +407,11 @@ impl DelayQueue {
 
     /// The command in force at issue time `source_time` (ZOH), `time` only names the request.
     fn issued_at_or_before(&self, source_time: f64, time: f64) -> Result<Applied, DelayError> {
-        let idx = self.in_force_index(source_time);
+        self.applied_at_index(self.in_force_index(source_time), source_time, time)
+    }
+
+    /// The command in force when `idx` commands were issued at or before `source_time`.
+    fn applied_at_index(&self, idx: usize, source_time: f64, time: f64) -> Result<Applied, DelayError> {
         if idx == 0 {
             if self.pruned {
                 return Err(DelayError::HistoryGone {

@@ -89,8 +89,10 @@ pub struct BicyclePathLqr {
     pub path_point: [f64; 2],
     pub path_heading: f64,
     pub reference_speed: f64,
-    /// 2×3 gain.
-    pub gain: DMatrix<f64>,
+    /// 2×3 gain K (u = −K e).
+    pub gain: [[f64; 3]; 2],
+    /// (sin, cos) of the path heading.
+    path_direction: (f64, f64),
 }
 
 impl BicyclePathLqr {
@@ -111,13 +113,17 @@ impl BicyclePathLqr {
             path_point,
             path_heading,
             reference_speed,
-            gain: lqr_gain(&a, &b, &q, &r)?,
+            gain: {
+                let k = lqr_gain(&a, &b, &q, &r)?;
+                std::array::from_fn(|i| std::array::from_fn(|j| k[(i, j)]))
+            },
+            path_direction: path_heading.sin_cos(),
         })
     }
 
     /// Tracking error of state x = (x1, x2, heading, speed).
     pub fn error(&self, x: &[f64]) -> [f64; 3] {
-        let (s, c) = self.path_heading.sin_cos();
+        let (s, c) = self.path_direction;
         let cross_track = -s * (x[0] - self.path_point[0]) + c * (x[1] - self.path_point[1]);
         let heading_error = wrap_angle(x[2] - self.path_heading);
         [cross_track, heading_error, x[3] - self.reference_speed]
@@ -126,8 +132,8 @@ impl BicyclePathLqr {
     /// u ← −K e(x).
     pub fn input_into(&self, x: &[f64], u: &mut [f64]) {
         let error = self.error(x);
-        for (i, u) in u.iter_mut().enumerate() {
-            *u = -(0..3).map(|j| self.gain[(i, j)] * error[j]).sum::<f64>();
+        for (u, k) in u.iter_mut().zip(&self.gain) {
+            *u = -(k[0] * error[0] + k[1] * error[1] + k[2] * error[2]);
         }
     }
 }
@@ -221,7 +227,7 @@ impl Nominal {
     /// Number of input channels the controller drives.
     pub fn channels(&self) -> usize {
         match self {
-            Nominal::PathLqr(lqr) => lqr.gain.nrows(),
+            Nominal::PathLqr(lqr) => lqr.gain.len(),
             Nominal::Constant(u) => u.len(),
             Nominal::UnicycleStabilizer | Nominal::QuarticClf(_) => 2,
             Nominal::RedLight(_) | Nominal::Pts(_) => 1,

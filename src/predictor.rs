@@ -87,6 +87,10 @@ struct Step {
     first_stage: bool,
 }
 
+/// u ← the input of every channel at one RK4 stage: (state at the step's start, the step,
+/// stage time, u).
+type StageInput<'a> = dyn FnMut(&[f64], Step, f64, &mut [f64]) -> Result<(), DelayError> + 'a;
+
 /// u ← κ(t, x): the control law used for commands not yet issued (recursive predictor only).
 pub type ControlLaw<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
 
@@ -106,6 +110,8 @@ struct HistoryCursor {
     from: f64,
     until: f64,
     value: f64,
+    /// Position of that command in the queue (where the next search starts).
+    index: usize,
 }
 
 impl HistoryCursor {
@@ -113,6 +119,7 @@ impl HistoryCursor {
         from: f64::INFINITY,
         until: f64::NEG_INFINITY,
         value: 0.0,
+        index: 0,
     };
 }
 
@@ -174,11 +181,12 @@ impl PredictorContext<'_> {
         if cursor.from <= source_time && source_time < cursor.until {
             return Ok(cursor.value);
         }
-        let (applied, from, until) = queue.applied_span(sample)?;
+        let (applied, from, until, index) = queue.applied_span_near(sample, cursor.index)?;
         *cursor = HistoryCursor {
             from,
             until,
             value: applied.value,
+            index,
         };
         Ok(applied.value)
     }
@@ -217,6 +225,7 @@ impl PredictorContext<'_> {
             law_input,
         } = workspace;
         cursors.fill(HistoryCursor::EMPTY);
+        let constant_input = self.inputs_constant_per_step(structure);
         let set = |p: &mut Prediction, channel: usize, target_time: f64, state: &[f64]| {
             p.channel = channel;
             p.issued_at = t;
@@ -232,7 +241,7 @@ impl PredictorContext<'_> {
             Structure::Shared => {
                 let target = self.queues[0].profile().prediction_time(t);
                 rk4.state.copy_from_slice(x);
-                self.integrate(rk4, t, target, &mut |_, step, stage_time, u| {
+                self.integrate(rk4, t, target, constant_input, &mut |_, step, stage_time, u| {
                     self.history_inputs(cursors, step, stage_time, u)
                 })?;
                 for (channel, p) in out.iter_mut().enumerate() {
@@ -273,7 +282,7 @@ impl PredictorContext<'_> {
                             }
                             Ok(())
                         };
-                        self.integrate(rk4, t + reached, t + d_i, &mut input)?;
+                        self.integrate(rk4, t + reached, t + d_i, constant_input, &mut input)?;
                         reached = d_i;
                     }
                     set(&mut out[i], i, t + d_i, &rk4.state);
@@ -303,20 +312,38 @@ impl PredictorContext<'_> {
             mut rk4, mut cursors, ..
         } = PredictorWorkspace::new(x.len(), self.queues.len());
         rk4.state.copy_from_slice(x.as_slice());
-        self.integrate(&mut rk4, from, to, &mut |_, step, stage_time, u| {
+        self.integrate(&mut rk4, from, to, false, &mut |_, step, stage_time, u| {
             self.history_inputs(&mut cursors, step, stage_time, u)
         })?;
         Ok(DVector::from_vec(rk4.state))
     }
 
+    /// Whether every input is constant on each integration step of a prediction made on the
+    /// control grid: constant delays that are whole multiples of the control period, which is
+    /// itself a whole multiple of the step (commands then switch only at step boundaries).
+    fn inputs_constant_per_step(&self, structure: &Structure) -> bool {
+        let whole = |ratio: f64| ratio >= 0.5 && (ratio - ratio.round()).abs() < GRID_TOLERANCE;
+        whole(self.control_period / self.timestep)
+            && match structure {
+                Structure::None => false,
+                // Checked by `structure`.
+                Structure::Recursive { .. } => true,
+                Structure::Shared => self.queues[0]
+                    .constant_delay()
+                    .is_some_and(|d| d == 0.0 || whole(d / self.control_period)),
+            }
+    }
+
     /// RK4 of `rk4.state` from `from` to `to` on the grid of step h (a final partial step if
-    /// `to` is off the grid). `input(step_start_state, step, stage_time, u)` writes u.
+    /// `to` is off the grid). `input(step_start_state, step, stage_time, u)` writes u; with
+    /// `constant_input` it is asked once per step (at the first stage) and held.
     fn integrate(
         &self,
         rk4: &mut Rk4Buffers,
         from: f64,
         to: f64,
-        input: &mut dyn FnMut(&[f64], Step, f64, &mut [f64]) -> Result<(), DelayError>,
+        constant_input: bool,
+        input: &mut StageInput<'_>,
     ) -> Result<(), DelayError> {
         let h = self.timestep;
         let Rk4Buffers {
@@ -341,17 +368,23 @@ impl PredictorContext<'_> {
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k1.iter())) {
                 *stage = x + k * (dt / 2.0);
             }
-            input(state, step(false), s + dt / 2.0, u)?;
+            if !constant_input {
+                input(state, step(false), s + dt / 2.0, u)?;
+            }
             self.model.dynamics_into(stage, u, k2);
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k2.iter())) {
                 *stage = x + k * (dt / 2.0);
             }
-            input(state, step(false), s + dt / 2.0, u)?;
+            if !constant_input {
+                input(state, step(false), s + dt / 2.0, u)?;
+            }
             self.model.dynamics_into(stage, u, k3);
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k3.iter())) {
                 *stage = x + k * dt;
             }
-            input(state, step(false), s + dt, u)?;
+            if !constant_input {
+                input(state, step(false), s + dt, u)?;
+            }
             self.model.dynamics_into(stage, u, k4);
             for (i, x) in state.iter_mut().enumerate() {
                 *x += (k1[i] + k2[i] * 2.0 + k3[i] * 2.0 + k4[i]) * (dt / 6.0);
