@@ -85,6 +85,9 @@ pub struct Episode {
     steps: u64,
     info: RunInfo,
     scene: SceneState,
+    /// Scratch space of the logged barrier constraints (one evaluation per barrier and step).
+    lie: barrier::LieWorkspace,
+    constraint: barrier::Constraint,
 }
 
 /// What the Foxglove 3D view needs beyond the state.
@@ -499,6 +502,7 @@ impl Episode {
             NominalSpec::PathLqr(p) => Some((p.path_point, p.path_heading)),
             _ => None,
         };
+        let control_model = control.model.clone();
         Ok(Episode {
             plant,
             control,
@@ -506,6 +510,8 @@ impl Episode {
             barriers,
             steps,
             info,
+            lie: barrier::LieWorkspace::new(control_model.as_ref()),
+            constraint: barrier::Constraint::zeros(control_model.input_dim()),
             scene: SceneState {
                 hull_radius: parts.hull_radius,
                 path,
@@ -761,7 +767,7 @@ impl Episode {
     /// Every barrier at x(t_k), with its constraint evaluated at the applied input (without a
     /// filter there is no barrier constraint: only h is meaningful).
     fn emit_barriers(
-        &self,
+        &mut self,
         sinks: &mut [&mut dyn Sink],
         time: f64,
         x: &DVector<f64>,
@@ -779,13 +785,12 @@ impl Episode {
             let xdot = model.dynamics(x, applied);
             [xdot[i], xdot[j]]
         });
+        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
         let barriers: Vec<proto::BarrierValue> = entries
             .map(|(b, known, obstacle)| {
                 let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
-                    (
-                        barrier::constraint(b, form, model, x).value(applied),
-                        form.relative_degree(),
-                    )
+                    lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
+                    (constraint_data.value(applied), form.relative_degree())
                 });
                 let time_to_collision = match (obstacle, velocity, &b.shape) {
                     (

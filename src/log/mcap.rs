@@ -17,6 +17,8 @@ pub struct McapSink {
     writer: Option<Writer<BufWriter<File>>>,
     channel_ids: Vec<u16>,
     sequence: u32,
+    /// Encoding buffer reused by every record.
+    buffer: Vec<u8>,
     partial_path: PathBuf,
     final_path: PathBuf,
 }
@@ -87,6 +89,7 @@ impl McapSink {
             writer: Some(writer),
             channel_ids,
             sequence: 0,
+            buffer: Vec::new(),
             partial_path,
             final_path: path.to_path_buf(),
         })
@@ -117,7 +120,8 @@ impl Sink for McapSink {
             log_time: time,
             publish_time: time,
         };
-        let result = writer.write_to_known_channel(&header, &record.encode());
+        record.encode_into(&mut self.buffer);
+        let result = writer.write_to_known_channel(&header, &self.buffer);
         result.map_err(|e| self.error(e.to_string()))
     }
 

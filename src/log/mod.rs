@@ -99,18 +99,27 @@ impl Record {
     }
 
     pub fn encode(&self) -> Vec<u8> {
+        let mut buffer = Vec::new();
+        self.encode_into(&mut buffer);
+        buffer
+    }
+
+    /// buffer ← the protobuf encoding (reusing the buffer's allocation).
+    pub fn encode_into(&self, buffer: &mut Vec<u8>) {
         use prost::Message;
-        match self {
-            Record::State(m) => m.encode_to_vec(),
-            Record::Issued(m) => m.encode_to_vec(),
-            Record::Applied(m) => m.encode_to_vec(),
-            Record::Barrier(m) => m.encode_to_vec(),
-            Record::Filter(m) => m.encode_to_vec(),
-            Record::Event(m) => m.encode_to_vec(),
-            Record::Prediction(m) => m.encode_to_vec(),
-            Record::Scene(_, m) => m.encode_to_vec(),
-            Record::Transform(_, m) => m.encode_to_vec(),
-        }
+        buffer.clear();
+        let result = match self {
+            Record::State(m) => m.encode(buffer),
+            Record::Issued(m) => m.encode(buffer),
+            Record::Applied(m) => m.encode(buffer),
+            Record::Barrier(m) => m.encode(buffer),
+            Record::Filter(m) => m.encode(buffer),
+            Record::Event(m) => m.encode(buffer),
+            Record::Prediction(m) => m.encode(buffer),
+            Record::Scene(_, m) => m.encode(buffer),
+            Record::Transform(_, m) => m.encode(buffer),
+        };
+        result.expect("a Vec grows to fit any message");
     }
 }
 
