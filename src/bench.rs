@@ -189,7 +189,11 @@ pub fn table(rows: &[BenchRow]) -> String {
             format!("{:.2}", r.pipeline_mcap.ratio_to_bare),
             format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
             format!("{:.2}", r.log_bytes as f64 / 1e6),
-            if errors.is_empty() { "-".into() } else { errors.join(", ") },
+            if errors.is_empty() {
+                "-".into()
+            } else {
+                errors.join(", ")
+            },
             r.min_h.map_or("-".into(), |h| format!("{h:.4}")),
         ]);
     }

@@ -373,7 +373,8 @@ impl DelayQueue {
     /// over which that command stays in force (while no command is pushed): a caller sampling
     /// at increasing times can skip the search while φ(s) stays inside it.
     pub fn applied_span(&self, time: f64) -> Result<(Applied, f64, f64), DelayError> {
-        self.applied_span_near(time, 0).map(|(applied, from, until, _)| (applied, from, until))
+        self.applied_span_near(time, 0)
+            .map(|(applied, from, until, _)| (applied, from, until))
     }
 
     /// [`DelayQueue::applied_span`], trying first the command after the one at index `hint`

@@ -174,7 +174,9 @@ impl Plant for OdePlant {
         let step_time = self.step as f64 * h;
         let disturbance = self.disturbance.as_ref();
         let mut derivative = |call: u32, offset: f64, stage: &DVector<f64>| {
-            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|out: &mut [f64]| out.copy_from_slice(x.as_slice())));
+            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|out: &mut [f64]| {
+                out.copy_from_slice(x.as_slice())
+            }));
             let dx = model.dynamics(stage, &u);
             match disturbance {
                 Some(w) => dx + w(step_time + offset),

@@ -104,7 +104,12 @@ fn python_mcap_reads_and_decodes_the_log() {
     assert_eq!(d["schemas"]["/tf"], "foxglove.FrameTransform");
     assert_eq!(d["counts"]["/tf"], 1201);
     // The trail is published in segments trail/0, trail/1, … (11 points each, joined up).
-    let ids: Vec<&str> = d["scene_ids"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    let ids: Vec<&str> = d["scene_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
     let (trail, others): (Vec<&str>, Vec<&str>) = ids.iter().partition(|id| id.starts_with("trail/"));
     assert_eq!(others, ["obstacle_0", "reference_path", "vehicle"]);
     // 1201 ticks, a point every 5th: 241 points, 10 intervals per segment.

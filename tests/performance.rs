@@ -36,7 +36,10 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
         let wall = t["wall_seconds"].as_f64().unwrap();
         assert!(wall > 0.0 && wall.is_finite(), "{timing}: {t}");
         let rtf = t["real_time_factor"].as_f64().unwrap();
-        assert!((rtf * wall - 2.0).abs() < 1e-9, "{timing}: RTF is simulated / wall time");
+        assert!(
+            (rtf * wall - 2.0).abs() < 1e-9,
+            "{timing}: RTF is simulated / wall time"
+        );
     }
     assert!((row["bare"]["ratio_to_bare"].as_f64().unwrap() - 1.0).abs() < 1e-12);
     // The kept log is complete and is the scenario's run (it avoids the obstacle).
@@ -93,6 +96,9 @@ fn predictor_step_must_be_a_multiple_of_the_timestep() {
     ]);
     assert!(!o.status.success());
     let e = stderr(&o);
-    assert!(e.contains("bicycle_obstacle_gamma_m.toml") && e.contains("control.predictor_step"), "{e}");
+    assert!(
+        e.contains("bicycle_obstacle_gamma_m.toml") && e.contains("control.predictor_step"),
+        "{e}"
+    );
     assert!(e.contains("multiple of the timestep"), "{e}");
 }

@@ -123,7 +123,10 @@ fn control_callback_allocates_nothing_in_steady_state() {
     for (file, overrides, steady_from) in cases {
         let (warm_up, steady) = callback_allocations(file, overrides, *steady_from);
         println!("{file} {overrides:?}: {warm_up} allocations while warming up, {steady} from t = {steady_from} s");
-        assert_eq!(steady, 0, "{file} {overrides:?}: the control callback allocated {steady} times");
+        assert_eq!(
+            steady, 0,
+            "{file} {overrides:?}: the control callback allocated {steady} times"
+        );
     }
 }
 

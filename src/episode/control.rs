@@ -181,7 +181,8 @@ impl Laws<'_> {
     /// work.constraints ← the constraint data of every known barrier at state z. Returns
     /// the number of constraints (0 without a filter).
     fn nominal_and_constraints(&self, time: f64, nominal_state: &[f64], z: &[f64], work: &mut LawWorkspace) -> usize {
-        self.nominal.input_into(time, nominal_state, work.nominal.as_mut_slice());
+        self.nominal
+            .input_into(time, nominal_state, work.nominal.as_mut_slice());
         let Some(form) = self.rule.form() else {
             return 0;
         };
