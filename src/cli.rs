@@ -321,7 +321,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             if json {
                 println!("{}", serde_json::to_string_pretty(&rows)?);
             } else {
-                print!("{}", crate::bench::table(&rows));
+                println!("{}", crate::bench::table(&rows));
             }
             Ok(ExitCode::SUCCESS)
         }
