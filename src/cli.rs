@@ -8,6 +8,30 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 
+/// `print!` to stdout that ends the process quietly with 141 (128 + SIGPIPE, what a shell
+/// reports for a program killed by a closed pipe) when stdout is a closed pipe, e.g.
+/// `mjsafe info LOG | head`, instead of panicking.
+macro_rules! out {
+    ($($arg:tt)*) => { write_stdout(format_args!($($arg)*)) };
+}
+
+/// `println!` with the same closed-pipe handling as `out!`.
+macro_rules! outln {
+    () => { write_stdout(format_args!("\n")) };
+    ($($arg:tt)*) => { write_stdout(format_args!("{}\n", format_args!($($arg)*))) };
+}
+
+fn write_stdout(args: std::fmt::Arguments) {
+    let mut stdout = std::io::stdout().lock();
+    if let Err(e) = stdout.write_fmt(args).and_then(|()| stdout.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(141);
+        }
+        eprintln!("error: cannot write to stdout: {e}");
+        std::process::exit(1);
+    }
+}
+
 use crate::analyze::{self, RunMetrics};
 use crate::episode::{self, Episode};
 use crate::log::mcap::McapSink;
@@ -319,9 +343,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             let rows = crate::bench::run(&scenario, &overrides, &steps, repeat, &log_dir)
                 .with_context(|| format!("benchmarking {}", scenario.display()))?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
+                outln!("{}", serde_json::to_string_pretty(&rows)?);
             } else {
-                println!("{}", crate::bench::table(&rows));
+                outln!("{}", crate::bench::table(&rows));
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -357,7 +381,7 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
     };
     let metrics = analyze::analyze_file(&log_path)
         .with_context(|| format!("reading back the log just written, {}", log_path.display()))?;
-    println!(
+    outln!(
         "{}: {} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
         loaded.scenario.name,
         metrics
@@ -395,7 +419,7 @@ fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>) -> Result<
     };
     let what = target.to_string();
     let summary = crate::log::rerun::replay(file, target)?;
-    println!(
+    outln!(
         "replayed {} messages of {}{} into {what}",
         summary.messages,
         file.display(),
@@ -427,9 +451,9 @@ fn analyze_files(files: &[PathBuf], format: Format) -> ExitCode {
         }
     }
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
-        Format::Csv if !runs.is_empty() => print!("{}", analyze::csv(&runs)),
-        Format::Table if !runs.is_empty() => println!("{}", analyze::table(&runs)),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
+        Format::Csv if !runs.is_empty() => out!("{}", analyze::csv(&runs)),
+        Format::Table if !runs.is_empty() => outln!("{}", analyze::table(&runs)),
         _ => {}
     }
     if failed {
@@ -453,15 +477,15 @@ fn compare_files(files: &[PathBuf], format: Format) -> Result<ExitCode> {
                 "b": b.display().to_string(),
                 "metrics": analyze::comparison_json(&rows),
             });
-            println!(
+            outln!(
                 "{}",
                 serde_json::to_string_pretty(&value).expect("JSON values serialise")
             );
         }
-        Format::Csv => print!("{}", analyze::comparison_csv(&rows)),
+        Format::Csv => out!("{}", analyze::comparison_csv(&rows)),
         Format::Table => {
-            println!("A: {}\nB: {}\n", a.display(), b.display());
-            println!("{}", analyze::comparison_table(&rows));
+            outln!("A: {}\nB: {}\n", a.display(), b.display());
+            outln!("{}", analyze::comparison_table(&rows));
         }
     }
     Ok(ExitCode::SUCCESS)
@@ -517,9 +541,9 @@ fn abbreviate(indices: &[usize]) -> String {
 
 fn print_summary(summary: &Summary, format: Format) {
     match format {
-        Format::Json => print!("{}", summary.to_json()),
-        Format::Csv => print!("{}", summary.to_csv()),
-        Format::Table => println!("{}", sweep_table(summary)),
+        Format::Json => out!("{}", summary.to_json()),
+        Format::Csv => out!("{}", summary.to_csv()),
+        Format::Table => outln!("{}", sweep_table(summary)),
     }
 }
 
@@ -576,7 +600,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     if options.dry_run {
         for &i in &indices {
             let run = spec.run(i);
-            println!(
+            outln!(
                 "{i}  {}  {}",
                 dir.join(spec.log_name(i)).display(),
                 run.overrides.join(" ")
@@ -602,9 +626,9 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     let (json, csv) = summary
         .write(&dir)
         .with_context(|| format!("writing the summary into {}", dir.display()))?;
-    println!("{}", sweep_table(&summary));
+    outln!("{}", sweep_table(&summary));
     let failures = summary.failures();
-    println!(
+    outln!(
         "{}: {} of {} runs{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",
         spec.name,
         indices.len(),
@@ -685,18 +709,18 @@ impl Progress {
 fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
     let info = analyze::log_info(file)?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&info).expect("info serialises"));
+        outln!("{}", serde_json::to_string_pretty(&info).expect("info serialises"));
         return Ok(ExitCode::SUCCESS);
     }
-    println!("file:      {} ({} bytes)", info.file, info.bytes);
-    println!("messages:  {} in {} chunks", info.messages, info.chunks);
-    println!(
+    outln!("file:      {} ({} bytes)", info.file, info.bytes);
+    outln!("messages:  {} in {} chunks", info.messages, info.chunks);
+    outln!(
         "time:      {:.3} .. {:.3} s ({:.3} s of simulation time)",
         info.start,
         info.end,
         info.end - info.start
     );
-    println!("channels:");
+    outln!("channels:");
     let topic_width = info.channels.iter().map(|c| c.topic.len()).max().unwrap_or(0);
     let count_width = info
         .channels
@@ -705,7 +729,7 @@ fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
         .max()
         .unwrap_or(0);
     for c in &info.channels {
-        println!(
+        outln!(
             "  ({}) {:<topic_width$}  {:>count_width$} msgs  {} [{}]",
             c.id, c.topic, c.messages, c.schema, c.schema_encoding
         );
@@ -713,7 +737,7 @@ fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
     let mut scenario_text = None;
     let mut resolved_text = None;
     for (name, entries) in &info.metadata {
-        println!("metadata {name}:");
+        outln!("metadata {name}:");
         let width = entries.keys().map(|k| k.len()).max().unwrap_or(0);
         for (key, value) in entries {
             match key.as_str() {
@@ -722,26 +746,26 @@ fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
                 _ => {
                     let mut lines = value.lines();
                     let first = lines.next().unwrap_or(if key == "overrides" { "(none)" } else { "" });
-                    println!("  {key:<width$}  {first}");
+                    outln!("  {key:<width$}  {first}");
                     for line in lines {
-                        println!("  {:<width$}  {line}", "");
+                        outln!("  {:<width$}  {line}", "");
                     }
                 }
             }
         }
     }
     if let Some(text) = scenario_text {
-        println!("scenario (as written):");
+        outln!("scenario (as written):");
         for line in text.lines() {
-            println!("  | {line}");
+            outln!("  | {line}");
         }
     }
     if resolved {
         match resolved_text {
             Some(text) => {
-                println!("scenario (resolved, after overrides):");
+                outln!("scenario (resolved, after overrides):");
                 for line in text.lines() {
-                    println!("  | {line}");
+                    outln!("  | {line}");
                 }
             }
             None => eprintln!("warning: the log holds no resolved scenario"),

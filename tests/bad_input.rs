@@ -205,3 +205,23 @@ input = [0.0]
     let events = digest["events"].as_array().unwrap();
     assert_eq!(events.last().unwrap()["kind"], "error");
 }
+
+#[test]
+fn a_closed_stdout_pipe_ends_quietly_instead_of_panicking() {
+    // `mjsafe info LOG | head -0`: the reader is gone before mjsafe writes.
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("run.mcap");
+    run_ok(&scenario("bicycle_obstacle.toml"), &log, &["--set", "duration=0.5"]);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .arg("info")
+        .arg(&log)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(output.status.code(), Some(141), "{stderr}");
+}
