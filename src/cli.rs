@@ -731,7 +731,11 @@ fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
     for c in &info.channels {
         outln!(
             "  ({}) {:<topic_width$}  {:>count_width$} msgs  {} [{}]",
-            c.id, c.topic, c.messages, c.schema, c.schema_encoding
+            c.id,
+            c.topic,
+            c.messages,
+            c.schema,
+            c.schema_encoding
         );
     }
     let mut scenario_text = None;
