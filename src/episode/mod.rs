@@ -93,8 +93,10 @@ pub struct Episode {
 /// What the Foxglove 3D view needs beyond the state.
 struct SceneState {
     hull_radius: f64,
-    /// A straight reference path (point, heading), drawn as a line.
-    path: Option<([f64; 2], f64)>,
+    /// A straight reference path (point, heading, distance the reference speed covers in the
+    /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
+    /// fitting their view to the scene show the episode, not a 400 m line).
+    path: Option<([f64; 2], f64, f64)>,
     /// Positions at every fifth control tick since the last published trail segment (which
     /// starts with the previous segment's last point, so the segments join up).
     trail: Vec<[f64; 2]>,
@@ -499,7 +501,7 @@ impl Episode {
             },
         };
         let path = match &sc.nominal {
-            NominalSpec::PathLqr(p) => Some((p.path_point, p.path_heading)),
+            NominalSpec::PathLqr(p) => Some((p.path_point, p.path_heading, p.reference_speed.abs() * sc.duration)),
             _ => None,
         };
         let control_model = control.model.clone();
@@ -694,11 +696,14 @@ impl Episode {
         };
         let position = [x[i], x[j]];
         if k == 0 {
-            if let Some((point, heading)) = self.scene.path {
+            if let Some((point, heading, reach)) = self.scene.path {
                 let (s, c) = heading.sin_cos();
+                // From 10 m behind the start to 10 m beyond where the reference speed leads.
+                let start = (position[0] - point[0]) * c + (position[1] - point[1]) * s;
+                let (from, to) = (start - 10.0, start + reach + 10.0);
                 let ends = [
-                    [point[0] - 200.0 * c, point[1] - 200.0 * s],
-                    [point[0] + 200.0 * c, point[1] + 200.0 * s],
+                    [point[0] + from * c, point[1] + from * s],
+                    [point[0] + to * c, point[1] + to * s],
                 ];
                 Self::emit(
                     sinks,

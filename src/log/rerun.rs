@@ -21,7 +21,11 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use ::rerun::blueprint::{Blueprint, Horizontal, Spatial2DView, TextLogView, TimeSeriesView, Vertical};
+use ::rerun::blueprint::components::{PanelState, PlayState};
+use ::rerun::blueprint::{
+    Blueprint, BlueprintPanel, Horizontal, SelectionPanel, Spatial2DView, TextLogView, TimePanel, TimeSeriesView,
+    Vertical,
+};
 use ::rerun::{EntityPath, EntityPathPart, RecordingStream, RecordingStreamBuilder};
 use foxglove::messages::{line_primitive, scene_entity_deletion, Color, Pose, SceneEntity, SceneUpdate};
 
@@ -188,9 +192,19 @@ pub fn blueprint() -> Blueprint {
             .into(),
         TextLogView::new("events").with_origin("events").into(),
     ]);
+    // Side panels collapsed; the time panel follows the data, so a loaded recording opens at
+    // its end with the whole trail drawn.
     Blueprint::new(
         Horizontal::new([Spatial2DView::new("world").with_origin("world").into(), plots.into()])
-            .with_column_shares([1.0, 1.0]),
+            .with_column_shares([1.2, 1.0]),
+    )
+    .with_blueprint_panel(BlueprintPanel::new().with_state(PanelState::Collapsed))
+    .with_selection_panel(SelectionPanel::new().with_state(PanelState::Collapsed))
+    .with_time_panel(
+        TimePanel::new()
+            .with_state(PanelState::Collapsed)
+            .with_timeline("sim_time")
+            .with_play_state(PlayState::Following),
     )
 }
 
