@@ -277,11 +277,10 @@ impl LieWorkspace {
 
     /// self.lie ← the Lie derivatives of `barrier` along `model` at x.
     pub fn evaluate(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
-        model.drift_into(x, self.f.as_mut_slice());
-        self.g.fill(0.0);
-        model.input_matrix_into(x, &mut self.g);
-        self.jacobian.fill(0.0);
-        model.drift_jacobian_into(x, &mut self.jacobian);
+        // Slice fills (a memset), not nalgebra's element iterator.
+        self.g.as_mut_slice().fill(0.0);
+        self.jacobian.as_mut_slice().fill(0.0);
+        model.lie_terms_into(x, self.f.as_mut_slice(), &mut self.g, &mut self.jacobian);
         barrier.gradient_into(x, self.grad_h.as_mut_slice());
         // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
         transpose_times(&self.jacobian, self.grad_h.as_slice(), self.grad_lf_h.as_mut_slice());

@@ -72,6 +72,13 @@ pub trait Dynamics: Send + Sync {
         self.drift_into(x, xdot);
         self.add_input_term(x, u, xdot);
     }
+    /// f ← f(x), g ← G(x), j ← ∂f/∂x in one call (g and j arrive zeroed), for Lie
+    /// derivatives; a model may override it to share work between the three.
+    fn lie_terms_into(&self, x: &[f64], f: &mut [f64], g: &mut DMatrix<f64>, j: &mut DMatrix<f64>) {
+        self.drift_into(x, f);
+        self.input_matrix_into(x, g);
+        self.drift_jacobian_into(x, j);
+    }
     /// Drift f(x).
     fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
         let mut f = DVector::zeros(x.len());
@@ -195,6 +202,21 @@ impl Dynamics for BicycleModel {
     fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
         g[(2, 0)] = x[3] / self.wheelbase;
         g[(3, 1)] = 1.0;
+    }
+    // One sin/cos of the heading for all terms (the predictors call these in their inner loop).
+    fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        let (s, c) = x[2].sin_cos();
+        xdot.copy_from_slice(&[x[3] * c, x[3] * s, x[3] / self.wheelbase * u[0], u[1]]);
+    }
+    fn lie_terms_into(&self, x: &[f64], f: &mut [f64], g: &mut DMatrix<f64>, j: &mut DMatrix<f64>) {
+        let (s, c) = x[2].sin_cos();
+        f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
+        g[(2, 0)] = x[3] / self.wheelbase;
+        g[(3, 1)] = 1.0;
+        j[(0, 2)] = -x[3] * s;
+        j[(0, 3)] = c;
+        j[(1, 2)] = x[3] * c;
+        j[(1, 3)] = s;
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
@@ -654,5 +676,31 @@ impl Dynamics for StrictFeedbackModel {
     }
     fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
         g[(1, 0)] = 1.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bicycle_fused_evaluations_match_the_separate_terms() {
+        let model = BicycleModel::new(6.0);
+        for k in 0..50 {
+            let s = k as f64;
+            let x = [s.sin() * 20.0, s.cos() * 5.0, 0.37 * s - 7.0, 3.0 + (1.3 * s).sin()];
+            let u = [(0.7 * s).cos() * 0.4, (0.3 * s).sin() * 2.0];
+            let (mut f, mut g, mut j) = (vec![0.0; 4], DMatrix::zeros(4, 2), DMatrix::zeros(4, 4));
+            model.drift_into(&x, &mut f);
+            model.input_matrix_into(&x, &mut g);
+            model.drift_jacobian_into(&x, &mut j);
+            let mut xdot = vec![0.0; 4];
+            model.dynamics_into(&x, &u, &mut xdot);
+            let expected = DVector::from_column_slice(&f) + &g * DVector::from_column_slice(&u);
+            assert!((DVector::from_column_slice(&xdot) - expected).norm() < 1e-14);
+            let (mut f2, mut g2, mut j2) = (vec![0.0; 4], DMatrix::zeros(4, 2), DMatrix::zeros(4, 4));
+            model.lie_terms_into(&x, &mut f2, &mut g2, &mut j2);
+            assert_eq!((f, g, j), (f2, g2, j2));
+        }
     }
 }
