@@ -1593,3 +1593,140 @@ pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
         metadata,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{proto, wire};
+    use prost::Message;
+
+    /// Messages of varied shape: empty and non-empty lists, zeros (omitted by proto3), NaN,
+    /// infinities, negative zero, changing names.
+    fn states() -> Vec<proto::State> {
+        vec![
+            proto::State {
+                time: 0.5,
+                step: 250,
+                names: vec!["x1".into(), "x2".into(), "heading".into(), "speed".into()],
+                values: vec![-20.0, 0.0, -0.0, 3.0],
+            },
+            proto::State::default(),
+            proto::State {
+                time: f64::NAN,
+                step: u64::MAX,
+                names: vec!["é".into()],
+                values: vec![f64::INFINITY, f64::NEG_INFINITY, 1e-300],
+            },
+            proto::State {
+                time: 1.0,
+                step: 1,
+                names: vec!["x1".into(), "x2".into(), "heading".into(), "speed".into()],
+                values: vec![1.0, 2.0],
+            },
+        ]
+    }
+
+    fn same_bits(a: &[f64], b: &[f64]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+    }
+
+    #[test]
+    fn fast_state_decoding_matches_prost_also_when_the_message_is_reused() {
+        let mut reused = proto::State::default();
+        for m in states() {
+            let bytes = m.encode_to_vec();
+            let expected = proto::State::decode(&bytes[..]).unwrap();
+            assert!(wire::merge_state(&bytes, &mut reused).is_some(), "{m:?}");
+            assert_eq!(
+                (reused.step, &reused.names, reused.time.to_bits()),
+                (expected.step, &expected.names, expected.time.to_bits())
+            );
+            assert!(
+                same_bits(&reused.values, &expected.values),
+                "{reused:?} vs {expected:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn fast_decoding_of_the_other_per_step_messages_matches_prost() {
+        let channels = vec!["steering".to_string(), "acceleration".to_string()];
+        let issued = [
+            proto::IssuedCommand {
+                time: 2.75,
+                channels: channels.clone(),
+                nominal: vec![0.1, -0.2],
+                filtered: vec![0.3, 0.0],
+            },
+            proto::IssuedCommand::default(),
+        ];
+        let mut reused = proto::IssuedCommand::default();
+        for m in issued {
+            let bytes = m.encode_to_vec();
+            assert!(wire::merge_issued(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::IssuedCommand::decode(&bytes[..]).unwrap());
+        }
+        let filters = [
+            proto::Filter {
+                time: 3.0,
+                active: true,
+                channels: channels.clone(),
+                correction: vec![0.5, -1.5],
+                infeasible: true,
+                mu: -0.25,
+            },
+            proto::Filter::default(),
+        ];
+        let mut reused = proto::Filter::default();
+        for m in filters {
+            let bytes = m.encode_to_vec();
+            assert!(wire::merge_filter(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::Filter::decode(&bytes[..]).unwrap());
+        }
+        let barriers = [
+            proto::Barrier {
+                time: 4.0,
+                barriers: vec![
+                    proto::BarrierValue {
+                        name: "obstacle_0".into(),
+                        h: 12.5,
+                        constraint: -3.0,
+                        known: true,
+                        relative_degree: 2,
+                        clearance: 1.25,
+                        time_to_collision: f64::INFINITY,
+                        obstacle: true,
+                    },
+                    proto::BarrierValue {
+                        name: "wall".into(),
+                        ..Default::default()
+                    },
+                ],
+            },
+            proto::Barrier {
+                time: 4.002,
+                barriers: vec![proto::BarrierValue {
+                    name: "obstacle_0".into(),
+                    h: 12.0,
+                    ..Default::default()
+                }],
+            },
+        ];
+        let mut reused = proto::Barrier::default();
+        for m in barriers {
+            let bytes = m.encode_to_vec();
+            assert!(wire::merge_barrier(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::Barrier::decode(&bytes[..]).unwrap());
+        }
+    }
+
+    #[test]
+    fn unknown_fields_and_truncation_fall_back_to_prost() {
+        let mut bytes = states()[0].encode_to_vec();
+        let mut reused = proto::State::default();
+        // Field 15, varint 1: not in the schema.
+        bytes.extend_from_slice(&[15 << 3, 1]);
+        assert!(wire::merge_state(&bytes, &mut reused).is_none());
+        let bytes = states()[0].encode_to_vec();
+        assert!(wire::merge_state(&bytes[..bytes.len() - 3], &mut reused).is_none());
+    }
+}
