@@ -41,6 +41,13 @@ fn physics(c: &mut Criterion) {
         let loaded = load(path);
         let name = loaded.scenario.name.clone();
         let steps = Episode::new(&loaded).expect("episode").steps();
+        // The bare loop replays the actuation of one (untimed) run: same trajectory, same contacts.
+        let actuation = {
+            let mut episode = Episode::new(&loaded).expect("episode");
+            episode.record_actuation();
+            episode.run(&mut []).expect("run");
+            episode.take_actuation()
+        };
         group.throughput(Throughput::Elements(steps));
 
         group.bench_function(BenchmarkId::new("bare", &name), |b| {
@@ -49,7 +56,7 @@ fn physics(c: &mut Criterion) {
                 for _ in 0..iters {
                     let mut episode = Episode::new(&loaded).expect("episode");
                     let started = Instant::now();
-                    episode.step_plant_uncontrolled(steps);
+                    episode.replay_actuation(&actuation);
                     total += started.elapsed();
                 }
                 total

@@ -1,7 +1,8 @@
 //! End-to-end speed of one scenario (issue 9), measured in one process on one thread:
 //!
 //! - `bare`: `mj_step` (or the ODE plant's RK4) over the episode's own model for the same number
-//!   of steps, with no controller and no logging;
+//!   of steps, with no controller and no logging, replaying the actuation (`ctrl`) an untimed
+//!   run of the episode recorded, so it follows the same trajectory and meets the same contacts;
 //! - `pipeline`: the full episode (delay queues, predictors, filters, nominal, events) with
 //!   no sink;
 //! - `pipeline_mcap`: the same with the MCAP sink writing the complete log.
@@ -55,6 +56,8 @@ pub struct BenchRow {
     pub simulated_time: f64,
     pub repeats: usize,
     pub bare: Timing,
+    /// |x_bare(T) − x(T)|: how closely the bare loop's replayed actuation followed the run.
+    pub bare_final_state_deviation: f64,
     pub pipeline: Timing,
     pub pipeline_mcap: Timing,
     pub log_bytes: u64,
@@ -112,10 +115,18 @@ pub fn run(
             overrides.push(format!("control.predictor_step={step}"));
         }
         let loaded = scenario::load(scenario_path, &overrides)?;
-        let probe = Episode::new(&loaded)?;
+        // An untimed run records the actuation the bare loop replays.
+        let mut probe = Episode::new(&loaded)?;
         let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
         let simulated_time = steps as f64 * probe.info().timestep;
+        probe.record_actuation();
+        if let Some(e) = probe.run(&mut [])?.error {
+            return Err(BenchError::Stopped(e));
+        }
+        let actuation = probe.take_actuation();
+        let recorded_final_state = probe.plant_state();
         drop(probe);
+        let mut replay_deviation = 0.0;
 
         let mut bare = Vec::new();
         let mut pipeline = Vec::new();
@@ -124,8 +135,9 @@ pub fn run(
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
-            episode.step_plant_uncontrolled(steps);
+            episode.replay_actuation(&actuation);
             bare.push(started.elapsed().as_secs_f64());
+            replay_deviation = (episode.plant_state() - &recorded_final_state).norm();
 
             pipeline.push(timed_run(&loaded, &mut [])?);
 
@@ -143,6 +155,7 @@ pub fn run(
             simulated_time,
             repeats,
             bare: timing(bare, simulated_time, steps, bare),
+            bare_final_state_deviation: replay_deviation,
             pipeline: timing(median(pipeline), simulated_time, steps, bare),
             pipeline_mcap: timing(median(pipeline_mcap), simulated_time, steps, bare),
             log_bytes: std::fs::metadata(&log_path).map(|m| m.len()).unwrap_or(0),

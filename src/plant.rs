@@ -36,9 +36,13 @@ pub trait Plant: Send {
     fn state(&self) -> DVector<f64>;
     /// One step of size `timestep()`.
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError>;
-    /// One step with no controller (the input stays as it is; zero for the ODE plant): the
-    /// bare physics loop of the benchmarks.
-    fn step_uncontrolled(&mut self);
+    /// What drove the last step: MuJoCo's `ctrl` (as the callback left it), or the ODE plant's
+    /// input at the step's start.
+    fn actuation(&self) -> Vec<f64>;
+    /// One step driven by `actuation` (from [`Plant::actuation`]) with no controller: replaying
+    /// a run's actuation is the bare physics loop of the benchmarks (same model, same steps,
+    /// same contacts).
+    fn step_with_actuation(&mut self, actuation: &[f64]);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
     fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>>;
 }
@@ -107,7 +111,11 @@ impl Plant for MujocoPlant {
         };
         self.sim.step(&mut adapter)
     }
-    fn step_uncontrolled(&mut self) {
+    fn actuation(&self) -> Vec<f64> {
+        self.sim.data().ctrl().to_vec()
+    }
+    fn step_with_actuation(&mut self, actuation: &[f64]) {
+        self.sim.set_ctrl(actuation);
         self.sim.step_without_hook();
     }
     /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
@@ -137,6 +145,8 @@ pub struct OdePlant {
     timestep: f64,
     step: u64,
     disturbance: Option<Disturbance>,
+    /// The input at the start of the last step (its actuation).
+    last_input: Vec<f64>,
 }
 
 /// An additive disturbance w(t) on ẋ (e.g. B_ω ω(t) of (3.24)).
@@ -150,6 +160,7 @@ impl OdePlant {
             timestep,
             step: 0,
             disturbance: None,
+            last_input: Vec::new(),
         }
     }
 
@@ -173,10 +184,15 @@ impl Plant for OdePlant {
         let model = self.dynamics.as_ref();
         let step_time = self.step as f64 * h;
         let disturbance = self.disturbance.as_ref();
+        let last_input = &mut self.last_input;
+        let step = self.step;
         let mut derivative = |call: u32, offset: f64, stage: &DVector<f64>| {
-            let u = DVector::from_column_slice(controller.input(self.step, call, offset, &|out: &mut [f64]| {
-                out.copy_from_slice(x.as_slice())
-            }));
+            let input = controller.input(step, call, offset, &|out: &mut [f64]| out.copy_from_slice(x.as_slice()));
+            if call == 0 {
+                last_input.clear();
+                last_input.extend_from_slice(input);
+            }
+            let u = DVector::from_column_slice(input);
             let dx = model.dynamics(stage, &u);
             match disturbance {
                 Some(w) => dx + w(step_time + offset),
@@ -191,9 +207,12 @@ impl Plant for OdePlant {
         self.step += 1;
         Ok(())
     }
-    fn step_uncontrolled(&mut self) {
-        let zero = DVector::zeros(self.dynamics.input_dim());
-        self.x = rk4_step(self.dynamics.as_ref(), &self.x, &zero, self.timestep);
+    fn actuation(&self) -> Vec<f64> {
+        self.last_input.clone()
+    }
+    fn step_with_actuation(&mut self, actuation: &[f64]) {
+        let u = DVector::from_column_slice(actuation);
+        self.x = rk4_step(self.dynamics.as_ref(), &self.x, &u, self.timestep);
         self.step += 1;
     }
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle.

@@ -42,6 +42,8 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
         );
     }
     assert!((row["bare"]["ratio_to_bare"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    // The bare loop replays the run's actuation: same trajectory, same final state.
+    assert!(row["bare_final_state_deviation"].as_f64().unwrap() < 1e-9, "{row}");
     // The kept log is complete and is the scenario's run (it avoids the obstacle).
     assert!(row["log_bytes"].as_u64().unwrap() > 10_000);
     let log = dir.path().join("bench-bicycle_obstacle_gamma_m-0.01.mcap");

@@ -85,6 +85,8 @@ pub struct Episode {
     steps: u64,
     info: RunInfo,
     scene: SceneState,
+    /// The plant's actuation after every step, when recording (benchmarks).
+    actuation: Option<Vec<Vec<f64>>>,
     /// Scratch space of the logged barrier constraints (one evaluation per barrier and step).
     lie: barrier::LieWorkspace,
     constraint: barrier::Constraint,
@@ -512,6 +514,7 @@ impl Episode {
             barriers,
             steps,
             info,
+            actuation: None,
             lie: barrier::LieWorkspace::new(control_model.as_ref()),
             constraint: barrier::Constraint::zeros(control_model.input_dim()),
             scene: SceneState {
@@ -537,11 +540,28 @@ impl Episode {
         self.control.predictor_step
     }
 
-    /// Steps the plant `steps` times with no controller: the bare physics loop over this
-    /// episode's model (benchmarks compare the pipeline against it).
-    pub fn step_plant_uncontrolled(&mut self, steps: u64) {
-        for _ in 0..steps {
-            self.plant.step_uncontrolled();
+    /// The plant's current state x.
+    pub fn plant_state(&self) -> DVector<f64> {
+        self.plant.state()
+    }
+
+    /// Records the plant's actuation after every step of the next run (for
+    /// [`Episode::replay_actuation`]).
+    pub fn record_actuation(&mut self) {
+        self.actuation = Some(Vec::with_capacity(self.steps as usize));
+    }
+
+    /// The actuation recorded by the last run, one entry per step.
+    pub fn take_actuation(&mut self) -> Vec<Vec<f64>> {
+        self.actuation.take().unwrap_or_default()
+    }
+
+    /// Steps the plant through a recorded actuation with no controller, sink or check: the
+    /// bare physics loop over this episode's model, on the same trajectory (and contacts) as
+    /// the recorded run (benchmarks compare the pipeline against it).
+    pub fn replay_actuation(&mut self, actuation: &[Vec<f64>]) {
+        for a in actuation {
+            self.plant.step_with_actuation(a);
         }
     }
 
@@ -654,6 +674,9 @@ impl Episode {
             }
             if let Some(e) = self.control.error.take() {
                 return self.stop_with_error(sinks, time, k, e.to_string());
+            }
+            if let Some(actuation) = &mut self.actuation {
+                actuation.push(self.plant.actuation());
             }
 
             // What happened during step k: tick, applied input, barriers, contacts.

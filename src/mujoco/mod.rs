@@ -646,6 +646,12 @@ impl Simulation {
         Ok(())
     }
 
+    /// Sets `ctrl` (outside a step; the hook sets it during steps).
+    pub fn set_ctrl(&mut self, ctrl: &[f64]) {
+        let v = self.data.view();
+        slice_mut(v.d.ctrl, v.nu).copy_from_slice(ctrl);
+    }
+
     /// One `mj_step` with no hook: the control callback returns at once and `ctrl` keeps its
     /// value (the bare physics loop benchmarks compare against).
     pub fn step_without_hook(&mut self) {
