@@ -369,19 +369,18 @@ impl DelayQueue {
         self.issued_at_or_before(self.profile.delay_time(time), time)
     }
 
-    /// [`DelayQueue::applied`] at `time`, with the interval [from, until) of source times φ(s)
-    /// over which that command stays in force (while no command is pushed): a caller sampling
-    /// at increasing times can skip the search while φ(s) stays inside it.
-    pub fn applied_span(&self, time: f64) -> Result<(Applied, f64, f64), DelayError> {
-        self.applied_span_near(time, 0)
-            .map(|(applied, from, until, _)| (applied, from, until))
-    }
-
-    /// [`DelayQueue::applied_span`], trying first the command after the one at index `hint`
-    /// (what a caller sampling at increasing times needs next); also returns the index to
-    /// pass as the next hint.
-    pub fn applied_span_near(&self, time: f64, hint: usize) -> Result<(Applied, f64, f64, usize), DelayError> {
-        let source_time = self.profile.delay_time(time);
+    /// [`DelayQueue::applied`] at `time`, whose φ(time) the caller has computed as
+    /// `source_time`, with the interval [from, until) of source times φ(s) over which that
+    /// command stays in force (while no command is pushed), so that a caller sampling at
+    /// increasing times can skip the search while φ(s) stays inside it. The search tries
+    /// first the command after the one at index `hint` (what such a caller needs next); the
+    /// index found is returned as the next hint.
+    pub fn applied_span_near(
+        &self,
+        time: f64,
+        source_time: f64,
+        hint: usize,
+    ) -> Result<(Applied, f64, f64, usize), DelayError> {
         let in_force = |idx: usize| {
             idx <= self.history.len()
                 && (idx == 0 || self.history[idx - 1].0 <= source_time + self.eps)
@@ -444,6 +443,30 @@ impl DelayQueue {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn applied_span_near_agrees_with_applied_for_any_hint() {
+        let profile = DelayProfile::Varying(VaryingDelay::Rational);
+        let mut q = DelayQueue::with_profile("u", profile, 0.5, 0.01).unwrap();
+        for k in 0..300 {
+            q.push(k as f64 * 0.01, (k as f64).sin()).unwrap();
+        }
+        for i in 0..700 {
+            let time = i as f64 * 0.0037;
+            let source_time = q.profile().delay_time(time);
+            let expected = q.applied(time).unwrap();
+            for hint in [0, 3, 150, 299, 300, 1000] {
+                let (applied, from, until, index) = q.applied_span_near(time, source_time, hint).unwrap();
+                assert_eq!(applied, expected, "t = {time}, hint {hint}");
+                assert!(
+                    from <= source_time && source_time < until,
+                    "{from} {source_time} {until}"
+                );
+                let (again, ..) = q.applied_span_near(time, source_time, index).unwrap();
+                assert_eq!(again, expected);
+            }
+        }
+    }
 
     #[test]
     fn a_step_issued_at_t_arrives_at_exactly_t_plus_delay() {

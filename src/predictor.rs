@@ -181,7 +181,7 @@ impl PredictorContext<'_> {
         if cursor.from <= source_time && source_time < cursor.until {
             return Ok(cursor.value);
         }
-        let (applied, from, until, index) = queue.applied_span_near(sample, cursor.index)?;
+        let (applied, from, until, index) = queue.applied_span_near(sample, source_time, cursor.index)?;
         *cursor = HistoryCursor {
             from,
             until,

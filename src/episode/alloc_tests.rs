@@ -6,7 +6,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
 
-use super::{Episode, TICK_TOLERANCE};
+use super::Episode;
 use crate::plant::Controller;
 use crate::scenario;
 
@@ -72,14 +72,7 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
     let (mut warm_up, mut steady) = (0, 0);
     for k in 0..episode.steps {
         let time = k as f64 * h;
-        for o in episode
-            .obstacles
-            .iter_mut()
-            .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
-        {
-            o.known = true;
-            episode.control.add_barrier(o.barrier.clone());
-        }
+        episode.reveal_obstacles(time);
         let x = episode.plant.state();
         for c in episode.control.realize(time, &x).unwrap() {
             episode.control.recycle(c);

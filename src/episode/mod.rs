@@ -607,6 +607,20 @@ impl Episode {
         })
     }
 
+    /// Makes the obstacles that appear by `time` known to the controller; returns their indices.
+    fn reveal_obstacles(&mut self, time: f64) -> Vec<usize> {
+        let tolerance = TICK_TOLERANCE * self.control.timestep;
+        let mut revealed = Vec::new();
+        for (i, o) in self.obstacles.iter_mut().enumerate() {
+            if !o.known && o.appear_at <= time + tolerance {
+                o.known = true;
+                self.control.add_barrier(o.barrier.clone());
+                revealed.push(i);
+            }
+        }
+        revealed
+    }
+
     /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
     fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<String>), EpisodeError> {
         let h = self.control.timestep;
@@ -615,14 +629,8 @@ impl Episode {
 
         for k in 0..=self.steps {
             let time = k as f64 * h;
-            // Obstacles become known to the controller at their appearance time.
-            for o in self
-                .obstacles
-                .iter_mut()
-                .filter(|o| !o.known && o.appear_at <= time + TICK_TOLERANCE * h)
-            {
-                o.known = true;
-                self.control.add_barrier(o.barrier.clone());
+            for i in self.reveal_obstacles(time) {
+                let o = &self.obstacles[i];
                 let message = format!("{} becomes known to the controller", o.barrier.name);
                 Self::emit(
                     sinks,
