@@ -15,8 +15,8 @@ use crate::log::{proto, TOPICS};
 
 #[derive(Debug, thiserror::Error)]
 pub enum AnalyzeError {
-    #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
+    #[error("{file}: cannot read: {reason}")]
+    Io { file: String, reason: std::io::Error },
     #[error("{file}: not a readable MCAP file ({message})")]
     NotMcap { file: String, message: String },
     #[error("{file}: truncated or corrupt MCAP after {messages} messages ({message})")]
@@ -128,7 +128,7 @@ pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let open = || {
         std::fs::File::open(path).map_err(|source| AnalyzeError::Io {
             file: file.clone(),
-            source,
+            reason: source,
         })
     };
     // No BufReader: the analysis reads in large blocks itself.
@@ -1544,7 +1544,7 @@ pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
     let file = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io {
         file: file.clone(),
-        source,
+        reason: source,
     })?;
     let not_mcap = |message: String| AnalyzeError::NotMcap {
         file: file.clone(),

@@ -13,8 +13,8 @@ use crate::vehicle::VehicleKind;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("{file}: cannot read the scenario: {source}")]
-    Io { file: String, source: std::io::Error },
+    #[error("{file}: cannot read the scenario: {reason}")]
+    Io { file: String, reason: std::io::Error },
     #[error("{file}: invalid TOML: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: key `{key}`: {message}")]
@@ -448,7 +448,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, Scenari
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
         file: file.clone(),
-        source,
+        reason: source,
     })?;
     let scenario = parse(&text, &file, overrides)?;
     let loaded = LoadedScenario {

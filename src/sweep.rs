@@ -30,8 +30,8 @@ pub enum SweepError {
     File { file: String, message: String },
     #[error("{0}")]
     Spec(String),
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("{path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
     #[error("{file}: not a sweep summary: {message}")]
     Summary { file: String, message: String },
     #[error("cannot merge: {0}")]
@@ -359,7 +359,7 @@ impl SweepSpec {
             };
             let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
                 path: file.clone(),
-                source,
+                reason: source,
             })?;
             let parsed: SweepFile = toml::from_str(&text).map_err(|e| err(e.to_string().trim().replace('\n', " ")))?;
             if let Some(s) = parsed.scenario {
@@ -446,7 +446,7 @@ impl SweepSpec {
         }
         let text = std::fs::read(&scenario_path).map_err(|source| SweepError::Io {
             path: scenario_path.display().to_string(),
-            source,
+            reason: source,
         })?;
         let name = match name {
             Some(n) => n,
@@ -613,7 +613,7 @@ pub fn execute(
 ) -> Result<Vec<Row>, SweepError> {
     std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
         path: dir.display().to_string(),
-        source,
+        reason: source,
     })?;
     let next = AtomicUsize::new(0);
     let mut rows: Vec<Option<Row>> = vec![None; indices.len()];
@@ -641,7 +641,7 @@ pub fn execute(
                 })
                 .map_err(|source| SweepError::Io {
                     path: "(worker thread)".into(),
-                    source,
+                    reason: source,
                 })?;
         }
         drop(tx);
@@ -743,14 +743,14 @@ impl Summary {
     pub fn write(&self, dir: &Path) -> Result<(PathBuf, PathBuf), SweepError> {
         std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
             path: dir.display().to_string(),
-            source,
+            reason: source,
         })?;
         let json = dir.join(format!("{}.json", self.file_stem()));
         let csv = dir.join(format!("{}.csv", self.file_stem()));
         for (path, text) in [(&json, self.to_json()), (&csv, self.to_csv())] {
             std::fs::write(path, text).map_err(|source| SweepError::Io {
                 path: path.display().to_string(),
-                source,
+                reason: source,
             })?;
         }
         Ok((json, csv))
@@ -761,7 +761,7 @@ impl Summary {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
             path: file.clone(),
-            source,
+            reason: source,
         })?;
         serde_json::from_str(&text).map_err(|e| SweepError::Summary {
             file,
@@ -777,7 +777,7 @@ impl Summary {
         }
         let entries = std::fs::read_dir(arg).map_err(|source| SweepError::Io {
             path: arg.display().to_string(),
-            source,
+            reason: source,
         })?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))

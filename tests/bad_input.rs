@@ -225,3 +225,18 @@ fn a_closed_stdout_pipe_ends_quietly_instead_of_panicking() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(output.status.code(), Some(141), "{stderr}");
 }
+
+#[test]
+fn a_missing_file_is_named_once_with_the_reason_once() {
+    for args in [
+        &["run", "scenarios/missing.toml"][..],
+        &["analyze", "logs/missing.mcap"][..],
+        &["bench", "scenarios/missing.toml"][..],
+    ] {
+        let o = mjsafe(args);
+        assert!(!o.status.success());
+        let e = stderr(&o);
+        assert!(e.contains("missing."), "{e}");
+        assert_eq!(e.matches("No such file or directory").count(), 1, "{args:?}: {e}");
+    }
+}

@@ -36,8 +36,8 @@ pub enum EpisodeError {
     Scenario(#[from] ScenarioError),
     #[error(transparent)]
     Log(#[from] LogError),
-    #[error("{file}: key `vehicle.model`: {source}")]
-    Model { file: String, source: MjError },
+    #[error("{file}: key `vehicle.model`: {reason}")]
+    Model { file: String, reason: MjError },
     #[error(transparent)]
     Mujoco(#[from] MjError),
 }
@@ -162,7 +162,7 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
         let mut model =
             Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| EpisodeError::Model {
                 file: file.clone(),
-                source,
+                reason: source,
             })?;
         if let Some(h) = sc.vehicle.timestep {
             model.set_timestep(h);
@@ -170,7 +170,7 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
         if let Some(integrator) = sc.vehicle.integrator {
             model.set_integrator(integrator);
         }
-        let bound = vehicle::bind(sc.vehicle.kind, &model).map_err(|source| EpisodeError::Model { file, source })?;
+        let bound = vehicle::bind(sc.vehicle.kind, &model).map_err(|reason| EpisodeError::Model { file, reason })?;
         return Ok(PlantParts {
             dynamics: bound.dynamics(),
             hull_radius: bound.hull_radius(),
@@ -420,7 +420,7 @@ impl Episode {
                     .collect::<Result<Vec<_>, _>>()
                     .map_err(|source| EpisodeError::Model {
                         file: file.clone(),
-                        source,
+                        reason: source,
                     })?;
                 let sim = Simulation::new(model)?;
                 Box::new(MujocoPlant::new(

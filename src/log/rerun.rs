@@ -536,7 +536,7 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
     let file = log.display().to_string();
     let input = std::fs::File::open(log).map_err(|source| AnalyzeError::Io {
         file: file.clone(),
-        source,
+        reason: source,
     })?;
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();

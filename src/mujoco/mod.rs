@@ -21,8 +21,8 @@ pub const REQUIRED_VERSION: i32 = 222;
 pub enum MjError {
     #[error("MuJoCo library version {found} is loaded, but mjsafe needs {REQUIRED_VERSION} (2.2.2, Debian package libmujoco-dev)")]
     WrongVersion { found: i32 },
-    #[error("cannot read MJCF file {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("cannot read MJCF file {path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
     #[error("MuJoCo rejected the MJCF model {origin}: {message}")]
     Load { origin: String, message: String },
     #[error("MJCF text for {origin} contains a NUL byte")]
@@ -130,7 +130,7 @@ impl Model {
     pub fn from_xml_file(path: &Path) -> Result<Model, MjError> {
         let xml = std::fs::read_to_string(path).map_err(|source| MjError::Io {
             path: path.display().to_string(),
-            source,
+            reason: source,
         })?;
         Self::from_xml_string(&xml, &path.display().to_string())
     }
