@@ -125,6 +125,7 @@ pub fn run(
         }
         let actuation = probe.take_actuation();
         let recorded_final_state = probe.plant_state();
+        let info = probe.info().clone();
         drop(probe);
         let mut replay_deviation = 0.0;
 
@@ -141,9 +142,7 @@ pub fn run(
 
             pipeline.push(timed_run(&loaded, &mut [])?);
 
-            let probe = Episode::new(&loaded)?;
-            let mut sink = McapSink::create(&log_path, probe.info())?;
-            drop(probe);
+            let mut sink = McapSink::create(&log_path, &info)?;
             pipeline_mcap.push(timed_run(&loaded, &mut [&mut sink])?);
         }
         let bare = median(bare);

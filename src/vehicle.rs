@@ -185,19 +185,14 @@ impl Dynamics for BicycleModel {
         &self.channel_names
     }
     fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        let (s, c) = x[2].sin_cos();
-        f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
+        bicycle_drift(x, x[2].sin_cos(), f);
     }
     fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
         xdot[2] += x[3] / self.wheelbase * u[0];
         xdot[3] += u[1];
     }
     fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
-        let (s, c) = x[2].sin_cos();
-        j[(0, 2)] = -x[3] * s;
-        j[(0, 3)] = c;
-        j[(1, 2)] = x[3] * c;
-        j[(1, 3)] = s;
+        bicycle_drift_jacobian(x, x[2].sin_cos(), j);
     }
     fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
         g[(2, 0)] = x[3] / self.wheelbase;
@@ -205,18 +200,14 @@ impl Dynamics for BicycleModel {
     }
     // One sin/cos of the heading for all terms (the predictors call these in their inner loop).
     fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        let (s, c) = x[2].sin_cos();
-        xdot.copy_from_slice(&[x[3] * c, x[3] * s, x[3] / self.wheelbase * u[0], u[1]]);
+        bicycle_drift(x, x[2].sin_cos(), xdot);
+        self.add_input_term(x, u, xdot);
     }
     fn lie_terms_into(&self, x: &[f64], f: &mut [f64], g: &mut DMatrix<f64>, j: &mut DMatrix<f64>) {
-        let (s, c) = x[2].sin_cos();
-        f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
-        g[(2, 0)] = x[3] / self.wheelbase;
-        g[(3, 1)] = 1.0;
-        j[(0, 2)] = -x[3] * s;
-        j[(0, 3)] = c;
-        j[(1, 2)] = x[3] * c;
-        j[(1, 3)] = s;
+        let heading = x[2].sin_cos();
+        bicycle_drift(x, heading, f);
+        self.input_matrix_into(x, g);
+        bicycle_drift_jacobian(x, heading, j);
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         Some([0, 1])
@@ -224,6 +215,19 @@ impl Dynamics for BicycleModel {
     fn heading_index(&self) -> Option<usize> {
         Some(2)
     }
+}
+
+/// f(x) of (4.78) given (sin, cos) of the heading.
+fn bicycle_drift(x: &[f64], (s, c): (f64, f64), f: &mut [f64]) {
+    f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
+}
+
+/// ∂f/∂x of (4.78) given (sin, cos) of the heading (the other entries stay zero).
+fn bicycle_drift_jacobian(x: &[f64], (s, c): (f64, f64), j: &mut DMatrix<f64>) {
+    j[(0, 2)] = -x[3] * s;
+    j[(0, 3)] = c;
+    j[(1, 2)] = x[3] * c;
+    j[(1, 3)] = s;
 }
 
 /// The bicycle on `models/bicycle.xml` (body at the rear axle; see the model's comments).
