@@ -73,6 +73,8 @@ fn step_records(k: u64, tick: bool) -> Vec<Record> {
                 predicted,
                 error: 0.02 * delay,
                 relative_error: 0.02 * delay / 20.0,
+                reused_chain: true,
+                chain_mismatch: 1e-6,
             }));
         }
     }

@@ -56,6 +56,10 @@ pub struct PredictionStats {
     pub max_error: f64,
     pub rms_error: f64,
     pub max_relative_error: f64,
+    /// Predictions that continued the previous tick's recursive chain (control.chain_tolerance).
+    pub reused_chain: u64,
+    /// Largest |p_1 − previous chain| seen at a tick (0 when never measured).
+    pub max_chain_mismatch: f64,
     #[serde(skip)]
     sum_squares: f64,
 }
@@ -899,6 +903,10 @@ impl Accumulator {
         stats.max_error = stats.max_error.max(m.error);
         stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
         stats.sum_squares += m.error * m.error;
+        stats.reused_chain += u64::from(m.reused_chain);
+        if m.chain_mismatch.is_finite() {
+            stats.max_chain_mismatch = stats.max_chain_mismatch.max(m.chain_mismatch);
+        }
     }
 
     fn add_event(&mut self, m: proto::Event) {

@@ -8,8 +8,10 @@
 //! - `pipeline_mcap`: the same with the MCAP sink writing the complete log.
 //!
 //! Each is repeated and the median wall time reported, with the real-time factor (simulated
-//! time / wall time) and the ratio to `bare`. Several predictor steps can be compared in one
-//! call: each row then also reports the prediction error the log measures (Definition 4.3).
+//! time / wall time) and the ratio to `bare`. Several predictor steps and chain-reuse
+//! tolerances can be compared in one call: each row then also reports the prediction error the
+//! log measures (Definition 4.3) and, from an audited untimed run, the largest difference chain
+//! reuse made to a prediction.
 
 use std::path::Path;
 use std::time::Instant;
@@ -52,6 +54,13 @@ pub struct BenchRow {
     pub scenario: String,
     /// RK4 step of the predictors, seconds.
     pub predictor_step: f64,
+    /// control.chain_tolerance of the recursive predictors.
+    pub chain_tolerance: f64,
+    /// Predictions made from a reused chain in the audited run.
+    pub reused_predictions: u64,
+    /// Largest max-norm difference between a reused prediction and the whole-window
+    /// recomputation at the same tick (audited run; 0 when nothing was reused).
+    pub chain_reuse_error: f64,
     pub steps: u64,
     pub simulated_time: f64,
     pub repeats: usize,
@@ -104,25 +113,34 @@ pub fn run(
     scenario_path: &Path,
     overrides: &[String],
     predictor_steps: &[Option<f64>],
+    chain_tolerances: &[Option<f64>],
     repeats: usize,
     log_dir: &Path,
 ) -> Result<Vec<BenchRow>, BenchError> {
     let repeats = repeats.max(1);
     let mut rows = Vec::new();
-    for step in predictor_steps {
+    let configurations = predictor_steps
+        .iter()
+        .flat_map(|step| chain_tolerances.iter().map(move |tolerance| (step, tolerance)));
+    for (step, tolerance) in configurations {
         let mut overrides = overrides.to_vec();
         if let Some(step) = step {
             overrides.push(format!("control.predictor_step={step}"));
         }
+        if let Some(tolerance) = tolerance {
+            overrides.push(format!("control.chain_tolerance={tolerance:e}"));
+        }
         let loaded = scenario::load(scenario_path, &overrides)?;
-        // An untimed run records the actuation the bare loop replays.
+        // An untimed, audited run records the actuation the bare loop replays.
         let mut probe = Episode::new(&loaded)?;
         let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
         let simulated_time = steps as f64 * probe.info().timestep;
         probe.record_actuation();
+        probe.audit_chain_reuse();
         if let Some(e) = probe.run(&mut [])?.error {
             return Err(BenchError::Stopped(e));
         }
+        let (chain_reuse_error, reused_predictions) = probe.chain_audit().unwrap_or((0.0, 0));
         let actuation = probe.take_actuation();
         let recorded_final_state = probe.plant_state();
         let info = probe.info().clone();
@@ -132,7 +150,11 @@ pub fn run(
         let mut bare = Vec::new();
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
-        let log_path = log_dir.join(format!("bench-{}-{}.mcap", loaded.scenario.name, predictor_step));
+        let chain_tolerance = loaded.scenario.control.chain_tolerance;
+        let log_path = log_dir.join(format!(
+            "bench-{}-{}-{:e}.mcap",
+            loaded.scenario.name, predictor_step, chain_tolerance
+        ));
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
@@ -150,6 +172,9 @@ pub fn run(
         rows.push(BenchRow {
             scenario: loaded.scenario.name.clone(),
             predictor_step,
+            chain_tolerance,
+            reused_predictions,
+            chain_reuse_error,
             steps,
             simulated_time,
             repeats,
@@ -175,6 +200,7 @@ pub fn table(rows: &[BenchRow]) -> String {
     let mut lines = vec![[
         "scenario",
         "predictor step",
+        "chain tol",
         "bare RTF",
         "pipeline RTF",
         "+MCAP RTF",
@@ -182,6 +208,7 @@ pub fn table(rows: &[BenchRow]) -> String {
         "us/step",
         "log MB",
         "max prediction error",
+        "reused (max diff)",
         "min h",
     ]
     .map(String::from)
@@ -195,6 +222,7 @@ pub fn table(rows: &[BenchRow]) -> String {
         lines.push(vec![
             r.scenario.clone(),
             format!("{}", r.predictor_step),
+            format!("{:.0e}", r.chain_tolerance),
             format!("{:.0}x", r.bare.real_time_factor),
             format!("{:.0}x", r.pipeline.real_time_factor),
             format!("{:.0}x", r.pipeline_mcap.real_time_factor),
@@ -206,6 +234,7 @@ pub fn table(rows: &[BenchRow]) -> String {
             } else {
                 errors.join(", ")
             },
+            format!("{} ({:.1e})", r.reused_predictions, r.chain_reuse_error),
             r.min_h.map_or("-".into(), |h| format!("{h:.4}")),
         ]);
     }

@@ -167,6 +167,11 @@ pub enum Command {
         /// each with its measured prediction error (default: the scenario's).
         #[arg(long = "predictor-step", value_name = "S1,S2,…", value_delimiter = ',')]
         predictor_steps: Vec<f64>,
+        /// Chain-reuse tolerances of the recursive predictors (control.chain_tolerance) to
+        /// compare, one row each with the largest difference reuse made to a prediction
+        /// (default: the scenario's).
+        #[arg(long = "chain-tolerance", value_name = "T1,T2,…", value_delimiter = ',')]
+        chain_tolerances: Vec<f64>,
         /// Runs per configuration (the median is reported).
         #[arg(long, default_value_t = 5)]
         repeat: usize,
@@ -331,16 +336,20 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             scenario,
             overrides,
             predictor_steps,
+            chain_tolerances,
             repeat,
             log_dir,
             json,
         } => {
-            let steps: Vec<Option<f64>> = if predictor_steps.is_empty() {
-                vec![None]
-            } else {
-                predictor_steps.into_iter().map(Some).collect()
+            let or_default = |values: Vec<f64>| -> Vec<Option<f64>> {
+                if values.is_empty() {
+                    vec![None]
+                } else {
+                    values.into_iter().map(Some).collect()
+                }
             };
-            let rows = crate::bench::run(&scenario, &overrides, &steps, repeat, &log_dir)
+            let (steps, tolerances) = (or_default(predictor_steps), or_default(chain_tolerances));
+            let rows = crate::bench::run(&scenario, &overrides, &steps, &tolerances, repeat, &log_dir)
                 .with_context(|| format!("benchmarking {}", scenario.display()))?;
             if json {
                 outln!("{}", serde_json::to_string_pretty(&rows)?);

@@ -44,7 +44,7 @@ pub trait Plant: Send {
     /// same contacts).
     fn step_with_actuation(&mut self, actuation: &[f64]);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
-    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>>;
+    fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>);
 }
 
 /// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model.
@@ -120,21 +120,18 @@ impl Plant for MujocoPlant {
     }
     /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
     /// `mj_step` are those of the step's first collision phase (the state at its start).
-    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>> {
+    fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {
         let hull = self.vehicle.hull_geom();
         let contacts = self.sim.data().contacts();
-        self.obstacle_geoms
-            .iter()
-            .take(obstacles.len())
-            .map(|&geom| {
-                contacts
-                    .iter()
-                    .filter(|c| (c.geom1 == hull && c.geom2 == geom) || (c.geom2 == hull && c.geom1 == geom))
-                    .map(|c| -c.dist)
-                    .filter(|d| *d > 0.0)
-                    .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))))
-            })
-            .collect()
+        depths.clear();
+        depths.extend(self.obstacle_geoms.iter().take(obstacles.len()).map(|&geom| {
+            contacts
+                .iter()
+                .filter(|c| (c.geom1 == hull && c.geom2 == geom) || (c.geom2 == hull && c.geom1 == geom))
+                .map(|c| -c.dist)
+                .filter(|d| *d > 0.0)
+                .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))))
+        }));
     }
 }
 
@@ -216,14 +213,12 @@ impl Plant for OdePlant {
         self.step += 1;
     }
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle.
-    fn penetrations(&self, obstacles: &[Barrier]) -> Vec<Option<f64>> {
-        obstacles
-            .iter()
-            .map(|o| {
-                let depth = -o.clearance(&self.x);
-                (depth > 0.0).then_some(depth)
-            })
-            .collect()
+    fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {
+        depths.clear();
+        depths.extend(obstacles.iter().map(|o| {
+            let depth = -o.clearance(&self.x);
+            (depth > 0.0).then_some(depth)
+        }));
     }
 }
 

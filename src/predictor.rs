@@ -29,6 +29,12 @@ pub struct Prediction {
     /// The time it predicts (φ_i⁻¹(t)).
     pub target_time: f64,
     pub state: DVector<f64>,
+    /// Recursive predictors only: whether this tick continued the previous tick's chain
+    /// instead of integrating its whole window (see [`PredictorWorkspace::set_chain_reuse`]).
+    pub reused_chain: bool,
+    /// Recursive predictors only: max |p_1(t) − the previous chain at t + D_1| over the state
+    /// (how far the measurement moved off the previous chain); NaN without a previous chain.
+    pub chain_mismatch: f64,
 }
 
 /// How the predictor treats the channels (fixed by the scenario's delays).
@@ -123,6 +129,80 @@ impl HistoryCursor {
     };
 }
 
+/// The recursive chain (4.23) of the last tick t: the predicted states at t + D_1 + k·step
+/// over [t + D_1, t + D_r], each with the input held on the step that reached it, in a ring
+/// so the next tick drops one control period at the front and appends one at the back.
+#[derive(Debug, Clone)]
+struct Chain {
+    /// Tick time of the chain; NaN when there is none.
+    tick: f64,
+    states: usize,
+    channels: usize,
+    len: usize,
+    /// Slot of node 0.
+    head: usize,
+    /// Slots of (state, input of the step into the node).
+    slots: Vec<f64>,
+}
+
+impl Chain {
+    fn new(states: usize, channels: usize) -> Chain {
+        Chain {
+            tick: f64::NAN,
+            states,
+            channels,
+            len: 0,
+            head: 0,
+            slots: Vec::new(),
+        }
+    }
+
+    fn stride(&self) -> usize {
+        self.states + self.channels
+    }
+
+    fn capacity(&self) -> usize {
+        self.slots.len() / self.stride()
+    }
+
+    /// Empties the chain for tick t, sized for `nodes` (allocates only the first time).
+    fn restart(&mut self, tick: f64, nodes: usize) {
+        if self.capacity() < nodes {
+            self.slots.resize(nodes * self.stride(), 0.0);
+        }
+        self.tick = tick;
+        self.len = 0;
+        self.head = 0;
+    }
+
+    fn offset(&self, node: usize) -> usize {
+        (self.head + node) % self.capacity() * self.stride()
+    }
+
+    fn state(&self, node: usize) -> &[f64] {
+        let o = self.offset(node);
+        &self.slots[o..o + self.states]
+    }
+
+    fn input(&self, node: usize) -> &[f64] {
+        let o = self.offset(node) + self.states;
+        &self.slots[o..o + self.channels]
+    }
+
+    fn push(&mut self, state: &[f64], input: &[f64]) {
+        assert!(self.len < self.capacity(), "chain ring sized for the window");
+        let (o, states, stride) = (self.offset(self.len), self.states, self.stride());
+        self.slots[o..o + states].copy_from_slice(state);
+        self.slots[o + states..o + stride].copy_from_slice(input);
+        self.len += 1;
+    }
+
+    fn drop_front(&mut self, nodes: usize) {
+        self.head = (self.head + nodes) % self.capacity();
+        self.len -= nodes;
+    }
+}
+
 /// Scratch space of the predictors, sized once for a model (a prediction then allocates
 /// nothing: it runs inside the control callback).
 #[derive(Debug, Clone)]
@@ -132,6 +212,11 @@ pub struct PredictorWorkspace {
     /// Per channel: the command κ_j holds inside a recursive predictor's window.
     held: Vec<Option<f64>>,
     law_input: Vec<f64>,
+    chain: Chain,
+    /// p_1 of the last recursive prediction made through the chain.
+    first_prediction: Vec<f64>,
+    /// Reuse the previous tick's recursive chain when p_1 lands within this distance of it.
+    chain_tolerance: Option<f64>,
 }
 
 impl PredictorWorkspace {
@@ -146,7 +231,30 @@ impl PredictorWorkspace {
             cursors: vec![HistoryCursor::EMPTY; channels],
             held: vec![None; channels],
             law_input: vec![0.0; channels],
+            chain: Chain::new(states, channels),
+            first_prediction: vec![0.0; states],
+            chain_tolerance: None,
         }
+    }
+
+    /// Lets consecutive ticks of the recursive predictors (4.23) reuse the chain on
+    /// [t + D_1, t + D_r]. Tick t + T computes p_1 afresh from x(t + T) (the feedback), and if
+    /// it is within `tolerance` (max norm) of the previous chain's state at t + T + D_1, and
+    /// the commands issued at t equal the κ_j values that chain assumed for them, the overlap
+    /// [t + T + D_1, t + D_r] is the previous chain and only [t + D_r, t + T + D_r] is
+    /// integrated. Otherwise the whole window is. On a plant that follows the model exactly the
+    /// reused chain is the recomputed one up to round-off; on MuJoCo the model mismatch moves
+    /// p_1 off the chain, and the tolerance bounds how far before a full recomputation.
+    /// `None` always integrates the whole window. Applies when the predictor step divides the
+    /// control period (its inputs are then constant on every step).
+    pub fn set_chain_reuse(&mut self, tolerance: Option<f64>) {
+        self.chain_tolerance = tolerance;
+        self.invalidate_chain();
+    }
+
+    /// Forgets the last chain (the control law changed, e.g. a barrier became known).
+    pub fn invalidate_chain(&mut self) {
+        self.chain.tick = f64::NAN;
     }
 
     /// One prediction per channel, ready for [`PredictorContext::predict_into`].
@@ -157,6 +265,8 @@ impl PredictorWorkspace {
                 issued_at: 0.0,
                 target_time: 0.0,
                 state: DVector::zeros(self.rk4.state.len()),
+                reused_chain: false,
+                chain_mismatch: f64::NAN,
             })
             .collect()
     }
@@ -207,7 +317,8 @@ impl PredictorContext<'_> {
     }
 
     /// out[i] ← p_i(t), made at tick time t from state x; `out` holds one prediction per
-    /// channel (from [`PredictorWorkspace::predictions`]). Allocates nothing.
+    /// channel (from [`PredictorWorkspace::predictions`]). Allocates nothing once the
+    /// workspace has served one tick.
     pub fn predict_into(
         &self,
         structure: &Structure,
@@ -217,20 +328,15 @@ impl PredictorContext<'_> {
         workspace: &mut PredictorWorkspace,
         out: &mut [Prediction],
     ) -> Result<(), DelayError> {
-        let r = self.queues.len();
-        let PredictorWorkspace {
-            rk4,
-            cursors,
-            held,
-            law_input,
-        } = workspace;
-        cursors.fill(HistoryCursor::EMPTY);
+        workspace.cursors.fill(HistoryCursor::EMPTY);
         let constant_input = self.inputs_constant_per_step(structure);
         let set = |p: &mut Prediction, channel: usize, target_time: f64, state: &[f64]| {
             p.channel = channel;
             p.issued_at = t;
             p.target_time = target_time;
             p.state.copy_from_slice(state);
+            p.reused_chain = false;
+            p.chain_mismatch = f64::NAN;
         };
         match structure {
             Structure::None => {
@@ -239,9 +345,10 @@ impl PredictorContext<'_> {
                 }
             }
             Structure::Shared => {
+                let PredictorWorkspace { rk4, cursors, .. } = workspace;
                 let target = self.queues[0].profile().prediction_time(t);
                 rk4.state.copy_from_slice(x);
-                self.integrate(rk4, t, target, constant_input, &mut |_, step, stage_time, u| {
+                self.integrate(rk4, t, target, constant_input, None, &mut |_, step, stage_time, u| {
                     self.history_inputs(cursors, step, stage_time, u)
                 })?;
                 for (channel, p) in out.iter_mut().enumerate() {
@@ -249,47 +356,196 @@ impl PredictorContext<'_> {
                 }
             }
             Structure::Recursive { order, delays } => {
-                rk4.state.copy_from_slice(x);
-                // D_{i-1}: how far the chain of predictions has reached.
-                let mut reached = 0.0;
-                // Channels whose commands inside the current window are predicted by κ_j,
-                // with the value held since their last tick.
-                held.fill(None);
-                for &i in order {
-                    let d_i = delays[i];
-                    if d_i > reached {
-                        let mut input = |step_state: &[f64], step: Step, stage_time: f64, u: &mut [f64]| {
-                            // κ_j ticks when the command reaching the plant now was issued at
-                            // a tick: (s − D_j) on the control-period grid.
-                            if step.first_stage {
-                                let mut law_evaluated = false;
-                                for &j in order.iter().filter(|&&j| delays[j] < d_i) {
-                                    let ticks = (step.start - t - delays[j]) / self.control_period;
-                                    if (ticks - ticks.round()).abs() < GRID_TOLERANCE || held[j].is_none() {
-                                        if !law_evaluated {
-                                            law(step.start, step_state, law_input);
-                                            law_evaluated = true;
-                                        }
-                                        held[j] = Some(law_input[j]);
-                                    }
-                                }
-                            }
-                            for (j, u_j) in u.iter_mut().enumerate().take(r) {
-                                *u_j = match held[j] {
-                                    Some(v) if delays[j] < d_i => v,
-                                    _ => self.history_input(j, &mut cursors[j], step.start, step.end, stage_time)?,
-                                };
-                            }
-                            Ok(())
-                        };
-                        self.integrate(rk4, t + reached, t + d_i, constant_input, &mut input)?;
-                        reached = d_i;
+                let chain_window = self.chain_window(order, delays, constant_input);
+                match (workspace.chain_tolerance, chain_window) {
+                    (Some(tolerance), Some((period_steps, nodes))) => {
+                        let (reused, mismatch) = self.recursive_with_chain(
+                            (order, delays),
+                            t,
+                            x,
+                            law,
+                            workspace,
+                            (period_steps, nodes, tolerance),
+                        )?;
+                        let first = delays[order[0]];
+                        for &i in order {
+                            let node = ((delays[i] - first) / self.timestep).round() as usize;
+                            let state = if node == 0 {
+                                // The fresh p_1 (node 0 of a reused chain is only within tolerance).
+                                &workspace.first_prediction
+                            } else {
+                                workspace.chain.state(node)
+                            };
+                            set(&mut out[i], i, t + delays[i], state);
+                            out[i].reused_chain = reused;
+                            out[i].chain_mismatch = mismatch;
+                        }
                     }
-                    set(&mut out[i], i, t + d_i, &rk4.state);
+                    _ => {
+                        let PredictorWorkspace { rk4, .. } = workspace;
+                        rk4.state.copy_from_slice(x);
+                        let mut reached = 0.0;
+                        workspace.held.fill(None);
+                        for &i in order {
+                            let d_i = delays[i];
+                            if d_i > reached {
+                                self.recursive_segment(order, delays, t, (reached, d_i), law, workspace, false)?;
+                                reached = d_i;
+                            }
+                            set(&mut out[i], i, t + d_i, &workspace.rk4.state);
+                        }
+                    }
                 }
             }
         }
         Ok(())
+    }
+
+    /// (predictor steps per control period, chain nodes on [t + D_1, t + D_r]) when the
+    /// recursive chain can be reused between ticks: the step divides the control period (so
+    /// it divides every delay) and the inputs are constant on each step.
+    fn chain_window(&self, order: &[usize], delays: &[f64], constant_input: bool) -> Option<(usize, usize)> {
+        let period_steps = self.control_period / self.timestep;
+        let whole = period_steps >= 0.5 && (period_steps - period_steps.round()).abs() < GRID_TOLERANCE;
+        let window = delays[order[order.len() - 1]] - delays[order[0]];
+        (constant_input && whole).then(|| {
+            (
+                period_steps.round() as usize,
+                (window / self.timestep).round() as usize + 1,
+            )
+        })
+    }
+
+    /// The recursive predictions through `workspace.chain`, reusing the previous tick's chain
+    /// when it still holds (see [`PredictorWorkspace::set_chain_reuse`]). Leaves the fresh
+    /// p_1 in `workspace.first_prediction`. Returns (reused, mismatch).
+    fn recursive_with_chain(
+        &self,
+        (order, delays): (&[usize], &[f64]),
+        t: f64,
+        x: &[f64],
+        law: &mut ControlLaw<'_>,
+        workspace: &mut PredictorWorkspace,
+        (period_steps, nodes, tolerance): (usize, usize, f64),
+    ) -> Result<(bool, f64), DelayError> {
+        let (first, last) = (delays[order[0]], delays[order[order.len() - 1]]);
+        let step = self.timestep;
+        // p_1 (4.23) from x(t): every channel's history over [t, t + D_1].
+        workspace.rk4.state.copy_from_slice(x);
+        workspace.held.fill(None);
+        self.recursive_segment(order, delays, t, (0.0, first), law, workspace, false)?;
+        workspace.first_prediction.copy_from_slice(&workspace.rk4.state);
+
+        let chain = &mut workspace.chain;
+        let consecutive = (chain.tick + self.control_period - t).abs() < step * GRID_TOLERANCE && chain.len == nodes;
+        let mut mismatch = f64::NAN;
+        let mut reusable = false;
+        if consecutive {
+            chain.drop_front(period_steps);
+            mismatch = chain
+                .state(0)
+                .iter()
+                .zip(&workspace.rk4.state)
+                .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
+            reusable = mismatch <= tolerance;
+            // Channels strictly between D_1 and D_r: the previous chain held κ_j on the steps
+            // starting in [t − T + D_j, t + D_j); this tick's chain takes channel j's history
+            // there (the command issued at t − T), so they must agree.
+            for &j in order.iter().filter(|&&j| delays[j] > first && delays[j] < last) {
+                let node_j = ((delays[j] - first) / step).round() as usize;
+                for node in node_j + 1 - period_steps..=node_j {
+                    let start = t + first + (node - 1) as f64 * step;
+                    let mut cursor = HistoryCursor::EMPTY;
+                    let history = self.history_input(j, &mut cursor, start, start + step, start)?;
+                    reusable &= (chain.input(node)[j] - history).abs() <= tolerance;
+                }
+            }
+        }
+        workspace.held.fill(None);
+        if reusable {
+            // Continue from the chain's end at t − T + D_r over the last control period.
+            let end = chain.len - 1;
+            workspace.rk4.state.copy_from_slice(chain.state(end));
+            chain.tick = t;
+            self.recursive_segment(
+                order,
+                delays,
+                t,
+                (last - self.control_period, last),
+                law,
+                workspace,
+                true,
+            )?;
+        } else {
+            chain.restart(t, nodes);
+            chain.push(&workspace.rk4.state, &workspace.rk4.input);
+            let mut reached = first;
+            for &i in order {
+                if delays[i] > reached {
+                    self.recursive_segment(order, delays, t, (reached, delays[i]), law, workspace, true)?;
+                    reached = delays[i];
+                }
+            }
+        }
+        debug_assert_eq!(workspace.chain.len, nodes);
+        Ok((reusable, mismatch))
+    }
+
+    /// Integrates `workspace.rk4.state` over [t + from, t + to] inside the segment that ends at
+    /// t + to = t + D_i of the recursive chain: channels j with D_j < D_i take κ_j at the
+    /// predicted state (ticking on the control grid shifted by D_j), the others their history.
+    /// `record` appends every step to the chain.
+    #[allow(clippy::too_many_arguments)]
+    fn recursive_segment(
+        &self,
+        order: &[usize],
+        delays: &[f64],
+        t: f64,
+        (from, to): (f64, f64),
+        law: &mut ControlLaw<'_>,
+        workspace: &mut PredictorWorkspace,
+        record: bool,
+    ) -> Result<(), DelayError> {
+        let PredictorWorkspace {
+            rk4,
+            cursors,
+            held,
+            law_input,
+            chain,
+            ..
+        } = workspace;
+        let r = self.queues.len();
+        let d_i = to;
+        let mut input = |step_state: &[f64], step: Step, stage_time: f64, u: &mut [f64]| {
+            // κ_j ticks when the command reaching the plant now was issued at a tick:
+            // (s − D_j) on the control-period grid.
+            if step.first_stage {
+                let mut law_evaluated = false;
+                for &j in order.iter().filter(|&&j| delays[j] < d_i) {
+                    let ticks = (step.start - t - delays[j]) / self.control_period;
+                    if (ticks - ticks.round()).abs() < GRID_TOLERANCE || held[j].is_none() {
+                        if !law_evaluated {
+                            law(step.start, step_state, law_input);
+                            law_evaluated = true;
+                        }
+                        held[j] = Some(law_input[j]);
+                    }
+                }
+            }
+            for (j, u_j) in u.iter_mut().enumerate().take(r) {
+                *u_j = match held[j] {
+                    Some(v) if delays[j] < d_i => v,
+                    _ => self.history_input(j, &mut cursors[j], step.start, step.end, stage_time)?,
+                };
+            }
+            Ok(())
+        };
+        let constant_input = self.inputs_constant_per_step(&Structure::Recursive {
+            order: Vec::new(),
+            delays: Vec::new(),
+        });
+        let record = if record { Some(chain) } else { None };
+        self.integrate(rk4, t + from, t + to, constant_input, record, &mut input)
     }
 
     /// u ← every channel's issued history at one RK4 stage.
@@ -312,7 +568,7 @@ impl PredictorContext<'_> {
             mut rk4, mut cursors, ..
         } = PredictorWorkspace::new(x.len(), self.queues.len());
         rk4.state.copy_from_slice(x.as_slice());
-        self.integrate(&mut rk4, from, to, false, &mut |_, step, stage_time, u| {
+        self.integrate(&mut rk4, from, to, false, None, &mut |_, step, stage_time, u| {
             self.history_inputs(&mut cursors, step, stage_time, u)
         })?;
         Ok(DVector::from_vec(rk4.state))
@@ -343,6 +599,7 @@ impl PredictorContext<'_> {
         from: f64,
         to: f64,
         constant_input: bool,
+        mut record: Option<&mut Chain>,
         input: &mut StageInput<'_>,
     ) -> Result<(), DelayError> {
         let h = self.timestep;
@@ -388,6 +645,9 @@ impl PredictorContext<'_> {
             self.model.dynamics_into(stage, u, k4);
             for (i, x) in state.iter_mut().enumerate() {
                 *x += (k1[i] + k2[i] * 2.0 + k3[i] * 2.0 + k4[i]) * (dt / 6.0);
+            }
+            if let Some(chain) = record.as_deref_mut() {
+                chain.push(state, u);
             }
             s += dt;
         }
@@ -545,5 +805,95 @@ mod tests {
             "{}",
             p[0].state
         );
+    }
+
+    /// Closed loop of a double integrator with three channels (D = 0.1, 0.2, 0.3 s) whose
+    /// commands are κ_j at their own predictions, except at tick `off_law_tick` where channel 2
+    /// (the middle delay) issues κ_2 + 0.5, and at tick `kick_tick` where the state is
+    /// perturbed. Returns, per tick from the second: (reused, max |reused − recomputed|).
+    fn chain_reuse_run(tolerance: f64, off_law_tick: usize, kick_tick: usize) -> Vec<(bool, f64)> {
+        let h = 0.01;
+        let model = LinearModel::new(
+            DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]),
+            DMatrix::from_row_slice(2, 3, &[0.3, 0.0, 0.0, 1.0, 1.0, 1.0]),
+        );
+        let kappa = |_: f64, z: &[f64], u: &mut [f64]| {
+            u[0] = -z[0] - z[1];
+            u[1] = 0.5 * z[0].sin() - 0.2;
+            u[2] = -0.2 * z[1] + 0.1;
+        };
+        let mut queues: Vec<DelayQueue> = [("u1", 0.1), ("u2", 0.2), ("u3", 0.3)]
+            .iter()
+            .map(|&(name, d)| DelayQueue::new(name, d, 0.05, h).unwrap())
+            .collect();
+        let structure = structure(&queues, h).unwrap();
+        let mut reusing = PredictorWorkspace::new(2, 3);
+        reusing.set_chain_reuse(Some(tolerance));
+        let mut full = PredictorWorkspace::new(2, 3);
+        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let mut x = DVector::from_vec(vec![1.0, -0.5]);
+        let mut out = Vec::new();
+        for k in 0..60 {
+            let t = k as f64 * h;
+            if k == kick_tick {
+                x[0] += 1e-3;
+            }
+            let context = PredictorContext {
+                model: &model,
+                queues: &queues,
+                timestep: h,
+                control_period: h,
+            };
+            let mut law = kappa;
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut law, &mut reusing, &mut p_reused)
+                .unwrap();
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut law, &mut full, &mut p_full)
+                .unwrap();
+            let difference = p_reused
+                .iter()
+                .zip(&p_full)
+                .map(|(a, b)| (&a.state - &b.state).amax())
+                .fold(0.0, f64::max);
+            if k > 0 {
+                out.push((p_reused[0].reused_chain, difference));
+            }
+            let mut u = [0.0; 3];
+            for (j, queue) in queues.iter_mut().enumerate() {
+                kappa(t, p_full[j].state.as_slice(), &mut u);
+                let off_law = if k == off_law_tick && j == 1 { 0.5 } else { 0.0 };
+                queue.push(t, u[j] + off_law).unwrap();
+            }
+            let context = PredictorContext {
+                model: &model,
+                queues: &queues,
+                timestep: h,
+                control_period: h,
+            };
+            x = context.advance_with_history(&x, t, t + h).unwrap();
+        }
+        out
+    }
+
+    #[test]
+    fn a_reused_chain_equals_the_recomputed_one_and_is_dropped_when_it_no_longer_holds() {
+        // Exact model and commands from κ: every tick after the first reuses the chain, and the
+        // reused predictions are the recomputed ones.
+        let clean = chain_reuse_run(0.0, usize::MAX, usize::MAX);
+        assert!(clean.iter().all(|&(reused, d)| reused && d < 1e-12), "{clean:?}");
+        // Channel 2 issues something other than the κ_2 the chain assumed at tick 20: tick 21
+        // must recompute (and stays exact); later ticks reuse again.
+        let off_law = chain_reuse_run(0.0, 20, usize::MAX);
+        assert!(!off_law[20].0, "tick 21 reused a chain built on the wrong command");
+        assert!(off_law.iter().all(|&(_, d)| d < 1e-12), "{off_law:?}");
+        assert!(off_law[25].0);
+        // A state kick of 1e-3 puts p_1 off the chain: recomputed below the tolerance, reused
+        // (with a bounded difference) above it.
+        let strict = chain_reuse_run(1e-4, usize::MAX, 30);
+        assert!(!strict[29].0 && strict.iter().all(|&(_, d)| d < 1e-12), "{strict:?}");
+        let loose = chain_reuse_run(1e-2, usize::MAX, 30);
+        let worst = loose.iter().map(|&(_, d)| d).fold(0.0, f64::max);
+        assert!(loose[29].0 && worst > 1e-6 && worst < 1e-2, "{loose:?}");
     }
 }

@@ -115,6 +115,11 @@ pub struct ControlSpec {
     /// Coarser is faster; the log's /prediction records measure what it costs in accuracy.
     #[serde(default)]
     pub predictor_step: Option<f64>,
+    /// Recursive predictors (4.23): reuse the previous tick's chain when the fresh p_1 lands
+    /// within this max-norm distance of it (state units), else integrate the whole window.
+    /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
+    #[serde(default = "default_chain_tolerance")]
+    pub chain_tolerance: f64,
 }
 
 impl Default for ControlSpec {
@@ -123,12 +128,20 @@ impl Default for ControlSpec {
             period: None,
             predictor_step: None,
             history: default_history(),
+            chain_tolerance: default_chain_tolerance(),
         }
     }
 }
 
 fn default_history() -> f64 {
     30.0
+}
+
+/// See docs/performance.md (predictor chain reuse) for the measurement behind it.
+pub const DEFAULT_CHAIN_TOLERANCE: f64 = 1e-4;
+
+fn default_chain_tolerance() -> f64 {
+    DEFAULT_CHAIN_TOLERANCE
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -227,7 +227,8 @@ fn analyze_memory_does_not_grow_with_log_length() {
         size(&short) / 1024,
         size(&long) / 1024
     );
-    assert!(size(&long) > 8 * size(&short));
+    // Ten times the steps; the fixed part (schemas, metadata, first chunk) keeps it under 10x.
+    assert!(size(&long) > 6 * size(&short));
     // Flat: the ten times longer log costs less than 2 MB more (the short log is ~1.5 MB).
     assert!(long_kb < short_kb + 2048, "{short_kb} kB -> {long_kb} kB");
 }

@@ -46,11 +46,51 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
     assert!(row["bare_final_state_deviation"].as_f64().unwrap() < 1e-9, "{row}");
     // The kept log is complete and is the scenario's run (it avoids the obstacle).
     assert!(row["log_bytes"].as_u64().unwrap() > 10_000);
-    let log = dir.path().join("bench-bicycle_obstacle_gamma_m-0.01.mcap");
+    let log = dir.path().join("bench-bicycle_obstacle_gamma_m-0.01-1e-4.mcap");
     let m = analyze_json(&log);
     assert_eq!(m["complete"], true);
     assert_eq!(m["steps"], 1000);
     assert!(row["max_prediction_error"]["steering"].as_f64().unwrap() < 0.01);
+}
+
+#[test]
+fn chain_reuse_costs_at_most_about_its_tolerance_and_keeps_the_outcome() {
+    // The default γm scenario on MuJoCo, tolerance 0 (reuse only on exact agreement), the
+    // default 1e-4, and 1e-2. The audited run recomputes every reused chain: the difference
+    // reuse made stays within a small multiple of the tolerance, reuse grows with it, and the
+    // episode still avoids the obstacle.
+    let dir = tempfile::tempdir().unwrap();
+    let rows = bench_json(
+        &[
+            "scenarios/bicycle_obstacle_gamma_m.toml",
+            "--set",
+            "duration=6.0",
+            "--chain-tolerance",
+            "0,1e-4,1e-2",
+        ],
+        dir.path(),
+    );
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    let reused: Vec<u64> = rows.iter().map(|r| r["reused_predictions"].as_u64().unwrap()).collect();
+    let differences: Vec<f64> = rows.iter().map(|r| r["chain_reuse_error"].as_f64().unwrap()).collect();
+    println!("chain tolerance 0 / 1e-4 / 1e-2: reused {reused:?}, largest difference {differences:?}");
+    assert!(differences[0] < 1e-12, "exact reuse only: {differences:?}");
+    assert!(differences[1] <= 5e-4, "{differences:?}");
+    assert!(differences[2] <= 5e-2, "{differences:?}");
+    assert!(reused[0] < reused[1] && reused[1] < reused[2], "{reused:?}");
+    for row in rows {
+        assert_eq!(row["collision"], false, "{row}");
+        assert!(row["min_h"].as_f64().unwrap() > 0.0, "{row}");
+    }
+    let log = dir.path().join("bench-bicycle_obstacle_gamma_m-0.01-1e-4.mcap");
+    let m = analyze_json(&log);
+    let steering = &m["prediction"]["steering"];
+    // The log marks the reused predictions (those whose target time the episode reached).
+    let logged =
+        steering["reused_chain"].as_u64().unwrap() + m["prediction"]["acceleration"]["reused_chain"].as_u64().unwrap();
+    assert!(logged > 0 && logged <= reused[1], "{logged} of {reused:?}");
+    assert!(steering["max_chain_mismatch"].as_f64().unwrap() > 0.0, "{m}");
 }
 
 #[test]

@@ -317,6 +317,17 @@ pub struct ControlLoop {
     /// A disturbance ω_i(t) added to channel i's applied input ((4.12) with Z = G); unknown
     /// to the predictors.
     pub input_disturbance: Option<Box<dyn Fn(f64, usize) -> f64 + Send>>,
+    /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
+    chain_audit: Option<ChainAudit>,
+}
+
+/// Every recursive prediction recomputed over its whole window next to the reused chain, and
+/// the largest difference seen (what `control.chain_tolerance` costs; benchmarks report it).
+struct ChainAudit {
+    workspace: PredictorWorkspace,
+    predictions: Vec<Prediction>,
+    max_difference: f64,
+    reused: u64,
 }
 
 impl ControlLoop {
@@ -377,6 +388,7 @@ impl ControlLoop {
             error: None,
             output_at_end: None,
             input_disturbance: None,
+            chain_audit: None,
         }
     }
 
@@ -384,6 +396,8 @@ impl ControlLoop {
     pub fn add_barrier(&mut self, barrier: Barrier) {
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
+        // κ_j changed: the recursive chain computed with the old law no longer holds.
+        self.work.predictor.invalidate_chain();
     }
 
     pub fn known_barriers(&self) -> &[Barrier] {
@@ -401,6 +415,29 @@ impl ControlLoop {
         }
         self.predictor_step = steps as f64 * self.timestep;
         Ok(())
+    }
+
+    /// Reuse of the recursive chain between ticks (see [`PredictorWorkspace::set_chain_reuse`]).
+    pub fn set_chain_tolerance(&mut self, tolerance: f64) {
+        self.work.predictor.set_chain_reuse(Some(tolerance));
+    }
+
+    /// Recomputes every reused recursive chain over its whole window too, and keeps the
+    /// largest difference (doubles the predictor cost: for measurements, not for runs).
+    pub fn audit_chain_reuse(&mut self) {
+        let workspace = PredictorWorkspace::new(self.model.state_dim(), self.queues.len());
+        self.chain_audit = Some(ChainAudit {
+            predictions: workspace.predictions(),
+            workspace,
+            max_difference: 0.0,
+            reused: 0,
+        });
+    }
+
+    /// (largest max-norm difference between a reused and a recomputed prediction, predictions
+    /// made from a reused chain) since [`ControlLoop::audit_chain_reuse`].
+    pub fn chain_audit(&self) -> Option<(f64, u64)> {
+        self.chain_audit.as_ref().map(|a| (a.max_difference, a.reused))
     }
 
     /// The last tick's record, once (after the step in which it ran).
@@ -459,6 +496,7 @@ impl ControlLoop {
             tick_ready,
             pending,
             work,
+            chain_audit,
             ..
         } = self;
         let TickWorkspace {
@@ -492,6 +530,21 @@ impl ControlLoop {
             // it once predictions are consistent, Lemma 4.7).
             let mut kappa = |time: f64, z: &[f64], u: &mut [f64]| laws.delay_free(time, z, law_work, u);
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
+            if let Some(audit) = chain_audit {
+                let ChainAudit {
+                    workspace,
+                    predictions: recomputed,
+                    ..
+                } = audit;
+                context.predict_into(structure, t, state.as_slice(), &mut kappa, workspace, recomputed)?;
+                for (p, q) in predictions.iter().zip(recomputed.iter()) {
+                    if p.reused_chain {
+                        audit.reused += 1;
+                        let difference = (&p.state - &q.state).amax();
+                        audit.max_difference = audit.max_difference.max(difference);
+                    }
+                }
+            }
         }
 
         for (i, p) in predictions.iter().enumerate() {
@@ -538,6 +591,8 @@ impl ControlLoop {
                     issued_at: p.issued_at,
                     target_time: p.target_time,
                     state,
+                    reused_chain: p.reused_chain,
+                    chain_mismatch: p.chain_mismatch,
                 });
             }
         }

@@ -90,6 +90,47 @@ pub struct Episode {
     /// Scratch space of the logged barrier constraints (one evaluation per barrier and step).
     lie: barrier::LieWorkspace,
     constraint: barrier::Constraint,
+    /// The obstacles' barriers, for the plant's contact check.
+    obstacle_barriers: Vec<Barrier>,
+    /// Per-step scratch: penetration depth per obstacle, ẋ for the logged velocity.
+    depths: Vec<Option<f64>>,
+    xdot: Vec<f64>,
+    /// Per-step and per-tick records, updated in place (their names keep their storage).
+    records: RecordBuffers,
+}
+
+/// The records written at every step or tick, kept between steps so logging allocates
+/// nothing per step: each is always the variant its field names.
+struct RecordBuffers {
+    state: Record,
+    applied: Record,
+    barrier: Record,
+    issued: Record,
+    filter: Record,
+}
+
+impl RecordBuffers {
+    fn new(state_names: &[String], channels: &[String]) -> RecordBuffers {
+        RecordBuffers {
+            state: Record::State(proto::State {
+                names: state_names.to_vec(),
+                ..Default::default()
+            }),
+            applied: Record::Applied(proto::AppliedCommand {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+            barrier: Record::Barrier(proto::Barrier::default()),
+            issued: Record::Issued(proto::IssuedCommand {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+            filter: Record::Filter(proto::Filter {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+        }
+    }
 }
 
 /// What the Foxglove 3D view needs beyond the state.
@@ -462,6 +503,16 @@ impl Episode {
                 .set_predictor_step(steps.round() as u32)
                 .map_err(|e| loaded.field_error("control.predictor_step", e))?;
         }
+        let tolerance = sc.control.chain_tolerance;
+        if !(tolerance >= 0.0 && tolerance.is_finite()) {
+            return Err(loaded
+                .field_error(
+                    "control.chain_tolerance",
+                    format!("expected a finite distance >= 0, got {tolerance}"),
+                )
+                .into());
+        }
+        control.set_chain_tolerance(tolerance);
         if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
             let (seed, bound, hold) = (sc.seed, *bound, *hold);
             let r = channels.len();
@@ -510,6 +561,7 @@ impl Episode {
         Ok(Episode {
             plant,
             control,
+            obstacle_barriers: obstacles.iter().map(|o| o.barrier.clone()).collect(),
             obstacles,
             barriers,
             steps,
@@ -517,6 +569,9 @@ impl Episode {
             actuation: None,
             lie: barrier::LieWorkspace::new(control_model.as_ref()),
             constraint: barrier::Constraint::zeros(control_model.input_dim()),
+            depths: Vec::new(),
+            xdot: vec![0.0; control_model.state_dim()],
+            records: RecordBuffers::new(control_model.state_names(), control_model.channel_names()),
             scene: SceneState {
                 hull_radius: parts.hull_radius,
                 path,
@@ -538,6 +593,17 @@ impl Episode {
     /// The RK4 step the predictors use (seconds).
     pub fn predictor_step(&self) -> f64 {
         self.control.predictor_step
+    }
+
+    /// Recomputes every reused recursive-predictor chain too (see
+    /// [`ControlLoop::audit_chain_reuse`]); read the result with [`Episode::chain_audit`].
+    pub fn audit_chain_reuse(&mut self) {
+        self.control.audit_chain_reuse();
+    }
+
+    /// (largest difference between a reused and a recomputed prediction, reused predictions).
+    pub fn chain_audit(&self) -> Option<(f64, u64)> {
+        self.control.chain_audit()
     }
 
     /// The plant's current state x.
@@ -591,8 +657,12 @@ impl Episode {
     }
 
     fn emit(sinks: &mut [&mut dyn Sink], record: Record) -> Result<(), LogError> {
+        Self::emit_ref(sinks, &record)
+    }
+
+    fn emit_ref(sinks: &mut [&mut dyn Sink], record: &Record) -> Result<(), LogError> {
         for sink in sinks.iter_mut() {
-            sink.record(&record)?;
+            sink.record(record)?;
         }
         Ok(())
     }
@@ -624,7 +694,6 @@ impl Episode {
     /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
     fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<String>), EpisodeError> {
         let h = self.control.timestep;
-        let state_names = self.control.model.state_names().to_vec();
         let channels = self.control.model.channel_names().to_vec();
 
         for k in 0..=self.steps {
@@ -641,15 +710,12 @@ impl Episode {
 
             let x = self.plant.state();
             self.emit_scene(sinks, k, time, &x)?;
-            Self::emit(
-                sinks,
-                Record::State(proto::State {
-                    time,
-                    step: k,
-                    names: state_names.clone(),
-                    values: x.iter().copied().collect(),
-                }),
-            )?;
+            if let Record::State(m) = &mut self.records.state {
+                (m.time, m.step) = (time, k);
+                m.values.clear();
+                m.values.extend(x.iter());
+            }
+            Self::emit_ref(sinks, &self.records.state)?;
             // Checked after the state is logged, so even a run stopped before its first step
             // leaves a log with its initial state.
             if stop_requested() {
@@ -689,18 +755,17 @@ impl Episode {
 
             // What happened during step k: tick, applied input, barriers, contacts.
             if let Some(tick) = self.control.take_tick() {
-                Self::emit_tick(sinks, tick, &channels)?;
+                Self::emit_tick(sinks, tick, &mut self.records)?;
             }
             let applied = DVector::from_iterator(channels.len(), self.control.applied.iter().map(|a| a.0));
-            Self::emit(
-                sinks,
-                Record::Applied(proto::AppliedCommand {
-                    time,
-                    channels: channels.clone(),
-                    values: applied.iter().copied().collect(),
-                    issued_at: self.control.applied.iter().map(|a| a.1).collect(),
-                }),
-            )?;
+            if let Record::Applied(m) = &mut self.records.applied {
+                m.time = time;
+                m.values.clear();
+                m.values.extend(applied.iter());
+                m.issued_at.clear();
+                m.issued_at.extend(self.control.applied.iter().map(|a| a.1));
+            }
+            Self::emit_ref(sinks, &self.records.applied)?;
             self.emit_barriers(sinks, time, &x, &applied)?;
             self.check_contacts(sinks, time)?;
         }
@@ -773,31 +838,26 @@ impl Episode {
         Ok(())
     }
 
-    fn emit_tick(sinks: &mut [&mut dyn Sink], tick: &Tick, channels: &[String]) -> Result<(), LogError> {
-        Self::emit(
-            sinks,
-            Record::Issued(proto::IssuedCommand {
-                time: tick.time,
-                channels: channels.to_vec(),
-                nominal: tick.nominal.iter().copied().collect(),
-                filtered: tick.issued.iter().copied().collect(),
-            }),
-        )?;
+    fn emit_tick(sinks: &mut [&mut dyn Sink], tick: &Tick, records: &mut RecordBuffers) -> Result<(), LogError> {
+        if let Record::Issued(m) = &mut records.issued {
+            m.time = tick.time;
+            m.nominal.clear();
+            m.nominal.extend(tick.nominal.iter());
+            m.filtered.clear();
+            m.filtered.extend(tick.issued.iter());
+        }
+        Self::emit_ref(sinks, &records.issued)?;
         let solved = tick.outcomes.iter().flatten();
-        let active = solved.clone().any(|o| o.active);
-        let infeasible = solved.clone().any(|o| o.infeasible);
-        let mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
-        Self::emit(
-            sinks,
-            Record::Filter(proto::Filter {
-                time: tick.time,
-                active,
-                channels: channels.to_vec(),
-                correction: tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0).collect(),
-                infeasible,
-                mu,
-            }),
-        )
+        if let Record::Filter(m) = &mut records.filter {
+            m.time = tick.time;
+            m.active = solved.clone().any(|o| o.active);
+            m.infeasible = solved.clone().any(|o| o.infeasible);
+            m.mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
+            m.correction.clear();
+            m.correction
+                .extend(tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0));
+        }
+        Self::emit_ref(sinks, &records.filter)
     }
 
     /// Every barrier at x(t_k), with its constraint evaluated at the applied input (without a
@@ -818,45 +878,57 @@ impl Episode {
             .chain(self.barriers.iter().map(|b| (b, true, false)));
         // World velocity of the planar position (for time-to-collision): ṗ from the model.
         let velocity = model.planar_position().map(|[i, j]| {
-            let xdot = model.dynamics(x, applied);
-            [xdot[i], xdot[j]]
+            model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
+            [self.xdot[i], self.xdot[j]]
         });
-        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
-        let barriers: Vec<proto::BarrierValue> = entries
-            .map(|(b, known, obstacle)| {
-                let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
-                    lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
-                    (constraint_data.value(applied), form.relative_degree())
-                });
-                let time_to_collision = match (obstacle, velocity, &b.shape) {
-                    (
-                        true,
-                        Some(v),
-                        crate::barrier::Shape::Ball {
-                            indices,
-                            centre,
-                            radius,
-                            ..
-                        },
-                    ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
-                    _ => f64::NAN,
-                };
-                proto::BarrierValue {
+        let Record::Barrier(record) = &mut self.records.barrier else {
+            unreachable!("records.barrier holds a barrier record")
+        };
+        record.time = time;
+        let count = self.obstacles.len() + self.barriers.len();
+        if record.barriers.len() != count {
+            record.barriers = entries
+                .clone()
+                .map(|(b, ..)| proto::BarrierValue {
                     name: b.name.clone(),
-                    h: b.h(x),
-                    constraint,
-                    known,
-                    relative_degree,
-                    clearance: b.clearance(x),
-                    time_to_collision,
-                    obstacle,
-                }
-            })
-            .collect();
-        if barriers.is_empty() {
+                    ..Default::default()
+                })
+                .collect();
+        }
+        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
+        for ((b, known, obstacle), value) in entries.zip(record.barriers.iter_mut()) {
+            let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
+                lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
+                (constraint_data.value(applied), form.relative_degree())
+            });
+            let time_to_collision = match (obstacle, velocity, &b.shape) {
+                (
+                    true,
+                    Some(v),
+                    crate::barrier::Shape::Ball {
+                        indices,
+                        centre,
+                        radius,
+                        ..
+                    },
+                ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
+                _ => f64::NAN,
+            };
+            *value = proto::BarrierValue {
+                name: std::mem::take(&mut value.name),
+                h: b.h(x),
+                constraint,
+                known,
+                relative_degree,
+                clearance: b.clearance(x),
+                time_to_collision,
+                obstacle,
+            };
+        }
+        if count == 0 {
             return Ok(());
         }
-        Self::emit(sinks, Record::Barrier(proto::Barrier { time, barriers }))
+        Self::emit_ref(sinks, &self.records.barrier)
     }
 
     /// Collision start/end events from the plant's penetrations of the obstacles.
@@ -864,9 +936,8 @@ impl Episode {
         if self.obstacles.is_empty() {
             return Ok(());
         }
-        let barriers: Vec<Barrier> = self.obstacles.iter().map(|o| o.barrier.clone()).collect();
-        let depths = self.plant.penetrations(&barriers);
-        for (o, depth) in self.obstacles.iter_mut().zip(depths) {
+        self.plant.penetrations(&self.obstacle_barriers, &mut self.depths);
+        for (o, &depth) in self.obstacles.iter_mut().zip(&self.depths) {
             let touching = depth.is_some();
             if let Some(d) = depth {
                 o.contact_depth = o.contact_depth.max(d);
@@ -1243,6 +1314,8 @@ fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
         realized: c.realized.iter().copied().collect(),
         error,
         relative_error: error / c.realized.norm().max(1.0),
+        reused_chain: c.prediction.reused_chain,
+        chain_mismatch: c.prediction.chain_mismatch,
     })
 }
 

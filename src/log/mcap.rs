@@ -1,5 +1,6 @@
-//! MCAP sink: one file per run, protobuf messages with their schema embedded, zstd chunks,
-//! log time = simulation time, written single-threaded so equal runs give equal bytes.
+//! MCAP sink: one file per run, protobuf messages with their schema embedded, zstd chunks
+//! (written by [`McapWriter`]), log time = simulation time, written single-threaded so equal
+//! runs give equal bytes.
 //! The file is written as `<path>.partial` and renamed when finished, so a log under its
 //! final name is always complete and readable.
 
@@ -8,13 +9,16 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use mcap::records::MessageHeader;
-use mcap::{Compression, WriteOptions, Writer};
-
+use super::mcap_writer::McapWriter;
 use super::{LogError, Record, RunInfo, Sink, LOG_FORMAT_VERSION, TOPICS};
 
+/// Uncompressed bytes per chunk.
+const CHUNK_SIZE: usize = 1 << 20;
+/// zstd level: 1 is the fastest; higher levels shrink logs by ~10% at several times the cost.
+const ZSTD_LEVEL: i32 = 1;
+
 pub struct McapSink {
-    writer: Option<Writer<BufWriter<File>>>,
+    writer: Option<McapWriter<BufWriter<File>>>,
     channel_ids: Vec<u16>,
     sequence: u32,
     /// Encoding buffer reused by every record.
@@ -43,14 +47,8 @@ impl McapSink {
         partial.push(".partial");
         let partial_path = PathBuf::from(partial);
         let file = File::create(&partial_path).map_err(|e| err(e.to_string()))?;
-        let mut writer = WriteOptions::new()
-            .compression(Some(Compression::Zstd))
-            .compression_level(1)
-            .chunk_size(Some(1 << 20))
-            .compression_threads(0)
-            .library(format!("mjsafe/{}", env!("CARGO_PKG_VERSION")))
-            .profile("")
-            .create(BufWriter::new(file))
+        let library = format!("mjsafe/{}", env!("CARGO_PKG_VERSION"));
+        let mut writer = McapWriter::new(BufWriter::new(file), "", &library, CHUNK_SIZE, ZSTD_LEVEL)
             .map_err(|e| err(e.to_string()))?;
         let mut channel_ids = Vec::with_capacity(TOPICS.len());
         for (index, (topic, schema_name)) in TOPICS.into_iter().enumerate() {
@@ -58,7 +56,7 @@ impl McapSink {
                 .add_schema(schema_name, "protobuf", &super::schema_data(index))
                 .map_err(|e| err(e.to_string()))?;
             let id = writer
-                .add_channel(schema, topic, "protobuf", &BTreeMap::new())
+                .add_channel(schema, topic, "protobuf")
                 .map_err(|e| err(e.to_string()))?;
             channel_ids.push(id);
         }
@@ -80,10 +78,7 @@ impl McapSink {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
         }
         writer
-            .write_metadata(&mcap::records::Metadata {
-                name: "mjsafe".to_string(),
-                metadata,
-            })
+            .write_metadata("mjsafe", &metadata.into_iter().collect::<Vec<_>>())
             .map_err(|e| err(e.to_string()))?;
         Ok(McapSink {
             writer: Some(writer),
@@ -114,14 +109,9 @@ impl Sink for McapSink {
         };
         let time = sim_time_ns(record.time());
         self.sequence += 1;
-        let header = MessageHeader {
-            channel_id: self.channel_ids[record.topic_index()],
-            sequence: self.sequence,
-            log_time: time,
-            publish_time: time,
-        };
         record.encode_into(&mut self.buffer);
-        let result = writer.write_to_known_channel(&header, &self.buffer);
+        let channel = self.channel_ids[record.topic_index()];
+        let result = writer.write_message(channel, self.sequence, time, &self.buffer);
         result.map_err(|e| self.error(e.to_string()))
     }
 
@@ -129,18 +119,15 @@ impl Sink for McapSink {
         let Some(mut writer) = self.writer.take() else {
             return Ok(());
         };
-        let status = BTreeMap::from([(
+        let status = [(
             "complete".to_string(),
             if complete { "true" } else { "false" }.to_string(),
-        )]);
+        )];
         writer
-            .write_metadata(&mcap::records::Metadata {
-                name: "mjsafe_status".to_string(),
-                metadata: status,
-            })
+            .write_metadata("mjsafe_status", &status)
             .map_err(|e| self.error(e.to_string()))?;
-        writer.finish().map_err(|e| self.error(e.to_string()))?;
-        drop(writer);
+        let out = writer.finish().map_err(|e| self.error(e.to_string()))?;
+        drop(out.into_inner().map_err(|e| self.error(e.error().to_string()))?);
         std::fs::rename(&self.partial_path, &self.final_path)
             .map_err(|e| self.error(format!("cannot move the finished log into place: {e}")))
     }

@@ -3,6 +3,7 @@
 //! as a second sink.
 
 pub mod mcap;
+pub mod mcap_writer;
 #[cfg(feature = "rerun")]
 pub mod rerun;
 pub mod scene;

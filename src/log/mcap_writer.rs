@@ -1,0 +1,520 @@
+//! A chunked MCAP writer (spec: https://mcap.dev/spec) for the one layout mjsafe writes.
+//!
+//! Messages are appended to an uncompressed chunk buffer (one memcpy per message) and each
+//! chunk is compressed with zstd in one call when it is full. The `mcap` crate's writer feeds
+//! every record field to a streaming zstd encoder, one call per field, which cost more than
+//! the compression itself (docs/performance.md). The file is the same kind: magic, header,
+//! schemas and channels, metadata, zstd chunks each followed by their message indexes, data
+//! end with the data-section CRC, then a summary (schemas, channels, statistics, chunk and
+//! metadata indexes, summary offsets) and the footer with the summary CRC. No seeking: offsets
+//! are counted as bytes are written.
+
+use std::io::{self, Write};
+
+/// "\x89MCAP0\r\n".
+pub const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+mod op {
+    pub const HEADER: u8 = 0x01;
+    pub const FOOTER: u8 = 0x02;
+    pub const SCHEMA: u8 = 0x03;
+    pub const CHANNEL: u8 = 0x04;
+    pub const MESSAGE: u8 = 0x05;
+    pub const CHUNK: u8 = 0x06;
+    pub const MESSAGE_INDEX: u8 = 0x07;
+    pub const CHUNK_INDEX: u8 = 0x08;
+    pub const STATISTICS: u8 = 0x0B;
+    pub const METADATA: u8 = 0x0C;
+    pub const METADATA_INDEX: u8 = 0x0D;
+    pub const SUMMARY_OFFSET: u8 = 0x0E;
+    pub const DATA_END: u8 = 0x0F;
+}
+
+/// Message record bytes before the payload: opcode, length, channel, sequence, two times.
+const MESSAGE_PREFIX: usize = 1 + 8 + 2 + 4 + 8 + 8;
+
+/// Little-endian field encoders into a byte buffer.
+struct Fields<'a>(&'a mut Vec<u8>);
+
+impl Fields<'_> {
+    fn u16(&mut self, v: u16) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn u32(&mut self, v: u32) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn u64(&mut self, v: u64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn string(&mut self, s: &str) -> &mut Self {
+        self.u32(s.len() as u32);
+        self.0.extend_from_slice(s.as_bytes());
+        self
+    }
+    fn bytes_u32(&mut self, b: &[u8]) -> &mut Self {
+        self.u32(b.len() as u32);
+        self.0.extend_from_slice(b);
+        self
+    }
+    /// Map<string, string>: byte length, then (key, value) pairs in the given order.
+    fn string_map(&mut self, entries: &[(String, String)]) -> &mut Self {
+        let length: usize = entries.iter().map(|(k, v)| 8 + k.len() + v.len()).sum();
+        self.u32(length as u32);
+        for (k, v) in entries {
+            self.string(k).string(v);
+        }
+        self
+    }
+    /// Map<uint16, uint64>.
+    fn id_map(&mut self, entries: &[(u16, u64)]) -> &mut Self {
+        self.u32((entries.len() * 10) as u32);
+        for &(k, v) in entries {
+            self.u16(k).u64(v);
+        }
+        self
+    }
+}
+
+struct ChannelInfo {
+    id: u16,
+    schema_id: u16,
+    topic: String,
+    message_encoding: String,
+    message_count: u64,
+    /// (log time, offset in the open chunk's records) of its messages in the open chunk.
+    index: Vec<(u64, u64)>,
+}
+
+struct SchemaInfo {
+    id: u16,
+    name: String,
+    encoding: String,
+    data: Vec<u8>,
+}
+
+struct ChunkIndex {
+    start_time: u64,
+    end_time: u64,
+    offset: u64,
+    length: u64,
+    message_index_offsets: Vec<(u16, u64)>,
+    message_index_length: u64,
+    compressed_size: u64,
+    uncompressed_size: u64,
+}
+
+struct MetadataIndex {
+    offset: u64,
+    length: u64,
+    name: String,
+}
+
+pub struct McapWriter<W: Write> {
+    out: W,
+    /// Bytes written so far (the offset of the next record).
+    position: u64,
+    /// CRC of the data section (magic included), until the data end record.
+    data_crc: crc32fast::Hasher,
+    schemas: Vec<SchemaInfo>,
+    channels: Vec<ChannelInfo>,
+    chunk: Vec<u8>,
+    chunk_bounds: Option<(u64, u64)>,
+    chunk_size: usize,
+    compressor: zstd::bulk::Compressor<'static>,
+    compressed: Vec<u8>,
+    /// Encoding buffer of records other than messages.
+    record: Vec<u8>,
+    bounds: Option<(u64, u64)>,
+    chunk_indexes: Vec<ChunkIndex>,
+    metadata_indexes: Vec<MetadataIndex>,
+}
+
+impl<W: Write> McapWriter<W> {
+    /// Writes the magic and the header; chunks close once their records reach `chunk_size`
+    /// bytes and are compressed with zstd at `level`.
+    pub fn new(out: W, profile: &str, library: &str, chunk_size: usize, level: i32) -> io::Result<Self> {
+        let mut writer = McapWriter {
+            out,
+            position: 0,
+            data_crc: crc32fast::Hasher::new(),
+            schemas: Vec::new(),
+            channels: Vec::new(),
+            chunk: Vec::with_capacity(chunk_size + chunk_size / 8),
+            chunk_bounds: None,
+            chunk_size,
+            compressor: zstd::bulk::Compressor::new(level)?,
+            compressed: Vec::new(),
+            record: Vec::new(),
+            bounds: None,
+            chunk_indexes: Vec::new(),
+            metadata_indexes: Vec::new(),
+        };
+        writer.write_data(MAGIC)?;
+        writer.record.clear();
+        Fields(&mut writer.record).string(profile).string(library);
+        writer.write_record(op::HEADER)?;
+        Ok(writer)
+    }
+
+    /// Writes `bytes` to the data section.
+    fn write_data(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.out.write_all(bytes)?;
+        self.data_crc.update(bytes);
+        self.position += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Writes `self.record` as a record with `opcode` to the data section.
+    fn write_record(&mut self, opcode: u8) -> io::Result<()> {
+        let mut prefix = [0u8; 9];
+        prefix[0] = opcode;
+        prefix[1..].copy_from_slice(&(self.record.len() as u64).to_le_bytes());
+        self.write_data(&prefix)?;
+        let record = std::mem::take(&mut self.record);
+        let result = self.write_data(&record);
+        self.record = record;
+        result
+    }
+
+    /// Adds a schema (written at once, outside chunks); returns its id (from 1).
+    pub fn add_schema(&mut self, name: &str, encoding: &str, data: &[u8]) -> io::Result<u16> {
+        let id = self.schemas.len() as u16 + 1;
+        self.record.clear();
+        Fields(&mut self.record)
+            .u16(id)
+            .string(name)
+            .string(encoding)
+            .bytes_u32(data);
+        self.write_record(op::SCHEMA)?;
+        self.schemas.push(SchemaInfo {
+            id,
+            name: name.into(),
+            encoding: encoding.into(),
+            data: data.to_vec(),
+        });
+        Ok(id)
+    }
+
+    /// Adds a channel without metadata (written at once); returns its id (from 1).
+    pub fn add_channel(&mut self, schema_id: u16, topic: &str, message_encoding: &str) -> io::Result<u16> {
+        let id = self.channels.len() as u16 + 1;
+        self.record.clear();
+        encode_channel(&mut self.record, id, schema_id, topic, message_encoding);
+        self.write_record(op::CHANNEL)?;
+        self.channels.push(ChannelInfo {
+            id,
+            schema_id,
+            topic: topic.into(),
+            message_encoding: message_encoding.into(),
+            message_count: 0,
+            index: Vec::new(),
+        });
+        Ok(id)
+    }
+
+    /// Writes a metadata record (closing the open chunk first, so it sits between chunks).
+    pub fn write_metadata(&mut self, name: &str, entries: &[(String, String)]) -> io::Result<()> {
+        self.finish_chunk()?;
+        let offset = self.position;
+        self.record.clear();
+        Fields(&mut self.record).string(name).string_map(entries);
+        self.write_record(op::METADATA)?;
+        self.metadata_indexes.push(MetadataIndex {
+            offset,
+            length: self.position - offset,
+            name: name.into(),
+        });
+        Ok(())
+    }
+
+    /// Appends one message to the open chunk.
+    pub fn write_message(&mut self, channel_id: u16, sequence: u32, log_time: u64, data: &[u8]) -> io::Result<()> {
+        let channel = &mut self.channels[usize::from(channel_id) - 1];
+        channel.message_count += 1;
+        channel.index.push((log_time, self.chunk.len() as u64));
+        let mut prefix = [0u8; MESSAGE_PREFIX];
+        prefix[0] = op::MESSAGE;
+        prefix[1..9].copy_from_slice(&((MESSAGE_PREFIX - 9 + data.len()) as u64).to_le_bytes());
+        prefix[9..11].copy_from_slice(&channel_id.to_le_bytes());
+        prefix[11..15].copy_from_slice(&sequence.to_le_bytes());
+        prefix[15..23].copy_from_slice(&log_time.to_le_bytes());
+        prefix[23..31].copy_from_slice(&log_time.to_le_bytes());
+        self.chunk.extend_from_slice(&prefix);
+        self.chunk.extend_from_slice(data);
+        let widen = |(lo, hi): (u64, u64)| (lo.min(log_time), hi.max(log_time));
+        self.chunk_bounds = Some(self.chunk_bounds.map_or((log_time, log_time), widen));
+        self.bounds = Some(self.bounds.map_or((log_time, log_time), widen));
+        if self.chunk.len() >= self.chunk_size {
+            self.finish_chunk()?;
+        }
+        Ok(())
+    }
+
+    /// Compresses and writes the open chunk and its message indexes (nothing if empty).
+    fn finish_chunk(&mut self) -> io::Result<()> {
+        let Some((start_time, end_time)) = self.chunk_bounds.take() else {
+            return Ok(());
+        };
+        self.compressed.clear();
+        self.compressed
+            .reserve(zstd::zstd_safe::compress_bound(self.chunk.len()));
+        self.compressor
+            .compress_to_buffer(&self.chunk[..], &mut self.compressed)?;
+        let offset = self.position;
+        self.record.clear();
+        Fields(&mut self.record)
+            .u64(start_time)
+            .u64(end_time)
+            .u64(self.chunk.len() as u64)
+            .u32(crc32fast::hash(&self.chunk))
+            .string("zstd")
+            .u64(self.compressed.len() as u64);
+        let mut prefix = [0u8; 9];
+        prefix[0] = op::CHUNK;
+        prefix[1..].copy_from_slice(&((self.record.len() + self.compressed.len()) as u64).to_le_bytes());
+        self.write_data(&prefix)?;
+        let (header, compressed) = (std::mem::take(&mut self.record), std::mem::take(&mut self.compressed));
+        let result = self.write_data(&header).and_then(|()| self.write_data(&compressed));
+        (self.record, self.compressed) = (header, compressed);
+        result?;
+        let length = self.position - offset;
+
+        let index_start = self.position;
+        let mut message_index_offsets = Vec::new();
+        for c in 0..self.channels.len() {
+            if self.channels[c].index.is_empty() {
+                continue;
+            }
+            message_index_offsets.push((self.channels[c].id, self.position));
+            self.record.clear();
+            let mut fields = Fields(&mut self.record);
+            fields
+                .u16(self.channels[c].id)
+                .u32((self.channels[c].index.len() * 16) as u32);
+            for &(time, at) in &self.channels[c].index {
+                fields.u64(time).u64(at);
+            }
+            self.channels[c].index.clear();
+            self.write_record(op::MESSAGE_INDEX)?;
+        }
+        self.chunk_indexes.push(ChunkIndex {
+            start_time,
+            end_time,
+            offset,
+            length,
+            message_index_offsets,
+            message_index_length: self.position - index_start,
+            compressed_size: self.compressed.len() as u64,
+            uncompressed_size: self.chunk.len() as u64,
+        });
+        self.chunk.clear();
+        Ok(())
+    }
+
+    /// Closes the data section and writes the summary, the footer and the closing magic.
+    /// Returns the output.
+    pub fn finish(mut self) -> io::Result<W> {
+        self.finish_chunk()?;
+        let data_crc = std::mem::take(&mut self.data_crc).finalize();
+        self.record.clear();
+        Fields(&mut self.record).u32(data_crc);
+        self.write_record(op::DATA_END)?;
+
+        let summary_start = self.position;
+        let mut summary = Vec::new();
+        let mut offsets: Vec<(u8, u64, u64)> = Vec::new();
+        let mut group = |summary: &mut Vec<u8>, opcode: u8, records: &mut dyn FnMut(&mut Vec<u8>)| {
+            let start = summary.len();
+            records(summary);
+            if summary.len() > start {
+                offsets.push((opcode, summary_start + start as u64, (summary.len() - start) as u64));
+            }
+        };
+        group(&mut summary, op::SCHEMA, &mut |s| {
+            for schema in &self.schemas {
+                record(s, op::SCHEMA, |f| {
+                    f.u16(schema.id)
+                        .string(&schema.name)
+                        .string(&schema.encoding)
+                        .bytes_u32(&schema.data);
+                });
+            }
+        });
+        group(&mut summary, op::CHANNEL, &mut |s| {
+            for c in &self.channels {
+                record(s, op::CHANNEL, |f| {
+                    encode_channel(f.0, c.id, c.schema_id, &c.topic, &c.message_encoding);
+                });
+            }
+        });
+        group(&mut summary, op::STATISTICS, &mut |s| {
+            let (start, end) = self.bounds.unwrap_or((0, 0));
+            let counts: Vec<(u16, u64)> = self
+                .channels
+                .iter()
+                .filter(|c| c.message_count > 0)
+                .map(|c| (c.id, c.message_count))
+                .collect();
+            record(s, op::STATISTICS, |f| {
+                f.u64(counts.iter().map(|&(_, n)| n).sum())
+                    .u16(self.schemas.len() as u16)
+                    .u32(self.channels.len() as u32)
+                    .u32(0)
+                    .u32(self.metadata_indexes.len() as u32)
+                    .u32(self.chunk_indexes.len() as u32)
+                    .u64(start)
+                    .u64(end)
+                    .id_map(&counts);
+            });
+        });
+        group(&mut summary, op::CHUNK_INDEX, &mut |s| {
+            for c in &self.chunk_indexes {
+                record(s, op::CHUNK_INDEX, |f| {
+                    f.u64(c.start_time)
+                        .u64(c.end_time)
+                        .u64(c.offset)
+                        .u64(c.length)
+                        .id_map(&c.message_index_offsets)
+                        .u64(c.message_index_length)
+                        .string("zstd")
+                        .u64(c.compressed_size)
+                        .u64(c.uncompressed_size);
+                });
+            }
+        });
+        group(&mut summary, op::METADATA_INDEX, &mut |s| {
+            for m in &self.metadata_indexes {
+                record(s, op::METADATA_INDEX, |f| {
+                    f.u64(m.offset).u64(m.length).string(&m.name);
+                });
+            }
+        });
+        let summary_offset_start = summary_start + summary.len() as u64;
+        for (opcode, start, length) in offsets {
+            record(&mut summary, op::SUMMARY_OFFSET, |f| {
+                f.0.push(opcode);
+                f.u64(start).u64(length);
+            });
+        }
+        // The footer's CRC covers the summary and the footer up to the CRC itself.
+        summary.push(op::FOOTER);
+        Fields(&mut summary)
+            .u64(20)
+            .u64(summary_start)
+            .u64(summary_offset_start);
+        let summary_crc = crc32fast::hash(&summary);
+        Fields(&mut summary).u32(summary_crc);
+        summary.extend_from_slice(MAGIC);
+        self.out.write_all(&summary)?;
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+/// Appends a record (opcode, length, content written by `content`) to `buffer`.
+fn record(buffer: &mut Vec<u8>, opcode: u8, content: impl FnOnce(&mut Fields)) {
+    buffer.push(opcode);
+    let length_at = buffer.len();
+    buffer.extend_from_slice(&[0; 8]);
+    content(&mut Fields(buffer));
+    let length = (buffer.len() - length_at - 8) as u64;
+    buffer[length_at..length_at + 8].copy_from_slice(&length.to_le_bytes());
+}
+
+fn encode_channel(buffer: &mut Vec<u8>, id: u16, schema_id: u16, topic: &str, message_encoding: &str) {
+    Fields(buffer)
+        .u16(id)
+        .u16(schema_id)
+        .string(topic)
+        .string(message_encoding)
+        .string_map(&[]);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writes a small file with several chunks and metadata.
+    fn sample(chunk_size: usize) -> Vec<u8> {
+        let mut w = McapWriter::new(Vec::new(), "", "test", chunk_size, 1).unwrap();
+        let schema = w.add_schema("pkg.A", "protobuf", b"schema bytes").unwrap();
+        let a = w.add_channel(schema, "/a", "protobuf").unwrap();
+        let b = w.add_channel(schema, "/b", "protobuf").unwrap();
+        w.write_metadata("first", &[("k".into(), "v".into()), ("x".into(), "y".into())])
+            .unwrap();
+        for i in 0..1000u32 {
+            let payload = format!("message {i}").into_bytes();
+            w.write_message(if i % 3 == 0 { b } else { a }, i + 1, u64::from(i) * 1000, &payload)
+                .unwrap();
+        }
+        w.write_metadata("last", &[("complete".into(), "true".into())]).unwrap();
+        w.finish().unwrap()
+    }
+
+    #[test]
+    fn the_mcap_crate_reads_back_every_message_summary_and_metadata() {
+        for chunk_size in [1 << 20, 512] {
+            let bytes = sample(chunk_size);
+            let messages: Vec<_> = mcap::MessageStream::new(&bytes).unwrap().map(|m| m.unwrap()).collect();
+            assert_eq!(messages.len(), 1000);
+            for (i, m) in messages.iter().enumerate() {
+                assert_eq!(m.data.as_ref(), format!("message {i}").as_bytes());
+                assert_eq!(m.log_time, i as u64 * 1000);
+                assert_eq!(m.sequence, i as u32 + 1);
+                assert_eq!(m.channel.topic, if i % 3 == 0 { "/b" } else { "/a" });
+                assert_eq!(m.channel.schema.as_ref().unwrap().name, "pkg.A");
+            }
+            let summary = mcap::read::Summary::read(&bytes).unwrap().expect("a summary");
+            let stats = summary.stats.as_ref().unwrap();
+            assert_eq!(
+                (stats.message_count, stats.channel_count, stats.metadata_count),
+                (1000, 2, 2)
+            );
+            assert_eq!(stats.message_end_time, 999_000);
+            assert_eq!(stats.chunk_count as usize, summary.chunk_indexes.len());
+            assert!(chunk_size > 1000 || summary.chunk_indexes.len() > 10);
+            // Indexed reads through the chunk indexes and message indexes.
+            let mut indexed = 0;
+            for chunk in &summary.chunk_indexes {
+                let index = summary.read_message_indexes(&bytes, chunk).unwrap();
+                for (channel, entries) in index {
+                    for entry in entries {
+                        let m = summary.seek_message(&bytes, chunk, &entry).unwrap();
+                        assert_eq!(m.channel.id, channel.id);
+                        assert_eq!(m.log_time, entry.log_time);
+                        indexed += 1;
+                    }
+                }
+            }
+            assert_eq!(indexed, 1000);
+            let last = summary.metadata_indexes.iter().find(|m| m.name == "last").unwrap();
+            let metadata = mcap::read::metadata(&bytes, last).unwrap();
+            assert_eq!(metadata.metadata.get("complete").map(String::as_str), Some("true"));
+        }
+    }
+
+    #[test]
+    fn the_data_and_summary_crcs_check_out() {
+        let bytes = sample(4096);
+        // Footer: opcode, length, summary_start, summary_offset_start, summary_crc, magic.
+        let footer = bytes.len() - 8 - 29;
+        assert_eq!(bytes[footer], op::FOOTER);
+        let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+        let summary_start = u64_at(footer + 9) as usize;
+        let summary_crc = u32::from_le_bytes(bytes[footer + 25..footer + 29].try_into().unwrap());
+        assert_eq!(crc32fast::hash(&bytes[summary_start..footer + 25]), summary_crc);
+        // Data end is the record right before the summary: opcode, length 4, CRC.
+        let data_end = summary_start - 13;
+        assert_eq!(bytes[data_end], op::DATA_END);
+        let data_crc = u32::from_le_bytes(bytes[data_end + 9..data_end + 13].try_into().unwrap());
+        assert_eq!(crc32fast::hash(&bytes[..data_end]), data_crc);
+    }
+
+    #[test]
+    fn equal_input_gives_equal_bytes() {
+        assert_eq!(sample(4096), sample(4096));
+    }
+}
