@@ -345,14 +345,24 @@ impl PredictorContext<'_> {
                 }
             }
             Structure::Shared => {
-                let PredictorWorkspace { rk4, cursors, .. } = workspace;
                 let target = self.queues[0].profile().prediction_time(t);
-                rk4.state.copy_from_slice(x);
-                self.integrate(rk4, t, target, constant_input, None, &mut |_, step, stage_time, u| {
-                    self.history_inputs(cursors, step, stage_time, u)
-                })?;
+                let (reused, mismatch) = match (workspace.chain_tolerance, self.period_steps()) {
+                    (Some(tolerance), Some(period_steps)) => {
+                        self.shared_with_chain(t, target, x, workspace, (period_steps, tolerance), constant_input)?
+                    }
+                    _ => {
+                        let PredictorWorkspace { rk4, cursors, .. } = workspace;
+                        rk4.state.copy_from_slice(x);
+                        self.integrate(rk4, t, target, constant_input, None, &mut |_, step, stage_time, u| {
+                            self.history_inputs(cursors, step, stage_time, u)
+                        })?;
+                        (false, f64::NAN)
+                    }
+                };
                 for (channel, p) in out.iter_mut().enumerate() {
-                    set(p, channel, target, &rk4.state);
+                    set(p, channel, target, &workspace.rk4.state);
+                    p.reused_chain = reused;
+                    p.chain_mismatch = mismatch;
                 }
             }
             Structure::Recursive { order, delays } => {
@@ -401,19 +411,77 @@ impl PredictorContext<'_> {
         Ok(())
     }
 
+    /// Predictor steps per control period, when the step divides the period (consecutive
+    /// ticks then share the integration grid, so a prediction's trajectory can be reused).
+    fn period_steps(&self) -> Option<usize> {
+        let period_steps = self.control_period / self.timestep;
+        let whole = period_steps >= 0.5 && (period_steps - period_steps.round()).abs() < GRID_TOLERANCE;
+        whole.then(|| period_steps.round() as usize)
+    }
+
     /// (predictor steps per control period, chain nodes on [t + D_1, t + D_r]) when the
     /// recursive chain can be reused between ticks: the step divides the control period (so
     /// it divides every delay) and the inputs are constant on each step.
     fn chain_window(&self, order: &[usize], delays: &[f64], constant_input: bool) -> Option<(usize, usize)> {
-        let period_steps = self.control_period / self.timestep;
-        let whole = period_steps >= 0.5 && (period_steps - period_steps.round()).abs() < GRID_TOLERANCE;
         let window = delays[order[order.len() - 1]] - delays[order[0]];
-        (constant_input && whole).then(|| {
-            (
-                period_steps.round() as usize,
-                (window / self.timestep).round() as usize + 1,
-            )
-        })
+        let period_steps = self.period_steps()?;
+        constant_input.then(|| (period_steps, (window / self.timestep).round() as usize + 1))
+    }
+
+    /// The shared prediction p(t) = x(φ⁻¹(t)) (2.19) through `workspace.chain`, which keeps
+    /// the trajectory's states on the step grid from t. Tick t + T reuses the previous
+    /// trajectory on [t + T, t + K h] (its last full step before φ⁻¹(t): every input there was
+    /// issued before t, so it is the same history) when x(t + T) is within `tolerance` of it,
+    /// and integrates only from t + K h to φ⁻¹(t + T). Leaves p(t) in `workspace.rk4.state`.
+    /// Returns (reused, mismatch).
+    fn shared_with_chain(
+        &self,
+        t: f64,
+        target: f64,
+        x: &[f64],
+        workspace: &mut PredictorWorkspace,
+        (period_steps, tolerance): (usize, f64),
+        constant_input: bool,
+    ) -> Result<(bool, f64), DelayError> {
+        let step = self.timestep;
+        let PredictorWorkspace {
+            rk4, cursors, chain, ..
+        } = workspace;
+        // Nodes t + k h, k = 0..=K, with t + K h the last grid point not after the target
+        // (the rule `integrate` uses: a remainder within the grid tolerance of h is a step).
+        let full_steps = ((target - t) / step + GRID_TOLERANCE).floor().max(0.0) as usize;
+        let last_full = t + full_steps as f64 * step;
+        let consecutive = (chain.tick + self.control_period - t).abs() < step * GRID_TOLERANCE
+            && chain.len > period_steps
+            && chain.capacity() > full_steps;
+        let mut mismatch = f64::NAN;
+        let mut reusable = false;
+        if consecutive {
+            chain.drop_front(period_steps);
+            mismatch = chain
+                .state(0)
+                .iter()
+                .zip(x)
+                .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
+            reusable = mismatch <= tolerance;
+        }
+        let from = if reusable {
+            chain.tick = t;
+            let end = chain.len - 1;
+            rk4.state.copy_from_slice(chain.state(end));
+            t + end as f64 * step
+        } else {
+            // Room for the horizon growing to twice this one before the ring must grow.
+            chain.restart(t, 2 * (full_steps + 1).max(period_steps + 1));
+            rk4.state.copy_from_slice(x);
+            chain.push(x, &rk4.input);
+            t
+        };
+        let mut history =
+            |_: &[f64], step: Step, stage_time: f64, u: &mut [f64]| self.history_inputs(cursors, step, stage_time, u);
+        self.integrate(rk4, from, last_full, constant_input, Some(chain), &mut history)?;
+        self.integrate(rk4, last_full, target, constant_input, None, &mut history)?;
+        Ok((reusable, mismatch))
     }
 
     /// The recursive predictions through `workspace.chain`, reusing the previous tick's chain

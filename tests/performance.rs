@@ -94,6 +94,39 @@ fn chain_reuse_costs_at_most_about_its_tolerance_and_keeps_the_outcome() {
 }
 
 #[test]
+fn time_varying_delay_prediction_reuses_its_trajectory_exactly_on_the_model() {
+    // unicycle_tv_delay: one shared time-varying delay, a tick at every step. On the ODE plant
+    // x(t + h) is exactly the previous trajectory's next state, so every tick reuses it even at
+    // tolerance 0, and the audit finds only round-off; on MuJoCo the default tolerance reuses
+    // most ticks and stays within it.
+    let dir = tempfile::tempdir().unwrap();
+    let ode = bench_json(
+        &[
+            "scenarios/unicycle_tv_delay.toml",
+            "--set",
+            "duration=2.0",
+            "--set",
+            "plant=\"ode\"",
+            "--chain-tolerance",
+            "0",
+        ],
+        dir.path(),
+    );
+    let ode = &ode.as_array().unwrap()[0];
+    assert!(ode["reused_predictions"].as_u64().unwrap() > 900, "{ode}");
+    assert!(ode["chain_reuse_error"].as_f64().unwrap() < 1e-12, "{ode}");
+    let mujoco = bench_json(
+        &["scenarios/unicycle_tv_delay.toml", "--set", "duration=2.0"],
+        dir.path(),
+    );
+    let mujoco = &mujoco.as_array().unwrap()[0];
+    println!("unicycle_tv_delay: ODE {ode}\nMuJoCo {mujoco}");
+    assert!(mujoco["reused_predictions"].as_u64().unwrap() > 500, "{mujoco}");
+    assert!(mujoco["chain_reuse_error"].as_f64().unwrap() < 5e-4, "{mujoco}");
+    assert_eq!(mujoco["collision"], false);
+}
+
+#[test]
 fn predictor_step_of_one_control_period_is_exact_and_coarser_steps_are_not() {
     // ODE plant, obstacle known from the start: the realised state is the model's, so the
     // /prediction records measure the predictor's own error. The steering prediction (history
