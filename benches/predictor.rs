@@ -3,14 +3,15 @@
 //! the recursive predictors (4.23)/(4.24), with the delay-free safe law (LQR path tracking +
 //! closed-form CBF-QP on the circular obstacle, as the episode's κ_j) predicting the steering
 //! commands not yet issued inside the acceleration channel's window. One entry per predictor
-//! RK4 step, so the saving of a coarser step is visible.
+//! RK4 step, so the saving of a coarser step is visible; and one tick that continues the
+//! previous tick's chain (`control.chain_tolerance`), at the default step.
 //!
 //! `cargo bench --no-default-features --bench predictor`
 
 use std::hint::black_box;
 use std::time::Duration;
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
 use nalgebra::DVector;
 
 use mjsafe::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
@@ -93,6 +94,58 @@ fn predictions(c: &mut Criterion) {
             })
         });
     }
+    group.finish();
+
+    // A tick that continues the chain of the tick one period earlier. The tolerance is
+    // infinite so that the reuse path runs whatever the synthetic history (its cost does not
+    // depend on the mismatch); each iteration starts from a copy of the earlier tick's
+    // workspace (the copy is not timed).
+    let context = PredictorContext {
+        model: &model,
+        queues: &queues,
+        timestep: CONTROL_PERIOD,
+        control_period: CONTROL_PERIOD,
+    };
+    let mut previous = PredictorWorkspace::new(model.state_dim(), model.input_dim());
+    previous.set_chain_reuse(Some(f64::INFINITY));
+    let mut out = previous.predictions();
+    let mut lie = LieWorkspace::new(&model);
+    let mut constraint = Constraint::zeros(model.input_dim());
+    let mut input = DVector::zeros(model.input_dim());
+    let mut law = |_t: f64, z: &[f64], u: &mut [f64]| {
+        lqr.input_into(z, input.as_mut_slice());
+        lie.constraint_into(&barrier, form, &model, z, &mut constraint);
+        filter::cbf_qp_in_place(&constraint, &mut input);
+        u.copy_from_slice(input.as_slice());
+    };
+    context
+        .predict_into(&structure, TICK - CONTROL_PERIOD, &x, &mut law, &mut previous, &mut out)
+        .expect("history covers the windows");
+    let mut group = c.benchmark_group("predictor/recursive_tick_reusing_chain");
+    group
+        .sample_size(30)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2));
+    group.bench_function("step/0.01", |b| {
+        b.iter_batched_ref(
+            || previous.clone(),
+            |workspace| {
+                context
+                    .predict_into(
+                        &structure,
+                        black_box(TICK),
+                        black_box(&x),
+                        &mut law,
+                        workspace,
+                        &mut out,
+                    )
+                    .expect("history covers the windows");
+                assert!(out[1].reused_chain);
+                black_box(&out);
+            },
+            BatchSize::SmallInput,
+        )
+    });
     group.finish();
 }
 
