@@ -177,3 +177,27 @@ fn predictor_step_must_be_a_multiple_of_the_timestep() {
     );
     assert!(e.contains("multiple of the timestep"), "{e}");
 }
+
+#[test]
+fn chain_tolerance_must_be_a_finite_distance() {
+    for bad in ["-1e-4", "nan", "inf"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("never.mcap");
+        let o = mjsafe(&[
+            "run",
+            "scenarios/bicycle_obstacle_gamma_m.toml",
+            "--set",
+            &format!("control.chain_tolerance={bad}"),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!o.status.success(), "{bad} accepted");
+        let e = stderr(&o);
+        assert!(
+            e.contains("bicycle_obstacle_gamma_m.toml") && e.contains("control.chain_tolerance"),
+            "{e}"
+        );
+        assert!(e.contains("finite distance >= 0"), "{e}");
+        assert!(!out.exists(), "a log was written for a rejected scenario");
+    }
+}
