@@ -42,6 +42,24 @@ fn filled_queues() -> Vec<DelayQueue> {
     queues
 }
 
+/// κ: u0 = LQR(z), then the closed-form CBF-QP (4.9) at z (the episode's delay-free law).
+fn delay_free_law<'a>(
+    model: &'a BicycleModel,
+    lqr: &'a BicyclePathLqr,
+    barrier: &'a Barrier,
+    form: BarrierForm,
+) -> impl FnMut(f64, &[f64], &mut [f64]) + 'a {
+    let mut lie = LieWorkspace::new(model);
+    let mut constraint = Constraint::zeros(model.input_dim());
+    let mut input = DVector::zeros(model.input_dim());
+    move |_t: f64, z: &[f64], u: &mut [f64]| {
+        lqr.input_into(z, input.as_mut_slice());
+        lie.constraint_into(barrier, form, model, z, &mut constraint);
+        filter::cbf_qp_in_place(&constraint, &mut input);
+        u.copy_from_slice(input.as_slice());
+    }
+}
+
 fn predictions(c: &mut Criterion) {
     let model = BicycleModel::new(6.0);
     let queues = filled_queues();
@@ -68,16 +86,7 @@ fn predictions(c: &mut Criterion) {
         };
         let mut workspace = PredictorWorkspace::new(model.state_dim(), model.input_dim());
         let mut out = workspace.predictions();
-        let mut lie = LieWorkspace::new(&model);
-        let mut constraint = Constraint::zeros(model.input_dim());
-        let mut input = DVector::zeros(model.input_dim());
-        // κ: u0 = LQR(z), then the closed-form CBF-QP (4.9) at z.
-        let mut law = |_t: f64, z: &[f64], u: &mut [f64]| {
-            lqr.input_into(z, input.as_mut_slice());
-            lie.constraint_into(&barrier, form, &model, z, &mut constraint);
-            filter::cbf_qp_in_place(&constraint, &mut input);
-            u.copy_from_slice(input.as_slice());
-        };
+        let mut law = delay_free_law(&model, &lqr, &barrier, form);
         group.bench_function(BenchmarkId::new("step", step), |b| {
             b.iter(|| {
                 context
@@ -109,15 +118,7 @@ fn predictions(c: &mut Criterion) {
     let mut previous = PredictorWorkspace::new(model.state_dim(), model.input_dim());
     previous.set_chain_reuse(Some(f64::INFINITY));
     let mut out = previous.predictions();
-    let mut lie = LieWorkspace::new(&model);
-    let mut constraint = Constraint::zeros(model.input_dim());
-    let mut input = DVector::zeros(model.input_dim());
-    let mut law = |_t: f64, z: &[f64], u: &mut [f64]| {
-        lqr.input_into(z, input.as_mut_slice());
-        lie.constraint_into(&barrier, form, &model, z, &mut constraint);
-        filter::cbf_qp_in_place(&constraint, &mut input);
-        u.copy_from_slice(input.as_slice());
-    };
+    let mut law = delay_free_law(&model, &lqr, &barrier, form);
     context
         .predict_into(&structure, TICK - CONTROL_PERIOD, &x, &mut law, &mut previous, &mut out)
         .expect("history covers the windows");

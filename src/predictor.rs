@@ -201,6 +201,21 @@ impl Chain {
         self.head = (self.head + nodes) % self.capacity();
         self.len -= nodes;
     }
+
+    /// At tick t, if this chain is the previous tick's (t − T, `period_steps` nodes per T)
+    /// and `usable`, drops that period from the front and returns max |node 0 − `fresh`|, the
+    /// mismatch of the fresh prediction; NaN otherwise.
+    fn advance_to(&mut self, t: f64, period: f64, period_steps: usize, usable: bool, fresh: &[f64]) -> f64 {
+        let step = period / period_steps as f64;
+        if !(usable && (self.tick + period - t).abs() < step * GRID_TOLERANCE && self.len > period_steps) {
+            return f64::NAN;
+        }
+        self.drop_front(period_steps);
+        self.state(0)
+            .iter()
+            .zip(fresh)
+            .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()))
+    }
 }
 
 /// Scratch space of the predictors, sized once for a model (a prediction then allocates
@@ -451,20 +466,8 @@ impl PredictorContext<'_> {
         // (the rule `integrate` uses: a remainder within the grid tolerance of h is a step).
         let full_steps = ((target - t) / step + GRID_TOLERANCE).floor().max(0.0) as usize;
         let last_full = t + full_steps as f64 * step;
-        let consecutive = (chain.tick + self.control_period - t).abs() < step * GRID_TOLERANCE
-            && chain.len > period_steps
-            && chain.capacity() > full_steps;
-        let mut mismatch = f64::NAN;
-        let mut reusable = false;
-        if consecutive {
-            chain.drop_front(period_steps);
-            mismatch = chain
-                .state(0)
-                .iter()
-                .zip(x)
-                .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
-            reusable = mismatch <= tolerance;
-        }
+        let mismatch = chain.advance_to(t, self.control_period, period_steps, chain.capacity() > full_steps, x);
+        let reusable = mismatch <= tolerance;
         let from = if reusable {
             chain.tick = t;
             let end = chain.len - 1;
@@ -505,17 +508,10 @@ impl PredictorContext<'_> {
         workspace.first_prediction.copy_from_slice(&workspace.rk4.state);
 
         let chain = &mut workspace.chain;
-        let consecutive = (chain.tick + self.control_period - t).abs() < step * GRID_TOLERANCE && chain.len == nodes;
-        let mut mismatch = f64::NAN;
-        let mut reusable = false;
-        if consecutive {
-            chain.drop_front(period_steps);
-            mismatch = chain
-                .state(0)
-                .iter()
-                .zip(&workspace.rk4.state)
-                .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
-            reusable = mismatch <= tolerance;
+        let usable = chain.len == nodes;
+        let mismatch = chain.advance_to(t, self.control_period, period_steps, usable, &workspace.rk4.state);
+        let mut reusable = mismatch <= tolerance;
+        if !mismatch.is_nan() {
             // Channels strictly between D_1 and D_r: the previous chain held κ_j on the steps
             // starting in [t − T + D_j, t + D_j); this tick's chain takes channel j's history
             // there (the command issued at t − T), so they must agree.
