@@ -56,7 +56,7 @@ pub struct PredictionStats {
     pub max_error: f64,
     pub rms_error: f64,
     pub max_relative_error: f64,
-    /// Predictions that continued the previous tick's recursive chain (control.chain_tolerance).
+    /// Predictions that continued the previous tick's trajectory (control.chain_tolerance).
     pub reused_chain: u64,
     /// Largest |p_1 − previous chain| seen at a tick (0 when never measured).
     pub max_chain_mismatch: f64,

@@ -10,7 +10,9 @@
 //!
 //! Integration is classical RK4 on the plant's step grid, with the input sampled at the stage
 //! times exactly as the plant samples it, so on the ODE plant a prediction equals the realised
-//! state up to integration round-off.
+//! state up to integration round-off. Consecutive ticks share most of their window: a tick
+//! continues the previous tick's trajectory when the fresh measurement agrees with it
+//! (`control.chain_tolerance`, [`PredictorWorkspace::set_chain_reuse`]).
 
 use nalgebra::DVector;
 
@@ -29,11 +31,11 @@ pub struct Prediction {
     /// The time it predicts (φ_i⁻¹(t)).
     pub target_time: f64,
     pub state: DVector<f64>,
-    /// Recursive predictors only: whether this tick continued the previous tick's chain
-    /// instead of integrating its whole window (see [`PredictorWorkspace::set_chain_reuse`]).
+    /// Whether this tick continued the previous tick's trajectory instead of integrating its
+    /// whole window (see [`PredictorWorkspace::set_chain_reuse`]).
     pub reused_chain: bool,
-    /// Recursive predictors only: max |p_1(t) − the previous chain at t + D_1| over the state
-    /// (how far the measurement moved off the previous chain); NaN without a previous chain.
+    /// max |p_1(t) − the previous trajectory at the same time| over the state (x(t) for the
+    /// shared predictor): how far the measurement moved off it; NaN without a previous one.
     pub chain_mismatch: f64,
 }
 
@@ -129,9 +131,10 @@ impl HistoryCursor {
     };
 }
 
-/// The recursive chain (4.23) of the last tick t: the predicted states at t + D_1 + k·step
-/// over [t + D_1, t + D_r], each with the input held on the step that reached it, in a ring
-/// so the next tick drops one control period at the front and appends one at the back.
+/// The last tick's prediction trajectory on the predictor's step grid: the recursive chain
+/// (4.23) on [t + D_1, t + D_r], or the shared predictor's (2.19) on [t, φ⁻¹(t)]; each node with
+/// the input held on the step that reached it, in a ring so the next tick drops one control
+/// period at the front and appends at the back.
 #[derive(Debug, Clone)]
 struct Chain {
     /// Tick time of the chain; NaN when there is none.
@@ -252,16 +255,19 @@ impl PredictorWorkspace {
         }
     }
 
-    /// Lets consecutive ticks of the recursive predictors (4.23) reuse the chain on
-    /// [t + D_1, t + D_r]. Tick t + T computes p_1 afresh from x(t + T) (the feedback), and if
+    /// Lets consecutive ticks reuse the previous prediction trajectory. Recursive predictors
+    /// (4.23), chain on [t + D_1, t + D_r]: tick t + T computes p_1 afresh from x(t + T) (the
+    /// feedback), and if
     /// it is within `tolerance` (max norm) of the previous chain's state at t + T + D_1, and
     /// the commands issued at t equal the κ_j values that chain assumed for them, the overlap
     /// [t + T + D_1, t + D_r] is the previous chain and only [t + D_r, t + T + D_r] is
     /// integrated. Otherwise the whole window is. On a plant that follows the model exactly the
     /// reused chain is the recomputed one up to round-off; on MuJoCo the model mismatch moves
     /// p_1 off the chain, and the tolerance bounds how far before a full recomputation.
+    /// The shared predictor (2.19) compares x(t + T) itself with its previous trajectory and
+    /// then integrates from that trajectory's last full step to φ⁻¹(t + T).
     /// `None` always integrates the whole window. Applies when the predictor step divides the
-    /// control period (its inputs are then constant on every step).
+    /// control period (and, for the recursive chain, the inputs are constant on every step).
     pub fn set_chain_reuse(&mut self, tolerance: Option<f64>) {
         self.chain_tolerance = tolerance;
         self.invalidate_chain();

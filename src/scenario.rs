@@ -115,8 +115,9 @@ pub struct ControlSpec {
     /// Coarser is faster; the log's /prediction records measure what it costs in accuracy.
     #[serde(default)]
     pub predictor_step: Option<f64>,
-    /// Recursive predictors (4.23): reuse the previous tick's chain when the fresh p_1 lands
-    /// within this max-norm distance of it (state units), else integrate the whole window.
+    /// Predictors: continue the previous tick's prediction trajectory when the fresh p_1 (x(t)
+    /// for one shared delay profile) lands within this max-norm distance of it (state units),
+    /// else integrate the whole window.
     /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
     #[serde(default = "default_chain_tolerance")]
     pub chain_tolerance: f64,
