@@ -212,15 +212,17 @@ fn a_closed_stdout_pipe_ends_quietly_instead_of_panicking() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("run.mcap");
     run_ok(&scenario("bicycle_obstacle.toml"), &log, &["--set", "duration=0.5"]);
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+    // The pipe's reading end is closed before mjsafe starts (closing it after the spawn races
+    // with mjsafe's first write, which may still fit in the pipe).
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
         .arg("info")
         .arg(&log)
-        .stdout(std::process::Stdio::piped())
+        .stdout(writer)
         .stderr(std::process::Stdio::piped())
-        .spawn()
+        .output()
         .unwrap();
-    drop(child.stdout.take());
-    let output = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(output.status.code(), Some(141), "{stderr}");
