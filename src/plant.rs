@@ -37,7 +37,8 @@ pub trait Plant: Send {
     /// One step of size `timestep()`.
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError>;
     /// What drove the last step: MuJoCo's `ctrl` (as the callback left it), or the ODE plant's
-    /// input at the step's start.
+    /// input at each of its four RK4 stages (a time-varying delay switches inputs inside a
+    /// step).
     fn actuation(&self) -> Vec<f64>;
     /// One step driven by `actuation` (from [`Plant::actuation`]) with no controller: replaying
     /// a run's actuation is the bare physics loop of the benchmarks (same model, same steps,
@@ -142,7 +143,7 @@ pub struct OdePlant {
     timestep: f64,
     step: u64,
     disturbance: Option<Disturbance>,
-    /// The input at the start of the last step (its actuation).
+    /// The inputs at the four RK4 stages of the last step (its actuation).
     last_input: Vec<f64>,
 }
 
@@ -187,14 +188,9 @@ impl Plant for OdePlant {
             let input = controller.input(step, call, offset, &|out: &mut [f64]| out.copy_from_slice(x.as_slice()));
             if call == 0 {
                 last_input.clear();
-                last_input.extend_from_slice(input);
             }
-            let u = DVector::from_column_slice(input);
-            let dx = model.dynamics(stage, &u);
-            match disturbance {
-                Some(w) => dx + w(step_time + offset),
-                None => dx,
-            }
+            last_input.extend_from_slice(input);
+            ode_rhs(model, disturbance, stage, input, step_time + offset)
         };
         let k1 = derivative(0, 0.0, &x);
         let k2 = derivative(1, h / 2.0, &(&x + &k1 * (h / 2.0)));
@@ -208,8 +204,18 @@ impl Plant for OdePlant {
         self.last_input.clone()
     }
     fn step_with_actuation(&mut self, actuation: &[f64]) {
-        let u = DVector::from_column_slice(actuation);
-        self.x = rk4_step(self.dynamics.as_ref(), &self.x, &u, self.timestep);
+        let (h, x) = (self.timestep, &self.x);
+        let (model, disturbance) = (self.dynamics.as_ref(), self.disturbance.as_ref());
+        let step_time = self.step as f64 * h;
+        let stages: Vec<&[f64]> = actuation.chunks(actuation.len() / 4).collect();
+        let derivative = |stage: usize, offset: f64, state: &DVector<f64>| {
+            ode_rhs(model, disturbance, state, stages[stage], step_time + offset)
+        };
+        let k1 = derivative(0, 0.0, x);
+        let k2 = derivative(1, h / 2.0, &(x + &k1 * (h / 2.0)));
+        let k3 = derivative(2, h / 2.0, &(x + &k2 * (h / 2.0)));
+        let k4 = derivative(3, h, &(x + &k3 * h));
+        self.x = x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
         self.step += 1;
     }
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle.
@@ -219,6 +225,21 @@ impl Plant for OdePlant {
             let depth = -o.clearance(&self.x);
             (depth > 0.0).then_some(depth)
         }));
+    }
+}
+
+/// ẋ = f(x) + G(x) u + w(t) at one RK4 stage of the ODE plant.
+fn ode_rhs(
+    model: &dyn Dynamics,
+    disturbance: Option<&Disturbance>,
+    state: &DVector<f64>,
+    input: &[f64],
+    time: f64,
+) -> DVector<f64> {
+    let dx = model.dynamics(state, &DVector::from_column_slice(input));
+    match disturbance {
+        Some(w) => dx + w(time),
+        None => dx,
     }
 }
 
