@@ -7,6 +7,7 @@ pub mod bench;
 pub mod cli;
 pub mod delay;
 pub mod episode;
+pub mod files;
 pub mod filter;
 pub mod log;
 pub mod mujoco;
