@@ -48,6 +48,10 @@ use crate::sweep::{self, Row, Summary, SweepArgs, SweepSpec};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// Most steps one episode may take (duration / timestep); longer runs are refused before
+    /// they start.
+    #[arg(long, global = true, value_name = "N", default_value_t = episode::DEFAULT_MAX_STEPS)]
+    pub max_steps: u64,
 }
 
 #[derive(Debug, Subcommand)]
@@ -236,14 +240,41 @@ impl RerunArgs {
 
 /// Parses arguments, runs the command, returns the process exit code.
 pub fn run() -> ExitCode {
+    install_stop_handler();
     let cli = Cli::parse();
+    episode::set_max_steps(cli.max_steps);
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", shorten_numbers(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
+}
+
+/// `text` with every number longer than 15 characters (e.g. a 1e300 printed in full) written
+/// in scientific notation.
+pub fn shorten_numbers(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        let (before, from) = rest.split_at(start);
+        out.push_str(before);
+        let len = from
+            .char_indices()
+            .find(|&(i, c)| {
+                !(c.is_ascii_digit() || (c == '.' && from[i + 1..].starts_with(|d: char| d.is_ascii_digit())))
+            })
+            .map_or(from.len(), |(i, _)| i);
+        let (number, after) = from.split_at(len);
+        match number.parse::<f64>() {
+            Ok(x) if number.len() > 15 => out.push_str(&format!("{x:.6e}")),
+            _ => out.push_str(number),
+        }
+        rest = after;
+    }
+    out.push_str(rest);
+    out
 }
 
 fn dispatch(command: Command) -> Result<ExitCode> {
@@ -368,14 +399,23 @@ enum Format {
     Csv,
 }
 
-/// Ctrl-C and SIGTERM ask running episodes to stop; their logs are finished as incomplete.
+/// Ctrl-C and SIGTERM, from process start: while episodes or a sweep run, they ask them to
+/// stop (logs finished as incomplete, summaries written); in any other phase (validation,
+/// model loading, analysis), or at a second signal, the process exits at once with 130,
+/// removing the `.partial` files it was writing.
 fn install_stop_handler() {
     // A second installation (e.g. in tests driving the library) is not an error worth failing.
-    let _ = ctrlc::set_handler(episode::request_stop);
+    let _ = ctrlc::set_handler(|| {
+        if episode::stop_requested() || !episode::graceful_stop_active() {
+            crate::files::remove_partials();
+            eprintln!("error: interrupted");
+            std::process::exit(130);
+        }
+        episode::request_stop();
+    });
 }
 
 fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: &RerunArgs) -> Result<ExitCode> {
-    install_stop_handler();
     let loaded = scenario::load(path, overrides)?;
     let mut episode = Episode::new(&loaded)?;
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
@@ -617,7 +657,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-    install_stop_handler();
+    let _graceful = episode::GracefulStop::begin();
     let terminal = std::io::stderr().is_terminal();
     let mut progress = Progress {
         enabled: terminal || options.progress,
@@ -636,12 +676,22 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         .write(&dir)
         .with_context(|| format!("writing the summary into {}", dir.display()))?;
     outln!("{}", sweep_table(&summary));
-    let failures = summary.failures();
+    let not_run = summary
+        .runs
+        .iter()
+        .filter(|r| r.error.as_deref().is_some_and(|e| e.starts_with("not run:")))
+        .count();
+    let failures = summary.failures() - not_run;
     outln!(
-        "{}: {} of {} runs{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",
+        "{}: {} of {} runs{}{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",
         spec.name,
-        indices.len(),
+        indices.len() - not_run,
         spec.runs,
+        if not_run > 0 {
+            format!(" ({not_run} not run)")
+        } else {
+            String::new()
+        },
         shard.map_or(String::new(), |s| format!(" (shard {}/{})", s.index, s.count)),
         progress.started.elapsed().as_secs_f64(),
         threads.min(indices.len().max(1)),
@@ -651,7 +701,11 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         json.display()
     );
     if episode::stop_requested() {
-        eprintln!("error: the sweep was interrupted; the summary holds the runs finished before it");
+        eprintln!(
+            "error: the sweep was interrupted after {} of {} runs; the summary holds them (the others are marked not run)",
+            indices.len() - not_run,
+            indices.len()
+        );
         return Ok(ExitCode::from(130));
     }
     if failures > 0 {

@@ -172,6 +172,13 @@ impl DelayProfile {
             // φ is defined through φ⁻¹, so (2.6) is (φ⁻¹)'(s) = 1 − b ω sin(ω s) > 0 for every
             // issue time s in [φ(0), horizon] (φ(0) >= −a − |b|).
             let first = -a - b.abs();
+            if -first > history {
+                return Err(DelayError::HistoryTooShort {
+                    channel: channel.into(),
+                    delay: -first,
+                    history,
+                });
+            }
             let samples = ((horizon - first) / step).ceil().max(0.0) as usize;
             for k in 0..=samples {
                 let s = first + k as f64 * step;

@@ -175,6 +175,35 @@ pub fn open_input(path: &Path, what: &'static str) -> Result<File, FileError> {
     })
 }
 
+/// The `.partial` files being written by this process, removed by [`remove_partials`] when
+/// the process has to exit at once (a second Ctrl-C, a MuJoCo error).
+static PARTIALS: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn register_partial(path: &Path) {
+    if let Ok(mut partials) = PARTIALS.lock() {
+        partials.push(path.to_path_buf());
+    }
+}
+
+fn unregister_partial(path: &Path) {
+    if let Ok(mut partials) = PARTIALS.lock() {
+        if let Some(i) = partials.iter().position(|p| p == path) {
+            partials.swap_remove(i);
+        }
+    }
+}
+
+/// Removes every `.partial` file this process is writing (before an immediate exit). Uses
+/// `try_lock`: a signal arriving while the list is being changed skips the removal rather
+/// than deadlock.
+pub fn remove_partials() {
+    if let Ok(partials) = PARTIALS.try_lock() {
+        for path in partials.iter() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
 /// Which existing regular files an output may replace.
 #[derive(Debug, Clone, Copy)]
 pub enum Replace {
@@ -259,7 +288,12 @@ impl OutputFile {
     /// Checks the target ([`check_output`]), creates its directory, and opens `<target>.partial`
     /// for writing, locked: if another process holds it, this is an error. A stale `.partial`
     /// (left by a killed process) is truncated and reused.
-    pub fn create(target: &Path, what: &'static str, replace: Replace, inputs: &[&Path]) -> Result<OutputFile, FileError> {
+    pub fn create(
+        target: &Path,
+        what: &'static str,
+        replace: Replace,
+        inputs: &[&Path],
+    ) -> Result<OutputFile, FileError> {
         check_output(target, what, replace, inputs)?;
         let shown = target.display().to_string();
         let write_error = |reason: String| FileError::Write {
@@ -302,6 +336,7 @@ impl OutputFile {
         }
         file.set_len(0)
             .map_err(|e| write_error(format!("cannot truncate {}: {e}", partial.display())))?;
+        register_partial(&partial);
         Ok(OutputFile {
             file: Some(file),
             partial,
@@ -345,6 +380,7 @@ impl OutputFile {
     /// name is still not a non-regular file).
     pub fn commit(mut self) -> Result<PathBuf, FileError> {
         let file = self.file.take().expect("the file is open until commit or drop");
+        unregister_partial(&self.partial);
         file.sync_all()
             .map_err(|e| self.error(format!("cannot flush {}: {e}", self.partial.display())))?;
         if let Ok(meta) = std::fs::symlink_metadata(&self.target) {
@@ -369,6 +405,7 @@ impl OutputFile {
 impl Drop for OutputFile {
     fn drop(&mut self) {
         if self.file.take().is_some() {
+            unregister_partial(&self.partial);
             let _ = std::fs::remove_file(&self.partial);
         }
     }
@@ -443,7 +480,14 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&scenario).unwrap(), "name = 'x'");
         let log = dir.path().join("old.mcap");
         std::fs::write(&log, b"\x89MCAP0\r\n").unwrap();
-        write_atomically(&log, "MCAP log", Replace::IfStartsWith(b"\x89MCAP"), &[], b"\x89MCAP new").unwrap();
+        write_atomically(
+            &log,
+            "MCAP log",
+            Replace::IfStartsWith(b"\x89MCAP"),
+            &[],
+            b"\x89MCAP new",
+        )
+        .unwrap();
         assert_eq!(std::fs::read(&log).unwrap(), b"\x89MCAP new");
     }
 

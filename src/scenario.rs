@@ -13,8 +13,8 @@ use crate::vehicle::VehicleKind;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("{file}: cannot read the scenario: {reason}")]
-    Io { file: String, reason: std::io::Error },
+    #[error(transparent)]
+    File(#[from] crate::files::FileError),
     #[error("{file}: invalid TOML: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: key `{key}`: {message}")]
@@ -459,11 +459,14 @@ impl LoadedScenario {
 
 /// Reads a scenario file and applies `--set key.path=VALUE` overrides (VALUE in TOML syntax).
 pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
+    let text = crate::files::read_text_limited(path, "scenario", crate::files::SCENARIO_LIMIT)?;
+    from_text(path, text, overrides)
+}
+
+/// A scenario from its text, as if read from `path` (which names it in errors and anchors the
+/// relative model path), with overrides applied and validated.
+pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
-        file: file.clone(),
-        reason: source,
-    })?;
     let scenario = parse(&text, &file, overrides)?;
     let loaded = LoadedScenario {
         scenario,
@@ -488,12 +491,70 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
     serde_path_to_error::deserialize(whole).map_err(|e| {
         let key = e.path().to_string();
         let (key, message) = refine_tagged(&table, &key).unwrap_or((key, e.into_inner().to_string()));
+        let message = plain_serde_message(&message);
         ScenarioError::Field {
             file: file.to_string(),
             key: if key == "." { "(top level)".into() } else { key },
             message,
         }
     })
+}
+
+/// A serde message in the scenario's terms instead of Rust's: no type names
+/// ("untagged enum DelayProfile", "struct VehicleSpec"), TOML words for sequences and maps.
+pub fn plain_serde_message(message: &str) -> String {
+    let message = message.trim().replace('\n', " ");
+    let message = message.as_str();
+    if message.contains("untagged enum DelayProfile") {
+        return "expected a delay in seconds (a number >= 0) or a table { profile = \"cosine_prediction\" | \"rational\" | \"table\", … }".into();
+    }
+    let mut out = String::with_capacity(message.len());
+    let mut words = message.split(' ').peekable();
+    while let Some(word) = words.next() {
+        let next_is_type = words.peek().is_some_and(|w| {
+            w.starts_with(|c: char| c.is_ascii_uppercase()) && w.chars().all(|c| c.is_alphanumeric() || c == ',')
+        });
+        let replacement = match word {
+            "struct" | "map" if next_is_type => Some("a table"),
+            "enum" if next_is_type => Some("one of the documented names"),
+            "untagged" | "internally" | "tagged" if words.peek().is_some_and(|w| *w == "enum" || *w == "tagged") => {
+                continue;
+            }
+            _ => None,
+        };
+        if !out.is_empty() {
+            out.push(' ');
+        }
+        match replacement {
+            Some(text) => {
+                out.push_str(text);
+                // The type name, keeping trailing punctuation.
+                let name = words.next().unwrap_or_default();
+                out.extend(name.chars().filter(|c| !c.is_alphanumeric()));
+            }
+            None => out.push_str(word),
+        }
+    }
+    let mut out = out
+        .replace("a sequence", "an array")
+        .replace("a map", "a table")
+        .replace("type: map", "type: table")
+        .replace("type: sequence", "type: array")
+        .replace("expected f64", "expected a number")
+        .replace("expected f32", "expected a number");
+    for int in ["u8", "u16", "u32", "u64", "usize"] {
+        out = out.replace(&format!("expected {int}"), "expected a whole number >= 0");
+    }
+    for int in ["i8", "i16", "i32", "i64", "isize"] {
+        out = out.replace(&format!("expected {int}"), "expected a whole number");
+    }
+    // toml repeats the key the message is already prefixed with.
+    if let Some(at) = out.rfind(" in `") {
+        if out.ends_with('`') {
+            out.truncate(at);
+        }
+    }
+    out
 }
 
 /// serde loses the field path inside internally tagged enums (`kind = …` sections): for an
@@ -576,6 +637,14 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
     Ok(())
 }
 
+/// The kind as a scenario writes it (`kind = "bicycle"`).
+fn vehicle_kind_name(kind: VehicleKind) -> String {
+    toml::Value::try_from(kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| format!("{kind:?}"))
+}
+
 fn positive_finite(x: f64) -> bool {
     x.is_finite() && x > 0.0
 }
@@ -620,16 +689,34 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if sc.vehicle.kind.has_mjcf() && sc.vehicle.model.is_none() {
         return Err(s.field_error(
             "vehicle.model",
-            format!("expected the MJCF file of the {:?} model", sc.vehicle.kind),
+            format!(
+                "expected the MJCF file of the {} model",
+                vehicle_kind_name(sc.vehicle.kind)
+            ),
         ));
     }
-    if sc.vehicle.kind == VehicleKind::Linear {
+    if !sc.vehicle.kind.has_mjcf() {
+        let kind = vehicle_kind_name(sc.vehicle.kind);
         if sc.plant != PlantKind::Ode {
             return Err(s.field_error(
                 "plant",
-                "vehicle.kind = \"linear\" has no MJCF model: expected plant = \"ode\"",
+                format!("vehicle.kind = \"{kind}\" has no MJCF model: expected plant = \"ode\""),
             ));
         }
+        if sc.vehicle.model.is_some() {
+            return Err(s.field_error(
+                "vehicle.model",
+                format!("vehicle.kind = \"{kind}\" is an analytic model: expected no MJCF file"),
+            ));
+        }
+        if sc.vehicle.timestep.is_none() {
+            return Err(s.field_error(
+                "vehicle.timestep",
+                format!("vehicle.kind = \"{kind}\" has no model file: expected the integration step in seconds"),
+            ));
+        }
+    }
+    if sc.vehicle.kind == VehicleKind::Linear {
         let (Some(a), Some(b)) = (&sc.vehicle.a, &sc.vehicle.b) else {
             return Err(s.field_error(
                 "vehicle.a",
@@ -645,12 +732,6 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
         }
         if a.iter().chain(b).flatten().any(|v| !v.is_finite()) {
             return Err(s.field_error("vehicle.a", "matrix entries must be finite"));
-        }
-        if sc.vehicle.timestep.is_none() {
-            return Err(s.field_error(
-                "vehicle.timestep",
-                "kind = \"linear\" has no model file: expected the integration step in seconds",
-            ));
         }
     }
     for (channel, value) in &sc.initial_input {
@@ -905,6 +986,34 @@ input = [1.0]
             .unwrap_err()
             .to_string();
         assert!(err.contains("duration") && err.contains("expected"), "{err}");
+    }
+
+    #[test]
+    fn serde_messages_name_no_rust_types() {
+        assert_eq!(
+            plain_serde_message("invalid type: integer `3`, expected struct VehicleSpec"),
+            "invalid type: integer `3`, expected a table"
+        );
+        assert!(
+            plain_serde_message("data did not match any variant of untagged enum DelayProfile")
+                .starts_with("expected a delay in seconds")
+        );
+        assert_eq!(
+            plain_serde_message("invalid type: string \"x\", expected a sequence"),
+            "invalid type: string \"x\", expected an array"
+        );
+        let err = parse(MINIMAL, "t.toml", &["vehicle=3".into()]).unwrap_err().to_string();
+        assert!(
+            !err.contains("VehicleSpec") && err.contains("expected a table"),
+            "{err}"
+        );
+        let err = parse(MINIMAL, "t.toml", &["delays.acceleration='slow'".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            !err.contains("DelayProfile") && err.contains("delays.acceleration"),
+            "{err}"
+        );
     }
 
     #[test]

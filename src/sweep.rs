@@ -36,7 +36,12 @@ pub enum SweepError {
     Summary { file: String, message: String },
     #[error("cannot merge: {0}")]
     Merge(String),
+    #[error(transparent)]
+    Input(#[from] crate::files::FileError),
 }
+
+/// The most runs one sweep may have (its run list and summary are held in memory).
+pub const MAX_RUNS: usize = 1_000_000;
 
 /// One grid axis: an override key (dotted path, as `--set` takes) and its values (TOML text).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -357,10 +362,7 @@ impl SweepSpec {
                 file: file.clone(),
                 message,
             };
-            let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
-                path: file.clone(),
-                reason: source,
-            })?;
+            let text = crate::files::read_text_limited(path, "sweep file", crate::files::SWEEP_FILE_LIMIT)?;
             let parsed: SweepFile = toml::from_str(&text).map_err(|e| err(e.to_string().trim().replace('\n', " ")))?;
             if let Some(s) = parsed.scenario {
                 if scenario_path.is_some() {
@@ -444,10 +446,7 @@ impl SweepSpec {
                     .into(),
             ));
         }
-        let text = std::fs::read(&scenario_path).map_err(|source| SweepError::Io {
-            path: scenario_path.display().to_string(),
-            reason: source,
-        })?;
+        let text = crate::files::read_limited(&scenario_path, "scenario", crate::files::SCENARIO_LIMIT)?;
         let name = match name {
             Some(n) => n,
             // The base scenario's name; if the base alone does not load, the file's stem.
@@ -459,8 +458,23 @@ impl SweepSpec {
                         .map_or("sweep".into(), |s| s.to_string_lossy().into_owned())
                 }),
         };
-        let grid_points: usize = grids.iter().map(|g| g.values.len()).product();
-        let runs = grid_points * random.as_ref().map_or(1, |r| r.count);
+        let runs = grids
+            .iter()
+            .map(|g| g.values.len())
+            .chain(random.as_ref().map(|r| r.count))
+            .try_fold(1usize, usize::checked_mul)
+            .filter(|&runs| runs <= MAX_RUNS)
+            .ok_or_else(|| {
+                let factors: Vec<String> = grids
+                    .iter()
+                    .map(|g| format!("{} values of {}", g.values.len(), g.key))
+                    .chain(random.as_ref().map(|r| format!("{} random draws", r.count)))
+                    .collect();
+                SweepError::Spec(format!(
+                    "the sweep has more than {MAX_RUNS} runs ({}); split it into several sweeps",
+                    factors.join(" × ")
+                ))
+            })?;
         Ok(SweepSpec {
             name,
             scenario: scenario_path.display().to_string(),
@@ -759,10 +773,7 @@ impl Summary {
     /// Reads a `summary*.json`.
     pub fn read(path: &Path) -> Result<Summary, SweepError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| SweepError::Io {
-            path: file.clone(),
-            reason: source,
-        })?;
+        let text = crate::files::read_text_limited(path, "sweep summary", crate::files::SUMMARY_LIMIT)?;
         serde_json::from_str(&text).map_err(|e| SweepError::Summary {
             file,
             message: e.to_string(),

@@ -193,12 +193,8 @@ fn load_plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError>
     let sc = &loaded.scenario;
     let file = loaded.path.display().to_string();
     if let Some(model_path) = loaded.model_path() {
-        let xml = std::fs::read_to_string(&model_path).map_err(|e| {
-            loaded.field_error(
-                "vehicle.model",
-                format!("cannot read MJCF file {}: {e}", model_path.display()),
-            )
-        })?;
+        let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
+            .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
         let xml = model_with_obstacles(&xml, loaded)?;
         let mut model =
             Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| EpisodeError::Model {
@@ -251,6 +247,7 @@ impl Episode {
         let model = parts.dynamics.clone();
         let timestep = parts.timestep;
 
+        check_step_budget(loaded, timestep)?;
         let n = model.state_dim();
         if sc.vehicle.initial_state.len() != n {
             return Err(loaded
@@ -590,6 +587,12 @@ impl Episode {
         self.steps
     }
 
+    /// Ends the episode after at most `steps` steps (a preview, or a fuzz case that only
+    /// needs to show the episode runs).
+    pub fn limit_steps(&mut self, steps: u64) {
+        self.steps = self.steps.min(steps);
+    }
+
     /// The RK4 step the predictors use (seconds).
     pub fn predictor_step(&self) -> f64 {
         self.control.predictor_step
@@ -634,6 +637,7 @@ impl Episode {
     /// Runs to the end (or to the first error inside the run, which is logged as an `/event`
     /// error and returned in the summary) and finishes every sink.
     pub fn run(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<EpisodeSummary, EpisodeError> {
+        let _graceful = GracefulStop::begin();
         let started = Instant::now();
         let (steps, error) = match self.run_steps(sinks) {
             Ok(outcome) => outcome,
@@ -1275,6 +1279,101 @@ fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: 
 fn random_component(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize, i: usize) -> f64 {
     let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
     bound / (dim as f64).sqrt() * random::symmetric_unit(seed, stream, interval, i as u64)
+}
+
+/// Default of the most steps one episode may take: 10⁸ (55 hours of simulated time at
+/// h = 2 ms; docs/hardening.md has the log size per step). `--max-steps` raises or lowers it.
+pub const DEFAULT_MAX_STEPS: u64 = 100_000_000;
+static MAX_STEPS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(DEFAULT_MAX_STEPS);
+
+/// Sets the step budget of every episode built from now on (at least 1).
+pub fn set_max_steps(steps: u64) {
+    MAX_STEPS.store(steps.max(1), std::sync::atomic::Ordering::SeqCst);
+}
+
+/// The step budget of an episode (see [`set_max_steps`]).
+pub fn max_steps() -> u64 {
+    MAX_STEPS.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// Refuses an episode whose duration, or whose longest constant delay or control period, is
+/// more steps than the budget, before anything is sampled or allocated per step.
+fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), ScenarioError> {
+    let sc = &loaded.scenario;
+    let budget = max_steps();
+    let steps = |seconds: f64| seconds / timestep;
+    let too_many = |seconds: f64| steps(seconds).is_nan() || steps(seconds) > budget as f64;
+    if !(timestep.is_finite() && timestep > 0.0) {
+        return Err(loaded.field_error(
+            "vehicle.timestep",
+            format!("expected a positive number of seconds, found {timestep:e}"),
+        ));
+    }
+    if too_many(sc.duration) {
+        return Err(loaded.field_error(
+            "duration",
+            format!(
+                "{} s at a timestep of {} s is {} steps, more than the limit of {budget} steps (raise it with --max-steps)",
+                short(sc.duration),
+                short(timestep),
+                short(steps(sc.duration).ceil())
+            ),
+        ));
+    }
+    let longest = [
+        sc.control.period.unwrap_or(0.0),
+        sc.control.predictor_step.unwrap_or(0.0),
+    ]
+    .into_iter()
+    .chain(sc.delays.values().filter_map(DelayProfile::constant_delay))
+    .fold(0.0, f64::max);
+    if too_many(longest) {
+        return Err(loaded.field_error(
+            "vehicle.timestep",
+            format!(
+                "a delay or control period of {} s is {} steps of {} s, more than the limit of {budget} steps",
+                short(longest),
+                short(steps(longest).ceil()),
+                short(timestep)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A number for a message: plain when short, else in scientific notation (never 300 digits).
+fn short(x: f64) -> String {
+    let plain = format!("{x}");
+    if plain.len() <= 12 {
+        plain
+    } else {
+        format!("{x:.4e}")
+    }
+}
+
+/// Phases in which a stop request is honoured by the code itself (episodes stepping, a sweep
+/// executing), counted: outside them a signal handler ends the process at once.
+static GRACEFUL: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// While a value lives, [`graceful_stop_active`] is true.
+pub struct GracefulStop(());
+
+impl GracefulStop {
+    pub fn begin() -> GracefulStop {
+        GRACEFUL.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        GracefulStop(())
+    }
+}
+
+impl Drop for GracefulStop {
+    fn drop(&mut self) {
+        GRACEFUL.fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// Whether some code of this process is polling [`stop_requested`] now.
+pub fn graceful_stop_active() -> bool {
+    GRACEFUL.load(std::sync::atomic::Ordering::SeqCst) > 0
 }
 
 /// Set by a signal handler: every running episode stops at its next step, logs an

@@ -513,9 +513,55 @@ static INSTALL: Once = Once::new();
 
 fn install_callback() {
     INSTALL.call_once(|| {
-        // SAFETY: writing MuJoCo's global callback pointer once, before any step runs.
-        unsafe { ffi::mjcb_control = Some(control_trampoline) };
+        // SAFETY: writing MuJoCo's global callback and handler pointers once, before any
+        // model is loaded or stepped.
+        unsafe {
+            ffi::mjcb_control = Some(control_trampoline);
+            ffi::mju_user_warning = Some(warning_handler);
+            ffi::mju_user_error = Some(error_handler);
+        }
     });
+}
+
+thread_local! {
+    /// MuJoCo warnings raised on this thread since they were last taken.
+    static WARNINGS: RefCell<Vec<String>> = const { RefCell::new(Vec::new()) };
+}
+
+/// MuJoCo warnings raised on this thread since the last call (the handler keeps them instead of
+/// letting MuJoCo print them and append them to `MUJOCO_LOG.TXT` in the working directory).
+pub fn take_warnings() -> Vec<String> {
+    WARNINGS.with(|w| std::mem::take(&mut *w.borrow_mut()))
+}
+
+/// `mju_user_warning`: keeps the text for the step that raised it (which reports the
+/// warning as its error, see [`Simulation::step`]).
+unsafe extern "C" fn warning_handler(message: *const std::os::raw::c_char) {
+    let _ = catch_unwind(|| {
+        // SAFETY: MuJoCo passes a NUL-terminated message.
+        let text = unsafe { CStr::from_ptr(message) }.to_string_lossy().trim().to_string();
+        WARNINGS.with(|w| {
+            let mut w = w.borrow_mut();
+            if w.len() < 16 {
+                w.push(text);
+            }
+        });
+    });
+}
+
+/// `mju_user_error`: MuJoCo 2.2.2's `mju_error` returns to its caller when this handler
+/// returns (and without a handler prints, waits for Enter and exits), so the handler never
+/// returns: it prints one error line, removes the `.partial` outputs, and exits with 1.
+/// The model compiler installs its own (thread-local) handler, so XML and compile errors
+/// still come back as [`MjError::Load`].
+unsafe extern "C" fn error_handler(message: *const std::os::raw::c_char) {
+    let _ = catch_unwind(|| {
+        // SAFETY: MuJoCo passes a NUL-terminated message.
+        let text = unsafe { CStr::from_ptr(message) }.to_string_lossy().trim().to_string();
+        eprintln!("error: MuJoCo stopped the run: {text} (no log was finished)");
+        crate::files::remove_partials();
+    });
+    std::process::exit(1);
 }
 
 /// The process-wide `mjcb_control`: dispatches to the current thread's hook; catches panics.
@@ -627,6 +673,9 @@ impl Simulation {
         unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
         ACTIVE.with(|cell| *cell.borrow_mut() = None);
         self.step += 1;
+        // MuJoCo's warning text (kept from its log file and stdout); the counters below
+        // decide whether the step failed.
+        let warnings = take_warnings();
         if let Some(message) = CAUGHT_PANIC.with(|m| m.borrow_mut().take()) {
             return Err(MjError::CallbackPanicked {
                 time: start_time,
@@ -639,7 +688,10 @@ impl Simulation {
             if warnings_after[i] > warnings_before[i] {
                 return Err(MjError::Unstable {
                     time: start_time,
-                    message: format!("NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops"),
+                    message: format!(
+                        "NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops{}",
+                        warnings.first().map_or(String::new(), |w| format!(" (MuJoCo: {w})"))
+                    ),
                 });
             }
         }

@@ -1,0 +1,401 @@
+//! Fuzz suite of the inputs a user writes: seeded mutations of every scenario in `scenarios/`
+//! and of the sweep file (line deletions and duplications, swapped lines, NaN/inf/huge/tiny/
+//! negative numbers, type swaps, truncation, random bytes), each loaded, validated, built into
+//! an episode and run for a few steps in this process. Any panic, any hang (a case over
+//! `CASE_TIMEOUT`), or an error that is not one line naming the file and the key, fails it.
+//!
+//! `MJSAFE_FUZZ_CASES` sets the number of mutations per file (default 800: about 9000 scenario and 3200 sweep-file cases, a few seconds);
+//! `scripts/fuzz.sh` runs 100k+.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use mjsafe::episode::Episode;
+use mjsafe::log::{LogError, Record, Sink};
+
+const CASE_TIMEOUT: Duration = Duration::from_secs(60);
+/// Steps run of each episode that builds (enough to pass the first ticks, predictions and
+/// the first contact checks).
+const STEPS: u64 = 40;
+
+/// SplitMix64: the test's own seeded generator.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+    fn pick<'a>(&mut self, items: &[&'a str]) -> &'a str {
+        items[self.below(items.len())]
+    }
+}
+
+const NUMBERS: [&str; 16] = [
+    "nan",
+    "inf",
+    "-inf",
+    "1e300",
+    "-1e300",
+    "1e-300",
+    "0",
+    "-0.0",
+    "-1",
+    "99999999999999999999",
+    "1e9",
+    "1e-9",
+    "0.5",
+    "3",
+    "-3.5",
+    "18446744073709551616",
+];
+const VALUES: [&str; 17] = [
+    "'text'",
+    "[1, 2]",
+    "[]",
+    "true",
+    "{}",
+    "{ profile = 'table' }",
+    "[[1]]",
+    "''",
+    "[nan]",
+    "'bicycle'",
+    "'mujoco'",
+    "'ode'",
+    "'rk4'",
+    "'predictor'",
+    "'linear'",
+    "'strict_feedback'",
+    "'unicycle'",
+];
+
+/// One seeded mutation of a TOML text.
+fn mutate(text: &str, rng: &mut Rng) -> String {
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let rounds = 1 + rng.below(3);
+    for _ in 0..rounds {
+        if lines.is_empty() {
+            lines.push(String::new());
+        }
+        let i = rng.below(lines.len());
+        match rng.below(9) {
+            0 => {
+                lines.remove(i);
+            }
+            1 => {
+                let line = lines[i].clone();
+                lines.insert(i, line);
+            }
+            2 => {
+                let j = rng.below(lines.len());
+                lines.swap(i, j);
+            }
+            // A number (or the whole value) of a `key = value` line replaced.
+            3..=5 => {
+                if let Some((key, _)) = lines[i].split_once('=') {
+                    let value = if rng.below(3) == 0 {
+                        rng.pick(&VALUES)
+                    } else {
+                        rng.pick(&NUMBERS)
+                    };
+                    lines[i] = format!("{key}= {value}");
+                }
+            }
+            // One number inside a line (e.g. an array element) replaced.
+            6 => {
+                let line = &lines[i];
+                let starts: Vec<usize> = line
+                    .char_indices()
+                    .filter(|&(k, c)| c.is_ascii_digit() && (k == 0 || !line.as_bytes()[k - 1].is_ascii_alphanumeric()))
+                    .map(|(k, _)| k)
+                    .collect();
+                if !starts.is_empty() {
+                    let start = starts[rng.below(starts.len())];
+                    let end = line[start..]
+                        .find(|c: char| !(c.is_ascii_digit() || c == '.' || c == 'e' || c == '-'))
+                        .map_or(line.len(), |n| start + n);
+                    lines[i] = format!("{}{}{}", &line[..start], rng.pick(&NUMBERS), &line[end..]);
+                }
+            }
+            // Truncated somewhere.
+            7 => {
+                let joined = lines.join("\n");
+                let mut cut = rng.below(joined.len() + 1);
+                while !joined.is_char_boundary(cut) {
+                    cut -= 1;
+                }
+                lines = joined[..cut].lines().map(str::to_string).collect();
+            }
+            // Random printable or control bytes spliced in.
+            _ => {
+                let noise: String = (0..1 + rng.below(8))
+                    .map(|_| char::from(b" =[]{}\"'.,#\n\t0123456789aZ\x00\x7f"[rng.below(27)]))
+                    .collect();
+                let line = &mut lines[i];
+                let mut at = rng.below(line.len() + 1);
+                while !line.is_char_boundary(at) {
+                    at -= 1;
+                }
+                line.insert_str(at, &noise);
+            }
+        }
+    }
+    lines.join("\n")
+}
+
+/// Observes records and drops them (the fuzz tests the episode, not the log file).
+struct NullSink;
+
+impl Sink for NullSink {
+    fn record(&mut self, _record: &Record) -> Result<(), LogError> {
+        Ok(())
+    }
+    fn finish(&mut self, _complete: bool) -> Result<(), LogError> {
+        Ok(())
+    }
+}
+
+#[derive(Debug, Default, Clone, Copy)]
+struct Counts {
+    cases: usize,
+    rejected: usize,
+    not_built: usize,
+    ran: usize,
+    stopped_in_run: usize,
+}
+
+/// What a user would see: one error line (as the binary prints it).
+fn check_message(case: &str, message: &str, file: &str) {
+    let shown = mjsafe::cli::shorten_numbers(message);
+    assert!(!shown.contains('\n'), "{case}: error of more than one line: {shown}");
+    assert!(
+        shown.contains(file),
+        "{case}: error does not name the file {file}: {shown}"
+    );
+    for rust in ["struct ", "enum ", "Option<", "Vec<", "f64", "usize", "u64", "panicked"] {
+        assert!(
+            !shown.contains(rust),
+            "{case}: error names a Rust type ({rust}): {shown}"
+        );
+    }
+    assert!(
+        !shown
+            .split(|c: char| !c.is_ascii_digit())
+            .any(|digits| digits.len() > 15),
+        "{case}: a number of more than 15 digits: {shown}"
+    );
+}
+
+/// Loads, validates, builds and runs one scenario text; returns which stage it reached.
+fn scenario_case(path: &Path, text: String, counts: &mut Counts, case: &str) {
+    counts.cases += 1;
+    let file = path.display().to_string();
+    let loaded = match mjsafe::scenario::from_text(path, text, &[]) {
+        Ok(loaded) => loaded,
+        Err(e) => {
+            counts.rejected += 1;
+            return check_message(case, &e.to_string(), &file);
+        }
+    };
+    let mut episode = match Episode::new(&loaded) {
+        Ok(episode) => episode,
+        Err(e) => {
+            counts.not_built += 1;
+            return check_message(case, &e.to_string(), &file);
+        }
+    };
+    episode.limit_steps(STEPS);
+    let mut sink = NullSink;
+    match episode.run(&mut [&mut sink]) {
+        Ok(summary) => {
+            counts.ran += 1;
+            counts.stopped_in_run += usize::from(summary.error.is_some());
+        }
+        Err(e) => panic!("{case}: the run failed outside the episode (a sink error with a null sink?): {e}"),
+    }
+}
+
+/// Runs `work` on a worker thread: a panic or a case slower than `CASE_TIMEOUT` fails the test
+/// with the case's description (`describe` is only called on failure).
+fn guarded<T: Send + 'static>(what: String, work: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = mpsc::channel();
+    let handle = std::thread::spawn(move || {
+        let result = work();
+        let _ = tx.send(());
+        result
+    });
+    match rx.recv_timeout(CASE_TIMEOUT) {
+        Ok(()) => handle.join().unwrap_or_else(|_| panic!("{what}: panicked")),
+        Err(mpsc::RecvTimeoutError::Disconnected) => match handle.join() {
+            Ok(result) => result,
+            Err(panic) => {
+                let message = panic
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_default();
+                panic!("{what}: panicked: {message}")
+            }
+        },
+        Err(mpsc::RecvTimeoutError::Timeout) => panic!("{what}: no result after {CASE_TIMEOUT:?} (a hang)"),
+    }
+}
+
+fn cases_per_file() -> usize {
+    std::env::var("MJSAFE_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(800)
+}
+
+fn seed() -> u64 {
+    std::env::var("MJSAFE_FUZZ_SEED")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1)
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn scenario_files() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(repo().join("scenarios"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml") && !p.to_string_lossy().ends_with(".sweep.toml"))
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn mutated_scenarios_never_panic_hang_or_give_unclear_errors() {
+    let started = Instant::now();
+    let per_file = cases_per_file();
+    let files = scenario_files();
+    assert!(files.len() >= 10, "scenarios/ has {} files", files.len());
+    // Two workers (the machines have two cores), each over every other file.
+    let workers: Vec<_> = (0..2)
+        .map(|worker| {
+            let files: Vec<PathBuf> = files.iter().skip(worker).step_by(2).cloned().collect();
+            std::thread::spawn(move || {
+                let mut counts = Counts::default();
+                for path in files {
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    let name = path.file_name().unwrap().to_string_lossy().into_owned();
+                    let mut rng = Rng(seed() ^ mjsafe_hash(&name));
+                    for case in 0..per_file {
+                        let mutated = mutate(&text, &mut rng);
+                        let what = format!("{name} mutation {case} (seed {}):\n{mutated}\n---", seed());
+                        let path = path.clone();
+                        counts = guarded(what.clone(), move || {
+                            let mut counts = counts;
+                            scenario_case(&path, mutated, &mut counts, &what);
+                            counts
+                        });
+                    }
+                }
+                counts
+            })
+        })
+        .collect();
+    let mut total = Counts::default();
+    for worker in workers {
+        let c = worker.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+        total.cases += c.cases;
+        total.rejected += c.rejected;
+        total.not_built += c.not_built;
+        total.ran += c.ran;
+        total.stopped_in_run += c.stopped_in_run;
+    }
+    eprintln!(
+        "fuzz scenarios: {} cases in {:.1} s: {} rejected by validation, {} by the model checks, {} ran ({} stopped by an in-run error)",
+        total.cases,
+        started.elapsed().as_secs_f64(),
+        total.rejected,
+        total.not_built,
+        total.ran,
+        total.stopped_in_run
+    );
+    assert_eq!(total.cases, files.len() * per_file);
+    // The mutations must exercise every stage, or the suite tests nothing.
+    assert!(total.ran > total.cases / 20, "{total:?}");
+    assert!(total.rejected > total.cases / 10, "{total:?}");
+}
+
+#[test]
+fn mutated_sweep_files_never_panic_hang_or_give_unclear_errors() {
+    let started = Instant::now();
+    let per_file = cases_per_file() * 4;
+    let dir = tempfile::tempdir().unwrap();
+    let original = repo().join("scenarios/bicycle_delays.sweep.toml");
+    // The sweep file names its scenario relative to itself: make it absolute for the copies.
+    let text = std::fs::read_to_string(&original).unwrap().replace(
+        "\"bicycle_obstacle.toml\"",
+        &format!("\"{}/scenarios/bicycle_obstacle.toml\"", repo().display()),
+    );
+    let mut rng = Rng(seed() ^ 0x5eed);
+    let (mut rejected, mut built) = (0, 0);
+    for case in 0..per_file {
+        let mutated = mutate(&text, &mut rng);
+        let path = dir.path().join(format!("case-{case}.sweep.toml"));
+        std::fs::write(&path, &mutated).unwrap();
+        let what = format!("sweep mutation {case} (seed {}):\n{mutated}\n---", seed());
+        let ok = guarded(what.clone(), move || {
+            let args = mjsafe::sweep::SweepArgs {
+                sweep_file: Some(path.clone()),
+                ..Default::default()
+            };
+            match mjsafe::sweep::SweepSpec::build(&args) {
+                Ok(spec) => {
+                    // Expand the first and last runs: every override must apply or fail cleanly.
+                    let indices = spec.indices(None);
+                    for &i in indices.iter().take(2).chain(indices.last()) {
+                        let run = spec.run(i);
+                        if let Err(e) = mjsafe::scenario::load(Path::new(&spec.scenario), &run.overrides) {
+                            let message = mjsafe::cli::shorten_numbers(&e.to_string());
+                            assert!(!message.contains('\n'), "{what}: {message}");
+                        }
+                    }
+                    true
+                }
+                Err(e) => {
+                    let message = mjsafe::cli::shorten_numbers(&e.to_string());
+                    assert!(
+                        !message.contains('\n'),
+                        "{what}: error of more than one line: {message}"
+                    );
+                    for rust in ["struct ", "enum ", "Option<", "Vec<"] {
+                        assert!(!message.contains(rust), "{what}: error names a Rust type: {message}");
+                    }
+                    false
+                }
+            }
+        });
+        if ok {
+            built += 1;
+        } else {
+            rejected += 1;
+        }
+    }
+    eprintln!(
+        "fuzz sweep files: {per_file} cases in {:.1} s: {rejected} rejected, {built} expanded",
+        started.elapsed().as_secs_f64()
+    );
+    assert!(built > 0 && rejected > 0);
+}
+
+/// FNV-1a of a name, to give every file its own mutation stream.
+fn mjsafe_hash(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}

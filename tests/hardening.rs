@@ -1,0 +1,316 @@
+//! Hostile and careless input (issue 14): analytic vehicles on the MuJoCo plant, absurd
+//! timesteps and durations, devices and huge files as inputs, signals before stepping, MuJoCo's
+//! own output. Each case: one clear error line naming the file and the key, a non-zero exit,
+//! quickly, and nothing left behind.
+
+mod common;
+use common::*;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs `mjsafe ARGS` in `dir`; asserts it fails within `limit`, with one error line that
+/// holds every needle and no panic, Rust type name or overlong number; and that `dir` holds
+/// only `keep` afterwards.
+fn expect_clean_failure(dir: &Path, args: &[&str], needles: &[&str], keep: &[&str]) -> String {
+    let started = Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    let elapsed = started.elapsed();
+    let err = stderr(&o);
+    println!("{args:?} -> {:?} in {elapsed:.2?}: {}", o.status.code(), err.trim());
+    assert_eq!(o.status.code(), Some(1), "exit status; stderr: {err}");
+    assert!(elapsed < Duration::from_secs(20), "took {elapsed:?}");
+    assert_eq!(err.trim().lines().count(), 1, "one error line:\n{err}");
+    assert!(err.starts_with("error: "), "{err}");
+    for needle in needles {
+        assert!(err.contains(needle), "stderr lacks `{needle}`:\n{err}");
+    }
+    for bad in ["panicked", "struct ", "enum ", "RUST_BACKTRACE"] {
+        assert!(!err.contains(bad), "stderr has `{bad}`:\n{err}");
+    }
+    assert!(
+        !err.split(|c: char| !c.is_ascii_digit()).any(|d| d.len() > 15),
+        "an overlong number:\n{err}"
+    );
+    let mut left: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    let mut keep: Vec<String> = keep.iter().map(|s| s.to_string()).collect();
+    keep.sort();
+    assert_eq!(left, keep, "files left in {}", dir.display());
+    err
+}
+
+fn scenario_arg(name: &str) -> String {
+    scenario(name).display().to_string()
+}
+
+#[test]
+fn analytic_vehicles_on_the_mujoco_plant_are_refused() {
+    for name in [
+        "strict_feedback_pts.toml",
+        "nonlinear_example1.toml",
+        "linear_distinct_delays.toml",
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        expect_clean_failure(
+            dir.path(),
+            &["run", &scenario_arg(name), "--set", "plant='mujoco'", "--out", "x.mcap"],
+            &[name, "key `plant`", "expected plant = \"ode\""],
+            &[],
+        );
+    }
+}
+
+#[test]
+fn an_analytic_vehicle_without_a_timestep_names_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let text: String = std::fs::read_to_string(scenario("nonlinear_example1.toml"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("timestep"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    write(dir.path(), "no_step.toml", &text);
+    expect_clean_failure(
+        dir.path(),
+        &["run", "no_step.toml", "--out", "x.mcap"],
+        &["no_step.toml", "key `vehicle.timestep`", "integration step"],
+        &["no_step.toml"],
+    );
+}
+
+#[test]
+fn absurd_timesteps_and_durations_are_refused_before_anything_runs() {
+    for name in [
+        "linear_distinct_delays.toml",
+        "nonlinear_example1.toml",
+        "scalar_tv_delay.toml",
+        "unicycle_tv_delay.toml",
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        expect_clean_failure(
+            dir.path(),
+            &[
+                "run",
+                &scenario_arg(name),
+                "--set",
+                "vehicle.timestep=1e-300",
+                "--out",
+                "x.mcap",
+            ],
+            &[name, "key `duration`", "limit of 100000000 steps", "--max-steps"],
+            &[],
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--set",
+            "duration=1e9",
+            "--out",
+            "x.mcap",
+        ],
+        &["key `duration`", "500000000000 steps"],
+        &[],
+    );
+    // The budget is the user's to move.
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--max-steps",
+            "1000",
+            "--out",
+            "x.mcap",
+        ],
+        &["6000 steps, more than the limit of 1000 steps"],
+        &[],
+    );
+    // A delay of more steps than the budget (with a short duration) is refused too.
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "run",
+            &scenario_arg("linear_distinct_delays.toml"),
+            "--set",
+            "duration=1e-5",
+            "--set",
+            "vehicle.timestep=1e-12",
+            "--out",
+            "x.mcap",
+        ],
+        &["key `vehicle.timestep`", "delay or control period"],
+        &[],
+    );
+}
+
+#[test]
+fn devices_and_huge_files_as_inputs_are_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    expect_clean_failure(
+        d,
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--set",
+            "vehicle.model='/dev/zero'",
+            "--out",
+            "x.mcap",
+        ],
+        &["key `vehicle.model`", "/dev/zero", "character device"],
+        &[],
+    );
+    expect_clean_failure(
+        d,
+        &["run", "/dev/zero"],
+        &["/dev/zero", "scenario", "character device"],
+        &[],
+    );
+    expect_clean_failure(d, &["run", "."], &["scenario", "a directory"], &[]);
+    // A 100 MiB model (sparse: no disk used) is over the 64 MiB limit.
+    let big = d.join("big.xml");
+    std::fs::File::create(&big).unwrap().set_len(100 << 20).unwrap();
+    expect_clean_failure(
+        d,
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--set",
+            &format!("vehicle.model='{}'", big.display()),
+            "--out",
+            "x.mcap",
+        ],
+        &["key `vehicle.model`", "larger than the limit of 64 MiB (100 MiB)"],
+        &["big.xml"],
+    );
+    expect_clean_failure(
+        d,
+        &["sweep", "--sweep", "/dev/zero", "--dry-run"],
+        &["/dev/zero", "sweep file", "character device"],
+        &["big.xml"],
+    );
+    expect_clean_failure(
+        d,
+        &["analyze", "--merge", "/dev/zero"],
+        &["/dev/zero", "sweep summary", "character device"],
+        &["big.xml"],
+    );
+}
+
+#[test]
+fn a_sweep_of_billions_of_runs_is_refused_before_listing_them() {
+    let dir = tempfile::tempdir().unwrap();
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "sweep",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--random",
+            "99999999999",
+            "--range",
+            "delays.steering=0..0.4",
+            "--seed",
+            "1",
+            "--dry-run",
+        ],
+        &["more than 1000000 runs", "99999999999 random draws"],
+        &[],
+    );
+}
+
+#[test]
+fn mujoco_never_writes_its_own_log_file_or_text() {
+    // The blow-up of tests/bad_input.rs: MuJoCo warns about a huge qvel, which by default
+    // appends to MUJOCO_LOG.TXT in the working directory and prints "WARNING" on stdout.
+    let dir = tempfile::tempdir().unwrap();
+    let text = format!(
+        r#"
+name = "blowup"
+duration = 2.0
+[vehicle]
+kind = "double_integrator_1d"
+model = "{}"
+initial_state = [0.0, 0.0]
+[delays]
+acceleration = 1.5
+[initial_input]
+acceleration = 9e9
+[nominal]
+kind = "constant"
+input = [0.0]
+"#,
+        root().join("models/double_integrator_1d.xml").display()
+    );
+    write(dir.path(), "blowup.toml", &text);
+    let o = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(["run", "blowup.toml", "--out", "blowup.mcap"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        !dir.path().join("MUJOCO_LOG.TXT").exists(),
+        "MuJoCo wrote MUJOCO_LOG.TXT"
+    );
+    assert!(!stdout(&o).contains("WARNING"), "MuJoCo printed: {}", stdout(&o));
+    let err = stderr(&o);
+    assert!(err.contains("qvel") && !err.contains("WARNING:"), "{err}");
+}
+
+#[test]
+fn a_signal_before_stepping_ends_the_process_at_once_and_leaves_nothing() {
+    // A time-varying delay checked at 10⁸ sample times (Assumptions 1-2 before the first
+    // step) takes several seconds: SIGTERM during it must end the process within a second.
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args([
+            "run",
+            &scenario_arg("scalar_tv_delay.toml"),
+            "--max-steps",
+            "1000000000",
+            "--set",
+            "duration=990000",
+            "--out",
+            "x.mcap",
+        ])
+        .current_dir(dir.path())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the check finished too soon to test"
+    );
+    let signalled = Instant::now();
+    assert!(Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let o = child.wait_with_output().unwrap();
+    let waited = signalled.elapsed();
+    println!(
+        "exit {:?} {waited:.2?} after SIGTERM: {}",
+        o.status.code(),
+        stderr(&o).trim()
+    );
+    assert_eq!(o.status.code(), Some(130));
+    assert!(waited < Duration::from_secs(2), "took {waited:?} to stop");
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+}
