@@ -241,9 +241,13 @@ impl RerunArgs {
         targets
             .into_iter()
             .map(|t| {
-                let what = t.to_string();
-                let sink = RerunSink::create_with_inputs(t, &id, timestep, inputs)
-                    .with_context(|| format!("opening the recording for {what}"))?;
+                // A file's errors name the file already.
+                let what = (!matches!(t, RerunTarget::Save(_))).then(|| t.to_string());
+                let sink = RerunSink::create_with_inputs(t, &id, timestep, inputs).map_err(anyhow::Error::from);
+                let sink = match what {
+                    Some(what) => sink.with_context(|| format!("opening the recording for {what}"))?,
+                    None => sink?,
+                };
                 Ok(Box::new(sink) as Box<dyn Sink>)
             })
             .collect()

@@ -69,7 +69,11 @@ fn inputs_of_the_run_are_never_replaced() {
     run_fails(s, &["--out", other.to_str().unwrap()], &["is an input of this run"]);
     let model = root().join("models/bicycle.xml");
     let model_before = std::fs::read(&model).unwrap();
-    run_fails(s, &["--out", model.to_str().unwrap()], &["bicycle.xml", "is an input of this run"]);
+    run_fails(
+        s,
+        &["--out", model.to_str().unwrap()],
+        &["bicycle.xml", "is an input of this run"],
+    );
     assert_eq!(std::fs::read(&model).unwrap(), model_before);
     assert_eq!(listing(dir.path()), ["scenario.toml"]);
 }
@@ -90,7 +94,10 @@ fn a_foreign_file_is_kept_and_an_earlier_log_replaced() {
     run_ok(&root().join(SCENARIO), &log, &["--set", "duration=1.0"]);
     let m = analyze_json(&log);
     assert_eq!(m["complete"], true);
-    assert!((m["simulated_time"].as_f64().unwrap() - 1.0).abs() < 1e-6, "the second run's log: {m}");
+    assert!(
+        (m["simulated_time"].as_f64().unwrap() - 1.0).abs() < 1e-6,
+        "the second run's log: {m}"
+    );
     assert_eq!(listing(dir.path()), ["notes.mcap", "run.mcap"]);
 }
 
@@ -117,7 +124,14 @@ fn a_second_writer_to_the_same_log_is_refused() {
     let partial = dir.path().join("run.mcap.partial");
     // Long enough to still be running when the second starts.
     let first = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
-        .args(["run", SCENARIO, "--set", "duration=60.0", "--out", log.to_str().unwrap()])
+        .args([
+            "run",
+            SCENARIO,
+            "--set",
+            "duration=600.0",
+            "--out",
+            log.to_str().unwrap(),
+        ])
         .current_dir(root())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -125,7 +139,11 @@ fn a_second_writer_to_the_same_log_is_refused() {
         .unwrap();
     let deadline = Instant::now() + Duration::from_secs(30);
     while !partial.exists() {
-        assert!(Instant::now() < deadline, "the first run never created {}", partial.display());
+        assert!(
+            Instant::now() < deadline,
+            "the first run never created {}",
+            partial.display()
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
     run_fails(
@@ -137,7 +155,7 @@ fn a_second_writer_to_the_same_log_is_refused() {
     assert!(first.status.success(), "first run: {}", stderr(&first));
     let m = analyze_json(&log);
     assert_eq!(m["complete"], true);
-    assert!((m["simulated_time"].as_f64().unwrap() - 60.0).abs() < 1e-6);
+    assert!((m["simulated_time"].as_f64().unwrap() - 600.0).abs() < 1e-6);
     assert_eq!(listing(dir.path()), ["run.mcap"]);
 }
 
@@ -157,7 +175,11 @@ fn rrd_must_differ_from_the_log_and_be_writable() {
     // Under a regular file: refused by the check.
     let file = write(dir.path(), "file.txt", "x");
     let under = file.join("x.rrd");
-    run_fails(SCENARIO, &["--out", l, "--rrd", under.to_str().unwrap()], &["file.txt/x.rrd"]);
+    run_fails(
+        SCENARIO,
+        &["--out", l, "--rrd", under.to_str().unwrap()],
+        &["file.txt/x.rrd"],
+    );
     // A directory nobody may create files in: refused when it is opened, after the log was
     // started: the log is abandoned.
     run_fails(SCENARIO, &["--out", l, "--rrd", "/proc/x.rrd"], &["/proc/x.rrd"]);
@@ -230,4 +252,17 @@ fn a_summary_that_cannot_be_written_leaves_none() {
         assert!(o.status.success(), "{}", stderr(&o));
     }
     assert!(!listing(dir.path()).iter().any(|n| n.ends_with(".partial")));
+    // `analyze --merge --out` never writes over a summary it merges.
+    let summary = dir.path().join("summary.json");
+    let before = std::fs::read(&summary).unwrap();
+    let o = mjsafe(&[
+        "analyze",
+        "--merge",
+        summary.to_str().unwrap(),
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is an input of this run"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&summary).unwrap(), before);
 }

@@ -191,7 +191,10 @@ mod tests {
         let before = std::fs::read(&path).unwrap();
         McapSink::create(&path, &info(), &[]).unwrap().abandon();
         assert_eq!(std::fs::read(&path).unwrap(), before);
-        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names, ["run.mcap"]);
     }
 
@@ -206,7 +209,10 @@ mod tests {
         assert!(e.to_string().contains("not an mjsafe MCAP log"), "{e}");
         let e = McapSink::create(dir.path(), &info(), &[]).err().unwrap();
         assert!(e.to_string().contains("a directory"), "{e}");
-        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names, ["s.toml"]);
         assert_eq!(std::fs::read_to_string(&scenario).unwrap(), "name = 's'\n");
     }

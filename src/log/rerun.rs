@@ -733,7 +733,9 @@ mod save_tests {
         let file = dir.path().join("run.rrd");
         let mut sink = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01).unwrap();
         assert_eq!(names(dir.path()), ["run.rrd.partial"]);
-        let e = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01).err().unwrap();
+        let e = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01)
+            .err()
+            .unwrap();
         assert!(e.to_string().contains("another process is writing it"), "{e}");
         let state = Record::State(proto::State {
             time: 0.0,
@@ -755,7 +757,9 @@ mod save_tests {
         // A file that is not a recording is never replaced.
         let notes = dir.path().join("notes.rrd");
         std::fs::write(&notes, "notes").unwrap();
-        let e = RerunSink::create(RerunTarget::Save(notes.clone()), "run", 0.01).err().unwrap();
+        let e = RerunSink::create(RerunTarget::Save(notes.clone()), "run", 0.01)
+            .err()
+            .unwrap();
         assert!(e.to_string().contains("not an mjsafe rerun recording"), "{e}");
     }
 }
