@@ -20,7 +20,7 @@ fn analyze_log(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("bicycle_obstacle_gamma_m.mcap");
     let mut episode = Episode::new(&loaded).expect("episode");
-    let mut sink = McapSink::create(&path, episode.info()).expect("create the log");
+    let mut sink = McapSink::create(&path, episode.info(), &[]).expect("create the log");
     let summary = episode.run(&mut [&mut sink]).expect("run");
     assert!(summary.error.is_none(), "the run stopped early: {:?}", summary.error);
     let bytes = std::fs::metadata(&path).expect("the log exists").len();

@@ -102,7 +102,7 @@ fn step_records(k: u64, tick: bool) -> Vec<Record> {
 
 /// Writes one log of `steps` and returns the time spent recording and finishing it.
 fn write_log(path: &Path, info: &RunInfo, steps: &[Vec<Record>]) -> Duration {
-    let mut sink = McapSink::create(path, info).expect("create the log");
+    let mut sink = McapSink::create(path, info, &[]).expect("create the log");
     let started = Instant::now();
     for records in steps {
         for record in records {

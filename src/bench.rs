@@ -13,7 +13,7 @@
 //! log measures (Definition 4.3) and, from an audited untimed run, the largest difference chain
 //! reuse made to a prediction.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde::Serialize;
@@ -134,6 +134,15 @@ pub fn run(
         // An untimed, audited run records the actuation the bare loop replays.
         let mut probe = Episode::new(&loaded)?;
         let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
+        let chain_tolerance = loaded.scenario.control.chain_tolerance;
+        let log_path = log_dir.join(format!(
+            "bench-{}-{}-{:e}.mcap",
+            loaded.scenario.name, predictor_step, chain_tolerance
+        ));
+        let input_files = loaded.inputs();
+        let inputs: Vec<&Path> = input_files.iter().map(PathBuf::as_path).collect();
+        // Checked before any run (McapSink::create checks again and opens it exclusively).
+        crate::log::mcap::check_target(&log_path, &inputs).map_err(LogError::from)?;
         let simulated_time = steps as f64 * probe.info().timestep;
         probe.record_actuation();
         probe.audit_chain_reuse();
@@ -150,11 +159,6 @@ pub fn run(
         let mut bare = Vec::new();
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
-        let chain_tolerance = loaded.scenario.control.chain_tolerance;
-        let log_path = log_dir.join(format!(
-            "bench-{}-{}-{:e}.mcap",
-            loaded.scenario.name, predictor_step, chain_tolerance
-        ));
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
@@ -164,7 +168,7 @@ pub fn run(
 
             pipeline.push(timed_run(&loaded, &mut [])?);
 
-            let mut sink = McapSink::create(&log_path, &info)?;
+            let mut sink = McapSink::create(&log_path, &info, &inputs)?;
             pipeline_mcap.push(timed_run(&loaded, &mut [&mut sink])?);
         }
         let bare = median(bare);

@@ -35,7 +35,7 @@ fn write_stdout(args: std::fmt::Arguments) {
 use crate::analyze::{self, RunMetrics};
 use crate::episode::{self, Episode};
 use crate::log::mcap::McapSink;
-use crate::log::Sink;
+use crate::log::{Sink, Tee};
 use crate::scenario;
 use crate::sweep::{self, Row, Summary, SweepArgs, SweepSpec};
 
@@ -206,9 +206,30 @@ pub struct RerunArgs {
 }
 
 impl RerunArgs {
+    /// Checks the output files asked for before anything is created or simulated: an `.rrd`
+    /// is not the MCAP log, not an input of the run, and replaceable (see [`crate::files`]).
+    #[cfg(feature = "rerun")]
+    fn check(&self, log_path: &Path, inputs: &[&Path]) -> Result<()> {
+        if let Some(file) = &self.rrd {
+            if crate::files::same_path(file, log_path) {
+                bail!(
+                    "--rrd {}: it is also the MCAP log's path (--out); choose another file",
+                    file.display()
+                );
+            }
+            crate::log::rerun::check_save_target(file, inputs)?;
+        }
+        Ok(())
+    }
+
+    #[cfg(not(feature = "rerun"))]
+    fn check(&self, _log_path: &Path, _inputs: &[&Path]) -> Result<()> {
+        Ok(())
+    }
+
     /// The rerun sinks asked for (none without the `rerun` feature).
     #[cfg(feature = "rerun")]
-    fn sinks(&self, log_path: &Path, timestep: f64) -> Result<Vec<Box<dyn Sink>>> {
+    fn sinks(&self, log_path: &Path, timestep: f64, inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
         use crate::log::rerun::{recording_id, RerunSink, RerunTarget};
         let mut targets = Vec::new();
         if self.rerun {
@@ -224,16 +245,20 @@ impl RerunArgs {
         targets
             .into_iter()
             .map(|t| {
-                let what = t.to_string();
-                let sink =
-                    RerunSink::create(t, &id, timestep).with_context(|| format!("opening the recording for {what}"))?;
+                // A file's errors name the file already.
+                let what = (!matches!(t, RerunTarget::Save(_))).then(|| t.to_string());
+                let sink = RerunSink::create_with_inputs(t, &id, timestep, inputs).map_err(anyhow::Error::from);
+                let sink = match what {
+                    Some(what) => sink.with_context(|| format!("opening the recording for {what}"))?,
+                    None => sink?,
+                };
                 Ok(Box::new(sink) as Box<dyn Sink>)
             })
             .collect()
     }
 
     #[cfg(not(feature = "rerun"))]
-    fn sinks(&self, _log_path: &Path, _timestep: f64) -> Result<Vec<Box<dyn Sink>>> {
+    fn sinks(&self, _log_path: &Path, _timestep: f64, _inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
         Ok(Vec::new())
     }
 }
@@ -417,16 +442,31 @@ fn install_stop_handler() {
 
 fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: &RerunArgs) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
-    let mut episode = Episode::new(&loaded)?;
+    let inputs = loaded.inputs();
+    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
-    let mut sink = McapSink::create(&log_path, episode.info())?;
-    let mut extra_sinks = rerun.sinks(&log_path, episode.info().timestep)?;
-    let summary = {
-        let mut sinks: Vec<&mut dyn Sink> = vec![&mut sink];
-        for extra in extra_sinks.iter_mut() {
-            sinks.push(extra.as_mut());
+    // Every output is checked before the model is loaded, and opened before the simulation.
+    crate::log::mcap::check_target(&log_path, &inputs)?;
+    rerun.check(&log_path, &inputs)?;
+    let mut episode = Episode::new(&loaded)?;
+    let mut sink = McapSink::create(&log_path, episode.info(), &inputs)?;
+    let extra_sinks = match rerun.sinks(&log_path, episode.info().timestep, &inputs) {
+        Ok(sinks) => sinks,
+        Err(e) => {
+            sink.abandon();
+            return Err(e);
         }
-        episode.run(&mut sinks)?
+    };
+    let summary = {
+        let mut outputs = Tee::new(&mut sink, extra_sinks);
+        let result = episode.run(&mut [&mut outputs]);
+        match result {
+            Err(e) if outputs.other_failed() => bail!(
+                "{e}; the run stopped and its log {} is marked incomplete",
+                log_path.display()
+            ),
+            result => result?,
+        }
     };
     let metrics = analyze::analyze_file(&log_path)
         .with_context(|| format!("reading back the log just written, {}", log_path.display()))?;
@@ -567,7 +607,10 @@ fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Resu
         return Ok(ExitCode::FAILURE);
     }
     if let Some(dir) = out {
-        let (json, csv) = merged.write(dir)?;
+        let merged_files: Vec<&Path> = inputs.iter().map(|(file, _)| Path::new(file.as_str())).collect();
+        let (json, csv) = merged
+            .write(dir, &merged_files)
+            .with_context(|| format!("writing the merged summary into {}", dir.display()))?;
         eprintln!(
             "merged {} summaries ({} runs): {}, {}",
             inputs.len(),
@@ -673,7 +716,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     progress.finish();
     let summary = Summary::new(&spec, shard, rows);
     let (json, csv) = summary
-        .write(&dir)
+        .write(&dir, &[])
         .with_context(|| format!("writing the summary into {}", dir.display()))?;
     outln!("{}", sweep_table(&summary));
     let not_run = summary

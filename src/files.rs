@@ -240,6 +240,26 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
+/// `path` with its directory resolved (symlinks, `..`) when that directory exists, for
+/// comparing paths of files that may not exist yet.
+fn normalised(path: &Path) -> PathBuf {
+    let name = path.file_name();
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match (std::fs::canonicalize(dir), name) {
+        (Ok(dir), Some(name)) => dir.join(name),
+        _ => std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()),
+    }
+}
+
+/// Whether two paths name the same file, existing or not: the same inode, or the same name
+/// in the same (resolved) directory.
+pub fn same_path(a: &Path, b: &Path) -> bool {
+    same_file(a, b) || normalised(a) == normalised(b)
+}
+
 /// Checks that `target` may be written as an output: it is not an input of the same run, and
 /// it does not exist or is a regular file `replace` allows replacing. Nothing is created.
 pub fn check_output(target: &Path, what: &'static str, replace: Replace, inputs: &[&Path]) -> Result<(), FileError> {
@@ -252,7 +272,13 @@ pub fn check_output(target: &Path, what: &'static str, replace: Replace, inputs:
     if target.as_os_str().is_empty() {
         return Err(write_error("the path is empty".into()));
     }
-    if let Some(input) = inputs.iter().find(|input| same_file(target, input)) {
+    {
+        use std::os::unix::ffi::OsStrExt;
+        if target.file_name().is_none() || target.as_os_str().as_bytes().ends_with(b"/") {
+            return Err(write_error("it names a directory, expected a file name".into()));
+        }
+    }
+    if let Some(input) = inputs.iter().find(|input| same_path(target, input)) {
         return Err(write_error(format!(
             "it is an input of this run ({}); choose another output path",
             input.display()
@@ -360,6 +386,13 @@ impl OutputFile {
             .map_err(|e| self.error(format!("cannot duplicate the file handle: {e}")))
     }
 
+    /// Writes all of `bytes` to the `.partial` file.
+    pub fn write_all(&mut self, bytes: &[u8]) -> Result<(), FileError> {
+        use std::io::Write;
+        let result = self.file().write_all(bytes);
+        result.map_err(|e| self.error(format!("cannot write {}: {e}", self.partial.display())))
+    }
+
     pub fn partial_path(&self) -> &Path {
         &self.partial
     }
@@ -368,7 +401,8 @@ impl OutputFile {
         &self.target
     }
 
-    fn error(&self, reason: String) -> FileError {
+    /// An error about this output (named by its final path).
+    pub fn error(&self, reason: String) -> FileError {
         FileError::Write {
             path: self.target.display().to_string(),
             what: self.what,
@@ -419,11 +453,8 @@ pub fn write_atomically(
     inputs: &[&Path],
     bytes: &[u8],
 ) -> Result<PathBuf, FileError> {
-    use std::io::Write;
     let mut out = OutputFile::create(target, what, replace, inputs)?;
-    out.file()
-        .write_all(bytes)
-        .map_err(|e| out.error(format!("cannot write {}: {e}", out.partial.display())))?;
+    out.write_all(bytes)?;
     out.commit()
 }
 
@@ -471,6 +502,8 @@ mod tests {
         assert!(e.to_string().contains("character device"), "{e}");
         let e = OutputFile::create(dir.path(), "log", Replace::Any, &[]).unwrap_err();
         assert!(e.to_string().contains("a directory"), "{e}");
+        let e = OutputFile::create(&dir.path().join("new/"), "log", Replace::Any, &[]).unwrap_err();
+        assert!(e.to_string().contains("names a directory"), "{e}");
         let scenario = dir.path().join("s.toml");
         std::fs::write(&scenario, "name = 'x'").unwrap();
         let e = OutputFile::create(&scenario, "log", Replace::Any, &[&scenario]).unwrap_err();
@@ -489,6 +522,21 @@ mod tests {
         )
         .unwrap();
         assert_eq!(std::fs::read(&log).unwrap(), b"\x89MCAP new");
+    }
+
+    #[test]
+    fn paths_compare_by_directory_and_name_even_before_they_exist() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("sub")).unwrap();
+        let a = dir.path().join("x.rrd");
+        assert!(same_path(&a, &dir.path().join("sub/../x.rrd")));
+        assert!(same_path(&a, &dir.path().join("./x.rrd")));
+        assert!(!same_path(&a, &dir.path().join("sub/x.rrd")));
+        std::fs::write(&a, "x").unwrap();
+        std::os::unix::fs::symlink(&a, dir.path().join("link")).unwrap();
+        assert!(same_path(&a, &dir.path().join("link")));
+        let e = check_output(&dir.path().join("sub/../x.rrd"), "log", Replace::Any, &[&a]).unwrap_err();
+        assert!(e.to_string().contains("is an input of this run"), "{e}");
     }
 
     #[test]

@@ -442,6 +442,11 @@ impl LoadedScenario {
         self.scenario.vehicle.model.as_ref().map(|m| dir.join(m))
     }
 
+    /// The files a run of this scenario reads (the scenario, its model): outputs never replace them.
+    pub fn inputs(&self) -> Vec<PathBuf> {
+        std::iter::once(self.path.clone()).chain(self.model_path()).collect()
+    }
+
     /// The error for a field of this scenario.
     pub fn field_error(&self, key: &str, message: impl Into<String>) -> ScenarioError {
         ScenarioError::Field {

@@ -14,7 +14,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::analyze::{self, csv_lines, Cell, FlatMetrics};
 use crate::episode::Episode;
-use crate::log::mcap::McapSink;
+use crate::files::{OutputFile, Replace};
+use crate::log::mcap::{self, McapSink};
 use crate::log::Sink;
 use crate::scenario;
 
@@ -37,7 +38,7 @@ pub enum SweepError {
     #[error("cannot merge: {0}")]
     Merge(String),
     #[error(transparent)]
-    Input(#[from] crate::files::FileError),
+    FileAccess(#[from] crate::files::FileError),
 }
 
 /// The most runs one sweep may have (its run list and summary are held in memory).
@@ -580,12 +581,18 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
         metrics: None,
         error: None,
     };
-    // A log of an earlier sweep under this name must not pass for this run's.
-    let _ = std::fs::remove_file(&log_path);
+    // A log of an earlier sweep under this name must not pass for this run's (anything else
+    // there is kept, and refused as this run's log).
+    if mcap::check_target(&log_path, &[]).is_ok() {
+        let _ = std::fs::remove_file(&log_path);
+    }
     let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Option<String>, String> {
         let loaded = scenario::load(Path::new(&spec.scenario), &run.overrides).map_err(|e| e.to_string())?;
+        let inputs = loaded.inputs();
+        let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+        mcap::check_target(&log_path, &inputs).map_err(|e| e.to_string())?;
         let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
-        let mut sink = McapSink::create(&log_path, episode.info()).map_err(|e| e.to_string())?;
+        let mut sink = McapSink::create(&log_path, episode.info(), &inputs).map_err(|e| e.to_string())?;
         let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
         let summary = episode.run(&mut sinks).map_err(|e| e.to_string())?;
         Ok(summary.error)
@@ -684,6 +691,10 @@ pub fn execute(
         .collect())
 }
 
+/// How summary files start: an existing file that starts otherwise is never replaced.
+const SUMMARY_JSON_START: &[u8] = b"{\n  \"mjsafe_version\"";
+const SUMMARY_CSV_START: &[u8] = b"index,log,";
+
 /// A sweep summary: the sweep, which shard (none: all runs), and one row per run by index.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -753,19 +764,28 @@ impl Summary {
         csv_lines(&lines)
     }
 
-    /// Writes `<stem>.json` and `<stem>.csv` into `dir`; returns their paths.
-    pub fn write(&self, dir: &Path) -> Result<(PathBuf, PathBuf), SweepError> {
+    /// Writes `<stem>.json` and `<stem>.csv` into `dir`; returns their paths. Both are written
+    /// whole as `.partial` files and renamed only when both are written, so a failure (a full
+    /// disk) leaves neither half-written; `inputs` (e.g. the summaries merged) are never replaced.
+    pub fn write(&self, dir: &Path, inputs: &[&Path]) -> Result<(PathBuf, PathBuf), SweepError> {
         std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
             path: dir.display().to_string(),
             reason: source,
         })?;
         let json = dir.join(format!("{}.json", self.file_stem()));
         let csv = dir.join(format!("{}.csv", self.file_stem()));
-        for (path, text) in [(&json, self.to_json()), (&csv, self.to_csv())] {
-            std::fs::write(path, text).map_err(|source| SweepError::Io {
-                path: path.display().to_string(),
-                reason: source,
-            })?;
+        let mut outputs = Vec::new();
+        let files = [
+            (&json, self.to_json(), SUMMARY_JSON_START),
+            (&csv, self.to_csv(), SUMMARY_CSV_START),
+        ];
+        for (path, text, start) in files {
+            let mut out = OutputFile::create(path, "sweep summary", Replace::IfStartsWith(start), inputs)?;
+            out.write_all(text.as_bytes())?;
+            outputs.push(out);
+        }
+        for out in outputs {
+            out.commit()?;
         }
         Ok((json, csv))
     }

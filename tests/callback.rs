@@ -131,7 +131,7 @@ fn a_panic_in_the_callback_is_an_error_after_the_step_not_an_abort() {
 fn run_to(scenario: &Path, out: &Path) {
     let loaded = mjsafe::scenario::load(scenario, &[]).unwrap();
     let mut episode = Episode::new(&loaded).unwrap();
-    let mut sink = McapSink::create(out, episode.info()).unwrap();
+    let mut sink = McapSink::create(out, episode.info(), &[]).unwrap();
     let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
     let summary = episode.run(&mut sinks).unwrap();
     assert!(summary.error.is_none());

@@ -164,14 +164,17 @@ fn predictor_step_of_one_control_period_is_exact_and_coarser_steps_are_not() {
 
 #[test]
 fn predictor_step_must_be_a_multiple_of_the_timestep() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.mcap");
     let o = mjsafe(&[
         "run",
         "scenarios/bicycle_obstacle_gamma_m.toml",
         "--set",
         "control.predictor_step=0.003",
         "--out",
-        "/dev/null",
+        out.to_str().unwrap(),
     ]);
+    assert!(!out.exists(), "a log was written for a rejected scenario");
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(

@@ -1,16 +1,21 @@
 //! MCAP sink: one file per run, protobuf messages with their schema embedded, zstd chunks
 //! (written by [`McapWriter`]), log time = simulation time, written single-threaded so equal
 //! runs give equal bytes.
-//! The file is written as `<path>.partial` and renamed when finished, so a log under its
-//! final name is always complete and readable.
+//! The file is written as `<path>.partial` (created exclusively, see [`crate::files`]) and
+//! renamed when finished, so a log under its final name is always complete and readable.
 
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use crate::files::{OutputFile, Replace};
 
 use super::mcap_writer::McapWriter;
 use super::{LogError, Record, RunInfo, Sink, LOG_FORMAT_VERSION, TOPICS};
+
+/// The first bytes of every MCAP file: an existing file that starts otherwise is never replaced.
+pub const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
 
 /// Uncompressed bytes per chunk.
 const CHUNK_SIZE: usize = 1 << 20;
@@ -23,8 +28,16 @@ pub struct McapSink {
     sequence: u32,
     /// Encoding buffer reused by every record.
     buffer: Vec<u8>,
-    partial_path: PathBuf,
-    final_path: PathBuf,
+    /// The `.partial` file (and its lock) until the log is committed or abandoned.
+    output: Option<OutputFile>,
+    final_path: std::path::PathBuf,
+}
+
+/// Checks that `path` may receive a log, creating nothing: not an input of the run, not a
+/// directory, device or other non-regular file, and not an existing file other than an MCAP
+/// file (an earlier log may be replaced).
+pub fn check_target(path: &Path, inputs: &[&Path]) -> Result<(), crate::files::FileError> {
+    crate::files::check_output(path, "MCAP log", Replace::IfStartsWith(MCAP_MAGIC), inputs)
 }
 
 /// Nanoseconds of simulation time (log and publish time of every message).
@@ -33,20 +46,15 @@ pub fn sim_time_ns(time: f64) -> u64 {
 }
 
 impl McapSink {
-    pub fn create(path: &Path, info: &RunInfo) -> Result<McapSink, LogError> {
+    /// Checks `path` (see [`check_target`]) and starts the log as `<path>.partial`. `inputs`
+    /// are the files the run reads (scenario, model), which the log never replaces.
+    pub fn create(path: &Path, info: &RunInfo, inputs: &[&Path]) -> Result<McapSink, LogError> {
         let err = |message: String| LogError::Write {
             path: path.display().to_string(),
             message,
         };
-        if let Some(dir) = path.parent() {
-            if !dir.as_os_str().is_empty() {
-                std::fs::create_dir_all(dir).map_err(|e| err(format!("cannot create directory: {e}")))?;
-            }
-        }
-        let mut partial = path.as_os_str().to_owned();
-        partial.push(".partial");
-        let partial_path = PathBuf::from(partial);
-        let file = File::create(&partial_path).map_err(|e| err(e.to_string()))?;
+        let output = OutputFile::create(path, "MCAP log", Replace::IfStartsWith(MCAP_MAGIC), inputs)?;
+        let file = output.try_clone_file()?;
         let library = format!("mjsafe/{}", env!("CARGO_PKG_VERSION"));
         let mut writer = McapWriter::new(BufWriter::new(file), "", &library, CHUNK_SIZE, ZSTD_LEVEL)
             .map_err(|e| err(e.to_string()))?;
@@ -85,13 +93,20 @@ impl McapSink {
             channel_ids,
             sequence: 0,
             buffer: Vec::new(),
-            partial_path,
+            output: Some(output),
             final_path: path.to_path_buf(),
         })
     }
 
     pub fn path(&self) -> &Path {
         &self.final_path
+    }
+
+    /// Stops without finishing: the `.partial` file is deleted, nothing is left under the
+    /// final name (for a run that fails before it starts, e.g. another output cannot be opened).
+    pub fn abandon(mut self) {
+        self.writer = None;
+        self.output = None;
     }
 
     fn error(&self, message: String) -> LogError {
@@ -128,8 +143,9 @@ impl Sink for McapSink {
             .map_err(|e| self.error(e.to_string()))?;
         let out = writer.finish().map_err(|e| self.error(e.to_string()))?;
         drop(out.into_inner().map_err(|e| self.error(e.error().to_string()))?);
-        std::fs::rename(&self.partial_path, &self.final_path)
-            .map_err(|e| self.error(format!("cannot move the finished log into place: {e}")))
+        let output = self.output.take().expect("the output lives until the log is finished");
+        output.commit()?;
+        Ok(())
     }
 }
 
@@ -139,5 +155,65 @@ impl Drop for McapSink {
         if self.writer.is_some() {
             let _ = self.finish(false);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn info() -> RunInfo {
+        RunInfo {
+            scenario_name: "t".into(),
+            scenario_path: "t.toml".into(),
+            scenario_text: String::new(),
+            scenario_resolved: String::new(),
+            overrides: Vec::new(),
+            mujoco_version: "2.2.2".into(),
+            timestep: 0.01,
+            control_period: 0.01,
+            prescribed_time: None,
+            max_delay: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_log_is_exclusive_until_finished_and_abandoning_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let mut sink = McapSink::create(&path, &info(), &[]).unwrap();
+        let e = McapSink::create(&path, &info(), &[]).err().unwrap();
+        assert!(e.to_string().contains("another process is writing it"), "{e}");
+        assert!(!path.exists());
+        sink.finish(false).unwrap();
+        assert!(std::fs::read(&path).unwrap().starts_with(MCAP_MAGIC));
+        // An earlier log may be replaced; an abandoned one leaves the earlier one as it was.
+        let before = std::fs::read(&path).unwrap();
+        McapSink::create(&path, &info(), &[]).unwrap().abandon();
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["run.mcap"]);
+    }
+
+    #[test]
+    fn inputs_and_foreign_files_are_refused_before_anything_is_created() {
+        let dir = tempfile::tempdir().unwrap();
+        let scenario = dir.path().join("s.toml");
+        std::fs::write(&scenario, "name = 's'\n").unwrap();
+        let e = McapSink::create(&scenario, &info(), &[&scenario]).err().unwrap();
+        assert!(e.to_string().contains("is an input of this run"), "{e}");
+        let e = McapSink::create(&scenario, &info(), &[]).err().unwrap();
+        assert!(e.to_string().contains("not an mjsafe MCAP log"), "{e}");
+        let e = McapSink::create(dir.path(), &info(), &[]).err().unwrap();
+        assert!(e.to_string().contains("a directory"), "{e}");
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["s.toml"]);
+        assert_eq!(std::fs::read_to_string(&scenario).unwrap(), "name = 's'\n");
     }
 }

@@ -147,6 +147,8 @@ pub struct RunInfo {
 pub enum LogError {
     #[error("log file {path}: {message}")]
     Write { path: String, message: String },
+    #[error(transparent)]
+    Output(#[from] crate::files::FileError),
 }
 
 /// Something that observes an episode.
@@ -154,4 +156,177 @@ pub trait Sink {
     fn record(&mut self, record: &Record) -> Result<(), LogError>;
     /// Completes the output; `complete` is false when the episode stopped early.
     fn finish(&mut self, complete: bool) -> Result<(), LogError>;
+}
+
+/// The outputs of a run: the log of record (the MCAP sink) and further sinks (rerun). A
+/// further sink that fails stops the run: the log gets an `/event` error naming the failure
+/// and is finished as incomplete. The further sinks are finished first, so a failure at their
+/// end also marks the log incomplete. A failed sink is dropped unfinished (a saved recording
+/// is then deleted, see [`Sink`] implementations).
+pub struct Tee<'a> {
+    log: &'a mut dyn Sink,
+    others: Vec<Box<dyn Sink>>,
+    /// Time of the last record (of the error event).
+    time: f64,
+    failed: bool,
+}
+
+impl<'a> Tee<'a> {
+    pub fn new(log: &'a mut dyn Sink, others: Vec<Box<dyn Sink>>) -> Tee<'a> {
+        Tee {
+            log,
+            others,
+            time: 0.0,
+            failed: false,
+        }
+    }
+
+    /// Whether a further sink failed (and the log was marked incomplete because of it).
+    pub fn other_failed(&self) -> bool {
+        self.failed
+    }
+
+    /// Logs the failure of a further sink as an error event (the log's own failure, if any,
+    /// surfaces when it is finished).
+    fn log_failure(&mut self, error: &LogError) {
+        self.failed = true;
+        let _ = self.log.record(&Record::Event(proto::Event {
+            time: self.time,
+            kind: "error".into(),
+            message: format!("{error}; the run stopped"),
+            participants: Vec::new(),
+            depth: 0.0,
+        }));
+    }
+}
+
+impl Sink for Tee<'_> {
+    fn record(&mut self, record: &Record) -> Result<(), LogError> {
+        self.log.record(record)?;
+        self.time = record.time();
+        for i in 0..self.others.len() {
+            if let Err(e) = self.others[i].record(record) {
+                drop(self.others.remove(i));
+                self.log_failure(&e);
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), LogError> {
+        let mut failure = None;
+        for mut other in std::mem::take(&mut self.others) {
+            if let Err(e) = other.finish(complete) {
+                failure.get_or_insert(e);
+            }
+        }
+        match failure {
+            None => self.log.finish(complete),
+            Some(e) => {
+                self.log_failure(&e);
+                let _ = self.log.finish(false);
+                Err(e)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Keeps what it is given; fails its `fail_at`-th record (1-based) or its finish.
+    #[derive(Default)]
+    struct Probe {
+        records: Vec<Record>,
+        finished: Option<bool>,
+        fail_at: Option<usize>,
+        fail_finish: bool,
+    }
+
+    impl Sink for Probe {
+        fn record(&mut self, record: &Record) -> Result<(), LogError> {
+            self.records.push(record.clone());
+            if self.fail_at == Some(self.records.len()) {
+                return Err(LogError::Write {
+                    path: "x.rrd".into(),
+                    message: "disk full".into(),
+                });
+            }
+            Ok(())
+        }
+
+        fn finish(&mut self, complete: bool) -> Result<(), LogError> {
+            self.finished = Some(complete);
+            if self.fail_finish {
+                return Err(LogError::Write {
+                    path: "x.rrd".into(),
+                    message: "cannot close".into(),
+                });
+            }
+            Ok(())
+        }
+    }
+
+    fn state(time: f64) -> Record {
+        Record::State(proto::State {
+            time,
+            ..Default::default()
+        })
+    }
+
+    fn error_events(records: &[Record]) -> Vec<String> {
+        records
+            .iter()
+            .filter_map(|r| match r {
+                Record::Event(e) if e.kind == "error" => Some(e.message.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn tee_passes_records_through_and_finishes_the_log_last() {
+        let mut log = Probe::default();
+        let mut tee = Tee::new(&mut log, vec![Box::new(Probe::default())]);
+        tee.record(&state(0.0)).unwrap();
+        tee.finish(true).unwrap();
+        assert!(!tee.other_failed());
+        assert_eq!((log.records.len(), log.finished), (1, Some(true)));
+    }
+
+    #[test]
+    fn a_failing_other_sink_marks_the_log_incomplete_with_an_error_event() {
+        // Fails at its second record: the run stops, the log holds the error at that time.
+        let mut log = Probe::default();
+        let other = Probe {
+            fail_at: Some(2),
+            ..Default::default()
+        };
+        let mut tee = Tee::new(&mut log, vec![Box::new(other)]);
+        tee.record(&state(0.0)).unwrap();
+        let e = tee.record(&state(0.5)).unwrap_err();
+        assert!(e.to_string().contains("disk full"));
+        tee.finish(false).unwrap();
+        assert!(tee.other_failed());
+        assert_eq!(log.finished, Some(false));
+        assert_eq!(
+            error_events(&log.records),
+            ["log file x.rrd: disk full; the run stopped"]
+        );
+        assert_eq!(log.records.last().unwrap().time(), 0.5);
+
+        // Fails when finished: the log of a complete run is still marked incomplete.
+        let mut log = Probe::default();
+        let other = Probe {
+            fail_finish: true,
+            ..Default::default()
+        };
+        let mut tee = Tee::new(&mut log, vec![Box::new(other)]);
+        tee.record(&state(0.0)).unwrap();
+        assert!(tee.finish(true).unwrap_err().to_string().contains("cannot close"));
+        assert_eq!(log.finished, Some(false));
+        assert_eq!(error_events(&log.records).len(), 1);
+    }
 }

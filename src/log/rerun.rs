@@ -30,6 +30,7 @@ use ::rerun::{EntityPath, EntityPathPart, RecordingStream, RecordingStreamBuilde
 use foxglove::messages::{line_primitive, scene_entity_deletion, Color, Pose, SceneEntity, SceneUpdate};
 
 use super::{proto, LogError, Record, Sink};
+use crate::files::{OutputFile, Replace};
 
 /// Application id of every mjsafe recording.
 pub const APPLICATION_ID: &str = "mjsafe";
@@ -55,6 +56,34 @@ impl std::fmt::Display for RerunTarget {
     }
 }
 
+/// What a saved recording is called in errors.
+const RRD_WHAT: &str = "rerun recording";
+/// The first bytes of every `.rrd` file (`RRF0`, `RRF1`, `RRF2`): an existing file that starts
+/// otherwise is never replaced.
+pub const RRD_MAGIC: &[u8] = b"RRF";
+
+/// Checks that `path` may receive a saved recording, creating nothing (see
+/// [`crate::files::check_output`]; an earlier recording may be replaced).
+pub fn check_save_target(path: &Path, inputs: &[&Path]) -> Result<(), crate::files::FileError> {
+    crate::files::check_output(path, RRD_WHAT, Replace::IfStartsWith(RRD_MAGIC), inputs)
+}
+
+/// Whether `path` holds a finished recording: the stream header's `RRF`, and the stream
+/// footer (`RRF2`, `FOOT`, u32 count) that rerun writes when the stream is closed.
+fn recording_is_finished(path: &Path) -> std::io::Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path)?;
+    if file.metadata()?.len() < 16 {
+        return Ok(false);
+    }
+    let mut head = [0u8; 4];
+    file.read_exact(&mut head)?;
+    let mut tail = [0u8; 8];
+    file.seek(SeekFrom::End(-12))?;
+    file.read_exact(&mut tail)?;
+    Ok(head.starts_with(RRD_MAGIC) && &tail == b"RRF2FOOT")
+}
+
 /// Circle and ellipse outlines are drawn with this many segments.
 const CIRCLE_SEGMENTS: usize = 48;
 /// Half-width of outlines (scene units, metres).
@@ -64,6 +93,8 @@ const POINT_RADIUS: f32 = 0.12;
 
 pub struct RerunSink {
     stream: Option<RecordingStream>,
+    /// The `.partial` file of a saved recording, until it is committed.
+    output: Option<OutputFile>,
     target: RerunTarget,
     /// Simulation timestep: `step` = round(time / timestep).
     timestep: f64,
@@ -211,15 +242,29 @@ pub fn blueprint() -> Blueprint {
 impl RerunSink {
     /// Opens a recording. `recording_id` names it (the same for a run and the replay of its
     /// log, e.g. the log's file stem); `timestep` is the simulation timestep (for `step`).
+    /// A saved recording is written as `<file>.partial` (see [`crate::files::OutputFile`]) and
+    /// renamed by [`Sink::finish`]; dropped unfinished, nothing is left.
     pub fn create(target: RerunTarget, recording_id: &str, timestep: f64) -> Result<RerunSink, LogError> {
+        Self::create_with_inputs(target, recording_id, timestep, &[])
+    }
+
+    /// [`RerunSink::create`] for a run that reads `inputs`: a saved recording never replaces them.
+    pub fn create_with_inputs(
+        target: RerunTarget,
+        recording_id: &str,
+        timestep: f64,
+        inputs: &[&Path],
+    ) -> Result<RerunSink, LogError> {
         let builder = RecordingStreamBuilder::new(APPLICATION_ID)
             .recording_id(recording_id)
             .enabled(true)
             .with_blueprint(blueprint());
+        let mut output = None;
         let stream = match &target {
             RerunTarget::Spawn => builder.spawn(),
             RerunTarget::Connect(url) => builder.connect_grpc_opts(url.clone()),
             RerunTarget::Save(file) => {
+                let out = OutputFile::create(file, RRD_WHAT, Replace::IfStartsWith(RRD_MAGIC), inputs)?;
                 // Chunks cut by row count only (never by elapsed wall-clock time): a run and the
                 // replay of its log write the same chunks.
                 let builder = builder.batcher_config(::rerun::log::ChunkBatcherConfig {
@@ -228,13 +273,10 @@ impl RerunSink {
                     flush_num_rows: 4096,
                     ..::rerun::log::ChunkBatcherConfig::DEFAULT
                 });
-                if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
-                    std::fs::create_dir_all(dir).map_err(|e| LogError::Write {
-                        path: file.display().to_string(),
-                        message: format!("cannot create directory: {e}"),
-                    })?;
-                }
-                builder.save(file)
+                // rerun writes the file itself (a second handle); `out` holds the lock.
+                let stream = builder.save(out.partial_path());
+                output = Some(out);
+                stream
             }
         }
         .map_err(|e| LogError::Write {
@@ -245,6 +287,7 @@ impl RerunSink {
         stream.set_log_tick_enabled(false);
         Ok(RerunSink {
             stream: Some(stream),
+            output,
             target,
             timestep,
             position_index: None,
@@ -442,20 +485,38 @@ impl Sink for RerunSink {
         result.map_err(|e| self.error(e.to_string()))
     }
 
+    /// Flushes the stream and closes it; a saved recording is checked to be complete and
+    /// renamed to its final name (also for a run stopped early: it holds the run up to there).
     fn finish(&mut self, _complete: bool) -> Result<(), LogError> {
+        let output = self.output.take();
         let Some(stream) = self.stream.take() else {
             return Ok(());
         };
         let flushed = stream.flush_blocking();
         // Dropping the last handle closes the sink (an .rrd file is completed and closed).
         drop(stream);
-        flushed.map_err(|e| self.error(format!("flushing the recording: {e}")))
+        flushed.map_err(|e| self.error(format!("flushing the recording: {e}")))?;
+        if let Some(output) = output {
+            match recording_is_finished(output.partial_path()) {
+                Ok(true) => {}
+                Ok(false) => return Err(output.error("rerun did not finish writing it".into()).into()),
+                Err(e) => return Err(output.error(format!("cannot read it back: {e}")).into()),
+            }
+            output.commit()?;
+        }
+        Ok(())
     }
 }
 
 impl Drop for RerunSink {
+    /// Unfinished (an error path): a viewer stream is flushed; a saved recording is deleted.
     fn drop(&mut self) {
-        let _ = self.finish(false);
+        if self.output.is_some() {
+            drop(self.stream.take());
+            self.output = None;
+        } else {
+            let _ = self.finish(false);
+        }
     }
 }
 
@@ -651,4 +712,54 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
     };
     sink.finish(complete)?;
     Ok(ReplaySummary { messages, complete })
+}
+
+#[cfg(test)]
+mod save_tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn a_saved_recording_appears_when_finished_and_never_when_dropped() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("run.rrd");
+        let mut sink = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01).unwrap();
+        assert_eq!(names(dir.path()), ["run.rrd.partial"]);
+        let e = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("another process is writing it"), "{e}");
+        let state = Record::State(proto::State {
+            time: 0.0,
+            names: vec!["x".into()],
+            values: vec![1.0],
+            ..Default::default()
+        });
+        sink.record(&state).unwrap();
+        sink.finish(true).unwrap();
+        assert_eq!(names(dir.path()), ["run.rrd"]);
+        assert!(recording_is_finished(&file).unwrap());
+        // Dropped unfinished: the earlier recording stays as it was.
+        let before = std::fs::read(&file).unwrap();
+        let mut sink = RerunSink::create(RerunTarget::Save(file.clone()), "run", 0.01).unwrap();
+        sink.record(&state).unwrap();
+        drop(sink);
+        assert_eq!(names(dir.path()), ["run.rrd"]);
+        assert_eq!(std::fs::read(&file).unwrap(), before);
+        // A file that is not a recording is never replaced.
+        let notes = dir.path().join("notes.rrd");
+        std::fs::write(&notes, "notes").unwrap();
+        let e = RerunSink::create(RerunTarget::Save(notes.clone()), "run", 0.01)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("not an mjsafe rerun recording"), "{e}");
+    }
 }
