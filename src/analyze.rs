@@ -1612,7 +1612,12 @@ impl InfoRecords {
                 message: "the summary has no statistics record".into(),
             })?;
             let times = (stats.message_start_time, stats.message_end_time);
-            (stats.message_count, stats.chunk_count, times, stats.channel_message_counts)
+            (
+                stats.message_count,
+                stats.chunk_count,
+                times,
+                stats.channel_message_counts,
+            )
         };
         let schemas = &self.schemas;
         let channels = self

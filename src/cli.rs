@@ -470,7 +470,10 @@ fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>, recover: b
 
 /// The metrics of a log; with `recover`, a damaged log gives the metrics of what was read
 /// before the damage (marked incomplete, with the damage as their error) and the error.
-fn analyze_or_recover(file: &Path, recover: bool) -> Result<(RunMetrics, Option<analyze::AnalyzeError>), analyze::AnalyzeError> {
+fn analyze_or_recover(
+    file: &Path,
+    recover: bool,
+) -> Result<(RunMetrics, Option<analyze::AnalyzeError>), analyze::AnalyzeError> {
     match analyze::analyze_file(file) {
         Ok(m) => Ok((m, None)),
         Err(analyze::AnalyzeError::Corrupt {

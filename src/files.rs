@@ -259,7 +259,12 @@ impl OutputFile {
     /// Checks the target ([`check_output`]), creates its directory, and opens `<target>.partial`
     /// for writing, locked: if another process holds it, this is an error. A stale `.partial`
     /// (left by a killed process) is truncated and reused.
-    pub fn create(target: &Path, what: &'static str, replace: Replace, inputs: &[&Path]) -> Result<OutputFile, FileError> {
+    pub fn create(
+        target: &Path,
+        what: &'static str,
+        replace: Replace,
+        inputs: &[&Path],
+    ) -> Result<OutputFile, FileError> {
         check_output(target, what, replace, inputs)?;
         let shown = target.display().to_string();
         let write_error = |reason: String| FileError::Write {
@@ -443,7 +448,14 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&scenario).unwrap(), "name = 'x'");
         let log = dir.path().join("old.mcap");
         std::fs::write(&log, b"\x89MCAP0\r\n").unwrap();
-        write_atomically(&log, "MCAP log", Replace::IfStartsWith(b"\x89MCAP"), &[], b"\x89MCAP new").unwrap();
+        write_atomically(
+            &log,
+            "MCAP log",
+            Replace::IfStartsWith(b"\x89MCAP"),
+            &[],
+            b"\x89MCAP new",
+        )
+        .unwrap();
         assert_eq!(std::fs::read(&log).unwrap(), b"\x89MCAP new");
     }
 

@@ -35,13 +35,13 @@ impl Rng {
     }
 }
 
-/// The log of bicycle_obstacle.toml run to t = 5 s: the collision (t ≈ 4.3 s) is in it, and
-/// it spans several 1 MiB chunks.
+/// The log of bicycle_obstacle.toml (12 s, 1.1 MB): a collision at t ≈ 3.7 s (min h −18.6),
+/// three 1 MiB chunks.
 fn real_log(dir: &Path) -> Vec<u8> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let loaded = scenario::load(
         &root.join("scenarios/bicycle_obstacle.toml"),
-        &["duration=5.0".to_string()],
+        &["duration=12.0".to_string()],
     )
     .expect("scenario");
     let path = dir.join("original.mcap");

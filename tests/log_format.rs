@@ -275,7 +275,12 @@ fn damaged_logs_are_errors_and_recover_reports_what_was_read() {
         .into_iter()
         .find(|&(a, b)| bytes[a..b].windows(8).any(|w| w == b"/barrier"))
         .expect("the /barrier channel record");
-    let at = channel.0 + bytes[channel.0..channel.1].windows(8).position(|w| w == b"/barrier").unwrap() + 7;
+    let at = channel.0
+        + bytes[channel.0..channel.1]
+            .windows(8)
+            .position(|w| w == b"/barrier")
+            .unwrap()
+        + 7;
     let mut damaged = bytes.clone();
     damaged[at] ^= 1;
     let barrier = dir.path().join("barrier-flip.mcap");
@@ -292,7 +297,11 @@ fn damaged_logs_are_errors_and_recover_reports_what_was_read() {
         let name = log.file_name().unwrap().to_str().unwrap();
         let path = log.to_str().unwrap();
         assert!(!python_accepts(log), "{name}: Python's reader accepts it");
-        for args in [&["analyze", path][..], &["info", path], &["analyze", "--compare", path, path]] {
+        for args in [
+            &["analyze", path][..],
+            &["info", path],
+            &["analyze", "--compare", path, path],
+        ] {
             let o = mjsafe(args);
             let err = stderr(&o);
             assert!(!o.status.success(), "{args:?} exits 0 on a damaged log: {}", stdout(&o));
@@ -317,7 +326,7 @@ fn damaged_logs_are_errors_and_recover_reports_what_was_read() {
     let o = mjsafe(&["analyze", "--json", "--recover", in_chunk.to_str().unwrap()]);
     let runs: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let time = runs[0]["simulated_time"].as_f64().unwrap();
-    assert!(time > 0.0 && time < 4.0, "{time}");
+    assert!(time > 1.0 && time < 8.0, "{time}");
 
     #[cfg(feature = "rerun")]
     {
@@ -347,7 +356,10 @@ fn devices_are_refused_as_logs_at_once() {
         assert!(!o.status.success());
         let err = stderr(&o);
         assert_eq!(err.lines().count(), 1, "{err}");
-        assert!(err.starts_with("error: /dev/zero: ") && err.contains("character device"), "{err}");
+        assert!(
+            err.starts_with("error: /dev/zero: ") && err.contains("character device"),
+            "{err}"
+        );
         assert!(started.elapsed() < std::time::Duration::from_secs(5));
     }
 }

@@ -657,7 +657,7 @@ pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySu
         Ok(())
     });
     match result {
-        Ok(()) => {}
+        Ok(_) => {}
         Err(StreamError::Visit(e)) => return Err(failure.unwrap_or(ReplayError::Read(*e))),
         Err(StreamError::Read {
             any_record: false,
