@@ -510,7 +510,7 @@ fn message_index_parses(data: &[u8]) -> bool {
     match data.get(2..6) {
         Some(len) => {
             let len = u32::from_le_bytes(len.try_into().expect("4 bytes")) as usize;
-            len % 16 == 0 && len <= data.len() - 6
+            len.is_multiple_of(16) && len <= data.len() - 6
         }
         None => false,
     }

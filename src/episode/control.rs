@@ -650,7 +650,7 @@ fn on_tick_grid(queue: &DelayQueue, control_period: f64) -> bool {
 impl Controller for ControlLoop {
     fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
         let step_time = step as f64 * self.timestep;
-        if call_in_step == 0 && step % self.steps_per_tick == 0 && self.error.is_none() {
+        if call_in_step == 0 && step.is_multiple_of(self.steps_per_tick) && self.error.is_none() {
             state(self.work.state.as_mut_slice());
             if let Err(e) = self.control_tick(step_time) {
                 self.error = Some(e);

@@ -811,7 +811,7 @@ impl Episode {
             }
         }
         let tick = k / self.control.steps_per_tick;
-        if k % self.control.steps_per_tick != 0 {
+        if !k.is_multiple_of(self.control.steps_per_tick) {
             return Ok(());
         }
         let heading = model.heading_index().map_or(0.0, |h| x[h]);
@@ -823,7 +823,7 @@ impl Episode {
             sinks,
             Record::Transform(time, scene::transform(time, position, heading)),
         )?;
-        if tick % TRAIL_EVERY_TICKS == 0 {
+        if tick.is_multiple_of(TRAIL_EVERY_TICKS) {
             self.scene.trail.push(position);
             let last_tick = k + self.control.steps_per_tick > self.steps;
             let points = self.scene.trail.len();
