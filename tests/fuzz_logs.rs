@@ -218,3 +218,32 @@ fn mutated_logs_are_errors_never_panics_or_wrong_metrics() {
     );
     assert!(slowest < Duration::from_secs(2), "one case took {slowest:?}");
 }
+
+#[test]
+fn declared_sizes_beyond_the_file_or_the_limit_are_errors_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = real_log(dir.path());
+    let &(_, chunk, _) = records(&original).iter().find(|r| r.0 == 0x06).unwrap();
+    let compression_len = u32::from_le_bytes(original[chunk + 37..chunk + 41].try_into().unwrap()) as usize;
+    // (offset in the chunk record, value): record length, uncompressed size, compressed size.
+    let fields = [
+        (1, u64::MAX),
+        (1, 1 << 40),
+        (1, 60 << 20),
+        (25, 1 << 40),
+        (25, u64::MAX),
+        (25, 60 << 20),
+    ];
+    let compressed = 41 + compression_len;
+    for (at, value) in fields
+        .into_iter()
+        .chain([(compressed, 1 << 40), (compressed, u64::MAX)])
+    {
+        let mut bytes = original.clone();
+        bytes[chunk + at..chunk + at + 8].copy_from_slice(&u64::to_le_bytes(value));
+        let started = Instant::now();
+        let e = analyze::analyze_bytes(&bytes, "log").expect_err("a damaged chunk");
+        println!("chunk field at {at} = {value}: {e}");
+        assert!(started.elapsed() < Duration::from_secs(1));
+    }
+}
