@@ -1,9 +1,8 @@
 //! Metrics of a run, computed from its MCAP log alone.
 
 use std::collections::{BTreeMap, HashMap};
-use std::path::Path;
-
 use std::io::Read;
+use std::path::Path;
 
 use mcap::records::Record as McapRecord;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -15,16 +14,20 @@ use crate::log::{proto, TOPICS};
 
 #[derive(Debug, thiserror::Error)]
 pub enum AnalyzeError {
+    #[error(transparent)]
+    File(#[from] crate::files::FileError),
     #[error("{file}: cannot read: {reason}")]
     Io { file: String, reason: std::io::Error },
     #[error("{file}: not a readable MCAP file ({message})")]
     NotMcap { file: String, message: String },
-    #[error("{file}: truncated or corrupt MCAP after {messages} messages ({message})")]
+    /// A CRC mismatch, a truncation or a framing error after some records were read.
+    #[error("{file}: truncated or corrupt MCAP after {messages} messages: {message}")]
     Corrupt {
         file: String,
         messages: u64,
         message: String,
-        /// The metrics of what could be read before the damage (an mjsafe log only).
+        /// The metrics of what was read from the chunks that passed their CRC before the damage
+        /// (an mjsafe log only); not valid metrics of the run.
         partial: Option<Box<RunMetrics>>,
     },
     #[error("{file}: an MCAP file, but not an mjsafe log ({message})")]
@@ -129,51 +132,109 @@ pub struct RunMetrics {
 /// whatever the log's length.
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
-    let open = || {
-        std::fs::File::open(path).map_err(|source| AnalyzeError::Io {
-            file: file.clone(),
-            reason: source,
-        })
-    };
-    // No BufReader: the analysis reads in large blocks itself.
-    analyze_rereadable(open, &file)
+    // No BufReader: the reader asks for large blocks itself.
+    analyze_reader(crate::files::open_input(path, "log")?, &file)
 }
+
+/// Longest record a log may declare, and longest chunk (compressed or decompressed): 64 times
+/// the 1 MiB chunks our writer closes. A damaged length field beyond it is a clean error, and
+/// below it the buffers grow only with the bytes actually present (see [`read_log`]), except
+/// a chunk's decompression buffer, which is allocated at its declared size (at most this).
+pub const RECORD_LIMIT: usize = 64 << 20;
 
 /// Why streaming the records stopped.
 pub(crate) enum StreamError {
-    /// The bytes are not (or no longer) valid MCAP; `any_record`: some record was read first.
+    /// The bytes are not (or no longer) valid MCAP: a CRC mismatch, a truncation, a framing
+    /// error; `any_record`: some record was read first.
     Read { any_record: bool, message: String },
-    /// The visitor refused a record.
+    /// The visitor refused a record (and the rest of the file is intact).
     Visit(Box<AnalyzeError>),
 }
 
-/// Every record of an MCAP stream (chunks decompressed, chunk CRCs validated), fed to `visit`.
-pub(crate) fn for_each_record(
+/// Why a visitor of [`read_log`] stopped.
+pub(crate) enum VisitError {
+    /// The record does not parse: damage, as for a CRC mismatch.
+    Malformed(String),
+    /// The record parses but the visitor refuses it (not an mjsafe log, a sink error, …).
+    Refused(AnalyzeError),
+}
+
+impl From<AnalyzeError> for VisitError {
+    fn from(e: AnalyzeError) -> Self {
+        VisitError::Refused(e)
+    }
+}
+
+/// The one framing path of every log reader (`analyze`, `info`, `replay`, plots): feeds every
+/// record of an MCAP stream, chunks opened, to `visit(opcode, record body)` in file order and
+/// returns the number of bytes read.
+///
+/// Verified: the magic at both ends (nothing after the end), every chunk's CRC *before* any of
+/// its records is visited (so a visitor never sees a record of a damaged chunk), the data
+/// section CRC (at DataEnd) and the summary CRC (at the footer), and that no record or chunk
+/// is longer than [`RECORD_LIMIT`]. The two section CRCs are known only at the end of their
+/// sections: on damage they report, the visitor has seen the records before it. After a
+/// visitor refuses a record, the rest is still read (not visited), so that damage (e.g. a
+/// corrupt channel record, refused first for its schema) is reported as damage.
+pub(crate) fn read_log(
     mut input: impl Read,
-    mut visit: impl FnMut(McapRecord<'_>) -> Result<(), AnalyzeError>,
-) -> Result<(), StreamError> {
-    let options = LinearReaderOptions::default().with_validate_chunk_crcs(true);
+    mut visit: impl FnMut(u8, &[u8]) -> Result<(), VisitError>,
+) -> Result<u64, StreamError> {
+    let options = LinearReaderOptions::default()
+        .with_prevalidate_chunk_crcs(true)
+        .with_validate_data_section_crc(true)
+        .with_validate_summary_section_crc(true)
+        .with_check_finishes_after_end_magic(true)
+        .with_record_length_limit(RECORD_LIMIT);
     let mut reader = LinearReader::new_with_options(options);
     let mut any_record = false;
-    let read_error = |any_record: bool, message: String| StreamError::Read { any_record, message };
+    let mut bytes = 0u64;
+    let mut refused: Option<AnalyzeError> = None;
     while let Some(event) = reader.next_event() {
-        match event.map_err(|e| read_error(any_record, e.to_string()))? {
-            LinearReadEvent::ReadRequest(wanted) => {
-                let buffer = reader.insert(wanted.max(1 << 16));
-                let read = input.read(buffer).map_err(|e| read_error(any_record, e.to_string()))?;
+        let event = event.map_err(|e| StreamError::Read {
+            any_record,
+            message: e.to_string(),
+        })?;
+        match event {
+            LinearReadEvent::ReadRequest(_) => {
+                // At most READ_SIZE at a time whatever the reader asks for: its buffer grows with
+                // the bytes present, not with a length the file declares.
+                let buffer = reader.insert(READ_SIZE);
+                let read = read_some(&mut input, buffer).map_err(|e| StreamError::Read {
+                    any_record,
+                    message: e.to_string(),
+                })?;
+                // 0 is the end of the input: the reader reports a truncation itself.
                 reader.notify_read(read);
-                if read == 0 {
-                    return Err(read_error(any_record, "unexpected end of file".into()));
-                }
+                bytes += read as u64;
             }
             LinearReadEvent::Record { data, opcode } => {
-                let record = mcap::parse_record(opcode, data).map_err(|e| read_error(any_record, e.to_string()))?;
+                if refused.is_none() {
+                    match visit(opcode, data) {
+                        Ok(()) => {}
+                        Err(VisitError::Malformed(message)) => return Err(StreamError::Read { any_record, message }),
+                        Err(VisitError::Refused(e)) => refused = Some(e),
+                    }
+                }
                 any_record = true;
-                visit(record).map_err(|e| StreamError::Visit(Box::new(e)))?;
             }
         }
     }
-    Ok(())
+    match refused {
+        Some(e) => Err(StreamError::Visit(Box::new(e))),
+        None => Ok(bytes),
+    }
+}
+
+/// [`read_log`] with every record parsed.
+pub(crate) fn for_each_record(
+    input: impl Read,
+    mut visit: impl FnMut(McapRecord<'_>) -> Result<(), AnalyzeError>,
+) -> Result<u64, StreamError> {
+    read_log(input, |opcode, data| {
+        let record = mcap::parse_record(opcode, data).map_err(|e| VisitError::Malformed(e.to_string()))?;
+        Ok(visit(record)?)
+    })
 }
 
 /// Indices of the planar position in a logged state, recognised by the state names of the
@@ -188,7 +249,7 @@ pub fn planar_position(names: &[String]) -> Option<[usize; 2]> {
 
 /// Analyses log bytes; `file` names them in errors.
 pub fn analyze_bytes(bytes: &[u8], file: &str) -> Result<RunMetrics, AnalyzeError> {
-    analyze_rereadable(|| Ok(bytes), file)
+    analyze_reader(bytes, file)
 }
 
 #[derive(Default)]
@@ -355,80 +416,30 @@ impl Analysis<'_> {
         }
     }
 
-    /// Every record of the stream (chunks decompressed, chunk CRCs validated), as
-    /// [`for_each_record`] reads them, except that Message records, the bulk of a log, are
-    /// taken apart here directly (no record parsing, no copy) and routed by channel id.
-    fn read(&mut self, mut input: impl Read, mode: ReadMode) -> Result<(), StreamError> {
-        let options = match mode {
-            ReadMode::Streaming => LinearReaderOptions::default().with_validate_chunk_crcs(true),
-            ReadMode::WholeChunks => LinearReaderOptions::default().with_prevalidate_chunk_crcs(true),
-        };
-        let mut reader = LinearReader::new_with_options(options);
-        let mut any_record = false;
-        let read_error = |any_record: bool, message: String| StreamError::Read { any_record, message };
-        while let Some(event) = reader.next_event() {
-            match event.map_err(|e| read_error(any_record, e.to_string()))? {
-                LinearReadEvent::ReadRequest(wanted) => {
-                    let buffer = reader.insert(wanted.max(READ_SIZE));
-                    let read = read_some(&mut input, buffer).map_err(|e| read_error(any_record, e.to_string()))?;
-                    reader.notify_read(read);
-                    if read == 0 {
-                        return Err(read_error(any_record, "unexpected end of file".into()));
-                    }
-                }
-                LinearReadEvent::Record { data, opcode } => {
-                    let visited = if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
-                        any_record = true;
-                        self.message(u16::from_le_bytes([data[0], data[1]]), &data[MESSAGE_HEADER_LEN..])
-                    } else if opcode == mcap::records::op::MESSAGE_INDEX && message_index_parses(data) {
-                        // Not used by the metrics: skipped once known to parse.
-                        any_record = true;
-                        Ok(())
-                    } else {
-                        let record =
-                            mcap::parse_record(opcode, data).map_err(|e| read_error(any_record, e.to_string()))?;
-                        any_record = true;
-                        self.record(record)
-                    };
-                    visited.map_err(|e| StreamError::Visit(Box::new(e)))?;
-                }
+    /// Every record of the stream, as [`read_log`] gives them, except that Message records,
+    /// the bulk of a log, are taken apart here directly (no record parsing, no copy) and routed
+    /// by channel id.
+    fn read(&mut self, input: impl Read) -> Result<u64, StreamError> {
+        read_log(input, |opcode, data| {
+            if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
+                Ok(self.message(u16::from_le_bytes([data[0], data[1]]), &data[MESSAGE_HEADER_LEN..])?)
+            } else if opcode == mcap::records::op::MESSAGE_INDEX && message_index_parses(data) {
+                // Not used by the metrics: skipped once known to parse.
+                Ok(())
+            } else {
+                let record = mcap::parse_record(opcode, data).map_err(|e| VisitError::Malformed(e.to_string()))?;
+                Ok(self.record(record)?)
             }
-        }
-        Ok(())
+        })
     }
 }
 
-/// How chunks are read.
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum ReadMode {
-    /// Records are decompressed and visited one by one; a chunk's CRC is checked after its last
-    /// record: on a damaged or truncated log, every record before the damage is visited.
-    Streaming,
-    /// Each chunk is decompressed whole and its CRC checked before its records are visited
-    /// (several times faster: one decompression call per chunk instead of two per record).
-    /// On an intact log the records visited are the same as when streaming.
-    WholeChunks,
-}
-
-/// Analyses an MCAP stream; `file` names it in errors.
+/// Analyses an MCAP stream; `file` names it in errors. On damage the error is
+/// [`AnalyzeError::Corrupt`], whose `partial` metrics cover the chunks that passed their CRC.
 pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, AnalyzeError> {
     let mut analysis = Analysis::new(file);
-    let result = analysis.read(input, ReadMode::Streaming);
+    let result = analysis.read(input).map(|_| ());
     analysis.conclude(result)
-}
-
-/// Analyses a log that `open` can give twice: chunk by chunk first, and, should that fail to
-/// read (damaged or truncated log), again streaming record by record, so that what is reported
-/// (error, messages read, partial metrics) is what [`analyze_reader`] reports.
-fn analyze_rereadable<R: Read>(
-    mut open: impl FnMut() -> Result<R, AnalyzeError>,
-    file: &str,
-) -> Result<RunMetrics, AnalyzeError> {
-    let mut analysis = Analysis::new(file);
-    match analysis.read(open()?, ReadMode::WholeChunks) {
-        Err(StreamError::Read { .. }) => analyze_reader(open()?, file),
-        result => analysis.conclude(result),
-    }
 }
 
 impl<'f> Analysis<'f> {
@@ -1544,62 +1555,143 @@ pub struct LogInfo {
     pub channels: Vec<ChannelInfo>,
     /// Metadata records by name (`mjsafe`, `mjsafe_status`), in file order.
     pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Only from [`log_info_recover`] on a damaged log: the damage. The counts, times and
+    /// channels are then those of the messages read before it (`chunks`: 0, as the chunk count
+    /// is in the summary).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
-/// Reads the summary section (statistics, channels, schemas, metadata index) of a log
-/// without decoding its messages.
-pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
-    let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| AnalyzeError::Io {
-        file: file.clone(),
-        reason: source,
-    })?;
-    let not_mcap = |message: String| AnalyzeError::NotMcap {
-        file: file.clone(),
-        message,
-    };
-    let summary = mcap::read::Summary::read(&bytes)
-        .map_err(|e| not_mcap(e.to_string()))?
-        .ok_or_else(|| not_mcap("no summary section: the file was not finished".into()))?;
-    let stats = summary.stats.clone().ok_or_else(|| AnalyzeError::Foreign {
-        file: file.clone(),
-        message: "the summary has no statistics record".into(),
-    })?;
-    let mut channels: Vec<ChannelInfo> = summary
-        .channels
-        .values()
-        .map(|c| ChannelInfo {
-            id: c.id,
-            topic: c.topic.clone(),
-            schema: c.schema.as_ref().map_or(String::new(), |s| s.name.clone()),
-            schema_encoding: c.schema.as_ref().map_or(String::new(), |s| s.encoding.clone()),
-            message_encoding: c.message_encoding.clone(),
-            messages: stats.channel_message_counts.get(&c.id).copied().unwrap_or(0),
-        })
-        .collect();
-    channels.sort_by_key(|c| c.id);
-    let mut metadata = Vec::new();
-    let mut indexes = summary.metadata_indexes.clone();
-    indexes.sort_by_key(|i| i.offset);
-    for index in &indexes {
-        let record = mcap::read::metadata(&bytes, index).map_err(|e| AnalyzeError::Corrupt {
-            file: file.clone(),
-            messages: 0,
-            message: format!("metadata record {}: {e}", index.name),
-            partial: None,
-        })?;
-        metadata.push((record.name, record.metadata));
+/// The records of a log [`log_info`] keeps, as they stream past.
+#[derive(Default)]
+struct InfoRecords {
+    schemas: HashMap<u16, (String, String)>,
+    channels: BTreeMap<u16, mcap::records::Channel>,
+    statistics: Option<mcap::records::Statistics>,
+    metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Counted from the messages read (for a damaged log, which has no usable statistics).
+    counts: BTreeMap<u16, u64>,
+    messages: u64,
+    times: Option<(u64, u64)>,
+}
+
+impl InfoRecords {
+    fn visit(&mut self, opcode: u8, data: &[u8]) -> Result<(), VisitError> {
+        if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
+            let channel = u16::from_le_bytes([data[0], data[1]]);
+            let time = u64::from_le_bytes(data[6..14].try_into().expect("8 bytes"));
+            *self.counts.entry(channel).or_default() += 1;
+            self.messages += 1;
+            self.times = Some(self.times.map_or((time, time), |(a, b)| (a.min(time), b.max(time))));
+            return Ok(());
+        }
+        if opcode == mcap::records::op::MESSAGE_INDEX && message_index_parses(data) {
+            return Ok(());
+        }
+        match mcap::parse_record(opcode, data).map_err(|e| VisitError::Malformed(e.to_string()))? {
+            McapRecord::Schema { header, .. } => {
+                self.schemas.insert(header.id, (header.name, header.encoding));
+            }
+            McapRecord::Channel(c) => {
+                self.channels.insert(c.id, c);
+            }
+            McapRecord::Statistics(s) => self.statistics = Some(s),
+            McapRecord::Metadata(m) => self.metadata.push((m.name, m.metadata)),
+            _ => {}
+        }
+        Ok(())
     }
-    Ok(LogInfo {
-        file,
-        bytes: bytes.len() as u64,
-        messages: stats.message_count,
-        chunks: stats.chunk_count,
-        start: stats.message_start_time as f64 * 1e-9,
-        end: stats.message_end_time as f64 * 1e-9,
-        channels,
-        metadata,
-    })
+
+    /// The info; from the statistics record when `counted` is false.
+    fn info(self, file: String, bytes: u64, counted: bool) -> Result<LogInfo, AnalyzeError> {
+        let (messages, chunks, (start, end), per_channel) = if counted {
+            (self.messages, 0, self.times.unwrap_or((0, 0)), self.counts)
+        } else {
+            let stats = self.statistics.ok_or_else(|| AnalyzeError::Foreign {
+                file: file.clone(),
+                message: "the summary has no statistics record".into(),
+            })?;
+            let times = (stats.message_start_time, stats.message_end_time);
+            (
+                stats.message_count,
+                stats.chunk_count,
+                times,
+                stats.channel_message_counts,
+            )
+        };
+        let schemas = &self.schemas;
+        let channels = self
+            .channels
+            .into_values()
+            .map(|c| {
+                let (schema, schema_encoding) = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                ChannelInfo {
+                    id: c.id,
+                    messages: per_channel.get(&c.id).copied().unwrap_or(0),
+                    topic: c.topic,
+                    schema,
+                    schema_encoding,
+                    message_encoding: c.message_encoding,
+                }
+            })
+            .collect();
+        Ok(LogInfo {
+            file,
+            bytes,
+            messages,
+            chunks,
+            start: start as f64 * 1e-9,
+            end: end as f64 * 1e-9,
+            channels,
+            metadata: self.metadata,
+            error: None,
+        })
+    }
+}
+
+/// Reads a log for `info`: the info, and the damage if any (`None` for an intact log).
+fn read_info(path: &Path) -> Result<(LogInfo, Option<AnalyzeError>), AnalyzeError> {
+    let file = path.display().to_string();
+    let input = crate::files::open_input(path, "log")?;
+    let mut records = InfoRecords::default();
+    match read_log(input, |opcode, data| records.visit(opcode, data)) {
+        Ok(bytes) => Ok((records.info(file, bytes, false)?, None)),
+        Err(StreamError::Visit(e)) => Err(*e),
+        Err(StreamError::Read {
+            any_record: false,
+            message,
+        }) => Err(AnalyzeError::NotMcap { file, message }),
+        Err(StreamError::Read {
+            any_record: true,
+            message,
+        }) => {
+            let damage = AnalyzeError::Corrupt {
+                file: file.clone(),
+                messages: records.messages,
+                message,
+                partial: None,
+            };
+            let bytes = std::fs::metadata(path).map_or(0, |m| m.len());
+            Ok((records.info(file, bytes, true)?, Some(damage)))
+        }
+    }
+}
+
+/// The channels, statistics and metadata records of a log, streamed (flat memory) with every
+/// CRC of the file verified ([`read_log`]); any damage is an error.
+pub fn log_info(path: &Path) -> Result<LogInfo, AnalyzeError> {
+    match read_info(path)? {
+        (info, None) => Ok(info),
+        (_, Some(damage)) => Err(damage),
+    }
+}
+
+/// [`log_info`] that reports a damaged log as what was read before the damage, with
+/// [`LogInfo::error`] set (other errors, e.g. not an MCAP file at all, are still errors).
+pub fn log_info_recover(path: &Path) -> Result<LogInfo, AnalyzeError> {
+    let (mut info, damage) = read_info(path)?;
+    info.error = damage.map(|e| e.to_string());
+    Ok(info)
 }
 
 #[cfg(test)]

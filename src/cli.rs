@@ -81,6 +81,10 @@ pub enum Command {
         /// Stream to a running rerun viewer or server (e.g. rerun+http://127.0.0.1:9876/proxy).
         #[arg(long, value_name = "URL")]
         connect: Option<String>,
+        /// On a damaged log, still replay (and keep the .rrd of) what was read before the
+        /// damage; the exit status is still non-zero.
+        #[arg(long)]
+        recover: bool,
     },
     /// Per-run metrics of MCAP logs; or two runs compared; or sweep shard summaries merged.
     Analyze {
@@ -106,6 +110,10 @@ pub enum Command {
         /// trajectory with obstacles and reference path).
         #[arg(long, value_name = "DIR", conflicts_with = "merge")]
         plot: Option<PathBuf>,
+        /// On a damaged log, still report the metrics of what was read before the damage (the
+        /// chunks that passed their CRC), marked incomplete; the exit status is still non-zero.
+        #[arg(long, conflicts_with = "merge")]
+        recover: bool,
     },
     /// Run a scenario over a grid of overrides and/or seeded random draws, in parallel;
     /// writes one log per run and summary.csv / summary.json (see docs/sweeps.md).
@@ -156,6 +164,10 @@ pub enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// On a damaged log, still show what was read before the damage (counted from the
+        /// messages read); the exit status is still non-zero.
+        #[arg(long)]
+        recover: bool,
     },
     /// End-to-end speed of a scenario on this thread: the bare physics loop over its model,
     /// the full pipeline, and the pipeline with MCAP logging (median of --repeat runs), as
@@ -311,7 +323,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             rerun,
         } => run_scenario(&scenario, &overrides, out, &rerun),
         #[cfg(feature = "rerun")]
-        Command::Replay { file, rrd, connect } => replay(&file, rrd, connect),
+        Command::Replay {
+            file,
+            rrd,
+            connect,
+            recover,
+        } => replay(&file, rrd, connect, recover),
         Command::Analyze {
             files,
             json,
@@ -320,6 +337,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             merge,
             out,
             plot,
+            recover,
         } => {
             if let Some(dir) = &plot {
                 let mut failed = false;
@@ -348,11 +366,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 Format::Table
             };
             if compare {
-                compare_files(&files, format)
+                compare_files(&files, format, recover)
             } else if merge {
                 merge_summaries(&files, format, out.as_deref())
             } else {
-                Ok(analyze_files(&files, format))
+                Ok(analyze_files(&files, format, recover))
             }
         }
         Command::Sweep {
@@ -387,7 +405,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             };
             run_sweep(&args, &options)
         }
-        Command::Info { file, resolved, json } => info(&file, resolved, json),
+        Command::Info {
+            file,
+            resolved,
+            json,
+            recover,
+        } => info(&file, resolved, json, recover),
         Command::Bench {
             scenario,
             overrides,
@@ -499,7 +522,7 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
 }
 
 #[cfg(feature = "rerun")]
-fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>) -> Result<ExitCode> {
+fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>, recover: bool) -> Result<ExitCode> {
     use crate::log::rerun::RerunTarget;
     let target = match (rrd, connect) {
         (Some(out), _) => RerunTarget::Save(out),
@@ -507,30 +530,59 @@ fn replay(file: &Path, rrd: Option<PathBuf>, connect: Option<String>) -> Result<
         (None, None) => RerunTarget::Spawn,
     };
     let what = target.to_string();
-    let summary = crate::log::rerun::replay(file, target)?;
+    let summary = crate::log::rerun::replay(file, target, recover)?;
     outln!(
         "replayed {} messages of {}{} into {what}",
         summary.messages,
         file.display(),
-        if summary.complete { "" } else { " (an incomplete run)" }
+        match (&summary.damage, summary.complete) {
+            (Some(_), _) => " (recovered before the damage)",
+            (None, true) => "",
+            (None, false) => " (an incomplete run)",
+        }
     );
+    if let Some(damage) = summary.damage {
+        eprintln!("error: {damage}");
+        return Ok(ExitCode::FAILURE);
+    }
     Ok(ExitCode::SUCCESS)
 }
 
-fn analyze_files(files: &[PathBuf], format: Format) -> ExitCode {
-    let mut runs: Vec<RunMetrics> = Vec::new();
-    let mut failed = false;
-    for file in files {
-        match analyze::analyze_file(file) {
-            Ok(m) => runs.push(m),
-            Err(analyze::AnalyzeError::Corrupt {
+/// The metrics of a log; with `recover`, a damaged log gives the metrics of what was read
+/// before the damage (marked incomplete, with the damage as their error) and the error.
+fn analyze_or_recover(
+    file: &Path,
+    recover: bool,
+) -> Result<(RunMetrics, Option<analyze::AnalyzeError>), analyze::AnalyzeError> {
+    match analyze::analyze_file(file) {
+        Ok(m) => Ok((m, None)),
+        Err(analyze::AnalyzeError::Corrupt {
+            file,
+            messages,
+            message,
+            partial: Some(partial),
+        }) if recover => Ok((
+            *partial,
+            Some(analyze::AnalyzeError::Corrupt {
                 file,
                 messages,
                 message,
-                partial,
-            }) => {
-                eprintln!("error: {file}: truncated or corrupt MCAP after {messages} messages ({message}); reporting what was read");
-                runs.extend(partial.map(|m| *m));
+                partial: None,
+            }),
+        )),
+        Err(e) => Err(e),
+    }
+}
+
+fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
+    let mut runs: Vec<RunMetrics> = Vec::new();
+    let mut failed = false;
+    for file in files {
+        match analyze_or_recover(file, recover) {
+            Ok((m, None)) => runs.push(m),
+            Ok((m, Some(e))) => {
+                eprintln!("error: {e} (--recover: reporting the metrics of what was read before)");
+                runs.push(m);
                 failed = true;
             }
             Err(e) => {
@@ -552,12 +604,12 @@ fn analyze_files(files: &[PathBuf], format: Format) -> ExitCode {
     }
 }
 
-fn compare_files(files: &[PathBuf], format: Format) -> Result<ExitCode> {
+fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<ExitCode> {
     let [a, b] = files else {
         bail!("--compare takes exactly two logs A B, {} given", files.len());
     };
-    let ma = analyze::analyze_file(a)?;
-    let mb = analyze::analyze_file(b)?;
+    let (ma, damage_a) = analyze_or_recover(a, recover)?;
+    let (mb, damage_b) = analyze_or_recover(b, recover)?;
     let rows = analyze::compare(&ma, &mb);
     match format {
         Format::Json => {
@@ -577,7 +629,15 @@ fn compare_files(files: &[PathBuf], format: Format) -> Result<ExitCode> {
             outln!("{}", analyze::comparison_table(&rows));
         }
     }
-    Ok(ExitCode::SUCCESS)
+    let damaged: Vec<_> = [damage_a, damage_b].into_iter().flatten().collect();
+    for e in &damaged {
+        eprintln!("error: {e} (--recover: compared what was read before)");
+    }
+    Ok(if damaged.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }
 
 fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Result<ExitCode> {
@@ -812,14 +872,29 @@ impl Progress {
     }
 }
 
-fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
-    let info = analyze::log_info(file)?;
+fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCode> {
+    let info = if recover {
+        analyze::log_info_recover(file)?
+    } else {
+        analyze::log_info(file)?
+    };
+    let code = match &info.error {
+        Some(e) => {
+            eprintln!("error: {e} (--recover: showing what was read before)");
+            ExitCode::FAILURE
+        }
+        None => ExitCode::SUCCESS,
+    };
     if json {
         outln!("{}", serde_json::to_string_pretty(&info).expect("info serialises"));
-        return Ok(ExitCode::SUCCESS);
+        return Ok(code);
     }
     outln!("file:      {} ({} bytes)", info.file, info.bytes);
-    outln!("messages:  {} in {} chunks", info.messages, info.chunks);
+    if info.error.is_some() {
+        outln!("messages:  {} read before the damage", info.messages);
+    } else {
+        outln!("messages:  {} in {} chunks", info.messages, info.chunks);
+    }
     outln!(
         "time:      {:.3} .. {:.3} s ({:.3} s of simulation time)",
         info.start,
@@ -881,5 +956,5 @@ fn info(file: &Path, resolved: bool, json: bool) -> Result<ExitCode> {
             None => eprintln!("warning: the log holds no resolved scenario"),
         }
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(code)
 }

@@ -20,6 +20,8 @@ use crate::log::proto;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
+    #[error(transparent)]
+    File(#[from] crate::files::FileError),
     #[error("{file}: {message}")]
     Read { file: String, message: String },
     #[error("no font for the plot text: {path} is missing (Debian package fonts-dejavu-core)")]
@@ -114,9 +116,17 @@ fn read_series(input: impl Read, file: &str) -> Result<Series, PlotError> {
         Ok(())
     });
     match result {
-        Ok(()) => Ok(series),
+        Ok(_) => Ok(series),
         Err(StreamError::Visit(e)) => Err(err(e.to_string())),
-        Err(StreamError::Read { message, .. }) => Err(err(format!("not a readable MCAP log: {message}"))),
+        Err(StreamError::Read {
+            any_record: false,
+            message,
+        }) => Err(err(format!("not a readable MCAP file ({message})"))),
+        // No plot of part of a run shown as if it were the run.
+        Err(StreamError::Read {
+            any_record: true,
+            message,
+        }) => Err(err(format!("truncated or corrupt MCAP: {message}"))),
     }
 }
 
@@ -200,11 +210,8 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     let font = std::fs::read(FONT_PATH).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
     let font: &'static [u8] = Box::leak(font.into_boxed_slice());
     register_font("sans-serif", FontStyle::Normal, font).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
-    let input = std::fs::File::open(log).map_err(|e| PlotError::Read {
-        file: file.clone(),
-        message: e.to_string(),
-    })?;
-    let series = read_series(std::io::BufReader::new(input), &file)?;
+    let input = crate::files::open_input(log, "log")?;
+    let series = read_series(input, &file)?;
     std::fs::create_dir_all(dir).map_err(|e| PlotError::Draw {
         file: dir.display().to_string(),
         message: e.to_string(),

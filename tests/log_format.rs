@@ -232,3 +232,134 @@ fn analyze_memory_does_not_grow_with_log_length() {
     // Flat: the ten times longer log costs less than 2 MB more (the short log is ~1.5 MB).
     assert!(long_kb < short_kb + 2048, "{short_kb} kB -> {long_kb} kB");
 }
+
+/// Whether Python's `mcap` reader, reading the whole file with every CRC it knows validated
+/// (chunk and data section), accepts it.
+fn python_accepts(log: &std::path::Path) -> bool {
+    let script = "import sys\nfrom mcap.reader import NonSeekingReader\n\
+                  r = NonSeekingReader(open(sys.argv[1], 'rb'), validate_crcs=True)\n\
+                  for _ in r.iter_messages(): pass\n";
+    let o = Command::new(python())
+        .args(["-c", script])
+        .arg(log)
+        .output()
+        .expect("python runs");
+    o.status.success()
+}
+
+/// Start and end of the top-level records of an MCAP file with opcode `op`.
+fn top_level_records(bytes: &[u8], op: u8) -> Vec<(usize, usize)> {
+    let (mut pos, mut out) = (8, Vec::new());
+    while pos + 9 <= bytes.len() - 8 {
+        let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().unwrap()) as usize;
+        if bytes[pos] == op {
+            out.push((pos, pos + 9 + len));
+        }
+        pos += 9 + len;
+    }
+    out
+}
+
+#[test]
+fn damaged_logs_are_errors_and_recover_reports_what_was_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.mcap");
+    run_ok(&scenario("bicycle_obstacle.toml"), &good, &[]);
+    let bytes = std::fs::read(&good).unwrap();
+    assert!(python_accepts(&good));
+
+    // The issue's case: one bit of the /barrier channel record (data section, outside any
+    // chunk: only the data-section CRC covers it) turns the topic into /barries, which hid
+    // the collision's h < 0 behind a "complete" status.
+    let channel = top_level_records(&bytes, 0x04)
+        .into_iter()
+        .find(|&(a, b)| bytes[a..b].windows(8).any(|w| w == b"/barrier"))
+        .expect("the /barrier channel record");
+    let at = channel.0
+        + bytes[channel.0..channel.1]
+            .windows(8)
+            .position(|w| w == b"/barrier")
+            .unwrap()
+        + 7;
+    let mut damaged = bytes.clone();
+    damaged[at] ^= 1;
+    let barrier = dir.path().join("barrier-flip.mcap");
+    std::fs::write(&barrier, &damaged).unwrap();
+
+    // One bit in the middle of the second chunk.
+    let chunk = top_level_records(&bytes, 0x06)[1];
+    let mut damaged = bytes.clone();
+    damaged[(chunk.0 + chunk.1) / 2] ^= 0x10;
+    let in_chunk = dir.path().join("chunk-flip.mcap");
+    std::fs::write(&in_chunk, &damaged).unwrap();
+
+    for log in [&barrier, &in_chunk] {
+        let name = log.file_name().unwrap().to_str().unwrap();
+        let path = log.to_str().unwrap();
+        assert!(!python_accepts(log), "{name}: Python's reader accepts it");
+        for args in [
+            &["analyze", path][..],
+            &["info", path],
+            &["analyze", "--compare", path, path],
+        ] {
+            let o = mjsafe(args);
+            let err = stderr(&o);
+            assert!(!o.status.success(), "{args:?} exits 0 on a damaged log: {}", stdout(&o));
+            assert!(
+                err.contains(&format!("{path}: truncated or corrupt MCAP after")),
+                "{args:?}: {err}"
+            );
+            assert!(!stdout(&o).contains("complete"), "{args:?}: {}", stdout(&o));
+        }
+        // --recover: the metrics of what was read, marked as not complete, and still a failure.
+        let o = mjsafe(&["analyze", "--json", "--recover", path]);
+        assert!(!o.status.success());
+        let runs: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+        assert_eq!(runs[0]["complete"], false, "{name}");
+        assert!(runs[0]["error"].as_str().unwrap().contains("corrupt"), "{name}");
+        let o = mjsafe(&["info", "--recover", path]);
+        assert!(!o.status.success());
+        assert!(stdout(&o).contains("read before the damage"), "{}", stdout(&o));
+        assert!(stdout(&o).contains("metadata mjsafe:"), "{}", stdout(&o));
+    }
+    // The chunk flip: only the chunks before the damaged one count.
+    let o = mjsafe(&["analyze", "--json", "--recover", in_chunk.to_str().unwrap()]);
+    let runs: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let time = runs[0]["simulated_time"].as_f64().unwrap();
+    assert!(time > 1.0 && time < 8.0, "{time}");
+
+    #[cfg(feature = "rerun")]
+    {
+        // A failed replay leaves no .rrd (nor its .partial); --recover keeps what was read.
+        let rrd = dir.path().join("t.rrd");
+        let o = mjsafe(&["replay", in_chunk.to_str().unwrap(), "--rrd", rrd.to_str().unwrap()]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains("truncated or corrupt MCAP"), "{}", stderr(&o));
+        assert!(!rrd.exists() && !dir.path().join("t.rrd.partial").exists());
+        let o = mjsafe(&[
+            "replay",
+            in_chunk.to_str().unwrap(),
+            "--rrd",
+            rrd.to_str().unwrap(),
+            "--recover",
+        ]);
+        assert!(!o.status.success());
+        assert!(rrd.exists() && !dir.path().join("t.rrd.partial").exists());
+    }
+}
+
+#[test]
+fn devices_are_refused_as_logs_at_once() {
+    for command in ["analyze", "info"] {
+        let started = std::time::Instant::now();
+        let o = mjsafe(&[command, "/dev/zero"]);
+        assert!(!o.status.success());
+        let err = stderr(&o);
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("error: /dev/zero: ") && err.contains("character device"),
+            "{err}"
+        );
+        assert!(started.elapsed() < std::time::Duration::from_secs(5));
+    }
+}

@@ -552,6 +552,8 @@ pub enum ReplayError {
     Read(#[from] crate::analyze::AnalyzeError),
     #[error(transparent)]
     Log(#[from] LogError),
+    #[error(transparent)]
+    Output(#[from] crate::files::FileError),
 }
 
 /// What a replay fed to the sink.
@@ -559,6 +561,38 @@ pub enum ReplayError {
 pub struct ReplaySummary {
     pub messages: u64,
     pub complete: bool,
+    /// With `recover`: the damage that ended the replay of a corrupt log (what was read from
+    /// the chunks before it is in the recording).
+    pub damage: Option<String>,
+}
+
+/// A `.rrd` written by a replay: rerun saves into `<out>.partial` (held as an [`OutputFile`]),
+/// renamed to `out` only by [`ReplayOutput::commit`]; dropped, it is deleted.
+///
+/// [`OutputFile`]: crate::files::OutputFile
+struct ReplayOutput(Option<crate::files::OutputFile>);
+
+impl ReplayOutput {
+    /// The target the sink writes to, and the output that holds it.
+    fn create(target: RerunTarget, log: &Path) -> Result<(RerunTarget, ReplayOutput), ReplayError> {
+        use crate::files::{OutputFile, Replace};
+        match target {
+            RerunTarget::Save(out) => {
+                let file = OutputFile::create(&out, "rerun recording", Replace::IfStartsWith(RRD_MAGIC), &[log])?;
+                let partial = file.partial_path().to_path_buf();
+                Ok((RerunTarget::Save(partial), ReplayOutput(Some(file))))
+            }
+            other => Ok((other, ReplayOutput(None))),
+        }
+    }
+
+    /// After the sink finished: the recording moves to its final name.
+    fn commit(self) -> Result<(), ReplayError> {
+        if let Some(file) = self.0 {
+            file.commit()?;
+        }
+        Ok(())
+    }
 }
 
 /// The recording id of a log: its file stem (a run and the replay of its log share it).
@@ -587,18 +621,19 @@ pub fn decode_record(topic: &str, data: &[u8], log_time: u64) -> Result<Option<R
 }
 
 /// Rebuilds the rerun recording of a run from its MCAP log alone (no re-simulation): every
-/// message is decoded into its [`Record`] and fed to a [`RerunSink`] in log order.
-pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayError> {
+/// message is decoded into its [`Record`] and fed to a [`RerunSink`] in log order. Only the
+/// records of chunks that passed their CRC reach the sink. A damaged log is an error and its
+/// `.rrd` is not written, unless `recover`: then the recording of what was read before the
+/// damage is finished and kept, and the summary names the damage.
+pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySummary, ReplayError> {
     use mcap::records::Record as McapRecord;
     use std::collections::HashMap;
 
     use crate::analyze::{for_each_record, AnalyzeError, StreamError};
 
     let file = log.display().to_string();
-    let input = std::fs::File::open(log).map_err(|source| AnalyzeError::Io {
-        file: file.clone(),
-        reason: source,
-    })?;
+    let input = crate::files::open_input(log, "log").map_err(AnalyzeError::from)?;
+    let (target, output) = ReplayOutput::create(target, log)?;
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();
     let mut sink: Option<RerunSink> = None;
@@ -619,7 +654,7 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
             message: "replay stopped".into(),
         }
     };
-    let result = for_each_record(std::io::BufReader::with_capacity(1 << 16, input), |record| {
+    let result = for_each_record(input, |record| {
         match record {
             McapRecord::Schema { header, .. } => {
                 schemas.insert(header.id, header.name);
@@ -680,7 +715,7 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
         Ok(())
     });
     match result {
-        Ok(()) => {}
+        Ok(_) => {}
         Err(StreamError::Visit(e)) => return Err(failure.unwrap_or(ReplayError::Read(*e))),
         Err(StreamError::Read {
             any_record: false,
@@ -690,17 +725,30 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
             any_record: true,
             message,
         }) => {
-            // Keep what was read (the recording is finished), report the damage.
-            if let Some(mut s) = sink {
-                s.finish(false)?;
-            }
-            return Err(AnalyzeError::Corrupt {
+            let damage = AnalyzeError::Corrupt {
                 file,
                 messages,
                 message,
                 partial: None,
+            };
+            match sink {
+                // Keep what was read (the recording is finished), report the damage.
+                Some(mut sink) if recover => {
+                    sink.finish(false)?;
+                    drop(sink);
+                    output.commit()?;
+                    return Ok(ReplaySummary {
+                        messages,
+                        complete: false,
+                        damage: Some(damage.to_string()),
+                    });
+                }
+                // The sink closes its file before the output deletes it.
+                _ => {
+                    drop(sink);
+                    return Err(damage.into());
+                }
             }
-            .into());
         }
     }
     let Some(mut sink) = sink else {
@@ -711,7 +759,13 @@ pub fn replay(log: &Path, target: RerunTarget) -> Result<ReplaySummary, ReplayEr
         .into());
     };
     sink.finish(complete)?;
-    Ok(ReplaySummary { messages, complete })
+    drop(sink);
+    output.commit()?;
+    Ok(ReplaySummary {
+        messages,
+        complete,
+        damage: None,
+    })
 }
 
 #[cfg(test)]
