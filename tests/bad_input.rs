@@ -83,7 +83,7 @@ fn missing_required_key() {
 fn wrong_type() {
     expect_error(
         &base(&bicycle()).replace("reference_speed = 3.0", "reference_speed = \"fast\""),
-        &["nominal.reference_speed", "expected f64"],
+        &["nominal.reference_speed", "expected a number"],
     );
 }
 

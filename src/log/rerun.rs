@@ -566,35 +566,6 @@ pub struct ReplaySummary {
     pub damage: Option<String>,
 }
 
-/// A `.rrd` written by a replay: rerun saves into `<out>.partial` (held as an [`OutputFile`]),
-/// renamed to `out` only by [`ReplayOutput::commit`]; dropped, it is deleted.
-///
-/// [`OutputFile`]: crate::files::OutputFile
-struct ReplayOutput(Option<crate::files::OutputFile>);
-
-impl ReplayOutput {
-    /// The target the sink writes to, and the output that holds it.
-    fn create(target: RerunTarget, log: &Path) -> Result<(RerunTarget, ReplayOutput), ReplayError> {
-        use crate::files::{OutputFile, Replace};
-        match target {
-            RerunTarget::Save(out) => {
-                let file = OutputFile::create(&out, "rerun recording", Replace::IfStartsWith(RRD_MAGIC), &[log])?;
-                let partial = file.partial_path().to_path_buf();
-                Ok((RerunTarget::Save(partial), ReplayOutput(Some(file))))
-            }
-            other => Ok((other, ReplayOutput(None))),
-        }
-    }
-
-    /// After the sink finished: the recording moves to its final name.
-    fn commit(self) -> Result<(), ReplayError> {
-        if let Some(file) = self.0 {
-            file.commit()?;
-        }
-        Ok(())
-    }
-}
-
 /// The recording id of a log: its file stem (a run and the replay of its log share it).
 pub fn recording_id(log: &Path) -> String {
     log.file_stem()
@@ -633,7 +604,11 @@ pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySu
 
     let file = log.display().to_string();
     let input = crate::files::open_input(log, "log").map_err(AnalyzeError::from)?;
-    let (target, output) = ReplayOutput::create(target, log)?;
+    // A saved recording is checked before anything is read; the sink writes it as `.partial`
+    // and renames it only when finished (a sink dropped unfinished deletes it).
+    if let RerunTarget::Save(out) = &target {
+        check_save_target(out, &[log])?;
+    }
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String)> = HashMap::new();
     let mut sink: Option<RerunSink> = None;
@@ -669,7 +644,7 @@ pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySu
                     return Err(foreign("the mjsafe metadata has no timestep".into()));
                 };
                 if let Some(target) = target.take() {
-                    match RerunSink::create(target, &recording_id(log), timestep) {
+                    match RerunSink::create_with_inputs(target, &recording_id(log), timestep, &[log]) {
                         Ok(s) => sink = Some(s),
                         Err(e) => return Err(visit_error(e, &mut failure)),
                     }
@@ -735,15 +710,13 @@ pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySu
                 // Keep what was read (the recording is finished), report the damage.
                 Some(mut sink) if recover => {
                     sink.finish(false)?;
-                    drop(sink);
-                    output.commit()?;
                     return Ok(ReplaySummary {
                         messages,
                         complete: false,
                         damage: Some(damage.to_string()),
                     });
                 }
-                // The sink closes its file before the output deletes it.
+                // Dropped unfinished, the sink deletes its `.partial` recording.
                 _ => {
                     drop(sink);
                     return Err(damage.into());
@@ -759,8 +732,6 @@ pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySu
         .into());
     };
     sink.finish(complete)?;
-    drop(sink);
-    output.commit()?;
     Ok(ReplaySummary {
         messages,
         complete,
