@@ -204,6 +204,27 @@ fn time_chart(
     Ok(())
 }
 
+/// The start of every PNG file: an existing file that does not start so is never replaced.
+const PNG_MAGIC: &[u8] = b"\x89PNG";
+
+/// Draws a PNG into a hidden `.partial.png` sibling (plotters picks the format by extension)
+/// and renames it to `path` when complete: never a half-drawn plot under the final name, never
+/// over a non-regular file, the log itself or a file that is not a PNG.
+fn draw_png(
+    path: &Path,
+    log: &Path,
+    draw: impl FnOnce(&Path) -> DrawResult<()>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(PNG_MAGIC), &[log])?;
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("plot.png");
+    let partial = path.with_file_name(format!(".{}.partial.png", name.trim_end_matches(".png")));
+    let drawn = draw(&partial).and_then(|()| std::fs::rename(&partial, path).map_err(|e| e.into()));
+    if drawn.is_err() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    drawn
+}
+
 /// Writes the plots of `log` into `dir`; returns the files written.
 pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     let file = log.display().to_string();
@@ -218,9 +239,15 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     })?;
     let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run").to_string();
     let mut written = Vec::new();
-    let draw_error = |path: &Path, e: Box<dyn std::error::Error>| PlotError::Draw {
-        file: path.display().to_string(),
-        message: e.to_string(),
+    let draw_error = |path: &Path, e: Box<dyn std::error::Error>| {
+        let file = path.display().to_string();
+        // A refused target's message already starts with the path.
+        let message = e.to_string();
+        let message = message
+            .strip_prefix(&format!("{file}: "))
+            .unwrap_or(&message)
+            .to_string();
+        PlotError::Draw { file, message }
     };
 
     if !series.barriers.is_empty() {
@@ -237,13 +264,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 )
             })
             .collect();
-        let result = (|| -> DrawResult<()> {
-            let root = BitMapBackend::new(&path, (1000, 500)).into_drawing_area();
+        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
             time_chart(&root, "barrier functions h(t) (safe: h >= 0)", &lines, true)?;
             root.present()?;
             Ok(())
-        })();
+        });
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
@@ -251,8 +278,8 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     if !series.issued.is_empty() {
         let path = dir.join(format!("{stem}-inputs.png"));
         let channels: Vec<&String> = series.issued.keys().collect();
-        let result = (|| -> DrawResult<()> {
-            let root = BitMapBackend::new(&path, (1000, 320 * channels.len() as u32)).into_drawing_area();
+        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1000, 320 * channels.len() as u32)).into_drawing_area();
             root.fill(&WHITE)?;
             for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
                 let mut lines = vec![(
@@ -271,7 +298,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             }
             root.present()?;
             Ok(())
-        })();
+        });
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
@@ -285,8 +312,8 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles));
         // Equal axis scales: widen the shorter span.
         let (cx, cy, half) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0, ((x1 - x0).max((y1 - y0) * 2.0)) / 2.0);
-        let result = (|| -> DrawResult<()> {
-            let root = BitMapBackend::new(&path, (1000, 500)).into_drawing_area();
+        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
             let mut chart = ChartBuilder::on(&root)
                 .caption("trajectory, obstacles and reference path", ("sans-serif", 22))
@@ -308,7 +335,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
             root.present()?;
             Ok(())
-        })();
+        });
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
