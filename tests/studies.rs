@@ -173,6 +173,14 @@ fn sigterm_during_a_sweep_finishes_the_running_logs_and_says_which_runs_did_not_
         "stderr: {}",
         String::from_utf8_lossy(&output.stderr)
     );
+    // The summary line counts the runs that ran, not the runs planned.
+    let printed = String::from_utf8_lossy(&output.stdout);
+    assert!(printed.contains("1 of 2 runs (1 not run)"), "{printed}");
+    assert!(
+        String::from_utf8_lossy(&output.stderr).contains("interrupted after 1 of 2 runs"),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary written")).unwrap();
     let text = summary.to_string();
