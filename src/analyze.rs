@@ -130,10 +130,28 @@ pub struct RunMetrics {
 /// Reads and analyses one log file.
 /// Streams through the file: memory stays bounded by the largest chunk (and the read size),
 /// whatever the log's length.
+/// The result does not depend on where the run metadata sits in the data section (the MCAP
+/// spec allows it anywhere): metadata written after the messages is found in a first pass and
+/// given first in a second.
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
+    let open = || crate::files::open_input(path, "log");
     // No BufReader: the reader asks for large blocks itself.
-    analyze_reader(crate::files::open_input(path, "log")?, &file)
+    let mut analysis = Analysis::new(&file);
+    let result = analysis.read(open()?).map(|_| ());
+    let Some(metadata) = analysis.late_metadata.take() else {
+        return analysis.conclude(result);
+    };
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) || result.is_err() {
+        // A pipe cannot be read twice; a damaged log reports its damage.
+        analysis.late_metadata = Some(metadata);
+        return analysis.conclude_stream(result);
+    }
+    let mut analysis = Analysis::new(&file);
+    analysis.saw_mjsafe_metadata = true;
+    apply_run_metadata(&mut analysis.acc, &metadata);
+    let result = analysis.read(open()?).map(|_| ());
+    analysis.conclude(result)
 }
 
 /// Longest record a log may declare, and longest chunk (compressed or decompressed): 64 times
@@ -363,6 +381,19 @@ struct Analysis<'f> {
     scratch: Scratch,
     messages: u64,
     saw_mjsafe_metadata: bool,
+    /// The run metadata (`mjsafe` record), when it came after the first message: metrics
+    /// that need it (timestep, control period, T) were accumulated without it, so the file
+    /// is analysed again with it given first ([`analyze_file`]).
+    late_metadata: Option<std::collections::BTreeMap<String, String>>,
+}
+
+/// Applies the run metadata (`mjsafe` record) to the accumulator.
+fn apply_run_metadata(acc: &mut Accumulator, metadata: &std::collections::BTreeMap<String, String>) {
+    acc.scenario = metadata.get("scenario_name").cloned().unwrap_or_default();
+    acc.timestep = metadata.get("timestep").and_then(|s| s.parse().ok());
+    acc.control_period = metadata.get("control_period").and_then(|s| s.parse().ok());
+    acc.prescribed_time = metadata.get("prescribed_time").and_then(|s| s.parse().ok());
+    acc.max_delay = metadata.get("max_delay").and_then(|s| s.parse().ok()).unwrap_or(0.0);
 }
 
 impl Analysis<'_> {
@@ -381,12 +412,13 @@ impl Analysis<'_> {
                 self.channels[id] = Some(ChannelRoute::new(c.topic, schema));
             }
             McapRecord::Metadata(m) if m.name == "mjsafe" => {
+                if self.saw_mjsafe_metadata {
+                    // Given first by a second pass (or a repeated record): already applied.
+                } else if self.messages > 0 {
+                    self.late_metadata = Some(m.metadata.clone());
+                }
                 self.saw_mjsafe_metadata = true;
-                acc.scenario = m.metadata.get("scenario_name").cloned().unwrap_or_default();
-                acc.timestep = m.metadata.get("timestep").and_then(|s| s.parse().ok());
-                acc.control_period = m.metadata.get("control_period").and_then(|s| s.parse().ok());
-                acc.prescribed_time = m.metadata.get("prescribed_time").and_then(|s| s.parse().ok());
-                acc.max_delay = m.metadata.get("max_delay").and_then(|s| s.parse().ok()).unwrap_or(0.0);
+                apply_run_metadata(acc, &m.metadata);
             }
             McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
                 acc.complete = Some(m.metadata.get("complete").is_some_and(|v| v == "true"));
@@ -436,10 +468,25 @@ impl Analysis<'_> {
 
 /// Analyses an MCAP stream; `file` names it in errors. On damage the error is
 /// [`AnalyzeError::Corrupt`], whose `partial` metrics cover the chunks that passed their CRC.
+/// A stream is read once: run metadata after the first message is an error (the metrics that
+/// need it would be computed without it); [`analyze_file`] reads such a file twice instead.
 pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, AnalyzeError> {
     let mut analysis = Analysis::new(file);
     let result = analysis.read(input).map(|_| ());
-    analysis.conclude(result)
+    analysis.conclude_stream(result)
+}
+
+impl Analysis<'_> {
+    /// [`Analysis::conclude`] of a single pass: late run metadata is an error.
+    fn conclude_stream(self, result: Result<(), StreamError>) -> Result<RunMetrics, AnalyzeError> {
+        if self.late_metadata.is_some() && result.is_ok() {
+            return Err(AnalyzeError::Foreign {
+                file: self.file.into(),
+                message: "the run metadata (`mjsafe`) comes after the messages, and a stream is read once: analyse the file by its path".into(),
+            });
+        }
+        self.conclude(result)
+    }
 }
 
 impl<'f> Analysis<'f> {
@@ -452,6 +499,7 @@ impl<'f> Analysis<'f> {
             scratch: Scratch::default(),
             messages: 0,
             saw_mjsafe_metadata: false,
+            late_metadata: None,
         }
     }
 

@@ -1,0 +1,46 @@
+"""Re-writes an mjsafe log with Python's `mcap` Writer in another valid layout: the same
+schemas, channels, messages (same order and times) and metadata, with another chunk
+compression, chunk size and metadata position. No mjsafe code involved.
+
+usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last)"""
+import sys
+
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+
+def main(src, dst, compression, chunk_size, metadata_at):
+    with open(src, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        metadata = list(reader.iter_metadata())
+        messages = list(reader.iter_messages(log_time_order=False))
+    with open(dst, "wb") as out:
+        writer = Writer(
+            out,
+            chunk_size=int(chunk_size),
+            compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression],
+        )
+        writer.start(profile="", library="rewrite_log.py")
+        schema_ids, channel_ids = {}, {}
+        for schema in summary.schemas.values():
+            schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+        for channel in summary.channels.values():
+            channel_ids[channel.id] = writer.register_channel(
+                channel.topic, channel.message_encoding, schema_ids[channel.schema_id], channel.metadata
+            )
+        if metadata_at == "first":
+            for m in metadata:
+                writer.add_metadata(m.name, dict(m.metadata))
+        for schema, channel, message in messages:
+            writer.add_message(
+                channel_ids[channel.id], message.log_time, message.data, message.publish_time, message.sequence
+            )
+        if metadata_at == "last":
+            for m in metadata:
+                writer.add_metadata(m.name, dict(m.metadata))
+        writer.finish()
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])
