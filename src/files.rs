@@ -86,14 +86,16 @@ fn kind_of(file_type: std::fs::FileType) -> &'static str {
     }
 }
 
+/// The error of a failed read of `path`.
+fn read_error(path: &Path, what: &'static str) -> impl FnOnce(std::io::Error) -> FileError {
+    let path = path.display().to_string();
+    move |reason| FileError::Read { path, what, reason }
+}
+
 /// Checks that `path` is a regular file of at most `limit` bytes (following symlinks).
 pub fn check_input(path: &Path, what: &'static str, limit: u64) -> Result<(), FileError> {
     let shown = path.display().to_string();
-    let meta = std::fs::metadata(path).map_err(|reason| FileError::Read {
-        path: shown.clone(),
-        what,
-        reason,
-    })?;
+    let meta = std::fs::metadata(path).map_err(read_error(path, what))?;
     if !meta.is_file() {
         return Err(FileError::NotRegular {
             path: shown,
@@ -117,19 +119,11 @@ pub fn check_input(path: &Path, what: &'static str, limit: u64) -> Result<(), Fi
 pub fn read_limited(path: &Path, what: &'static str, limit: u64) -> Result<Vec<u8>, FileError> {
     check_input(path, what, limit)?;
     let shown = path.display().to_string();
-    let file = File::open(path).map_err(|reason| FileError::Read {
-        path: shown.clone(),
-        what,
-        reason,
-    })?;
+    let file = File::open(path).map_err(read_error(path, what))?;
     let mut bytes = Vec::new();
     file.take(limit + 1)
         .read_to_end(&mut bytes)
-        .map_err(|reason| FileError::Read {
-            path: shown.clone(),
-            what,
-            reason,
-        })?;
+        .map_err(read_error(path, what))?;
     if bytes.len() as u64 > limit {
         return Err(FileError::TooLarge {
             path: shown,
@@ -155,11 +149,7 @@ pub fn read_text_limited(path: &Path, what: &'static str, limit: u64) -> Result<
 pub fn open_input(path: &Path, what: &'static str) -> Result<File, FileError> {
     use std::os::unix::fs::FileTypeExt;
     let shown = path.display().to_string();
-    let meta = std::fs::metadata(path).map_err(|reason| FileError::Read {
-        path: shown.clone(),
-        what,
-        reason,
-    })?;
+    let meta = std::fs::metadata(path).map_err(read_error(path, what))?;
     let file_type = meta.file_type();
     if !(file_type.is_file() || file_type.is_fifo()) {
         return Err(FileError::NotRegular {
@@ -168,11 +158,7 @@ pub fn open_input(path: &Path, what: &'static str) -> Result<File, FileError> {
             kind: kind_of(file_type),
         });
     }
-    File::open(path).map_err(|reason| FileError::Read {
-        path: shown,
-        what,
-        reason,
-    })
+    File::open(path).map_err(read_error(path, what))
 }
 
 /// The `.partial` files being written by this process, removed by [`remove_partials`] when

@@ -316,6 +316,11 @@ impl SplitMix64 {
         z ^ (z >> 31)
     }
 
+    /// An index in 0..n (n > 0; modulo bias below n / 2⁶⁴).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+
     /// Uniform in [0, 1) with 53 random bits.
     pub fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)

@@ -161,24 +161,7 @@ fn blow_up_during_a_run_stops_with_an_error_event_and_a_readable_log() {
     // A huge initial acceleration on [-D, 0) drives the velocity past MuJoCo's limit (1e10)
     // after about 1.1 s: MuJoCo would silently reset the state; mjsafe stops the episode.
     let dir = tempfile::tempdir().unwrap();
-    let text = format!(
-        r#"
-name = "blowup"
-duration = 2.0
-[vehicle]
-kind = "double_integrator_1d"
-model = "{}"
-initial_state = [0.0, 0.0]
-[delays]
-acceleration = 1.5
-[initial_input]
-acceleration = 9e9
-[nominal]
-kind = "constant"
-input = [0.0]
-"#,
-        root().join("models/double_integrator_1d.xml").display()
-    );
+    let text = blowup_scenario();
     let file = write(dir.path(), "blowup.toml", &text);
     let log = dir.path().join("blowup.mcap");
     let o = mjsafe(&["run", file.to_str().unwrap(), "--out", log.to_str().unwrap()]);

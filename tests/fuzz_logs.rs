@@ -17,23 +17,8 @@ use mjsafe::episode::Episode;
 use mjsafe::log::mcap::McapSink;
 use mjsafe::scenario;
 
-/// SplitMix64: a deterministic stream of draws from one seed.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in 0..n (n > 0).
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
+/// A deterministic stream of draws from one seed.
+use mjsafe::sweep::SplitMix64 as Rng;
 
 /// The log of bicycle_obstacle.toml (12 s, 1.1 MB): a collision at t ≈ 3.7 s (min h −18.6),
 /// three 1 MiB chunks.
@@ -85,7 +70,7 @@ impl Mutation {
             Mutation::Overwrite { at, len, seed } => {
                 let mut rng = Rng(seed);
                 for b in bytes.iter_mut().skip(at).take(len) {
-                    *b ^= 1 + (rng.next() % 255) as u8;
+                    *b ^= 1 + (rng.next_u64() % 255) as u8;
                 }
             }
             Mutation::Truncate { len } => bytes.truncate(len),
@@ -132,7 +117,7 @@ fn mutation(rng: &mut Rng, records: &[(u8, usize, usize)], size: usize) -> Mutat
             Mutation::Overwrite {
                 at,
                 len: 1 + rng.below(16).min(size - at - 1),
-                seed: rng.next(),
+                seed: rng.next_u64(),
             }
         }
         _ => Mutation::Truncate { len: rng.below(size) },

@@ -19,23 +19,12 @@ const CASE_TIMEOUT: Duration = Duration::from_secs(60);
 /// the first contact checks).
 const STEPS: u64 = 40;
 
-/// SplitMix64: the test's own seeded generator.
-struct Rng(u64);
+/// The seeded generator of the mutations.
+use mjsafe::sweep::SplitMix64 as Rng;
 
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn pick<'a>(&mut self, items: &[&'a str]) -> &'a str {
-        items[self.below(items.len())]
-    }
+/// One of `items`, drawn.
+fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
+    items[rng.below(items.len())]
 }
 
 const NUMBERS: [&str; 16] = [
@@ -101,9 +90,9 @@ fn mutate(text: &str, rng: &mut Rng) -> String {
             3..=5 => {
                 if let Some((key, _)) = lines[i].split_once('=') {
                     let value = if rng.below(3) == 0 {
-                        rng.pick(&VALUES)
+                        pick(rng, &VALUES)
                     } else {
-                        rng.pick(&NUMBERS)
+                        pick(rng, &NUMBERS)
                     };
                     lines[i] = format!("{key}= {value}");
                 }
@@ -121,7 +110,7 @@ fn mutate(text: &str, rng: &mut Rng) -> String {
                     let end = line[start..]
                         .find(|c: char| !(c.is_ascii_digit() || c == '.' || c == 'e' || c == '-'))
                         .map_or(line.len(), |n| start + n);
-                    lines[i] = format!("{}{}{}", &line[..start], rng.pick(&NUMBERS), &line[end..]);
+                    lines[i] = format!("{}{}{}", &line[..start], pick(rng, &NUMBERS), &line[end..]);
                 }
             }
             // Truncated somewhere.
@@ -285,13 +274,13 @@ fn mutated_scenarios_never_panic_hang_or_give_unclear_errors() {
     // Two workers (the machines have two cores), each over every other file.
     let workers: Vec<_> = (0..2)
         .map(|worker| {
-            let files: Vec<PathBuf> = files.iter().skip(worker).step_by(2).cloned().collect();
+            let files: Vec<(usize, PathBuf)> = files.iter().cloned().enumerate().skip(worker).step_by(2).collect();
             std::thread::spawn(move || {
                 let mut counts = Counts::default();
-                for path in files {
+                for (position, path) in files {
                     let text = std::fs::read_to_string(&path).unwrap();
                     let name = path.file_name().unwrap().to_string_lossy().into_owned();
-                    let mut rng = Rng(seed() ^ mjsafe_hash(&name));
+                    let mut rng = Rng(seed().wrapping_add((position as u64) << 32));
                     for case in 0..per_file {
                         let mutated = mutate(&text, &mut rng);
                         let what = format!("{name} mutation {case} (seed {}):\n{mutated}\n---", seed());
@@ -391,11 +380,4 @@ fn mutated_sweep_files_never_panic_hang_or_give_unclear_errors() {
         started.elapsed().as_secs_f64()
     );
     assert!(built > 0 && rejected > 0);
-}
-
-/// FNV-1a of a name, to give every file its own mutation stream.
-fn mjsafe_hash(name: &str) -> u64 {
-    name.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-    })
 }

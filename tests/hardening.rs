@@ -37,11 +37,7 @@ fn expect_clean_failure(dir: &Path, args: &[&str], needles: &[&str], keep: &[&st
         !err.split(|c: char| !c.is_ascii_digit()).any(|d| d.len() > 15),
         "an overlong number:\n{err}"
     );
-    let mut left: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    left.sort();
+    let left = listing(dir);
     let mut keep: Vec<String> = keep.iter().map(|s| s.to_string()).collect();
     keep.sort();
     assert_eq!(left, keep, "files left in {}", dir.display());
@@ -236,24 +232,7 @@ fn mujoco_never_writes_its_own_log_file_or_text() {
     // The blow-up of tests/bad_input.rs: MuJoCo warns about a huge qvel, which by default
     // appends to MUJOCO_LOG.TXT in the working directory and prints "WARNING" on stdout.
     let dir = tempfile::tempdir().unwrap();
-    let text = format!(
-        r#"
-name = "blowup"
-duration = 2.0
-[vehicle]
-kind = "double_integrator_1d"
-model = "{}"
-initial_state = [0.0, 0.0]
-[delays]
-acceleration = 1.5
-[initial_input]
-acceleration = 9e9
-[nominal]
-kind = "constant"
-input = [0.0]
-"#,
-        root().join("models/double_integrator_1d.xml").display()
-    );
+    let text = blowup_scenario();
     write(dir.path(), "blowup.toml", &text);
     let o = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
         .args(["run", "blowup.toml", "--out", "blowup.mcap"])

@@ -12,16 +12,6 @@ use std::time::{Duration, Instant};
 
 const SCENARIO: &str = "scenarios/bicycle_obstacle.toml";
 
-/// The files in `dir`, sorted.
-fn listing(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
-    names
-}
-
 /// `mjsafe run SCENARIO --set duration=1 ARGS`, expecting a failure whose stderr holds every
 /// needle; returns stderr.
 fn run_fails(scenario: &str, args: &[&str], needles: &[&str]) -> String {

@@ -1314,9 +1314,9 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
             "duration",
             format!(
                 "{} s at a timestep of {} s is {} steps, more than the limit of {budget} steps (raise it with --max-steps)",
-                short(sc.duration),
-                short(timestep),
-                short(steps(sc.duration).ceil())
+                sc.duration,
+                timestep,
+                steps(sc.duration).ceil()
             ),
         ));
     }
@@ -1332,23 +1332,13 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
             "vehicle.timestep",
             format!(
                 "a delay or control period of {} s is {} steps of {} s, more than the limit of {budget} steps",
-                short(longest),
-                short(steps(longest).ceil()),
-                short(timestep)
+                longest,
+                steps(longest).ceil(),
+                timestep
             ),
         ));
     }
     Ok(())
-}
-
-/// A number for a message: plain when short, else in scientific notation (never 300 digits).
-fn short(x: f64) -> String {
-    let plain = format!("{x}");
-    if plain.len() <= 12 {
-        plain
-    } else {
-        format!("{x:.4e}")
-    }
 }
 
 /// Phases in which a stop request is honoured by the code itself (episodes stepping, a sweep

@@ -524,14 +524,14 @@ fn install_callback() {
 }
 
 thread_local! {
-    /// MuJoCo warnings raised on this thread since they were last taken.
-    static WARNINGS: RefCell<Vec<String>> = const { RefCell::new(Vec::new()) };
+    /// The last MuJoCo warning raised on this thread (the handler keeps it instead of letting
+    /// MuJoCo print it and append it to `MUJOCO_LOG.TXT` in the working directory).
+    static LAST_WARNING: RefCell<Option<String>> = const { RefCell::new(None) };
 }
 
-/// MuJoCo warnings raised on this thread since the last call (the handler keeps them instead of
-/// letting MuJoCo print them and append them to `MUJOCO_LOG.TXT` in the working directory).
-pub fn take_warnings() -> Vec<String> {
-    WARNINGS.with(|w| std::mem::take(&mut *w.borrow_mut()))
+/// The last MuJoCo warning raised on this thread, if any since the last call.
+pub fn take_warning() -> Option<String> {
+    LAST_WARNING.with(|w| w.borrow_mut().take())
 }
 
 /// `mju_user_warning`: keeps the text for the step that raised it (which reports the
@@ -540,12 +540,7 @@ unsafe extern "C" fn warning_handler(message: *const std::os::raw::c_char) {
     let _ = catch_unwind(|| {
         // SAFETY: MuJoCo passes a NUL-terminated message.
         let text = unsafe { CStr::from_ptr(message) }.to_string_lossy().trim().to_string();
-        WARNINGS.with(|w| {
-            let mut w = w.borrow_mut();
-            if w.len() < 16 {
-                w.push(text);
-            }
-        });
+        LAST_WARNING.with(|w| *w.borrow_mut() = Some(text));
     });
 }
 
@@ -673,9 +668,6 @@ impl Simulation {
         unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
         ACTIVE.with(|cell| *cell.borrow_mut() = None);
         self.step += 1;
-        // MuJoCo's warning text (kept from its log file and stdout); the counters below
-        // decide whether the step failed.
-        let warnings = take_warnings();
         if let Some(message) = CAUGHT_PANIC.with(|m| m.borrow_mut().take()) {
             return Err(MjError::CallbackPanicked {
                 time: start_time,
@@ -690,7 +682,8 @@ impl Simulation {
                     time: start_time,
                     message: format!(
                         "NaN, Inf or huge value in {what}; MuJoCo reset the state, so the episode stops{}",
-                        warnings.first().map_or(String::new(), |w| format!(" (MuJoCo: {w})"))
+                        // MuJoCo's text, kept from its log file and stdout.
+                        take_warning().map_or(String::new(), |w| format!(" (MuJoCo: {w})"))
                     ),
                 });
             }

@@ -98,3 +98,36 @@ pub fn run_expecting_failure(file: &str, sets: &[&str], needles: &[&str]) -> Str
     println!("{}", err.trim());
     err
 }
+
+/// The files in `dir`, sorted.
+pub fn listing(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// A run that blows up: a huge initial acceleration on [-D, 0) drives the velocity past
+/// MuJoCo's limit (1e10) after about 1.1 s (MuJoCo warns and would reset the state).
+pub fn blowup_scenario() -> String {
+    format!(
+        r#"
+name = "blowup"
+duration = 2.0
+[vehicle]
+kind = "double_integrator_1d"
+model = "{}"
+initial_state = [0.0, 0.0]
+[delays]
+acceleration = 1.5
+[initial_input]
+acceleration = 9e9
+[nominal]
+kind = "constant"
+input = [0.0]
+"#,
+        root().join("models/double_integrator_1d.xml").display()
+    )
+}
