@@ -102,7 +102,7 @@ fn timed_run(loaded: &LoadedScenario, sinks: &mut [&mut dyn Sink]) -> Result<f64
     let summary = episode.run(sinks)?;
     let wall = started.elapsed().as_secs_f64();
     match summary.error {
-        Some(e) => Err(BenchError::Stopped(e)),
+        Some(e) => Err(BenchError::Stopped(e.to_string())),
         None => Ok(wall),
     }
 }
@@ -147,7 +147,7 @@ pub fn run(
         probe.record_actuation();
         probe.audit_chain_reuse();
         if let Some(e) = probe.run(&mut [])?.error {
-            return Err(BenchError::Stopped(e));
+            return Err(BenchError::Stopped(e.to_string()));
         }
         let (chain_reuse_error, reused_predictions) = probe.chain_audit().unwrap_or((0.0, 0));
         let actuation = probe.take_actuation();

@@ -512,7 +512,7 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
         // 130: the shell's convention for a run ended by a signal.
-        return Ok(if error == episode::INTERRUPTED {
+        return Ok(if error == episode::StopReason::Interrupted {
             ExitCode::from(130)
         } else {
             ExitCode::FAILURE
@@ -779,11 +779,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         .write(&dir, &[])
         .with_context(|| format!("writing the summary into {}", dir.display()))?;
     outln!("{}", sweep_table(&summary));
-    let not_run = summary
-        .runs
-        .iter()
-        .filter(|r| r.error.as_deref().is_some_and(|e| e.starts_with("not run:")))
-        .count();
+    let not_run = summary.runs.iter().filter(|r| r.not_run).count();
     let failures = summary.failures() - not_run;
     outln!(
         "{}: {} of {} runs{}{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",

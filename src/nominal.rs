@@ -1,6 +1,14 @@
 //! Nominal (safety-agnostic) controllers u0(x), the input the safety filter corrects.
 
-use nalgebra::{DMatrix, DVector};
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector, Vector2};
+use serde::{Deserialize, Serialize};
+
+use crate::filter::prescribed_time::{BlowUp, PtsNominal, RedLightNominal, StrictFeedbackSystem};
+use crate::filter::ParamError;
+use crate::registry::Params;
+use crate::vehicle::Dynamics;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum NominalError {
@@ -162,22 +170,6 @@ pub fn unicycle_stabilizer(prediction_time: f64, p: &[f64]) -> [f64; 2] {
     [speed, turn_rate]
 }
 
-/// A nominal controller chosen by a scenario.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Nominal {
-    PathLqr(BicyclePathLqr),
-    Constant(DVector<f64>),
-    /// (2.40)–(2.43): always evaluated at the predicted state, even when the safety filter
-    /// is not delay-compensated (as in §2.4.2).
-    UnicycleStabilizer,
-    /// Pointwise min-norm CLF controller (4.58) for V = x1⁴/4 + x2²/2 (4.57).
-    QuarticClf(std::sync::Arc<dyn crate::vehicle::Dynamics>),
-    /// Red-light tracking (5.20)–(5.22) for the double integrator.
-    RedLight(crate::filter::prescribed_time::RedLightNominal),
-    /// Prescribed-time stabiliser (5.87)/(5.88) of (5.82) in z-coordinates, mapped back (5.91).
-    Pts(crate::filter::prescribed_time::PtsNominal),
-}
-
 impl std::fmt::Debug for dyn crate::vehicle::Dynamics {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "Dynamics({:?})", self.state_names())
@@ -216,47 +208,293 @@ pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &[f64]) -> [f64; 2] 
     [lg_v[0] * scale, lg_v[1] * scale]
 }
 
-impl Nominal {
-    /// u0 at time `time` and state x.
-    pub fn input(&self, time: f64, x: &DVector<f64>) -> DVector<f64> {
-        let mut u = DVector::zeros(self.channels());
-        self.input_into(time, x.as_slice(), u.as_mut_slice());
-        u
+/// A nominal (safety-agnostic) controller u0: the extension point a scenario's
+/// `nominal.kind` names ([`crate::registry`]). Called inside the control callback and the
+/// predictors: it must not panic or allocate.
+pub trait NominalController: Send {
+    /// u ← u0 at time `time` and state x (one value per channel).
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]);
+
+    /// Whether the controller is itself a predictor-feedback law, evaluated at the prediction
+    /// p(t) and its time φ⁻¹(t) even when the safety filter is not delay-compensated (§2.4.2).
+    fn uses_prediction(&self) -> bool {
+        false
     }
 
-    /// Number of input channels the controller drives.
-    pub fn channels(&self) -> usize {
-        match self {
-            Nominal::PathLqr(lqr) => lqr.gain.len(),
-            Nominal::Constant(u) => u.len(),
-            Nominal::UnicycleStabilizer | Nominal::QuarticClf(_) => 2,
-            Nominal::RedLight(_) | Nominal::Pts(_) => 1,
+    /// u0 when it does not depend on time or state (filters that stabilise through their own
+    /// CLF check it is zero).
+    fn constant_input(&self) -> Option<&[f64]> {
+        None
+    }
+
+    /// The straight path the controller tracks, drawn in the 3D scene.
+    fn reference_path(&self) -> Option<ReferencePath> {
+        None
+    }
+}
+
+/// A straight reference path: a point, its heading (rad) and the reference speed (m/s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReferencePath {
+    pub point: [f64; 2],
+    pub heading: f64,
+    pub speed: f64,
+}
+
+/// What a nominal controller is built from.
+pub struct NominalContext<'a> {
+    /// The analytic model the controller assumes.
+    pub model: &'a Arc<dyn Dynamics>,
+    /// The scenario's `vehicle.kind`.
+    pub vehicle_kind: &'a str,
+    /// The vehicle's input channels, in order.
+    pub channels: &'a [String],
+}
+
+fn positive_finite(x: f64) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+/// `kind = "path_lqr"`: LQR tracking of a straight path with the bicycle ([`BicyclePathLqr`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathLqrParams {
+    pub reference_speed: f64,
+    /// A point of the straight path.
+    #[serde(default)]
+    pub path_point: [f64; 2],
+    /// Direction of the path (radians).
+    #[serde(default)]
+    pub path_heading: f64,
+    /// Diagonal of Q for (cross-track, heading, speed) errors.
+    #[serde(default = "default_q")]
+    pub q: [f64; 3],
+    /// Diagonal of R for (steering, acceleration).
+    #[serde(default = "default_r")]
+    pub r: [f64; 2],
+}
+
+fn default_q() -> [f64; 3] {
+    [1.0, 1.0, 1.0]
+}
+fn default_r() -> [f64; 2] {
+    [1.0, 1.0]
+}
+
+impl Params for PathLqrParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        if !positive_finite(self.reference_speed) {
+            return Err(ParamError::new(
+                "nominal.reference_speed",
+                format!("expected a positive speed, found {}", self.reference_speed),
+            ));
         }
-    }
-
-    /// u ← u0 at time `time` and state x (no allocation: called inside the predictors).
-    pub fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
-        match self {
-            Nominal::PathLqr(lqr) => lqr.input_into(x, u),
-            Nominal::Constant(value) => u.copy_from_slice(value.as_slice()),
-            Nominal::UnicycleStabilizer => u.copy_from_slice(&unicycle_stabilizer(time, x)),
-            Nominal::QuarticClf(model) => u.copy_from_slice(&quartic_clf(model.as_ref(), x)),
-            Nominal::RedLight(red_light) => u[0] = red_light.control(time, &nalgebra::Vector2::new(x[0], x[1])),
-            Nominal::Pts(pts) => {
-                use crate::filter::prescribed_time::StrictFeedbackSystem;
-                let state = nalgebra::Vector2::new(x[0], x[1]);
-                let z = StrictFeedbackSystem.to_chain(&state);
-                // With the clip required by the scenario, μ2 is defined for all t; NaN would
-                // stop the episode with an error rather than pass silently.
-                let v = pts.control(time, &z).unwrap_or(f64::NAN);
-                u[0] = StrictFeedbackSystem.plant_input(&state, v);
-            }
+        if self.q.iter().any(|v| !v.is_finite() || *v < 0.0) {
+            return Err(ParamError::new("nominal.q", "expected three weights >= 0"));
         }
+        if self.r.iter().any(|v| !positive_finite(*v)) {
+            return Err(ParamError::new("nominal.r", "expected two weights > 0"));
+        }
+        Ok(())
     }
+}
 
-    /// Whether the controller is itself a predictor-feedback law (evaluated at p(t), φ⁻¹(t)).
-    pub fn uses_prediction(&self) -> bool {
-        matches!(self, Nominal::UnicycleStabilizer)
+pub fn build_path_lqr(p: &PathLqrParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if ctx.vehicle_kind != "bicycle" {
+        return Err(ParamError::new(
+            "nominal.kind",
+            "path_lqr needs vehicle.kind = \"bicycle\"",
+        ));
+    }
+    // (4.78): G[2, 0] = v tan'(0)/L at v = 1.
+    let n = ctx.model.state_dim();
+    let wheelbase = ctx.model.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip();
+    let lqr = BicyclePathLqr::new(p.path_point, p.path_heading, p.reference_speed, wheelbase, p.q, p.r)
+        .map_err(|e| ParamError::new("nominal", e.to_string()))?;
+    Ok(Box::new(lqr))
+}
+
+impl NominalController for BicyclePathLqr {
+    fn input_into(&self, _: f64, x: &[f64], u: &mut [f64]) {
+        BicyclePathLqr::input_into(self, x, u)
+    }
+    fn reference_path(&self) -> Option<ReferencePath> {
+        Some(ReferencePath {
+            point: self.path_point,
+            heading: self.path_heading,
+            speed: self.reference_speed,
+        })
+    }
+}
+
+/// `kind = "constant"`: one value per channel.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConstantParams {
+    pub input: Vec<f64>,
+}
+
+impl Params for ConstantParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        if self.input.iter().any(|v| !v.is_finite()) {
+            return Err(ParamError::new("nominal.input", "expected finite numbers"));
+        }
+        Ok(())
+    }
+}
+
+/// A constant input.
+pub struct ConstantInput(pub Vec<f64>);
+
+pub fn build_constant(p: &ConstantParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if p.input.len() != ctx.channels.len() {
+        return Err(ParamError::new(
+            "nominal.input",
+            format!("expected {} values ({})", ctx.channels.len(), ctx.channels.join(", ")),
+        ));
+    }
+    Ok(Box::new(ConstantInput(p.input.clone())))
+}
+
+impl NominalController for ConstantInput {
+    fn input_into(&self, _: f64, _: &[f64], u: &mut [f64]) {
+        u.copy_from_slice(&self.0);
+    }
+    fn constant_input(&self) -> Option<&[f64]> {
+        Some(&self.0)
+    }
+}
+
+/// A kind without parameters.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
+
+impl Params for NoParams {}
+
+/// `kind = "unicycle_stabilizer"`: (2.40)–(2.43) at the prediction and φ⁻¹(t).
+pub struct UnicycleStabilizer;
+
+pub fn build_unicycle_stabilizer(_: &NoParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if ctx.vehicle_kind != "unicycle" {
+        return Err(ParamError::new(
+            "nominal.kind",
+            "unicycle_stabilizer needs vehicle.kind = \"unicycle\"",
+        ));
+    }
+    Ok(Box::new(UnicycleStabilizer))
+}
+
+impl NominalController for UnicycleStabilizer {
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        u.copy_from_slice(&unicycle_stabilizer(time, x));
+    }
+    fn uses_prediction(&self) -> bool {
+        true
+    }
+}
+
+/// `kind = "quartic_clf"`: (4.58) for V = x1⁴/4 + x2²/2 (4.57).
+pub struct QuarticClf(Arc<dyn Dynamics>);
+
+pub fn build_quartic_clf(_: &NoParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if ctx.model.state_dim() != 2 || ctx.channels.len() != 2 {
+        return Err(ParamError::new(
+            "nominal.kind",
+            "quartic_clf (4.57)/(4.58) needs a two-state system",
+        ));
+    }
+    Ok(Box::new(QuarticClf(ctx.model.clone())))
+}
+
+impl NominalController for QuarticClf {
+    fn input_into(&self, _: f64, x: &[f64], u: &mut [f64]) {
+        u.copy_from_slice(&quartic_clf(self.0.as_ref(), x));
+    }
+}
+
+/// `kind = "red_light"`: (5.20)–(5.22), u = −k1 z1 − k2 z2, z1 = x1 + a sin(ωt) + b,
+/// z2 = x2 + aω cos(ωt).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RedLightParams {
+    pub k1: f64,
+    pub k2: f64,
+    pub a: f64,
+    pub b: f64,
+    pub omega: f64,
+}
+
+impl Params for RedLightParams {}
+
+pub fn build_red_light(p: &RedLightParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if ctx.vehicle_kind != "double_integrator_1d" && ctx.model.state_dim() != 2 {
+        return Err(ParamError::new(
+            "nominal.kind",
+            "red_light (5.20) needs a double integrator",
+        ));
+    }
+    Ok(Box::new(RedLightNominal {
+        position_gain: p.k1,
+        velocity_gain: p.k2,
+        amplitude: p.a,
+        offset: p.b,
+        frequency: p.omega,
+    }))
+}
+
+impl NominalController for RedLightNominal {
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        u[0] = self.control(time, &Vector2::new(x[0], x[1]));
+    }
+}
+
+/// `kind = "pts"`: the prescribed-time stabiliser (5.87)/(5.88) of (5.82),
+/// v = −μ2(t)[ω², 2ζω] z on [0, T), in z-coordinates and mapped back by (5.91).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PtsParams {
+    pub omega: f64,
+    pub zeta: f64,
+    pub horizon: f64,
+    /// Clip of μ2 (required: (5.87) blows up at T).
+    #[serde(default)]
+    pub clip: Option<f64>,
+}
+
+impl Params for PtsParams {}
+
+pub fn build_pts(p: &PtsParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    if ctx.vehicle_kind != "strict_feedback" {
+        return Err(ParamError::new(
+            "nominal.kind",
+            "pts (5.87) needs vehicle.kind = \"strict_feedback\"",
+        ));
+    }
+    let clip = p.clip.ok_or_else(|| {
+        ParamError::new(
+            "nominal.clip",
+            "the nominal (5.87) blows up at T: expected a clip of mu_2 (e.g. 1000)",
+        )
+    })?;
+    let blow_up = BlowUp::new(0.0, p.horizon)
+        .and_then(|b| b.with_mu2_clip(clip))
+        .map_err(|e| ParamError::new("nominal", e.to_string()))?;
+    Ok(Box::new(PtsNominal {
+        natural_frequency: p.omega,
+        damping_ratio: p.zeta,
+        blow_up,
+    }))
+}
+
+impl NominalController for PtsNominal {
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        let state = Vector2::new(x[0], x[1]);
+        let z = StrictFeedbackSystem.to_chain(&state);
+        // With the clip required when built, μ2 is defined for all t; NaN would stop the
+        // episode with an error rather than pass silently.
+        let v = self.control(time, &z).unwrap_or(f64::NAN);
+        u[0] = StrictFeedbackSystem.plant_input(&state, v);
     }
 }
 

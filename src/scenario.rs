@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::barrier::{BarrierForm, Shape};
+use crate::barrier::Shape;
 use crate::delay::DelayProfile;
 use crate::plant::PlantKind;
 use crate::vehicle::VehicleKind;
@@ -50,9 +50,11 @@ pub struct Scenario {
     pub initial_input: BTreeMap<String, f64>,
     #[serde(default)]
     pub control: ControlSpec,
-    pub nominal: NominalSpec,
+    /// The nominal controller: `kind` and its parameters.
+    pub nominal: KindSpec,
+    /// The safety filter: `kind` and its parameters (default: none).
     #[serde(default)]
-    pub filter: FilterSpec,
+    pub filter: KindSpec,
     #[serde(default)]
     pub obstacles: Vec<ObstacleSpec>,
     /// State constraints h(x) >= 0 that are not physical obstacles.
@@ -145,266 +147,57 @@ fn default_chain_tolerance() -> f64 {
     DEFAULT_CHAIN_TOLERANCE
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum NominalSpec {
-    /// LQR tracking of a straight path (bicycle).
-    PathLqr(PathLqrSpec),
-    /// A constant input, one value per channel.
-    Constant(ConstantSpec),
-    /// The unicycle's predictor-feedback stabiliser (2.40)–(2.46).
-    UnicycleStabilizer,
-    /// CLF controller (4.58) with V = x1⁴/4 + x2²/2 (4.57) (two-state systems).
-    QuarticClf,
-    /// Red-light tracking controller (5.20)–(5.22) for the double integrator.
-    RedLight(RedLightSpec),
-    /// Prescribed-time stabiliser (5.87)/(5.88) of the strict-feedback system (5.82), in
-    /// z-coordinates and mapped back by (5.91).
-    Pts(PtsSpec),
+/// A `nominal` or `filter` table: the registered `kind` it names ([`crate::registry`]) and
+/// that kind's parameters (the table's other keys, checked and normalised by the kind's
+/// parameter type when the scenario is parsed).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KindSpec {
+    pub kind: String,
+    pub params: toml::Table,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RedLightSpec {
-    /// u = −k1 z1 − k2 z2, z1 = x1 + a sin(ωt) + b, z2 = x2 + aω cos(ωt).
-    pub k1: f64,
-    pub k2: f64,
-    pub a: f64,
-    pub b: f64,
-    pub omega: f64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PtsSpec {
-    /// v = −μ2(t)[ω², 2ζω] z on [0, T).
-    pub omega: f64,
-    pub zeta: f64,
-    pub horizon: f64,
-    /// Clip of μ2 (default: none).
-    #[serde(default)]
-    pub clip: Option<f64>,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PathLqrSpec {
-    pub reference_speed: f64,
-    /// A point of the straight path.
-    #[serde(default)]
-    pub path_point: [f64; 2],
-    /// Direction of the path (radians).
-    #[serde(default)]
-    pub path_heading: f64,
-    /// Diagonal of Q for (cross-track, heading, speed) errors.
-    #[serde(default = "default_q")]
-    pub q: [f64; 3],
-    /// Diagonal of R for (steering, acceleration).
-    #[serde(default = "default_r")]
-    pub r: [f64; 2],
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConstantSpec {
-    pub input: Vec<f64>,
-}
-
-fn default_q() -> [f64; 3] {
-    [1.0, 1.0, 1.0]
-}
-fn default_r() -> [f64; 2] {
-    [1.0, 1.0]
-}
-
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum FilterSpec {
-    /// No safety filter: the nominal input is issued as it is.
-    #[default]
-    None,
-    /// CBF-QP (4.6)–(4.11) over all channels, at x(t) or at each channel's prediction.
-    CbfQp(CbfQpSpec),
-    /// Fixed-channel robust filter (4.39)–(4.47), at the predictions.
-    FixedChannel(FixedChannelSpec),
-    /// Variable-channel γm filter (4.60)–(4.68), at the predictions.
-    GammaM(GammaMSpec),
-    /// Ch. 3 constrained stabiliser for linear systems: the γm CLF-CBF QP (3.27)–(3.33) at
-    /// the recursive predictions (3.3)/(3.4), with buffer η (3.25) and a disk barrier.
-    ClfCbfQp(ClfCbfQpSpec),
-    /// Ch. 5 prescribed-time safety filter (5.23)–(5.29) keeping y = x1 < 0 on [0, T).
-    Ptsf(PtsfSpec),
-    /// Ch. 5 exponential safety filter u = min{u_nom, −k x} (5.89), poles −ρ, …, −nρ.
-    Esf(EsfSpec),
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PtsfSpec {
-    /// T: the prescribed time (the filter starts at t0 = 0).
-    pub horizon: f64,
-    /// Margin added to the lower bounds (5.32)–(5.34) of the gains c_i (computed from x(0)).
-    pub margin: f64,
-    /// Clip of μ2 (§5.4 uses 1000); none if absent.
-    #[serde(default)]
-    pub clip: Option<f64>,
-    /// Order n of the chain; checked against the model if given.
-    #[serde(default)]
-    pub order: Option<usize>,
-    /// Ramp g (5.28) after T: exponent m, duration T̄, and |y(T)| tolerance for "y(T) = 0".
-    #[serde(default = "default_ramp_exponent")]
-    pub ramp_exponent: u32,
-    #[serde(default = "default_ramp_duration")]
-    pub ramp_duration: f64,
-    #[serde(default = "default_ramp_tolerance")]
-    pub ramp_tolerance: f64,
-}
-
-fn default_ramp_exponent() -> u32 {
-    2
-}
-fn default_ramp_duration() -> f64 {
-    0.5
-}
-fn default_ramp_tolerance() -> f64 {
-    1e-9
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct EsfSpec {
-    /// ρ.
-    pub rate: f64,
-    /// T for the prescribed-time metrics (barrier and residuals at T); optional.
-    #[serde(default)]
-    pub horizon: Option<f64>,
-}
-
-impl FilterSpec {
-    /// The barrier form the gains describe (None without a filter or with invalid gains).
-    pub fn form(&self) -> Option<BarrierForm> {
-        match self {
-            FilterSpec::None => None,
-            FilterSpec::CbfQp(s) => barrier_form(s.alpha, s.l0, s.l1),
-            FilterSpec::FixedChannel(s) => barrier_form(s.alpha, s.l0, s.l1),
-            FilterSpec::GammaM(s) => barrier_form(s.alpha, s.l0, s.l1),
-            FilterSpec::ClfCbfQp(s) => Some(BarrierForm::RelativeDegree1 { alpha: s.l0 }),
-            // The chain filters have their own barrier chains ((5.24), (5.15)/(5.16)).
-            FilterSpec::Ptsf(_) | FilterSpec::Esf(_) => None,
+impl KindSpec {
+    /// A kind with its parameters as a TOML table (not yet checked).
+    pub fn new(kind: &str, params: toml::Table) -> KindSpec {
+        KindSpec {
+            kind: kind.to_string(),
+            params,
         }
     }
 }
 
-/// Relative degree 1 with α(h) = alpha·h, or 2 with gains l0, l1 of (4.82).
-fn barrier_form(alpha: Option<f64>, l0: Option<f64>, l1: Option<f64>) -> Option<BarrierForm> {
-    match (alpha, l0, l1) {
-        (Some(alpha), None, None) => Some(BarrierForm::RelativeDegree1 { alpha }),
-        (None, Some(l0), Some(l1)) => Some(BarrierForm::RelativeDegree2 { l0, l1 }),
-        _ => None,
+impl Default for KindSpec {
+    /// No safety filter.
+    fn default() -> Self {
+        KindSpec::new("none", toml::Table::new())
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CbfQpSpec {
-    /// Relative degree 1: α(h) = alpha·h in ḣ + α(h) ≥ 0.
-    #[serde(default)]
-    pub alpha: Option<f64>,
-    /// Relative degree 2: gains of ḧ + l1 ḣ + l0 h ≥ 0 (4.82).
-    #[serde(default)]
-    pub l0: Option<f64>,
-    #[serde(default)]
-    pub l1: Option<f64>,
-    /// `none`: the filter acts on the current state ((2.16)); `predictor`: on the predicted
-    /// state of each channel ((2.26), and (4.34) for distinct delays).
-    #[serde(default)]
-    pub compensation: Compensation,
-    /// Actuator limits per channel; with them (or several barriers) the QP is solved
-    /// numerically (`filter::qp`).
-    #[serde(default)]
-    pub input_limits: Option<InputLimits>,
+impl<'de> Deserialize<'de> for KindSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let mut params = toml::Table::deserialize(deserializer)?;
+        match params.remove("kind") {
+            Some(toml::Value::String(kind)) => Ok(KindSpec { kind, params }),
+            Some(other) => Err(D::Error::custom(format!(
+                "key `kind`: expected a string, found {}",
+                other.type_str()
+            ))),
+            None => Err(D::Error::missing_field("kind")),
+        }
+    }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InputLimits {
-    pub lower: Vec<f64>,
-    pub upper: Vec<f64>,
-}
-
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Compensation {
-    #[default]
-    None,
-    Predictor,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FixedChannelSpec {
-    #[serde(default)]
-    pub alpha: Option<f64>,
-    #[serde(default)]
-    pub l0: Option<f64>,
-    #[serde(default)]
-    pub l1: Option<f64>,
-    /// φ (4.41): how many of the shortest-delayed channels suffice everywhere. Declared here
-    /// (verified on `phi_box` if given) or, if absent, found on `phi_box`.
-    #[serde(default)]
-    pub phi: Option<usize>,
-    #[serde(default)]
-    pub phi_box: Option<StateBox>,
-}
-
-/// An axis-aligned box of states, sampled on a grid to verify or find φ (4.40).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StateBox {
-    pub lower: Vec<f64>,
-    pub upper: Vec<f64>,
-    /// Grid points per axis (default 9).
-    #[serde(default = "default_box_points")]
-    pub points: usize,
-}
-
-fn default_box_points() -> usize {
-    9
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ClfCbfQpSpec {
-    /// CLF V = xᵀPx with P = p·I, decay rate Q = q·I (Definition 3.1).
-    pub p: f64,
-    pub q: f64,
-    /// α_h(H) = l0·H (3.40).
-    pub l0: f64,
-    /// Buffer η: a number, or absent to use the bound (3.25) for `omega_bar`.
-    #[serde(default)]
-    pub eta: Option<f64>,
-    /// ω̄ of (3.24) for the bound (3.25) (default 0: no disturbance).
-    #[serde(default)]
-    pub omega_bar: f64,
-    /// QP-LB penalty m and γ of γ_f (3.28).
-    pub m: f64,
-    pub gamma: f64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GammaMSpec {
-    #[serde(default)]
-    pub alpha: Option<f64>,
-    #[serde(default)]
-    pub l0: Option<f64>,
-    #[serde(default)]
-    pub l1: Option<f64>,
-    /// Slack penalty m ≥ 1 (4.60).
-    pub m: f64,
-    /// γ ≥ 1 of γ_f (4.61); default (m + 1)/m (Remark 4.5).
-    #[serde(default)]
-    pub gamma: Option<f64>,
+impl Serialize for KindSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(1 + self.params.len()))?;
+        map.serialize_entry("kind", &self.kind)?;
+        for (key, value) in &self.params {
+            map.serialize_entry(key, value)?;
+        }
+        map.end()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -492,17 +285,35 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
-    let whole = toml::Value::Table(table.clone());
-    serde_path_to_error::deserialize(whole).map_err(|e| {
+    let whole = toml::Value::Table(table);
+    let mut scenario: Scenario = serde_path_to_error::deserialize(whole).map_err(|e| {
         let key = e.path().to_string();
-        let (key, message) = refine_tagged(&table, &key).unwrap_or((key, e.into_inner().to_string()));
-        let message = plain_serde_message(&message);
+        let message = plain_serde_message(&e.into_inner().to_string());
+        // A message about an inner key of a table names it (`key `kind`: …`).
+        let (key, message) = match message.strip_prefix("key `").and_then(|m| m.split_once("`: ")) {
+            Some((inner, rest)) if key != "." => (format!("{key}.{inner}"), rest.to_string()),
+            _ => (key, message),
+        };
         ScenarioError::Field {
             file: file.to_string(),
             key: if key == "." { "(top level)".into() } else { key },
             message,
         }
-    })
+    })?;
+    // Each kind's parameters, checked and normalised (defaults filled in) by its own type.
+    let field = |e: crate::filter::ParamError| ScenarioError::Field {
+        file: file.to_string(),
+        key: e.key,
+        message: e.message,
+    };
+    let registry = crate::registry::registry();
+    scenario.nominal.params = registry
+        .check_nominal(&scenario.nominal.kind, &scenario.nominal.params)
+        .map_err(field)?;
+    scenario.filter.params = registry
+        .check_filter(&scenario.filter.kind, &scenario.filter.params)
+        .map_err(field)?;
+    Ok(scenario)
 }
 
 /// A serde message in the scenario's terms instead of Rust's: no type names
@@ -562,40 +373,6 @@ pub fn plain_serde_message(message: &str) -> String {
     out
 }
 
-/// serde loses the field path inside internally tagged enums (`kind = …` sections): for an
-/// error in such a section, deserialize the chosen variant's own struct again to find the key.
-fn refine_tagged(table: &toml::Table, key: &str) -> Option<(String, String)> {
-    let section = key.split('.').next()?;
-    let mut body = table.get(section)?.as_table()?.clone();
-    let kind = body.remove("kind")?.as_str()?.to_string();
-    fn check<T: serde::de::DeserializeOwned>(section: &str, body: toml::Table) -> Option<(String, String)> {
-        serde_path_to_error::deserialize::<_, T>(toml::Value::Table(body))
-            .err()
-            .map(|e| {
-                let inner = e.path().to_string();
-                let key = if inner == "." {
-                    section.to_string()
-                } else {
-                    format!("{section}.{inner}")
-                };
-                (key, e.into_inner().to_string())
-            })
-    }
-    match (section, kind.as_str()) {
-        ("nominal", "path_lqr") => check::<PathLqrSpec>(section, body),
-        ("nominal", "constant") => check::<ConstantSpec>(section, body),
-        ("filter", "cbf_qp") => check::<CbfQpSpec>(section, body),
-        ("filter", "fixed_channel") => check::<FixedChannelSpec>(section, body),
-        ("filter", "gamma_m") => check::<GammaMSpec>(section, body),
-        ("filter", "clf_cbf_qp") => check::<ClfCbfQpSpec>(section, body),
-        ("filter", "ptsf") => check::<PtsfSpec>(section, body),
-        ("filter", "esf") => check::<EsfSpec>(section, body),
-        ("nominal", "red_light") => check::<RedLightSpec>(section, body),
-        ("nominal", "pts") => check::<PtsSpec>(section, body),
-        _ => None,
-    }
-}
-
 /// Applies one `a.b.c=VALUE` override; numeric segments index arrays (`obstacles.0.radius`).
 fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioError> {
     let err = |message: String| ScenarioError::Override {
@@ -643,7 +420,7 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
 }
 
 /// The kind as a scenario writes it (`kind = "bicycle"`).
-fn vehicle_kind_name(kind: VehicleKind) -> String {
+pub fn vehicle_kind_name(kind: VehicleKind) -> String {
     toml::Value::try_from(kind)
         .ok()
         .and_then(|v| v.as_str().map(str::to_string))
@@ -755,104 +532,6 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
-    match &sc.nominal {
-        NominalSpec::PathLqr(PathLqrSpec {
-            reference_speed, q, r, ..
-        }) => {
-            if !positive_finite(*reference_speed) {
-                return Err(s.field_error(
-                    "nominal.reference_speed",
-                    format!("expected a positive speed, found {reference_speed}"),
-                ));
-            }
-            if q.iter().any(|v| !v.is_finite() || *v < 0.0) {
-                return Err(s.field_error("nominal.q", "expected three weights >= 0"));
-            }
-            if r.iter().any(|v| !positive_finite(*v)) {
-                return Err(s.field_error("nominal.r", "expected two weights > 0"));
-            }
-        }
-        NominalSpec::Constant(ConstantSpec { input }) => {
-            if input.iter().any(|v| !v.is_finite()) {
-                return Err(s.field_error("nominal.input", "expected finite numbers"));
-            }
-        }
-        NominalSpec::QuarticClf | NominalSpec::RedLight(_) | NominalSpec::Pts(_) => {}
-        NominalSpec::UnicycleStabilizer => {
-            if sc.vehicle.kind != VehicleKind::Unicycle {
-                return Err(s.field_error("nominal.kind", "unicycle_stabilizer needs vehicle.kind = \"unicycle\""));
-            }
-        }
-    }
-    let has_gains = !matches!(sc.filter, FilterSpec::None | FilterSpec::Ptsf(_) | FilterSpec::Esf(_));
-    if has_gains {
-        match sc.filter.form() {
-            None => {
-                return Err(s.field_error(
-                    "filter",
-                    "expected either alpha (relative degree 1) or both l0 and l1 (relative degree 2)",
-                ))
-            }
-            Some(BarrierForm::RelativeDegree1 { alpha }) if !positive_finite(alpha) => {
-                return Err(s.field_error("filter.alpha", format!("expected alpha > 0, found {alpha}")))
-            }
-            // Roots of s² + l1 s + l0 negative real (below (4.83)): l0 > 0, l1 > 0, l1² ≥ 4 l0.
-            Some(BarrierForm::RelativeDegree2 { l0, l1 })
-                if !(positive_finite(l0) && positive_finite(l1) && l1 * l1 >= 4.0 * l0) =>
-            {
-                return Err(s.field_error(
-                    "filter",
-                    format!("expected l0 > 0, l1 > 0 and l1² >= 4 l0 (negative real roots of s² + l1 s + l0), found l0 = {l0}, l1 = {l1}"),
-                ));
-            }
-            Some(_) => {}
-        }
-    }
-    if let FilterSpec::GammaM(spec) = &sc.filter {
-        if !(spec.m.is_finite() && spec.m >= 1.0) {
-            return Err(s.field_error("filter.m", format!("expected m >= 1 (4.60), found {}", spec.m)));
-        }
-        if let Some(gamma) = spec.gamma {
-            if !(gamma.is_finite() && gamma >= 1.0) {
-                return Err(s.field_error("filter.gamma", format!("expected gamma >= 1 (4.61), found {gamma}")));
-            }
-        }
-    }
-    if let FilterSpec::Ptsf(spec) = &sc.filter {
-        if !positive_finite(spec.horizon) {
-            return Err(s.field_error("filter.horizon", format!("expected T > 0, found {}", spec.horizon)));
-        }
-        if !positive_finite(spec.margin) {
-            return Err(s.field_error("filter.margin", format!("expected a margin > 0, found {}", spec.margin)));
-        }
-        if let Some(clip) = spec.clip {
-            if !(clip.is_finite() && clip > 1.0) {
-                return Err(s.field_error("filter.clip", format!("expected a clip > 1 for mu_2, found {clip}")));
-            }
-        }
-    }
-    if let FilterSpec::Esf(spec) = &sc.filter {
-        if !positive_finite(spec.rate) {
-            return Err(s.field_error("filter.rate", format!("expected rho > 0, found {}", spec.rate)));
-        }
-    }
-    if let FilterSpec::ClfCbfQp(spec) = &sc.filter {
-        if !(spec.m.is_finite() && spec.m >= 1.0) {
-            return Err(s.field_error("filter.m", format!("expected m >= 1, found {}", spec.m)));
-        }
-        if !(spec.gamma.is_finite() && spec.gamma >= 1.0) {
-            return Err(s.field_error("filter.gamma", format!("expected gamma >= 1, found {}", spec.gamma)));
-        }
-        if sc.vehicle.kind != VehicleKind::Linear {
-            return Err(s.field_error("filter.kind", "clf_cbf_qp (Ch. 3) needs vehicle.kind = \"linear\""));
-        }
-        if !matches!(&sc.nominal, NominalSpec::Constant(c) if c.input.iter().all(|v| *v == 0.0)) {
-            return Err(s.field_error(
-                "nominal",
-                "clf_cbf_qp stabilises through its CLF (3.27): expected a zero constant nominal",
-            ));
-        }
-    }
     match &sc.disturbance {
         Some(DisturbanceSpec::RandomInput { bound, hold }) | Some(DisturbanceSpec::RandomState { bound, hold })
             if !(bound.is_finite() && *bound >= 0.0 && positive_finite(*hold)) =>
@@ -873,28 +552,6 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 "vehicle.initial_perturbation",
                 "expected one bound >= 0 per initial_state component",
             ));
-        }
-    }
-    if let FilterSpec::FixedChannel(spec) = &sc.filter {
-        if spec.phi == Some(0) {
-            return Err(s.field_error("filter.phi", "expected phi >= 1 (a number of input channels, (4.41))"));
-        }
-        if spec.phi.is_none() && spec.phi_box.is_none() {
-            return Err(s.field_error("filter.phi", "declare phi (4.41) or give filter.phi_box to find it"));
-        }
-        if let Some(b) = &spec.phi_box {
-            let ok = b.lower.len() == b.upper.len()
-                && b.points >= 2
-                && b.lower
-                    .iter()
-                    .zip(&b.upper)
-                    .all(|(l, u)| l.is_finite() && u.is_finite() && l <= u);
-            if !ok {
-                return Err(s.field_error(
-                    "filter.phi_box",
-                    "expected lower <= upper of equal lengths, finite, and points >= 2",
-                ));
-            }
         }
     }
     for (i, b) in sc.barriers.iter().enumerate() {
@@ -971,7 +628,7 @@ input = [1.0]
     #[test]
     fn minimal_scenario_parses_with_defaults() {
         let s = parse(MINIMAL, "t.toml", &[]).unwrap();
-        assert_eq!(s.filter, FilterSpec::None);
+        assert_eq!(s.filter, KindSpec::default());
         assert!(s.obstacles.is_empty());
     }
 
@@ -1029,7 +686,11 @@ input = [1.0]
             &["nominal.input=[2.5]".into(), "delays.acceleration=0.1".into()],
         )
         .unwrap();
-        assert_eq!(s.nominal, NominalSpec::Constant(ConstantSpec { input: vec![2.5] }));
+        assert_eq!(s.nominal.kind, "constant");
+        assert_eq!(
+            s.nominal.params.get("input"),
+            Some(&toml::Value::Array(vec![toml::Value::Float(2.5)]))
+        );
         assert_eq!(s.delays["acceleration"], DelayProfile::Constant(0.1));
         let err = parse(MINIMAL, "t.toml", &["nominal.input.3=1".into()])
             .unwrap_err()

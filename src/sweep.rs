@@ -564,6 +564,9 @@ pub struct Row {
     pub metrics: Option<FlatMetrics>,
     /// Why the run failed (scenario rejected, episode error, stopped early); none when it completed.
     pub error: Option<String>,
+    /// Whether the run was never started (the sweep was interrupted first).
+    #[serde(default)]
+    pub not_run: bool,
 }
 
 fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
@@ -585,6 +588,7 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
         log: None,
         metrics: None,
         error: None,
+        not_run: false,
     };
     // A log of an earlier sweep under this name must not pass for this run's (anything else
     // there is kept, and refused as this run's log).
@@ -600,7 +604,7 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
         let mut sink = McapSink::create(&log_path, episode.info(), &inputs).map_err(|e| e.to_string())?;
         let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
         let summary = episode.run(&mut sinks).map_err(|e| e.to_string())?;
-        Ok(summary.error)
+        Ok(summary.error.map(|e| e.to_string()))
     }));
     let error = match outcome {
         Ok(Ok(in_run)) => in_run,
@@ -686,6 +690,7 @@ pub fn execute(
                 parameters: spec.run(index).parameters.into_iter().collect(),
                 log: None,
                 metrics: None,
+                not_run: true,
                 error: Some(if crate::episode::stop_requested() {
                     "not run: the sweep was interrupted".into()
                 } else {

@@ -68,7 +68,7 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
     let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
     let loaded = scenario::load(&path, &overrides).unwrap();
     let mut episode = Episode::new(&loaded).unwrap();
-    let h = episode.control.timestep;
+    let h = episode.control.timestep();
     let (mut warm_up, mut steady) = (0, 0);
     for k in 0..episode.steps {
         let time = k as f64 * h;
@@ -79,7 +79,9 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
         }
         COUNT.with(|n| n.set(0));
         episode.plant.step(&mut Counted(&mut episode.control)).unwrap();
-        assert!(episode.control.error.is_none(), "{file}: {:?}", episode.control.error);
+        if let Some(e) = episode.control.take_error() {
+            panic!("{file}: {e}");
+        }
         let counted = COUNT.with(|n| n.get());
         if time >= steady_from {
             steady += counted;

@@ -11,118 +11,13 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
+use crate::barrier::{Barrier, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
-use crate::filter::linear_delays::{ConstrainedStabilizer, QpCase};
-use crate::filter::prescribed_time::{EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem};
-use crate::filter::{self, ChannelOutcome};
-use crate::nominal::Nominal;
+use crate::filter::{ChannelInput, ChannelOutcome, DelayFreeInput, FilterError, SafetyFilter, TICK_TOLERANCE};
+use crate::nominal::NominalController;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
 use crate::vehicle::Dynamics;
-use nalgebra::Vector2;
-
-/// Fraction of a step below which two times are the same instant.
-pub const TICK_TOLERANCE: f64 = 1e-6;
-
-/// The safety filter a controller applies (built from the scenario's `filter` table).
-#[derive(Debug, Clone, PartialEq)]
-pub enum FilterRule {
-    /// The nominal input is issued as it is.
-    None,
-    /// CBF-QP (4.9) over all channels at x(t) ((2.16)) or, `predicted`, at each channel's
-    /// prediction p_i(t) ((2.26), and (4.34)–(4.37) for distinct delays).
-    /// With several barriers or actuator `limits` (lower, upper) it is solved numerically
-    /// ([`filter::qp`]).
-    DelayFree {
-        form: BarrierForm,
-        predicted: bool,
-        limits: Option<(Vec<f64>, Vec<f64>)>,
-    },
-    /// (4.44)–(4.47) at p_i(t); the first φ channels suffice everywhere (4.41).
-    FixedChannel { form: BarrierForm, phi: usize },
-    /// (4.60)–(4.68) at p_i(t).
-    GammaM { form: BarrierForm, m: f64, gamma: f64 },
-    /// Ch. 3: u_i = κ_LB,i(p_i(t)) (3.33), the γm CLF-CBF QP (3.27) at each prediction. It
-    /// stabilises through its own CLF (the nominal is zero).
-    LinearClfCbf(Arc<ConstrainedStabilizer>),
-    /// Ch. 5: PTSf (5.27)/(5.28) or ESf (5.89) on the chain of integrators z = T(x) (the
-    /// identity, or (5.83)/(5.84) for the strict-feedback system), mapped back by (5.91).
-    Chain {
-        filter: ChainFilter,
-        transform: ChainTransform,
-    },
-}
-
-/// The Ch. 5 filter on a chain of integrators.
-#[derive(Debug, Clone, PartialEq)]
-pub enum ChainFilter {
-    Ptsf(Arc<PtsfFilter>),
-    Esf(Arc<EsfFilter>),
-}
-
-/// How the plant's state and input map to a chain of integrators.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ChainTransform {
-    /// The plant is the chain.
-    Identity,
-    /// (5.82) → (5.85) by (5.83)/(5.84), inputs by (5.86)/(5.91).
-    StrictFeedback,
-}
-
-impl ChainTransform {
-    pub fn to_chain(&self, x: &DVector<f64>) -> DVector<f64> {
-        match self {
-            ChainTransform::Identity => x.clone(),
-            ChainTransform::StrictFeedback => {
-                let z = StrictFeedbackSystem.to_chain(&Vector2::new(x[0], x[1]));
-                DVector::from_column_slice(z.as_slice())
-            }
-        }
-    }
-    /// The chain input v for plant input u at x ((5.86)).
-    pub fn chain_input(&self, x: &DVector<f64>, u: f64) -> f64 {
-        match self {
-            ChainTransform::Identity => u,
-            ChainTransform::StrictFeedback => StrictFeedbackSystem.chain_input(&Vector2::new(x[0], x[1]), u),
-        }
-    }
-    /// The plant input u for chain input v at x ((5.91)).
-    pub fn plant_input(&self, x: &DVector<f64>, v: f64) -> f64 {
-        match self {
-            ChainTransform::Identity => v,
-            ChainTransform::StrictFeedback => StrictFeedbackSystem.plant_input(&Vector2::new(x[0], x[1]), v),
-        }
-    }
-}
-
-/// An error raised inside the control tick (reported after the step; the episode stops).
-#[derive(Debug, thiserror::Error)]
-pub enum ControlError {
-    #[error(transparent)]
-    Delay(#[from] DelayError),
-    #[error("prescribed-time filter: {0}")]
-    PrescribedTime(#[from] PrescribedTimeError),
-}
-
-impl FilterRule {
-    pub fn form(&self) -> Option<BarrierForm> {
-        match *self {
-            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => None,
-            FilterRule::DelayFree { form, .. }
-            | FilterRule::FixedChannel { form, .. }
-            | FilterRule::GammaM { form, .. } => Some(form),
-        }
-    }
-
-    /// Whether the filter acts on predictions p_i(t) rather than on x(t).
-    pub fn uses_prediction(&self) -> bool {
-        !matches!(
-            self,
-            FilterRule::None | FilterRule::DelayFree { predicted: false, .. } | FilterRule::Chain { .. }
-        )
-    }
-}
 
 /// What one control tick computed (logged after the step).
 #[derive(Debug, Clone)]
@@ -151,8 +46,6 @@ struct TickWorkspace {
     predictions: Vec<Prediction>,
     predictor: PredictorWorkspace,
     law: LawWorkspace,
-    /// ω (4.45)/(4.62): commands already issued for the later channels.
-    omega: DVector<f64>,
     /// States of realised predictions, reused for new pending ones.
     spare_states: Vec<DVector<f64>>,
 }
@@ -168,158 +61,69 @@ struct LawWorkspace {
     input: DVector<f64>,
 }
 
-/// What the control laws read, borrowed apart from the loop's scratch space.
+impl LawWorkspace {
+    /// nominal ← u0 at (`time`, `nominal_state`) and constraints ← the constraint data of
+    /// every known barrier at z in the filter's form. Returns the number of constraints (0
+    /// for a filter without a barrier form).
+    fn nominal_and_constraints(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
+        laws.nominal
+            .input_into(time, nominal_state, self.nominal.as_mut_slice());
+        let Some(form) = laws.form else {
+            return 0;
+        };
+        for (b, c) in laws.barriers.iter().zip(self.constraints.iter_mut()) {
+            self.lie.constraint_into(b, form, laws.model, z, c);
+        }
+        laws.barriers.len()
+    }
+}
+
+/// What the control laws read, borrowed apart from the loop's scratch space and the filter.
 struct Laws<'a> {
     model: &'a dyn Dynamics,
-    nominal: &'a Nominal,
-    rule: &'a FilterRule,
+    nominal: &'a dyn NominalController,
+    form: Option<crate::barrier::BarrierForm>,
     barriers: &'a [Barrier],
 }
 
-impl Laws<'_> {
-    /// work.nominal ← u0 (nominal at `time`, evaluated at `nominal_state`) and
-    /// work.constraints ← the constraint data of every known barrier at state z. Returns
-    /// the number of constraints (0 without a filter).
-    fn nominal_and_constraints(&self, time: f64, nominal_state: &[f64], z: &[f64], work: &mut LawWorkspace) -> usize {
-        self.nominal
-            .input_into(time, nominal_state, work.nominal.as_mut_slice());
-        let Some(form) = self.rule.form() else {
-            return 0;
-        };
-        for (b, c) in self.barriers.iter().zip(work.constraints.iter_mut()) {
-            work.lie.constraint_into(b, form, self.model, z, c);
-        }
-        self.barriers.len()
-    }
-
-    /// work.input ← the delay-free CBF-QP over all channels from work.nominal and the first
-    /// `count` constraints: closed form (4.9) for one barrier without limits (no allocation),
-    /// otherwise the numerical QP. Returns (active, infeasible, μ).
-    fn delay_free_qp(&self, work: &mut LawWorkspace, count: usize) -> (bool, bool, f64) {
-        let limits = match self.rule {
-            FilterRule::DelayFree { limits, .. } => limits.as_ref(),
-            _ => None,
-        };
-        work.input.copy_from(&work.nominal);
-        match (&work.constraints[..count], limits) {
-            ([c], None) => filter::cbf_qp_in_place(c, &mut work.input),
-            (constraints, _) => {
-                let o = filter::qp::cbf_qp_multi(
-                    constraints,
-                    &work.nominal,
-                    limits.map(|(lo, hi)| (lo.as_slice(), hi.as_slice())),
-                );
-                work.input.copy_from(&o.input);
-                (o.active, o.infeasible, o.mu)
-            }
-        }
-    }
-
-    /// u ← the delay-free safe law κ^DF (4.29) at z: u0 + ū (4.9) (κ_LB (3.27) for Ch. 3).
-    fn delay_free(&self, time: f64, z: &[f64], work: &mut LawWorkspace, u: &mut [f64]) {
-        if let FilterRule::LinearClfCbf(stabilizer) = self.rule {
-            u.copy_from_slice(stabilizer.kappa_lb(&DVector::from_column_slice(z)).input.as_slice());
-            return;
-        }
-        let count = self.nominal_and_constraints(time, z, z, work);
-        if count == 0 {
-            u.copy_from_slice(work.nominal.as_slice());
-            return;
-        }
-        self.delay_free_qp(work, count);
-        u.copy_from_slice(work.input.as_slice());
-    }
-
-    /// The filter's decision for channel i at tick t, from work.constraints and work.nominal
-    /// at the channel's evaluation state. The distinct-delay filters take one barrier
-    /// (checked when the episode is built).
-    fn filter_channel(
-        &self,
-        queues: &[DelayQueue],
-        i: usize,
-        t: f64,
-        work: &mut LawWorkspace,
-        count: usize,
-        omega: &mut DVector<f64>,
-    ) -> Result<ChannelOutcome, DelayError> {
-        // ω_j: commands already issued for the later channels that reach the plant together
-        // with u_i(t), i.e. u_j(t − D_{j,i}) = channel j's applied input at t + D_i.
-        let mut fill_omega = |from: usize| -> Result<(), DelayError> {
-            let arrival = queues[i].profile().prediction_time(t);
-            omega.fill(0.0);
-            for j in from..queues.len() {
-                omega[j] = queues[j].applied(arrival)?.value;
-            }
-            Ok(())
-        };
-        Ok(match self.rule {
-            FilterRule::None | FilterRule::LinearClfCbf(_) | FilterRule::Chain { .. } => {
-                unreachable!("no constraints for these rules")
-            }
-            FilterRule::DelayFree { .. } => {
-                let (active, infeasible, mu) = self.delay_free_qp(work, count);
-                ChannelOutcome {
-                    input: work.input[i],
-                    active,
-                    infeasible,
-                    mu,
-                }
-            }
-            FilterRule::FixedChannel { phi, .. } => {
-                let s = (*phi).max(i + 1);
-                fill_omega(s)?;
-                filter::fixed_channel(&work.constraints[0], &work.nominal, omega, i, s)
-            }
-            FilterRule::GammaM { m, gamma, .. } => {
-                // k (4.68): the last channel with the same delay as i.
-                let delay_i = queues[i].constant_delay();
-                let k = (i..queues.len())
-                    .take_while(|&j| queues[j].constant_delay() == delay_i)
-                    .last()
-                    .unwrap_or(i);
-                fill_omega(k + 1)?;
-                filter::gamma_m(&work.constraints[0], &work.nominal, omega, i, k, *m, *gamma)
-            }
-        })
-    }
-}
-
+/// The controller: predictors, nominal, safety filter and delay queues, ticking at the
+/// control period and sampling the queues at every input evaluation ([`Controller`]).
 pub struct ControlLoop {
-    pub model: Arc<dyn Dynamics>,
-    pub nominal: Nominal,
-    /// The safety filter.
-    pub rule: FilterRule,
-    pub queues: Vec<DelayQueue>,
-    pub structure: Structure,
+    model: Arc<dyn Dynamics>,
+    nominal: Box<dyn NominalController>,
+    filter: Box<dyn SafetyFilter>,
+    queues: Vec<DelayQueue>,
+    structure: Structure,
     /// Barriers currently known to the controller (add with [`ControlLoop::add_barrier`]).
     known_barriers: Vec<Barrier>,
-    pub timestep: f64,
-    pub control_period: f64,
-    pub steps_per_tick: u64,
+    timestep: f64,
+    control_period: f64,
+    steps_per_tick: u64,
     /// RK4 step of the predictors: by default the control period when every delay is constant
     /// and a whole multiple of it (the applied inputs are then constant on that grid, so the
     /// coarser step loses only RK4 truncation error, measured by the consistency check), else
     /// h. A scenario may set a coarser multiple of the control period (`predictor.step`).
-    pub predictor_step: f64,
+    predictor_step: f64,
     /// What the last control tick computed; `tick_ready` until the episode takes it.
     tick: Tick,
     tick_ready: bool,
     /// Applied input at the start of the current step (value, issue time) per channel.
-    pub applied: Vec<(f64, f64)>,
+    applied: Vec<(f64, f64)>,
     applied_buffer: Vec<f64>,
     /// Predictions waiting for their target time, per channel.
     pending: Vec<VecDeque<Prediction>>,
     work: TickWorkspace,
     /// An error raised inside the callback (reported after the step).
-    pub error: Option<ControlError>,
-    /// y(t0 + T) = z1 at the prescribed time, once reached (the ramp (5.28) needs it).
-    output_at_end: Option<f64>,
+    error: Option<FilterError>,
     /// A disturbance ω_i(t) added to channel i's applied input ((4.12) with Z = G); unknown
     /// to the predictors.
-    pub input_disturbance: Option<Box<dyn Fn(f64, usize) -> f64 + Send>>,
+    input_disturbance: Option<InputDisturbance>,
     /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
     chain_audit: Option<ChainAudit>,
 }
+
+/// ω_i(t) added to channel i's applied input.
+pub type InputDisturbance = Box<dyn Fn(f64, usize) -> f64 + Send>;
 
 /// Every recursive prediction recomputed over its whole window next to the reused chain, and
 /// the largest difference seen (what `control.chain_tolerance` costs; benchmarks report it).
@@ -331,11 +135,12 @@ struct ChainAudit {
 }
 
 impl ControlLoop {
-    #[allow(clippy::too_many_arguments)]
+    /// The loop for a model, its nominal and filter, one delay queue per channel, the
+    /// predictor structure, the plant step h and the control period in steps.
     pub fn new(
         model: Arc<dyn Dynamics>,
-        nominal: Nominal,
-        rule: FilterRule,
+        nominal: Box<dyn NominalController>,
+        filter: Box<dyn SafetyFilter>,
         queues: Vec<DelayQueue>,
         structure: Structure,
         timestep: f64,
@@ -360,14 +165,13 @@ impl ControlLoop {
                 nominal: DVector::zeros(r),
                 input: DVector::zeros(r),
             },
-            omega: DVector::zeros(r),
             spare_states: Vec::new(),
         };
         ControlLoop {
             predictor_step,
             model,
             nominal,
-            rule,
+            filter,
             queues,
             structure,
             known_barriers: Vec::new(),
@@ -386,10 +190,54 @@ impl ControlLoop {
             pending: vec![VecDeque::new(); r],
             work,
             error: None,
-            output_at_end: None,
             input_disturbance: None,
             chain_audit: None,
         }
+    }
+
+    /// The analytic model the controller assumes.
+    pub fn model(&self) -> &Arc<dyn Dynamics> {
+        &self.model
+    }
+
+    /// The safety filter.
+    pub fn filter(&self) -> &dyn SafetyFilter {
+        self.filter.as_ref()
+    }
+
+    /// The delay queue of every channel.
+    pub fn queues(&self) -> &[DelayQueue] {
+        &self.queues
+    }
+
+    /// The plant step h (s).
+    pub fn timestep(&self) -> f64 {
+        self.timestep
+    }
+
+    /// Plant steps per control tick.
+    pub fn steps_per_tick(&self) -> u64 {
+        self.steps_per_tick
+    }
+
+    /// The predictors' RK4 step (s).
+    pub fn predictor_step(&self) -> f64 {
+        self.predictor_step
+    }
+
+    /// (value, issue time) of each channel's input applied at the start of the last step.
+    pub fn applied(&self) -> &[(f64, f64)] {
+        &self.applied
+    }
+
+    /// The error raised inside the last step's callbacks, if any (taken once).
+    pub fn take_error(&mut self) -> Option<FilterError> {
+        self.error.take()
+    }
+
+    /// Adds ω_i(t) to channel i's applied input, unknown to the predictors.
+    pub fn set_input_disturbance(&mut self, disturbance: InputDisturbance) {
+        self.input_disturbance = Some(disturbance);
     }
 
     /// Makes a barrier known to the controller (outside the callback: sizes the scratch space).
@@ -445,47 +293,14 @@ impl ControlLoop {
         std::mem::take(&mut self.tick_ready).then_some(&self.tick)
     }
 
-    /// Ch. 5 tick: u = T⁻¹(filter(t, z, v_nom)) for a scalar-input chain (no delays).
-    fn chain_tick(&mut self, t: f64, filter: &ChainFilter, transform: ChainTransform) -> Result<(), ControlError> {
-        let x = &self.work.state;
-        let u_nom = self.nominal.input(t, x)[0];
-        let z = transform.to_chain(x);
-        let v_nom = transform.chain_input(x, u_nom);
-        let decision = match filter {
-            ChainFilter::Ptsf(ptsf) => {
-                if t >= ptsf.blow_up().end_time() - TICK_TOLERANCE * self.timestep && self.output_at_end.is_none() {
-                    self.output_at_end = Some(z[0]);
-                }
-                ptsf.control(t, &z, v_nom, self.output_at_end)?
-            }
-            ChainFilter::Esf(esf) => esf.control(&z, v_nom)?,
-        };
-        let u = transform.plant_input(x, decision.input);
-        self.queues[0].push(t, u)?;
-        self.queues[0].discard_before(t);
-        self.tick.time = t;
-        self.tick.nominal[0] = u_nom;
-        self.tick.issued[0] = u;
-        self.tick.outcomes[0] = Some(ChannelOutcome {
-            input: u,
-            active: decision.overriding,
-            infeasible: false,
-            mu: f64::NAN,
-        });
-        self.tick_ready = true;
-        Ok(())
-    }
-
-    /// One control tick at time t from the state in `work.state`.
-    fn control_tick(&mut self, t: f64) -> Result<(), ControlError> {
-        if let FilterRule::Chain { filter, transform } = &self.rule {
-            let (filter, transform) = (filter.clone(), *transform);
-            return self.chain_tick(t, &filter, transform);
-        }
+    /// One control tick at time t from the state in `work.state`: predictions (if the filter
+    /// or the nominal uses them), then per channel u0 and the filter's decision at the
+    /// channel's evaluation state, pushed onto the channel's queue.
+    fn control_tick(&mut self, t: f64) -> Result<(), FilterError> {
         let ControlLoop {
             model,
             nominal,
-            rule,
+            filter,
             queues,
             structure,
             known_barriers,
@@ -503,21 +318,23 @@ impl ControlLoop {
             state,
             predictions,
             predictor,
-            law: law_work,
-            omega,
+            law,
             spare_states,
         } = work;
-        let (model, nominal, rule, known_barriers) = (&*model, &*nominal, &*rule, &*known_barriers);
         let laws = Laws {
             model: model.as_ref(),
-            nominal,
-            rule,
+            nominal: nominal.as_ref(),
+            form: filter.barrier_form(),
             barriers: known_barriers,
         };
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
-        let uses_prediction = rule.uses_prediction() || nominal.uses_prediction();
-        let structure = if uses_prediction { &*structure } else { &Structure::None };
+        let filter_predicts = filter.uses_prediction();
+        let structure = if filter_predicts || nominal.uses_prediction() {
+            &*structure
+        } else {
+            &Structure::None
+        };
         {
             let context = PredictorContext {
                 model: model.as_ref(),
@@ -528,7 +345,17 @@ impl ControlLoop {
             // κ_j for commands not yet issued inside a recursive predictor's window: the
             // delay-free law (4.29) (exact for (4.30); for (4.44) and (4.67) the commands equal
             // it once predictions are consistent, Lemma 4.7).
-            let mut kappa = |time: f64, z: &[f64], u: &mut [f64]| laws.delay_free(time, z, law_work, u);
+            let mut kappa = |time: f64, z: &[f64], u: &mut [f64]| {
+                let count = law.nominal_and_constraints(&laws, time, z, z);
+                let input = DelayFreeInput {
+                    time,
+                    state: z,
+                    nominal: &law.nominal,
+                    constraints: &law.constraints[..count],
+                };
+                filter.delay_free(&input, &mut law.input);
+                u.copy_from_slice(law.input.as_slice());
+            };
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
             if let Some(audit) = chain_audit {
                 let ChainAudit {
@@ -548,34 +375,25 @@ impl ControlLoop {
         }
 
         for (i, p) in predictions.iter().enumerate() {
-            if let FilterRule::LinearClfCbf(stabilizer) = rule {
-                // (3.33): channel i takes component i of QP-LB solved at p_i(t).
-                let outcome = stabilizer.kappa_lb(&p.state);
-                tick.nominal[i] = 0.0;
-                tick.issued[i] = outcome.input[i];
-                tick.outcomes[i] = Some(ChannelOutcome {
-                    input: outcome.input[i],
-                    active: outcome.case != QpCase::A,
-                    infeasible: outcome.infeasible,
-                    mu: f64::NAN,
-                });
-                continue;
-            }
-            let eval_state = if rule.uses_prediction() { &p.state } else { &*state };
+            let eval_state = if filter_predicts { &p.state } else { &*state };
             let (nominal_time, nominal_state) = if nominal.uses_prediction() {
                 (p.target_time, &p.state)
             } else {
                 (t, eval_state)
             };
             let count =
-                laws.nominal_and_constraints(nominal_time, nominal_state.as_slice(), eval_state.as_slice(), law_work);
-            let outcome = if count == 0 {
-                None
-            } else {
-                Some(laws.filter_channel(queues, i, t, law_work, count, omega)?)
-            };
-            tick.nominal[i] = law_work.nominal[i];
-            tick.issued[i] = outcome.map_or(law_work.nominal[i], |o| o.input);
+                law.nominal_and_constraints(&laws, nominal_time, nominal_state.as_slice(), eval_state.as_slice());
+            let outcome = filter.filter_channel(&ChannelInput {
+                time: t,
+                channel: i,
+                state: eval_state.as_slice(),
+                nominal: &law.nominal,
+                constraints: &law.constraints[..count],
+                queues,
+                timestep: *timestep,
+            })?;
+            tick.nominal[i] = law.nominal[i];
+            tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
             tick.outcomes[i] = outcome;
         }
         for (i, queue) in queues.iter_mut().enumerate() {

@@ -9,9 +9,21 @@
 //!
 //! Channel indices are positions in delay order (D_1 ≤ … ≤ D_r), 0-based here.
 
+mod api;
+pub mod cbf_qp;
+pub mod chain;
+pub mod clf_cbf_qp;
+pub mod fixed_channel;
+pub mod gamma_m;
 pub mod linear_delays;
+pub mod none;
 pub mod prescribed_time;
 pub mod qp;
+
+pub use api::{
+    barrier_form, delay_free_qp, ChannelInput, DelayFreeInput, FilterContext, FilterError, ParamError, SafetyFilter,
+    TICK_TOLERANCE,
+};
 use nalgebra::DVector;
 
 use crate::barrier::Constraint;

@@ -1,0 +1,452 @@
+//! Assembly of an episode from a loaded scenario, one function per block of the control
+//! diagram (plant, queues, nominal, filter, obstacles, run info), each owning the checks that
+//! need the model. Nothing here runs the loop (`episode/mod.rs`).
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+
+use super::control::{self, ControlLoop};
+use super::{EpisodeError, Obstacle};
+use crate::barrier::Barrier;
+use crate::delay::{DelayProfile, DelayQueue};
+use crate::filter::linear_delays;
+use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
+use crate::log::RunInfo;
+use crate::mujoco::{self, Model, ObjKind, Simulation};
+use crate::nominal::{NominalContext, NominalController};
+use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
+use crate::predictor::Structure;
+use crate::random::{self, Stream};
+use crate::scenario::{vehicle_kind_name, DisturbanceSpec, LoadedScenario, ScenarioError};
+use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
+
+/// A kind's parameter error as the scenario's field error.
+fn param_error(loaded: &LoadedScenario, e: ParamError) -> EpisodeError {
+    loaded.field_error(&e.key, e.message).into()
+}
+
+/// The plant's pieces before it is built: model (MuJoCo kinds), analytic dynamics, hull.
+pub(super) struct PlantParts {
+    model: Option<Model>,
+    vehicle: Option<Box<dyn vehicle::MujocoVehicle>>,
+    pub dynamics: Arc<dyn Dynamics>,
+    pub hull_radius: f64,
+    pub timestep: f64,
+}
+
+/// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
+/// (contype 0, conaffinity 1: it collides with the vehicle hull and nothing else).
+fn model_with_obstacles(xml: &str, loaded: &LoadedScenario) -> Result<String, ScenarioError> {
+    let obstacles = &loaded.scenario.obstacles;
+    if obstacles.is_empty() {
+        return Ok(xml.to_string());
+    }
+    let Some(at) = xml.rfind("</worldbody>") else {
+        return Err(loaded.field_error("vehicle.model", "the MJCF has no <worldbody> to place obstacles in"));
+    };
+    let mut geoms = String::new();
+    for (i, o) in obstacles.iter().enumerate() {
+        geoms.push_str(&format!(
+            "    <geom name=\"{}\" type=\"sphere\" pos=\"{} {} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n",
+            obstacle_geom_name(i),
+            o.centre[0],
+            o.centre[1],
+            o.radius
+        ));
+    }
+    Ok(format!("{}{}{}", &xml[..at], geoms, &xml[at..]))
+}
+
+pub(super) fn obstacle_geom_name(index: usize) -> String {
+    format!("obstacle_{index}")
+}
+
+/// The vehicle: its MJCF (with the obstacles' geoms) compiled and bound, or the analytic model
+/// of a kind without MJCF.
+pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError> {
+    let sc = &loaded.scenario;
+    let file = loaded.path.display().to_string();
+    if let Some(model_path) = loaded.model_path() {
+        let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
+            .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
+        let xml = model_with_obstacles(&xml, loaded)?;
+        let mut model =
+            Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| EpisodeError::Model {
+                file: file.clone(),
+                reason: source,
+            })?;
+        if let Some(h) = sc.vehicle.timestep {
+            model.set_timestep(h);
+        }
+        if let Some(integrator) = sc.vehicle.integrator {
+            model.set_integrator(integrator);
+        }
+        let bound = vehicle::bind(sc.vehicle.kind, &model).map_err(|reason| EpisodeError::Model { file, reason })?;
+        return Ok(PlantParts {
+            dynamics: bound.dynamics(),
+            hull_radius: bound.hull_radius(),
+            timestep: model.timestep(),
+            model: Some(model),
+            vehicle: Some(bound),
+        });
+    }
+    // Validation guarantees a timestep, and A and B for kind linear.
+    let dynamics: Arc<dyn Dynamics> = match sc.vehicle.kind {
+        VehicleKind::NonlinearExample1 => Arc::new(vehicle::NonlinearExample1::default()),
+        VehicleKind::StrictFeedback => Arc::new(vehicle::StrictFeedbackModel::default()),
+        _ => {
+            let (a, b) = (
+                sc.vehicle.a.as_ref().expect("validated"),
+                sc.vehicle.b.as_ref().expect("validated"),
+            );
+            Arc::new(LinearModel::new(matrix_from_rows(a), matrix_from_rows(b)))
+        }
+    };
+    Ok(PlantParts {
+        model: None,
+        vehicle: None,
+        dynamics,
+        hull_radius: 0.0,
+        timestep: sc.vehicle.timestep.expect("validated"),
+    })
+}
+
+/// The initial state's size and the channel names the scenario uses, against the model.
+pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dynamics) -> Result<(), EpisodeError> {
+    let sc = &loaded.scenario;
+    let n = model.state_dim();
+    if sc.vehicle.initial_state.len() != n {
+        return Err(loaded
+            .field_error(
+                "vehicle.initial_state",
+                format!(
+                    "expected {n} values ({}), found {}",
+                    model.state_names().join(", "),
+                    sc.vehicle.initial_state.len()
+                ),
+            )
+            .into());
+    }
+    let channels = model.channel_names();
+    for (section, keys) in [
+        ("delays", sc.delays.keys().collect::<Vec<_>>()),
+        ("initial_input", sc.initial_input.keys().collect()),
+    ] {
+        for key in keys {
+            if !channels.contains(key) {
+                return Err(loaded
+                    .field_error(
+                        &format!("{section}.{key}"),
+                        format!("unknown input channel; this vehicle has: {}", channels.join(", ")),
+                    )
+                    .into());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// (control period, plant steps per tick): the period must be a whole multiple of h.
+pub(super) fn control_period(loaded: &LoadedScenario, timestep: f64) -> Result<(f64, u64), EpisodeError> {
+    let period = loaded.scenario.control.period.unwrap_or(timestep);
+    let ratio = period / timestep;
+    if (ratio - ratio.round()).abs() > 1e-6 || ratio.round() < 1.0 {
+        return Err(loaded
+            .field_error(
+                "control.period",
+                format!("expected a whole multiple of the timestep {timestep} s, found {period}"),
+            )
+            .into());
+    }
+    Ok((period, ratio.round() as u64))
+}
+
+/// One delay queue per channel (Assumptions 1–2 checked on each profile) and the predictor
+/// structure they call for.
+pub(super) fn queues(
+    loaded: &LoadedScenario,
+    channels: &[String],
+    timestep: f64,
+    period: f64,
+) -> Result<(Vec<DelayQueue>, Structure), EpisodeError> {
+    let sc = &loaded.scenario;
+    let mut queues = Vec::with_capacity(channels.len());
+    for channel in channels {
+        let profile = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
+        let key = format!("delays.{channel}");
+        profile
+            .check(channel, sc.duration, timestep, sc.control.history)
+            .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+        let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
+        let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
+            .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+        queues.push(queue);
+    }
+    let structure = control::predictor_structure(&queues, period).map_err(|e| loaded.field_error("delays", e))?;
+    Ok((queues, structure))
+}
+
+/// The nominal controller of the scenario's `nominal` table (registry kind).
+pub(super) fn nominal(
+    loaded: &LoadedScenario,
+    model: &Arc<dyn Dynamics>,
+) -> Result<Box<dyn NominalController>, EpisodeError> {
+    let spec = &loaded.scenario.nominal;
+    let kind = vehicle_kind_name(loaded.scenario.vehicle.kind);
+    let ctx = NominalContext {
+        model,
+        vehicle_kind: &kind,
+        channels: model.channel_names(),
+    };
+    crate::registry::registry()
+        .build_nominal(&spec.kind, &spec.params, &ctx)
+        .map_err(|e| param_error(loaded, e))
+}
+
+/// The safety filter of the scenario's `filter` table (registry kind), built knowing the
+/// model, the queues, x(0), every barrier (the scenario's, then the obstacles') and the nominal.
+pub(super) fn filter(
+    loaded: &LoadedScenario,
+    model: &Arc<dyn Dynamics>,
+    queues: &[DelayQueue],
+    barriers: &[Barrier],
+    nominal: &dyn NominalController,
+    timestep: f64,
+) -> Result<Box<dyn SafetyFilter>, EpisodeError> {
+    let sc = &loaded.scenario;
+    let kind = vehicle_kind_name(sc.vehicle.kind);
+    let ctx = FilterContext {
+        model,
+        vehicle_kind: &kind,
+        queues,
+        initial_state: &DVector::from_column_slice(&sc.vehicle.initial_state),
+        barriers,
+        nominal,
+        timestep,
+    };
+    crate::registry::registry()
+        .build_filter(&sc.filter.kind, &sc.filter.params, &ctx)
+        .map_err(|e| param_error(loaded, e))
+}
+
+/// x(0): the scenario's initial state with its seeded perturbation.
+pub(super) fn initial_state(loaded: &LoadedScenario) -> DVector<f64> {
+    let sc = &loaded.scenario;
+    let mut x0 = DVector::from_column_slice(&sc.vehicle.initial_state);
+    if let Some(bounds) = &sc.vehicle.initial_perturbation {
+        for (i, bound) in bounds.iter().enumerate() {
+            x0[i] += bound * random::symmetric_unit(sc.seed, Stream::InitialState, 0, i as u64);
+        }
+    }
+    x0
+}
+
+/// The state constraints that are not obstacles (`barrier_<i>`).
+pub(super) fn barriers(loaded: &LoadedScenario, n: usize) -> Result<Vec<Barrier>, EpisodeError> {
+    let mut barriers = Vec::with_capacity(loaded.scenario.barriers.len());
+    for (i, shape) in loaded.scenario.barriers.iter().enumerate() {
+        let b = Barrier {
+            name: format!("barrier_{i}"),
+            shape: shape.clone(),
+        };
+        if b.max_index() >= n {
+            return Err(loaded
+                .field_error(
+                    &format!("barriers[{i}]"),
+                    format!("refers to state index {}, the state has {n} components", b.max_index()),
+                )
+                .into());
+        }
+        barriers.push(b);
+    }
+    Ok(barriers)
+}
+
+/// The obstacles: circular barriers (4.81) with r = hull + obstacle radius, clear of x(0),
+/// with their seeded appearance times.
+pub(super) fn obstacles(
+    loaded: &LoadedScenario,
+    model: &dyn Dynamics,
+    hull_radius: f64,
+    x0: &DVector<f64>,
+) -> Result<Vec<Obstacle>, EpisodeError> {
+    let sc = &loaded.scenario;
+    let mut obstacles = Vec::with_capacity(sc.obstacles.len());
+    for (i, o) in sc.obstacles.iter().enumerate() {
+        let Some(position) = model.planar_position() else {
+            return Err(loaded
+                .field_error("obstacles", "this vehicle does not move in a plane")
+                .into());
+        };
+        let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
+        let barrier = Barrier::circular_obstacle(&name, position, o.centre, hull_radius + o.radius);
+        if barrier.h(x0) < 0.0 {
+            return Err(loaded
+                .field_error(
+                    &format!("obstacles[{i}]"),
+                    format!(
+                        "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
+                        barrier.clearance(x0)
+                    ),
+                )
+                .into());
+        }
+        obstacles.push(Obstacle {
+            barrier,
+            radius: o.radius,
+            appear_at: (o.appear_at
+                + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
+            .max(0.0),
+            known: false,
+            in_contact: false,
+            contact_depth: 0.0,
+        });
+    }
+    Ok(obstacles)
+}
+
+/// The plant: MuJoCo (the obstacles' geoms looked up for contacts) or the analytic ODE with
+/// the scenario's state disturbance.
+pub(super) fn plant(
+    loaded: &LoadedScenario,
+    parts: PlantParts,
+    obstacles: usize,
+    x0: &DVector<f64>,
+) -> Result<Box<dyn Plant>, EpisodeError> {
+    let sc = &loaded.scenario;
+    let file = loaded.path.display().to_string();
+    Ok(match sc.plant {
+        PlantKind::Mujoco => {
+            let model = parts.model.expect("MuJoCo kinds have a model (validated)");
+            let geoms = (0..obstacles)
+                .map(|i| model.require(ObjKind::Geom, &obstacle_geom_name(i)))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|source| EpisodeError::Model {
+                    file: file.clone(),
+                    reason: source,
+                })?;
+            let sim = Simulation::new(model)?;
+            Box::new(MujocoPlant::new(
+                sim,
+                parts.vehicle.expect("bound with the model"),
+                geoms,
+                x0,
+            ))
+        }
+        PlantKind::Ode => {
+            let n = parts.dynamics.state_dim();
+            let plant = OdePlant::new(parts.dynamics, x0.clone(), parts.timestep);
+            Box::new(match &sc.disturbance {
+                Some(DisturbanceSpec::Example349) => plant.with_disturbance(Box::new(linear_delays::disturbance_3_49)),
+                Some(DisturbanceSpec::RandomState { bound, hold }) => {
+                    let (seed, bound, hold) = (sc.seed, *bound, *hold);
+                    plant.with_disturbance(Box::new(move |t| {
+                        random_vector(seed, Stream::StateDisturbance, bound, hold, t, n)
+                    }))
+                }
+                Some(DisturbanceSpec::RandomInput { .. }) | None => plant,
+            })
+        }
+    })
+}
+
+/// The loop's settings from the scenario's `control` table and input disturbance; the
+/// non-obstacle barriers are known from the start.
+pub(super) fn configure_control(
+    loaded: &LoadedScenario,
+    control: &mut ControlLoop,
+    barriers: &[Barrier],
+) -> Result<(), EpisodeError> {
+    let sc = &loaded.scenario;
+    let timestep = control.timestep();
+    if let Some(step) = sc.control.predictor_step {
+        let steps = step / timestep;
+        if !(steps >= 0.5 && (steps - steps.round()).abs() < 1e-6) {
+            return Err(loaded
+                .field_error(
+                    "control.predictor_step",
+                    format!("expected a whole multiple of the timestep {timestep} s, got {step}"),
+                )
+                .into());
+        }
+        control
+            .set_predictor_step(steps.round() as u32)
+            .map_err(|e| loaded.field_error("control.predictor_step", e))?;
+    }
+    let tolerance = sc.control.chain_tolerance;
+    if !(tolerance >= 0.0 && tolerance.is_finite()) {
+        return Err(loaded
+            .field_error(
+                "control.chain_tolerance",
+                format!("expected a finite distance >= 0, got {tolerance}"),
+            )
+            .into());
+    }
+    control.set_chain_tolerance(tolerance);
+    if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
+        let (seed, bound, hold) = (sc.seed, *bound, *hold);
+        let r = control.queues().len();
+        control.set_input_disturbance(Box::new(move |t, channel| {
+            random_component(seed, Stream::InputDisturbance, bound, hold, t, r, channel)
+        }));
+    }
+    for barrier in barriers {
+        control.add_barrier(barrier.clone());
+    }
+    Ok(())
+}
+
+/// What the log's run metadata says about the run.
+pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f64) -> RunInfo {
+    let sc = &loaded.scenario;
+    let timestep = control.timestep();
+    RunInfo {
+        scenario_name: sc.name.clone(),
+        scenario_path: loaded.path.display().to_string(),
+        scenario_text: loaded.source_text.clone(),
+        scenario_resolved: loaded.resolved_toml(),
+        overrides: loaded.overrides.clone(),
+        mujoco_version: mujoco::version_string(),
+        timestep,
+        control_period: period,
+        max_delay: control
+            .queues()
+            .iter()
+            .flat_map(|q| {
+                // Sampled over the run for a time-varying delay; a constant one is itself.
+                let samples = match q.constant_delay() {
+                    Some(_) => 0,
+                    None => (sc.duration / timestep).ceil() as usize,
+                };
+                (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)))
+            })
+            .fold(0.0, f64::max),
+        prescribed_time: control.filter().prescribed_time(),
+    }
+}
+
+/// Steps of an episode of the scenario's duration.
+pub(super) fn steps(loaded: &LoadedScenario, timestep: f64) -> u64 {
+    (loaded.scenario.duration / timestep - TICK_TOLERANCE).ceil() as u64
+}
+
+/// A matrix from a scenario's array of rows (validated rectangular and non-empty).
+fn matrix_from_rows(rows: &[Vec<f64>]) -> DMatrix<f64> {
+    DMatrix::from_row_iterator(rows.len(), rows[0].len(), rows.iter().flatten().copied())
+}
+
+/// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
+fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize) -> DVector<f64> {
+    DVector::from_iterator(
+        dim,
+        (0..dim).map(|i| random_component(seed, stream, bound, hold, t, dim, i)),
+    )
+}
+
+/// Component i of [`random_vector`] (no allocation: the input disturbance is sampled in the
+/// control callback).
+fn random_component(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize, i: usize) -> f64 {
+    let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
+    bound / (dim as f64).sqrt() * random::symmetric_unit(seed, stream, interval, i as u64)
+}

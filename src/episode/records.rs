@@ -1,0 +1,297 @@
+//! What the episode writes to its sinks besides events: the per-step and per-tick records
+//! (kept between steps, so logging allocates nothing per step), the barrier values, the
+//! predictions against the realised state, and the Foxglove 3D scene.
+
+use nalgebra::DVector;
+
+use super::control::{Consistency, Tick};
+use super::{Episode, Obstacle};
+use crate::log::{proto, scene, LogError, Record, Sink};
+
+/// The records written at every step or tick, kept between steps so logging allocates
+/// nothing per step: each is always the variant its field names.
+pub(super) struct RecordBuffers {
+    pub(super) state: Record,
+    pub(super) applied: Record,
+    pub(super) barrier: Record,
+    pub(super) issued: Record,
+    pub(super) filter: Record,
+}
+
+impl RecordBuffers {
+    pub(super) fn new(state_names: &[String], channels: &[String]) -> RecordBuffers {
+        RecordBuffers {
+            state: Record::State(proto::State {
+                names: state_names.to_vec(),
+                ..Default::default()
+            }),
+            applied: Record::Applied(proto::AppliedCommand {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+            barrier: Record::Barrier(proto::Barrier::default()),
+            issued: Record::Issued(proto::IssuedCommand {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+            filter: Record::Filter(proto::Filter {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+        }
+    }
+}
+
+/// What the Foxglove 3D view needs beyond the state.
+pub(super) struct SceneState {
+    pub(super) hull_radius: f64,
+    /// A straight reference path (point, heading, distance the reference speed covers in the
+    /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
+    /// fitting their view to the scene show the episode, not a 400 m line).
+    pub(super) path: Option<([f64; 2], f64, f64)>,
+    /// Positions at every fifth control tick since the last published trail segment (which
+    /// starts with the previous segment's last point, so the segments join up).
+    pub(super) trail: Vec<[f64; 2]>,
+    /// Trail segments published so far (entities `trail/0`, `trail/1`, …: each is
+    /// published once and persists, so the log and the memory grow linearly, not
+    /// quadratically, with the episode's length).
+    pub(super) trail_segments: u64,
+}
+
+/// Control ticks between trail points, and trail intervals per published trail segment.
+const TRAIL_EVERY_TICKS: u64 = 5;
+const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
+
+impl Episode {
+    pub(super) fn emit(sinks: &mut [&mut dyn Sink], record: Record) -> Result<(), LogError> {
+        Self::emit_ref(sinks, &record)
+    }
+
+    pub(super) fn emit_ref(sinks: &mut [&mut dyn Sink], record: &Record) -> Result<(), LogError> {
+        for sink in sinks.iter_mut() {
+            sink.record(record)?;
+        }
+        Ok(())
+    }
+
+    pub(super) fn event(time: f64, kind: &str, message: String, participants: Vec<String>, depth: f64) -> Record {
+        Record::Event(proto::Event {
+            time,
+            kind: kind.into(),
+            message,
+            participants,
+            depth,
+        })
+    }
+
+    /// Foxglove view: static entities at the start, then the vehicle and `/tf` at every
+    /// control tick and the trail every few ticks (planar vehicles only).
+    pub(super) fn emit_scene(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+        k: u64,
+        time: f64,
+        x: &DVector<f64>,
+    ) -> Result<(), LogError> {
+        let model = self.control.model().clone();
+        let Some([i, j]) = model.planar_position() else {
+            return Ok(());
+        };
+        let position = [x[i], x[j]];
+        if k == 0 {
+            if let Some((point, heading, reach)) = self.scene.path {
+                let (s, c) = heading.sin_cos();
+                // From 10 m behind the start to 10 m beyond where the reference speed leads.
+                let start = (position[0] - point[0]) * c + (position[1] - point[1]) * s;
+                let (from, to) = (start - 10.0, start + reach + 10.0);
+                let ends = [
+                    [point[0] + from * c, point[1] + from * s],
+                    [point[0] + to * c, point[1] + to * s],
+                ];
+                Self::emit(
+                    sinks,
+                    Record::Scene(time, scene::polyline(time, "reference_path", &ends, scene::PATH, 0.1)),
+                )?;
+            }
+            for o in &self.obstacles {
+                Self::emit(sinks, obstacle_scene(time, o))?;
+            }
+        }
+        let tick = k / self.control.steps_per_tick();
+        if !k.is_multiple_of(self.control.steps_per_tick()) {
+            return Ok(());
+        }
+        let heading = model.heading_index().map_or(0.0, |h| x[h]);
+        Self::emit(
+            sinks,
+            Record::Scene(time, scene::vehicle(time, position, heading, self.scene.hull_radius)),
+        )?;
+        Self::emit(
+            sinks,
+            Record::Transform(time, scene::transform(time, position, heading)),
+        )?;
+        if tick.is_multiple_of(TRAIL_EVERY_TICKS) {
+            self.scene.trail.push(position);
+            let last_tick = k + self.control.steps_per_tick() > self.steps;
+            let points = self.scene.trail.len();
+            if points > TRAIL_PUBLISH_EVERY_POINTS || (last_tick && points >= 2) {
+                let id = format!("trail/{}", self.scene.trail_segments);
+                let trail = scene::polyline(time, &id, &self.scene.trail, scene::TRAIL, 0.15);
+                Self::emit(sinks, Record::Scene(time, trail))?;
+                self.scene.trail_segments += 1;
+                self.scene.trail.drain(..points - 1);
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn emit_tick(
+        sinks: &mut [&mut dyn Sink],
+        tick: &Tick,
+        records: &mut RecordBuffers,
+    ) -> Result<(), LogError> {
+        if let Record::Issued(m) = &mut records.issued {
+            m.time = tick.time;
+            m.nominal.clear();
+            m.nominal.extend(tick.nominal.iter());
+            m.filtered.clear();
+            m.filtered.extend(tick.issued.iter());
+        }
+        Self::emit_ref(sinks, &records.issued)?;
+        let solved = tick.outcomes.iter().flatten();
+        if let Record::Filter(m) = &mut records.filter {
+            m.time = tick.time;
+            m.active = solved.clone().any(|o| o.active);
+            m.infeasible = solved.clone().any(|o| o.infeasible);
+            m.mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
+            m.correction.clear();
+            m.correction
+                .extend(tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0));
+        }
+        Self::emit_ref(sinks, &records.filter)
+    }
+
+    /// Every barrier at x(t_k), with its constraint evaluated at the applied input (without a
+    /// filter there is no barrier constraint: only h is meaningful).
+    pub(super) fn emit_barriers(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+        time: f64,
+        x: &DVector<f64>,
+        applied: &DVector<f64>,
+    ) -> Result<(), LogError> {
+        let form = self.control.filter().barrier_form();
+        let model = self.control.model().as_ref();
+        let entries = self
+            .obstacles
+            .iter()
+            .map(|o| (&o.barrier, o.known, true))
+            .chain(self.barriers.iter().map(|b| (b, true, false)));
+        // World velocity of the planar position (for time-to-collision): ṗ from the model.
+        let velocity = model.planar_position().map(|[i, j]| {
+            model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
+            [self.xdot[i], self.xdot[j]]
+        });
+        let Record::Barrier(record) = &mut self.records.barrier else {
+            unreachable!("records.barrier holds a barrier record")
+        };
+        record.time = time;
+        let count = self.obstacles.len() + self.barriers.len();
+        if record.barriers.len() != count {
+            record.barriers = entries
+                .clone()
+                .map(|(b, ..)| proto::BarrierValue {
+                    name: b.name.clone(),
+                    ..Default::default()
+                })
+                .collect();
+        }
+        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
+        for ((b, known, obstacle), value) in entries.zip(record.barriers.iter_mut()) {
+            let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
+                lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
+                (constraint_data.value(applied), form.relative_degree())
+            });
+            let time_to_collision = match (obstacle, velocity, &b.shape) {
+                (
+                    true,
+                    Some(v),
+                    crate::barrier::Shape::Ball {
+                        indices,
+                        centre,
+                        radius,
+                        ..
+                    },
+                ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
+                _ => f64::NAN,
+            };
+            *value = proto::BarrierValue {
+                name: std::mem::take(&mut value.name),
+                h: b.h(x),
+                constraint,
+                known,
+                relative_degree,
+                clearance: b.clearance(x),
+                time_to_collision,
+                obstacle,
+            };
+        }
+        if count == 0 {
+            return Ok(());
+        }
+        Self::emit_ref(sinks, &self.records.barrier)
+    }
+}
+
+/// Smallest τ ≥ 0 with |d + v τ| = r (relative position d, velocity v held): 0 when already
+/// within r, +inf when never.
+fn time_to_contact(d: [f64; 2], v: [f64; 2], r: f64) -> f64 {
+    let c = d[0] * d[0] + d[1] * d[1] - r * r;
+    if c <= 0.0 {
+        return 0.0;
+    }
+    let a = v[0] * v[0] + v[1] * v[1];
+    let b = 2.0 * (d[0] * v[0] + d[1] * v[1]);
+    let discriminant = b * b - 4.0 * a * c;
+    if a == 0.0 || b >= 0.0 || discriminant < 0.0 {
+        return f64::INFINITY;
+    }
+    (-b - discriminant.sqrt()) / (2.0 * a)
+}
+
+/// An obstacle as a Foxglove entity (grey until known, red after).
+pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
+    let (centre, radius) = match &o.barrier.shape {
+        crate::barrier::Shape::Ball { centre, .. } => ([centre[0], centre[1]], o.radius),
+        _ => ([0.0, 0.0], o.radius),
+    };
+    Record::Scene(time, scene::obstacle(time, &o.barrier.name, centre, radius, o.known))
+}
+
+pub(super) fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
+    let error = (&c.prediction.state - &c.realized).norm();
+    Record::Prediction(proto::Prediction {
+        time: c.prediction.target_time,
+        channel: channels[c.prediction.channel].clone(),
+        issued_at: c.prediction.issued_at,
+        horizon: c.prediction.target_time - c.prediction.issued_at,
+        predicted: c.prediction.state.iter().copied().collect(),
+        realized: c.realized.iter().copied().collect(),
+        error,
+        relative_error: error / c.realized.norm().max(1.0),
+        reused_chain: c.prediction.reused_chain,
+        chain_mismatch: c.prediction.chain_mismatch,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn time_to_contact_solves_the_constant_velocity_geometry() {
+        // 10 m away head-on at 2 m/s, r = 6: contact after (10 − 6)/2 = 2 s.
+        assert!((super::time_to_contact([-10.0, 0.0], [2.0, 0.0], 6.0) - 2.0).abs() < 1e-12);
+        assert_eq!(super::time_to_contact([-10.0, 0.0], [-2.0, 0.0], 6.0), f64::INFINITY);
+        assert_eq!(super::time_to_contact([-10.0, 7.0], [2.0, 0.0], 6.0), f64::INFINITY);
+        assert_eq!(super::time_to_contact([-1.0, 0.0], [0.0, 0.0], 6.0), 0.0);
+    }
+}

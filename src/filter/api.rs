@@ -1,0 +1,210 @@
+//! The safety-filter extension point: the trait every filter implements (the built-ins
+//! included), what it receives at a control tick, and what it is built from.
+//!
+//! A filter is registered under a scenario `kind` in [`crate::registry`] with a typed
+//! parameter struct; the episode builds it once per run ([`FilterContext`]) and calls it at
+//! every control tick, once per input channel ([`ChannelInput`]). See docs/writing-a-filter.md.
+
+use std::sync::Arc;
+
+use nalgebra::DVector;
+
+use crate::barrier::{Barrier, BarrierForm, Constraint};
+use crate::delay::{DelayError, DelayQueue};
+use crate::filter::ChannelOutcome;
+use crate::nominal::NominalController;
+use crate::vehicle::Dynamics;
+
+/// Fraction of a step below which two times are the same instant.
+pub const TICK_TOLERANCE: f64 = 1e-6;
+
+/// A safety filter: at each control tick, for each input channel i, the command u_i from the
+/// nominal input and the known barriers' constraint data at the channel's evaluation state.
+///
+/// Called inside MuJoCo's control callback: it must not panic on any state (return an error),
+/// and should not allocate once warm (size scratch space when built).
+pub trait SafetyFilter: Send {
+    /// The barrier condition whose constraint data a(z) + b(z)·u ≥ 0 the filter receives for
+    /// every known barrier ((4.7)/(4.8) or (4.85)/(4.86)); `None`: the filter needs none (it
+    /// has its own barrier, or it is no filter), and the log's `/barrier` constraint is NaN.
+    fn barrier_form(&self) -> Option<BarrierForm>;
+
+    /// Whether channel i is evaluated at its prediction p_i(t) ((2.26), (4.34)) rather than at
+    /// the measured x(t) ((2.16)).
+    fn uses_prediction(&self) -> bool;
+
+    /// The decision for one channel; `None` when the filter has nothing to act on (no known
+    /// barrier yet): the nominal input is issued and no decision is logged.
+    fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError>;
+
+    /// u ← the delay-free safe law κ^DF (4.29) at z, for all channels: the commands the
+    /// recursive predictors (4.23) assume for inputs not yet issued inside their window.
+    /// Default: the delay-free CBF-QP (4.9) over every known barrier.
+    fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
+        delay_free_qp(input.constraints, input.nominal, None, u);
+    }
+
+    /// The prescribed time T of the run's prescribed-time metrics (Ch. 5), if the filter has one.
+    fn prescribed_time(&self) -> Option<f64> {
+        None
+    }
+}
+
+/// What a filter receives for channel i at tick time t.
+pub struct ChannelInput<'a> {
+    /// t, the tick time (s).
+    pub time: f64,
+    /// i, the channel's index (channels in the vehicle's order).
+    pub channel: usize,
+    /// The evaluation state: p_i(t) if [`SafetyFilter::uses_prediction`], else x(t).
+    pub state: &'a [f64],
+    /// u0 (every channel) at the nominal's evaluation state.
+    pub nominal: &'a DVector<f64>,
+    /// One per known barrier at `state`, in the form of [`SafetyFilter::barrier_form`] (empty
+    /// without a form).
+    pub constraints: &'a [Constraint],
+    /// Every channel's delay queue: delays D_j, φ_j, and the commands already issued.
+    pub queues: &'a [DelayQueue],
+    /// The plant step h (s).
+    pub timestep: f64,
+}
+
+impl ChannelInput<'_> {
+    /// ω (4.45)/(4.62): omega[j] ← u_j(t − D_{j,i}), the command channel j ≥ `from` applies when
+    /// channel i's command issued now arrives (at φ_i⁻¹(t)); 0 for j < `from`.
+    pub fn later_commands(&self, from: usize, omega: &mut DVector<f64>) -> Result<(), DelayError> {
+        let arrival = self.queues[self.channel].profile().prediction_time(self.time);
+        omega.fill(0.0);
+        for j in from..self.queues.len() {
+            omega[j] = self.queues[j].applied(arrival)?.value;
+        }
+        Ok(())
+    }
+}
+
+/// What [`SafetyFilter::delay_free`] receives.
+pub struct DelayFreeInput<'a> {
+    pub time: f64,
+    /// z, the (predicted) state.
+    pub state: &'a [f64],
+    /// u0 at z.
+    pub nominal: &'a DVector<f64>,
+    /// One per known barrier at z.
+    pub constraints: &'a [Constraint],
+}
+
+/// u ← the delay-free CBF-QP over all channels from u0 and the constraints: u0 without
+/// constraints (even with limits), the closed form (4.9) for one barrier without limits (no allocation), else
+/// the numerical QP ([`crate::filter::qp`]). Returns (active, infeasible, μ).
+pub fn delay_free_qp(
+    constraints: &[Constraint],
+    nominal: &DVector<f64>,
+    limits: Option<(&[f64], &[f64])>,
+    u: &mut DVector<f64>,
+) -> (bool, bool, f64) {
+    u.copy_from(nominal);
+    match (constraints, limits) {
+        // Without a known barrier the nominal passes as it is (limits included).
+        ([], _) => (false, false, f64::NAN),
+        ([c], None) => crate::filter::cbf_qp_in_place(c, u),
+        (constraints, _) => {
+            let o = crate::filter::qp::cbf_qp_multi(constraints, nominal, limits);
+            u.copy_from(&o.input);
+            (o.active, o.infeasible, o.mu)
+        }
+    }
+}
+
+/// What a filter is built from (once per run, before the first step).
+pub struct FilterContext<'a> {
+    /// The analytic model the controller assumes (f, G, ∂f/∂x).
+    pub model: &'a Arc<dyn Dynamics>,
+    /// The scenario's `vehicle.kind`.
+    pub vehicle_kind: &'a str,
+    /// One queue per channel, with its delay profile.
+    pub queues: &'a [DelayQueue],
+    /// x(0) as the scenario writes it.
+    pub initial_state: &'a DVector<f64>,
+    /// The scenario's barriers, then its obstacles' barriers (hull radius included).
+    pub barriers: &'a [Barrier],
+    /// The nominal controller.
+    pub nominal: &'a dyn NominalController,
+    /// The plant step h (s).
+    pub timestep: f64,
+}
+
+impl FilterContext<'_> {
+    /// The error of a check that failed: the distinct-delay filters need constant delays in
+    /// non-decreasing channel order D_1 ≤ … ≤ D_r.
+    pub fn ordered_constant_delays(&self) -> Result<(), ParamError> {
+        let mut previous: Option<(&str, f64)> = None;
+        for q in self.queues {
+            let key = format!("delays.{}", q.channel());
+            let Some(d) = q.constant_delay() else {
+                return Err(ParamError::new(key, "the distinct-delay filters need constant delays"));
+            };
+            if let Some((name, p)) = previous {
+                if d < p {
+                    return Err(ParamError::new(
+                        key,
+                        format!(
+                            "the filter assumes D_1 <= ... <= D_r in channel order, but `{}` ({d} s) comes after `{name}` ({p} s)",
+                            q.channel()
+                        ),
+                    ));
+                }
+            }
+            previous = Some((q.channel(), d));
+        }
+        Ok(())
+    }
+}
+
+/// A parameter or scenario field a filter or nominal cannot accept: the scenario key (e.g.
+/// `filter.m`, `delays.steering`) and what was expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("key `{key}`: {message}")]
+pub struct ParamError {
+    pub key: String,
+    pub message: String,
+}
+
+impl ParamError {
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> ParamError {
+        ParamError {
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// An error inside a control tick (the episode logs it and stops).
+#[derive(Debug, thiserror::Error)]
+pub enum FilterError {
+    #[error(transparent)]
+    Delay(#[from] DelayError),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// The barrier form from a filter's gains: relative degree 1 with α(h) = alpha·h, or 2 with
+/// l0, l1 of (4.82) (roots of s² + l1 s + l0 negative real, below (4.83)).
+pub fn barrier_form(alpha: Option<f64>, l0: Option<f64>, l1: Option<f64>) -> Result<BarrierForm, ParamError> {
+    let positive = |x: f64| x.is_finite() && x > 0.0;
+    match (alpha, l0, l1) {
+        (Some(alpha), None, None) if !positive(alpha) => Err(ParamError::new(
+            "filter.alpha",
+            format!("expected alpha > 0, found {alpha}"),
+        )),
+        (Some(alpha), None, None) => Ok(BarrierForm::RelativeDegree1 { alpha }),
+        (None, Some(l0), Some(l1)) if !(positive(l0) && positive(l1) && l1 * l1 >= 4.0 * l0) => Err(ParamError::new(
+            "filter",
+            format!("expected l0 > 0, l1 > 0 and l1² >= 4 l0 (negative real roots of s² + l1 s + l0), found l0 = {l0}, l1 = {l1}"),
+        )),
+        (None, Some(l0), Some(l1)) => Ok(BarrierForm::RelativeDegree2 { l0, l1 }),
+        _ => Err(ParamError::new(
+            "filter",
+            "expected either alpha (relative degree 1) or both l0 and l1 (relative degree 2)",
+        )),
+    }
+}

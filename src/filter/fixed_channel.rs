@@ -1,0 +1,156 @@
+//! `kind = "fixed_channel"`: the fixed-channel robust filter (4.39)–(4.47) at each channel's
+//! prediction; the first φ channels (4.41) suffice everywhere.
+
+use nalgebra::DVector;
+use serde::{Deserialize, Serialize};
+
+use crate::barrier::{self, BarrierForm};
+use crate::filter::{
+    barrier_form, box_grid, fixed_channel, minimal_channels, ChannelInput, ChannelOutcome, FilterContext, FilterError,
+    ParamError, SafetyFilter,
+};
+use crate::registry::Params;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedChannelParams {
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    #[serde(default)]
+    pub l0: Option<f64>,
+    #[serde(default)]
+    pub l1: Option<f64>,
+    /// φ (4.41): how many of the shortest-delayed channels suffice everywhere. Declared here
+    /// (verified on `phi_box` if given) or, if absent, found on `phi_box`.
+    #[serde(default)]
+    pub phi: Option<usize>,
+    #[serde(default)]
+    pub phi_box: Option<StateBox>,
+}
+
+/// An axis-aligned box of states, sampled on a grid to verify or find φ (4.40).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateBox {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    /// Grid points per axis (default 9).
+    #[serde(default = "default_box_points")]
+    pub points: usize,
+}
+
+fn default_box_points() -> usize {
+    9
+}
+
+impl Params for FixedChannelParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        barrier_form(self.alpha, self.l0, self.l1)?;
+        if self.phi == Some(0) {
+            return Err(ParamError::new(
+                "filter.phi",
+                "expected phi >= 1 (a number of input channels, (4.41))",
+            ));
+        }
+        if self.phi.is_none() && self.phi_box.is_none() {
+            return Err(ParamError::new(
+                "filter.phi",
+                "declare phi (4.41) or give filter.phi_box to find it",
+            ));
+        }
+        if let Some(b) = &self.phi_box {
+            let ok = b.lower.len() == b.upper.len()
+                && b.points >= 2
+                && b.lower
+                    .iter()
+                    .zip(&b.upper)
+                    .all(|(l, u)| l.is_finite() && u.is_finite() && l <= u);
+            if !ok {
+                return Err(ParamError::new(
+                    "filter.phi_box",
+                    "expected lower <= upper of equal lengths, finite, and points >= 2",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub struct FixedChannel {
+    form: BarrierForm,
+    phi: usize,
+    /// ω (4.45), scratch space.
+    omega: DVector<f64>,
+}
+
+/// The distinct-delay filters act on one barrier.
+pub(crate) fn single_barrier(ctx: &FilterContext) -> Result<(), ParamError> {
+    if ctx.barriers.len() > 1 {
+        return Err(ParamError::new(
+            "obstacles",
+            "the distinct-delay filters (4.44) and (4.67) take one barrier; for several, use kind = \"cbf_qp\" (solved as a QP)",
+        ));
+    }
+    Ok(())
+}
+
+pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
+    let form = barrier_form(p.alpha, p.l0, p.l1)?;
+    ctx.ordered_constant_delays()?;
+    let r = ctx.queues.len();
+    let model = ctx.model.as_ref();
+    let barrier = ctx
+        .barriers
+        .first()
+        .ok_or_else(|| ParamError::new("filter", "a filter needs a barrier or an obstacle"))?;
+    let phi = match (&p.phi_box, p.phi) {
+        (Some(b), declared) => {
+            if b.lower.len() != model.state_dim() {
+                return Err(ParamError::new(
+                    "filter.phi_box",
+                    format!("expected {} bounds per side", model.state_dim()),
+                ));
+            }
+            let b_at = |x: &DVector<f64>| barrier::constraint(barrier, form, model, x).b;
+            let found = minimal_channels(box_grid(&b.lower, &b.upper, b.points), b_at);
+            match declared {
+                Some(phi) if phi < found => {
+                    return Err(ParamError::new("filter.phi", format!("phi = {phi} is too small: on phi_box the first {phi} channels cannot act on the barrier everywhere (the box needs {found})")));
+                }
+                Some(phi) => phi,
+                None => found,
+            }
+        }
+        (None, Some(phi)) => phi,
+        (None, None) => unreachable!("validated"),
+    };
+    if phi > r {
+        return Err(ParamError::new(
+            "filter.phi",
+            format!("expected at most {r} channels, found {phi}"),
+        ));
+    }
+    single_barrier(ctx)?;
+    Ok(Box::new(FixedChannel {
+        form,
+        phi,
+        omega: DVector::zeros(r),
+    }))
+}
+
+impl SafetyFilter for FixedChannel {
+    fn barrier_form(&self) -> Option<BarrierForm> {
+        Some(self.form)
+    }
+    fn uses_prediction(&self) -> bool {
+        true
+    }
+    fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
+        let [c, ..] = input.constraints else {
+            return Ok(None);
+        };
+        let s = self.phi.max(input.channel + 1);
+        input.later_commands(s, &mut self.omega)?;
+        Ok(Some(fixed_channel(c, input.nominal, &self.omega, input.channel, s)))
+    }
+}

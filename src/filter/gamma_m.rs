@@ -1,0 +1,92 @@
+//! `kind = "gamma_m"`: the variable-channel γm filter (4.60)–(4.68) at each channel's
+//! prediction.
+
+use nalgebra::DVector;
+use serde::{Deserialize, Serialize};
+
+use crate::barrier::BarrierForm;
+use crate::filter::fixed_channel::single_barrier;
+use crate::filter::{
+    barrier_form, gamma_m, ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter,
+};
+use crate::registry::Params;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GammaMParams {
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    #[serde(default)]
+    pub l0: Option<f64>,
+    #[serde(default)]
+    pub l1: Option<f64>,
+    /// Slack penalty m ≥ 1 (4.60).
+    pub m: f64,
+    /// γ ≥ 1 of γ_f (4.61); default (m + 1)/m (Remark 4.5).
+    #[serde(default)]
+    pub gamma: Option<f64>,
+}
+
+impl Params for GammaMParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        barrier_form(self.alpha, self.l0, self.l1)?;
+        if !(self.m.is_finite() && self.m >= 1.0) {
+            return Err(ParamError::new(
+                "filter.m",
+                format!("expected m >= 1 (4.60), found {}", self.m),
+            ));
+        }
+        if let Some(gamma) = self.gamma {
+            if !(gamma.is_finite() && gamma >= 1.0) {
+                return Err(ParamError::new(
+                    "filter.gamma",
+                    format!("expected gamma >= 1 (4.61), found {gamma}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub struct GammaM {
+    form: BarrierForm,
+    m: f64,
+    gamma: f64,
+    /// ω (4.62), scratch space.
+    omega: DVector<f64>,
+}
+
+pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
+    let form = barrier_form(p.alpha, p.l0, p.l1)?;
+    ctx.ordered_constant_delays()?;
+    single_barrier(ctx)?;
+    Ok(Box::new(GammaM {
+        form,
+        m: p.m,
+        gamma: p.gamma.unwrap_or((p.m + 1.0) / p.m),
+        omega: DVector::zeros(ctx.queues.len()),
+    }))
+}
+
+impl SafetyFilter for GammaM {
+    fn barrier_form(&self) -> Option<BarrierForm> {
+        Some(self.form)
+    }
+    fn uses_prediction(&self) -> bool {
+        true
+    }
+    fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
+        let [c, ..] = input.constraints else {
+            return Ok(None);
+        };
+        // k (4.68): the last channel with the same delay as i.
+        let (i, queues) = (input.channel, input.queues);
+        let delay_i = queues[i].constant_delay();
+        let k = (i..queues.len())
+            .take_while(|&j| queues[j].constant_delay() == delay_i)
+            .last()
+            .unwrap_or(i);
+        input.later_commands(k + 1, &mut self.omega)?;
+        Ok(Some(gamma_m(c, input.nominal, &self.omega, i, k, self.m, self.gamma)))
+    }
+}
