@@ -80,8 +80,7 @@ impl SafetyFilter for RobustCbf {
             t.clone_from(c);
             t.a -= self.tightening;
         }
-        let (active, infeasible, mu) =
-            delay_free_qp(&self.tightened[..count], input.nominal, None, &mut self.input);
+        let (active, infeasible, mu) = delay_free_qp(&self.tightened[..count], input.nominal, None, &mut self.input);
         Ok(Some(ChannelOutcome {
             input: self.input[input.channel],
             active,

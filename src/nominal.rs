@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::filter::prescribed_time::{BlowUp, PtsNominal, RedLightNominal, StrictFeedbackSystem};
 use crate::filter::ParamError;
-use crate::registry::Params;
+use crate::filter::Params;
 use crate::vehicle::Dynamics;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -209,7 +209,7 @@ pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &[f64]) -> [f64; 2] 
 }
 
 /// A nominal (safety-agnostic) controller u0: the extension point a scenario's
-/// `nominal.kind` names ([`crate::registry`]). Called inside the control callback and the
+/// `nominal.kind` names (see `mjsafe::registry`). Called inside the control callback and the
 /// predictors: it must not panic or allocate.
 pub trait NominalController: Send {
     /// u ← u0 at time `time` and state x (one value per channel).

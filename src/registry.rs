@@ -26,22 +26,9 @@
 
 use std::sync::{Arc, LazyLock, RwLock, RwLockReadGuard};
 
-use serde::de::DeserializeOwned;
-use serde::Serialize;
-
+pub use crate::filter::Params;
 use crate::filter::{self, FilterContext, ParamError, SafetyFilter};
 use crate::nominal::{self, NominalContext, NominalController};
-
-/// A kind's parameters: deserialized from the scenario's table (unknown keys should be refused
-/// with `#[serde(deny_unknown_fields)]`), checked, and serialized back into the log's resolved
-/// scenario (defaults filled in).
-pub trait Params: Serialize + DeserializeOwned {
-    /// Checks what serde cannot (signs, ranges, consistency); keys are scenario keys
-    /// (`filter.m`). Checks that need the model belong in the constructor.
-    fn validate(&self) -> Result<(), ParamError> {
-        Ok(())
-    }
-}
 
 type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;

@@ -39,6 +39,10 @@ fn a_user_filter_with_a_delay_margin_is_compared_with_4_67() {
     // Each run left a complete log that the CLI reads like its own.
     for i in 0..4 {
         let log = dir.path().join(format!("run{i}.mcap"));
-        assert!(common::analyze_json(&log)["complete"].as_bool().unwrap(), "{}", log.display());
+        assert!(
+            common::analyze_json(&log)["complete"].as_bool().unwrap(),
+            "{}",
+            log.display()
+        );
     }
 }

@@ -1,7 +1,7 @@
 //! The safety-filter extension point: the trait every filter implements (the built-ins
 //! included), what it receives at a control tick, and what it is built from.
 //!
-//! A filter is registered under a scenario `kind` in [`crate::registry`] with a typed
+//! A filter is registered under a scenario `kind` in the registry (`mjsafe::registry`) with a typed
 //! parameter struct; the episode builds it once per run ([`FilterContext`]) and calls it at
 //! every control tick, once per input channel ([`ChannelInput`]). See docs/writing-a-filter.md.
 
@@ -156,6 +156,20 @@ impl FilterContext<'_> {
             }
             previous = Some((q.channel(), d));
         }
+        Ok(())
+    }
+}
+
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+/// A kind's parameters: deserialized from the scenario's table (unknown keys should be refused
+/// with `#[serde(deny_unknown_fields)]`), checked, and serialized back into the log's resolved
+/// scenario (defaults filled in).
+pub trait Params: Serialize + DeserializeOwned {
+    /// Checks what serde cannot (signs, ranges, consistency); keys are scenario keys
+    /// (`filter.m`). Checks that need the model belong in the constructor.
+    fn validate(&self) -> Result<(), ParamError> {
         Ok(())
     }
 }

@@ -7,11 +7,11 @@ use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
+use crate::filter::Params;
 use crate::filter::{
     barrier_form, delay_free_qp, ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError,
     SafetyFilter,
 };
-use crate::registry::Params;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -13,10 +13,10 @@ use crate::barrier::BarrierForm;
 use crate::filter::prescribed_time::{
     BlowUp, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem,
 };
+use crate::filter::Params;
 use crate::filter::{
     ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter, TICK_TOLERANCE,
 };
-use crate::registry::Params;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

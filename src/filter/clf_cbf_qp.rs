@@ -8,10 +8,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::{BarrierForm, Shape};
 use crate::filter::linear_delays::{self, ConstrainedStabilizer, QpCase};
+use crate::filter::Params;
 use crate::filter::{
     ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError, SafetyFilter,
 };
-use crate::registry::Params;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -5,11 +5,11 @@ use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::{self, BarrierForm};
+use crate::filter::Params;
 use crate::filter::{
     barrier_form, box_grid, fixed_channel, minimal_channels, ChannelInput, ChannelOutcome, FilterContext, FilterError,
     ParamError, SafetyFilter,
 };
-use crate::registry::Params;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

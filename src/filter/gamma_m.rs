@@ -6,10 +6,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
 use crate::filter::fixed_channel::single_barrier;
+use crate::filter::Params;
 use crate::filter::{
     barrier_form, gamma_m, ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter,
 };
-use crate::registry::Params;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -21,8 +21,8 @@ pub mod prescribed_time;
 pub mod qp;
 
 pub use api::{
-    barrier_form, delay_free_qp, ChannelInput, DelayFreeInput, FilterContext, FilterError, ParamError, SafetyFilter,
-    TICK_TOLERANCE,
+    barrier_form, delay_free_qp, ChannelInput, DelayFreeInput, FilterContext, FilterError, ParamError, Params,
+    SafetyFilter, TICK_TOLERANCE,
 };
 use nalgebra::DVector;
 

@@ -3,8 +3,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
+use crate::filter::Params;
 use crate::filter::{ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter};
-use crate::registry::Params;
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
