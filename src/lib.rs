@@ -21,3 +21,4 @@ pub mod registry;
 pub mod scenario;
 pub mod sweep;
 pub mod vehicle;
+pub mod vehicle_registry;

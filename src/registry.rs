@@ -30,18 +30,18 @@ pub use crate::filter::Params;
 use crate::filter::{self, FilterContext, ParamError, SafetyFilter};
 use crate::nominal::{self, NominalContext, NominalController};
 
-type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
+pub(crate) type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;
 type BuildNominal =
     Arc<dyn Fn(&toml::Table, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync>;
 
-struct Kind<B> {
-    name: String,
-    check: Check,
-    build: B,
+pub(crate) struct Kind<B> {
+    pub(crate) name: String,
+    pub(crate) check: Check,
+    pub(crate) build: B,
 }
 
-/// Every filter and nominal kind a scenario may name.
+/// Every filter and nominal kind a scenario may name (vehicles: [`crate::vehicle_registry`]).
 pub struct Registry {
     filters: Vec<Kind<BuildFilter>>,
     nominals: Vec<Kind<BuildNominal>>,
@@ -158,7 +158,7 @@ impl Registry {
     }
 }
 
-fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, check: Check, build: B) {
+pub(crate) fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, check: Check, build: B) {
     let kind = Kind {
         name: name.to_string(),
         check,
@@ -170,7 +170,7 @@ fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, check: Check, build: B) {
     }
 }
 
-fn find<'a, B>(kinds: &'a [Kind<B>], section: &str, name: &str) -> Result<&'a Kind<B>, ParamError> {
+pub(crate) fn find<'a, B>(kinds: &'a [Kind<B>], section: &str, name: &str) -> Result<&'a Kind<B>, ParamError> {
     kinds.iter().find(|k| k.name == name).ok_or_else(|| {
         let known: Vec<String> = kinds.iter().map(|k| format!("`{}`", k.name)).collect();
         ParamError::new(

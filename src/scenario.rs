@@ -9,7 +9,6 @@ use serde::{Deserialize, Serialize};
 use crate::barrier::Shape;
 use crate::delay::DelayProfile;
 use crate::plant::PlantKind;
-use crate::vehicle::VehicleKind;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -81,7 +80,8 @@ pub enum DisturbanceSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VehicleSpec {
-    pub kind: VehicleKind,
+    /// A registered vehicle kind (`mjsafe::registry`): `bicycle`, `unicycle`, … or a user's.
+    pub kind: String,
     /// MJCF file, relative to the scenario file (all kinds but `linear`).
     #[serde(default)]
     pub model: Option<PathBuf>,
@@ -419,14 +419,6 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
     Ok(())
 }
 
-/// The kind as a scenario writes it (`kind = "bicycle"`).
-pub fn vehicle_kind_name(kind: VehicleKind) -> String {
-    toml::Value::try_from(kind)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{kind:?}"))
-}
-
 fn positive_finite(x: f64) -> bool {
     x.is_finite() && x > 0.0
 }
@@ -468,37 +460,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             format!("expected a positive number of seconds, found {}", sc.control.history),
         ));
     }
-    if sc.vehicle.kind.has_mjcf() && sc.vehicle.model.is_none() {
-        return Err(s.field_error(
-            "vehicle.model",
-            format!(
-                "expected the MJCF file of the {} model",
-                vehicle_kind_name(sc.vehicle.kind)
-            ),
-        ));
-    }
-    if !sc.vehicle.kind.has_mjcf() {
-        let kind = vehicle_kind_name(sc.vehicle.kind);
-        if sc.plant != PlantKind::Ode {
-            return Err(s.field_error(
-                "plant",
-                format!("vehicle.kind = \"{kind}\" has no MJCF model: expected plant = \"ode\""),
-            ));
-        }
-        if sc.vehicle.model.is_some() {
-            return Err(s.field_error(
-                "vehicle.model",
-                format!("vehicle.kind = \"{kind}\" is an analytic model: expected no MJCF file"),
-            ));
-        }
-        if sc.vehicle.timestep.is_none() {
-            return Err(s.field_error(
-                "vehicle.timestep",
-                format!("vehicle.kind = \"{kind}\" has no model file: expected the integration step in seconds"),
-            ));
-        }
-    }
-    if sc.vehicle.kind == VehicleKind::Linear {
+    if sc.vehicle.kind == "linear" {
         let (Some(a), Some(b)) = (&sc.vehicle.a, &sc.vehicle.b) else {
             return Err(s.field_error(
                 "vehicle.a",

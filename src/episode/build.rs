@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DVector;
 
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
@@ -18,8 +18,9 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{vehicle_kind_name, DisturbanceSpec, LoadedScenario, ScenarioError};
-use crate::vehicle::{self, Dynamics, LinearModel, VehicleKind};
+use crate::scenario::{DisturbanceSpec, LoadedScenario, ScenarioError};
+use crate::vehicle::{self, Dynamics};
+use crate::vehicle_registry::VehicleBinding;
 
 /// A kind's parameter error as the scenario's field error.
 fn param_error(loaded: &LoadedScenario, e: ParamError) -> EpisodeError {
@@ -62,54 +63,83 @@ pub(super) fn obstacle_geom_name(index: usize) -> String {
     format!("obstacle_{index}")
 }
 
-/// The vehicle: its MJCF (with the obstacles' geoms) compiled and bound, or the analytic model
-/// of a kind without MJCF.
+/// The vehicle of the registered `vehicle.kind`: its MJCF (with the obstacles' geoms)
+/// compiled and bound, or the analytic model of a kind without MJCF.
 pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError> {
     let sc = &loaded.scenario;
     let file = loaded.path.display().to_string();
-    if let Some(model_path) = loaded.model_path() {
-        let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
-            .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
-        let xml = model_with_obstacles(&xml, loaded)?;
-        let mut model =
-            Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| EpisodeError::Model {
-                file: file.clone(),
-                reason: source,
-            })?;
-        if let Some(h) = sc.vehicle.timestep {
-            model.set_timestep(h);
+    let binding = crate::vehicle_registry::registry()
+        .vehicle(&sc.vehicle.kind)
+        .map_err(|e| param_error(loaded, e))?;
+    if let VehicleBinding::Analytic(_) = binding {
+        let kind = &sc.vehicle.kind;
+        if sc.plant != PlantKind::Ode {
+            return Err(loaded
+                .field_error(
+                    "plant",
+                    format!("vehicle.kind = \"{kind}\" has no MJCF model: expected plant = \"ode\""),
+                )
+                .into());
         }
-        if let Some(integrator) = sc.vehicle.integrator {
-            model.set_integrator(integrator);
+        if sc.vehicle.model.is_none() && sc.vehicle.timestep.is_none() {
+            return Err(loaded
+                .field_error(
+                    "vehicle.timestep",
+                    format!("vehicle.kind = \"{kind}\" has no model file: expected the integration step in seconds"),
+                )
+                .into());
         }
-        let bound = vehicle::bind(sc.vehicle.kind, &model).map_err(|reason| EpisodeError::Model { file, reason })?;
-        return Ok(PlantParts {
-            dynamics: bound.dynamics(),
-            hull_radius: bound.hull_radius(),
-            timestep: model.timestep(),
-            model: Some(model),
-            vehicle: Some(bound),
-        });
     }
-    // Validation guarantees a timestep, and A and B for kind linear.
-    let dynamics: Arc<dyn Dynamics> = match sc.vehicle.kind {
-        VehicleKind::NonlinearExample1 => Arc::new(vehicle::NonlinearExample1::default()),
-        VehicleKind::StrictFeedback => Arc::new(vehicle::StrictFeedbackModel::default()),
-        _ => {
-            let (a, b) = (
-                sc.vehicle.a.as_ref().expect("validated"),
-                sc.vehicle.b.as_ref().expect("validated"),
-            );
-            Arc::new(LinearModel::new(matrix_from_rows(a), matrix_from_rows(b)))
+    match (binding, loaded.model_path()) {
+        (VehicleBinding::Mjcf(bind), Some(model_path)) => {
+            let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
+                .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
+            let xml = model_with_obstacles(&xml, loaded)?;
+            let mut model = Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| {
+                EpisodeError::Model {
+                    file: file.clone(),
+                    reason: source,
+                }
+            })?;
+            if let Some(h) = sc.vehicle.timestep {
+                model.set_timestep(h);
+            }
+            if let Some(integrator) = sc.vehicle.integrator {
+                model.set_integrator(integrator);
+            }
+            let bound = bind(&model).map_err(|reason| EpisodeError::Model { file, reason })?;
+            Ok(PlantParts {
+                dynamics: bound.dynamics(),
+                hull_radius: bound.hull_radius(),
+                timestep: model.timestep(),
+                model: Some(model),
+                vehicle: Some(bound),
+            })
         }
-    };
-    Ok(PlantParts {
-        model: None,
-        vehicle: None,
-        dynamics,
-        hull_radius: 0.0,
-        timestep: sc.vehicle.timestep.expect("validated"),
-    })
+        (VehicleBinding::Analytic(build), None) => Ok(PlantParts {
+            model: None,
+            vehicle: None,
+            dynamics: build(&sc.vehicle).map_err(|e| param_error(loaded, e))?,
+            hull_radius: 0.0,
+            timestep: sc.vehicle.timestep.expect("validated"),
+        }),
+        // The scenario's validation pairs MJCF kinds with a model file and the others without.
+        (VehicleBinding::Mjcf(_), None) => Err(loaded
+            .field_error(
+                "vehicle.model",
+                format!("expected the MJCF file of the {} model", sc.vehicle.kind),
+            )
+            .into()),
+        (VehicleBinding::Analytic(_), Some(_)) => Err(loaded
+            .field_error(
+                "vehicle.model",
+                format!(
+                    "vehicle.kind = \"{}\" is an analytic model: expected no MJCF file",
+                    sc.vehicle.kind
+                ),
+            )
+            .into()),
+    }
 }
 
 /// The initial state's size and the channel names the scenario uses, against the model.
@@ -193,10 +223,10 @@ pub(super) fn nominal(
     model: &Arc<dyn Dynamics>,
 ) -> Result<Box<dyn NominalController>, EpisodeError> {
     let spec = &loaded.scenario.nominal;
-    let kind = vehicle_kind_name(loaded.scenario.vehicle.kind);
+    let kind = &loaded.scenario.vehicle.kind;
     let ctx = NominalContext {
         model,
-        vehicle_kind: &kind,
+        vehicle_kind: kind,
         channels: model.channel_names(),
     };
     crate::registry::registry()
@@ -215,10 +245,10 @@ pub(super) fn filter(
     timestep: f64,
 ) -> Result<Box<dyn SafetyFilter>, EpisodeError> {
     let sc = &loaded.scenario;
-    let kind = vehicle_kind_name(sc.vehicle.kind);
+    let kind = &sc.vehicle.kind;
     let ctx = FilterContext {
         model,
-        vehicle_kind: &kind,
+        vehicle_kind: kind,
         queues,
         initial_state: &DVector::from_column_slice(&sc.vehicle.initial_state),
         barriers,
@@ -429,11 +459,6 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
 /// Steps of an episode of the scenario's duration.
 pub(super) fn steps(loaded: &LoadedScenario, timestep: f64) -> u64 {
     (loaded.scenario.duration / timestep - TICK_TOLERANCE).ceil() as u64
-}
-
-/// A matrix from a scenario's array of rows (validated rectangular and non-empty).
-fn matrix_from_rows(rows: &[Vec<f64>]) -> DMatrix<f64> {
-    DMatrix::from_row_iterator(rows.len(), rows[0].len(), rows.iter().flatten().copied())
 }
 
 /// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
