@@ -18,11 +18,11 @@ use criterion::{criterion_group, criterion_main, BenchmarkGroup, Criterion};
 use nalgebra::{DMatrix, DVector, Vector2};
 
 use mjsafe::barrier::{self, Barrier, BarrierForm, Constraint, LieWorkspace};
+use mjsafe::dynamics::BicycleModel;
 use mjsafe::filter::linear_delays::{ConstrainedStabilizer, DiskBarrier, GammaM, LinearSystem, QuadraticClf};
 use mjsafe::filter::prescribed_time::{BlowUp, ContinuityRamp, EsfFilter, PtsfFilter, RedLightNominal};
 use mjsafe::filter::{self, qp};
 use mjsafe::nominal::BicyclePathLqr;
-use mjsafe::vehicle::BicycleModel;
 
 const FORM: BarrierForm = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
 

@@ -16,10 +16,10 @@ use nalgebra::DVector;
 
 use mjsafe::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use mjsafe::delay::DelayQueue;
+use mjsafe::dynamics::{BicycleModel, Dynamics};
 use mjsafe::filter;
 use mjsafe::nominal::BicyclePathLqr;
 use mjsafe::predictor::{self, PredictorContext, PredictorWorkspace};
-use mjsafe::vehicle::{BicycleModel, Dynamics};
 
 /// Plant step of models/bicycle.xml.
 const TIMESTEP: f64 = 0.002;

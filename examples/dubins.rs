@@ -12,9 +12,10 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use mjsafe::dynamics::Dynamics;
 use mjsafe::embed;
 use mjsafe::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
-use mjsafe::vehicle::{Dynamics, MujocoVehicle};
+use mjsafe::vehicle::MujocoVehicle;
 use nalgebra::{DMatrix, DVector};
 
 /// The analytic model the filters and predictors use.

@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use crate::vehicle::Dynamics;
+use crate::dynamics::Dynamics;
 
 /// The shape of a barrier's safe set (scenario `[[barriers]]`, with `kind = "ball"` or
 /// `kind = "half_space"`).
@@ -345,7 +345,7 @@ pub fn constraint(barrier: &Barrier, form: BarrierForm, model: &dyn Dynamics, x:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vehicle::{BicycleModel, LinearModel};
+    use crate::dynamics::{BicycleModel, LinearModel};
 
     #[test]
     fn bicycle_lie_derivatives_match_4_88_to_4_90() {
@@ -365,7 +365,7 @@ mod tests {
 
     #[test]
     fn example1_barrier_matches_4_54_and_4_55() {
-        let model = crate::vehicle::NonlinearExample1::default();
+        let model = crate::dynamics::NonlinearExample1::default();
         let b = Barrier {
             name: "h".into(),
             shape: Shape::Quadratic {

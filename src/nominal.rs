@@ -5,10 +5,10 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector, Vector2};
 use serde::{Deserialize, Serialize};
 
+use crate::dynamics::Dynamics;
 use crate::filter::prescribed_time::{BlowUp, PtsNominal, RedLightNominal, StrictFeedbackSystem};
 use crate::filter::ParamError;
 use crate::filter::Params;
-use crate::vehicle::Dynamics;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum NominalError {
@@ -170,13 +170,13 @@ pub fn unicycle_stabilizer(prediction_time: f64, p: &[f64]) -> [f64; 2] {
     [speed, turn_rate]
 }
 
-impl std::fmt::Debug for dyn crate::vehicle::Dynamics {
+impl std::fmt::Debug for dyn crate::dynamics::Dynamics {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "Dynamics({:?})", self.state_names())
     }
 }
 
-impl PartialEq for dyn crate::vehicle::Dynamics {
+impl PartialEq for dyn crate::dynamics::Dynamics {
     fn eq(&self, other: &Self) -> bool {
         std::ptr::eq(self as *const _ as *const u8, other as *const _ as *const u8)
     }
@@ -185,7 +185,7 @@ impl PartialEq for dyn crate::vehicle::Dynamics {
 /// (4.58): u0 = −(L_f V + ‖x‖²) L_g Vᵀ / ‖L_g V‖² (0 where L_g V = 0), V = x1⁴/4 + x2²/2 (4.57),
 /// which gives V̇ ≤ −‖x‖² (4.59).
 /// For a two-state, two-input system (checked when the scenario is built).
-pub fn quartic_clf(model: &dyn crate::vehicle::Dynamics, x: &[f64]) -> [f64; 2] {
+pub fn quartic_clf(model: &dyn crate::dynamics::Dynamics, x: &[f64]) -> [f64; 2] {
     let grad_v = [x[0].powi(3), x[1]];
     let dot = |a: &[f64; 2], b: &[f64; 2]| a[0] * b[0] + a[1] * b[1];
     let mut f = [0.0; 2];

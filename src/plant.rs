@@ -8,8 +8,9 @@ use std::sync::Arc;
 use nalgebra::DVector;
 
 use crate::barrier::Barrier;
+use crate::dynamics::Dynamics;
 use crate::mujoco::{CallbackContext, ControlHook, DataView, MjError, Simulation};
-use crate::vehicle::{Dynamics, MujocoVehicle};
+use crate::vehicle::MujocoVehicle;
 
 /// The control side, as a plant sees it.
 pub trait Controller {
@@ -19,16 +20,7 @@ pub trait Controller {
     fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64];
 }
 
-/// Which plant a scenario runs on (scenario key `plant`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PlantKind {
-    /// MuJoCo 2.2.2 stepping the vehicle's MJCF model.
-    #[default]
-    Mujoco,
-    /// Pure-Rust RK4 of the analytic model (the reference).
-    Ode,
-}
+pub use crate::scenario::PlantKind;
 
 pub trait Plant: Send {
     fn timestep(&self) -> f64;

@@ -17,7 +17,7 @@
 use nalgebra::DVector;
 
 use crate::delay::{DelayError, DelayProfile, DelayQueue};
-use crate::vehicle::{Dynamics, LinearModel};
+use crate::dynamics::{Dynamics, LinearModel};
 
 /// Tolerance, as a fraction of the step, for grid comparisons.
 const GRID_TOLERANCE: f64 = 1e-6;

@@ -41,7 +41,7 @@ pub(crate) struct Kind<B> {
     pub(crate) build: B,
 }
 
-/// Every filter and nominal kind a scenario may name (vehicles: [`crate::vehicle_registry`]).
+/// Every filter and nominal kind a scenario may name (vehicle kinds: `mjsafe::vehicle_registry`).
 pub struct Registry {
     filters: Vec<Kind<BuildFilter>>,
     nominals: Vec<Kind<BuildNominal>>,

@@ -8,7 +8,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::Shape;
 use crate::delay::DelayProfile;
-use crate::plant::PlantKind;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -100,7 +99,7 @@ pub struct VehicleSpec {
     pub timestep: Option<f64>,
     /// Overrides the model's `<option integrator>`: "euler", "rk4" or "implicit".
     #[serde(default)]
-    pub integrator: Option<crate::mujoco::Integrator>,
+    pub integrator: Option<Integrator>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -214,6 +213,26 @@ pub struct ObstacleSpec {
     /// Uniform random jitter of `appear_at` (± seconds, seeded; the result is kept >= 0).
     #[serde(default)]
     pub appear_jitter: f64,
+}
+
+/// Which plant a scenario runs on (scenario key `plant`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlantKind {
+    /// MuJoCo 2.2.2 stepping the vehicle's MJCF model.
+    #[default]
+    Mujoco,
+    /// Pure-Rust RK4 of the analytic model (the reference).
+    Ode,
+}
+
+/// MuJoCo's numerical integrator (`vehicle.integrator`, the model's `<option integrator>`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Integrator {
+    Euler,
+    Rk4,
+    Implicit,
 }
 
 /// A scenario with where it came from: what the episode and the log need.

@@ -17,6 +17,7 @@ use crate::episode::Episode;
 use crate::files::{OutputFile, Replace};
 use crate::log::mcap::{self, McapSink};
 use crate::log::Sink;
+use crate::random::SplitMix64;
 use crate::scenario;
 
 #[derive(Debug, thiserror::Error)]
@@ -301,30 +302,6 @@ fn fnv1a(bytes: &[u8]) -> String {
         h = h.wrapping_mul(0x0000_0100_0000_01b3);
     }
     format!("{h:016x}")
-}
-
-/// SplitMix64 (Steele, Lea, Flood 2014): the generator of the random draws.
-#[derive(Debug, Clone)]
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// An index in 0..n (n > 0; modulo bias below n / 2⁶⁴).
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n.max(1) as u64) as usize
-    }
-
-    /// Uniform in [0, 1) with 53 random bits.
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
 }
 
 /// The generator of draw `draw` of a sweep seeded `seed`: depends on nothing else, so a draw

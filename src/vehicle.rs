@@ -1,12 +1,12 @@
-//! Vehicles and other plants: the analytic control-affine model ẋ = f(x) + G(x) u that filters
-//! and predictors use ([`Dynamics`]), and, for vehicles with an MJCF model, the binding of that
-//! state and input to MuJoCo ([`MujocoVehicle`]).
+//! Vehicles bound to MuJoCo ([`MujocoVehicle`]): where each built-in vehicle's state and inputs
+//! live in `mjData`, and the analytic model ([`crate::dynamics`]) read from its MJCF.
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
+use crate::dynamics::{BicycleModel, DoubleIntegratorModel, Dynamics, UnicycleModel};
 use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
 
 /// The systems mjsafe knows (scenario key `vehicle.kind`).
@@ -38,76 +38,6 @@ impl VehicleKind {
             self,
             VehicleKind::Linear | VehicleKind::NonlinearExample1 | VehicleKind::StrictFeedback
         )
-    }
-}
-
-/// The analytic control-affine model ẋ = f(x) + G(x) u.
-///
-/// Models implement the in-place forms (no allocation: predictors and filters call them many
-/// times per control tick); the allocating forms are derived from them.
-pub trait Dynamics: Send + Sync {
-    /// Names of the state components, in order.
-    fn state_names(&self) -> &[String];
-    /// Names of the input channels, in order.
-    fn channel_names(&self) -> &[String];
-    /// f ← f(x).
-    fn drift_into(&self, x: &[f64], f: &mut [f64]);
-    /// ẋ ← ẋ + G(x) u, without forming G.
-    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]);
-    /// j ← ∂f/∂x (j arrives zeroed; used for Lie derivatives of relative-degree-2 barriers).
-    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>);
-    /// g ← G(x) = [g_1(x), …, g_r(x)] (g arrives zeroed).
-    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>);
-    /// Indices of the planar position (x, y) in the state, if the system moves in a plane.
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        None
-    }
-    /// Index of the heading angle in the state, if the system has one.
-    fn heading_index(&self) -> Option<usize> {
-        None
-    }
-
-    /// ẋ ← f(x) + G(x) u.
-    fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        self.drift_into(x, xdot);
-        self.add_input_term(x, u, xdot);
-    }
-    /// f ← f(x), g ← G(x), j ← ∂f/∂x in one call (g and j arrive zeroed), for Lie
-    /// derivatives; a model may override it to share work between the three.
-    fn lie_terms_into(&self, x: &[f64], f: &mut [f64], g: &mut DMatrix<f64>, j: &mut DMatrix<f64>) {
-        self.drift_into(x, f);
-        self.input_matrix_into(x, g);
-        self.drift_jacobian_into(x, j);
-    }
-    /// Drift f(x).
-    fn drift(&self, x: &DVector<f64>) -> DVector<f64> {
-        let mut f = DVector::zeros(x.len());
-        self.drift_into(x.as_slice(), f.as_mut_slice());
-        f
-    }
-    /// Jacobian ∂f/∂x.
-    fn drift_jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(x.len(), x.len());
-        self.drift_jacobian_into(x.as_slice(), &mut j);
-        j
-    }
-    /// Input matrix G(x).
-    fn input_matrix(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        let mut g = DMatrix::zeros(x.len(), self.input_dim());
-        self.input_matrix_into(x.as_slice(), &mut g);
-        g
-    }
-    /// ẋ = f(x) + G(x) u.
-    fn dynamics(&self, x: &DVector<f64>, u: &DVector<f64>) -> DVector<f64> {
-        let mut xdot = DVector::zeros(x.len());
-        self.dynamics_into(x.as_slice(), u.as_slice(), xdot.as_mut_slice());
-        xdot
-    }
-    fn state_dim(&self) -> usize {
-        self.state_names().len()
-    }
-    fn input_dim(&self) -> usize {
-        self.channel_names().len()
     }
 }
 
@@ -150,84 +80,9 @@ pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, 
     })
 }
 
-fn names(list: &[&str]) -> Vec<String> {
-    list.iter().map(|s| s.to_string()).collect()
-}
-
 fn hull(model: &Model) -> Result<(usize, f64), MjError> {
     let geom = model.require(ObjKind::Geom, "hull")?;
     Ok((geom, model.geom_size(geom)[0]))
-}
-
-/// Kinematic bicycle (4.78) with wheelbase L.
-#[derive(Debug, Clone)]
-pub struct BicycleModel {
-    pub wheelbase: f64,
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl BicycleModel {
-    pub fn new(wheelbase: f64) -> BicycleModel {
-        BicycleModel {
-            wheelbase,
-            state_names: names(&["x1", "x2", "heading", "speed"]),
-            channel_names: names(&["steering", "acceleration"]),
-        }
-    }
-}
-
-impl Dynamics for BicycleModel {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        bicycle_drift(x, x[2].sin_cos(), f);
-    }
-    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        xdot[2] += x[3] / self.wheelbase * u[0];
-        xdot[3] += u[1];
-    }
-    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
-        bicycle_drift_jacobian(x, x[2].sin_cos(), j);
-    }
-    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
-        g[(2, 0)] = x[3] / self.wheelbase;
-        g[(3, 1)] = 1.0;
-    }
-    // One sin/cos of the heading for all terms (the predictors call these in their inner loop).
-    fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        bicycle_drift(x, x[2].sin_cos(), xdot);
-        self.add_input_term(x, u, xdot);
-    }
-    fn lie_terms_into(&self, x: &[f64], f: &mut [f64], g: &mut DMatrix<f64>, j: &mut DMatrix<f64>) {
-        let heading = x[2].sin_cos();
-        bicycle_drift(x, heading, f);
-        self.input_matrix_into(x, g);
-        bicycle_drift_jacobian(x, heading, j);
-    }
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        Some([0, 1])
-    }
-    fn heading_index(&self) -> Option<usize> {
-        Some(2)
-    }
-}
-
-/// f(x) of (4.78) given (sin, cos) of the heading.
-fn bicycle_drift(x: &[f64], (s, c): (f64, f64), f: &mut [f64]) {
-    f.copy_from_slice(&[x[3] * c, x[3] * s, 0.0, 0.0]);
-}
-
-/// ∂f/∂x of (4.78) given (sin, cos) of the heading (the other entries stay zero).
-fn bicycle_drift_jacobian(x: &[f64], (s, c): (f64, f64), j: &mut DMatrix<f64>) {
-    j[(0, 2)] = -x[3] * s;
-    j[(0, 3)] = c;
-    j[(1, 2)] = x[3] * c;
-    j[(1, 3)] = s;
 }
 
 /// The bicycle on `models/bicycle.xml` (body at the rear axle; see the model's comments).
@@ -320,53 +175,6 @@ impl MujocoVehicle for MujocoBicycle {
     }
 }
 
-/// Nonholonomic unicycle (2.36): ẋ = v cos θ, ẏ = v sin θ, θ̇ = ω.
-#[derive(Debug, Clone)]
-pub struct UnicycleModel {
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl Default for UnicycleModel {
-    fn default() -> Self {
-        UnicycleModel {
-            state_names: names(&["x", "y", "heading"]),
-            channel_names: names(&["speed", "turn_rate"]),
-        }
-    }
-}
-
-impl Dynamics for UnicycleModel {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, _x: &[f64], f: &mut [f64]) {
-        f.fill(0.0);
-    }
-    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        let (s, c) = x[2].sin_cos();
-        xdot[0] += c * u[0];
-        xdot[1] += s * u[0];
-        xdot[2] += u[1];
-    }
-    fn drift_jacobian_into(&self, _x: &[f64], _j: &mut DMatrix<f64>) {}
-    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
-        let (s, c) = x[2].sin_cos();
-        g[(0, 0)] = c;
-        g[(1, 0)] = s;
-        g[(2, 1)] = 1.0;
-    }
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        Some([0, 1])
-    }
-    fn heading_index(&self) -> Option<usize> {
-        Some(2)
-    }
-}
-
 /// The unicycle on `models/unicycle.xml`: speed and yaw-rate velocity servos plus a lateral
 /// no-slip damper on a body with planar joints.
 pub struct MujocoUnicycle {
@@ -421,64 +229,6 @@ impl MujocoVehicle for MujocoUnicycle {
         let ctrl = data.ctrl_mut();
         ctrl[self.ctrl_speed] = applied_input[0];
         ctrl[self.ctrl_turn_rate] = applied_input[1];
-    }
-}
-
-/// ẍ = u in `dim` dimensions: x = (positions, velocities).
-#[derive(Debug, Clone)]
-pub struct DoubleIntegratorModel {
-    dim: usize,
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl DoubleIntegratorModel {
-    pub fn new(dim: usize) -> DoubleIntegratorModel {
-        let (state_names, channel_names) = if dim == 1 {
-            (names(&["position", "velocity"]), names(&["acceleration"]))
-        } else {
-            (
-                names(&["x", "y", "vx", "vy"]),
-                names(&["acceleration_x", "acceleration_y"]),
-            )
-        };
-        DoubleIntegratorModel {
-            dim,
-            state_names,
-            channel_names,
-        }
-    }
-}
-
-impl Dynamics for DoubleIntegratorModel {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        let (positions, velocities) = f.split_at_mut(self.dim);
-        positions.copy_from_slice(&x[self.dim..]);
-        velocities.fill(0.0);
-    }
-    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        for (v, u) in xdot[self.dim..].iter_mut().zip(u) {
-            *v += u;
-        }
-    }
-    fn drift_jacobian_into(&self, _x: &[f64], j: &mut DMatrix<f64>) {
-        for i in 0..self.dim {
-            j[(i, self.dim + i)] = 1.0;
-        }
-    }
-    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
-        for i in 0..self.dim {
-            g[(self.dim + i, i)] = 1.0;
-        }
-    }
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        (self.dim == 2).then_some([0, 1])
     }
 }
 
@@ -551,160 +301,6 @@ impl MujocoVehicle for MujocoDoubleIntegrator {
         let ctrl = data.ctrl_mut();
         for (&c, &u) in self.ctrl.iter().zip(applied_input) {
             ctrl[c] = u;
-        }
-    }
-}
-
-/// ẋ = A x + B u.
-#[derive(Debug, Clone)]
-pub struct LinearModel {
-    pub a: DMatrix<f64>,
-    pub b: DMatrix<f64>,
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl LinearModel {
-    /// A linear model; state components are named x1…xn and channels u1…um.
-    pub fn new(a: DMatrix<f64>, b: DMatrix<f64>) -> LinearModel {
-        let state_names = (1..=a.nrows()).map(|i| format!("x{i}")).collect();
-        let channel_names = (1..=b.ncols()).map(|i| format!("u{i}")).collect();
-        LinearModel {
-            a,
-            b,
-            state_names,
-            channel_names,
-        }
-    }
-}
-
-impl Dynamics for LinearModel {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        for (i, fi) in f.iter_mut().enumerate() {
-            *fi = self.a.row(i).iter().zip(x).map(|(a, x)| a * x).sum();
-        }
-    }
-    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        for (i, v) in xdot.iter_mut().enumerate() {
-            *v += self.b.row(i).iter().zip(u).map(|(b, u)| b * u).sum::<f64>();
-        }
-    }
-    fn drift_jacobian_into(&self, _x: &[f64], j: &mut DMatrix<f64>) {
-        j.copy_from(&self.a);
-    }
-    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
-        g.copy_from(&self.b);
-    }
-    fn planar_position(&self) -> Option<[usize; 2]> {
-        (self.a.nrows() >= 2).then_some([0, 1])
-    }
-}
-
-/// Example 1 of Ch. 4 (4.52): ẋ1 = −x1 − x2 + u1, ẋ2 = x1³ + x2 u2.
-#[derive(Debug, Clone)]
-pub struct NonlinearExample1 {
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl Default for NonlinearExample1 {
-    fn default() -> Self {
-        NonlinearExample1 {
-            state_names: names(&["x1", "x2"]),
-            channel_names: names(&["u1", "u2"]),
-        }
-    }
-}
-
-impl Dynamics for NonlinearExample1 {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        f.copy_from_slice(&[-x[0] - x[1], x[0].powi(3)]);
-    }
-    fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        xdot[0] += u[0];
-        xdot[1] += x[1] * u[1];
-    }
-    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
-        j.copy_from_slice(&[-1.0, 3.0 * x[0] * x[0], -1.0, 0.0]);
-    }
-    fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
-        g[(0, 0)] = 1.0;
-        g[(1, 1)] = x[1];
-    }
-}
-
-/// The strict-feedback system (5.82): ẋ1 = x1² + x2, ẋ2 = u, output y = x1.
-#[derive(Debug, Clone)]
-pub struct StrictFeedbackModel {
-    state_names: Vec<String>,
-    channel_names: Vec<String>,
-}
-
-impl Default for StrictFeedbackModel {
-    fn default() -> Self {
-        StrictFeedbackModel {
-            state_names: names(&["x1", "x2"]),
-            channel_names: names(&["u"]),
-        }
-    }
-}
-
-impl Dynamics for StrictFeedbackModel {
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-    fn channel_names(&self) -> &[String] {
-        &self.channel_names
-    }
-    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
-        f.copy_from_slice(&[x[0] * x[0] + x[1], 0.0]);
-    }
-    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
-        xdot[1] += u[0];
-    }
-    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
-        j[(0, 0)] = 2.0 * x[0];
-        j[(0, 1)] = 1.0;
-    }
-    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
-        g[(1, 0)] = 1.0;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn bicycle_fused_evaluations_match_the_separate_terms() {
-        let model = BicycleModel::new(6.0);
-        for k in 0..50 {
-            let s = k as f64;
-            let x = [s.sin() * 20.0, s.cos() * 5.0, 0.37 * s - 7.0, 3.0 + (1.3 * s).sin()];
-            let u = [(0.7 * s).cos() * 0.4, (0.3 * s).sin() * 2.0];
-            let (mut f, mut g, mut j) = (vec![0.0; 4], DMatrix::zeros(4, 2), DMatrix::zeros(4, 4));
-            model.drift_into(&x, &mut f);
-            model.input_matrix_into(&x, &mut g);
-            model.drift_jacobian_into(&x, &mut j);
-            let mut xdot = vec![0.0; 4];
-            model.dynamics_into(&x, &u, &mut xdot);
-            let expected = DVector::from_column_slice(&f) + &g * DVector::from_column_slice(&u);
-            assert!((DVector::from_column_slice(&xdot) - expected).norm() < 1e-14);
-            let (mut f2, mut g2, mut j2) = (vec![0.0; 4], DMatrix::zeros(4, 2), DMatrix::zeros(4, 4));
-            model.lie_terms_into(&x, &mut f2, &mut g2, &mut j2);
-            assert_eq!((f, g, j), (f2, g2, j2));
         }
     }
 }

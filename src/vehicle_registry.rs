@@ -5,11 +5,12 @@
 
 use std::sync::{Arc, LazyLock, RwLock, RwLockReadGuard};
 
+use crate::dynamics::{self, Dynamics};
 use crate::filter::ParamError;
 use crate::mujoco::{MjError, Model};
 use crate::registry::{add, find, Check, Kind};
 use crate::scenario::VehicleSpec;
-use crate::vehicle::{self, Dynamics, MujocoVehicle, VehicleKind};
+use crate::vehicle::{self, MujocoVehicle, VehicleKind};
 
 /// Binds a vehicle's MJCF model: joints, actuators and the `hull` geom by name.
 pub type BindMjcf = Arc<dyn Fn(&Model) -> Result<Box<dyn MujocoVehicle>, MjError> + Send + Sync>;
@@ -48,10 +49,10 @@ impl VehicleRegistry {
         }
         r.add_analytic_vehicle("linear", linear_model);
         r.add_analytic_vehicle("nonlinear_example1", |_| {
-            Ok(Arc::new(vehicle::NonlinearExample1::default()))
+            Ok(Arc::new(dynamics::NonlinearExample1::default()))
         });
         r.add_analytic_vehicle("strict_feedback", |_| {
-            Ok(Arc::new(vehicle::StrictFeedbackModel::default()))
+            Ok(Arc::new(dynamics::StrictFeedbackModel::default()))
         });
         r
     }
@@ -110,7 +111,7 @@ fn linear_model(spec: &VehicleSpec) -> Result<Arc<dyn Dynamics>, ParamError> {
             rows.iter().flatten().copied(),
         )
     };
-    Ok(Arc::new(vehicle::LinearModel::new(matrix(a), matrix(b))))
+    Ok(Arc::new(dynamics::LinearModel::new(matrix(a), matrix(b))))
 }
 
 static VEHICLES: LazyLock<RwLock<VehicleRegistry>> = LazyLock::new(|| RwLock::new(VehicleRegistry::builtin()));

@@ -18,7 +18,7 @@ use mjsafe::log::mcap::McapSink;
 use mjsafe::scenario;
 
 /// A deterministic stream of draws from one seed.
-use mjsafe::sweep::SplitMix64 as Rng;
+use mjsafe::random::SplitMix64 as Rng;
 
 /// The log of bicycle_obstacle.toml (12 s, 1.1 MB): a collision at t ≈ 3.7 s (min h −18.6),
 /// three 1 MiB chunks.

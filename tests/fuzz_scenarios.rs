@@ -20,7 +20,7 @@ const CASE_TIMEOUT: Duration = Duration::from_secs(60);
 const STEPS: u64 = 40;
 
 /// The seeded generator of the mutations.
-use mjsafe::sweep::SplitMix64 as Rng;
+use mjsafe::random::SplitMix64 as Rng;
 
 /// One of `items`, drawn.
 fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {

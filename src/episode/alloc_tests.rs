@@ -2,60 +2,21 @@
 //! counting global allocator (this test binary only) counts the allocations made on this
 //! thread while the controller runs inside the plant's step.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::Path;
 
 use super::Episode;
+use crate::mujoco::counting_alloc::{allocations, count_allocations};
 use crate::plant::Controller;
 use crate::scenario;
-
-struct CountingAllocator;
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-    static COUNT: Cell<u64> = const { Cell::new(0) };
-}
-
-fn note_allocation() {
-    // try_with: the allocator may run while thread-locals are being torn down.
-    let _ = COUNTING.try_with(|on| {
-        if on.get() {
-            let _ = COUNT.try_with(|n| n.set(n.get() + 1));
-        }
-    });
-}
-
-// SAFETY: delegates every call to the system allocator unchanged.
-unsafe impl GlobalAlloc for CountingAllocator {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note_allocation();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note_allocation();
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note_allocation();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
-#[global_allocator]
-static ALLOCATOR: CountingAllocator = CountingAllocator;
 
 /// Counts the allocations of the wrapped controller's calls (the body of the control callback).
 struct Counted<'a>(&'a mut dyn Controller);
 
 impl Controller for Counted<'_> {
     fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
-        COUNTING.with(|on| on.set(true));
+        count_allocations(true);
         let input = self.0.input(step, call_in_step, offset, state);
-        COUNTING.with(|on| on.set(false));
+        count_allocations(false);
         input
     }
 }
@@ -77,12 +38,12 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
         for c in episode.control.realize(time, &x).unwrap() {
             episode.control.recycle(c);
         }
-        COUNT.with(|n| n.set(0));
+        allocations(true);
         episode.plant.step(&mut Counted(&mut episode.control)).unwrap();
         if let Some(e) = episode.control.take_error() {
             panic!("{file}: {e}");
         }
-        let counted = COUNT.with(|n| n.get());
+        let counted = allocations(false);
         if time >= steady_from {
             steady += counted;
         } else {
@@ -136,7 +97,7 @@ fn the_counter_sees_allocations() {
         }
     }
     let mut inner = Allocating(Vec::new());
-    COUNT.with(|n| n.set(0));
+    allocations(true);
     Counted(&mut inner).input(0, 0, 0.0, &|_| {});
-    assert_eq!(COUNT.with(|n| n.get()), 1);
+    assert_eq!(allocations(false), 1);
 }

@@ -10,6 +10,7 @@ use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
 use crate::barrier::Barrier;
 use crate::delay::{DelayProfile, DelayQueue};
+use crate::dynamics::Dynamics;
 use crate::filter::linear_delays;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
 use crate::log::RunInfo;
@@ -18,8 +19,8 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{DisturbanceSpec, LoadedScenario, ScenarioError};
-use crate::vehicle::{self, Dynamics};
+use crate::scenario::{DisturbanceSpec, Integrator, LoadedScenario, ScenarioError};
+use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
 /// A kind's parameter error as the scenario's field error.
@@ -105,7 +106,11 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
                 model.set_timestep(h);
             }
             if let Some(integrator) = sc.vehicle.integrator {
-                model.set_integrator(integrator);
+                model.set_integrator(match integrator {
+                    Integrator::Euler => mujoco::Integrator::Euler,
+                    Integrator::Rk4 => mujoco::Integrator::Rk4,
+                    Integrator::Implicit => mujoco::Integrator::Implicit,
+                });
             }
             let bound = bind(&model).map_err(|reason| EpisodeError::Model { file, reason })?;
             Ok(PlantParts {

@@ -13,11 +13,11 @@ use nalgebra::DVector;
 
 use crate::barrier::{Barrier, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
+use crate::dynamics::Dynamics;
 use crate::filter::{ChannelInput, ChannelOutcome, DelayFreeInput, FilterError, SafetyFilter, TICK_TOLERANCE};
 use crate::nominal::NominalController;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
-use crate::vehicle::Dynamics;
 
 /// What one control tick computed (logged after the step).
 #[derive(Debug, Clone)]

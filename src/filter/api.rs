@@ -11,9 +11,9 @@ use nalgebra::DVector;
 
 use crate::barrier::{Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
+use crate::dynamics::Dynamics;
 use crate::filter::ChannelOutcome;
 use crate::nominal::NominalController;
-use crate::vehicle::Dynamics;
 
 /// Fraction of a step below which two times are the same instant.
 pub const TICK_TOLERANCE: f64 = 1e-6;

@@ -5,6 +5,8 @@
 //! [`ControlHook`] of the episode stepping on the *current thread* (see [`Simulation::step`]).
 
 #[allow(unsafe_op_in_unsafe_fn)]
+#[cfg(test)]
+pub(crate) mod counting_alloc;
 mod ffi;
 
 use std::cell::RefCell;
