@@ -557,19 +557,9 @@ fn analyze_or_recover(
     match analyze::analyze_file(file) {
         Ok(m) => Ok((m, None)),
         Err(analyze::AnalyzeError::Corrupt {
-            file,
-            messages,
-            message,
+            damage,
             partial: Some(partial),
-        }) if recover => Ok((
-            *partial,
-            Some(analyze::AnalyzeError::Corrupt {
-                file,
-                messages,
-                message,
-                partial: None,
-            }),
-        )),
+        }) if recover => Ok((*partial, Some(analyze::AnalyzeError::Read(damage)))),
         Err(e) => Err(e),
     }
 }
@@ -874,9 +864,9 @@ impl Progress {
 
 fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCode> {
     let info = if recover {
-        analyze::log_info_recover(file)?
+        crate::log::info::log_info_recover(file)?
     } else {
-        analyze::log_info(file)?
+        crate::log::info::log_info(file)?
     };
     let code = match &info.error {
         Some(e) => {
