@@ -86,39 +86,45 @@ pub struct RunMetrics {
     /// Minimum of h over all barriers and steps (None without barriers).
     pub min_h: Option<f64>,
     /// Time spent with some barrier h < 0, seconds.
-    pub time_h_negative: f64,
+    pub time_h_negative: Option<f64>,
     /// Fraction of control ticks at which the filter changed the nominal input.
-    pub filter_active_fraction: f64,
-    pub filter_infeasible_ticks: u64,
+    pub filter_active_fraction: Option<f64>,
+    pub filter_infeasible_ticks: Option<u64>,
     /// max |u − u_nom| per channel over the run.
-    pub max_correction: BTreeMap<String, f64>,
+    pub max_correction: Option<BTreeMap<String, f64>>,
     /// Prediction consistency (Definition 4.3) per channel, from /prediction.
-    pub prediction: BTreeMap<String, PredictionStats>,
+    pub prediction: Option<BTreeMap<String, PredictionStats>>,
     /// Intervention and comfort: first control tick at which the filter changed the nominal,
     /// total time it did so, max |du/dt| of the issued input (over channels) overall and
     /// across ticks where the filter was overriding.
     pub first_override_time: Option<f64>,
-    pub override_duration: f64,
-    pub max_jerk: f64,
-    pub max_jerk_overriding: f64,
+    pub override_duration: Option<f64>,
+    pub max_jerk: Option<f64>,
+    pub max_jerk_overriding: Option<f64>,
     /// Safety: smallest clearance to any obstacle (metres; negative = overlap), smallest
     /// constant-velocity time to collision with a known obstacle, and time with h < 0 of an
     /// obstacle while the delays since it appeared were not yet compensated (within the
     /// longest delay after its appearance).
     pub min_clearance: Option<f64>,
     pub min_time_to_collision: Option<f64>,
-    pub delay_attributed_violation_time: f64,
+    pub delay_attributed_violation_time: Option<f64>,
     /// Intervention: ∫‖u − u_nom‖ dt over the control ticks.
-    pub intervention_integral: f64,
+    pub intervention_integral: Option<f64>,
     /// Comfort: max |jerk| of the planar motion along and across the velocity (third
     /// differences of the positions at the control ticks; planar vehicles only).
     pub max_longitudinal_jerk: Option<f64>,
     pub max_lateral_jerk: Option<f64>,
     /// Prescribed-time runs (metadata `prescribed_time` = T): values at T.
     pub at_prescribed_time: Option<PrescribedTimeMetrics>,
-    /// Whether the run finished (false: stopped by an error or interrupted).
+    /// Whether the run finished (false: stopped by an error or interrupted, or the log has no
+    /// `mjsafe_status` record).
     pub complete: bool,
     pub error: Option<String>,
+    /// The metrics the log cannot give, each with the reason (a log topic or a run metadata
+    /// key it lacks, e.g. in a topic-filtered copy): their values above are absent (`null`),
+    /// never computed from a default. Empty (and left out of the JSON) for a whole log.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub missing: BTreeMap<String, String>,
 }
 
 /// Reads and analyses one log file (through the run reader, [`read::read_run_file`]).
@@ -175,7 +181,7 @@ struct Accumulator {
     max_jerk: f64,
     max_jerk_overriding: f64,
     terminal: PrescribedTimeMetrics,
-    max_delay: f64,
+    max_delay: Option<f64>,
     min_clearance: Option<f64>,
     min_time_to_collision: Option<f64>,
     /// Appearance time per obstacle name.
@@ -205,7 +211,7 @@ fn apply_run_metadata(acc: &mut Accumulator, metadata: &BTreeMap<String, String>
     acc.timestep = metadata.get("timestep").and_then(|s| s.parse().ok());
     acc.control_period = metadata.get("control_period").and_then(|s| s.parse().ok());
     acc.prescribed_time = metadata.get("prescribed_time").and_then(|s| s.parse().ok());
-    acc.max_delay = metadata.get("max_delay").and_then(|s| s.parse().ok()).unwrap_or(0.0);
+    acc.max_delay = metadata.get("max_delay").and_then(|s| s.parse().ok());
 }
 
 impl RunVisitor for Analysis<'_> {
@@ -257,15 +263,15 @@ impl<'f> Analysis<'f> {
             saw_mjsafe_metadata,
             ..
         } = self;
-        match result {
-            Ok(_) => {}
+        let read = match result {
+            Ok(read) => read,
             Err(ReadError::Corrupt {
                 file: f,
                 messages,
                 message,
             }) => {
                 let partial = (saw_mjsafe_metadata && acc.states > 0).then(|| {
-                    let mut m = acc.finish(file);
+                    let mut m = acc.finish(file, &[]);
                     m.complete = false;
                     m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
                     Box::new(m)
@@ -278,7 +284,7 @@ impl<'f> Analysis<'f> {
                 return Err(AnalyzeError::Corrupt { damage, partial });
             }
             Err(e) => return Err(e.into()),
-        }
+        };
         if acc.states == 0 {
             return Err(ReadError::Foreign {
                 file: file.into(),
@@ -286,7 +292,7 @@ impl<'f> Analysis<'f> {
             }
             .into());
         }
-        Ok(acc.finish(file))
+        Ok(acc.finish(file, &read.missing_topics()))
     }
 }
 
@@ -318,7 +324,7 @@ impl Accumulator {
                 && self
                     .appeared
                     .get(&b.name)
-                    .is_some_and(|t| m.time >= *t && m.time < t + self.max_delay)
+                    .is_some_and(|t| m.time >= *t && m.time < t + self.max_delay.unwrap_or(0.0))
         });
         self.delay_attributed_steps += u64::from(uncompensated_violation);
         if step_min.is_finite() {
@@ -478,48 +484,142 @@ impl Accumulator {
         }
     }
 
-    fn finish(self, file: &str) -> RunMetrics {
-        let (max_jerk, max_jerk_overriding) = (self.max_jerk, self.max_jerk_overriding);
+    /// Why each metric that the log cannot give is absent: a log topic it needs that the file
+    /// has no channel for (`missing_topics`), or a run metadata key it needs.
+    fn absent(&self, missing_topics: &[Topic]) -> BTreeMap<String, String> {
+        use Topic::{Barrier, Event, Filter, Issued, Prediction};
+        let metadata = [
+            ("timestep", self.timestep.is_some()),
+            ("control_period", self.control_period.is_some()),
+            ("max_delay", self.max_delay.is_some()),
+        ];
+        let planar = self.planar.is_some();
+        let prescribed = self.prescribed_time.is_some();
+        // metric, whether it applies to this run, the topics and metadata keys it needs.
+        let needs: [(&str, bool, &[Topic], &[&str]); 21] = [
+            ("collision", true, &[Event], &[]),
+            ("min_h", true, &[Barrier], &[]),
+            ("time_h_negative", true, &[Barrier], &["timestep"]),
+            ("filter_active_fraction", true, &[Filter], &[]),
+            ("filter_infeasible_ticks", true, &[Filter], &[]),
+            ("max_correction", true, &[Filter], &[]),
+            ("prediction", true, &[Prediction], &[]),
+            ("first_override_time", true, &[Filter], &[]),
+            ("override_duration", true, &[Filter], &["control_period"]),
+            ("max_jerk", true, &[Issued], &[]),
+            ("max_jerk_overriding", true, &[Issued, Filter], &[]),
+            ("min_clearance", true, &[Barrier], &[]),
+            ("min_time_to_collision", true, &[Barrier], &[]),
+            (
+                "delay_attributed_violation_time",
+                true,
+                &[Barrier, Event],
+                &["timestep", "max_delay"],
+            ),
+            ("intervention_integral", true, &[Filter], &["control_period"]),
+            ("max_longitudinal_jerk", planar, &[], &["control_period"]),
+            ("max_lateral_jerk", planar, &[], &["control_period"]),
+            ("at_prescribed_time.barrier", prescribed, &[Barrier], &["timestep"]),
+            (
+                "at_prescribed_time.input_residual",
+                prescribed,
+                &[Issued],
+                &["timestep"],
+            ),
+            ("at_prescribed_time.state_residuals", prescribed, &[], &["timestep"]),
+            ("error", true, &[Event], &[]),
+        ];
+        let mut absent = BTreeMap::new();
+        for (metric, applies, topics, keys) in needs {
+            let mut reasons: Vec<String> = topics
+                .iter()
+                .filter(|t| applies && missing_topics.contains(t))
+                .map(|t| format!("no {t} topic in the log"))
+                .collect();
+            reasons.extend(
+                keys.iter()
+                    .filter(|k| applies && metadata.iter().any(|(name, present)| name == *k && !present))
+                    .map(|k| format!("no `{k}` in the run metadata")),
+            );
+            if !reasons.is_empty() {
+                absent.insert(metric.to_string(), reasons.join("; "));
+            }
+        }
+        if self.complete.is_none() {
+            absent.insert(
+                "complete".into(),
+                format!(
+                    "no {} metadata record (false: not known to have finished)",
+                    read::STATUS_METADATA
+                ),
+            );
+        }
+        absent
+    }
+
+    /// The metrics; those the log cannot give (see [`Accumulator::absent`]) are `None`.
+    fn finish(self, file: &str, missing_topics: &[Topic]) -> RunMetrics {
+        let missing = self.absent(missing_topics);
+        let given = |metric: &str| !missing.contains_key(metric);
+        let known = |metric: &str, value| given(metric).then_some(value);
+        let timestep = self.timestep.unwrap_or(0.0);
         let at_prescribed_time = self.prescribed_time.map(|time| PrescribedTimeMetrics {
             time,
-            ..self.terminal.clone()
+            barrier: self.terminal.barrier.filter(|_| given("at_prescribed_time.barrier")),
+            state_residuals: if given("at_prescribed_time.state_residuals") {
+                self.terminal.state_residuals.clone()
+            } else {
+                Vec::new()
+            },
+            input_residual: self
+                .terminal
+                .input_residual
+                .filter(|_| given("at_prescribed_time.input_residual")),
         });
+        let prediction = self
+            .prediction
+            .into_iter()
+            .map(|(channel, mut stats)| {
+                stats.rms_error = (stats.sum_squares / stats.count.max(1) as f64).sqrt();
+                (channel, stats)
+            })
+            .collect();
         RunMetrics {
             file: file.into(),
             scenario: self.scenario,
             simulated_time: self.last_time,
             steps: self.last_step,
-            collision: self.collision,
-            min_h: self.min_h,
-            time_h_negative: self.negative_steps as f64 * self.timestep.unwrap_or(0.0),
-            filter_active_fraction: if self.ticks > 0 {
-                self.active_ticks as f64 / self.ticks as f64
-            } else {
-                0.0
-            },
-            filter_infeasible_ticks: self.infeasible_ticks,
-            max_correction: self.max_correction,
-            first_override_time: self.first_override_time,
-            override_duration: self.active_ticks_time,
-            max_jerk,
-            max_jerk_overriding,
-            min_clearance: self.min_clearance,
-            min_time_to_collision: self.min_time_to_collision,
-            delay_attributed_violation_time: self.delay_attributed_steps as f64 * self.timestep.unwrap_or(0.0),
-            intervention_integral: self.intervention_integral,
-            max_longitudinal_jerk: self.max_longitudinal_jerk,
-            max_lateral_jerk: self.max_lateral_jerk,
+            collision: self.collision.filter(|_| given("collision")),
+            min_h: self.min_h.filter(|_| given("min_h")),
+            time_h_negative: known("time_h_negative", self.negative_steps as f64 * timestep),
+            filter_active_fraction: known(
+                "filter_active_fraction",
+                if self.ticks > 0 {
+                    self.active_ticks as f64 / self.ticks as f64
+                } else {
+                    0.0
+                },
+            ),
+            filter_infeasible_ticks: given("filter_infeasible_ticks").then_some(self.infeasible_ticks),
+            max_correction: given("max_correction").then_some(self.max_correction),
+            first_override_time: self.first_override_time.filter(|_| given("first_override_time")),
+            override_duration: known("override_duration", self.active_ticks_time),
+            max_jerk: known("max_jerk", self.max_jerk),
+            max_jerk_overriding: known("max_jerk_overriding", self.max_jerk_overriding),
+            min_clearance: self.min_clearance.filter(|_| given("min_clearance")),
+            min_time_to_collision: self.min_time_to_collision.filter(|_| given("min_time_to_collision")),
+            delay_attributed_violation_time: known(
+                "delay_attributed_violation_time",
+                self.delay_attributed_steps as f64 * timestep,
+            ),
+            intervention_integral: known("intervention_integral", self.intervention_integral),
+            max_longitudinal_jerk: self.max_longitudinal_jerk.filter(|_| given("max_longitudinal_jerk")),
+            max_lateral_jerk: self.max_lateral_jerk.filter(|_| given("max_lateral_jerk")),
             at_prescribed_time,
-            prediction: self
-                .prediction
-                .into_iter()
-                .map(|(channel, mut stats)| {
-                    stats.rms_error = (stats.sum_squares / stats.count.max(1) as f64).sqrt();
-                    (channel, stats)
-                })
-                .collect(),
+            prediction: given("prediction").then_some(prediction),
             complete: self.complete.unwrap_or(false) && self.error.is_none(),
-            error: self.error,
+            error: self.error.filter(|_| given("error")),
+            missing,
         }
     }
 }
@@ -547,26 +647,31 @@ pub fn table(runs: &[RunMetrics]) -> String {
             r.scenario.clone(),
             format!("{:.3}", r.simulated_time),
             r.steps.to_string(),
-            r.collision
-                .as_ref()
-                .map_or("none".into(), |c| format!("t={:.3} {}", c.time, c.with)),
+            match &r.collision {
+                Some(c) => format!("t={:.3} {}", c.time, c.with),
+                None if r.missing.contains_key("collision") => "-".into(),
+                None => "none".into(),
+            },
             r.min_h.map_or("-".into(), |h| format!("{h:.3}")),
-            format!("{:.3}", r.time_h_negative),
-            format!("{:.1}%", 100.0 * r.filter_active_fraction),
-            r.filter_infeasible_ticks.to_string(),
-            r.max_correction
-                .iter()
-                .map(|(c, v)| format!("{c}={v:.3}"))
-                .collect::<Vec<_>>()
-                .join(" "),
-            if r.prediction.is_empty() {
-                "-".to_string()
-            } else {
-                r.prediction
+            r.time_h_negative.map_or("-".into(), |t| format!("{t:.3}")),
+            r.filter_active_fraction
+                .map_or("-".into(), |f| format!("{:.1}%", 100.0 * f)),
+            r.filter_infeasible_ticks.map_or("-".into(), |n| n.to_string()),
+            match &r.max_correction {
+                Some(m) => m
+                    .iter()
+                    .map(|(c, v)| format!("{c}={v:.3}"))
+                    .collect::<Vec<_>>()
+                    .join(" "),
+                None => "-".into(),
+            },
+            match &r.prediction {
+                Some(p) if !p.is_empty() => p
                     .iter()
                     .map(|(c, p)| format!("{c}={:.1e}/{:.1e}", p.max_error, p.rms_error))
                     .collect::<Vec<_>>()
-                    .join(" ")
+                    .join(" "),
+                _ => "-".to_string(),
             },
             match (&r.error, r.complete) {
                 (Some(e), _) => format!("error: {e}"),
@@ -624,7 +729,7 @@ pub struct FlatMetrics {
     pub min_h: Option<f64>,
     pub time_h_negative: Option<f64>,
     pub filter_active_fraction: Option<f64>,
-    pub filter_infeasible_ticks: u64,
+    pub filter_infeasible_ticks: Option<u64>,
     pub max_correction: BTreeMap<String, Option<f64>>,
     pub prediction_count: BTreeMap<String, u64>,
     pub prediction_max_error: BTreeMap<String, Option<f64>>,
@@ -698,8 +803,9 @@ const CHANNEL_GROUPS: [&str; 6] = [
 
 impl From<&RunMetrics> for FlatMetrics {
     fn from(m: &RunMetrics) -> FlatMetrics {
+        let prediction = m.prediction.clone().unwrap_or_default();
         let per_channel = |f: &dyn Fn(&PredictionStats) -> f64| {
-            m.prediction
+            prediction
                 .iter()
                 .map(|(c, p)| (c.clone(), finite(f(p))))
                 .collect::<BTreeMap<_, _>>()
@@ -712,22 +818,27 @@ impl From<&RunMetrics> for FlatMetrics {
             collision_with: m.collision.as_ref().map(|c| c.with.clone()),
             collision_depth: m.collision.as_ref().and_then(|c| finite(c.depth)),
             min_h: m.min_h.and_then(finite),
-            time_h_negative: finite(m.time_h_negative),
-            filter_active_fraction: finite(m.filter_active_fraction),
+            time_h_negative: m.time_h_negative.and_then(finite),
+            filter_active_fraction: m.filter_active_fraction.and_then(finite),
             filter_infeasible_ticks: m.filter_infeasible_ticks,
-            max_correction: m.max_correction.iter().map(|(c, v)| (c.clone(), finite(*v))).collect(),
-            prediction_count: m.prediction.iter().map(|(c, p)| (c.clone(), p.count)).collect(),
+            max_correction: m
+                .max_correction
+                .iter()
+                .flatten()
+                .map(|(c, v)| (c.clone(), finite(*v)))
+                .collect(),
+            prediction_count: prediction.iter().map(|(c, p)| (c.clone(), p.count)).collect(),
             prediction_max_error: per_channel(&|p| p.max_error),
             prediction_rms_error: per_channel(&|p| p.rms_error),
             prediction_max_relative_error: per_channel(&|p| p.max_relative_error),
             first_override_time: m.first_override_time.and_then(finite),
-            override_duration: finite(m.override_duration),
-            max_jerk: finite(m.max_jerk),
-            max_jerk_overriding: finite(m.max_jerk_overriding),
+            override_duration: m.override_duration.and_then(finite),
+            max_jerk: m.max_jerk.and_then(finite),
+            max_jerk_overriding: m.max_jerk_overriding.and_then(finite),
             min_clearance: m.min_clearance.and_then(finite),
             min_time_to_collision: m.min_time_to_collision.and_then(finite),
-            delay_attributed_violation_time: finite(m.delay_attributed_violation_time),
-            intervention_integral: finite(m.intervention_integral),
+            delay_attributed_violation_time: m.delay_attributed_violation_time.and_then(finite),
+            intervention_integral: m.intervention_integral.and_then(finite),
             max_longitudinal_jerk: m.max_longitudinal_jerk.and_then(finite),
             max_lateral_jerk: m.max_lateral_jerk.and_then(finite),
             prescribed_time: m.at_prescribed_time.as_ref().and_then(|p| finite(p.time)),
@@ -794,7 +905,7 @@ impl FlatMetrics {
             "min_h" => Cell::Num(self.min_h),
             "time_h_negative" => Cell::Num(self.time_h_negative),
             "filter_active_fraction" => Cell::Num(self.filter_active_fraction),
-            "filter_infeasible_ticks" => Cell::Int(Some(self.filter_infeasible_ticks)),
+            "filter_infeasible_ticks" => Cell::Int(self.filter_infeasible_ticks),
             "first_override_time" => Cell::Num(self.first_override_time),
             "override_duration" => Cell::Num(self.override_duration),
             "max_jerk" => Cell::Num(self.max_jerk),

@@ -581,6 +581,13 @@ fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
             }
         }
     }
+    if format != Format::Json {
+        // JSON names them in `missing`; the table and CSV show them as empty.
+        for run in runs.iter().filter(|r| !r.missing.is_empty()) {
+            let absent: Vec<String> = run.missing.iter().map(|(m, why)| format!("{m} ({why})")).collect();
+            eprintln!("warning: {}: metrics absent: {}", run.file, absent.join(", "));
+        }
+    }
     match format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
         Format::Csv if !runs.is_empty() => out!("{}", analyze::csv(&runs)),
