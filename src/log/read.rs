@@ -145,17 +145,6 @@ pub fn read_log(
     }
 }
 
-/// [`read_log`] with every record parsed.
-pub fn for_each_record(
-    input: impl Read,
-    mut visit: impl FnMut(McapRecord<'_>) -> Result<(), ReadError>,
-) -> Result<u64, StreamError> {
-    read_log(input, |opcode, data| {
-        let record = mcap::parse_record(opcode, data).map_err(|e| VisitError::Malformed(e.to_string()))?;
-        Ok(visit(record)?)
-    })
-}
-
 /// Whether a Message Index record parses (as `mcap::parse_record` would): channel id (u16),
 /// then the byte length (u32) of its 16-byte entries, all present.
 pub fn message_index_parses(data: &[u8]) -> bool {
@@ -294,8 +283,8 @@ impl RunRead {
     }
 }
 
-/// Why a run read failed: the log's fault, or damage met after the visitor saw some messages.
-/// (`messages` of [`ReadError::Corrupt`] counts those read before the damage.)
+/// What a run read gave: what was read, or why it stopped (on damage, the visitor has seen the
+/// messages before it; `messages` of [`ReadError::Corrupt`] counts them).
 pub type RunResult = Result<RunRead, ReadError>;
 
 /// How one channel's messages are handed on (decided once, when the channel is seen).
@@ -538,5 +527,99 @@ fn late_in_stream(file: &str) -> ReadError {
         message: format!(
             "the run metadata (`{RUN_METADATA}`) comes after the messages, and a stream is read once: analyse the file by its path"
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::mcap_writer::McapWriter;
+    use prost::Message as _;
+
+    /// What a visitor was given, in order.
+    #[derive(Default)]
+    struct Seen(Vec<String>);
+
+    impl RunVisitor for Seen {
+        fn metadata(&mut self, name: &str, _: &BTreeMap<String, String>) -> Result<(), ReadError> {
+            self.0.push(format!("metadata {name}"));
+            Ok(())
+        }
+
+        fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+            let Record::State(m) = message.record()? else {
+                panic!("only /state is logged here");
+            };
+            self.0.push(format!("{} {}", message.topic, m.step));
+            Ok(())
+        }
+    }
+
+    /// A log with one /state channel (and a foreign topic) holding `items` in order: a metadata
+    /// record by name, or a /state message by step.
+    fn log(items: &[&str]) -> Vec<u8> {
+        let mut w = McapWriter::new(Vec::new(), "", "test", 1 << 20, 1).unwrap();
+        let schema = w.add_schema("mjsafe.State", "protobuf", b"").unwrap();
+        let state = w.add_channel(schema, "/state", "protobuf").unwrap();
+        let other = w.add_channel(schema, "/elsewhere", "protobuf").unwrap();
+        for (i, item) in items.iter().enumerate() {
+            match item.parse::<u64>() {
+                Ok(step) => {
+                    let m = proto::State {
+                        step,
+                        ..Default::default()
+                    };
+                    w.write_message(state, i as u32, step, &m.encode_to_vec()).unwrap();
+                    w.write_message(other, i as u32, step, b"not read").unwrap();
+                }
+                Err(_) => w.write_metadata(item, &[("timestep".into(), "0.01".into())]).unwrap(),
+            }
+        }
+        w.finish().unwrap()
+    }
+
+    fn read_file(bytes: &[u8]) -> (RunResult, Vec<String>) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        std::fs::write(&path, bytes).unwrap();
+        let mut seen = Seen::default();
+        let result = read_run_file(&path, &mut seen);
+        (result, seen.0)
+    }
+
+    #[test]
+    fn the_run_metadata_comes_first_wherever_it_sits_in_a_file() {
+        let expected = ["metadata mjsafe", "/state 1", "/state 2", "metadata mjsafe_status"];
+        for items in [
+            &["mjsafe", "1", "2", "mjsafe_status"][..],
+            &["1", "2", "mjsafe", "mjsafe_status"][..],
+            &["1", "mjsafe", "2", "mjsafe_status"][..],
+        ] {
+            let (result, seen) = read_file(&log(items));
+            let read = result.unwrap();
+            assert_eq!(seen, expected, "{items:?}");
+            assert_eq!(read.messages, 4, "every message of the file is counted");
+            assert_eq!(read.topics, [Topic::State]);
+            assert_eq!(read.missing_topics().len(), Topic::ALL.len() - 1);
+        }
+        // Metadata before the run metadata is given right after it.
+        let (result, seen) = read_file(&log(&["mjsafe_status", "mjsafe", "1"]));
+        result.unwrap();
+        assert_eq!(seen, ["metadata mjsafe", "metadata mjsafe_status", "/state 1"]);
+    }
+
+    #[test]
+    fn late_run_metadata_in_a_stream_and_no_run_metadata_are_errors() {
+        let bytes = log(&["1", "mjsafe"]);
+        let mut seen = Seen::default();
+        let e = read_run_stream(&bytes[..], "pipe", &mut seen).unwrap_err();
+        assert!(e.to_string().contains("comes after the messages"), "{e}");
+        assert!(seen.0.is_empty(), "{:?}", seen.0);
+        for items in [&["1", "mjsafe_status"][..], &["mjsafe_status"][..]] {
+            let (result, seen) = read_file(&log(items));
+            let e = result.unwrap_err();
+            assert!(e.to_string().contains("no mjsafe metadata record"), "{e}");
+            assert!(seen.is_empty(), "{seen:?}");
+        }
     }
 }
