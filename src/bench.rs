@@ -190,6 +190,7 @@ pub fn run(
             max_prediction_error: metrics
                 .prediction
                 .iter()
+                .flatten()
                 .map(|(channel, stats)| (channel.clone(), stats.max_error))
                 .collect(),
             min_h: metrics.min_h,

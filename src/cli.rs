@@ -557,19 +557,9 @@ fn analyze_or_recover(
     match analyze::analyze_file(file) {
         Ok(m) => Ok((m, None)),
         Err(analyze::AnalyzeError::Corrupt {
-            file,
-            messages,
-            message,
+            damage,
             partial: Some(partial),
-        }) if recover => Ok((
-            *partial,
-            Some(analyze::AnalyzeError::Corrupt {
-                file,
-                messages,
-                message,
-                partial: None,
-            }),
-        )),
+        }) if recover => Ok((*partial, Some(analyze::AnalyzeError::Read(damage)))),
         Err(e) => Err(e),
     }
 }
@@ -589,6 +579,13 @@ fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
                 eprintln!("error: {e}");
                 failed = true;
             }
+        }
+    }
+    if format != Format::Json {
+        // JSON names them in `missing`; the table and CSV show them as empty.
+        for run in runs.iter().filter(|r| !r.missing.is_empty()) {
+            let absent: Vec<String> = run.missing.iter().map(|(m, why)| format!("{m} ({why})")).collect();
+            eprintln!("warning: {}: metrics absent: {}", run.file, absent.join(", "));
         }
     }
     match format {
@@ -870,9 +867,9 @@ impl Progress {
 
 fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCode> {
     let info = if recover {
-        analyze::log_info_recover(file)?
+        crate::log::info::log_info_recover(file)?
     } else {
-        analyze::log_info(file)?
+        crate::log::info::log_info(file)?
     };
     let code = match &info.error {
         Some(e) => {

@@ -7,23 +7,20 @@
 //! scripts/setup.sh), loaded at run time.
 
 use std::collections::BTreeMap;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use mcap::records::Record as McapRecord;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
-use prost::Message;
 
-use crate::analyze::{for_each_record, StreamError};
-use crate::log::proto;
+use crate::log::read::{planar_position, read_run_file, Message, ReadError, RunVisitor};
+use crate::log::Record;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
     #[error(transparent)]
     File(#[from] crate::files::FileError),
-    #[error("{file}: {message}")]
-    Read { file: String, message: String },
+    #[error(transparent)]
+    Read(#[from] ReadError),
     #[error("no font for the plot text: {path} is missing (Debian package fonts-dejavu-core)")]
     Font { path: String },
     #[error("writing {file}: {message}")]
@@ -45,88 +42,54 @@ struct Series {
     reference: Option<[(f64, f64); 2]>,
 }
 
-fn read_series(input: impl Read, file: &str) -> Result<Series, PlotError> {
-    let mut channels: std::collections::HashMap<u16, String> = Default::default();
-    let mut series = Series::default();
-    let err = |message: String| PlotError::Read {
-        file: file.into(),
-        message,
-    };
-    let result = for_each_record(input, |record| {
-        match record {
-            McapRecord::Channel(c) => {
-                channels.insert(c.id, c.topic);
+impl RunVisitor for Series {
+    fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        Ok(())
+    }
+
+    fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+        match message.record()? {
+            Record::State(m) => {
+                if let Some([i, j]) = planar_position(&m.names) {
+                    self.path.push((m.values[i], m.values[j]));
+                }
             }
-            McapRecord::Message { header, data } => {
-                let topic = channels.get(&header.channel_id).map(String::as_str).unwrap_or("");
-                match topic {
-                    "/state" => {
-                        if let Ok(m) = proto::State::decode(&data[..]) {
-                            if let Some([i, j]) = crate::analyze::planar_position(&m.names) {
-                                series.path.push((m.values[i], m.values[j]));
+            Record::Barrier(m) => {
+                for b in m.barriers {
+                    self.barriers.entry(b.name).or_default().push((m.time, b.h));
+                }
+            }
+            Record::Issued(m) => {
+                for (c, v) in m.channels.iter().zip(&m.filtered) {
+                    self.issued.entry(c.clone()).or_default().push((m.time, *v));
+                }
+            }
+            Record::Applied(m) => {
+                for (c, v) in m.channels.iter().zip(&m.values) {
+                    self.applied.entry(c.clone()).or_default().push((m.time, *v));
+                }
+            }
+            Record::Scene(_, m) => {
+                for e in m.entities {
+                    if e.id == "reference_path" {
+                        if let Some(line) = e.lines.first() {
+                            if line.points.len() >= 2 {
+                                let (a, b) = (&line.points[0], &line.points[line.points.len() - 1]);
+                                self.reference = Some([(a.x, a.y), (b.x, b.y)]);
                             }
                         }
-                    }
-                    "/barrier" => {
-                        if let Ok(m) = proto::Barrier::decode(&data[..]) {
-                            for b in m.barriers {
-                                series.barriers.entry(b.name).or_default().push((m.time, b.h));
-                            }
+                    } else if e.id != "vehicle" && !e.id.starts_with("trail") {
+                        if let Some(c) = e.cylinders.first() {
+                            let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
+                            let p = pose.position.unwrap_or_default();
+                            self.obstacles.insert(e.id.clone(), ((p.x, p.y), size.x / 2.0));
                         }
                     }
-                    "/command/issued" => {
-                        if let Ok(m) = proto::IssuedCommand::decode(&data[..]) {
-                            for (c, v) in m.channels.iter().zip(&m.filtered) {
-                                series.issued.entry(c.clone()).or_default().push((m.time, *v));
-                            }
-                        }
-                    }
-                    "/command/applied" => {
-                        if let Ok(m) = proto::AppliedCommand::decode(&data[..]) {
-                            for (c, v) in m.channels.iter().zip(&m.values) {
-                                series.applied.entry(c.clone()).or_default().push((m.time, *v));
-                            }
-                        }
-                    }
-                    "/scene" => {
-                        if let Ok(m) = foxglove::messages::SceneUpdate::decode(&data[..]) {
-                            for e in m.entities {
-                                if e.id == "reference_path" {
-                                    if let Some(line) = e.lines.first() {
-                                        if line.points.len() >= 2 {
-                                            let (a, b) = (&line.points[0], &line.points[line.points.len() - 1]);
-                                            series.reference = Some([(a.x, a.y), (b.x, b.y)]);
-                                        }
-                                    }
-                                } else if e.id != "vehicle" && !e.id.starts_with("trail") {
-                                    if let Some(c) = e.cylinders.first() {
-                                        let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
-                                        let p = pose.position.unwrap_or_default();
-                                        series.obstacles.insert(e.id.clone(), ((p.x, p.y), size.x / 2.0));
-                                    }
-                                }
-                            }
-                        }
-                    }
-                    _ => {}
                 }
             }
             _ => {}
         }
         Ok(())
-    });
-    match result {
-        Ok(_) => Ok(series),
-        Err(StreamError::Visit(e)) => Err(err(e.to_string())),
-        Err(StreamError::Read {
-            any_record: false,
-            message,
-        }) => Err(err(format!("not a readable MCAP file ({message})"))),
-        // No plot of part of a run shown as if it were the run.
-        Err(StreamError::Read {
-            any_record: true,
-            message,
-        }) => Err(err(format!("truncated or corrupt MCAP: {message}"))),
     }
 }
 
@@ -227,12 +190,12 @@ fn draw_png(
 
 /// Writes the plots of `log` into `dir`; returns the files written.
 pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
-    let file = log.display().to_string();
     let font = std::fs::read(FONT_PATH).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
     let font: &'static [u8] = Box::leak(font.into_boxed_slice());
     register_font("sans-serif", FontStyle::Normal, font).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
-    let input = crate::files::open_input(log, "log")?;
-    let series = read_series(input, &file)?;
+    // No plot of part of a run shown as if it were the run: damage is an error.
+    let mut series = Series::default();
+    read_run_file(log, &mut series)?;
     std::fs::create_dir_all(dir).map_err(|e| PlotError::Draw {
         file: dir.display().to_string(),
         message: e.to_string(),

@@ -14,7 +14,9 @@ use std::time::{Duration, Instant};
 
 use mjsafe::analyze::{self, AnalyzeError};
 use mjsafe::episode::Episode;
+use mjsafe::log::info;
 use mjsafe::log::mcap::McapSink;
+use mjsafe::log::read::ReadError;
 use mjsafe::scenario;
 
 /// A deterministic stream of draws from one seed.
@@ -135,11 +137,11 @@ fn seed() -> u64 {
 /// Outcome counts by the first words of the error.
 fn kind(e: &AnalyzeError) -> &'static str {
     match e {
-        AnalyzeError::NotMcap { .. } => "not MCAP",
-        AnalyzeError::Corrupt { .. } => "corrupt",
-        AnalyzeError::Foreign { .. } => "foreign",
-        AnalyzeError::Decode { .. } => "decode",
-        AnalyzeError::Io { .. } | AnalyzeError::File(_) => "io",
+        AnalyzeError::Read(ReadError::NotMcap { .. }) => "not MCAP",
+        AnalyzeError::Corrupt { .. } | AnalyzeError::Read(ReadError::Corrupt { .. }) => "corrupt",
+        AnalyzeError::Read(ReadError::Foreign { .. }) => "foreign",
+        AnalyzeError::Read(ReadError::Decode { .. }) => "decode",
+        AnalyzeError::Read(ReadError::File(_)) => "io",
     }
 }
 
@@ -153,7 +155,7 @@ fn mutated_logs_are_errors_never_panics_or_wrong_metrics() {
     assert!(expected.complete && expected.collision.is_some(), "{expected:?}");
     assert!(chunks >= 3, "{chunks} chunks");
     let expected = format!("{expected:?}");
-    let info = analyze::log_info(&dir.path().join("original.mcap")).expect("info of the original");
+    let info = info::log_info(&dir.path().join("original.mcap")).expect("info of the original");
 
     let (n, seed) = (cases(), seed());
     let mut rng = Rng(seed);
@@ -184,7 +186,7 @@ fn mutated_logs_are_errors_never_panics_or_wrong_metrics() {
         }
         if case % 10 == 0 {
             std::fs::write(&file, &bytes).unwrap();
-            match catch_unwind(|| analyze::log_info(&file)) {
+            match catch_unwind(|| info::log_info(&file)) {
                 Err(_) => panic!("info panicked on {context}"),
                 Ok(Ok(i)) => {
                     assert!(!mutation.must_fail(), "{context}: info of a damaged log succeeded");

@@ -9,40 +9,7 @@ mod common;
 use common::*;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-/// The `rerun` CLI: `$MJSAFE_VENV/bin/rerun`, else next to `MJSAFE_PYTHON`, else in the default venv.
-fn rerun_cli() -> PathBuf {
-    let candidates = [
-        std::env::var("MJSAFE_VENV")
-            .ok()
-            .map(|v| Path::new(&v).join("bin/rerun")),
-        Some(Path::new(&python()).with_file_name("rerun")),
-    ];
-    candidates
-        .into_iter()
-        .flatten()
-        .find(|p| p.exists())
-        .expect("no rerun CLI next to the test Python: run scripts/setup.sh --test (installs rerun-sdk==0.36.3)")
-}
-
-/// Runs the rerun CLI with nothing going to the network (CI=1: no analytics).
-fn rerun(args: &[&str]) -> Output {
-    Command::new(rerun_cli())
-        .args(args)
-        .env("CI", "1")
-        .env("RERUN_ANALYTICS", "0")
-        .output()
-        .expect("rerun CLI runs")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use std::process::Command;
 
 fn replay(log: &Path, rrd: &Path) {
     let o = mjsafe(&["replay", log.to_str().unwrap(), "--rrd", rrd.to_str().unwrap()]);

@@ -1,19 +1,22 @@
 """Re-writes an mjsafe log with Python's `mcap` Writer in another valid layout: the same
 schemas, channels, messages (same order and times) and metadata, with another chunk
-compression, chunk size and metadata position. No mjsafe code involved.
+compression, chunk size and metadata position. No mjsafe code involved. DROP (optional,
+comma-separated) leaves topics (`/barrier`) or metadata records (`mjsafe_status`) out, as a
+topic filter would: a dropped topic has no channel and no messages in the copy.
 
-usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last)"""
+usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last) [DROP]"""
 import sys
 
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 
-def main(src, dst, compression, chunk_size, metadata_at):
+def main(src, dst, compression, chunk_size, metadata_at, drop=""):
+    drop = set(filter(None, drop.split(",")))
     with open(src, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
-        metadata = list(reader.iter_metadata())
+        metadata = [m for m in reader.iter_metadata() if m.name not in drop]
         messages = list(reader.iter_messages(log_time_order=False))
     with open(dst, "wb") as out:
         writer = Writer(
@@ -26,6 +29,8 @@ def main(src, dst, compression, chunk_size, metadata_at):
         for schema in summary.schemas.values():
             schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
         for channel in summary.channels.values():
+            if channel.topic in drop:
+                continue
             channel_ids[channel.id] = writer.register_channel(
                 channel.topic, channel.message_encoding, schema_ids[channel.schema_id], channel.metadata
             )
@@ -33,6 +38,8 @@ def main(src, dst, compression, chunk_size, metadata_at):
             for m in metadata:
                 writer.add_metadata(m.name, dict(m.metadata))
         for schema, channel, message in messages:
+            if channel.topic in drop:
+                continue
             writer.add_message(
                 channel_ids[channel.id], message.log_time, message.data, message.publish_time, message.sequence
             )

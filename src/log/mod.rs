@@ -2,11 +2,14 @@
 //! back into the simulation). The MCAP sink is the file format of record; rerun comes later
 //! as a second sink.
 
+pub mod info;
 pub mod mcap;
 pub mod mcap_writer;
+pub mod read;
 #[cfg(feature = "rerun")]
 pub mod rerun;
 pub mod scene;
+mod wire;
 
 /// The protobuf messages of the log (generated from proto/mjsafe.proto by build.rs).
 pub mod proto {
@@ -34,7 +37,8 @@ pub enum Record {
     Transform(f64, foxglove::messages::FrameTransform),
 }
 
-/// Topic, protobuf full name of the message type.
+/// The topic table of the log format (docs/log-format.md): topic, protobuf full name of the
+/// message type, in the order of [`Topic`]. Writers, readers and decoders all use it.
 pub const TOPICS: [(&str, &str); 9] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
@@ -47,16 +51,66 @@ pub const TOPICS: [(&str, &str); 9] = [
     ("/tf", "foxglove.FrameTransform"),
 ];
 
+/// A topic of the log format, one per [`Record`] kind (its index in [`TOPICS`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Topic {
+    State,
+    Issued,
+    Applied,
+    Barrier,
+    Filter,
+    Event,
+    Prediction,
+    Scene,
+    Transform,
+}
+
+impl Topic {
+    /// Every topic, in the order of [`TOPICS`].
+    pub const ALL: [Topic; 9] = [
+        Topic::State,
+        Topic::Issued,
+        Topic::Applied,
+        Topic::Barrier,
+        Topic::Filter,
+        Topic::Event,
+        Topic::Prediction,
+        Topic::Scene,
+        Topic::Transform,
+    ];
+
+    /// The topic name (`/state`, …).
+    pub fn name(self) -> &'static str {
+        TOPICS[self as usize].0
+    }
+
+    /// The protobuf full name of its message type.
+    pub fn schema(self) -> &'static str {
+        TOPICS[self as usize].1
+    }
+
+    /// The topic named `name`, if it is one of the log format.
+    pub fn from_name(name: &str) -> Option<Topic> {
+        Topic::ALL.into_iter().find(|t| t.name() == name)
+    }
+}
+
+impl std::fmt::Display for Topic {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// The schema data (a serialized FileDescriptorSet) of a topic in [`TOPICS`].
 pub fn schema_data(topic_index: usize) -> std::borrow::Cow<'static, [u8]> {
     use foxglove::Encode;
-    match TOPICS[topic_index].0 {
-        "/scene" => {
+    match Topic::ALL[topic_index] {
+        Topic::Scene => {
             foxglove::messages::SceneUpdate::get_schema()
                 .expect("Foxglove schemas are embedded")
                 .data
         }
-        "/tf" => {
+        Topic::Transform => {
             foxglove::messages::FrameTransform::get_schema()
                 .expect("Foxglove schemas are embedded")
                 .data
@@ -66,23 +120,46 @@ pub fn schema_data(topic_index: usize) -> std::borrow::Cow<'static, [u8]> {
 }
 
 impl Record {
-    /// Index into [`TOPICS`].
-    pub fn topic_index(&self) -> usize {
+    /// The topic of the record.
+    pub fn kind(&self) -> Topic {
         match self {
-            Record::State(_) => 0,
-            Record::Issued(_) => 1,
-            Record::Applied(_) => 2,
-            Record::Barrier(_) => 3,
-            Record::Filter(_) => 4,
-            Record::Event(_) => 5,
-            Record::Prediction(_) => 6,
-            Record::Scene(..) => 7,
-            Record::Transform(..) => 8,
+            Record::State(_) => Topic::State,
+            Record::Issued(_) => Topic::Issued,
+            Record::Applied(_) => Topic::Applied,
+            Record::Barrier(_) => Topic::Barrier,
+            Record::Filter(_) => Topic::Filter,
+            Record::Event(_) => Topic::Event,
+            Record::Prediction(_) => Topic::Prediction,
+            Record::Scene(..) => Topic::Scene,
+            Record::Transform(..) => Topic::Transform,
         }
     }
 
+    /// Index into [`TOPICS`].
+    pub fn topic_index(&self) -> usize {
+        self.kind() as usize
+    }
+
     pub fn topic(&self) -> &'static str {
-        TOPICS[self.topic_index()].0
+        self.kind().name()
+    }
+
+    /// Decodes one message of `topic` (the inverse of [`Record::encode`]); `log_time` (ns) is the
+    /// time of the Foxglove records, which carry none of their own.
+    pub fn decode(topic: Topic, data: &[u8], log_time: u64) -> Result<Record, prost::DecodeError> {
+        use prost::Message;
+        let time = log_time as f64 / 1e9;
+        Ok(match topic {
+            Topic::State => Record::State(proto::State::decode(data)?),
+            Topic::Issued => Record::Issued(proto::IssuedCommand::decode(data)?),
+            Topic::Applied => Record::Applied(proto::AppliedCommand::decode(data)?),
+            Topic::Barrier => Record::Barrier(proto::Barrier::decode(data)?),
+            Topic::Filter => Record::Filter(proto::Filter::decode(data)?),
+            Topic::Event => Record::Event(proto::Event::decode(data)?),
+            Topic::Prediction => Record::Prediction(proto::Prediction::decode(data)?),
+            Topic::Scene => Record::Scene(time, foxglove::messages::SceneUpdate::decode(data)?),
+            Topic::Transform => Record::Transform(time, foxglove::messages::FrameTransform::decode(data)?),
+        })
     }
 
     /// Simulation time of the record, seconds.

@@ -18,7 +18,7 @@
 //!
 //! A blueprint (2D view left, time series and events right) is sent when the stream opens.
 
-use std::collections::HashSet;
+use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use ::rerun::blueprint::components::{PanelState, PlayState};
@@ -29,6 +29,7 @@ use ::rerun::blueprint::{
 use ::rerun::{EntityPath, EntityPathPart, RecordingStream, RecordingStreamBuilder};
 use foxglove::messages::{line_primitive, scene_entity_deletion, Color, Pose, SceneEntity, SceneUpdate};
 
+use super::read::{planar_position, read_run_file, Message, ReadError, RunVisitor, RUN_METADATA, STATUS_METADATA};
 use super::{proto, LogError, Record, Sink};
 use crate::files::{OutputFile, Replace};
 
@@ -360,7 +361,7 @@ impl RerunSink {
         match record {
             Record::State(m) => {
                 if self.position_index.is_none() {
-                    self.position_index = crate::analyze::planar_position(&m.names);
+                    self.position_index = planar_position(&m.names);
                 }
             }
             Record::Issued(m) => {
@@ -544,12 +545,12 @@ mod tests {
     }
 }
 
-/// Why a replay failed: the log could not be read as an mjsafe log (the same errors as
-/// `analyze`), or the recording could not be written.
+/// Why a replay failed: the log could not be read as an mjsafe log (the reader's errors, as
+/// for `analyze`), or the recording could not be written.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
     #[error(transparent)]
-    Read(#[from] crate::analyze::AnalyzeError),
+    Read(#[from] ReadError),
     #[error(transparent)]
     Log(#[from] LogError),
     #[error(transparent)]
@@ -572,171 +573,121 @@ pub fn recording_id(log: &Path) -> String {
         .map_or_else(|| "mjsafe".to_string(), |s| s.to_string_lossy().into_owned())
 }
 
-/// Decodes one MCAP message of an mjsafe log into the [`Record`] the episode emitted.
-/// `log_time` (ns) is the time of the Foxglove records.
-pub fn decode_record(topic: &str, data: &[u8], log_time: u64) -> Result<Option<Record>, prost::DecodeError> {
-    use prost::Message;
-    let time = log_time as f64 / 1e9;
-    Ok(Some(match topic {
-        "/state" => Record::State(proto::State::decode(data)?),
-        "/command/issued" => Record::Issued(proto::IssuedCommand::decode(data)?),
-        "/command/applied" => Record::Applied(proto::AppliedCommand::decode(data)?),
-        "/barrier" => Record::Barrier(proto::Barrier::decode(data)?),
-        "/filter" => Record::Filter(proto::Filter::decode(data)?),
-        "/event" => Record::Event(proto::Event::decode(data)?),
-        "/prediction" => Record::Prediction(proto::Prediction::decode(data)?),
-        "/scene" => Record::Scene(time, SceneUpdate::decode(data)?),
-        "/tf" => Record::Transform(time, foxglove::messages::FrameTransform::decode(data)?),
-        _ => return Ok(None),
-    }))
-}
-
 /// Rebuilds the rerun recording of a run from its MCAP log alone (no re-simulation): every
-/// message is decoded into its [`Record`] and fed to a [`RerunSink`] in log order. Only the
-/// records of chunks that passed their CRC reach the sink. A damaged log is an error and its
-/// `.rrd` is not written, unless `recover`: then the recording of what was read before the
+/// message is decoded into its [`Record`] and fed to a [`RerunSink`] in log order, through the
+/// run reader ([`read_run_file`]: the run metadata first, wherever it sits in the file). Only
+/// the records of chunks that passed their CRC reach the sink. A damaged log is an error and
+/// its `.rrd` is not written, unless `recover`: then the recording of what was read before the
 /// damage is finished and kept, and the summary names the damage.
 pub fn replay(log: &Path, target: RerunTarget, recover: bool) -> Result<ReplaySummary, ReplayError> {
-    use mcap::records::Record as McapRecord;
-    use std::collections::HashMap;
-
-    use crate::analyze::{for_each_record, AnalyzeError, StreamError};
-
     let file = log.display().to_string();
-    let input = crate::files::open_input(log, "log").map_err(AnalyzeError::from)?;
     // A saved recording is checked before anything is read; the sink writes it as `.partial`
     // and renames it only when finished (a sink dropped unfinished deletes it).
     if let RerunTarget::Save(out) = &target {
         check_save_target(out, &[log])?;
     }
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, (String, String)> = HashMap::new();
-    let mut sink: Option<RerunSink> = None;
-    let mut target = Some(target);
-    let mut messages = 0u64;
-    let mut complete = false;
-    // The sink opens at the `mjsafe` metadata record (written before any message): it holds
-    // the timestep. Recording errors of this visitor are carried out through `failure`.
-    let mut failure: Option<ReplayError> = None;
-    let foreign = |message: String| AnalyzeError::Foreign {
-        file: file.clone(),
-        message,
+    let mut replay = Replay {
+        log,
+        file: &file,
+        sink: None,
+        target: Some(target),
+        complete: false,
+        failure: None,
     };
-    let visit_error = |e: LogError, failure: &mut Option<ReplayError>| {
-        *failure = Some(e.into());
-        AnalyzeError::Foreign {
-            file: file.clone(),
-            message: "replay stopped".into(),
-        }
-    };
-    let result = for_each_record(input, |record| {
-        match record {
-            McapRecord::Schema { header, .. } => {
-                schemas.insert(header.id, header.name);
-            }
-            McapRecord::Channel(c) => {
-                let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                channels.insert(c.id, (c.topic, schema));
-            }
-            McapRecord::Metadata(m) if m.name == "mjsafe" => {
-                let timestep = m.metadata.get("timestep").and_then(|s| s.parse::<f64>().ok());
-                let Some(timestep) = timestep else {
-                    return Err(foreign("the mjsafe metadata has no timestep".into()));
-                };
-                if let Some(target) = target.take() {
-                    match RerunSink::create_with_inputs(target, &recording_id(log), timestep, &[log]) {
-                        Ok(s) => sink = Some(s),
-                        Err(e) => return Err(visit_error(e, &mut failure)),
-                    }
-                }
-            }
-            McapRecord::Metadata(m) if m.name == "mjsafe_status" => {
-                complete = m.metadata.get("complete").is_some_and(|v| v == "true");
-            }
-            McapRecord::Message { header, data } => {
-                messages += 1;
-                let Some((topic, schema)) = channels.get(&header.channel_id) else {
-                    return Ok(());
-                };
-                let Some(sink) = sink.as_mut() else {
-                    return Err(foreign("a message before the mjsafe metadata record".into()));
-                };
-                let expected = super::TOPICS.iter().find(|(t, _)| t == topic).map(|(_, s)| *s);
-                if expected.is_some_and(|s| s != schema) {
-                    return Err(foreign(format!(
-                        "topic {topic} has schema {schema}, expected {}",
-                        expected.unwrap_or("")
-                    )));
-                }
-                match decode_record(topic, &data, header.log_time) {
-                    Ok(Some(record)) => {
-                        if let Err(e) = sink.record(&record) {
-                            return Err(visit_error(e, &mut failure));
-                        }
-                    }
-                    Ok(None) => {}
-                    Err(e) => {
-                        return Err(AnalyzeError::Decode {
-                            file: file.clone(),
-                            topic: topic.clone(),
-                            schema: schema.clone(),
-                            message: e.to_string(),
-                        });
-                    }
-                }
-            }
-            _ => {}
-        }
-        Ok(())
-    });
-    match result {
-        Ok(_) => {}
-        Err(StreamError::Visit(e)) => return Err(failure.unwrap_or(ReplayError::Read(*e))),
-        Err(StreamError::Read {
-            any_record: false,
-            message,
-        }) => return Err(AnalyzeError::NotMcap { file, message }.into()),
-        Err(StreamError::Read {
-            any_record: true,
-            message,
-        }) => {
-            let damage = AnalyzeError::Corrupt {
-                file,
-                messages,
-                message,
-                partial: None,
-            };
-            match sink {
-                // Keep what was read (the recording is finished), report the damage.
-                Some(mut sink) if recover => {
-                    sink.finish(false)?;
-                    return Ok(ReplaySummary {
-                        messages,
-                        complete: false,
-                        damage: Some(damage.to_string()),
-                    });
-                }
-                // Dropped unfinished, the sink deletes its `.partial` recording.
-                _ => {
-                    drop(sink);
-                    return Err(damage.into());
-                }
-            }
-        }
+    let result = read_run_file(log, &mut replay);
+    let Replay {
+        sink,
+        complete,
+        failure,
+        ..
+    } = replay;
+    // A recording error of the visitor was carried out through `failure`.
+    if let Some(failure) = failure {
+        return Err(failure);
     }
-    let Some(mut sink) = sink else {
-        return Err(AnalyzeError::Foreign {
-            file,
-            message: "no mjsafe metadata record".into(),
-        }
-        .into());
+    let read = match result {
+        Ok(read) => read,
+        Err(damage @ ReadError::Corrupt { messages, .. }) => match sink {
+            // Keep what was read (the recording is finished), report the damage.
+            Some(mut sink) if recover => {
+                sink.finish(false)?;
+                return Ok(ReplaySummary {
+                    messages,
+                    complete: false,
+                    damage: Some(damage.to_string()),
+                });
+            }
+            // Dropped unfinished, the sink deletes its `.partial` recording.
+            _ => {
+                drop(sink);
+                return Err(damage.into());
+            }
+        },
+        Err(e) => return Err(e.into()),
     };
+    let mut sink = sink.expect("the run reader gave the run metadata");
     sink.finish(complete)?;
     Ok(ReplaySummary {
-        messages,
+        messages: read.messages,
         complete,
         damage: None,
     })
+}
+
+/// The replay as a visitor of the run reader.
+struct Replay<'a> {
+    log: &'a Path,
+    file: &'a str,
+    /// Opened at the run metadata (it holds the timestep).
+    sink: Option<RerunSink>,
+    target: Option<RerunTarget>,
+    complete: bool,
+    failure: Option<ReplayError>,
+}
+
+impl Replay<'_> {
+    /// Keeps a recording error, and stops the reader with a stand-in error.
+    fn fail(&mut self, e: LogError) -> ReadError {
+        self.failure = Some(e.into());
+        ReadError::Foreign {
+            file: self.file.into(),
+            message: "replay stopped".into(),
+        }
+    }
+}
+
+impl RunVisitor for Replay<'_> {
+    fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        match name {
+            RUN_METADATA => {
+                let timestep = entries.get("timestep").and_then(|s| s.parse::<f64>().ok());
+                let Some(timestep) = timestep else {
+                    return Err(ReadError::Foreign {
+                        file: self.file.into(),
+                        message: "the mjsafe metadata has no timestep".into(),
+                    });
+                };
+                if let Some(target) = self.target.take() {
+                    match RerunSink::create_with_inputs(target, &recording_id(self.log), timestep, &[self.log]) {
+                        Ok(s) => self.sink = Some(s),
+                        Err(e) => return Err(self.fail(e)),
+                    }
+                }
+            }
+            STATUS_METADATA => self.complete = entries.get("complete").is_some_and(|v| v == "true"),
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+        let record = message.record()?;
+        let sink = self.sink.as_mut().expect("opened at the run metadata, given first");
+        match sink.record(&record) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.fail(e)),
+        }
+    }
 }
 
 #[cfg(test)]

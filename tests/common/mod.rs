@@ -131,3 +131,36 @@ input = [0.0]
         root().join("models/double_integrator_1d.xml").display()
     )
 }
+
+/// The `rerun` CLI: `$MJSAFE_VENV/bin/rerun`, else next to `MJSAFE_PYTHON`, else in the default venv.
+pub fn rerun_cli() -> PathBuf {
+    let candidates = [
+        std::env::var("MJSAFE_VENV")
+            .ok()
+            .map(|v| Path::new(&v).join("bin/rerun")),
+        Some(Path::new(&python()).with_file_name("rerun")),
+    ];
+    candidates
+        .into_iter()
+        .flatten()
+        .find(|p| p.exists())
+        .expect("no rerun CLI next to the test Python: run scripts/setup.sh --test (installs rerun-sdk==0.36.3)")
+}
+
+/// Runs the rerun CLI with nothing going to the network (CI=1: no analytics).
+pub fn rerun(args: &[&str]) -> Output {
+    Command::new(rerun_cli())
+        .args(args)
+        .env("CI", "1")
+        .env("RERUN_ANALYTICS", "0")
+        .output()
+        .expect("rerun CLI runs")
+}
+
+pub fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}

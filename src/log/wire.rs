@@ -1,0 +1,366 @@
+//! Decoding of the frequent messages into reused buffers, without allocating once the buffers
+//! have their size (the channel and state names repeat from message to message).
+//!
+//! Each `merge_*` accepts the plain encoding prost writes (known fields with their proto3 wire
+//! types, packed or unpacked doubles, UTF-8 strings) and gives the message prost would decode;
+//! anything else (unknown fields, other wire types, malformed bytes) makes it return `None`, and
+//! the caller decodes with prost, which then gives the same message or the same error as before.
+
+use crate::log::proto;
+
+const VARINT: u64 = 0;
+const FIXED64: u64 = 1;
+const LEN: u64 = 2;
+
+struct Fields<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Fields<'a> {
+    fn new(buf: &'a [u8]) -> Self {
+        Fields { buf, pos: 0 }
+    }
+
+    fn done(&self) -> bool {
+        self.pos >= self.buf.len()
+    }
+
+    /// A varint as prost reads it (at most 10 bytes, the 10th at most 1).
+    fn varint(&mut self) -> Option<u64> {
+        let mut value = 0u64;
+        for i in 0..10 {
+            let b = *self.buf.get(self.pos)?;
+            self.pos += 1;
+            if i == 9 && b > 1 {
+                return None;
+            }
+            value |= u64::from(b & 0x7f) << (7 * i);
+            if b < 0x80 {
+                return Some(value);
+            }
+        }
+        None
+    }
+
+    /// (field number, wire type) of the next field.
+    fn key(&mut self) -> Option<(u64, u64)> {
+        let key = self.varint()?;
+        Some((key >> 3, key & 7))
+    }
+
+    fn f64(&mut self) -> Option<f64> {
+        let bytes = self.buf.get(self.pos..self.pos + 8)?;
+        self.pos += 8;
+        Some(f64::from_le_bytes(bytes.try_into().ok()?))
+    }
+
+    fn bytes(&mut self) -> Option<&'a [u8]> {
+        let len = usize::try_from(self.varint()?).ok()?;
+        let end = self.pos.checked_add(len)?;
+        let bytes = self.buf.get(self.pos..end)?;
+        self.pos = end;
+        Some(bytes)
+    }
+
+    /// Packed doubles, appended to `out`.
+    fn packed_f64(&mut self, out: &mut Vec<f64>) -> Option<()> {
+        let bytes = self.bytes()?;
+        if bytes.len() % 8 != 0 {
+            return None;
+        }
+        out.extend(
+            bytes
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
+        );
+        Some(())
+    }
+
+    /// A repeated double field (packed or not), appended to `out`.
+    fn repeated_f64(&mut self, wire: u64, out: &mut Vec<f64>) -> Option<()> {
+        match wire {
+            LEN => self.packed_f64(out),
+            FIXED64 => {
+                out.push(self.f64()?);
+                Some(())
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Element `k` of a repeated string field := `bytes` (UTF-8, else `None`), reusing the
+/// element's buffer; an unchanged string (the usual case) is only compared.
+fn set_string(list: &mut Vec<String>, k: usize, bytes: &[u8]) -> Option<()> {
+    match list.get_mut(k) {
+        Some(old) => set_str(old, bytes)?,
+        None => list.push(std::str::from_utf8(bytes).ok()?.to_owned()),
+    }
+    Some(())
+}
+
+fn set_str(old: &mut String, bytes: &[u8]) -> Option<()> {
+    if old.as_bytes() != bytes {
+        let s = std::str::from_utf8(bytes).ok()?;
+        old.clear();
+        old.push_str(s);
+    }
+    Some(())
+}
+
+pub(crate) fn merge_state(buf: &[u8], m: &mut proto::State) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut names = 0;
+    m.time = 0.0;
+    m.step = 0;
+    m.values.clear();
+    while !r.done() {
+        match r.key()? {
+            (1, FIXED64) => m.time = r.f64()?,
+            (2, VARINT) => m.step = r.varint()?,
+            (3, LEN) => {
+                set_string(&mut m.names, names, r.bytes()?)?;
+                names += 1;
+            }
+            (4, wire) => r.repeated_f64(wire, &mut m.values)?,
+            _ => return None,
+        }
+    }
+    m.names.truncate(names);
+    Some(())
+}
+
+pub(crate) fn merge_issued(buf: &[u8], m: &mut proto::IssuedCommand) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut channels = 0;
+    m.time = 0.0;
+    m.nominal.clear();
+    m.filtered.clear();
+    while !r.done() {
+        match r.key()? {
+            (1, FIXED64) => m.time = r.f64()?,
+            (2, LEN) => {
+                set_string(&mut m.channels, channels, r.bytes()?)?;
+                channels += 1;
+            }
+            (3, wire) => r.repeated_f64(wire, &mut m.nominal)?,
+            (4, wire) => r.repeated_f64(wire, &mut m.filtered)?,
+            _ => return None,
+        }
+    }
+    m.channels.truncate(channels);
+    Some(())
+}
+
+pub(crate) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut channels = 0;
+    m.time = 0.0;
+    m.active = false;
+    m.correction.clear();
+    m.infeasible = false;
+    m.mu = 0.0;
+    while !r.done() {
+        match r.key()? {
+            (1, FIXED64) => m.time = r.f64()?,
+            (2, VARINT) => m.active = r.varint()? != 0,
+            (3, LEN) => {
+                set_string(&mut m.channels, channels, r.bytes()?)?;
+                channels += 1;
+            }
+            (4, wire) => r.repeated_f64(wire, &mut m.correction)?,
+            (5, VARINT) => m.infeasible = r.varint()? != 0,
+            (6, FIXED64) => m.mu = r.f64()?,
+            _ => return None,
+        }
+    }
+    m.channels.truncate(channels);
+    Some(())
+}
+
+pub(crate) fn merge_barrier(buf: &[u8], m: &mut proto::Barrier) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut barriers = 0;
+    m.time = 0.0;
+    while !r.done() {
+        match r.key()? {
+            (1, FIXED64) => m.time = r.f64()?,
+            (2, LEN) => {
+                let bytes = r.bytes()?;
+                if barriers == m.barriers.len() {
+                    m.barriers.push(proto::BarrierValue::default());
+                }
+                merge_barrier_value(bytes, &mut m.barriers[barriers])?;
+                barriers += 1;
+            }
+            _ => return None,
+        }
+    }
+    m.barriers.truncate(barriers);
+    Some(())
+}
+
+fn merge_barrier_value(buf: &[u8], m: &mut proto::BarrierValue) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut name = None;
+    m.h = 0.0;
+    m.constraint = 0.0;
+    m.known = false;
+    m.relative_degree = 0;
+    m.clearance = 0.0;
+    m.time_to_collision = 0.0;
+    m.obstacle = false;
+    while !r.done() {
+        match r.key()? {
+            (1, LEN) if name.is_none() => name = Some(r.bytes()?),
+            (2, FIXED64) => m.h = r.f64()?,
+            (3, FIXED64) => m.constraint = r.f64()?,
+            (4, VARINT) => m.known = r.varint()? != 0,
+            (5, VARINT) => m.relative_degree = r.varint()? as u32,
+            (6, FIXED64) => m.clearance = r.f64()?,
+            (7, FIXED64) => m.time_to_collision = r.f64()?,
+            (8, VARINT) => m.obstacle = r.varint()? != 0,
+            _ => return None,
+        }
+    }
+    set_str(&mut m.name, name.unwrap_or(b""))?;
+    Some(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use prost::Message;
+
+    /// Messages of varied shape: empty and non-empty lists, zeros (omitted by proto3), NaN,
+    /// infinities, negative zero, changing names.
+    fn states() -> Vec<proto::State> {
+        vec![
+            proto::State {
+                time: 0.5,
+                step: 250,
+                names: vec!["x1".into(), "x2".into(), "heading".into(), "speed".into()],
+                values: vec![-20.0, 0.0, -0.0, 3.0],
+            },
+            proto::State::default(),
+            proto::State {
+                time: f64::NAN,
+                step: u64::MAX,
+                names: vec!["é".into()],
+                values: vec![f64::INFINITY, f64::NEG_INFINITY, 1e-300],
+            },
+            proto::State {
+                time: 1.0,
+                step: 1,
+                names: vec!["x1".into(), "x2".into(), "heading".into(), "speed".into()],
+                values: vec![1.0, 2.0],
+            },
+        ]
+    }
+
+    fn same_bits(a: &[f64], b: &[f64]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+    }
+
+    #[test]
+    fn fast_state_decoding_matches_prost_also_when_the_message_is_reused() {
+        let mut reused = proto::State::default();
+        for m in states() {
+            let bytes = m.encode_to_vec();
+            let expected = proto::State::decode(&bytes[..]).unwrap();
+            assert!(merge_state(&bytes, &mut reused).is_some(), "{m:?}");
+            assert_eq!(
+                (reused.step, &reused.names, reused.time.to_bits()),
+                (expected.step, &expected.names, expected.time.to_bits())
+            );
+            assert!(
+                same_bits(&reused.values, &expected.values),
+                "{reused:?} vs {expected:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn fast_decoding_of_the_other_per_step_messages_matches_prost() {
+        let channels = vec!["steering".to_string(), "acceleration".to_string()];
+        let issued = [
+            proto::IssuedCommand {
+                time: 2.75,
+                channels: channels.clone(),
+                nominal: vec![0.1, -0.2],
+                filtered: vec![0.3, 0.0],
+            },
+            proto::IssuedCommand::default(),
+        ];
+        let mut reused = proto::IssuedCommand::default();
+        for m in issued {
+            let bytes = m.encode_to_vec();
+            assert!(merge_issued(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::IssuedCommand::decode(&bytes[..]).unwrap());
+        }
+        let filters = [
+            proto::Filter {
+                time: 3.0,
+                active: true,
+                channels: channels.clone(),
+                correction: vec![0.5, -1.5],
+                infeasible: true,
+                mu: -0.25,
+            },
+            proto::Filter::default(),
+        ];
+        let mut reused = proto::Filter::default();
+        for m in filters {
+            let bytes = m.encode_to_vec();
+            assert!(merge_filter(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::Filter::decode(&bytes[..]).unwrap());
+        }
+        let barriers = [
+            proto::Barrier {
+                time: 4.0,
+                barriers: vec![
+                    proto::BarrierValue {
+                        name: "obstacle_0".into(),
+                        h: 12.5,
+                        constraint: -3.0,
+                        known: true,
+                        relative_degree: 2,
+                        clearance: 1.25,
+                        time_to_collision: f64::INFINITY,
+                        obstacle: true,
+                    },
+                    proto::BarrierValue {
+                        name: "wall".into(),
+                        ..Default::default()
+                    },
+                ],
+            },
+            proto::Barrier {
+                time: 4.002,
+                barriers: vec![proto::BarrierValue {
+                    name: "obstacle_0".into(),
+                    h: 12.0,
+                    ..Default::default()
+                }],
+            },
+        ];
+        let mut reused = proto::Barrier::default();
+        for m in barriers {
+            let bytes = m.encode_to_vec();
+            assert!(merge_barrier(&bytes, &mut reused).is_some());
+            assert_eq!(reused, proto::Barrier::decode(&bytes[..]).unwrap());
+        }
+    }
+
+    #[test]
+    fn unknown_fields_and_truncation_fall_back_to_prost() {
+        let mut bytes = states()[0].encode_to_vec();
+        let mut reused = proto::State::default();
+        // Field 15, varint 1: not in the schema.
+        bytes.extend_from_slice(&[15 << 3, 1]);
+        assert!(merge_state(&bytes, &mut reused).is_none());
+        let bytes = states()[0].encode_to_vec();
+        assert!(merge_state(&bytes[..bytes.len() - 3], &mut reused).is_none());
+    }
+}
