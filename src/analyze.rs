@@ -156,6 +156,8 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
 #[derive(Default)]
 struct Accumulator {
     scenario: String,
+    /// The planar position the vehicle declared in the run metadata (None: not declared).
+    declared_planar: Option<Option<[usize; 2]>>,
     timestep: Option<f64>,
     last_time: f64,
     last_step: u64,
@@ -220,6 +222,7 @@ impl RunVisitor for Analysis<'_> {
             read::RUN_METADATA => {
                 self.saw_mjsafe_metadata = true;
                 apply_run_metadata(&mut self.acc, entries);
+                self.acc.declared_planar = read::declared_planar_position(entries);
             }
             read::STATUS_METADATA => {
                 self.acc.complete = Some(entries.get("complete").is_some_and(|v| v == "true"));
@@ -434,7 +437,7 @@ impl Accumulator {
     /// Longitudinal and lateral jerk from the last four planar positions (x1, x2 or x, y).
     fn track_jerk(&mut self, m: &proto::State) {
         if self.planar.is_none() {
-            self.planar = read::planar_position(&m.names);
+            self.planar = read::planar_position_of(self.declared_planar, &m.names);
             if self.planar.is_none() {
                 return;
             }

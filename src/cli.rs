@@ -241,7 +241,7 @@ impl RerunArgs {
 
     /// The rerun sinks asked for (none without the `rerun` feature).
     #[cfg(feature = "rerun")]
-    fn sinks(&self, log_path: &Path, timestep: f64, inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
+    fn sinks(&self, log_path: &Path, info: &crate::log::RunInfo, inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
         use crate::log::rerun::{recording_id, RerunSink, RerunTarget};
         let mut targets = Vec::new();
         if self.rerun {
@@ -259,18 +259,19 @@ impl RerunArgs {
             .map(|t| {
                 // A file's errors name the file already.
                 let what = (!matches!(t, RerunTarget::Save(_))).then(|| t.to_string());
-                let sink = RerunSink::create_with_inputs(t, &id, timestep, inputs).map_err(anyhow::Error::from);
-                let sink = match what {
+                let sink = RerunSink::create_with_inputs(t, &id, info.timestep, inputs).map_err(anyhow::Error::from);
+                let mut sink = match what {
                     Some(what) => sink.with_context(|| format!("opening the recording for {what}"))?,
                     None => sink?,
                 };
+                sink.declare_planar_position(info.planar_position);
                 Ok(Box::new(sink) as Box<dyn Sink>)
             })
             .collect()
     }
 
     #[cfg(not(feature = "rerun"))]
-    fn sinks(&self, _log_path: &Path, _timestep: f64, _inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
+    fn sinks(&self, _log_path: &Path, _info: &crate::log::RunInfo, _inputs: &[&Path]) -> Result<Vec<Box<dyn Sink>>> {
         Ok(Vec::new())
     }
 }
@@ -473,7 +474,7 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
     rerun.check(&log_path, &inputs)?;
     let mut episode = Episode::new(&loaded)?;
     let mut sink = McapSink::create(&log_path, episode.info(), &inputs)?;
-    let extra_sinks = match rerun.sinks(&log_path, episode.info().timestep, &inputs) {
+    let extra_sinks = match rerun.sinks(&log_path, episode.info(), &inputs) {
         Ok(sinks) => sinks,
         Err(e) => {
             sink.abandon();

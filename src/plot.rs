@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
-use crate::log::read::{planar_position, read_run_file, Message, ReadError, RunVisitor};
+use crate::log::read::{
+    declared_planar_position, planar_position_of, read_run_file, Message, ReadError, RunVisitor, RUN_METADATA,
+};
 use crate::log::Record;
 
 #[derive(Debug, thiserror::Error)]
@@ -40,17 +42,22 @@ struct Series {
     /// (name, centre, radius) of the obstacles, from `/scene`.
     obstacles: BTreeMap<String, ((f64, f64), f64)>,
     reference: Option<[(f64, f64); 2]>,
+    /// The planar position the vehicle declared in the run metadata (None: not declared).
+    declared_planar: Option<Option<[usize; 2]>>,
 }
 
 impl RunVisitor for Series {
-    fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), ReadError> {
+    fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        if name == RUN_METADATA {
+            self.declared_planar = declared_planar_position(entries);
+        }
         Ok(())
     }
 
     fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
         match message.record()? {
             Record::State(m) => {
-                if let Some([i, j]) = planar_position(&m.names) {
+                if let Some([i, j]) = planar_position_of(self.declared_planar, &m.names) {
                     self.path.push((m.values[i], m.values[j]));
                 }
             }

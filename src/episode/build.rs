@@ -458,6 +458,8 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
             })
             .fold(0.0, f64::max),
         prescribed_time: control.filter().prescribed_time(),
+        planar_position: control.model().planar_position(),
+        heading_index: control.model().heading_index(),
     }
 }
 

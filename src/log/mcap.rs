@@ -82,6 +82,15 @@ impl McapSink {
         ]);
         let mut metadata = metadata;
         metadata.insert("max_delay".to_string(), format!("{}", info.max_delay));
+        let indices = |list: &[usize]| list.iter().map(usize::to_string).collect::<Vec<_>>().join(" ");
+        metadata.insert(
+            "planar_position".to_string(),
+            info.planar_position.map_or(String::new(), |p| indices(&p)),
+        );
+        metadata.insert(
+            "heading_index".to_string(),
+            info.heading_index.map_or(String::new(), |h| indices(&[h])),
+        );
         if let Some(t) = info.prescribed_time {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
         }
@@ -174,6 +183,8 @@ mod tests {
             control_period: 0.01,
             prescribed_time: None,
             max_delay: 0.0,
+            planar_position: None,
+            heading_index: None,
         }
     }
 

@@ -218,6 +218,10 @@ pub struct RunInfo {
     pub prescribed_time: Option<f64>,
     /// The longest input delay over the run (for delay-attributed violations).
     pub max_delay: f64,
+    /// Where the state holds the planar position and the heading, as the vehicle declares
+    /// them (`Dynamics::planar_position`, `heading_index`); None for non-planar systems.
+    pub planar_position: Option<[usize; 2]>,
+    pub heading_index: Option<usize>,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -167,8 +167,30 @@ fn read_some(input: &mut impl Read, buffer: &mut [u8]) -> std::io::Result<usize>
     }
 }
 
+/// The planar position the vehicle declared in the run metadata (`planar_position`: "i j", or
+/// empty for a vehicle that does not move in a plane): `None` when the log has no declaration
+/// (written before vehicles declared it), `Some(None)` for a declared non-planar vehicle.
+pub fn declared_planar_position(metadata: &BTreeMap<String, String>) -> Option<Option<[usize; 2]>> {
+    let text = metadata.get("planar_position")?;
+    let indices: Vec<usize> = text.split_whitespace().filter_map(|i| i.parse().ok()).collect();
+    Some(match indices.as_slice() {
+        [i, j] => Some([*i, *j]),
+        _ => None,
+    })
+}
+
+/// The planar position of a logged state: as declared (`declared`, from
+/// [`declared_planar_position`]), else, for logs without the declaration, recognised by the
+/// state names of the built-in planar vehicles.
+pub fn planar_position_of(declared: Option<Option<[usize; 2]>>, names: &[String]) -> Option<[usize; 2]> {
+    declared
+        .unwrap_or_else(|| planar_position(names))
+        .filter(|[i, j]| *i < names.len() && *j < names.len())
+}
+
 /// Indices of the planar position in a logged state, recognised by the state names of the
-/// planar vehicles (bicycle: x1, x2, heading, speed; unicycle, 2D double integrator: x, y, …).
+/// planar vehicles (bicycle: x1, x2, heading, speed; unicycle, 2D double integrator: x, y, …):
+/// the fallback for logs written before vehicles declared it.
 pub fn planar_position(names: &[String]) -> Option<[usize; 2]> {
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
     match names.as_slice() {
@@ -532,6 +554,32 @@ fn late_in_stream(file: &str) -> ReadError {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_declared_planar_position_rules_and_old_logs_fall_back_to_names() {
+        let names = |list: &[&str]| list.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let meta = |value: &str| BTreeMap::from([("planar_position".to_string(), value.to_string())]);
+        // Declared: a two-state linear system is planar, a bicycle declared otherwise is not.
+        let declared = super::declared_planar_position(&meta("0 1"));
+        assert_eq!(declared, Some(Some([0, 1])));
+        assert_eq!(super::planar_position_of(declared, &names(&["x1", "x2"])), Some([0, 1]));
+        let not_planar = super::declared_planar_position(&meta(""));
+        assert_eq!(not_planar, Some(None));
+        assert_eq!(
+            super::planar_position_of(not_planar, &names(&["x1", "x2", "heading"])),
+            None
+        );
+        // Indices beyond the state are ignored rather than trusted.
+        assert_eq!(super::planar_position_of(Some(Some([0, 5])), &names(&["x", "y"])), None);
+        // Not declared (logs written before): recognised by the names.
+        let old = super::declared_planar_position(&BTreeMap::new());
+        assert_eq!(old, None);
+        assert_eq!(
+            super::planar_position_of(old, &names(&["x", "y", "theta"])),
+            Some([0, 1])
+        );
+        assert_eq!(super::planar_position_of(old, &names(&["position", "velocity"])), None);
+    }
+
     use super::*;
     use crate::log::mcap_writer::McapWriter;
     use prost::Message as _;

@@ -29,7 +29,10 @@ use ::rerun::blueprint::{
 use ::rerun::{EntityPath, EntityPathPart, RecordingStream, RecordingStreamBuilder};
 use foxglove::messages::{line_primitive, scene_entity_deletion, Color, Pose, SceneEntity, SceneUpdate};
 
-use super::read::{planar_position, read_run_file, Message, ReadError, RunVisitor, RUN_METADATA, STATUS_METADATA};
+use super::read::{
+    declared_planar_position, planar_position_of, read_run_file, Message, ReadError, RunVisitor, RUN_METADATA,
+    STATUS_METADATA,
+};
 use super::{proto, LogError, Record, Sink};
 use crate::files::{OutputFile, Replace};
 
@@ -99,9 +102,11 @@ pub struct RerunSink {
     target: RerunTarget,
     /// Simulation timestep: `step` = round(time / timestep).
     timestep: f64,
-    /// Indices of the planar position in the state vector (from the `/state` names, as `analyze`
-    /// recognises them).
+    /// Indices of the planar position in the state vector: as the vehicle declares it (the run
+    /// metadata, or [`RerunSink::declare_planar_position`] for a live run), else recognised
+    /// from the `/state` names (logs written before the declaration).
     position_index: Option<[usize; 2]>,
+    declared_planar: Option<Option<[usize; 2]>>,
     /// Last vehicle position (from `/tf`), where collision markers are drawn.
     vehicle_position: Option<[f64; 2]>,
     collisions: Vec<[f32; 2]>,
@@ -245,6 +250,11 @@ impl RerunSink {
     /// log, e.g. the log's file stem); `timestep` is the simulation timestep (for `step`).
     /// A saved recording is written as `<file>.partial` (see [`crate::files::OutputFile`]) and
     /// renamed by [`Sink::finish`]; dropped unfinished, nothing is left.
+    /// The vehicle's planar position in the state (`None`: not planar), as it declares it.
+    pub fn declare_planar_position(&mut self, position: Option<[usize; 2]>) {
+        self.declared_planar = Some(position);
+    }
+
     pub fn create(target: RerunTarget, recording_id: &str, timestep: f64) -> Result<RerunSink, LogError> {
         Self::create_with_inputs(target, recording_id, timestep, &[])
     }
@@ -292,6 +302,7 @@ impl RerunSink {
             target,
             timestep,
             position_index: None,
+            declared_planar: None,
             vehicle_position: None,
             collisions: Vec::new(),
             styled: HashSet::new(),
@@ -361,7 +372,7 @@ impl RerunSink {
         match record {
             Record::State(m) => {
                 if self.position_index.is_none() {
-                    self.position_index = planar_position(&m.names);
+                    self.position_index = planar_position_of(self.declared_planar, &m.names);
                 }
             }
             Record::Issued(m) => {
@@ -669,7 +680,10 @@ impl RunVisitor for Replay<'_> {
                 };
                 if let Some(target) = self.target.take() {
                     match RerunSink::create_with_inputs(target, &recording_id(self.log), timestep, &[self.log]) {
-                        Ok(s) => self.sink = Some(s),
+                        Ok(mut s) => {
+                            s.declared_planar = declared_planar_position(entries);
+                            self.sink = Some(s);
+                        }
                         Err(e) => return Err(self.fail(e)),
                     }
                 }
