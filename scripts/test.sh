@@ -7,4 +7,8 @@ scripts/setup.sh --test
 export MJSAFE_PYTHON="${MJSAFE_VENV:-$HOME/.cache/mjsafe/venv}/bin/python"
 cargo fmt --check
 cargo clippy --quiet --all-targets -- -D warnings
+# The public API's rustdoc (docs/writing-a-filter.md links into it) builds without a warning.
+RUSTDOCFLAGS="-D warnings" cargo doc --quiet --no-deps
+# The examples as programs (tests/examples.rs runs them; `--all-targets` builds them only as tests).
+cargo build --quiet --examples
 cargo test --all-targets -- --nocapture 2>&1 | tee "${MJSAFE_TEST_LOG:-/dev/null}"

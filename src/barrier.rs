@@ -218,7 +218,7 @@ pub struct Constraint {
 }
 
 impl Constraint {
-    /// A constraint for `channels` inputs, to be filled by [`constraint_into`].
+    /// A constraint for `channels` inputs, to be filled by [`LieWorkspace::constraint_into`].
     pub fn zeros(channels: usize) -> Constraint {
         Constraint {
             h: 0.0,

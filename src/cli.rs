@@ -1,5 +1,8 @@
 //! The `mjsafe` command line: run, sweep, analyze, info (and replay, with the `rerun` feature).
 
+// The arguments' doc comments are `--help` text for a terminal, not rustdoc.
+#![allow(rustdoc::broken_intra_doc_links, rustdoc::invalid_html_tags)]
+
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

@@ -50,7 +50,7 @@ pub enum VaryingDelay {
     CosinePrediction { a: f64, b: f64, omega: f64 },
     /// φ(t) = t − (1 + t)/(1 + 2t) (2.37), with φ' (2.38) and φ⁻¹ (2.39) in closed form.
     Rational,
-    /// D(t) piecewise linear through (times[k], delays[k]); constant beyond the ends.
+    /// D(t) piecewise linear through (`times[k]`, `delays[k]`); constant beyond the ends.
     Table { times: Vec<f64>, delays: Vec<f64> },
 }
 

@@ -156,7 +156,7 @@ pub fn wrap_angle(angle: f64) -> f64 {
     a
 }
 
-/// The stabilising time-varying predictor-feedback controller of Example 2 of [9] for the
+/// The stabilising time-varying predictor-feedback controller of Example 2 of \[9\] for the
 /// unicycle (2.40)–(2.43), evaluated at the prediction p = (p_x, p_y, p_θ) and the prediction
 /// time φ⁻¹(t).
 pub fn unicycle_stabilizer(prediction_time: f64, p: &[f64]) -> [f64; 2] {

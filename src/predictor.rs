@@ -337,7 +337,7 @@ impl PredictorContext<'_> {
         Ok(out)
     }
 
-    /// out[i] ← p_i(t), made at tick time t from state x; `out` holds one prediction per
+    /// `out[i]` ← p_i(t), made at tick time t from state x; `out` holds one prediction per
     /// channel (from [`PredictorWorkspace::predictions`]). Allocates nothing once the
     /// workspace has served one tick.
     pub fn predict_into(

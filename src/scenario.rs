@@ -202,7 +202,7 @@ impl Serialize for KindSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObstacleSpec {
-    /// Name in logs (default obstacle_<index>).
+    /// Name in logs (default `obstacle_<index>`).
     #[serde(default)]
     pub name: Option<String>,
     pub centre: [f64; 2],

@@ -9,7 +9,13 @@ use std::process::Command;
 /// target/<profile>/examples/<name>, next to this test's own binary (target/<profile>/deps).
 fn example(name: &str) -> PathBuf {
     let deps = std::env::current_exe().unwrap().parent().unwrap().to_path_buf();
-    deps.parent().unwrap().join("examples").join(name)
+    let program = deps.parent().unwrap().join("examples").join(name);
+    assert!(
+        program.is_file(),
+        "{} is not built: `cargo test` builds the examples, `cargo test --all-targets` needs `cargo build --examples` first",
+        program.display()
+    );
+    program
 }
 
 #[test]

@@ -70,7 +70,7 @@ pub struct ChannelInput<'a> {
 }
 
 impl ChannelInput<'_> {
-    /// ω (4.45)/(4.62): omega[j] ← u_j(t − D_{j,i}), the command channel j ≥ `from` applies when
+    /// ω (4.45)/(4.62): `omega[j]` ← u_j(t − D_{j,i}), the command channel j ≥ `from` applies when
     /// channel i's command issued now arrives (at φ_i⁻¹(t)); 0 for j < `from`.
     pub fn later_commands(&self, from: usize, omega: &mut DVector<f64>) -> Result<(), DelayError> {
         let arrival = self.queues[self.channel].profile().prediction_time(self.time);

@@ -2,10 +2,10 @@
 //! on (x(t), or a prediction p_i(t)); the relative-degree-2 form enters through (a, b)
 //! ((4.85)/(4.86)).
 //!
-//! - [`cbf_qp`]: the delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form; applied
+//! - [`cbf_qp()`]: the delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form; applied
 //!   per channel at p_i it is the full-consistency filter (4.34)–(4.37).
-//! - [`fixed_channel`]: the fixed-channel robust filter (4.39)–(4.47).
-//! - [`gamma_m`]: the variable-channel γm filter (4.60)–(4.68).
+//! - [`fixed_channel()`]: the fixed-channel robust filter (4.39)–(4.47).
+//! - [`gamma_m()`]: the variable-channel γm filter (4.60)–(4.68).
 //!
 //! Channel indices are positions in delay order (D_1 ≤ … ≤ D_r), 0-based here.
 
@@ -56,7 +56,7 @@ pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome 
     }
 }
 
-/// [`cbf_qp`] without allocation: `input` holds u0 on entry and u on return. Returns
+/// [`cbf_qp()`] without allocation: `input` holds u0 on entry and u on return. Returns
 /// (active, infeasible, μ) as in [`FilterOutcome`].
 pub fn cbf_qp_in_place(constraint: &Constraint, input: &mut DVector<f64>) -> (bool, bool, f64) {
     let mu = constraint.value(input);

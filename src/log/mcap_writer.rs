@@ -1,4 +1,4 @@
-//! A chunked MCAP writer (spec: https://mcap.dev/spec) for the one layout mjsafe writes.
+//! A chunked MCAP writer (spec: <https://mcap.dev/spec>) for the one layout mjsafe writes.
 //!
 //! Messages are appended to an uncompressed chunk buffer (one memcpy per message) and each
 //! chunk is compressed with zstd in one call when it is full. The `mcap` crate's writer feeds
