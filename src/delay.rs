@@ -128,10 +128,8 @@ impl DelayProfile {
         }
     }
 
-    /// Checks the parameters and Assumptions 1 and 2 of Ch. 2 ((2.4)–(2.7)) on [0, horizon]
-    /// (sampled every `step`), and that the delay never exceeds `history`. A constant delay
-    /// may be 0 (the delay-free case); a time-varying one must stay > 0.
-    pub fn check(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
+    /// The profile's parameters: finite, a constant delay >= 0, a table's times increasing.
+    fn check_parameters(&self, channel: &str) -> Result<(), DelayError> {
         let bad = |what: String| DelayError::BadParameter {
             channel: channel.into(),
             what,
@@ -167,6 +165,45 @@ impl DelayProfile {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// What a true (actuator) delay needs: valid parameters, and D(t) finite, >= 0 and within
+    /// the kept history over the horizon. Assumptions 1–2 ([`DelayProfile::check`]) are what
+    /// the controller assumes; the actuators need not satisfy them.
+    pub fn check_physical(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
+        self.check_parameters(channel)?;
+        let samples = if self.constant_delay().is_none() {
+            (horizon / step).ceil() as usize
+        } else {
+            0
+        };
+        for k in 0..=samples {
+            let t = (k as f64 * step).min(horizon);
+            let d = self.delay(t);
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(DelayError::Assumption {
+                    channel: channel.into(),
+                    condition: "a physical delay: D(t) finite and >= 0",
+                    time: t,
+                });
+            }
+            if d > history {
+                return Err(DelayError::HistoryTooShort {
+                    channel: channel.into(),
+                    delay: d,
+                    history,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the parameters and Assumptions 1 and 2 of Ch. 2 ((2.4)–(2.7)) on [0, horizon]
+    /// (sampled every `step`), and that the delay never exceeds `history`. A constant delay
+    /// may be 0 (the delay-free case); a time-varying one must stay > 0.
+    pub fn check(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
+        self.check_parameters(channel)?;
         let varying = self.constant_delay().is_none();
         if let DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) = self {
             // φ is defined through φ⁻¹, so (2.6) is (φ⁻¹)'(s) = 1 − b ω sin(ω s) > 0 for every

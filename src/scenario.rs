@@ -43,6 +43,11 @@ pub struct Scenario {
     /// or a table `{ profile = "cosine_prediction" | "rational" | "table", … }`.
     #[serde(default)]
     pub delays: BTreeMap<String, DelayProfile>,
+    /// The delays the controller and its predictors assume, per channel, when they differ from
+    /// the actuators' true `delays` (channels not listed: the true delay). Assumptions 1–2
+    /// are checked on these; the true delays only have to be physical (D(t) >= 0, finite).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub assumed_delays: BTreeMap<String, DelayProfile>,
     /// Initial input function per channel on [−D_i, 0) (constant; channels not listed: 0).
     #[serde(default)]
     pub initial_input: BTreeMap<String, f64>,
@@ -463,11 +468,16 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if sc.vehicle.initial_state.iter().any(|v| !v.is_finite()) {
         return Err(s.field_error("vehicle.initial_state", "expected finite numbers"));
     }
-    for (channel, profile) in &sc.delays {
+    for (section, channel, profile) in sc
+        .delays
+        .iter()
+        .map(|(c, p)| ("delays", c, p))
+        .chain(sc.assumed_delays.iter().map(|(c, p)| ("assumed_delays", c, p)))
+    {
         if let DelayProfile::Constant(delay) = profile {
             if !delay.is_finite() || *delay < 0.0 {
                 return Err(s.field_error(
-                    &format!("delays.{channel}"),
+                    &format!("{section}.{channel}"),
                     format!("expected a delay >= 0 seconds, found {delay}"),
                 ));
             }

@@ -18,19 +18,28 @@ fn example(name: &str) -> PathBuf {
     program
 }
 
+/// Runs an example writing into `dir`; returns what it printed.
+fn run_example(name: &str, dir: &std::path::Path) -> String {
+    let out = Command::new(example(name)).arg(dir).output().unwrap();
+    let text = common::stdout(&out);
+    assert!(out.status.success(), "{text}{}", common::stderr(&out));
+    text
+}
+
+/// The cells of the printed table row starting with `label`.
+fn row(text: &str, label: &str) -> Vec<String> {
+    let line = text
+        .lines()
+        .find(|l| l.starts_with(label))
+        .unwrap_or_else(|| panic!("no row {label}: {text}"));
+    line.split(" | ").map(str::to_string).collect()
+}
+
 #[test]
 fn a_user_filter_with_a_delay_margin_is_compared_with_4_67() {
     let dir = tempfile::tempdir().unwrap();
-    let out = Command::new(example("robust_cbf")).arg(dir.path()).output().unwrap();
-    let text = common::stdout(&out);
-    assert!(out.status.success(), "{text}{}", common::stderr(&out));
-    let row = |label: &str| -> Vec<String> {
-        let line = text
-            .lines()
-            .find(|l| l.starts_with(label))
-            .unwrap_or_else(|| panic!("no row {label}: {text}"));
-        line.split(" | ").map(str::to_string).collect()
-    };
+    let text = run_example("robust_cbf", dir.path());
+    let row = |label: &str| row(&text, label);
     // The delay-free CBF-QP (4.9) at x(t) collides (as in scenarios/bicycle_obstacle.toml);
     // a small margin is not enough; a margin of 60 m²/s of delay keeps the bicycle clear, but
     // far more conservatively than (4.67), which skims the obstacle (min h ≈ 0).
@@ -56,16 +65,8 @@ fn a_user_filter_with_a_delay_margin_is_compared_with_4_67() {
 #[test]
 fn a_user_vehicle_with_its_own_mjcf_runs_and_matches_its_model() {
     let dir = tempfile::tempdir().unwrap();
-    let out = Command::new(example("dubins")).arg(dir.path()).output().unwrap();
-    let text = common::stdout(&out);
-    assert!(out.status.success(), "{text}{}", common::stderr(&out));
-    let row = |label: &str| -> Vec<String> {
-        let line = text
-            .lines()
-            .find(|l| l.starts_with(label))
-            .unwrap_or_else(|| panic!("no row {label}: {text}"));
-        line.split(" | ").map(str::to_string).collect()
-    };
+    let text = run_example("dubins", dir.path());
+    let row = |label: &str| row(&text, label);
     // Straight ahead it hits the obstacle; both CBF-QPs (4.9) steer clear, the one at the
     // prediction (2.26) with less detour (measured: min h 1.70 vs 6.35).
     assert_eq!(row("no filter")[1], "yes", "{text}");

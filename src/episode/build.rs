@@ -166,6 +166,7 @@ pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dyna
     let channels = model.channel_names();
     for (section, keys) in [
         ("delays", sc.delays.keys().collect::<Vec<_>>()),
+        ("assumed_delays", sc.assumed_delays.keys().collect()),
         ("initial_input", sc.initial_input.keys().collect()),
     ] {
         for key in keys {
@@ -197,29 +198,63 @@ pub(super) fn control_period(loaded: &LoadedScenario, timestep: f64) -> Result<(
     Ok((period, ratio.round() as u64))
 }
 
-/// One delay queue per channel (Assumptions 1–2 checked on each profile) and the predictor
-/// structure they call for.
+/// The delay queues: one per channel with the delay the controller assumes (Assumptions 1–2
+/// checked), the predictor structure they call for, and, when some true delay differs from
+/// the assumed one, the actuators' own queues (true delays, only checked to be physical).
+pub(super) struct Queues {
+    pub assumed: Vec<DelayQueue>,
+    pub structure: Structure,
+    pub actuators: Option<Vec<DelayQueue>>,
+}
+
 pub(super) fn queues(
     loaded: &LoadedScenario,
     channels: &[String],
     timestep: f64,
     period: f64,
-) -> Result<(Vec<DelayQueue>, Structure), EpisodeError> {
+) -> Result<Queues, EpisodeError> {
     let sc = &loaded.scenario;
-    let mut queues = Vec::with_capacity(channels.len());
+    let (mut assumed, mut actuators) = (Vec::with_capacity(channels.len()), Vec::with_capacity(channels.len()));
     for channel in channels {
-        let profile = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
-        let key = format!("delays.{channel}");
+        let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
+        let truth = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
+        let (key, profile) = match sc.assumed_delays.get(channel) {
+            Some(profile) => {
+                let key = format!("delays.{channel}");
+                truth
+                    .check_physical(channel, sc.duration, timestep, sc.control.history)
+                    .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+                let queue = DelayQueue::with_profile(channel, truth, initial, timestep)
+                    .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+                actuators.push(Some(queue));
+                (format!("assumed_delays.{channel}"), profile.clone())
+            }
+            None => {
+                actuators.push(None);
+                (format!("delays.{channel}"), truth)
+            }
+        };
         profile
             .check(channel, sc.duration, timestep, sc.control.history)
             .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-        let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
         let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
             .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-        queues.push(queue);
+        assumed.push(queue);
     }
-    let structure = control::predictor_structure(&queues, period).map_err(|e| loaded.field_error("delays", e))?;
-    Ok((queues, structure))
+    let structure = control::predictor_structure(&assumed, period).map_err(|e| loaded.field_error("delays", e))?;
+    // Channels without their own assumption actuate through a copy of the assumed queue.
+    let actuators = actuators.iter().any(Option::is_some).then(|| {
+        actuators
+            .into_iter()
+            .zip(&assumed)
+            .map(|(own, same)| own.unwrap_or_else(|| same.clone()))
+            .collect()
+    });
+    Ok(Queues {
+        assumed,
+        structure,
+        actuators,
+    })
 }
 
 /// The nominal controller of the scenario's `nominal` table (registry kind).
@@ -262,7 +297,15 @@ pub(super) fn filter(
     };
     crate::registry::registry()
         .build_filter(&sc.filter.kind, &sc.filter.params, &ctx)
-        .map_err(|e| param_error(loaded, e))
+        .map_err(|mut e| {
+            // The filter checks the delays the controller assumes.
+            if let Some(channel) = e.key.strip_prefix("delays.") {
+                if sc.assumed_delays.contains_key(channel) {
+                    e.key = format!("assumed_{}", e.key);
+                }
+            }
+            param_error(loaded, e)
+        })
 }
 
 /// x(0): the scenario's initial state with its seeded perturbation.
@@ -446,7 +489,7 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
         timestep,
         control_period: period,
         max_delay: control
-            .queues()
+            .actuators()
             .iter()
             .flat_map(|q| {
                 // Sampled over the run for a time-varying delay; a constant one is itself.

@@ -118,6 +118,9 @@ pub struct ControlLoop {
     /// A disturbance ω_i(t) added to channel i's applied input ((4.12) with Z = G); unknown
     /// to the predictors.
     input_disturbance: Option<InputDisturbance>,
+    /// The actuators' own queues (true delays) when they differ from what the controller
+    /// assumes (`queues`); every issued command goes to both.
+    actuators: Option<Vec<DelayQueue>>,
     /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
     chain_audit: Option<ChainAudit>,
 }
@@ -191,8 +194,20 @@ impl ControlLoop {
             work,
             error: None,
             input_disturbance: None,
+            actuators: None,
             chain_audit: None,
         }
+    }
+
+    /// Actuates through queues of the true delays, one per channel (the controller keeps
+    /// predicting and filtering with the delays of [`ControlLoop::queues`]).
+    pub fn set_actuators(&mut self, actuators: Vec<DelayQueue>) {
+        self.actuators = Some(actuators);
+    }
+
+    /// The queues the plant's inputs come from: the true delays.
+    pub fn actuators(&self) -> &[DelayQueue] {
+        self.actuators.as_deref().unwrap_or(&self.queues)
     }
 
     /// The analytic model the controller assumes.
@@ -205,7 +220,7 @@ impl ControlLoop {
         self.filter.as_ref()
     }
 
-    /// The delay queue of every channel.
+    /// The delay queue of every channel, with the delays the controller assumes.
     pub fn queues(&self) -> &[DelayQueue] {
         &self.queues
     }
@@ -312,6 +327,7 @@ impl ControlLoop {
             pending,
             work,
             chain_audit,
+            actuators,
             ..
         } = self;
         let TickWorkspace {
@@ -396,7 +412,8 @@ impl ControlLoop {
             tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
             tick.outcomes[i] = outcome;
         }
-        for (i, queue) in queues.iter_mut().enumerate() {
+        for (i, queue) in queues.iter_mut().chain(actuators.iter_mut().flatten()).enumerate() {
+            let i = i % tick.issued.len();
             queue.push(t, tick.issued[i])?;
             queue.discard_before(t);
         }
@@ -436,7 +453,7 @@ impl ControlLoop {
                 } else {
                     let context = PredictorContext {
                         model: self.model.as_ref(),
-                        queues: &self.queues,
+                        queues: self.actuators.as_deref().unwrap_or(&self.queues),
                         timestep: h,
                         control_period: self.control_period,
                     };
@@ -480,7 +497,8 @@ impl Controller for ControlLoop {
         let offset = offset.clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
         let sample_time = step_time + offset;
         self.applied_buffer.clear();
-        for (i, queue) in self.queues.iter().enumerate() {
+        let actuators = self.actuators.as_deref().unwrap_or(&self.queues);
+        for (i, queue) in actuators.iter().enumerate() {
             let applied = match queue.applied(sample_time) {
                 Ok(a) => a,
                 Err(e) => {

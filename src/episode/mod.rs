@@ -122,7 +122,7 @@ impl Episode {
         check_step_budget(loaded, timestep)?;
         build::check_state_and_channels(loaded, model.as_ref())?;
         let (period, steps_per_tick) = build::control_period(loaded, timestep)?;
-        let (queues, structure) = build::queues(loaded, model.channel_names(), timestep, period)?;
+        let queues = build::queues(loaded, model.channel_names(), timestep, period)?;
         let nominal = build::nominal(loaded, &model)?;
         let x0 = build::initial_state(loaded);
         let barriers = build::barriers(loaded, model.state_dim())?;
@@ -132,7 +132,14 @@ impl Episode {
             .chain(obstacles.iter().map(|o| &o.barrier))
             .cloned()
             .collect();
-        let filter = build::filter(loaded, &model, &queues, &every_barrier, nominal.as_ref(), timestep)?;
+        let filter = build::filter(
+            loaded,
+            &model,
+            &queues.assumed,
+            &every_barrier,
+            nominal.as_ref(),
+            timestep,
+        )?;
         let path = nominal
             .reference_path()
             .map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
@@ -142,11 +149,14 @@ impl Episode {
             model.clone(),
             nominal,
             filter,
-            queues,
-            structure,
+            queues.assumed,
+            queues.structure,
             timestep,
             steps_per_tick,
         );
+        if let Some(actuators) = queues.actuators {
+            control.set_actuators(actuators);
+        }
         build::configure_control(loaded, &mut control, &barriers)?;
         let info = build::run_info(loaded, &control, period);
         Ok(Episode {

@@ -84,6 +84,7 @@ impl ChannelInput<'_> {
 
 /// What [`SafetyFilter::delay_free`] receives.
 pub struct DelayFreeInput<'a> {
+    /// The time of the (predicted) state.
     pub time: f64,
     /// z, the (predicted) state.
     pub state: &'a [f64],
@@ -179,11 +180,14 @@ pub trait Params: Serialize + DeserializeOwned {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("key `{key}`: {message}")]
 pub struct ParamError {
+    /// The scenario key, e.g. `filter.m`.
     pub key: String,
+    /// What was expected (and found).
     pub message: String,
 }
 
 impl ParamError {
+    /// The error for `key`.
     pub fn new(key: impl Into<String>, message: impl Into<String>) -> ParamError {
         ParamError {
             key: key.into(),

@@ -63,6 +63,7 @@ pub struct CbfQp {
     input: DVector<f64>,
 }
 
+/// The filter of a `kind = "cbf_qp"` table (limits checked against the channels).
 pub fn build(p: &CbfQpParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let r = ctx.queues.len();
     let limits = match &p.input_limits {

@@ -190,6 +190,7 @@ pub struct ChainFilter {
     prescribed_time: Option<f64>,
 }
 
+/// The filter of a `kind = "ptsf"` table: gains from x(0) (5.32)–(5.34).
 pub fn build_ptsf(p: &PtsfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let transform = chain_transform(ctx)?;
     let n = ctx.model.state_dim();
@@ -218,6 +219,7 @@ pub fn build_ptsf(p: &PtsfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyF
     }))
 }
 
+/// The filter of a `kind = "esf"` table.
 pub fn build_esf(p: &EsfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let transform = chain_transform(ctx)?;
     let filter = EsfFilter::new(ctx.model.state_dim(), p.rate).map_err(design_error)?;

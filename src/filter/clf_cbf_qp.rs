@@ -56,6 +56,7 @@ impl Params for ClfCbfQpParams {
     }
 }
 
+/// The Ch. 3 constrained stabiliser κ_LB (3.33) at each channel's prediction.
 pub struct ClfCbfQp(ConstrainedStabilizer);
 
 /// The design from the scenario: the linear model (A = ∂f/∂x, B = G), the channel delays,

@@ -76,6 +76,7 @@ impl Params for FixedChannelParams {
     }
 }
 
+/// The fixed-channel filter (4.44) with its φ.
 pub struct FixedChannel {
     form: BarrierForm,
     phi: usize,
@@ -94,6 +95,8 @@ pub(crate) fn single_barrier(ctx: &FilterContext) -> Result<(), ParamError> {
     Ok(())
 }
 
+/// The filter of a `kind = "fixed_channel"` table: φ declared or found on `phi_box`
+/// (verified there if both), constant delays in channel order, one barrier.
 pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let form = barrier_form(p.alpha, p.l0, p.l1)?;
     ctx.ordered_constant_delays()?;

@@ -48,6 +48,7 @@ impl Params for GammaMParams {
     }
 }
 
+/// The γm filter (4.67) with its gains.
 pub struct GammaM {
     form: BarrierForm,
     m: f64,
@@ -56,6 +57,7 @@ pub struct GammaM {
     omega: DVector<f64>,
 }
 
+/// The filter of a `kind = "gamma_m"` table: constant delays in channel order, one barrier.
 pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let form = barrier_form(p.alpha, p.l0, p.l1)?;
     ctx.ordered_constant_delays()?;

@@ -15,6 +15,7 @@ impl Params for NoFilterParams {}
 /// Issues the nominal input.
 pub struct NoFilter;
 
+/// The filter of a `kind = "none"` table.
 pub fn build(_: &NoFilterParams, _: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     Ok(Box::new(NoFilter))
 }
