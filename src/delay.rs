@@ -339,6 +339,75 @@ pub struct DelayQueue {
     /// Whether old commands were discarded (then "nothing older" no longer means the
     /// initial input applies).
     pruned: bool,
+    /// Stochastic actuation: each command's own arrival time (see [`Actuation`]).
+    actuation: Option<ActuationLine>,
+}
+
+/// Seeded per-command randomness of an actuator: an extra latency ε_k ≥ 0 added to the true
+/// delay, and a probability of dropping the command (it never arrives; the actuator holds the
+/// last command that did).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Actuation {
+    pub extra_latency: ExtraLatency,
+    pub drop_probability: f64,
+    /// Seed and channel index of the draws (draw k of channel i depends on nothing else).
+    pub seed: u64,
+    pub channel_index: u64,
+}
+
+/// The distribution of the extra latency ε_k (seconds).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ExtraLatency {
+    None,
+    /// Uniform on [0, max].
+    Uniform {
+        max: f64,
+    },
+    /// Normal(mean, std) truncated to [0, max] (by rejection, deterministic per draw).
+    TruncatedNormal {
+        mean: f64,
+        std: f64,
+        max: f64,
+    },
+}
+
+impl Actuation {
+    /// Arrival offset of command k beyond the true delay: ε_k, or +∞ when dropped.
+    fn offset(&self, k: u64) -> f64 {
+        use crate::random::{symmetric_unit, Stream};
+        let unit = |stream, component| 0.5 * (symmetric_unit(self.seed, stream, k, component) + 1.0);
+        if unit(Stream::ActuationDrop, self.channel_index) < self.drop_probability {
+            return f64::INFINITY;
+        }
+        let c = self.channel_index << 8;
+        match self.extra_latency {
+            ExtraLatency::None => 0.0,
+            ExtraLatency::Uniform { max } => max * unit(Stream::ActuationLatency, c),
+            ExtraLatency::TruncatedNormal { mean, std, max } => (0..64)
+                .map(|j| {
+                    // Box–Muller from two draws; the first in [0, max] is taken.
+                    let (u1, u2) = (
+                        unit(Stream::ActuationLatency, c + 2 * j).max(1e-300),
+                        unit(Stream::ActuationLatency, c + 2 * j + 1),
+                    );
+                    mean + std * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                })
+                .find(|e| (0.0..=max).contains(e))
+                .unwrap_or(mean.clamp(0.0, max)),
+        }
+    }
+}
+
+/// Arrival times of the issued commands, kept beside the history.
+#[derive(Debug, Clone)]
+struct ActuationLine {
+    actuation: Actuation,
+    /// Effective arrival per command, parallel to `history`: the earliest arrival of it or
+    /// any later-issued command (non-decreasing, so "the latest-issued command that has
+    /// arrived by t" is a binary search; a command overtaken by a later one never applies).
+    arrivals: VecDeque<f64>,
+    /// Commands pushed so far (the draw index).
+    pushed: u64,
 }
 
 impl DelayQueue {
@@ -378,7 +447,36 @@ impl DelayQueue {
             history: VecDeque::new(),
             eps: TIME_TOLERANCE * timestep,
             pruned: false,
+            actuation: None,
         })
+    }
+
+    /// An actuator's delay line: command k, issued at t_k, arrives at t_k + D(t_k) + ε_k (or
+    /// never, when dropped), and the input at time t is the latest-issued command that has
+    /// arrived by t (the initial input before any). D may be any physical delay, not only a
+    /// multiple of the timestep: the plant samples the line at each input evaluation, so under
+    /// Euler/implicit integration a command takes effect from the first step starting at or
+    /// after its arrival, under RK4 from the first stage at or after it.
+    pub fn actuator(
+        channel: &str,
+        profile: DelayProfile,
+        initial_input: f64,
+        timestep: f64,
+        actuation: Actuation,
+    ) -> DelayQueue {
+        DelayQueue {
+            channel: channel.into(),
+            profile,
+            initial_input,
+            history: VecDeque::new(),
+            eps: TIME_TOLERANCE * timestep,
+            pruned: false,
+            actuation: Some(ActuationLine {
+                actuation,
+                arrivals: VecDeque::new(),
+                pushed: 0,
+            }),
+        }
     }
 
     pub fn channel(&self) -> &str {
@@ -404,12 +502,27 @@ impl DelayQueue {
             }
         }
         self.history.push_back((time, value));
+        if let Some(line) = &mut self.actuation {
+            let arrival = time + self.profile.delay(time) + line.actuation.offset(line.pushed);
+            line.pushed += 1;
+            for earlier in line.arrivals.iter_mut().rev() {
+                if *earlier <= arrival {
+                    break;
+                }
+                *earlier = arrival;
+            }
+            line.arrivals.push_back(arrival);
+        }
         Ok(())
     }
 
     /// The applied input u_i(φ(t)): the latest command issued at or before φ(t) (within a
     /// tolerance), or the initial input if none.
     pub fn applied(&self, time: f64) -> Result<Applied, DelayError> {
+        if let Some(line) = &self.actuation {
+            let idx = line.arrivals.partition_point(|&a| a <= time + self.eps);
+            return self.applied_at_index(idx, f64::NAN, time);
+        }
         self.issued_at_or_before(self.profile.delay_time(time), time)
     }
 
@@ -476,6 +589,14 @@ impl DelayQueue {
     /// Discards commands no longer needed to answer `applied(t)` for any t >= `time`
     /// (φ is increasing, so nothing issued before φ(time) is needed but the one in force).
     pub fn discard_before(&mut self, time: f64) {
+        if let Some(line) = &mut self.actuation {
+            while line.arrivals.len() >= 2 && line.arrivals[1] <= time + self.eps {
+                line.arrivals.pop_front();
+                self.history.pop_front();
+                self.pruned = true;
+            }
+            return;
+        }
         let source_time = self.profile.delay_time(time);
         while self.history.len() >= 2 && self.history[1].0 <= source_time + self.eps {
             self.history.pop_front();

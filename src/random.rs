@@ -10,6 +10,10 @@ pub enum Stream {
     ObstacleAppearance = 2,
     InputDisturbance = 3,
     StateDisturbance = 4,
+    /// Extra latency of each actuated command.
+    ActuationLatency = 5,
+    /// Whether each actuated command is dropped.
+    ActuationDrop = 6,
 }
 
 /// SplitMix64 (Steele, Lea, Flood 2014): the generator of every seeded draw

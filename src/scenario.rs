@@ -48,6 +48,10 @@ pub struct Scenario {
     /// are checked on these; the true delays only have to be physical (D(t) >= 0, finite).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub assumed_delays: BTreeMap<String, DelayProfile>,
+    /// Stochastic actuation per channel: seeded extra latency and dropped commands, unknown to
+    /// the controller (which keeps assuming `assumed_delays`, or `delays`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub actuation: BTreeMap<String, ActuationSpec>,
     /// Initial input function per channel on [−D_i, 0) (constant; channels not listed: 0).
     #[serde(default)]
     pub initial_input: BTreeMap<String, f64>,
@@ -229,6 +233,29 @@ pub enum PlantKind {
     Mujoco,
     /// Pure-Rust RK4 of the analytic model (the reference).
     Ode,
+}
+
+/// One channel's stochastic actuation (`[actuation.<channel>]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActuationSpec {
+    /// Extra latency ε_k ≥ 0 of each command (seconds), seeded by `seed`.
+    #[serde(default)]
+    pub extra_latency: Option<ExtraLatencySpec>,
+    /// Probability that a command is dropped (never arrives; the actuator holds the last one
+    /// that did), in [0, 1).
+    #[serde(default)]
+    pub drop_probability: f64,
+}
+
+/// The distribution of the extra latency.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "distribution", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ExtraLatencySpec {
+    /// Uniform on [0, max].
+    Uniform { max: f64 },
+    /// Normal(mean, std) truncated to [0, max].
+    TruncatedNormal { mean: f64, std: f64, max: f64 },
 }
 
 /// MuJoCo's numerical integrator (`vehicle.integrator`, the model's `<option integrator>`).
@@ -481,6 +508,28 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                     format!("expected a delay >= 0 seconds, found {delay}"),
                 ));
             }
+        }
+    }
+    for (channel, a) in &sc.actuation {
+        let key = format!("actuation.{channel}");
+        if !(a.drop_probability.is_finite() && (0.0..1.0).contains(&a.drop_probability)) {
+            return Err(s.field_error(
+                &format!("{key}.drop_probability"),
+                format!("expected a probability in [0, 1), found {}", a.drop_probability),
+            ));
+        }
+        let ok = match a.extra_latency {
+            None => true,
+            Some(ExtraLatencySpec::Uniform { max }) => max.is_finite() && max >= 0.0,
+            Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
+                mean.is_finite() && positive_finite(std) && max.is_finite() && max >= 0.0
+            }
+        };
+        if !ok {
+            return Err(s.field_error(
+                &format!("{key}.extra_latency"),
+                "expected max >= 0 seconds (and for truncated_normal a finite mean and std > 0)",
+            ));
         }
     }
     if !positive_finite(sc.control.history) {

@@ -9,7 +9,7 @@ use nalgebra::DVector;
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
 use crate::barrier::Barrier;
-use crate::delay::{DelayProfile, DelayQueue};
+use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
 use crate::dynamics::Dynamics;
 use crate::filter::linear_delays;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
@@ -19,7 +19,7 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{DisturbanceSpec, Integrator, LoadedScenario, ScenarioError};
+use crate::scenario::{DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
@@ -167,6 +167,7 @@ pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dyna
     for (section, keys) in [
         ("delays", sc.delays.keys().collect::<Vec<_>>()),
         ("assumed_delays", sc.assumed_delays.keys().collect()),
+        ("actuation", sc.actuation.keys().collect()),
         ("initial_input", sc.initial_input.keys().collect()),
     ] {
         for key in keys {
@@ -215,9 +216,56 @@ pub(super) fn queues(
 ) -> Result<Queues, EpisodeError> {
     let sc = &loaded.scenario;
     let (mut assumed, mut actuators) = (Vec::with_capacity(channels.len()), Vec::with_capacity(channels.len()));
-    for channel in channels {
+    for (index, channel) in channels.iter().enumerate() {
         let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
         let truth = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
+        if let Some(spec) = sc.actuation.get(channel) {
+            let key = format!("delays.{channel}");
+            truth
+                .check_physical(channel, sc.duration, timestep, sc.control.history)
+                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+            let assumed_profile = sc.assumed_delays.get(channel).unwrap_or(&truth);
+            if assumed_profile.constant_delay().is_none() {
+                return Err(loaded
+                    .field_error(
+                        &format!("actuation.{channel}"),
+                        "stochastic actuation needs a constant assumed delay on its channel (the consistency check of time-varying predictions is not defined for it)",
+                    )
+                    .into());
+            }
+            let actuation = Actuation {
+                extra_latency: match spec.extra_latency {
+                    None => ExtraLatency::None,
+                    Some(ExtraLatencySpec::Uniform { max }) => ExtraLatency::Uniform { max },
+                    Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
+                        ExtraLatency::TruncatedNormal { mean, std, max }
+                    }
+                },
+                drop_probability: spec.drop_probability,
+                seed: sc.seed,
+                channel_index: index as u64,
+            };
+            actuators.push(Some(DelayQueue::actuator(
+                channel,
+                truth.clone(),
+                initial,
+                timestep,
+                actuation,
+            )));
+            let profile = assumed_profile.clone();
+            let key = if sc.assumed_delays.contains_key(channel) {
+                format!("assumed_delays.{channel}")
+            } else {
+                key
+            };
+            profile
+                .check(channel, sc.duration, timestep, sc.control.history)
+                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+            let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
+                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+            assumed.push(queue);
+            continue;
+        }
         let (key, profile) = match sc.assumed_delays.get(channel) {
             Some(profile) => {
                 let key = format!("delays.{channel}");
