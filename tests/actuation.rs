@@ -183,3 +183,27 @@ fn bad_actuation_tables_name_the_key() {
         &["key `actuation.brake`", "unknown input channel"],
     );
 }
+
+#[test]
+fn jitter_study_4_67_stays_clear_where_4_34_collides_deeper() {
+    // scenarios/jitter.sweep.toml, a few of its runs: uniform extra latency on both channels.
+    let dir = tempfile::tempdir().unwrap();
+    let jitter = |max: f64| {
+        format!(
+            "actuation={{steering={{extra_latency={{distribution='uniform', max={max}}}}}, acceleration={{extra_latency={{distribution='uniform', max={max}}}}}}}"
+        )
+    };
+    let min_h = |log: &Path| analyze_json(log)["min_h"].as_f64().unwrap();
+    let collides = |log: &Path| !analyze_json(log)["collision"].is_null();
+    for seed in [1, 2, 3] {
+        let log = dir.path().join(format!("gm{seed}.mcap"));
+        run_ok(&scenario(GAMMA_M), &log, &["--set", &jitter(0.3), "--set", &format!("seed={seed}")]);
+        assert!(!collides(&log) && min_h(&log) > 0.0, "(4.67), 300 ms jitter, seed {seed}");
+    }
+    let predictor = "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}";
+    let (calm, jittery) = (dir.path().join("p0.mcap"), dir.path().join("p3.mcap"));
+    run_ok(&scenario(GAMMA_M), &calm, &["--set", predictor]);
+    run_ok(&scenario(GAMMA_M), &jittery, &["--set", predictor, "--set", &jitter(0.3)]);
+    assert!(collides(&calm) && collides(&jittery));
+    assert!(min_h(&jittery) < min_h(&calm) - 0.5, "{} vs {}", min_h(&jittery), min_h(&calm));
+}
