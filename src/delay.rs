@@ -440,15 +440,7 @@ impl DelayQueue {
                 });
             }
         }
-        Ok(DelayQueue {
-            channel: channel.into(),
-            profile,
-            initial_input,
-            history: VecDeque::new(),
-            eps: TIME_TOLERANCE * timestep,
-            pruned: false,
-            actuation: None,
-        })
+        Ok(Self::line(channel, profile, initial_input, timestep))
     }
 
     /// An actuator's delay line: command k, issued at t_k, arrives at t_k + D(t_k) + ε_k (or
@@ -465,17 +457,25 @@ impl DelayQueue {
         actuation: Actuation,
     ) -> DelayQueue {
         DelayQueue {
+            actuation: Some(ActuationLine {
+                actuation,
+                arrivals: VecDeque::new(),
+                pushed: 0,
+            }),
+            ..Self::line(channel, profile, initial_input, timestep)
+        }
+    }
+
+    /// A queue without the grid check.
+    fn line(channel: &str, profile: DelayProfile, initial_input: f64, timestep: f64) -> DelayQueue {
+        DelayQueue {
             channel: channel.into(),
             profile,
             initial_input,
             history: VecDeque::new(),
             eps: TIME_TOLERANCE * timestep,
             pruned: false,
-            actuation: Some(ActuationLine {
-                actuation,
-                arrivals: VecDeque::new(),
-                pushed: 0,
-            }),
+            actuation: None,
         }
     }
 

@@ -31,16 +31,6 @@ fn issue_times(log: &Path) -> Vec<f64> {
         .collect()
 }
 
-fn raw(log: &Path, topic: &str) -> Vec<Vec<u8>> {
-    let bytes = std::fs::read(log).unwrap();
-    mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(|m| m.unwrap())
-        .filter(|m| m.channel.topic == topic)
-        .map(|m| m.data.to_vec())
-        .collect()
-}
-
 const GAMMA_M: &str = "bicycle_obstacle_gamma_m.toml";
 
 #[test]
@@ -63,8 +53,8 @@ fn extra_latency_is_seeded_bounded_and_deterministic() {
         "same seed, same bytes"
     );
     assert_ne!(
-        raw(&a, "/command/applied"),
-        raw(&c, "/command/applied"),
+        raw_topic(&a, "/command/applied"),
+        raw_topic(&c, "/command/applied"),
         "another seed, other latencies"
     );
     // Steering (true delay 0.2 s): every command that applies does so within [0.2, 0.25 + h]
@@ -161,7 +151,7 @@ fn an_actuation_without_randomness_changes_no_message() {
         "/barrier",
         "/prediction",
     ] {
-        assert!(raw(&plain, topic) == raw(&line, topic), "{topic} differs");
+        assert!(raw_topic(&plain, topic) == raw_topic(&line, topic), "{topic} differs");
     }
 }
 
@@ -197,13 +187,29 @@ fn jitter_study_4_67_stays_clear_where_4_34_collides_deeper() {
     let collides = |log: &Path| !analyze_json(log)["collision"].is_null();
     for seed in [1, 2, 3] {
         let log = dir.path().join(format!("gm{seed}.mcap"));
-        run_ok(&scenario(GAMMA_M), &log, &["--set", &jitter(0.3), "--set", &format!("seed={seed}")]);
-        assert!(!collides(&log) && min_h(&log) > 0.0, "(4.67), 300 ms jitter, seed {seed}");
+        run_ok(
+            &scenario(GAMMA_M),
+            &log,
+            &["--set", &jitter(0.3), "--set", &format!("seed={seed}")],
+        );
+        assert!(
+            !collides(&log) && min_h(&log) > 0.0,
+            "(4.67), 300 ms jitter, seed {seed}"
+        );
     }
     let predictor = "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}";
     let (calm, jittery) = (dir.path().join("p0.mcap"), dir.path().join("p3.mcap"));
     run_ok(&scenario(GAMMA_M), &calm, &["--set", predictor]);
-    run_ok(&scenario(GAMMA_M), &jittery, &["--set", predictor, "--set", &jitter(0.3)]);
+    run_ok(
+        &scenario(GAMMA_M),
+        &jittery,
+        &["--set", predictor, "--set", &jitter(0.3)],
+    );
     assert!(collides(&calm) && collides(&jittery));
-    assert!(min_h(&jittery) < min_h(&calm) - 0.5, "{} vs {}", min_h(&jittery), min_h(&calm));
+    assert!(
+        min_h(&jittery) < min_h(&calm) - 0.5,
+        "{} vs {}",
+        min_h(&jittery),
+        min_h(&calm)
+    );
 }

@@ -49,17 +49,6 @@ fn assuming_the_true_delays_changes_nothing_the_plant_or_the_controller_does() {
     }
 }
 
-/// Every message of a topic, as bytes.
-fn raw_topic(file: &Path, topic: &str) -> Vec<Vec<u8>> {
-    let bytes = std::fs::read(file).unwrap();
-    mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(|m| m.unwrap())
-        .filter(|m| m.channel.topic == topic)
-        .map(|m| m.data.to_vec())
-        .collect()
-}
-
 #[test]
 fn a_predictor_that_assumes_no_delay_is_the_uncompensated_filter() {
     let dir = tempfile::tempdir().unwrap();

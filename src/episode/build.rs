@@ -19,7 +19,7 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
+use crate::scenario::{ActuationSpec, DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
@@ -219,13 +219,21 @@ pub(super) fn queues(
     for (index, channel) in channels.iter().enumerate() {
         let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
         let truth = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
-        if let Some(spec) = sc.actuation.get(channel) {
-            let key = format!("delays.{channel}");
+        let true_key = format!("delays.{channel}");
+        let (key, profile) = match sc.assumed_delays.get(channel) {
+            Some(profile) => (format!("assumed_delays.{channel}"), profile.clone()),
+            None => (true_key.clone(), truth.clone()),
+        };
+        // The actuator's own line when it is not the controller's: another true delay
+        // (only physical), or a stochastic actuation (which needs a constant assumption).
+        let stochastic = sc.actuation.get(channel);
+        if stochastic.is_some() || sc.assumed_delays.contains_key(channel) {
             truth
                 .check_physical(channel, sc.duration, timestep, sc.control.history)
-                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-            let assumed_profile = sc.assumed_delays.get(channel).unwrap_or(&truth);
-            if assumed_profile.constant_delay().is_none() {
+                .map_err(|e| loaded.field_error(&true_key, e.to_string()))?;
+        }
+        actuators.push(match stochastic {
+            Some(_) if profile.constant_delay().is_none() => {
                 return Err(loaded
                     .field_error(
                         &format!("actuation.{channel}"),
@@ -233,55 +241,19 @@ pub(super) fn queues(
                     )
                     .into());
             }
-            let actuation = Actuation {
-                extra_latency: match spec.extra_latency {
-                    None => ExtraLatency::None,
-                    Some(ExtraLatencySpec::Uniform { max }) => ExtraLatency::Uniform { max },
-                    Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
-                        ExtraLatency::TruncatedNormal { mean, std, max }
-                    }
-                },
-                drop_probability: spec.drop_probability,
-                seed: sc.seed,
-                channel_index: index as u64,
-            };
-            actuators.push(Some(DelayQueue::actuator(
+            Some(spec) => Some(DelayQueue::actuator(
                 channel,
-                truth.clone(),
+                truth,
                 initial,
                 timestep,
-                actuation,
-            )));
-            let profile = assumed_profile.clone();
-            let key = if sc.assumed_delays.contains_key(channel) {
-                format!("assumed_delays.{channel}")
-            } else {
-                key
-            };
-            profile
-                .check(channel, sc.duration, timestep, sc.control.history)
-                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-            let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
-                .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-            assumed.push(queue);
-            continue;
-        }
-        let (key, profile) = match sc.assumed_delays.get(channel) {
-            Some(profile) => {
-                let key = format!("delays.{channel}");
-                truth
-                    .check_physical(channel, sc.duration, timestep, sc.control.history)
-                    .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-                let queue = DelayQueue::with_profile(channel, truth, initial, timestep)
-                    .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-                actuators.push(Some(queue));
-                (format!("assumed_delays.{channel}"), profile.clone())
-            }
-            None => {
-                actuators.push(None);
-                (format!("delays.{channel}"), truth)
-            }
-        };
+                actuation(spec, sc.seed, index),
+            )),
+            None if sc.assumed_delays.contains_key(channel) => Some(
+                DelayQueue::with_profile(channel, truth, initial, timestep)
+                    .map_err(|e| loaded.field_error(&true_key, e.to_string()))?,
+            ),
+            None => None,
+        });
         profile
             .check(channel, sc.duration, timestep, sc.control.history)
             .map_err(|e| loaded.field_error(&key, e.to_string()))?;
@@ -303,6 +275,22 @@ pub(super) fn queues(
         structure,
         actuators,
     })
+}
+
+/// A channel's seeded stochastic actuation from its `[actuation.<channel>]` table.
+fn actuation(spec: &ActuationSpec, seed: u64, channel_index: usize) -> Actuation {
+    Actuation {
+        extra_latency: match spec.extra_latency {
+            None => ExtraLatency::None,
+            Some(ExtraLatencySpec::Uniform { max }) => ExtraLatency::Uniform { max },
+            Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
+                ExtraLatency::TruncatedNormal { mean, std, max }
+            }
+        },
+        drop_probability: spec.drop_probability,
+        seed,
+        channel_index: channel_index as u64,
+    }
 }
 
 /// The nominal controller of the scenario's `nominal` table (registry kind).

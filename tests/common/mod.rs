@@ -164,3 +164,14 @@ pub fn text(o: &Output) -> String {
         String::from_utf8_lossy(&o.stderr)
     )
 }
+
+/// Every message of a topic, as its bytes.
+pub fn raw_topic(file: &Path, topic: &str) -> Vec<Vec<u8>> {
+    let bytes = std::fs::read(file).unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == topic)
+        .map(|m| m.data.to_vec())
+        .collect()
+}
