@@ -479,6 +479,14 @@ impl DelayQueue {
         }
     }
 
+    /// The largest extra latency a stochastic actuator adds to the delay (0 without one).
+    pub fn extra_latency_bound(&self) -> f64 {
+        match self.actuation.as_ref().map(|line| line.actuation.extra_latency) {
+            Some(ExtraLatency::Uniform { max }) | Some(ExtraLatency::TruncatedNormal { max, .. }) => max,
+            Some(ExtraLatency::None) | None => 0.0,
+        }
+    }
+
     pub fn channel(&self) -> &str {
         &self.channel
     }

@@ -213,3 +213,20 @@ fn jitter_study_4_67_stays_clear_where_4_34_collides_deeper() {
         min_h(&calm)
     );
 }
+
+#[test]
+fn the_longest_delay_in_the_metadata_includes_the_extra_latency_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("bound.mcap");
+    run_ok(
+        &scenario(GAMMA_M),
+        &log,
+        &[
+            "--set",
+            "actuation.acceleration={extra_latency={distribution='uniform', max=0.25}}",
+        ],
+    );
+    let o = mjsafe(&["info", "--json", log.to_str().unwrap()]);
+    let text = stdout(&o);
+    assert!(text.contains("\"max_delay\": \"1.75\""), "{text}");
+}

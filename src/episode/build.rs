@@ -533,7 +533,9 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
                     Some(_) => 0,
                     None => (sc.duration / timestep).ceil() as usize,
                 };
-                (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)))
+                // A stochastic actuator adds up to its extra-latency bound.
+                let extra = q.extra_latency_bound();
+                (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)) + extra)
             })
             .fold(0.0, f64::max),
         prescribed_time: control.filter().prescribed_time(),
