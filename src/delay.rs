@@ -529,7 +529,7 @@ impl DelayQueue {
     pub fn applied(&self, time: f64) -> Result<Applied, DelayError> {
         if let Some(line) = &self.actuation {
             let idx = line.arrivals.partition_point(|&a| a <= time + self.eps);
-            return self.applied_at_index(idx, f64::NAN, time);
+            return self.applied_at_index(idx, time, time);
         }
         self.issued_at_or_before(self.profile.delay_time(time), time)
     }

@@ -170,18 +170,6 @@ pub fn unicycle_stabilizer(prediction_time: f64, p: &[f64]) -> [f64; 2] {
     [speed, turn_rate]
 }
 
-impl std::fmt::Debug for dyn crate::dynamics::Dynamics {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Dynamics({:?})", self.state_names())
-    }
-}
-
-impl PartialEq for dyn crate::dynamics::Dynamics {
-    fn eq(&self, other: &Self) -> bool {
-        std::ptr::eq(self as *const _ as *const u8, other as *const _ as *const u8)
-    }
-}
-
 /// (4.58): u0 = −(L_f V + ‖x‖²) L_g Vᵀ / ‖L_g V‖² (0 where L_g V = 0), V = x1⁴/4 + x2²/2 (4.57),
 /// which gives V̇ ≤ −‖x‖² (4.59).
 /// For a two-state, two-input system (checked when the scenario is built).

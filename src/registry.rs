@@ -30,21 +30,26 @@ pub use crate::filter::Params;
 use crate::filter::{self, FilterContext, ParamError, SafetyFilter};
 use crate::nominal::{self, NominalContext, NominalController};
 
-pub(crate) type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
+type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;
 type BuildNominal =
     Arc<dyn Fn(&toml::Table, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync>;
 
 pub(crate) struct Kind<B> {
     pub(crate) name: String,
-    pub(crate) check: Check,
     pub(crate) build: B,
+}
+
+/// A filter or nominal kind: its parameter check and its constructor.
+struct Checked<B> {
+    check: Check,
+    build: B,
 }
 
 /// Every filter and nominal kind a scenario may name (vehicle kinds: `mjsafe::vehicle_registry`).
 pub struct Registry {
-    filters: Vec<Kind<BuildFilter>>,
-    nominals: Vec<Kind<BuildNominal>>,
+    filters: Vec<Kind<Checked<BuildFilter>>>,
+    nominals: Vec<Kind<Checked<BuildNominal>>>,
 }
 
 /// P from a kind's table (its keys without `kind`), with serde's error at the inner key.
@@ -104,7 +109,14 @@ impl Registry {
         build: impl Fn(&P, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync + 'static,
     ) {
         let build: BuildFilter = Arc::new(move |table, ctx| build(&parse_params::<P>("filter", table)?, ctx));
-        add(&mut self.filters, kind, check_of::<P>(), build);
+        add(
+            &mut self.filters,
+            kind,
+            Checked {
+                check: check_of::<P>(),
+                build,
+            },
+        );
     }
 
     /// Registers (or replaces) the nominal controller `kind`, built from parameters P.
@@ -114,7 +126,14 @@ impl Registry {
         build: impl Fn(&P, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync + 'static,
     ) {
         let build: BuildNominal = Arc::new(move |table, ctx| build(&parse_params::<P>("nominal", table)?, ctx));
-        add(&mut self.nominals, kind, check_of::<P>(), build);
+        add(
+            &mut self.nominals,
+            kind,
+            Checked {
+                check: check_of::<P>(),
+                build,
+            },
+        );
     }
 
     /// The filter kinds, in registration order.
@@ -129,12 +148,12 @@ impl Registry {
 
     /// Checks a `filter` table's parameters; returns them normalised (defaults filled in).
     pub fn check_filter(&self, kind: &str, params: &toml::Table) -> Result<toml::Table, ParamError> {
-        (find(&self.filters, "filter", kind)?.check)("filter", params)
+        (find(&self.filters, "filter", kind)?.build.check)("filter", params)
     }
 
     /// Checks a `nominal` table's parameters; returns them normalised.
     pub fn check_nominal(&self, kind: &str, params: &toml::Table) -> Result<toml::Table, ParamError> {
-        (find(&self.nominals, "nominal", kind)?.check)("nominal", params)
+        (find(&self.nominals, "nominal", kind)?.build.check)("nominal", params)
     }
 
     /// Builds the filter of a (checked) `filter` table.
@@ -144,7 +163,7 @@ impl Registry {
         params: &toml::Table,
         ctx: &FilterContext,
     ) -> Result<Box<dyn SafetyFilter>, ParamError> {
-        (find(&self.filters, "filter", kind)?.build)(params, ctx)
+        (find(&self.filters, "filter", kind)?.build.build)(params, ctx)
     }
 
     /// Builds the nominal controller of a (checked) `nominal` table.
@@ -154,14 +173,13 @@ impl Registry {
         params: &toml::Table,
         ctx: &NominalContext,
     ) -> Result<Box<dyn NominalController>, ParamError> {
-        (find(&self.nominals, "nominal", kind)?.build)(params, ctx)
+        (find(&self.nominals, "nominal", kind)?.build.build)(params, ctx)
     }
 }
 
-pub(crate) fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, check: Check, build: B) {
+pub(crate) fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, build: B) {
     let kind = Kind {
         name: name.to_string(),
-        check,
         build,
     };
     match kinds.iter_mut().find(|k| k.name == name) {

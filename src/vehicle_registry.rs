@@ -8,7 +8,7 @@ use std::sync::{Arc, LazyLock, RwLock, RwLockReadGuard};
 use crate::dynamics::{self, Dynamics};
 use crate::filter::ParamError;
 use crate::mujoco::{MjError, Model};
-use crate::registry::{add, find, Check, Kind};
+use crate::registry::{add, find, Kind};
 use crate::scenario::VehicleSpec;
 use crate::vehicle::{self, MujocoVehicle, VehicleKind};
 
@@ -29,10 +29,6 @@ pub enum VehicleBinding {
 /// Every vehicle kind a scenario may name.
 pub struct VehicleRegistry {
     vehicles: Vec<Kind<VehicleBinding>>,
-}
-
-fn no_check() -> Check {
-    Arc::new(|_, table| Ok(table.clone()))
 }
 
 impl VehicleRegistry {
@@ -63,12 +59,7 @@ impl VehicleRegistry {
         kind: &str,
         bind: impl Fn(&Model) -> Result<Box<dyn MujocoVehicle>, MjError> + Send + Sync + 'static,
     ) {
-        add(
-            &mut self.vehicles,
-            kind,
-            no_check(),
-            VehicleBinding::Mjcf(Arc::new(bind)),
-        );
+        add(&mut self.vehicles, kind, VehicleBinding::Mjcf(Arc::new(bind)));
     }
 
     /// Registers (or replaces) the vehicle `kind` without MJCF (ODE plant only).
@@ -77,12 +68,7 @@ impl VehicleRegistry {
         kind: &str,
         build: impl Fn(&VehicleSpec) -> Result<Arc<dyn Dynamics>, ParamError> + Send + Sync + 'static,
     ) {
-        add(
-            &mut self.vehicles,
-            kind,
-            no_check(),
-            VehicleBinding::Analytic(Arc::new(build)),
-        );
+        add(&mut self.vehicles, kind, VehicleBinding::Analytic(Arc::new(build)));
     }
 
     /// How the vehicle `kind` becomes a plant (error at `vehicle.kind` for an unknown kind).

@@ -412,10 +412,12 @@ impl ControlLoop {
             tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
             tick.outcomes[i] = outcome;
         }
-        for (i, queue) in queues.iter_mut().chain(actuators.iter_mut().flatten()).enumerate() {
-            let i = i % tick.issued.len();
-            queue.push(t, tick.issued[i])?;
-            queue.discard_before(t);
+        // Every command goes to the controller's queue and, if the actuators have their own, to it.
+        for queues in std::iter::once(queues).chain(actuators.as_mut()) {
+            for (queue, &u) in queues.iter_mut().zip(tick.issued.iter()) {
+                queue.push(t, u)?;
+                queue.discard_before(t);
+            }
         }
         for p in predictions.iter() {
             if p.target_time > t + TICK_TOLERANCE * *timestep {

@@ -57,7 +57,11 @@ impl Params for ClfCbfQpParams {
 }
 
 /// The Ch. 3 constrained stabiliser κ_LB (3.33) at each channel's prediction.
-pub struct ClfCbfQp(ConstrainedStabilizer);
+pub struct ClfCbfQp {
+    stabilizer: ConstrainedStabilizer,
+    /// The evaluation state as a vector (scratch space).
+    state: DVector<f64>,
+}
 
 /// The design from the scenario: the linear model (A = ∂f/∂x, B = G), the channel delays,
 /// V = p xᵀx, the disk barrier (the scenario's only barrier: a ball, outside, over the whole
@@ -132,7 +136,10 @@ pub fn build(spec: &ClfCbfQpParams, ctx: &FilterContext) -> Result<Box<dyn Safet
             .robust_buffer_bound(&DMatrix::identity(n, n), spec.omega_bar)
             .map_err(|e| err("filter.omega_bar", e))?,
     };
-    Ok(Box::new(ClfCbfQp(build(eta)?)))
+    Ok(Box::new(ClfCbfQp {
+        stabilizer: build(eta)?,
+        state: DVector::zeros(n),
+    }))
 }
 
 impl SafetyFilter for ClfCbfQp {
@@ -145,7 +152,8 @@ impl SafetyFilter for ClfCbfQp {
     }
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
         // (3.33): channel i takes component i of QP-LB solved at p_i(t).
-        let outcome = self.0.kappa_lb(&DVector::from_column_slice(input.state));
+        self.state.copy_from_slice(input.state);
+        let outcome = self.stabilizer.kappa_lb(&self.state);
         Ok(Some(ChannelOutcome {
             input: outcome.input[input.channel],
             active: outcome.case != QpCase::A,
@@ -154,6 +162,7 @@ impl SafetyFilter for ClfCbfQp {
         }))
     }
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
-        u.copy_from(&self.0.kappa_lb(&DVector::from_column_slice(input.state)).input);
+        self.state.copy_from_slice(input.state);
+        u.copy_from(&self.stabilizer.kappa_lb(&self.state).input);
     }
 }

@@ -175,3 +175,13 @@ pub fn raw_topic(file: &Path, topic: &str) -> Vec<Vec<u8>> {
         .map(|m| m.data.to_vec())
         .collect()
 }
+
+/// Asserts that two logs hold byte-identical messages on every topic of `topics`, and that the
+/// first of them has messages on each topic except those in `may_be_empty`.
+pub fn assert_same_messages(a: &Path, b: &Path, topics: &[&str], may_be_empty: &[&str]) {
+    for topic in topics {
+        let (x, y) = (raw_topic(a, topic), raw_topic(b, topic));
+        assert!(!x.is_empty() || may_be_empty.contains(topic), "{topic} is empty");
+        assert!(x == y, "{topic} differs");
+    }
+}
