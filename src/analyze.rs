@@ -242,7 +242,7 @@ impl RunVisitor for Analysis<'_> {
             Topic::Prediction => acc.add_prediction(m.decode()?),
             Topic::Event => acc.add_event(m.decode()?),
             // Read by no metric.
-            Topic::Applied | Topic::Scene | Topic::Transform => {}
+            Topic::Applied | Topic::Scene | Topic::Transform | Topic::Measured | Topic::Actuated => {}
         }
         Ok(())
     }

@@ -4,6 +4,7 @@
 // `unsafe` only in `mujoco` (the FFI and the test binary's counting allocator).
 #![deny(unsafe_code)]
 
+pub mod actuator;
 pub mod analyze;
 pub mod barrier;
 pub mod bench;
@@ -24,6 +25,7 @@ pub mod predictor;
 pub mod random;
 pub mod registry;
 pub mod scenario;
+pub mod sensing;
 pub mod sweep;
 pub mod vehicle;
 pub mod vehicle_registry;

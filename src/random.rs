@@ -14,6 +14,8 @@ pub enum Stream {
     ActuationLatency = 5,
     /// Whether each actuated command is dropped.
     ActuationDrop = 6,
+    /// Sensor noise on the state the controller reads.
+    SensorNoise = 7,
 }
 
 /// SplitMix64 (Steele, Lea, Flood 2014): the generator of every seeded draw
@@ -52,6 +54,14 @@ pub fn symmetric_unit(seed: u64, stream: Stream, index: u64, component: u64) -> 
     // 53 random bits → [0, 1) → [−1, 1).
     let unit = (key >> 11) as f64 / (1u64 << 53) as f64;
     2.0 * unit - 1.0
+}
+
+/// A standard normal draw for (seed, stream, index, component) (Box–Muller from two uniform
+/// draws of the same key family).
+pub fn standard_normal(seed: u64, stream: Stream, index: u64, component: u64) -> f64 {
+    let unit = |c: u64| 0.5 * (symmetric_unit(seed, stream, index, c) + 1.0);
+    let (u1, u2) = (unit(2 * component).max(1e-300), unit(2 * component + 1));
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 #[cfg(test)]
@@ -96,5 +106,21 @@ mod tests {
         assert!(mean.abs() < 0.1, "mean {mean}");
         assert_ne!(symmetric_unit(8, Stream::InputDisturbance, 0, 0), a[0]);
         assert_ne!(symmetric_unit(7, Stream::StateDisturbance, 0, 0), a[0]);
+    }
+
+    #[test]
+    fn standard_normal_draws_have_unit_moments() {
+        let n = 20000;
+        let draws: Vec<f64> = (0..n).map(|i| standard_normal(3, Stream::SensorNoise, i, 2)).collect();
+        let mean = draws.iter().sum::<f64>() / n as f64;
+        let var = draws.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n as f64;
+        assert!(mean.abs() < 0.03, "mean {mean}");
+        assert!((var - 1.0).abs() < 0.04, "variance {var}");
+        let beyond_2_sigma = draws.iter().filter(|d| d.abs() > 2.0).count() as f64 / n as f64;
+        assert!((beyond_2_sigma - 0.0455).abs() < 0.006, "P(|z| > 2) = {beyond_2_sigma}");
+        assert_eq!(
+            draws[17].to_bits(),
+            standard_normal(3, Stream::SensorNoise, 17, 2).to_bits()
+        );
     }
 }

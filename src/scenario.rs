@@ -52,6 +52,13 @@ pub struct Scenario {
     /// the controller (which keeps assuming `assumed_delays`, or `delays`).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub actuation: BTreeMap<String, ActuationSpec>,
+    /// Actuator dynamics per channel, unknown to the controller: magnitude and rate limits and
+    /// a first-order lag between the delayed command and the plant.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub actuator_dynamics: BTreeMap<String, ActuatorDynamicsSpec>,
+    /// What the controller reads instead of the true state: a late, biased, noisy measurement.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensing: Option<SensingSpec>,
     /// Initial input function per channel on [−D_i, 0) (constant; channels not listed: 0).
     #[serde(default)]
     pub initial_input: BTreeMap<String, f64>,
@@ -246,6 +253,39 @@ pub struct ActuationSpec {
     /// that did), in [0, 1).
     #[serde(default)]
     pub drop_probability: f64,
+}
+
+/// One channel's actuator dynamics (`[actuator_dynamics.<channel>]`), see [`crate::actuator`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActuatorDynamicsSpec {
+    /// First-order lag τ (seconds, >= 0; 0: none).
+    #[serde(default)]
+    pub time_constant: f64,
+    /// Largest |da/dt| (input units per second, > 0; absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_limit: Option<f64>,
+    /// Smallest input the actuator produces (absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<f64>,
+    /// Largest input the actuator produces (absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<f64>,
+}
+
+/// The sensor the controller reads (`[sensing]`), see [`crate::sensing`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensingSpec {
+    /// Age of every reading (seconds, a whole multiple of the timestep; default 0).
+    #[serde(default)]
+    pub latency: f64,
+    /// Standard deviation of the seeded Gaussian noise per state component (default: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_std: Option<Vec<f64>>,
+    /// Constant offset per state component (default: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bias: Option<Vec<f64>>,
 }
 
 /// The distribution of the extra latency.
@@ -530,6 +570,62 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 &format!("{key}.extra_latency"),
                 "expected max >= 0 seconds (and for truncated_normal a finite mean and std > 0)",
             ));
+        }
+    }
+    for (channel, a) in &sc.actuator_dynamics {
+        let key = format!("actuator_dynamics.{channel}");
+        if !(a.time_constant.is_finite() && a.time_constant >= 0.0) {
+            return Err(s.field_error(
+                &format!("{key}.time_constant"),
+                format!("expected a lag >= 0 seconds, found {}", a.time_constant),
+            ));
+        }
+        if let Some(rate) = a.rate_limit {
+            if !positive_finite(rate) {
+                return Err(s.field_error(
+                    &format!("{key}.rate_limit"),
+                    format!("expected a positive rate (input units per second), found {rate}"),
+                ));
+            }
+        }
+        for (name, bound) in [("min", a.min), ("max", a.max)] {
+            if bound.is_some_and(|b| !b.is_finite()) {
+                return Err(s.field_error(&format!("{key}.{name}"), "expected a finite number"));
+            }
+        }
+        if let (Some(lo), Some(hi)) = (a.min, a.max) {
+            if lo > hi {
+                return Err(s.field_error(&format!("{key}.max"), format!("expected max >= min ({lo}), found {hi}")));
+            }
+        }
+    }
+    if let Some(sensing) = &sc.sensing {
+        if !(sensing.latency.is_finite() && sensing.latency >= 0.0) {
+            return Err(s.field_error(
+                "sensing.latency",
+                format!("expected a latency >= 0 seconds, found {}", sensing.latency),
+            ));
+        }
+        let n = sc.vehicle.initial_state.len();
+        for (name, values, non_negative) in [("noise_std", &sensing.noise_std, true), ("bias", &sensing.bias, false)] {
+            let Some(values) = values else { continue };
+            if values.len() != n {
+                return Err(s.field_error(
+                    &format!("sensing.{name}"),
+                    format!(
+                        "expected one value per state component ({n}, as vehicle.initial_state), found {}",
+                        values.len()
+                    ),
+                ));
+            }
+            if values.iter().any(|v| !v.is_finite() || (non_negative && *v < 0.0)) {
+                let expected = if non_negative {
+                    "finite numbers >= 0"
+                } else {
+                    "finite numbers"
+                };
+                return Err(s.field_error(&format!("sensing.{name}"), format!("expected {expected}")));
+            }
         }
     }
     if !positive_finite(sc.control.history) {

@@ -8,6 +8,7 @@ use nalgebra::DVector;
 
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
+use crate::actuator::{Actuator, ActuatorLimits};
 use crate::barrier::Barrier;
 use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
 use crate::dynamics::Dynamics;
@@ -20,6 +21,7 @@ use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
 use crate::scenario::{ActuationSpec, DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
+use crate::sensing::Sensor;
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
@@ -168,6 +170,7 @@ pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dyna
         ("delays", sc.delays.keys().collect::<Vec<_>>()),
         ("assumed_delays", sc.assumed_delays.keys().collect()),
         ("actuation", sc.actuation.keys().collect()),
+        ("actuator_dynamics", sc.actuator_dynamics.keys().collect()),
         ("initial_input", sc.initial_input.keys().collect()),
     ] {
         for key in keys {
@@ -508,6 +511,46 @@ pub(super) fn configure_control(
     for barrier in barriers {
         control.add_barrier(barrier.clone());
     }
+    if let Some(sensing) = &sc.sensing {
+        let steps = sensing.latency / timestep;
+        if (steps - steps.round()).abs() > 1e-6 {
+            return Err(loaded
+                .field_error(
+                    "sensing.latency",
+                    format!(
+                        "expected a whole multiple of the timestep {timestep} s, found {}",
+                        sensing.latency
+                    ),
+                )
+                .into());
+        }
+        let n = control.model().state_dim();
+        let or_zeros = |v: &Option<Vec<f64>>| v.clone().unwrap_or_else(|| vec![0.0; n]);
+        control.set_sensor(Sensor::new(
+            n,
+            steps.round() as usize,
+            or_zeros(&sensing.noise_std),
+            or_zeros(&sensing.bias),
+            sc.seed,
+        ));
+    }
+    let actuators = control
+        .model()
+        .channel_names()
+        .iter()
+        .map(|channel| {
+            sc.actuator_dynamics.get(channel).map(|spec| {
+                let limits = ActuatorLimits {
+                    time_constant: spec.time_constant,
+                    rate_limit: spec.rate_limit.unwrap_or(f64::INFINITY),
+                    min: spec.min.unwrap_or(f64::NEG_INFINITY),
+                    max: spec.max.unwrap_or(f64::INFINITY),
+                };
+                Actuator::new(limits, sc.initial_input.get(channel).copied().unwrap_or(0.0))
+            })
+        })
+        .collect();
+    control.set_actuator_dynamics(actuators);
     Ok(())
 }
 

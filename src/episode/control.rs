@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
+use crate::actuator::Actuator;
 use crate::barrier::{Barrier, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
@@ -18,6 +19,7 @@ use crate::filter::{ChannelInput, ChannelOutcome, DelayFreeInput, FilterError, S
 use crate::nominal::NominalController;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
+use crate::sensing::Sensor;
 
 /// What one control tick computed (logged after the step).
 #[derive(Debug, Clone)]
@@ -29,6 +31,8 @@ pub struct Tick {
     pub issued: DVector<f64>,
     /// The filter's decision per channel (None when no barrier is known or no filter is set).
     pub outcomes: Vec<Option<ChannelOutcome>>,
+    /// The state the controller read (with a sensor: its late, biased, noisy measurement).
+    pub measured: DVector<f64>,
 }
 
 /// A prediction compared with the realised state (Definition 4.3).
@@ -123,6 +127,12 @@ pub struct ControlLoop {
     actuators: Option<Vec<DelayQueue>>,
     /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
     chain_audit: Option<ChainAudit>,
+    /// What the controller reads instead of the true state, if not the truth.
+    sensor: Option<Sensor>,
+    /// Per channel, the actuator between the delayed command and the plant, if any; and the
+    /// plant's input over the current step (every channel) when some channel has one.
+    actuator_dynamics: Vec<Option<Actuator>>,
+    actuated: Option<Vec<f64>>,
 }
 
 /// ω_i(t) added to channel i's applied input.
@@ -186,6 +196,7 @@ impl ControlLoop {
                 nominal: DVector::zeros(r),
                 issued: DVector::zeros(r),
                 outcomes: vec![None; r],
+                measured: DVector::zeros(n),
             },
             tick_ready: false,
             applied: vec![(0.0, 0.0); r],
@@ -196,7 +207,36 @@ impl ControlLoop {
             input_disturbance: None,
             actuators: None,
             chain_audit: None,
+            sensor: None,
+            actuator_dynamics: Vec::new(),
+            actuated: None,
         }
+    }
+
+    /// The controller reads `sensor`'s measurement instead of the true state (predictions are
+    /// still compared with the truth).
+    pub fn set_sensor(&mut self, sensor: Sensor) {
+        self.sensor = Some(sensor);
+    }
+
+    /// Puts an actuator (lag, rate and magnitude limits) between channel i's delayed command
+    /// and the plant, for each `Some` entry (one per channel).
+    pub fn set_actuator_dynamics(&mut self, actuators: Vec<Option<Actuator>>) {
+        if actuators.iter().any(Option::is_some) {
+            self.actuated = Some(vec![0.0; actuators.len()]);
+            self.actuator_dynamics = actuators;
+        }
+    }
+
+    /// What the plant received over the last step per channel, when some channel has actuator
+    /// dynamics (else the plant received [`ControlLoop::applied`]).
+    pub fn actuated(&self) -> Option<&[f64]> {
+        self.actuated.as_deref()
+    }
+
+    /// Whether the controller reads a sensor rather than the true state.
+    pub fn has_sensor(&self) -> bool {
+        self.sensor.is_some()
     }
 
     /// Actuates through queues of the true delays, one per channel (the controller keeps
@@ -487,8 +527,20 @@ fn on_tick_grid(queue: &DelayQueue, control_period: f64) -> bool {
 impl Controller for ControlLoop {
     fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
         let step_time = step as f64 * self.timestep;
-        if call_in_step == 0 && step.is_multiple_of(self.steps_per_tick) && self.error.is_none() {
-            state(self.work.state.as_mut_slice());
+        let tick = call_in_step == 0 && step.is_multiple_of(self.steps_per_tick) && self.error.is_none();
+        if let Some(sensor) = &mut self.sensor {
+            // A late sensor needs the true state of every step; otherwise only at ticks.
+            if call_in_step == 0 && (tick || sensor.latency_steps() > 0) {
+                state(self.work.state.as_mut_slice());
+                sensor.record(step, self.work.state.as_slice());
+            }
+        }
+        if tick {
+            match &self.sensor {
+                Some(sensor) => sensor.measure_into(step, self.work.state.as_mut_slice()),
+                None => state(self.work.state.as_mut_slice()),
+            }
+            self.tick.measured.copy_from(&self.work.state);
             if let Err(e) = self.control_tick(step_time) {
                 self.error = Some(e);
             }
@@ -516,6 +568,31 @@ impl Controller for ControlLoop {
                 self.applied[i] = (value, applied.issued_at);
             }
             self.applied_buffer.push(value);
+        }
+        // Actuator dynamics: the step's command (at its start) drives the actuator, whose mean
+        // output over the step is the input of every evaluation of the step.
+        if let Some(actuated) = &mut self.actuated {
+            if call_in_step == 0 {
+                for ((out, &command), actuator) in actuated
+                    .iter_mut()
+                    .zip(&self.applied_buffer)
+                    .zip(&mut self.actuator_dynamics)
+                {
+                    *out = match actuator {
+                        Some(actuator) => actuator.step(command, self.timestep),
+                        None => command,
+                    };
+                }
+            }
+            for (value, (&out, actuator)) in self
+                .applied_buffer
+                .iter_mut()
+                .zip(actuated.iter().zip(&self.actuator_dynamics))
+            {
+                if actuator.is_some() {
+                    *value = out;
+                }
+            }
         }
         &self.applied_buffer
     }

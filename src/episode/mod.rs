@@ -341,10 +341,11 @@ impl Episode {
             }
 
             // What happened during step k: tick, applied input, barriers, contacts.
+            let sensor = self.control.has_sensor();
             if let Some(tick) = self.control.take_tick() {
-                Self::emit_tick(sinks, tick, &mut self.records)?;
+                Self::emit_tick(sinks, tick, k, sensor, &mut self.records)?;
             }
-            let applied = DVector::from_iterator(channels.len(), self.control.applied().iter().map(|a| a.0));
+            let mut applied = DVector::from_iterator(channels.len(), self.control.applied().iter().map(|a| a.0));
             if let Record::Applied(m) = &mut self.records.applied {
                 m.time = time;
                 m.values.clear();
@@ -353,6 +354,18 @@ impl Episode {
                 m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
             }
             Self::emit_ref(sinks, &self.records.applied)?;
+            // With actuator dynamics the plant received the actuators' output, not the command.
+            if let Some(actuated) = self.control.actuated() {
+                applied.copy_from_slice(actuated);
+                if let Record::Actuated(m) = &mut self.records.actuated {
+                    m.time = time;
+                    m.values.clear();
+                    m.values.extend(actuated);
+                    m.issued_at.clear();
+                    m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
+                }
+                Self::emit_ref(sinks, &self.records.actuated)?;
+            }
             self.emit_barriers(sinks, time, &x, &applied)?;
             self.check_contacts(sinks, time)?;
         }

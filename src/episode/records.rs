@@ -16,6 +16,8 @@ pub(super) struct RecordBuffers {
     pub(super) barrier: Record,
     pub(super) issued: Record,
     pub(super) filter: Record,
+    pub(super) measured: Record,
+    pub(super) actuated: Record,
 }
 
 impl RecordBuffers {
@@ -35,6 +37,14 @@ impl RecordBuffers {
                 ..Default::default()
             }),
             filter: Record::Filter(proto::Filter {
+                channels: channels.to_vec(),
+                ..Default::default()
+            }),
+            measured: Record::Measured(proto::State {
+                names: state_names.to_vec(),
+                ..Default::default()
+            }),
+            actuated: Record::Actuated(proto::AppliedCommand {
                 channels: channels.to_vec(),
                 ..Default::default()
             }),
@@ -145,11 +155,23 @@ impl Episode {
         Ok(())
     }
 
+    /// The tick's issued commands and filter decision, and with a sensor what it measured
+    /// (`step`: the tick's plant step).
     pub(super) fn emit_tick(
         sinks: &mut [&mut dyn Sink],
         tick: &Tick,
+        step: u64,
+        sensor: bool,
         records: &mut RecordBuffers,
     ) -> Result<(), LogError> {
+        if sensor {
+            if let Record::Measured(m) = &mut records.measured {
+                (m.time, m.step) = (tick.time, step);
+                m.values.clear();
+                m.values.extend(tick.measured.iter());
+            }
+            Self::emit_ref(sinks, &records.measured)?;
+        }
         if let Record::Issued(m) = &mut records.issued {
             m.time = tick.time;
             m.nominal.clear();

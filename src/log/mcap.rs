@@ -12,7 +12,7 @@ use std::path::Path;
 use crate::files::{OutputFile, Replace};
 
 use super::mcap_writer::McapWriter;
-use super::{LogError, Record, RunInfo, Sink, LOG_FORMAT_VERSION, TOPICS};
+use super::{LogError, Record, RunInfo, Sink, Topic, LOG_FORMAT_VERSION, TOPICS};
 
 /// The first bytes of every MCAP file: an existing file that starts otherwise is never replaced.
 pub const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -45,6 +45,12 @@ pub fn sim_time_ns(time: f64) -> u64 {
     (time.max(0.0) * 1e9).round() as u64
 }
 
+/// Adds `topic`'s schema and channel; returns the channel id.
+fn add_channel<W: std::io::Write>(writer: &mut McapWriter<W>, topic: Topic) -> std::io::Result<u16> {
+    let schema = writer.add_schema(topic.schema(), "protobuf", &super::schema_data(topic as usize))?;
+    writer.add_channel(schema, topic.name(), "protobuf")
+}
+
 impl McapSink {
     /// Checks `path` (see [`check_target`]) and starts the log as `<path>.partial`. `inputs`
     /// are the files the run reads (scenario, model), which the log never replaces.
@@ -58,15 +64,10 @@ impl McapSink {
         let library = format!("mjsafe/{}", env!("CARGO_PKG_VERSION"));
         let mut writer = McapWriter::new(BufWriter::new(file), "", &library, CHUNK_SIZE, ZSTD_LEVEL)
             .map_err(|e| err(e.to_string()))?;
-        let mut channel_ids = Vec::with_capacity(TOPICS.len());
-        for (index, (topic, schema_name)) in TOPICS.into_iter().enumerate() {
-            let schema = writer
-                .add_schema(schema_name, "protobuf", &super::schema_data(index))
-                .map_err(|e| err(e.to_string()))?;
-            let id = writer
-                .add_channel(schema, topic, "protobuf")
-                .map_err(|e| err(e.to_string()))?;
-            channel_ids.push(id);
+        // Every topic's channel up front, but the optional ones (added with their first message).
+        let mut channel_ids = vec![0; TOPICS.len()];
+        for topic in Topic::ALL.into_iter().filter(|t| !t.is_optional()) {
+            channel_ids[topic as usize] = add_channel(&mut writer, topic).map_err(|e| err(e.to_string()))?;
         }
         let metadata = BTreeMap::from([
             ("mjsafe_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
@@ -134,7 +135,14 @@ impl Sink for McapSink {
         let time = sim_time_ns(record.time());
         self.sequence += 1;
         record.encode_into(&mut self.buffer);
-        let channel = self.channel_ids[record.topic_index()];
+        let mut channel = self.channel_ids[record.topic_index()];
+        if channel == 0 {
+            channel = add_channel(writer, record.kind()).map_err(|e| LogError::Write {
+                path: self.final_path.display().to_string(),
+                message: e.to_string(),
+            })?;
+            self.channel_ids[record.topic_index()] = channel;
+        }
         let result = writer.write_message(channel, self.sequence, time, &self.buffer);
         result.map_err(|e| self.error(e.to_string()))
     }

@@ -35,11 +35,17 @@ pub enum Record {
     /// Foxglove 3D scene (`/scene`) and transform (`/tf`), at a time.
     Scene(f64, foxglove::messages::SceneUpdate),
     Transform(f64, foxglove::messages::FrameTransform),
+    /// What the controller read at a tick, when a sensor stands between it and the truth.
+    Measured(proto::State),
+    /// What the plant received over a step, when actuator dynamics follow the delayed command.
+    Actuated(proto::AppliedCommand),
 }
 
 /// The topic table of the log format (docs/log-format.md): topic, protobuf full name of the
-/// message type, in the order of [`Topic`]. Writers, readers and decoders all use it.
-pub const TOPICS: [(&str, &str); 9] = [
+/// message type, in the order of [`Topic`]. Writers, readers and decoders all use it. The
+/// last two are optional: a log has them only when the scenario has a sensor or actuator
+/// dynamics (their channels are added with the first message).
+pub const TOPICS: [(&str, &str); 11] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
     ("/command/applied", "mjsafe.AppliedCommand"),
@@ -49,6 +55,8 @@ pub const TOPICS: [(&str, &str); 9] = [
     ("/prediction", "mjsafe.Prediction"),
     ("/scene", "foxglove.SceneUpdate"),
     ("/tf", "foxglove.FrameTransform"),
+    ("/state/measured", "mjsafe.State"),
+    ("/command/actuated", "mjsafe.AppliedCommand"),
 ];
 
 /// A topic of the log format, one per [`Record`] kind (its index in [`TOPICS`]).
@@ -63,11 +71,13 @@ pub enum Topic {
     Prediction,
     Scene,
     Transform,
+    Measured,
+    Actuated,
 }
 
 impl Topic {
     /// Every topic, in the order of [`TOPICS`].
-    pub const ALL: [Topic; 9] = [
+    pub const ALL: [Topic; 11] = [
         Topic::State,
         Topic::Issued,
         Topic::Applied,
@@ -77,7 +87,15 @@ impl Topic {
         Topic::Prediction,
         Topic::Scene,
         Topic::Transform,
+        Topic::Measured,
+        Topic::Actuated,
     ];
+
+    /// Whether a log has the topic only for some scenarios (a sensor, actuator dynamics);
+    /// every other topic has a channel in every log mjsafe writes.
+    pub fn is_optional(self) -> bool {
+        matches!(self, Topic::Measured | Topic::Actuated)
+    }
 
     /// The topic name (`/state`, …).
     pub fn name(self) -> &'static str {
@@ -132,6 +150,8 @@ impl Record {
             Record::Prediction(_) => Topic::Prediction,
             Record::Scene(..) => Topic::Scene,
             Record::Transform(..) => Topic::Transform,
+            Record::Measured(_) => Topic::Measured,
+            Record::Actuated(_) => Topic::Actuated,
         }
     }
 
@@ -159,6 +179,8 @@ impl Record {
             Topic::Prediction => Record::Prediction(proto::Prediction::decode(data)?),
             Topic::Scene => Record::Scene(time, foxglove::messages::SceneUpdate::decode(data)?),
             Topic::Transform => Record::Transform(time, foxglove::messages::FrameTransform::decode(data)?),
+            Topic::Measured => Record::Measured(proto::State::decode(data)?),
+            Topic::Actuated => Record::Actuated(proto::AppliedCommand::decode(data)?),
         })
     }
 
@@ -172,6 +194,8 @@ impl Record {
             Record::Filter(m) => m.time,
             Record::Event(m) => m.time,
             Record::Prediction(m) => m.time,
+            Record::Measured(m) => m.time,
+            Record::Actuated(m) => m.time,
             Record::Scene(t, _) | Record::Transform(t, _) => *t,
         }
     }
@@ -196,6 +220,8 @@ impl Record {
             Record::Prediction(m) => m.encode(buffer),
             Record::Scene(_, m) => m.encode(buffer),
             Record::Transform(_, m) => m.encode(buffer),
+            Record::Measured(m) => m.encode(buffer),
+            Record::Actuated(m) => m.encode(buffer),
         };
         result.expect("a Vec grows to fit any message");
     }

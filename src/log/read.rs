@@ -299,9 +299,13 @@ pub struct RunRead {
 
 impl RunRead {
     /// The log topics the file has no channel for (e.g. filtered out of a copy): mjsafe writes
-    /// a channel for every topic when the log starts, also for those a run never uses.
+    /// a channel for every topic but the optional ones when the log starts, also for those a
+    /// run never uses.
     pub fn missing_topics(&self) -> Vec<Topic> {
-        Topic::ALL.into_iter().filter(|t| !self.topics.contains(t)).collect()
+        Topic::ALL
+            .into_iter()
+            .filter(|t| !t.is_optional() && !self.topics.contains(t))
+            .collect()
     }
 }
 
@@ -648,7 +652,10 @@ mod tests {
             assert_eq!(seen, expected, "{items:?}");
             assert_eq!(read.messages, 4, "every message of the file is counted");
             assert_eq!(read.topics, [Topic::State]);
-            assert_eq!(read.missing_topics().len(), Topic::ALL.len() - 1);
+            assert_eq!(
+                read.missing_topics().len(),
+                Topic::ALL.iter().filter(|t| !t.is_optional()).count() - 1
+            );
         }
         // Metadata before the run metadata is given right after it.
         let (result, seen) = read_file(&log(&["mjsafe_status", "mjsafe", "1"]));

@@ -402,6 +402,31 @@ impl RerunSink {
                     )?;
                 }
             }
+            Record::Actuated(m) => {
+                for (i, channel) in m.channels.iter().enumerate() {
+                    self.series(
+                        stream,
+                        path(&["plots", "input", channel, "actuated"]),
+                        &["actuated"],
+                        &[value(&m.values, i)],
+                    )?;
+                }
+            }
+            Record::Measured(m) => {
+                for (name, v) in m.names.iter().zip(&m.values) {
+                    self.series(stream, path(&["plots", "measured", name]), &["measured"], &[*v])?;
+                }
+                if let Some([i, j]) = self.position_index {
+                    if let (Some(x), Some(y)) = (m.values.get(i), m.values.get(j)) {
+                        stream.log(
+                            path(&["world", "measured"]),
+                            &::rerun::Points2D::new([[*x as f32, *y as f32]])
+                                .with_radii([POINT_RADIUS])
+                                .with_labels(["measured"]),
+                        )?;
+                    }
+                }
+            }
             Record::Barrier(m) => {
                 for b in &m.barriers {
                     self.series(
