@@ -372,13 +372,39 @@ fn docs_car_parameter_table_matches_models_car_xml() {
 }
 
 /// Runs `scenario` with the given vehicle (kind and model) and returns analyze's JSON.
-fn study_run(dir: &Path, file: &str, kind: &str, model: &str) -> serde_json::Value {
-    let log = dir.join(format!("{file}-{kind}.mcap"));
+fn study_run(dir: &Path, file: &str, label: &str, kind: &str, model: &str) -> serde_json::Value {
+    let log = dir.join(format!("{file}-{label}.mcap"));
     let kind_arg = format!("vehicle.kind=\"{kind}\"");
     let model_arg = format!("vehicle.model=\"{model}\"");
     run_ok(&scenario(file), &log, &["--set", &kind_arg, "--set", &model_arg]);
     analyze_json(&log)
 }
+
+/// The diagnostic variants of docs/studies.md: models/car.xml with every occurrence of each
+/// `from` replaced by `to` (each must occur), written into `dir`.
+fn car_variant(dir: &Path, name: &str, edits: &[(&str, &str)]) -> PathBuf {
+    let mut xml = car_xml();
+    for (from, to) in edits {
+        assert!(xml.contains(from), "models/car.xml has no {from}");
+        xml = xml.replace(from, to);
+    }
+    let path = dir.join(format!("{name}.xml"));
+    std::fs::write(&path, xml).unwrap();
+    path
+}
+
+/// Steering lock ±1.5 rad (tan = 14, beyond the filter's largest tan δ) and rate ±20 rad/s.
+const WIDE_STEERING: [(&str, &str); 2] = [
+    ("range=\"-0.6 0.6\"", "range=\"-1.5 1.5\""),
+    ("ctrlrange=\"-1 1\"", "ctrlrange=\"-20 20\""),
+];
+/// WIDE_STEERING plus tyre/ground friction 3 and ten times the torque limit.
+const WIDE_STEERING_AND_GRIP: [(&str, &str); 4] = [
+    WIDE_STEERING[0],
+    WIDE_STEERING[1],
+    ("friction=\"0.9 ", "friction=\"3 "),
+    ("ctrlrange=\"-2000 2000\"", "ctrlrange=\"-20000 20000\""),
+];
 
 /// docs/studies.md, "Does (4.67) designed on (4.78) keep the car safe?".
 #[test]
@@ -386,33 +412,58 @@ fn gamma_m_filter_keeps_the_bicycle_but_not_the_car_clear_at_3_and_10_mps() {
     let dir = tempfile::tempdir().unwrap();
     let bicycle_model = root().join("models/bicycle.xml");
     let car_model = root().join("models/car.xml");
+    let wide = car_variant(dir.path(), "car_wide", &WIDE_STEERING);
+    let grip = car_variant(dir.path(), "car_grip", &WIDE_STEERING_AND_GRIP);
+    let figures = |m: &serde_json::Value| {
+        format!(
+            "collision {} | min h {:.3} | prediction max error steering {:.2e}, acceleration {:.2e} | max correction steering {:.2}, acceleration {:.2}",
+            m["collision"]["time"],
+            m["min_h"].as_f64().unwrap(),
+            m["prediction"]["steering"]["max_error"].as_f64().unwrap(),
+            m["prediction"]["acceleration"]["max_error"].as_f64().unwrap(),
+            m["max_correction"]["steering"].as_f64().unwrap(),
+            m["max_correction"]["acceleration"].as_f64().unwrap(),
+        )
+    };
+    let collides = |m: &serde_json::Value| !m["collision"].is_null() && m["min_h"].as_f64().unwrap() < 0.0;
+    let clear = |m: &serde_json::Value| m["collision"].is_null() && m["min_h"].as_f64().unwrap() > 0.0;
+    let steering = |m: &serde_json::Value| m["prediction"]["steering"]["max_error"].as_f64().unwrap();
     for file in ["car_obstacle_gamma_m.toml", "car_obstacle_gamma_m_10.toml"] {
-        let bicycle = study_run(dir.path(), file, "bicycle", bicycle_model.to_str().unwrap());
-        let car = study_run(dir.path(), file, "car", car_model.to_str().unwrap());
-        let figures = |m: &serde_json::Value| {
-            format!(
-                "collision {} | min h {:.3} | prediction max error steering {:.2e}, acceleration {:.2e} | max correction steering {:.2}, acceleration {:.2}",
-                m["collision"]["time"],
-                m["min_h"].as_f64().unwrap(),
-                m["prediction"]["steering"]["max_error"].as_f64().unwrap(),
-                m["prediction"]["acceleration"]["max_error"].as_f64().unwrap(),
-                m["max_correction"]["steering"].as_f64().unwrap(),
-                m["max_correction"]["acceleration"].as_f64().unwrap(),
-            )
+        let run = |label: &str, model: &Path| {
+            let kind = if label == "bicycle" { "bicycle" } else { "car" };
+            study_run(dir.path(), file, label, kind, model.to_str().unwrap())
         };
-        println!("{file} bicycle: {}", figures(&bicycle));
-        println!("{file} car:     {}", figures(&car));
-        assert!(bicycle["complete"] == true && car["complete"] == true);
-        // The model the filter was designed on stays clear ...
-        assert!(bicycle["collision"].is_null(), "{file}: bicycle collides");
-        assert!(bicycle["min_h"].as_f64().unwrap() > 0.0);
-        // ... the realistic car does not: it hits the obstacle.
-        assert!(!car["collision"].is_null(), "{file}: the car stays clear");
-        assert!(car["min_h"].as_f64().unwrap() < 0.0);
+        let bicycle = run("bicycle", &bicycle_model);
+        let car = run("car", &car_model);
+        let car_wide = run("car_wide", &wide);
+        let car_grip = run("car_grip", &grip);
+        for (name, m) in [
+            ("bicycle", &bicycle),
+            ("car", &car),
+            ("car, wide steering", &car_wide),
+            ("car, wide steering + grip", &car_grip),
+        ] {
+            println!("{file} {name}: {}", figures(m));
+            assert_eq!(m["complete"], true, "{file} {name}");
+        }
+        // The model the filter was designed on stays clear; the realistic car hits the obstacle.
+        assert!(clear(&bicycle), "{file}: bicycle collides");
+        assert!(collides(&car), "{file}: the car stays clear");
         // The predictions (4.23) on (4.78) lose consistency on the car: the steering channel's
         // one-delay-ahead prediction misses by metres instead of millimetres to centimetres.
-        let steering = |m: &serde_json::Value| m["prediction"]["steering"]["max_error"].as_f64().unwrap();
         assert!(steering(&bicycle) < 0.05, "{file}: bicycle {}", steering(&bicycle));
         assert!(steering(&car) > 1.0, "{file}: car {}", steering(&car));
+        // Steering lock and rate alone do not explain it: with them opened up the car still
+        // collides at both speeds.
+        assert!(collides(&car_wide), "{file}: wide steering stays clear");
+        if file.ends_with("_10.toml") {
+            // At 10 m/s the tyres' grip is what is missing: with it (and the steering) it is clear.
+            assert!(clear(&car_grip), "{file}: grip variant collides");
+        } else {
+            // At 3 m/s even then it grazes the obstacle (millimetres), much later.
+            assert!(collides(&car_grip), "{file}: grip variant stays clear");
+            let depth = |m: &serde_json::Value| m["collision"]["depth"].as_f64().unwrap();
+            assert!(depth(&car_grip) < 0.01 && depth(&car) > depth(&car_grip));
+        }
     }
 }
