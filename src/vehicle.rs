@@ -285,7 +285,7 @@ impl MujocoCar {
         ]
     }
 
-    /// Wheel torque (N m, each wheel) the binding commands for acceleration u2.
+    /// Wheel torque (N m, at each wheel) the binding commands per m/s² of u2.
     pub fn torque_per_acceleration(&self) -> f64 {
         self.torque_per_acceleration
     }
