@@ -288,10 +288,11 @@ impl Params for PathLqrParams {
 }
 
 pub fn build_path_lqr(p: &PathLqrParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
-    if ctx.vehicle_kind != "bicycle" {
+    // The car's analytic model is the bicycle (4.78) too.
+    if !matches!(ctx.vehicle_kind, "bicycle" | "car") {
         return Err(ParamError::new(
             "nominal.kind",
-            "path_lqr needs vehicle.kind = \"bicycle\"",
+            "path_lqr needs vehicle.kind = \"bicycle\" or \"car\"",
         ));
     }
     // (4.78): G[2, 0] = v tan'(0)/L at v = 1.

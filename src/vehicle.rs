@@ -15,6 +15,9 @@ use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
 pub enum VehicleKind {
     /// Kinematic bicycle (4.78): x = (x1, x2, heading, speed), u = (tan δ, acceleration).
     Bicycle,
+    /// A four-wheeled car on tyre contacts (`models/car.xml`, docs/car.md) with (4.78) as its
+    /// analytic model: same state and inputs as `Bicycle`.
+    Car,
     /// Nonholonomic unicycle (2.36): x = (x, y, θ), u = (v, ω).
     Unicycle,
     /// ẍ = u on a line: x = (position, velocity).
@@ -68,6 +71,7 @@ pub trait MujocoVehicle: Send {
 pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, MjError> {
     Ok(match kind {
         VehicleKind::Bicycle => Box::new(MujocoBicycle::bind(model)?),
+        VehicleKind::Car => Box::new(MujocoCar::bind(model)?),
         VehicleKind::Unicycle => Box::new(MujocoUnicycle::bind(model)?),
         VehicleKind::DoubleIntegrator1d => Box::new(MujocoDoubleIntegrator::bind(model, 1)?),
         VehicleKind::DoubleIntegrator2d => Box::new(MujocoDoubleIntegrator::bind(model, 2)?),
@@ -83,6 +87,23 @@ pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, 
 fn hull(model: &Model) -> Result<(usize, f64), MjError> {
     let geom = model.require(ObjKind::Geom, "hull")?;
     Ok((geom, model.geom_size(geom)[0]))
+}
+
+fn wheelbase(model: &Model) -> Result<f64, MjError> {
+    model
+        .numeric("wheelbase")
+        .and_then(|v| v.first().copied())
+        .ok_or_else(|| MjError::MissingName {
+            kind: "custom numeric",
+            name: "wheelbase".into(),
+        })
+}
+
+fn activation(model: &Model, actuator: usize, name: &str) -> Result<usize, MjError> {
+    model.actuator_act_addr(actuator).ok_or_else(|| MjError::MissingName {
+        kind: "stateful actuator (with dyntype)",
+        name: name.into(),
+    })
 }
 
 /// The bicycle on `models/bicycle.xml` (body at the rear axle; see the model's comments).
@@ -112,20 +133,10 @@ impl MujocoBicycle {
         let (qpos, dof) = planar_joints(model)?;
         let yaw_rate = model.require(ObjKind::Actuator, "yaw_rate")?;
         let speed = model.require(ObjKind::Actuator, "speed")?;
-        let act_speed = model.actuator_act_addr(speed).ok_or_else(|| MjError::MissingName {
-            kind: "stateful actuator (dyntype=\"integrator\")",
-            name: "speed".into(),
-        })?;
-        let wheelbase = model
-            .numeric("wheelbase")
-            .and_then(|v| v.first().copied())
-            .ok_or_else(|| MjError::MissingName {
-                kind: "custom numeric",
-                name: "wheelbase".into(),
-            })?;
+        let act_speed = activation(model, speed, "speed")?;
         let (hull_geom, hull_radius) = hull(model)?;
         Ok(MujocoBicycle {
-            model: Arc::new(BicycleModel::new(wheelbase)),
+            model: Arc::new(BicycleModel::new(wheelbase(model)?)),
             qpos,
             dof,
             ctrl_yaw_rate: yaw_rate,
@@ -172,6 +183,165 @@ impl MujocoVehicle for MujocoBicycle {
         let ctrl = data.ctrl_mut();
         ctrl[self.ctrl_yaw_rate] = commanded_speed * applied_input[0] / self.model.wheelbase;
         ctrl[self.ctrl_speed] = applied_input[1];
+    }
+}
+
+/// Wheels in the order rear left, rear right, front left, front right.
+const WHEELS: [&str; 4] = ["rl", "rr", "fl", "fr"];
+
+/// Gain of the steering-rate loop (1/s): the steering actuators' ctrl (a rate, clamped by their
+/// ctrlrange) is this times the distance from the commanded angle to the Ackermann target, so the
+/// commanded angle reaches the target as a first-order lag of 1/50 s when the rate limit is not
+/// active.
+pub const CAR_STEERING_RATE_GAIN: f64 = 50.0;
+
+/// The car on `models/car.xml` (docs/car.md): a chassis on a free joint, four wheels on tyre
+/// contacts, Ackermann-steered front wheels (rate-limited steering servos) and a lagged drive/brake
+/// torque at every wheel. Its analytic model is the kinematic bicycle (4.78) with the MJCF's
+/// wheelbase; the state is read from the chassis at the rear-axle midpoint.
+pub struct MujocoCar {
+    model: Arc<BicycleModel>,
+    /// qpos address of the chassis' free joint (position, then quaternion w x y z).
+    qpos_free: usize,
+    /// dof address of the free joint (world linear velocity, then local angular velocity).
+    dof_free: usize,
+    /// The model's qpos0 (wheel and steering angles at rest, the chassis' rest height).
+    qpos0: Vec<f64>,
+    /// dof addresses of the wheel spin hinges (rl, rr, fl, fr).
+    dof_wheels: [usize; 4],
+    /// Steering actuators (front left, front right) and their activations (commanded angles).
+    ctrl_steer: [usize; 2],
+    act_steer: [usize; 2],
+    /// Drive/brake torque actuators (rl, rr, fl, fr).
+    ctrl_torque: [usize; 4],
+    /// Half the front track (kingpin to the centre line), for Ackermann steering.
+    half_track: f64,
+    /// Largest road-wheel angle (the steering hinges' range).
+    max_steer: f64,
+    wheel_radius: f64,
+    /// Wheel torque per unit of commanded acceleration at each of the four wheels:
+    /// (total mass + Σ wheel spin inertia / r²) · r / 4.
+    torque_per_acceleration: f64,
+    hull_geom: usize,
+    hull_radius: f64,
+}
+
+impl MujocoCar {
+    pub fn bind(model: &Model) -> Result<MujocoCar, MjError> {
+        let free = model.require(ObjKind::Joint, "chassis")?;
+        let mut dof_wheels = [0; 4];
+        let mut ctrl_torque = [0; 4];
+        let mut spin_inertia = 0.0;
+        for (i, w) in WHEELS.iter().enumerate() {
+            dof_wheels[i] = model.joint_dof_addr(model.require(ObjKind::Joint, &format!("wheel_{w}"))?);
+            ctrl_torque[i] = model.require(ObjKind::Actuator, &format!("torque_{w}"))?;
+            spin_inertia += model.body_inertia(model.require(ObjKind::Body, &format!("wheel_{w}"))?)[1];
+        }
+        let mut ctrl_steer = [0; 2];
+        let mut act_steer = [0; 2];
+        for (i, side) in ["fl", "fr"].iter().enumerate() {
+            let name = format!("steer_{side}");
+            ctrl_steer[i] = model.require(ObjKind::Actuator, &name)?;
+            act_steer[i] = activation(model, ctrl_steer[i], &name)?;
+        }
+        let steer = model.require(ObjKind::Joint, "steer_fl")?;
+        let max_steer = model
+            .joint_range(steer)
+            .map_or(std::f64::consts::FRAC_PI_2, |[lo, hi]| hi.min(-lo));
+        let half_track = model.body_pos(model.require(ObjKind::Body, "knuckle_fl")?)[1].abs();
+        let wheel_radius = model.geom_size(model.require(ObjKind::Geom, "tyre_rl")?)[0];
+        let mass: f64 = (1..model.nbody()).map(|b| model.body_mass(b)).sum();
+        let (hull_geom, hull_radius) = hull(model)?;
+        Ok(MujocoCar {
+            model: Arc::new(BicycleModel::new(wheelbase(model)?)),
+            qpos_free: model.joint_qpos_addr(free),
+            dof_free: model.joint_dof_addr(free),
+            qpos0: model.qpos0().to_vec(),
+            dof_wheels,
+            ctrl_steer,
+            act_steer,
+            ctrl_torque,
+            half_track,
+            max_steer,
+            wheel_radius,
+            torque_per_acceleration: (mass + spin_inertia / wheel_radius.powi(2)) * wheel_radius / 4.0,
+            hull_geom,
+            hull_radius,
+        })
+    }
+
+    /// Road-wheel angles (left, right) for u1 = tan δ of the bicycle: Ackermann steering, both
+    /// wheels pointing at the turn centre on the rear-axle line, tan δ_l,r = L u1 / (L ∓ w u1)
+    /// with w half the track. u1 is first limited to ±tan(max angle); the inner wheel then
+    /// stops at the hinge's range.
+    pub fn steering_targets(&self, u1: f64) -> [f64; 2] {
+        let limit = self.max_steer.tan();
+        let u1 = if u1.is_nan() { 0.0 } else { u1.clamp(-limit, limit) };
+        let l = self.model.wheelbase;
+        let w = self.half_track;
+        [
+            (l * u1).atan2(l - w * u1).clamp(-self.max_steer, self.max_steer),
+            (l * u1).atan2(l + w * u1).clamp(-self.max_steer, self.max_steer),
+        ]
+    }
+
+    /// Wheel torque (N m, at each wheel) the binding commands per m/s² of u2.
+    pub fn torque_per_acceleration(&self) -> f64 {
+        self.torque_per_acceleration
+    }
+}
+
+impl MujocoVehicle for MujocoCar {
+    fn dynamics(&self) -> Arc<dyn Dynamics> {
+        self.model.clone()
+    }
+    fn hull_radius(&self) -> f64 {
+        self.hull_radius
+    }
+    fn hull_geom(&self) -> usize {
+        self.hull_geom
+    }
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], _act: &[f64], x: &mut [f64]) {
+        let p = &qpos[self.qpos_free..self.qpos_free + 7];
+        let (w, qx, qy, qz) = (p[3], p[4], p[5], p[6]);
+        // Yaw of the chassis (z-y-x Euler angles), in (−π, π].
+        let heading = (2.0 * (w * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
+        let (s, c) = heading.sin_cos();
+        // The free joint's linear velocity is the world velocity of the chassis origin, the
+        // rear-axle midpoint: its component along the heading is the speed.
+        let speed = qvel[self.dof_free] * c + qvel[self.dof_free + 1] * s;
+        x.copy_from_slice(&[p[0], p[1], heading, speed]);
+    }
+    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
+        let model = sim.model();
+        let (mut qpos, mut qvel, act) = (self.qpos0.clone(), vec![0.0; model.nv()], vec![0.0; model.na()]);
+        let (s, c) = (0.5 * x[2]).sin_cos();
+        // Rest height and straight wheels from qpos0; heading as a rotation about z.
+        qpos[self.qpos_free] = x[0];
+        qpos[self.qpos_free + 1] = x[1];
+        qpos[self.qpos_free + 3..self.qpos_free + 7].copy_from_slice(&[c, 0.0, 0.0, s]);
+        qvel[self.dof_free] = x[3] * x[2].cos();
+        qvel[self.dof_free + 1] = x[3] * x[2].sin();
+        // Rolling without slip: spin = v / r on every wheel (straight ahead, no yaw rate).
+        for &d in &self.dof_wheels {
+            qvel[d] = x[3] / self.wheel_radius;
+        }
+        sim.set_state(0.0, &qpos, &qvel, &act);
+    }
+    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
+        let targets = self.steering_targets(applied_input[0]);
+        let commanded = [data.act()[self.act_steer[0]], data.act()[self.act_steer[1]]];
+        let ctrl = data.ctrl_mut();
+        for i in 0..2 {
+            // Steering rate toward the target; MuJoCo clamps it to the rate limit (ctrlrange).
+            ctrl[self.ctrl_steer[i]] = CAR_STEERING_RATE_GAIN * (targets[i] - commanded[i]);
+        }
+        // Feed-forward torque for the commanded acceleration, shared by the four wheels;
+        // MuJoCo clamps it to the torque limit and lags it (dyntype filter).
+        let torque = self.torque_per_acceleration * applied_input[1];
+        for &c in &self.ctrl_torque {
+            ctrl[c] = torque;
+        }
     }
 }
 

@@ -37,6 +37,7 @@ impl VehicleRegistry {
         let mut r = VehicleRegistry { vehicles: Vec::new() };
         for (name, kind) in [
             ("bicycle", VehicleKind::Bicycle),
+            ("car", VehicleKind::Car),
             ("unicycle", VehicleKind::Unicycle),
             ("double_integrator_1d", VehicleKind::DoubleIntegrator1d),
             ("double_integrator_2d", VehicleKind::DoubleIntegrator2d),

@@ -61,6 +61,7 @@ fn control_callback_allocates_nothing_in_steady_state() {
     let cases: &[(&str, &[&str], f64)] = &[
         ("bicycle_obstacle.toml", &[], 3.0),
         ("bicycle_obstacle_gamma_m.toml", &[], 3.0),
+        ("car_obstacle_gamma_m.toml", &[], 3.0),
         (
             "bicycle_obstacle.toml",
             &["filter={kind='fixed_channel', l0=4.0, l1=4.0, phi=2}"],

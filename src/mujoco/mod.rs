@@ -285,6 +285,47 @@ impl Model {
         [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
     }
 
+    /// Number of bodies (the world body included).
+    pub fn nbody(&self) -> usize {
+        self.raw().nbody as usize
+    }
+
+    /// Mass of a body (kg).
+    pub fn body_mass(&self, body: usize) -> f64 {
+        self.num_array(self.raw().body_mass, self.raw().nbody)[body]
+    }
+
+    /// Principal moments of inertia of a body (kg m², in its inertial frame).
+    pub fn body_inertia(&self, body: usize) -> [f64; 3] {
+        let all = self.num_array(self.raw().body_inertia, self.raw().nbody * 3);
+        [all[3 * body], all[3 * body + 1], all[3 * body + 2]]
+    }
+
+    /// Position of a body in its parent's frame (as written in the MJCF).
+    pub fn body_pos(&self, body: usize) -> [f64; 3] {
+        let all = self.num_array(self.raw().body_pos, self.raw().nbody * 3);
+        [all[3 * body], all[3 * body + 1], all[3 * body + 2]]
+    }
+
+    /// Range of a joint, if it is limited.
+    pub fn joint_range(&self, joint: usize) -> Option<[f64; 2]> {
+        let m = self.raw();
+        let limited = if m.njnt <= 0 || m.jnt_limited.is_null() {
+            false
+        } else {
+            // SAFETY: jnt_limited holds njnt entries, alive with the model.
+            let flags = unsafe { std::slice::from_raw_parts(m.jnt_limited, m.njnt as usize) };
+            flags[joint] != 0
+        };
+        let all = self.num_array(m.jnt_range, m.njnt * 2);
+        limited.then(|| [all[2 * joint], all[2 * joint + 1]])
+    }
+
+    /// The reference configuration `qpos0` (the model's pose as written in the MJCF).
+    pub fn qpos0(&self) -> &[f64] {
+        self.num_array(self.raw().qpos0, self.raw().nq)
+    }
+
     /// Values of a `<custom><numeric>` field.
     pub fn numeric(&self, name: &str) -> Option<Vec<f64>> {
         let id = self.id(ObjKind::Numeric, name)?;
