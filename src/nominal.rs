@@ -288,11 +288,16 @@ impl Params for PathLqrParams {
 }
 
 pub fn build_path_lqr(p: &PathLqrParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
-    // The car's analytic model is the bicycle (4.78) too.
-    if !matches!(ctx.vehicle_kind, "bicycle" | "car") {
+    // Any vehicle whose analytic model is the kinematic bicycle (4.78): `bicycle`, `car`, a user's.
+    let bicycle = crate::dynamics::BicycleModel::new(1.0);
+    if ctx.model.state_names() != bicycle.state_names() || ctx.model.channel_names() != bicycle.channel_names() {
         return Err(ParamError::new(
             "nominal.kind",
-            "path_lqr needs vehicle.kind = \"bicycle\" or \"car\"",
+            format!(
+                "path_lqr needs a vehicle with the kinematic bicycle model (4.78) (state {}; inputs {}), e.g. vehicle.kind = \"bicycle\" or \"car\"",
+                bicycle.state_names().join(", "),
+                bicycle.channel_names().join(", ")
+            ),
         ));
     }
     // (4.78): G[2, 0] = v tan'(0)/L at v = 1.
