@@ -37,6 +37,7 @@ fn write_stdout(args: std::fmt::Arguments) {
 
 use crate::analyze::{self, RunMetrics};
 use crate::episode::{self, Episode};
+use crate::falsify;
 use crate::log::mcap::McapSink;
 use crate::log::{Sink, Tee};
 use crate::scenario;
@@ -157,6 +158,52 @@ pub enum Command {
         /// List the runs (index, log, overrides) without running them.
         #[arg(long)]
         dry_run: bool,
+    },
+    /// Search the --range box for a run that violates safety: CMA-ES minimises an analysis
+    /// metric (default min_h) and stops at the first violation (metric < threshold). Writes
+    /// the counterexample as a scenario file plus its log, every evaluation (CSV, JSON) and a
+    /// convergence plot.
+    Falsify {
+        /// Scenario file (TOML).
+        scenario: PathBuf,
+        /// A searched parameter: KEY=LO..HI, or KEY=LO..HI:STEP for multiples of STEP from LO
+        /// (same keys as `sweep`; repeatable, at least one).
+        #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]", required = true)]
+        ranges: Vec<String>,
+        /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
+        /// min_time_to_collision, …
+        #[arg(long, default_value = "min_h")]
+        objective: String,
+        /// A candidate violates when the objective is below this.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        threshold: f64,
+        /// Most runs (rounded up to whole CMA-ES generations).
+        #[arg(long, value_name = "N", default_value_t = 200)]
+        budget: usize,
+        /// Seed of the search (the optimiser's sampling and restarts).
+        #[arg(long, value_name = "S", default_value_t = 0)]
+        seed: u64,
+        /// Runs executed at once (default: all cores); the result does not depend on it.
+        #[arg(long, value_name = "K")]
+        threads: Option<usize>,
+        /// Keep searching after the first violation and report the worst one found.
+        #[arg(long)]
+        worst: bool,
+        /// The reference configuration of each candidate, as overrides applied after the
+        /// candidate's (repeatable), e.g. --baseline delays.steering=0 --baseline
+        /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
+        #[arg(long = "baseline", value_name = "KEY=VALUE")]
+        baseline: Vec<String>,
+        /// Also run random search with the same budget and seed, and compare runs to the first
+        /// violation.
+        #[arg(long)]
+        compare_random: bool,
+        /// Output directory (default: logs/falsify-<scenario name>).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
     },
     /// Topics, message counts, schemas, time span, mjsafe metadata and scenario of a log.
     Info {
@@ -408,6 +455,47 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 dry_run,
             };
             run_sweep(&args, &options)
+        }
+        Command::Falsify {
+            scenario,
+            ranges,
+            overrides,
+            objective,
+            threshold,
+            budget,
+            seed,
+            threads,
+            worst,
+            baseline,
+            compare_random,
+            out,
+        } => {
+            let ranges = ranges
+                .iter()
+                .map(|r| sweep::parse_range(r))
+                .collect::<Result<Vec<_>, _>>()?;
+            falsify::check_objective(&objective)?;
+            let threads = match threads {
+                Some(0) => bail!("--threads: expected at least 1"),
+                Some(k) => k,
+                None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            };
+            // The scenario and every override are checked once before the search starts.
+            let base = scenario::load(&scenario, &overrides)?;
+            let problem = falsify::Problem {
+                scenario,
+                set: overrides,
+                ranges,
+                objective,
+                threshold,
+                baseline,
+                budget,
+                seed,
+                threads,
+                worst,
+            };
+            let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
+            run_falsify(&problem, &out, compare_random)
         }
         Command::Info {
             file,
@@ -814,6 +902,66 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
             indices.len()
         );
         return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> Result<ExitCode> {
+    let _graceful = episode::GracefulStop::begin();
+    let search_line = std::env::args().skip(1).collect::<Vec<_>>().join(" ");
+    let started = Instant::now();
+    let report = falsify::falsify(problem, out, &search_line, compare_random, |s| {
+        let best = s.best().map_or("none yet".to_string(), |e| format!("{:.4}", e.score));
+        let found = s
+            .runs_to_first_violation()
+            .map_or(String::new(), |n| format!(" | first violation at run {n}"));
+        eprintln!(
+            "{}: {} runs | best score {best}{found} | {:.1} s",
+            s.method.name(),
+            s.evaluations.len(),
+            started.elapsed().as_secs_f64()
+        );
+    })
+    .context("falsify")?;
+    for s in &report.searches {
+        let best = s.best();
+        outln!(
+            "{}: {} runs, {}; best {} = {}{}",
+            s.method.name(),
+            s.evaluations.len(),
+            s.runs_to_first_violation()
+                .map_or("no violation".to_string(), |n| format!("first violation at run {n}")),
+            problem.objective,
+            best.and_then(|e| e.objective)
+                .map_or("absent".into(), |v| format!("{v:.4}")),
+            best.and_then(|e| e.baseline)
+                .map_or(String::new(), |b| format!(" (baseline {b:.4})")),
+        );
+    }
+    match &report.counterexample {
+        Some((scenario, log)) => outln!(
+            "counterexample: {} (its run: {}, {} = {}) | evaluations: {}, {}{}",
+            scenario.display(),
+            log.display(),
+            problem.objective,
+            report.reproduced.map_or("absent".into(), |v| format!("{v:.4}")),
+            report.evaluations_csv.display(),
+            report.evaluations_json.display(),
+            report
+                .convergence_png
+                .as_ref()
+                .map_or(String::new(), |p| format!(" | plot: {}", p.display()))
+        ),
+        None => outln!(
+            "no counterexample within {} runs | evaluations: {}, {}",
+            report.searches[0].evaluations.len(),
+            report.evaluations_csv.display(),
+            report.evaluations_json.display()
+        ),
+    }
+    if report.searches.iter().any(|s| s.interrupted) {
+        eprintln!("error: the search was interrupted; what it found so far is written");
+        return Ok(ExitCode::from(130));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -195,11 +195,17 @@ fn draw_png(
     drawn
 }
 
+/// Makes the plot font plotters' `sans-serif` (read once per process).
+pub fn register_plot_font() -> Result<(), PlotError> {
+    static FONT: std::sync::OnceLock<Option<&'static [u8]>> = std::sync::OnceLock::new();
+    let font = FONT.get_or_init(|| std::fs::read(FONT_PATH).ok().map(|f| &*Box::leak(f.into_boxed_slice())));
+    let font = font.ok_or_else(|| PlotError::Font { path: FONT_PATH.into() })?;
+    register_font("sans-serif", FontStyle::Normal, font).map_err(|_| PlotError::Font { path: FONT_PATH.into() })
+}
+
 /// Writes the plots of `log` into `dir`; returns the files written.
 pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
-    let font = std::fs::read(FONT_PATH).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
-    let font: &'static [u8] = Box::leak(font.into_boxed_slice());
-    register_font("sans-serif", FontStyle::Normal, font).map_err(|_| PlotError::Font { path: FONT_PATH.into() })?;
+    register_plot_font()?;
     // No plot of part of a run shown as if it were the run: damage is an error.
     let mut series = Series::default();
     read_run_file(log, &mut series)?;

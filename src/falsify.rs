@@ -1,0 +1,861 @@
+//! Falsification: search a scenario's parameter box for a run that violates safety, instead of
+//! sampling it. An optimiser (CMA-ES from the `cmaes` crate) minimises an analysis metric (the
+//! robustness: `min_h` by default) over the `--range` keys; a candidate whose metric falls
+//! below the threshold is a violation. With a baseline (the same candidate under other
+//! overrides, e.g. without delays), a candidate counts only where the baseline stays safe, and
+//! the optimiser minimises the robustness of "candidate unsafe and baseline safe",
+//! max(m − T, T − m_baseline) (negative exactly for such counterexamples).
+//!
+//! Determinism: a candidate's result depends only on its parameters (each run is seeded by the
+//! scenario), CMA-ES samples from its own seeded generator, and a generation's evaluations are
+//! numbered in the order of their parameters, not of their completion: the same seed gives the
+//! same search on any number of threads.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use serde::Serialize;
+
+use crate::analyze::{Cell, FlatMetrics};
+use crate::random::SplitMix64;
+use crate::sweep::{self, Range, Run, SweepSpec};
+
+#[derive(Debug, thiserror::Error)]
+pub enum FalsifyError {
+    #[error("--objective {name}: {message}")]
+    Objective { name: String, message: String },
+    #[error("{0}")]
+    Spec(String),
+    #[error(transparent)]
+    Sweep(#[from] sweep::SweepError),
+    #[error("{path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
+    #[error("the optimiser: {0}")]
+    Optimiser(String),
+    #[error("{0}")]
+    Output(String),
+}
+
+/// How candidates are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// CMA-ES on the box mapped to [0, 1]^d (reflected at the bounds), restarted with a doubled
+    /// population (IPOP) when it converges before the budget is spent.
+    Cmaes,
+    /// Uniform draws from the box (the baseline the optimiser must beat).
+    Random,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Cmaes => "CMA-ES",
+            Method::Random => "random search",
+        }
+    }
+}
+
+/// What to search and how.
+#[derive(Debug, Clone)]
+pub struct Problem {
+    pub scenario: PathBuf,
+    /// Overrides applied to every candidate before its own.
+    pub set: Vec<String>,
+    pub ranges: Vec<Range>,
+    /// The metric minimised (a column of `analyze --csv`).
+    pub objective: String,
+    /// A candidate violates when its metric is below this.
+    pub threshold: f64,
+    /// Overrides of the reference configuration (applied after the candidate's); empty: none.
+    pub baseline: Vec<String>,
+    /// Most evaluations (rounded up to whole CMA-ES generations).
+    pub budget: usize,
+    pub seed: u64,
+    pub threads: usize,
+    /// Keep searching after the first violation for the worst one.
+    pub worst: bool,
+}
+
+/// The metrics `--objective` accepts: the numeric columns of the flat metrics.
+pub fn check_objective(name: &str) -> Result<(), FalsifyError> {
+    let probe = FlatMetrics::columns(std::iter::empty());
+    let numeric = |c: &str| !matches!(c, "scenario" | "collision_with" | "complete" | "error");
+    let known = probe.iter().any(|c| c == name) || name.contains('.');
+    if !known || !numeric(name) {
+        let names: Vec<&str> = probe.iter().map(String::as_str).filter(|c| numeric(c)).collect();
+        return Err(FalsifyError::Objective {
+            name: name.into(),
+            message: format!(
+                "expected a numeric metric of `mjsafe analyze`: {} (or a per-channel one such as max_correction.<channel>)",
+                names.join(", ")
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// One evaluated candidate.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Evaluation {
+    /// Position in the search (0-based).
+    pub index: usize,
+    /// CMA-ES generation (random search: batch) it belongs to.
+    pub generation: usize,
+    /// Range key → value (TOML text), in the order of the ranges.
+    pub parameters: Vec<(String, String)>,
+    /// The objective metric of the candidate, if its log has it.
+    pub objective: Option<f64>,
+    /// The same metric of the baseline configuration (with a baseline).
+    pub baseline: Option<f64>,
+    /// What the optimiser minimised: negative exactly for a counterexample.
+    pub score: f64,
+    pub violation: bool,
+    /// Why the objective is absent (run failed, metric not in the log, …).
+    pub error: Option<String>,
+}
+
+/// A finished (or interrupted) search.
+#[derive(Debug, Clone, Serialize)]
+pub struct Search {
+    pub method: Method,
+    pub evaluations: Vec<Evaluation>,
+    /// Whether Ctrl-C / SIGTERM stopped it.
+    pub interrupted: bool,
+}
+
+impl Search {
+    /// The first violation in search order.
+    pub fn first_violation(&self) -> Option<&Evaluation> {
+        self.evaluations.iter().find(|e| e.violation)
+    }
+
+    /// Evaluations up to and including the first violation.
+    pub fn runs_to_first_violation(&self) -> Option<usize> {
+        self.first_violation().map(|e| e.index + 1)
+    }
+
+    /// The violation with the lowest score (the worst counterexample found).
+    pub fn worst_violation(&self) -> Option<&Evaluation> {
+        self.evaluations
+            .iter()
+            .filter(|e| e.violation)
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    }
+
+    /// The candidate with the lowest score among those with an objective.
+    pub fn best(&self) -> Option<&Evaluation> {
+        self.evaluations
+            .iter()
+            .filter(|e| e.objective.is_some())
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    }
+
+    /// Best score after each evaluation (for the convergence plot).
+    pub fn best_so_far(&self) -> Vec<f64> {
+        let mut best = f64::INFINITY;
+        self.evaluations
+            .iter()
+            .map(|e| {
+                if e.objective.is_some() {
+                    best = best.min(e.score);
+                }
+                best
+            })
+            .collect()
+    }
+}
+
+/// Score of a candidate whose objective is absent: worse than any real one, never a violation.
+const ABSENT_SCORE: f64 = 1e12;
+
+/// u ∈ R → [0, 1], reflected at the bounds (period 2).
+fn reflect(z: f64) -> f64 {
+    let r = z.rem_euclid(2.0);
+    if r > 1.0 {
+        2.0 - r
+    } else {
+        r
+    }
+}
+
+/// The value of `range` at u ∈ [0, 1], as TOML text (quantised ranges: the nearest multiple
+/// of STEP from LO not above HI).
+pub fn range_value(range: &Range, u: f64) -> String {
+    let v = match range.step {
+        None => range.lo + u * (range.hi - range.lo),
+        Some(step) => {
+            let choices = ((range.hi - range.lo) / step + 1e-9).floor();
+            let k = (u * choices).round().clamp(0.0, choices);
+            // 12 significant digits drop the round-off of k·step (0.30000000000000004 → 0.3).
+            format!("{:.11e}", range.lo + k * step)
+                .parse()
+                .expect("formatted float parses")
+        }
+    };
+    format!("{v:?}")
+}
+
+/// The search's evaluator: runs candidates (and their baselines) and scores them.
+struct Evaluator<'a> {
+    problem: &'a Problem,
+    spec: SweepSpec,
+    dir: PathBuf,
+    /// File names of in-flight logs (deleted after analysis).
+    next_log: AtomicUsize,
+}
+
+impl Evaluator<'_> {
+    fn parameters(&self, unit: &[f64]) -> Vec<(String, String)> {
+        self.problem
+            .ranges
+            .iter()
+            .zip(unit)
+            .map(|(r, &u)| (r.key.clone(), range_value(r, u)))
+            .collect()
+    }
+
+    /// The metric of one run of the scenario with `overrides`, or why there is none.
+    fn metric(&self, overrides: Vec<String>) -> Result<f64, String> {
+        let index = self.next_log.fetch_add(1, Ordering::Relaxed);
+        let run = Run {
+            index,
+            overrides,
+            parameters: Vec::new(),
+        };
+        let row = sweep::execute_run(&self.spec, &run, &self.dir);
+        if let Some(log) = &row.log {
+            let _ = std::fs::remove_file(self.dir.join(log));
+        }
+        if let Some(e) = row.error {
+            return Err(e);
+        }
+        let metrics = row.metrics.ok_or("the run left no log")?;
+        match metrics.cell(&self.problem.objective) {
+            Cell::Num(Some(v)) => Ok(v),
+            Cell::Int(Some(v)) => Ok(v as f64),
+            _ => Err(format!(
+                "the log has no {} (see `mjsafe analyze --json`)",
+                self.problem.objective
+            )),
+        }
+    }
+
+    /// Runs the candidate at `unit` (and its baseline) and scores it.
+    fn evaluate(&self, unit: &[f64]) -> Evaluation {
+        let parameters = self.parameters(unit);
+        let candidate: Vec<String> = self
+            .problem
+            .set
+            .iter()
+            .cloned()
+            .chain(parameters.iter().map(|(k, v)| format!("{k}={v}")))
+            .collect();
+        let threshold = self.problem.threshold;
+        let mut evaluation = Evaluation {
+            index: 0,
+            generation: 0,
+            parameters,
+            objective: None,
+            baseline: None,
+            score: ABSENT_SCORE,
+            violation: false,
+            error: None,
+        };
+        let objective = match self.metric(candidate.clone()) {
+            Ok(v) => v,
+            Err(e) => {
+                evaluation.error = Some(e);
+                return evaluation;
+            }
+        };
+        evaluation.objective = Some(objective);
+        evaluation.score = objective - threshold;
+        if !self.problem.baseline.is_empty() {
+            let overrides = candidate
+                .into_iter()
+                .chain(self.problem.baseline.iter().cloned())
+                .collect();
+            match self.metric(overrides) {
+                Ok(b) => {
+                    evaluation.baseline = Some(b);
+                    evaluation.score = (objective - threshold).max(threshold - b);
+                }
+                Err(e) => {
+                    evaluation.error = Some(format!("baseline: {e}"));
+                    evaluation.score = ABSENT_SCORE;
+                    return evaluation;
+                }
+            }
+        }
+        evaluation.violation = evaluation.score < 0.0;
+        evaluation
+    }
+}
+
+/// Order of a generation's evaluations: by their parameters' unit coordinates (not by which
+/// thread finished first).
+fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)]) {
+    batch.sort_by(|(a, _), (b, _)| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+}
+
+/// Runs one search. `progress` is called after every generation with the search so far.
+pub fn search(
+    problem: &Problem,
+    method: Method,
+    dir: &Path,
+    mut progress: impl FnMut(&Search),
+) -> Result<Search, FalsifyError> {
+    if problem.ranges.is_empty() {
+        return Err(FalsifyError::Spec(
+            "nothing to search: give at least one --range KEY=LO..HI".into(),
+        ));
+    }
+    if problem.budget == 0 {
+        return Err(FalsifyError::Spec("--budget: expected at least 1 evaluation".into()));
+    }
+    // Every candidate applies the same keys: one that the scenario rejects (an unknown key,
+    // a value of the wrong type) is an error now, not a budget of failed runs.
+    let centre: Vec<String> = problem
+        .set
+        .iter()
+        .cloned()
+        .chain(
+            problem
+                .ranges
+                .iter()
+                .map(|r| format!("{}={}", r.key, range_value(r, 0.5))),
+        )
+        .chain(problem.baseline.iter().cloned())
+        .collect();
+    crate::scenario::load(&problem.scenario, &centre).map_err(|e| FalsifyError::Spec(e.to_string()))?;
+    let scratch = dir.join(format!(
+        ".evaluations-{}",
+        match method {
+            Method::Cmaes => "cmaes",
+            Method::Random => "random",
+        }
+    ));
+    std::fs::create_dir_all(&scratch).map_err(|reason| FalsifyError::Io {
+        path: scratch.display().to_string(),
+        reason,
+    })?;
+    let evaluator = Evaluator {
+        problem,
+        spec: SweepSpec {
+            name: "candidate".into(),
+            scenario: problem.scenario.display().to_string(),
+            scenario_fnv1a: String::new(),
+            set: Vec::new(),
+            grids: Vec::new(),
+            random: None,
+            runs: 0,
+        },
+        dir: scratch.clone(),
+        next_log: AtomicUsize::new(0),
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(problem.threads.max(1))
+        .thread_name(|i| format!("falsify-{i}"))
+        .stack_size(16 << 20)
+        .build()
+        .map_err(|e| FalsifyError::Optimiser(e.to_string()))?;
+    let mut found = Search {
+        method,
+        evaluations: Vec::new(),
+        interrupted: false,
+    };
+    let result = match method {
+        Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
+        Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
+    };
+    let _ = std::fs::remove_dir_all(&scratch);
+    result?;
+    Ok(found)
+}
+
+/// Whether the search should stop after the evaluations so far.
+fn done(problem: &Problem, found: &mut Search) -> bool {
+    if crate::episode::stop_requested() {
+        found.interrupted = true;
+        return true;
+    }
+    found.evaluations.len() >= problem.budget || (!problem.worst && found.first_violation().is_some())
+}
+
+/// Appends a generation's evaluations in canonical order.
+fn append(found: &mut Search, generation: usize, mut batch: Vec<(Vec<f64>, Evaluation)>) {
+    canonical_order(&mut batch);
+    for (_, mut e) in batch {
+        e.index = found.evaluations.len();
+        e.generation = generation;
+        found.evaluations.push(e);
+    }
+}
+
+fn run_random(
+    problem: &Problem,
+    evaluator: &Evaluator<'_>,
+    pool: &rayon::ThreadPool,
+    found: &mut Search,
+    progress: &mut impl FnMut(&Search),
+) -> Result<(), FalsifyError> {
+    use rayon::prelude::*;
+    let d = problem.ranges.len();
+    let batch_size = population_size(d);
+    let mut generator = SplitMix64(problem.seed ^ 0x005E_ED0F_F41F);
+    let mut generation = 0;
+    while !done(problem, found) {
+        let count = batch_size.min(problem.budget - found.evaluations.len());
+        let units: Vec<Vec<f64>> = (0..count)
+            .map(|_| (0..d).map(|_| generator.next_f64()).collect())
+            .collect();
+        let batch: Vec<(Vec<f64>, Evaluation)> = pool.install(|| {
+            units
+                .into_par_iter()
+                .map(|u| {
+                    let e = evaluator.evaluate(&u);
+                    (u, e)
+                })
+                .collect()
+        });
+        append(found, generation, batch);
+        generation += 1;
+        progress(found);
+    }
+    Ok(())
+}
+
+/// λ = 4 + ⌊3 ln d⌋ (Hansen's default), at least 8: enough candidates per generation to keep
+/// the cores busy; it depends on d only, never on the thread count.
+fn population_size(d: usize) -> usize {
+    (4 + (3.0 * (d as f64).ln()).floor() as usize).max(8)
+}
+
+fn run_cmaes(
+    problem: &Problem,
+    evaluator: &Evaluator<'_>,
+    pool: &rayon::ThreadPool,
+    found: &mut Search,
+    progress: &mut impl FnMut(&Search),
+) -> Result<(), FalsifyError> {
+    let d = problem.ranges.len();
+    let mut population = population_size(d);
+    let mut restart_generator = SplitMix64(problem.seed ^ 0xC0DE_5EED);
+    let mut generation = 0;
+    for restart in 0u64.. {
+        if done(problem, found) {
+            break;
+        }
+        // The first run starts at the box's centre, restarts at a seeded random point.
+        let mean: Vec<f64> = if restart == 0 {
+            vec![0.5; d]
+        } else {
+            (0..d).map(|_| restart_generator.next_f64()).collect()
+        };
+        let batch: Mutex<Vec<(Vec<f64>, Evaluation)>> = Mutex::new(Vec::new());
+        let objective = |x: &cmaes::DVector<f64>| {
+            let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
+            let e = evaluator.evaluate(&unit);
+            let score = e.score;
+            batch.lock().unwrap_or_else(|p| p.into_inner()).push((unit, e));
+            score
+        };
+        let mut optimiser = cmaes::CMAESOptions::new(mean, 0.3)
+            .population_size(population)
+            .seed(problem.seed.wrapping_add(restart))
+            .build(&objective)
+            .map_err(|e| FalsifyError::Optimiser(format!("{e:?}")))?;
+        loop {
+            let terminated = pool.install(|| optimiser.next_parallel());
+            let evaluated = std::mem::take(&mut *batch.lock().unwrap_or_else(|p| p.into_inner()));
+            append(found, generation, evaluated);
+            generation += 1;
+            progress(found);
+            if done(problem, found) || terminated.is_some() {
+                break;
+            }
+        }
+        population *= 2;
+    }
+    Ok(())
+}
+
+/// The counterexample as a standalone scenario: the scenario with the base and candidate
+/// overrides applied, the model path made absolute, and a comment naming the search.
+pub fn counterexample_text(
+    problem: &Problem,
+    evaluation: &Evaluation,
+    search_line: &str,
+) -> Result<String, FalsifyError> {
+    let overrides: Vec<String> = problem
+        .set
+        .iter()
+        .cloned()
+        .chain(evaluation.parameters.iter().map(|(k, v)| format!("{k}={v}")))
+        .collect();
+    let loaded =
+        crate::scenario::load(&problem.scenario, &overrides).map_err(|e| FalsifyError::Output(e.to_string()))?;
+    let mut scenario = loaded.scenario.clone();
+    if let Some(model) = loaded.model_path() {
+        let absolute = std::fs::canonicalize(&model).map_err(|reason| FalsifyError::Io {
+            path: model.display().to_string(),
+            reason,
+        })?;
+        scenario.vehicle.model = Some(absolute);
+    }
+    let body = toml::to_string(&scenario).map_err(|e| FalsifyError::Output(e.to_string()))?;
+    let mut text = String::new();
+    text.push_str(&format!(
+        "# Counterexample found by `mjsafe falsify` ({}, evaluation {} of the search): {} = {}{}\n",
+        "CMA-ES",
+        evaluation.index + 1,
+        problem.objective,
+        evaluation.objective.map_or("absent".into(), |v| format!("{v}")),
+        evaluation
+            .baseline
+            .map_or(String::new(), |b| format!(" (baseline {b})")),
+    ));
+    text.push_str(&format!("# search: {search_line}\n"));
+    for (k, v) in &evaluation.parameters {
+        text.push_str(&format!("# {k} = {v}\n"));
+    }
+    text.push_str(&format!(
+        "# from {} with every override applied\n",
+        problem.scenario.display()
+    ));
+    text.push_str(&body);
+    Ok(text)
+}
+
+/// The evaluations as CSV: index, generation, method, each range key, objective, baseline,
+/// score, violation, error.
+pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
+    let mut rows = vec![["method", "index", "generation"]
+        .iter()
+        .map(|s| s.to_string())
+        .chain(problem.ranges.iter().map(|r| r.key.clone()))
+        .chain(
+            [problem.objective.as_str(), "baseline", "score", "violation", "error"]
+                .iter()
+                .map(|s| s.to_string()),
+        )
+        .collect::<Vec<_>>()];
+    for search in searches {
+        for e in &search.evaluations {
+            let number = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v}"));
+            rows.push(
+                [
+                    search.method.name().to_string(),
+                    e.index.to_string(),
+                    e.generation.to_string(),
+                ]
+                .into_iter()
+                .chain(e.parameters.iter().map(|(_, v)| v.clone()))
+                .chain([
+                    number(e.objective),
+                    number(e.baseline),
+                    format!("{}", e.score),
+                    e.violation.to_string(),
+                    e.error.clone().unwrap_or_default(),
+                ])
+                .collect(),
+            );
+        }
+    }
+    crate::analyze::csv_lines(&rows)
+}
+
+/// Best score so far against evaluations, one line per search, with the threshold (score 0).
+pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str) -> Result<(), FalsifyError> {
+    use plotters::prelude::*;
+    crate::plot::register_plot_font().map_err(|e| FalsifyError::Output(e.to_string()))?;
+    let err = |e: &dyn std::fmt::Display| FalsifyError::Output(format!("{}: {e}", path.display()));
+    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(b"\x89PNG"), &[])
+        .map_err(|e| err(&e))?;
+    let curves: Vec<(String, Vec<(f64, f64)>)> = searches
+        .iter()
+        .map(|s| {
+            let points = s
+                .best_so_far()
+                .into_iter()
+                .enumerate()
+                .filter(|(_, v)| v.is_finite() && *v < ABSENT_SCORE)
+                .map(|(i, v)| ((i + 1) as f64, v))
+                .collect();
+            (s.method.name().to_string(), points)
+        })
+        .collect();
+    let all = curves.iter().flat_map(|(_, p)| p.iter().copied());
+    let x1 = all.clone().map(|p| p.0).fold(1.0, f64::max);
+    let (mut y0, mut y1) = all.fold((0.0f64, 0.0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+    let pad = ((y1 - y0) * 0.05).max(1e-3);
+    (y0, y1) = (y0 - pad, y1 + pad);
+    let partial = path.with_extension("partial.png");
+    let drawn = (|| -> Result<(), Box<dyn std::error::Error>> {
+        let root = BitMapBackend::new(&partial, (900, 560)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(format!("Falsification: best {objective} so far"), ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..x1, y0..y1)?;
+        chart
+            .configure_mesh()
+            .x_desc("evaluations (runs)")
+            .y_desc(format!("best score so far ({objective} − threshold)"))
+            .draw()?;
+        chart
+            .draw_series(LineSeries::new([(0.0, 0.0), (x1, 0.0)], BLACK.stroke_width(1)))?
+            .label("violation below 0")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
+        for (i, (name, points)) in curves.iter().enumerate() {
+            let color = [RGBColor(214, 39, 40), RGBColor(31, 119, 180)][i % 2];
+            let style = color.stroke_width(2);
+            chart
+                .draw_series(LineSeries::new(points.iter().copied(), style))?
+                .label(name.clone())
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        std::fs::rename(&partial, path)?;
+        Ok(())
+    })();
+    if let Err(e) = drawn {
+        let _ = std::fs::remove_file(&partial);
+        return Err(err(&e));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reflection_keeps_candidates_in_the_box() {
+        for (z, u) in [(0.25, 0.25), (1.25, 0.75), (-0.25, 0.25), (2.5, 0.5), (-1.75, 0.25)] {
+            assert!((reflect(z) - u).abs() < 1e-12, "{z}");
+        }
+    }
+
+    #[test]
+    fn quantised_ranges_give_multiples_of_the_step() {
+        let r = Range {
+            key: "delays.acceleration".into(),
+            lo: 0.0,
+            hi: 1.5,
+            step: Some(0.1),
+        };
+        assert_eq!(range_value(&r, 0.0), "0.0");
+        assert_eq!(range_value(&r, 1.0), "1.5");
+        assert_eq!(range_value(&r, 0.2), "0.3");
+        let c = Range { step: None, ..r };
+        assert_eq!(range_value(&c, 0.5), "0.75");
+    }
+
+    #[test]
+    fn an_unknown_or_text_objective_is_refused_with_the_choices() {
+        assert!(check_objective("min_h").is_ok());
+        assert!(check_objective("max_correction.steering").is_ok());
+        let e = check_objective("min_hh").unwrap_err().to_string();
+        assert!(e.contains("min_clearance"), "{e}");
+        assert!(check_objective("collision_with").is_err());
+    }
+}
+
+/// What `mjsafe falsify` wrote and found.
+#[derive(Debug)]
+pub struct Report {
+    pub searches: Vec<Search>,
+    /// The counterexample scenario and its log, when a violation was found.
+    pub counterexample: Option<(PathBuf, PathBuf)>,
+    /// The objective of the counterexample's own run (from the written file).
+    pub reproduced: Option<f64>,
+    pub evaluations_csv: PathBuf,
+    pub evaluations_json: PathBuf,
+    pub convergence_png: Option<PathBuf>,
+}
+
+/// How the outputs start: existing files that start otherwise are never replaced.
+const CSV_START: &[u8] = b"method,index,";
+const JSON_START: &[u8] = b"{\n  \"mjsafe_version\"";
+const SCENARIO_START: &[u8] = b"# Counterexample found by `mjsafe falsify`";
+
+#[derive(Serialize)]
+struct EvaluationsFile<'a> {
+    mjsafe_version: &'static str,
+    scenario: String,
+    set: &'a [String],
+    ranges: &'a [Range],
+    objective: &'a str,
+    threshold: f64,
+    baseline: &'a [String],
+    budget: usize,
+    seed: u64,
+    searches: Vec<SearchSummary<'a>>,
+}
+
+#[derive(Serialize)]
+struct SearchSummary<'a> {
+    method: Method,
+    evaluations_run: usize,
+    runs_to_first_violation: Option<usize>,
+    best_score: Option<f64>,
+    interrupted: bool,
+    evaluations: &'a [Evaluation],
+}
+
+/// The search (and with `compare_random` random search with the same budget and seed), its
+/// outputs in `dir`: the counterexample as a scenario file plus its log (re-run from the file),
+/// every evaluation as CSV and JSON, and the convergence plot.
+pub fn falsify(
+    problem: &Problem,
+    dir: &Path,
+    search_line: &str,
+    compare_random: bool,
+    mut progress: impl FnMut(&Search),
+) -> Result<Report, FalsifyError> {
+    std::fs::create_dir_all(dir).map_err(|reason| FalsifyError::Io {
+        path: dir.display().to_string(),
+        reason,
+    })?;
+    let mut searches = vec![search(problem, Method::Cmaes, dir, &mut progress)?];
+    if compare_random && !searches[0].interrupted {
+        searches.push(search(problem, Method::Random, dir, &mut progress)?);
+    }
+    let optimiser = &searches[0];
+    let chosen = if problem.worst {
+        optimiser.worst_violation()
+    } else {
+        optimiser.first_violation()
+    };
+    let mut counterexample = None;
+    let mut reproduced = None;
+    if let Some(e) = chosen {
+        let text = counterexample_text(problem, e, search_line)?;
+        let scenario_path = dir.join("counterexample.toml");
+        let inputs = [problem.scenario.as_path()];
+        crate::files::write_atomically(
+            &scenario_path,
+            "counterexample scenario",
+            crate::files::Replace::IfStartsWith(SCENARIO_START),
+            &inputs,
+            text.as_bytes(),
+        )
+        .map_err(|e| FalsifyError::Output(e.to_string()))?;
+        // The written file alone reproduces the run (no overrides).
+        let spec = SweepSpec {
+            name: "counterexample".into(),
+            scenario: scenario_path.display().to_string(),
+            scenario_fnv1a: String::new(),
+            set: Vec::new(),
+            grids: Vec::new(),
+            random: None,
+            runs: 1,
+        };
+        let run = Run {
+            index: 0,
+            overrides: Vec::new(),
+            parameters: Vec::new(),
+        };
+        let row = sweep::execute_run(&spec, &run, dir);
+        let log = dir.join(spec.log_name(0));
+        let renamed = dir.join("counterexample.mcap");
+        if log.exists() {
+            crate::log::mcap::check_target(&renamed, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))?;
+            std::fs::rename(&log, &renamed).map_err(|reason| FalsifyError::Io {
+                path: renamed.display().to_string(),
+                reason,
+            })?;
+        }
+        reproduced = row.metrics.as_ref().and_then(|m| match m.cell(&problem.objective) {
+            Cell::Num(v) => v,
+            Cell::Int(v) => v.map(|v| v as f64),
+            _ => None,
+        });
+        // The search's own value, bit for bit up to round-off, or the file is not the run.
+        let expected = e.objective;
+        let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
+        if !same {
+            return Err(FalsifyError::Output(format!(
+                "{}: the written counterexample does not reproduce the search's run ({} = {:?} in the search, {:?} from the file)",
+                scenario_path.display(),
+                problem.objective,
+                expected,
+                reproduced
+            )));
+        }
+        counterexample = Some((scenario_path, renamed));
+    }
+    let refs: Vec<&Search> = searches.iter().collect();
+    let evaluations_csv = dir.join("evaluations.csv");
+    crate::files::write_atomically(
+        &evaluations_csv,
+        "falsification evaluations",
+        crate::files::Replace::IfStartsWith(CSV_START),
+        &[],
+        evaluations_csv_text(&refs, problem).as_bytes(),
+    )
+    .map_err(|e| FalsifyError::Output(e.to_string()))?;
+    let file = EvaluationsFile {
+        mjsafe_version: env!("CARGO_PKG_VERSION"),
+        scenario: problem.scenario.display().to_string(),
+        set: &problem.set,
+        ranges: &problem.ranges,
+        objective: &problem.objective,
+        threshold: problem.threshold,
+        baseline: &problem.baseline,
+        budget: problem.budget,
+        seed: problem.seed,
+        searches: searches
+            .iter()
+            .map(|s| SearchSummary {
+                method: s.method,
+                evaluations_run: s.evaluations.len(),
+                runs_to_first_violation: s.runs_to_first_violation(),
+                best_score: s.best().map(|e| e.score),
+                interrupted: s.interrupted,
+                evaluations: &s.evaluations,
+            })
+            .collect(),
+    };
+    let json = serde_json::to_string_pretty(&file).map_err(|e| FalsifyError::Output(e.to_string()))? + "\n";
+    let evaluations_json = dir.join("evaluations.json");
+    crate::files::write_atomically(
+        &evaluations_json,
+        "falsification evaluations",
+        crate::files::Replace::IfStartsWith(JSON_START),
+        &[],
+        json.as_bytes(),
+    )
+    .map_err(|e| FalsifyError::Output(e.to_string()))?;
+    let png = dir.join("convergence.png");
+    let convergence_png = if searches.iter().any(|s| s.best().is_some()) {
+        convergence_png(&png, &refs, &problem.objective)?;
+        Some(png)
+    } else {
+        None
+    };
+    Ok(Report {
+        searches,
+        counterexample,
+        reproduced,
+        evaluations_csv,
+        evaluations_json,
+        convergence_png,
+    })
+}
