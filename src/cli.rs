@@ -307,7 +307,7 @@ pub enum Command {
         shell: clap_complete::Shell,
     },
     /// Print the man page (roff) on stdout (`mjsafe man | man -l -`), or write mjsafe.1 and one
-    /// page per subcommand (mjsafe-run.1, …) into --dir.
+    /// page per subcommand (mjsafe-run.1, ...) into --dir.
     Man {
         /// Write the pages into this directory instead.
         #[arg(long, value_name = "DIR")]

@@ -264,3 +264,91 @@ fn slurm_array_and_afterany_merge_equal_a_local_sweep() {
         );
     }
 }
+
+/// deploy/kubernetes/sweep-job.yaml, read by PyYAML, agrees with the binary: the exit codes its
+/// `podFailurePolicy` acts on are the ones mjsafe uses (3: runs failed → FailIndex, never
+/// retried; 1 and 2: broken sweep → FailJob), the shard count is `completions`, `--threads`
+/// follows the CPU request, and the command parses as an mjsafe command line.
+#[test]
+fn kubernetes_job_fails_fast_on_deterministic_exit_codes() {
+    use clap::Parser;
+    use mjsafe::cli::exit;
+    let file = root().join("deploy/kubernetes/sweep-job.yaml");
+    let o = Command::new(python())
+        .args([
+            "-c",
+            "import json, sys, yaml; print(json.dumps(yaml.safe_load(open(sys.argv[1]))))",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "PyYAML (scripts/requirements-test.txt): {}",
+        text(&o)
+    );
+    let job: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let spec = &job["spec"];
+    assert_eq!(job["kind"], "Job");
+    assert_eq!(spec["completionMode"], "Indexed");
+    assert!(
+        spec["backoffLimitPerIndex"].as_u64().is_some(),
+        "retries counted per index"
+    );
+    assert_eq!(spec["template"]["spec"]["restartPolicy"], "Never");
+
+    let rules = spec["podFailurePolicy"]["rules"].as_array().unwrap();
+    let action_for = |code: u8| -> Option<String> {
+        rules
+            .iter()
+            .find(|r| {
+                r["onExitCodes"]["operator"] == "In"
+                    && r["onExitCodes"]["values"]
+                        .as_array()
+                        .is_some_and(|v| v.iter().any(|x| x.as_u64() == Some(u64::from(code))))
+            })
+            .map(|r| r["action"].as_str().unwrap().to_string())
+    };
+    assert_eq!(action_for(exit::RUNS_FAILED).as_deref(), Some("FailIndex"));
+    assert_eq!(action_for(exit::ERROR).as_deref(), Some("FailJob"));
+    assert_eq!(action_for(exit::USAGE).as_deref(), Some("FailJob"));
+    // An interruption (eviction's SIGTERM) and a crash are retried.
+    assert_eq!(action_for(exit::INTERRUPTED), None);
+    assert!(rules
+        .iter()
+        .any(|r| r["action"] == "Ignore" && r["onPodConditions"][0]["type"] == "DisruptionTarget"));
+    let container = &spec["template"]["spec"]["containers"][0];
+    for r in rules.iter().filter(|r| r["onExitCodes"].is_object()) {
+        assert_eq!(r["onExitCodes"]["containerName"], container["name"]);
+    }
+
+    // The command: shards = completions, threads = the CPU request, which equals the limit.
+    let script = container["args"][0].as_str().unwrap();
+    let completions = spec["completions"].as_u64().unwrap();
+    assert!(
+        script.contains(&format!("--shard \"${{JOB_COMPLETION_INDEX}}/{completions}\"")),
+        "{script}"
+    );
+    assert_eq!(spec["parallelism"].as_u64(), Some(completions));
+    assert!(script.contains("--threads \"${CPUS}\""), "{script}");
+    let cpus = container["env"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "CPUS")
+        .expect("CPUS from the downward API");
+    assert_eq!(cpus["valueFrom"]["resourceFieldRef"]["resource"], "requests.cpu");
+    assert_eq!(
+        container["resources"]["requests"]["cpu"],
+        container["resources"]["limits"]["cpu"]
+    );
+    let argv: Vec<String> = script
+        .trim_start_matches("exec ")
+        .replace("${JOB_COMPLETION_INDEX}", "0")
+        .replace("${CPUS}", "4")
+        .split_whitespace()
+        .map(|w| w.trim_matches('"').to_string())
+        .collect();
+    mjsafe::cli::Cli::try_parse_from(&argv).unwrap_or_else(|e| panic!("{argv:?}: {e}"));
+    assert!(root().join("scenarios/bicycle_delays.sweep.toml").exists());
+}
