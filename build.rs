@@ -1,23 +1,80 @@
-//! Links Debian's MuJoCo 2.2.2 and compiles the log schema (proto/mjsafe.proto) with prost.
-use std::path::Path;
+//! Links MuJoCo 2.2.2 (Debian's package, or the one `MUJOCO_DIR` / `MUJOCO_LIB_DIR` names) and
+//! compiles the log schema (proto/mjsafe.proto) with prost.
+use std::path::{Path, PathBuf};
+
+/// The library directories searched when no override is given (Debian's multiarch paths first).
+const SYSTEM_LIB_DIRS: [&str; 4] = [
+    "/usr/lib/x86_64-linux-gnu",
+    "/usr/lib/aarch64-linux-gnu",
+    "/usr/lib",
+    "/usr/local/lib",
+];
+
+fn env_path(name: &str) -> Option<PathBuf> {
+    println!("cargo:rerun-if-env-changed={name}");
+    std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from)
+}
+
+/// `mujoco.h` of `include_dir` must be 2.2.2's: src/mujoco/ffi.rs is generated from it.
+fn check_header(include_dir: &Path, from: &str) {
+    let header = include_dir.join("mujoco/mujoco.h");
+    match std::fs::read_to_string(&header) {
+        Ok(text) if text.contains("#define mjVERSION_HEADER 222") => {}
+        Ok(_) => panic!(
+            "{} ({from}) is not MuJoCo 2.2.2's (no `#define mjVERSION_HEADER 222`); \
+             mjsafe's bindings (src/mujoco/ffi.rs) are generated from 2.2.2",
+            header.display()
+        ),
+        Err(e) => panic!("{} ({from}): {e}", header.display()),
+    }
+}
 
 fn main() {
     println!("cargo:rerun-if-changed=proto/mjsafe.proto");
     println!("cargo:rerun-if-changed=build.rs");
 
-    let lib_dirs = [
-        "/usr/lib/x86_64-linux-gnu",
-        "/usr/lib/aarch64-linux-gnu",
-        "/usr/lib",
-        "/usr/local/lib",
-    ];
-    let found = lib_dirs.iter().find(|dir| Path::new(dir).join("libmujoco.so").exists());
-    match found {
-        Some(dir) => println!("cargo:rustc-link-search=native={dir}"),
-        None => panic!(
-            "libmujoco.so (MuJoCo 2.2.2) not found in {lib_dirs:?}.\n\
-             Install Debian's package: apt-get install libmujoco-dev   (or run scripts/setup.sh)"
-        ),
+    // Overrides: MUJOCO_LIB_DIR / MUJOCO_INCLUDE_DIR name the directories, MUJOCO_DIR a prefix
+    // holding lib/ and include/ (MuJoCo's release archive, a /opt install).
+    let prefix = env_path("MUJOCO_DIR");
+    let lib_override = env_path("MUJOCO_LIB_DIR")
+        .map(|d| (d, "MUJOCO_LIB_DIR"))
+        .or_else(|| prefix.as_ref().map(|p| (p.join("lib"), "MUJOCO_DIR")));
+    let include_override = env_path("MUJOCO_INCLUDE_DIR")
+        .map(|d| (d, "MUJOCO_INCLUDE_DIR"))
+        .or_else(|| prefix.as_ref().map(|p| (p.join("include"), "MUJOCO_DIR")));
+
+    match lib_override {
+        Some((dir, from)) => {
+            if !dir.join("libmujoco.so").exists() {
+                panic!(
+                    "{from}: {} holds no libmujoco.so (MuJoCo 2.2.2). Set MUJOCO_DIR to the prefix \
+                     with lib/libmujoco.so and include/mujoco/mujoco.h, or MUJOCO_LIB_DIR to the \
+                     library's directory",
+                    dir.display()
+                );
+            }
+            let include = include_override.unwrap_or_else(|| (dir.join("../include"), from));
+            check_header(&include.0, include.1);
+            println!("cargo:rustc-link-search=native={}", dir.display());
+            // Found at run time without LD_LIBRARY_PATH.
+            println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+        }
+        None => {
+            if let Some((dir, from)) = include_override {
+                check_header(&dir, from);
+            }
+            let found = SYSTEM_LIB_DIRS
+                .iter()
+                .find(|dir| Path::new(dir).join("libmujoco.so").exists());
+            match found {
+                Some(dir) => println!("cargo:rustc-link-search=native={dir}"),
+                None => panic!(
+                    "libmujoco.so (MuJoCo 2.2.2) not found in {SYSTEM_LIB_DIRS:?}.\n\
+                     Install Debian's package: apt-get install libmujoco-dev   (or run scripts/setup.sh),\n\
+                     or point MUJOCO_DIR at a MuJoCo 2.2.2 prefix (lib/libmujoco.so, include/mujoco/mujoco.h)"
+                ),
+            }
+        }
     }
     println!("cargo:rustc-link-lib=dylib=mujoco");
 

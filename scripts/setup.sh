@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Installs what mjsafe needs and is missing, on Debian 12 as root (idempotent, quiet when
 # everything is there). `scripts/setup.sh` for running; `scripts/setup.sh --test` adds the
-# Python readers the test suite uses as independent checks (in a venv, never system-wide).
+# Python readers the test suite uses as independent checks (in a venv, never system-wide) and
+# the single-node Slurm of tests/cluster.rs (Debian's slurm-wlm and munge; nothing started here).
 set -euo pipefail
+cd "$(dirname "$0")/.."
 want_test=0
 [ "${1:-}" = "--test" ] && want_test=1
 
@@ -15,7 +17,14 @@ command -v pkg-config >/dev/null 2>&1 || need_apt+=(pkg-config)
 if [ "$want_test" = 1 ]; then
   [ -x /usr/bin/time ] || need_apt+=(time)   # GNU time: peak-memory checks in the tests
   command -v python3 >/dev/null 2>&1 || need_apt+=(python3)
-  python3 -m venv --help >/dev/null 2>&1 || need_apt+=(python3-venv)
+  # Debian's python3 has the venv module but not ensurepip (that is python3-venv), and
+  # `python3 -m venv` fails without it: test what venv needs, not `venv --help`.
+  python3 -c 'import ensurepip' >/dev/null 2>&1 || need_apt+=(python3-venv)
+  # tests/cluster.rs: a private single-node Slurm (scripts/slurm-up.sh starts it per test).
+  { [ -x /usr/sbin/slurmctld ] && [ -x /usr/sbin/slurmd ] && command -v sbatch >/dev/null 2>&1; } \
+    || need_apt+=(slurm-wlm)
+  [ -x /usr/sbin/munged ] || need_apt+=(munge)
+  command -v groff >/dev/null 2>&1 || need_apt+=(groff-base)   # tests/cli.rs renders the man page
 fi
 if [ ${#need_apt[@]} -gt 0 ]; then
   echo "setup: installing Debian packages: ${need_apt[*]}"
@@ -29,12 +38,22 @@ grep -q '#define mjVERSION_HEADER 222' /usr/include/mujoco/mujoco.h || {
   exit 1
 }
 
+# The oldest Rust that builds mjsafe: Cargo.toml's rust-version (1.95 for the rerun crate of the
+# default features; README "Rust").
+need_rust=$(sed -n 's/^rust-version = "\(.*\)"/\1/p' Cargo.toml)
 if ! command -v cargo >/dev/null 2>&1; then
   if [ -x "$HOME/.cargo/bin/cargo" ]; then
     echo "setup: cargo is in ~/.cargo/bin: add it to PATH (source ~/.cargo/env)" >&2
   else
-    echo "setup: no Rust toolchain. Install one with rustup (https://rustup.rs), Rust >= 1.89" >&2
+    echo "setup: no Rust toolchain. Install one with rustup (https://rustup.rs), Rust >= $need_rust" >&2
   fi
+  exit 1
+fi
+have_rust=$(rustc --version | awk '{print $2}')
+if [ "$(printf '%s\n%s\n' "$need_rust" "${have_rust%%-*}" | sort -V | head -n 1)" != "$need_rust" ]; then
+  echo "setup: rustc $have_rust is older than $need_rust, the oldest Rust that builds mjsafe" \
+    "(rust-version in Cargo.toml: the rerun crate 0.36.3 needs it; without the rerun feature," \
+    "cargo build --no-default-features, 1.89 is enough). Update: rustup update stable" >&2
   exit 1
 fi
 
@@ -44,10 +63,10 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf' >/dev/null 2>&1 \
-    || ! "$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | grep -qx 'Version: 0.36.3' \
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml' >/dev/null 2>&1 \
+    || [ "$("$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | sed -n 's/^Version: //p')" != 0.36.3 ] \
     || [ ! -x "$venv/bin/rerun" ]; then
-    echo "setup: installing Python readers (mcap, mcap-protobuf-support) and the rerun CLI (rerun-sdk) into $venv"
+    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML) and the rerun CLI (rerun-sdk) into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check -r scripts/requirements-test.txt
   fi
   # No usage data from the rerun CLI the tests run (it would try the network).

@@ -1,4 +1,5 @@
-//! The `mjsafe` command line: run, sweep, analyze, info (and replay, with the `rerun` feature).
+//! The `mjsafe` command line: run, sweep, analyze, info, bench, completions, man (and replay,
+//! with the `rerun` feature).
 
 // The arguments' doc comments are `--help` text for a terminal, not rustdoc.
 #![allow(rustdoc::broken_intra_doc_links, rustdoc::invalid_html_tags)]
@@ -28,7 +29,7 @@ fn write_stdout(args: std::fmt::Arguments) {
     let mut stdout = std::io::stdout().lock();
     if let Err(e) = stdout.write_fmt(args).and_then(|()| stdout.flush()) {
         if e.kind() == std::io::ErrorKind::BrokenPipe {
-            std::process::exit(141);
+            std::process::exit(exit::BROKEN_PIPE.into());
         }
         eprintln!("error: cannot write to stdout: {e}");
         std::process::exit(1);
@@ -43,11 +44,97 @@ use crate::log::{Sink, Tee};
 use crate::scenario;
 use crate::sweep::{self, Row, Summary, SweepArgs, SweepSpec};
 
+/// The process exit codes (README "Exit codes", `mjsafe --help`).
+pub mod exit {
+    /// Done: the run or sweep completed (a collision is a result), the analysis succeeded.
+    pub const DONE: u8 = 0;
+    /// An error: bad input, an unreadable or damaged file, a run that stopped on an error, a
+    /// sweep that could not start or write its summary, a merge with missing runs.
+    pub const ERROR: u8 = 1;
+    /// A usage error: unknown flag, missing argument (clap's code).
+    pub const USAGE: u8 = 2;
+    /// `sweep`: the sweep finished and wrote its summary, but some of its runs failed (their
+    /// rows hold the error). Deterministic: rerunning the same shard fails the same way.
+    pub const RUNS_FAILED: u8 = 3;
+    /// `--fail-on-collision`: the run (or some run of the sweep) collided.
+    pub const COLLISION: u8 = 4;
+    /// Interrupted by Ctrl-C / SIGTERM (128 + SIGINT).
+    pub const INTERRUPTED: u8 = 130;
+    /// stdout was a closed pipe (128 + SIGPIPE), e.g. `mjsafe info LOG | head`.
+    pub const BROKEN_PIPE: u8 = 141;
+}
+
+/// The exit-code table of `--help` (and of the README; tests/cli.rs checks they agree).
+macro_rules! exit_codes {
+    () => {
+        "\
+Exit codes:
+  0    done (a collision is a result, not an error)
+  1    error: bad input, unreadable or damaged file, a run stopped on an error, a merge with
+       missing runs, a sweep that could not run or write its summary
+  2    usage error (unknown flag, missing argument)
+  3    sweep: some runs failed (summary written, their rows hold the error)
+  4    --fail-on-collision: the run, or some run of the sweep, collided
+  130  interrupted (Ctrl-C, SIGTERM): logs finished as incomplete
+  141  stdout was a closed pipe"
+    };
+}
+
+macro_rules! top_examples {
+    () => {
+        "\
+Examples:
+  mjsafe run scenarios/bicycle_obstacle.toml --set delays.steering=0.4 --out logs/slow.mcap
+  mjsafe run scenarios/bicycle_obstacle_gamma_m.toml --json --fail-on-collision
+  mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --shard 0/4 --threads 8
+  mjsafe analyze --merge logs/sweep-bicycle_delays --out logs/sweep-bicycle_delays
+  mjsafe analyze --csv logs/*.mcap
+  mjsafe completions bash > /etc/bash_completion.d/mjsafe
+  mjsafe man | man -l -"
+    };
+}
+
+macro_rules! run_examples {
+    () => {
+        "\
+Examples:
+  mjsafe run scenarios/bicycle_obstacle.toml
+  mjsafe run scenarios/bicycle_obstacle.toml --set delays.steering=0.4 --set filter.compensation=\"'none'\"
+  mjsafe run scenarios/bicycle_obstacle_gamma_m.toml --json --fail-on-collision   # CI gate: exit 4 on a collision"
+    };
+}
+
+macro_rules! sweep_examples {
+    () => {
+        "\
+Examples:
+  mjsafe sweep scenarios/bicycle_obstacle.toml --grid delays.steering=0.1,0.2,0.4 --out logs/grid
+  mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --dry-run
+  mjsafe sweep scenarios/bicycle_obstacle.toml --random 20 --seed 7 --range obstacles.0.radius=2.0..3.0
+  mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --shard \"$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT\"
+Exit: 0 all runs done, 3 some runs failed (summary written), 1 the sweep could not run,
+4 with --fail-on-collision some run collided, 130 interrupted."
+    };
+}
+
+macro_rules! analyze_examples {
+    () => {
+        "\
+Examples:
+  mjsafe analyze logs/run.mcap
+  mjsafe analyze --json logs/*.mcap
+  mjsafe analyze --compare logs/a.mcap logs/b.mcap
+  mjsafe analyze --merge logs/sweep-bicycle_delays --out logs/sweep-bicycle_delays
+  mjsafe analyze --plot figures logs/run.mcap"
+    };
+}
+
 #[derive(Debug, Parser)]
 #[command(
     name = "mjsafe",
     version,
-    about = "MuJoCo vehicle safety testbed: delayed actuators, safety filters, MCAP logs"
+    about = "MuJoCo vehicle safety testbed: delayed actuators, safety filters, MCAP logs",
+    after_help = concat!(top_examples!(), "\n\n", exit_codes!()),
 )]
 pub struct Cli {
     #[command(subcommand)]
@@ -61,6 +148,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Run one scenario headless; writes one MCAP log and prints a one-line summary.
+    #[command(after_help = run_examples!())]
     Run {
         /// Scenario file (TOML).
         scenario: PathBuf,
@@ -70,6 +158,12 @@ pub enum Command {
         /// Log file (default: logs/<name>-<UTC time>.mcap).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Print the summary as one JSON object on stdout instead of the text line.
+        #[arg(long)]
+        json: bool,
+        /// Exit with 4 when the run collided (a CI gate); without it a collision exits 0.
+        #[arg(long)]
+        fail_on_collision: bool,
         #[command(flatten)]
         rerun: RerunArgs,
     },
@@ -91,6 +185,7 @@ pub enum Command {
         recover: bool,
     },
     /// Per-run metrics of MCAP logs; or two runs compared; or sweep shard summaries merged.
+    #[command(after_help = analyze_examples!())]
     Analyze {
         /// Logs (.mcap); with --merge, sweep directories or summary-shard-*.json files.
         #[arg(required = true)]
@@ -121,6 +216,7 @@ pub enum Command {
     },
     /// Run a scenario over a grid of overrides and/or seeded random draws, in parallel;
     /// writes one log per run and summary.csv / summary.json (see docs/sweeps.md).
+    #[command(after_help = sweep_examples!())]
     Sweep {
         /// Scenario file (TOML); or name it in the sweep file.
         scenario: Option<PathBuf>,
@@ -158,6 +254,9 @@ pub enum Command {
         /// List the runs (index, log, overrides) without running them.
         #[arg(long)]
         dry_run: bool,
+        /// Exit with 4 when some run collided (and none failed); without it collisions exit 0.
+        #[arg(long)]
+        fail_on_collision: bool,
     },
     /// Search the --range box for a run that violates safety: CMA-ES minimises an analysis
     /// metric (default min_h) and stops at the first violation (metric < threshold). Writes
@@ -248,6 +347,19 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Print a shell completion script on stdout, e.g.
+    /// `mjsafe completions bash > ~/.local/share/bash-completion/completions/mjsafe`.
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
+    /// Print the man page (roff) on stdout (`mjsafe man | man -l -`), or write mjsafe.1 and one
+    /// page per subcommand (mjsafe-run.1, ...) into --dir.
+    Man {
+        /// Write the pages into this directory instead.
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
+    },
 }
 
 /// Rerun outputs of `mjsafe run` (with the `rerun` feature); none given: nothing is built or sent.
@@ -335,7 +447,7 @@ pub fn run() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {}", shorten_numbers(&format!("{e:#}")));
-            ExitCode::FAILURE
+            ExitCode::from(exit::ERROR)
         }
     }
 }
@@ -371,8 +483,19 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             scenario,
             overrides,
             out,
+            json,
+            fail_on_collision,
             rerun,
-        } => run_scenario(&scenario, &overrides, out, &rerun),
+        } => run_scenario(
+            &scenario,
+            &overrides,
+            out,
+            &rerun,
+            RunOutput {
+                json,
+                fail_on_collision,
+            },
+        ),
         #[cfg(feature = "rerun")]
         Command::Replay {
             file,
@@ -437,6 +560,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             out,
             progress,
             dry_run,
+            fail_on_collision,
         } => {
             let args = SweepArgs {
                 scenario,
@@ -453,6 +577,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 out,
                 progress,
                 dry_run,
+                fail_on_collision,
             };
             run_sweep(&args, &options)
         }
@@ -529,7 +654,42 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Completions { shell } => {
+            let mut text = Vec::new();
+            clap_complete::generate(
+                shell,
+                &mut <Cli as clap::CommandFactory>::command(),
+                "mjsafe",
+                &mut text,
+            );
+            out!("{}", String::from_utf8_lossy(&text));
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Man { dir } => {
+            let command = <Cli as clap::CommandFactory>::command();
+            match dir {
+                Some(dir) => {
+                    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+                    clap_mangen::generate_to(command, &dir)
+                        .with_context(|| format!("writing the man pages into {}", dir.display()))?;
+                    eprintln!("man pages written into {}", dir.display());
+                }
+                None => {
+                    let mut text = Vec::new();
+                    clap_mangen::Man::new(command).render(&mut text)?;
+                    out!("{}", String::from_utf8_lossy(&text));
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
     }
+}
+
+/// How `mjsafe run` reports: the text line or JSON, and whether a collision fails the process.
+#[derive(Debug, Clone, Copy)]
+struct RunOutput {
+    json: bool,
+    fail_on_collision: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -549,13 +709,19 @@ fn install_stop_handler() {
         if episode::stop_requested() || !episode::graceful_stop_active() {
             crate::files::remove_partials();
             eprintln!("error: interrupted");
-            std::process::exit(130);
+            std::process::exit(exit::INTERRUPTED.into());
         }
         episode::request_stop();
     });
 }
 
-fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: &RerunArgs) -> Result<ExitCode> {
+fn run_scenario(
+    path: &Path,
+    overrides: &[String],
+    out: Option<PathBuf>,
+    rerun: &RerunArgs,
+    report: RunOutput,
+) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
     let inputs = loaded.inputs();
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
@@ -585,30 +751,55 @@ fn run_scenario(path: &Path, overrides: &[String], out: Option<PathBuf>, rerun: 
     };
     let metrics = analyze::analyze_file(&log_path)
         .with_context(|| format!("reading back the log just written, {}", log_path.display()))?;
-    outln!(
-        "{}: {} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
-        loaded.scenario.name,
-        metrics
-            .collision
-            .as_ref()
-            .map_or("no collision".to_string(), |c| format!(
-                "COLLISION at t = {:.3} s with {} (depth {:.3} m)",
-                c.time, c.with, c.depth
-            )),
-        metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
-        summary.steps,
-        summary.simulated_time,
-        summary.real_time_factor(),
-        log_path.display()
-    );
+    if report.json {
+        let rtf = summary.real_time_factor();
+        let value = serde_json::json!({
+            "scenario": loaded.scenario.name,
+            "collision": metrics.collision,
+            "min_h": metrics.min_h,
+            "steps": summary.steps,
+            "simulated_time": summary.simulated_time,
+            "real_time_factor": rtf.is_finite().then_some(rtf),
+            "log": log_path.display().to_string(),
+            "complete": summary.error.is_none(),
+            "error": summary.error.as_ref().map(ToString::to_string),
+        });
+        outln!("{value}");
+    } else {
+        outln!(
+            "{}: {} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
+            loaded.scenario.name,
+            metrics
+                .collision
+                .as_ref()
+                .map_or("no collision".to_string(), |c| format!(
+                    "COLLISION at t = {:.3} s with {} (depth {:.3} m)",
+                    c.time, c.with, c.depth
+                )),
+            metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
+            summary.steps,
+            summary.simulated_time,
+            summary.real_time_factor(),
+            log_path.display()
+        );
+    }
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
         // 130: the shell's convention for a run ended by a signal.
         return Ok(if error == episode::StopReason::Interrupted {
-            ExitCode::from(130)
+            ExitCode::from(exit::INTERRUPTED)
         } else {
-            ExitCode::FAILURE
+            ExitCode::from(exit::ERROR)
         });
+    }
+    if report.fail_on_collision {
+        if let Some(c) = &metrics.collision {
+            eprintln!(
+                "error: --fail-on-collision: the run collided with {} at t = {:.3} s",
+                c.with, c.time
+            );
+            return Ok(ExitCode::from(exit::COLLISION));
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -823,6 +1014,7 @@ struct SweepOptions {
     out: Option<PathBuf>,
     progress: bool,
     dry_run: bool,
+    fail_on_collision: bool,
 }
 
 fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
@@ -894,14 +1086,29 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
             indices.len() - not_run,
             indices.len()
         );
-        return Ok(ExitCode::from(130));
+        return Ok(ExitCode::from(exit::INTERRUPTED));
     }
     if failures > 0 {
         eprintln!(
             "error: {failures} of {} runs failed (their rows hold the error)",
             indices.len()
         );
-        return Ok(ExitCode::FAILURE);
+        return Ok(ExitCode::from(exit::RUNS_FAILED));
+    }
+    let collided: Vec<usize> = summary
+        .runs
+        .iter()
+        .filter(|r| r.metrics.as_ref().is_some_and(|m| m.collision_time.is_some()))
+        .map(|r| r.index)
+        .collect();
+    if options.fail_on_collision && !collided.is_empty() {
+        eprintln!(
+            "error: --fail-on-collision: {} of {} runs collided: {}",
+            collided.len(),
+            indices.len(),
+            abbreviate(&collided)
+        );
+        return Ok(ExitCode::from(exit::COLLISION));
     }
     Ok(ExitCode::SUCCESS)
 }
