@@ -1,0 +1,180 @@
+//! `mjsafe falsify` (issue 17): the optimiser finds a violation where one exists and the
+//! written scenario reproduces it; on a problem proven safe it reports none; the same seed
+//! gives the same search on any number of threads; a baseline keeps only the filter's own
+//! failures; bad input is one clear error line.
+
+mod common;
+
+use std::path::Path;
+
+use common::*;
+
+/// The Ch. 4 bicycle with (4.67) over start x, obstacle offset and acceleration delay.
+const GAMMA_M_BOX: [&str; 6] = [
+    "--range",
+    "vehicle.initial_state.0=-26..-16",
+    "--range",
+    "obstacles.0.centre.1=-3..3",
+    "--range",
+    "delays.acceleration=0.5..2.0:0.1",
+];
+
+fn falsify(scenario: &str, extra: &[&str], out: &Path) -> std::process::Output {
+    let path = format!("scenarios/{scenario}");
+    let out = out.to_str().unwrap();
+    let mut args = vec!["falsify", path.as_str()];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", out]);
+    mjsafe(&args)
+}
+
+fn evaluations(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("evaluations.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn finds_a_violation_of_gamma_m_and_the_written_scenario_reproduces_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let mut args = GAMMA_M_BOX.to_vec();
+    args.extend_from_slice(&["--budget", "40", "--seed", "1"]);
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+    assert!(o.status.success(), "{}", text(&o));
+    println!("{}", stdout(&o));
+    let e = evaluations(&out);
+    let search = &e["searches"][0];
+    assert_eq!(search["method"], "cmaes");
+    let first = search["runs_to_first_violation"].as_u64().expect("a violation within 40 runs") as usize;
+    let violation = &search["evaluations"][first - 1];
+    assert_eq!(violation["violation"], true);
+    let min_h = violation["objective"].as_f64().unwrap();
+    assert!(min_h < 0.0);
+    // The counterexample alone (no overrides) collides, with the search's min h.
+    let scenario = out.join("counterexample.toml");
+    let text = std::fs::read_to_string(&scenario).unwrap();
+    assert!(text.starts_with("# Counterexample found by `mjsafe falsify`"), "{text}");
+    let log = dir.path().join("again.mcap");
+    let summary = run_ok(&scenario, &log, &[]);
+    assert!(summary.contains("COLLISION"), "{summary}");
+    let again = analyze_json(&log)["min_h"].as_f64().unwrap();
+    assert!((again - min_h).abs() <= 1e-9 * (1.0 + min_h.abs()), "{again} vs {min_h}");
+    assert_eq!(analyze_json(&out.join("counterexample.mcap"))["min_h"].as_f64(), Some(again));
+    // Every evaluation is in the CSV, and the plot is a PNG.
+    let csv = std::fs::read_to_string(out.join("evaluations.csv")).unwrap();
+    assert!(csv.starts_with("method,index,generation,vehicle.initial_state.0,obstacles.0.centre.1,delays.acceleration,min_h,"));
+    assert_eq!(csv.lines().count(), 1 + search["evaluations_run"].as_u64().unwrap() as usize);
+    assert!(std::fs::read(out.join("convergence.png")).unwrap().starts_with(b"\x89PNG"));
+    assert!(listing(&out).iter().all(|f| !f.contains("partial") && !f.starts_with(".evaluations")), "{:?}", listing(&out));
+}
+
+#[test]
+fn the_delay_free_filter_without_delays_has_no_counterexample() {
+    // The CBF-QP (4.9) with relative degree 2 (4.83), obstacle known from t = 0, on the ODE
+    // plant: h >= 0 is guaranteed for every start in the box (h(x0) > 0, ḣ + l0 h > 0).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let o = falsify(
+        "bicycle_obstacle_nodelay.toml",
+        &[
+            "--set",
+            "obstacles.0.appear_at=0.0",
+            "--set",
+            "plant=\"ode\"",
+            "--range",
+            "vehicle.initial_state.0=-26..-16",
+            "--range",
+            "obstacles.0.centre.1=-3..3",
+            "--range",
+            "vehicle.initial_state.3=1..6",
+            "--budget",
+            "48",
+        ],
+        &out,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(stdout(&o).contains("no counterexample within 48 runs"), "{}", stdout(&o));
+    let e = evaluations(&out);
+    assert!(e["searches"][0]["runs_to_first_violation"].is_null());
+    let best = e["searches"][0]["best_score"].as_f64().unwrap();
+    assert!((0.0..1e-3).contains(&best), "the optimiser drives min h to the boundary: {best}");
+    assert!(!out.join("counterexample.toml").exists());
+}
+
+#[test]
+fn the_same_seed_gives_the_same_search_on_any_number_of_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, seed: &str, threads: &str| {
+        let out = dir.path().join(name);
+        let mut args = GAMMA_M_BOX.to_vec();
+        args.extend_from_slice(&["--budget", "24", "--worst", "--seed", seed, "--threads", threads]);
+        let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+        assert!(o.status.success(), "{}", text(&o));
+        std::fs::read(out.join("evaluations.csv")).unwrap()
+    };
+    let one = run("a", "3", "1");
+    assert_eq!(one, run("b", "3", "2"), "1 vs 2 threads");
+    assert_ne!(one, run("c", "4", "2"), "another seed searches elsewhere");
+}
+
+#[test]
+fn a_baseline_keeps_only_candidates_the_reference_survives_and_random_search_is_compared() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let mut args = GAMMA_M_BOX.to_vec();
+    args.extend_from_slice(&[
+        "--baseline",
+        "delays.steering=0.0",
+        "--baseline",
+        "delays.acceleration=0.0",
+        "--baseline",
+        "filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}",
+        "--budget",
+        "48",
+        "--seed",
+        "2",
+        "--compare-random",
+    ]);
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+    assert!(o.status.success(), "{}", text(&o));
+    println!("{}", stdout(&o));
+    let e = evaluations(&out);
+    let searches = e["searches"].as_array().unwrap();
+    assert_eq!(searches.len(), 2);
+    assert_eq!(searches[1]["method"], "random");
+    for s in searches {
+        for e in s["evaluations"].as_array().unwrap() {
+            let (Some(m), Some(b)) = (e["objective"].as_f64(), e["baseline"].as_f64()) else {
+                continue;
+            };
+            assert_eq!(e["violation"].as_bool().unwrap(), m < 0.0 && b >= 0.0, "{e}");
+            assert_eq!(e["score"].as_f64().unwrap(), m.max(-b));
+        }
+    }
+    // Candidates that collide with the baseline too are not counterexamples.
+    let both_collide = searches
+        .iter()
+        .flat_map(|s| s["evaluations"].as_array().unwrap())
+        .filter(|e| e["objective"].as_f64() < Some(0.0) && e["baseline"].as_f64() < Some(0.0))
+        .count();
+    assert!(both_collide > 0, "the box has scenarios no filter survives");
+}
+
+#[test]
+fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, needle) in [
+        (vec!["--range", "vehicle.initial_state[0]=-26..-16"], "unknown field `initial_state[0]`"),
+        (vec!["--range", "delays.steering=0.3..0.1"], "LO <= HI"),
+        (vec!["--range", "delays.steering=0..0.3", "--objective", "min_hh"], "--objective min_hh"),
+        (vec!["--range", "delays.steering=0..0.3", "--budget", "0"], "--budget"),
+        (vec!["--range", "delays.steering=0..0.3", "--baseline", "delays.brake=0"], "delays.brake"),
+    ] {
+        let out = dir.path().join("f");
+        let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+        assert!(!o.status.success(), "{args:?}: {}", text(&o));
+        let err = stderr(&o);
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!out.join("evaluations.csv").exists());
+    }
+}
