@@ -323,6 +323,7 @@ pub fn search(
     }
     // Every candidate applies the same keys: one that the scenario rejects (an unknown key,
     // a value of the wrong type) is an error now, not a budget of failed runs.
+    // The episode is assembled too: channel names and other model-dependent keys are checked.
     let centre: Vec<String> = problem
         .set
         .iter()
@@ -333,9 +334,13 @@ pub fn search(
                 .iter()
                 .map(|r| format!("{}={}", r.key, range_value(r, 0.5))),
         )
-        .chain(problem.baseline.iter().cloned())
         .collect();
-    crate::scenario::load(&problem.scenario, &centre).map_err(|e| FalsifyError::Spec(e.to_string()))?;
+    let with_baseline: Vec<String> = centre.iter().chain(&problem.baseline).cloned().collect();
+    for overrides in [&centre, &with_baseline] {
+        let loaded =
+            crate::scenario::load(&problem.scenario, overrides).map_err(|e| FalsifyError::Spec(e.to_string()))?;
+        crate::episode::Episode::new(&loaded).map_err(|e| FalsifyError::Spec(e.to_string()))?;
+    }
     let scratch = dir.join(format!(
         ".evaluations-{}",
         match method {

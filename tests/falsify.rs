@@ -44,7 +44,9 @@ fn finds_a_violation_of_gamma_m_and_the_written_scenario_reproduces_it() {
     let e = evaluations(&out);
     let search = &e["searches"][0];
     assert_eq!(search["method"], "cmaes");
-    let first = search["runs_to_first_violation"].as_u64().expect("a violation within 40 runs") as usize;
+    let first = search["runs_to_first_violation"]
+        .as_u64()
+        .expect("a violation within 40 runs") as usize;
     let violation = &search["evaluations"][first - 1];
     assert_eq!(violation["violation"], true);
     let min_h = violation["objective"].as_f64().unwrap();
@@ -57,14 +59,33 @@ fn finds_a_violation_of_gamma_m_and_the_written_scenario_reproduces_it() {
     let summary = run_ok(&scenario, &log, &[]);
     assert!(summary.contains("COLLISION"), "{summary}");
     let again = analyze_json(&log)["min_h"].as_f64().unwrap();
-    assert!((again - min_h).abs() <= 1e-9 * (1.0 + min_h.abs()), "{again} vs {min_h}");
-    assert_eq!(analyze_json(&out.join("counterexample.mcap"))["min_h"].as_f64(), Some(again));
+    assert!(
+        (again - min_h).abs() <= 1e-9 * (1.0 + min_h.abs()),
+        "{again} vs {min_h}"
+    );
+    assert_eq!(
+        analyze_json(&out.join("counterexample.mcap"))["min_h"].as_f64(),
+        Some(again)
+    );
     // Every evaluation is in the CSV, and the plot is a PNG.
     let csv = std::fs::read_to_string(out.join("evaluations.csv")).unwrap();
-    assert!(csv.starts_with("method,index,generation,vehicle.initial_state.0,obstacles.0.centre.1,delays.acceleration,min_h,"));
-    assert_eq!(csv.lines().count(), 1 + search["evaluations_run"].as_u64().unwrap() as usize);
-    assert!(std::fs::read(out.join("convergence.png")).unwrap().starts_with(b"\x89PNG"));
-    assert!(listing(&out).iter().all(|f| !f.contains("partial") && !f.starts_with(".evaluations")), "{:?}", listing(&out));
+    assert!(csv.starts_with(
+        "method,index,generation,vehicle.initial_state.0,obstacles.0.centre.1,delays.acceleration,min_h,"
+    ));
+    assert_eq!(
+        csv.lines().count(),
+        1 + search["evaluations_run"].as_u64().unwrap() as usize
+    );
+    assert!(std::fs::read(out.join("convergence.png"))
+        .unwrap()
+        .starts_with(b"\x89PNG"));
+    assert!(
+        listing(&out)
+            .iter()
+            .all(|f| !f.contains("partial") && !f.starts_with(".evaluations")),
+        "{:?}",
+        listing(&out)
+    );
 }
 
 #[test]
@@ -92,11 +113,18 @@ fn the_delay_free_filter_without_delays_has_no_counterexample() {
         &out,
     );
     assert!(o.status.success(), "{}", text(&o));
-    assert!(stdout(&o).contains("no counterexample within 48 runs"), "{}", stdout(&o));
+    assert!(
+        stdout(&o).contains("no counterexample within 48 runs"),
+        "{}",
+        stdout(&o)
+    );
     let e = evaluations(&out);
     assert!(e["searches"][0]["runs_to_first_violation"].is_null());
     let best = e["searches"][0]["best_score"].as_f64().unwrap();
-    assert!((0.0..1e-3).contains(&best), "the optimiser drives min h to the boundary: {best}");
+    assert!(
+        (0.0..1e-3).contains(&best),
+        "the optimiser drives min h to the boundary: {best}"
+    );
     assert!(!out.join("counterexample.toml").exists());
 }
 
@@ -163,11 +191,20 @@ fn a_baseline_keeps_only_candidates_the_reference_survives_and_random_search_is_
 fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     for (args, needle) in [
-        (vec!["--range", "vehicle.initial_state[0]=-26..-16"], "unknown field `initial_state[0]`"),
+        (
+            vec!["--range", "vehicle.initial_state[0]=-26..-16"],
+            "unknown field `initial_state[0]`",
+        ),
         (vec!["--range", "delays.steering=0.3..0.1"], "LO <= HI"),
-        (vec!["--range", "delays.steering=0..0.3", "--objective", "min_hh"], "--objective min_hh"),
+        (
+            vec!["--range", "delays.steering=0..0.3", "--objective", "min_hh"],
+            "--objective min_hh",
+        ),
         (vec!["--range", "delays.steering=0..0.3", "--budget", "0"], "--budget"),
-        (vec!["--range", "delays.steering=0..0.3", "--baseline", "delays.brake=0"], "delays.brake"),
+        (
+            vec!["--range", "delays.steering=0..0.3", "--baseline", "delays.brake=0"],
+            "delays.brake",
+        ),
     ] {
         let out = dir.path().join("f");
         let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
