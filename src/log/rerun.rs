@@ -472,6 +472,8 @@ impl RerunSink {
                     self.vehicle_position = Some([t.x, t.y]);
                 }
             }
+            // The `/event` it repeats for Foxglove is logged as the event.
+            Record::Log(..) => {}
         }
         Ok(())
     }
