@@ -691,6 +691,7 @@ pub fn plot_sweep(summary: &Path, key: &str, metric: &str, out: &Path) -> Result
             .legend(|(x, y)| Cross::new((x + 9, y), 6, RED.stroke_width(3)));
         chart
             .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
