@@ -29,7 +29,8 @@ scenario=scenarios/bicycle_obstacle.toml
   --set "filter={kind='gamma_m', l0=4.0, l1=4.0, m=50.0}"
 echo
 echo "Ch. 4, Example 2: the same delayed bicycle and obstacle, three safety filters"
-"$bin" analyze --brief --plot "$dir/plots" "$dir/delay_free.mcap" "$dir/predictor.mcap" "$dir/gamma_m.mcap" 2>/dev/null
+"$bin" analyze --brief --plot "$dir/plots" "$dir/delay_free.mcap" "$dir/predictor.mcap" "$dir/gamma_m.mcap" \
+  2> >(grep -v '^plot: ' >&2)
 echo
 echo "Only (4.67), which compensates each channel's own delay, keeps h >= 0 and avoids the obstacle."
 echo "Overlay plots: $dir/plots/overlay-trajectory.png, overlay-barriers.png, overlay-inputs.png"
