@@ -13,7 +13,6 @@ dpkg -s libmujoco-dev >/dev/null 2>&1 || need_apt+=(libmujoco-dev)
 command -v protoc >/dev/null 2>&1 || need_apt+=(protobuf-compiler)
 command -v cc >/dev/null 2>&1 || need_apt+=(build-essential)
 command -v pkg-config >/dev/null 2>&1 || need_apt+=(pkg-config)
-[ -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] || need_apt+=(fonts-dejavu-core)   # text of `analyze --plot`
 if [ "$want_test" = 1 ]; then
   [ -x /usr/bin/time ] || need_apt+=(time)   # GNU time: peak-memory checks in the tests
   command -v python3 >/dev/null 2>&1 || need_apt+=(python3)

@@ -78,6 +78,9 @@ pub struct PrescribedTimeMetrics {
 pub struct RunMetrics {
     pub file: String,
     pub scenario: String,
+    /// The safety filter by its equation number (e.g. `γm filter (4.67), m = 50`), from the
+    /// resolved scenario in the run metadata ([`filter_label`]); absent in logs without it.
+    pub filter_label: Option<String>,
     /// Time of the last /state record.
     pub simulated_time: f64,
     /// Physics steps taken (step index of the last /state record).
@@ -156,6 +159,7 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
 #[derive(Default)]
 struct Accumulator {
     scenario: String,
+    filter_label: Option<String>,
     /// The planar position the vehicle declared in the run metadata (None: not declared).
     declared_planar: Option<Option<[usize; 2]>>,
     timestep: Option<f64>,
@@ -207,9 +211,75 @@ struct Analysis<'f> {
     saw_mjsafe_metadata: bool,
 }
 
+/// The run's safety filter named by its equation number in the reference, from the resolved
+/// scenario of the run metadata (`filter.kind` and its parameters; "no delays" when every
+/// input delay is zero): the label of plot legends and `analyze --brief`.
+pub fn filter_label(metadata: &BTreeMap<String, String>) -> Option<String> {
+    let text = metadata.get("scenario_resolved").or_else(|| metadata.get("scenario"))?;
+    let scenario: toml::Table = text.parse().ok()?;
+    let filter = scenario.get("filter").and_then(|f| f.as_table());
+    let kind = filter
+        .and_then(|f| f.get("kind"))
+        .and_then(|k| k.as_str())
+        .unwrap_or("none");
+    let param = |key: &str| {
+        filter
+            .and_then(|f| f.get(key))
+            .map(|v| v.to_string().trim_matches('"').to_string())
+    };
+    let label = match kind {
+        "none" => "no filter (nominal only)".to_string(),
+        "cbf_qp" if param("compensation").as_deref() == Some("predictor") => "predictor CBF-QP (4.34)".into(),
+        "cbf_qp" => "delay-free CBF-QP (4.9)–(4.11)".into(),
+        "gamma_m" => match param("m") {
+            Some(m) => format!("γm filter (4.67), m = {m}"),
+            None => "γm filter (4.67)".into(),
+        },
+        "fixed_channel" => "fixed-channel filter (4.44)".into(),
+        "clf_cbf_qp" => "γm CLF-CBF QP (3.27)–(3.33)".into(),
+        "ptsf" => "PTSf (Ch. 5)".into(),
+        "esf" => "ESf (Ch. 5)".into(),
+        other => other.to_string(),
+    };
+    let delays = scenario.get("delays").and_then(|d| d.as_table());
+    let no_delays = metadata.get("max_delay").and_then(|d| d.parse::<f64>().ok()) == Some(0.0)
+        || delays.is_some_and(|d| {
+            d.values()
+                .all(|v| v.as_float().or(v.as_integer().map(|i| i as f64)) == Some(0.0))
+        });
+    Some(if no_delays && kind != "none" {
+        format!("{label}, no delays")
+    } else {
+        label
+    })
+}
+
+/// A compact comparison of runs, one row per run: filter, collision, min h, min clearance
+/// (`analyze --brief`, the table scripts/run.sh prints).
+pub fn brief_table(runs: &[RunMetrics]) -> String {
+    let mut rows = vec![["filter", "collision", "min_h", "min_clearance_m", "file"]
+        .map(String::from)
+        .to_vec()];
+    for r in runs {
+        rows.push(vec![
+            r.filter_label.clone().unwrap_or_else(|| r.scenario.clone()),
+            match &r.collision {
+                Some(c) => format!("YES at t={:.2} s", c.time),
+                None if r.missing.contains_key("collision") => "-".into(),
+                None => "no".into(),
+            },
+            r.min_h.map_or("-".into(), |h| format!("{h:.3}")),
+            r.min_clearance.map_or("-".into(), |c| format!("{c:.3}")),
+            r.file.clone(),
+        ]);
+    }
+    align_columns(&rows)
+}
+
 /// Applies the run metadata (`mjsafe` record) to the accumulator.
 fn apply_run_metadata(acc: &mut Accumulator, metadata: &BTreeMap<String, String>) {
     acc.scenario = metadata.get("scenario_name").cloned().unwrap_or_default();
+    acc.filter_label = filter_label(metadata);
     acc.timestep = metadata.get("timestep").and_then(|s| s.parse().ok());
     acc.control_period = metadata.get("control_period").and_then(|s| s.parse().ok());
     acc.prescribed_time = metadata.get("prescribed_time").and_then(|s| s.parse().ok());
@@ -242,7 +312,7 @@ impl RunVisitor for Analysis<'_> {
             Topic::Prediction => acc.add_prediction(m.decode()?),
             Topic::Event => acc.add_event(m.decode()?),
             // Read by no metric.
-            Topic::Applied | Topic::Scene | Topic::Transform | Topic::Measured | Topic::Actuated => {}
+            Topic::Applied | Topic::Scene | Topic::Transform | Topic::Log | Topic::Measured | Topic::Actuated => {}
         }
         Ok(())
     }
@@ -590,6 +660,7 @@ impl Accumulator {
         RunMetrics {
             file: file.into(),
             scenario: self.scenario,
+            filter_label: self.filter_label,
             simulated_time: self.last_time,
             steps: self.last_step,
             collision: self.collision.filter(|_| given("collision")),

@@ -196,6 +196,10 @@ pub enum Command {
         /// Print CSV instead of a table.
         #[arg(long, conflicts_with = "json")]
         csv: bool,
+        /// Print a compact comparison instead: filter (by equation number), collision, min h,
+        /// min clearance, one row per log.
+        #[arg(long, conflicts_with_all = ["json", "csv", "compare", "merge"])]
+        brief: bool,
         /// Compare two logs A B: one row per metric with A, B and B − A.
         #[arg(long, conflicts_with = "merge")]
         compare: bool,
@@ -206,7 +210,9 @@ pub enum Command {
         #[arg(long, value_name = "DIR", requires = "merge")]
         out: Option<PathBuf>,
         /// Also write PNG plots of each log into DIR (h(t), issued vs applied inputs,
-        /// trajectory with obstacles and reference path).
+        /// trajectory with obstacles and reference path); with several logs, also overlays of
+        /// the runs (overlay-trajectory.png, overlay-barriers.png, overlay-inputs.png), each
+        /// run named by its filter's equation number.
         #[arg(long, value_name = "DIR", conflicts_with = "merge")]
         plot: Option<PathBuf>,
         /// On a damaged log, still report the metrics of what was read before the damage (the
@@ -302,6 +308,40 @@ pub enum Command {
         compare_random: bool,
         /// Output directory (default: logs/falsify-<scenario name>).
         #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// The time series of logs as tables: one wide, time-indexed CSV or Parquet file per topic
+    /// (`<log stem>-<topic>.csv|parquet`: state names, per-channel commands, barriers per
+    /// obstacle, predictions, events), streamed from the log (src/export.rs lists the columns).
+    Export {
+        /// Logs (.mcap).
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Table format.
+        #[arg(long, value_enum, default_value = "csv")]
+        format: crate::export::Format,
+        /// Topics to export, comma-separated (default: every table topic the log has:
+        /// /state, /command/issued, /command/applied, /barrier, /filter, /event, /prediction,
+        /// /state/measured, /command/actuated).
+        #[arg(long, value_name = "T1,T2,…", value_delimiter = ',')]
+        topics: Vec<String>,
+        /// Directory of the tables (default: each log's directory).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// Plot a metric of a sweep against one swept key (e.g. min_h against delays.steering):
+    /// one line per combination of the other swept keys, collisions marked.
+    PlotSweep {
+        /// The sweep's directory (with summary.json) or a summary.json.
+        summary: PathBuf,
+        /// The swept key on the x axis (e.g. delays.steering).
+        #[arg(long, value_name = "KEY")]
+        x: String,
+        /// The metric on the y axis (a numeric metric of the summary: min_h, min_clearance, …).
+        #[arg(long, value_name = "METRIC", default_value = "min_h")]
+        y: String,
+        /// The PNG to write (default: <sweep dir>/<metric>-vs-<key>.png).
+        #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
     },
     /// Topics, message counts, schemas, time span, mjsafe metadata and scenario of a log.
@@ -507,6 +547,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             files,
             json,
             csv,
+            brief,
             compare,
             merge,
             out,
@@ -528,11 +569,26 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                         }
                     }
                 }
+                if files.len() > 1 && !failed {
+                    match crate::plot::plot_overlay(&files, dir) {
+                        Ok(written) => {
+                            for w in written {
+                                eprintln!("plot: {}", w.display());
+                            }
+                        }
+                        Err(e) => {
+                            eprintln!("error: {e}");
+                            failed = true;
+                        }
+                    }
+                }
                 if failed {
                     return Ok(ExitCode::FAILURE);
                 }
             }
-            let format = if json {
+            let format = if brief {
+                Format::Brief
+            } else if json {
                 Format::Json
             } else if csv {
                 Format::Csv
@@ -622,6 +678,23 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
             run_falsify(&problem, &out, compare_random)
         }
+        Command::Export {
+            files,
+            format,
+            topics,
+            out,
+        } => export(&files, format, &topics, out.as_deref()),
+        Command::PlotSweep { summary, x, y, out } => {
+            let dir = if summary.is_dir() {
+                summary.clone()
+            } else {
+                summary.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+            };
+            let out = out.unwrap_or_else(|| dir.join(format!("{y}-vs-{x}.png")));
+            let written = crate::plot::plot_sweep(&summary, &x, &y, &out)?;
+            eprintln!("plot: {}", written.display());
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Info {
             file,
             resolved,
@@ -695,6 +768,8 @@ struct RunOutput {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Format {
     Table,
+    /// `analyze --brief`.
+    Brief,
     Json,
     Csv,
 }
@@ -875,6 +950,7 @@ fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
         Format::Csv if !runs.is_empty() => out!("{}", analyze::csv(&runs)),
         Format::Table if !runs.is_empty() => outln!("{}", analyze::table(&runs)),
+        Format::Brief if !runs.is_empty() => outln!("{}", analyze::brief_table(&runs)),
         _ => {}
     }
     if failed {
@@ -904,7 +980,7 @@ fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<Exi
             );
         }
         Format::Csv => out!("{}", analyze::comparison_csv(&rows)),
-        Format::Table => {
+        Format::Table | Format::Brief => {
             outln!("A: {}\nB: {}\n", a.display(), b.display());
             outln!("{}", analyze::comparison_table(&rows));
         }
@@ -975,7 +1051,7 @@ fn print_summary(summary: &Summary, format: Format) {
     match format {
         Format::Json => out!("{}", summary.to_json()),
         Format::Csv => out!("{}", summary.to_csv()),
-        Format::Table => outln!("{}", sweep_table(summary)),
+        Format::Table | Format::Brief => outln!("{}", sweep_table(summary)),
     }
 }
 
@@ -1222,6 +1298,29 @@ impl Progress {
             eprintln!();
         }
     }
+}
+
+fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], out: Option<&Path>) -> Result<ExitCode> {
+    let explicit = !topics.is_empty();
+    let topics = crate::export::parse_topics(topics)?;
+    let mut failed = false;
+    for file in files {
+        match crate::export::export_log(file, out, &topics, format) {
+            Ok(exported) => {
+                for (topic, path, rows) in &exported.tables {
+                    outln!("{topic}: {rows} rows -> {}", path.display());
+                }
+                for topic in exported.empty.iter().filter(|_| explicit) {
+                    eprintln!("note: {}: no messages on {topic}, no table written", file.display());
+                }
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                failed = true;
+            }
+        }
+    }
+    Ok(if failed { ExitCode::FAILURE } else { ExitCode::SUCCESS })
 }
 
 fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCode> {

@@ -29,6 +29,11 @@ pub trait Dynamics: Send + Sync {
     fn heading_index(&self) -> Option<usize> {
         None
     }
+    /// Index of the position of a vehicle that moves along a line (the 1-D double integrator):
+    /// the Foxglove scene draws it along the world x axis.
+    fn line_position(&self) -> Option<usize> {
+        None
+    }
 
     /// ẋ ← f(x) + G(x) u.
     fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
@@ -251,6 +256,9 @@ impl Dynamics for DoubleIntegratorModel {
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         (self.dim == 2).then_some([0, 1])
+    }
+    fn line_position(&self) -> Option<usize> {
+        (self.dim == 1).then_some(0)
     }
 }
 

@@ -581,7 +581,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
 /// Best score so far against evaluations, one line per search, with the threshold (score 0).
 pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str) -> Result<(), FalsifyError> {
     use plotters::prelude::*;
-    crate::plot::register_plot_font().map_err(|e| FalsifyError::Output(e.to_string()))?;
+    crate::plot::register_embedded_font().map_err(|e| FalsifyError::Output(e.to_string()))?;
     let err = |e: &dyn std::fmt::Display| FalsifyError::Output(format!("{}: {e}", path.display()));
     crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(b"\x89PNG"), &[])
         .map_err(|e| err(&e))?;

@@ -13,6 +13,7 @@ pub mod delay;
 pub mod dynamics;
 pub mod embed;
 pub mod episode;
+pub mod export;
 pub mod falsify;
 pub mod files;
 pub mod filter;

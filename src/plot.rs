@@ -3,8 +3,12 @@
 //! - `<name>-inputs.png`: issued vs applied input per channel;
 //! - `<name>-trajectory.png`: the planar path with the obstacles and the reference path.
 //!
-//! Text is drawn with DejaVu Sans (Debian's `fonts-dejavu-core`, installed by
-//! scripts/setup.sh), loaded at run time.
+//! With several logs, also overlays of the runs (`overlay-trajectory.png`, `overlay-barriers.png`,
+//! `overlay-inputs.png`: one line per run, named by its filter's equation number), and
+//! [`plot_sweep`] draws a metric of a sweep summary against one swept key.
+//!
+//! Text is drawn with DejaVu Sans, embedded in the binary (assets/fonts, with its licence):
+//! no system font is needed.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -23,14 +27,26 @@ pub enum PlotError {
     File(#[from] crate::files::FileError),
     #[error(transparent)]
     Read(#[from] ReadError),
-    #[error("no font for the plot text: {path} is missing (Debian package fonts-dejavu-core)")]
-    Font { path: String },
+    #[error("the embedded plot font does not load")]
+    Font,
+    #[error("{0}")]
+    Sweep(String),
     #[error("writing {file}: {message}")]
     Draw { file: String, message: String },
 }
 
-/// The font the plots use.
-pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+/// The font of the plots (DejaVu Sans, assets/fonts/DejaVuSans-LICENSE.txt), embedded.
+pub const FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+
+/// Registers the embedded font as plotters' `sans-serif` (once per process).
+pub fn register_embedded_font() -> Result<(), PlotError> {
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    if *REGISTERED.get_or_init(|| register_font("sans-serif", FontStyle::Normal, FONT).is_ok()) {
+        Ok(())
+    } else {
+        Err(PlotError::Font)
+    }
+}
 
 /// What the plots need from a log.
 #[derive(Default)]
@@ -44,12 +60,20 @@ struct Series {
     reference: Option<[(f64, f64); 2]>,
     /// The planar position the vehicle declared in the run metadata (None: not declared).
     declared_planar: Option<Option<[usize; 2]>>,
+    /// The filter by its equation number (run metadata).
+    label: Option<String>,
+    /// The vehicle's hull radius (from its `/scene` entity): the vehicle's share of the
+    /// barrier radius r = obstacle + hull.
+    hull_radius: Option<f64>,
+    /// Whether every barrier is an obstacle's (4.81): h in m².
+    obstacle_barriers: bool,
 }
 
 impl RunVisitor for Series {
     fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
         if name == RUN_METADATA {
             self.declared_planar = declared_planar_position(entries);
+            self.label = crate::analyze::filter_label(entries);
         }
         Ok(())
     }
@@ -62,6 +86,9 @@ impl RunVisitor for Series {
                 }
             }
             Record::Barrier(m) => {
+                if self.barriers.is_empty() {
+                    self.obstacle_barriers = !m.barriers.is_empty() && m.barriers.iter().all(|b| b.obstacle);
+                }
                 for b in m.barriers {
                     self.barriers.entry(b.name).or_default().push((m.time, b.h));
                 }
@@ -85,7 +112,11 @@ impl RunVisitor for Series {
                                 self.reference = Some([(a.x, a.y), (b.x, b.y)]);
                             }
                         }
-                    } else if e.id != "vehicle" && !e.id.starts_with("trail") {
+                    } else if e.id == "vehicle" {
+                        if let Some(c) = e.cylinders.first() {
+                            self.hull_radius = Some(c.size.unwrap_or_default().x / 2.0);
+                        }
+                    } else if !e.id.starts_with("trail") && !e.id.starts_with("prediction") {
                         if let Some(c) = e.cylinders.first() {
                             let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
                             let p = pose.position.unwrap_or_default();
@@ -136,6 +167,7 @@ type Line<'a> = (String, &'a [(f64, f64)], ShapeStyle);
 fn time_chart(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     title: &str,
+    y_desc: &str,
     series: &[Line<'_>],
     zero_line: bool,
 ) -> DrawResult<()> {
@@ -154,6 +186,7 @@ fn time_chart(
     chart
         .configure_mesh()
         .x_desc("t [s]")
+        .y_desc(y_desc)
         .light_line_style(WHITE.mix(0.0))
         .draw()?;
     if zero_line {
@@ -182,10 +215,10 @@ const PNG_MAGIC: &[u8] = b"\x89PNG";
 /// over a non-regular file, the log itself or a file that is not a PNG.
 fn draw_png(
     path: &Path,
-    log: &Path,
+    inputs: &[&Path],
     draw: impl FnOnce(&Path) -> DrawResult<()>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(PNG_MAGIC), &[log])?;
+    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(PNG_MAGIC), inputs)?;
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("plot.png");
     let partial = path.with_file_name(format!(".{}.partial.png", name.trim_end_matches(".png")));
     let drawn = draw(&partial).and_then(|()| std::fs::rename(&partial, path).map_err(|e| e.into()));
@@ -195,17 +228,21 @@ fn draw_png(
     drawn
 }
 
-/// Makes the plot font plotters' `sans-serif` (read once per process).
-pub fn register_plot_font() -> Result<(), PlotError> {
-    static FONT: std::sync::OnceLock<Option<&'static [u8]>> = std::sync::OnceLock::new();
-    let font = FONT.get_or_init(|| std::fs::read(FONT_PATH).ok().map(|f| &*Box::leak(f.into_boxed_slice())));
-    let font = font.ok_or_else(|| PlotError::Font { path: FONT_PATH.into() })?;
-    register_font("sans-serif", FontStyle::Normal, font).map_err(|_| PlotError::Font { path: FONT_PATH.into() })
+/// The error of a failed drawing of `path`.
+fn draw_error(path: &Path, e: Box<dyn std::error::Error>) -> PlotError {
+    let file = path.display().to_string();
+    // A refused target's message already starts with the path.
+    let message = e.to_string();
+    let message = message
+        .strip_prefix(&format!("{file}: "))
+        .unwrap_or(&message)
+        .to_string();
+    PlotError::Draw { file, message }
 }
 
 /// Writes the plots of `log` into `dir`; returns the files written.
 pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
-    register_plot_font()?;
+    register_embedded_font()?;
     // No plot of part of a run shown as if it were the run: damage is an error.
     let mut series = Series::default();
     read_run_file(log, &mut series)?;
@@ -215,16 +252,6 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     })?;
     let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run").to_string();
     let mut written = Vec::new();
-    let draw_error = |path: &Path, e: Box<dyn std::error::Error>| {
-        let file = path.display().to_string();
-        // A refused target's message already starts with the path.
-        let message = e.to_string();
-        let message = message
-            .strip_prefix(&format!("{file}: "))
-            .unwrap_or(&message)
-            .to_string();
-        PlotError::Draw { file, message }
-    };
 
     if !series.barriers.is_empty() {
         let path = dir.join(format!("{stem}-barriers.png"));
@@ -240,10 +267,16 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 )
             })
             .collect();
-        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
             let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
-            time_chart(&root, "barrier functions h(t) (safe: h >= 0)", &lines, true)?;
+            time_chart(
+                &root,
+                "barrier functions h(t) (safe: h ≥ 0)",
+                &h_unit(series.obstacle_barriers),
+                &lines,
+                true,
+            )?;
             root.present()?;
             Ok(())
         });
@@ -254,7 +287,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     if !series.issued.is_empty() {
         let path = dir.join(format!("{stem}-inputs.png"));
         let channels: Vec<&String> = series.issued.keys().collect();
-        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
             let root = BitMapBackend::new(partial, (1000, 320 * channels.len() as u32)).into_drawing_area();
             root.fill(&WHITE)?;
             for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
@@ -270,7 +303,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                         PALETTE[1].stroke_width(2),
                     ));
                 }
-                time_chart(area, &format!("{channel}: issued vs applied (delayed)"), &lines, false)?;
+                time_chart(
+                    area,
+                    &format!("{channel}: issued vs applied (delayed)"),
+                    &channel_unit(channel),
+                    &lines,
+                    false,
+                )?;
             }
             root.present()?;
             Ok(())
@@ -288,7 +327,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles));
         // Equal axis scales: widen the shorter span.
         let (cx, cy, half) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0, ((x1 - x0).max((y1 - y0) * 2.0)) / 2.0);
-        let result = draw_png(&path, log, |partial: &Path| -> DrawResult<()> {
+        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
             let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
             let mut chart = ChartBuilder::on(&root)
@@ -316,4 +355,349 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         written.push(path);
     }
     Ok(written)
+}
+
+/// The y axis of h(t): obstacle barriers (4.81) are in m².
+fn h_unit(obstacle_barriers: bool) -> String {
+    if obstacle_barriers {
+        "h = ‖p − c‖² − r²  [m²]".into()
+    } else {
+        "h".into()
+    }
+}
+
+/// The y axis of an input channel, with its unit for the built-in vehicles' channels.
+fn channel_unit(channel: &str) -> String {
+    match channel {
+        "steering" => "steering: tan δ  [–]".into(),
+        "acceleration" => "acceleration  [m/s²]".into(),
+        "force" | "u" => format!("{channel}  [N per kg = m/s²]"),
+        other => other.to_string(),
+    }
+}
+
+/// A closed circle as points.
+fn circle(centre: (f64, f64), r: f64) -> impl Iterator<Item = (f64, f64)> + Clone {
+    (0..=96).map(move |k| {
+        let a = k as f64 * std::f64::consts::TAU / 96.0;
+        (centre.0 + r * a.cos(), centre.1 + r * a.sin())
+    })
+}
+
+/// One run of an overlay: its legend label and series.
+struct Run {
+    label: String,
+    series: Series,
+}
+
+/// Overlays of several runs in `dir` (`overlay-trajectory.png`, `overlay-barriers.png`,
+/// `overlay-inputs.png`): one line per run, named by its filter (run metadata; the file stem
+/// is added when two runs would share a label), the obstacles with the barrier radius
+/// r = obstacle + hull radius drawn around them, units on the axes. Returns the files written.
+pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
+    register_embedded_font()?;
+    let mut runs = Vec::new();
+    for log in logs {
+        let mut series = Series::default();
+        read_run_file(log, &mut series)?;
+        let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run").to_string();
+        let label = series.label.clone().unwrap_or_else(|| stem.clone());
+        runs.push((stem, Run { label, series }));
+    }
+    let labels: Vec<String> = runs.iter().map(|(_, r)| r.label.clone()).collect();
+    let runs: Vec<Run> = runs
+        .into_iter()
+        .map(|(stem, mut run)| {
+            if labels.iter().filter(|l| **l == run.label).count() > 1 {
+                run.label = format!("{} ({stem})", run.label);
+            }
+            run
+        })
+        .collect();
+    std::fs::create_dir_all(dir).map_err(|e| PlotError::Draw {
+        file: dir.display().to_string(),
+        message: e.to_string(),
+    })?;
+    let inputs: Vec<&Path> = logs.iter().map(PathBuf::as_path).collect();
+    let color = |i: usize| PALETTE[i % PALETTE.len()];
+    let mut written = Vec::new();
+
+    // Trajectories, obstacles and the barrier radius around them.
+    if runs.iter().any(|r| !r.series.path.is_empty()) {
+        let path = dir.join("overlay-trajectory.png");
+        let mut obstacles: BTreeMap<String, ((f64, f64), f64)> = BTreeMap::new();
+        for r in &runs {
+            obstacles.extend(r.series.obstacles.clone());
+        }
+        let hull = runs.iter().find_map(|r| r.series.hull_radius).unwrap_or(0.0);
+        let extent = obstacles
+            .values()
+            .flat_map(|((x, y), r)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
+        let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
+        let ((x0, x1), (y0, y1)) = bounds(points);
+        let (cx, cy, half) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0, ((x1 - x0).max((y1 - y0) * 2.0)) / 2.0);
+        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
+            root.fill(&WHITE)?;
+            let mut chart = ChartBuilder::on(&root)
+                .caption("trajectories", ("sans-serif", 24))
+                .margin(14)
+                .x_label_area_size(44)
+                .y_label_area_size(60)
+                .build_cartesian_2d((cx - half)..(cx + half), (cy - half / 2.0)..(cy + half / 2.0))?;
+            chart
+                .configure_mesh()
+                .x_desc("x [m]")
+                .y_desc("y [m]")
+                .label_style(("sans-serif", 16))
+                .draw()?;
+            let obstacle_color = RGBColor(120, 120, 120);
+            for (k, ((x, y), r)) in obstacles.values().enumerate() {
+                let drawn = chart.draw_series(std::iter::once(Polygon::new(
+                    circle((*x, *y), *r).collect::<Vec<_>>(),
+                    obstacle_color.mix(0.35).filled(),
+                )))?;
+                if k == 0 {
+                    drawn.label("obstacle").legend(move |(x, y)| {
+                        Rectangle::new([(x, y - 5), (x + 18, y + 5)], obstacle_color.mix(0.35).filled())
+                    });
+                }
+                if hull > 0.0 {
+                    let drawn = chart.draw_series(DashedLineSeries::new(
+                        circle((*x, *y), r + hull),
+                        8,
+                        6,
+                        BLACK.stroke_width(2),
+                    ))?;
+                    if k == 0 {
+                        drawn
+                            .label(format!("barrier radius r = obstacle + hull ({hull:.3} m)"))
+                            .legend(|(x, y)| PathElement::new([(x, y), (x + 8, y), (x + 12, y), (x + 18, y)], BLACK));
+                    }
+                }
+            }
+            for (i, run) in runs.iter().enumerate() {
+                let style = color(i).stroke_width(3);
+                chart
+                    .draw_series(LineSeries::new(run.series.path.iter().copied(), style))?
+                    .label(run.label.clone())
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+            }
+            chart
+                .configure_series_labels()
+                .label_font(("sans-serif", 16))
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .draw()?;
+            root.present()?;
+            Ok(())
+        });
+        result.map_err(|e| draw_error(&path, e))?;
+        written.push(path);
+    }
+
+    // h(t) of every run.
+    if runs.iter().any(|r| !r.series.barriers.is_empty()) {
+        let path = dir.join("overlay-barriers.png");
+        let mut lines: Vec<Line<'_>> = Vec::new();
+        for (i, run) in runs.iter().enumerate() {
+            let several = run.series.barriers.len() > 1;
+            for (name, points) in &run.series.barriers {
+                let label = if several {
+                    format!("{}: {name}", run.label)
+                } else {
+                    run.label.clone()
+                };
+                lines.push((label, points.as_slice(), color(i).stroke_width(3)));
+            }
+        }
+        let unit = h_unit(runs.iter().all(|r| r.series.obstacle_barriers));
+        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
+            root.fill(&WHITE)?;
+            time_chart(&root, "barrier function h(t) (safe: h ≥ 0)", &unit, &lines, true)?;
+            root.present()?;
+            Ok(())
+        });
+        result.map_err(|e| draw_error(&path, e))?;
+        written.push(path);
+    }
+
+    // The issued (filtered) input of every run, one panel per channel.
+    let mut channels: Vec<String> = runs.iter().flat_map(|r| r.series.issued.keys().cloned()).collect();
+    channels.sort();
+    channels.dedup();
+    if !channels.is_empty() {
+        let path = dir.join("overlay-inputs.png");
+        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
+            let root = BitMapBackend::new(partial, (1200, 380 * channels.len() as u32)).into_drawing_area();
+            root.fill(&WHITE)?;
+            for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
+                let lines: Vec<Line<'_>> = runs
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, run)| {
+                        let points = run.series.issued.get(channel)?;
+                        Some((run.label.clone(), points.as_slice(), color(i).stroke_width(3)))
+                    })
+                    .collect();
+                time_chart(
+                    area,
+                    &format!("input {channel}, as issued by the filter (applied after its delay)"),
+                    &channel_unit(channel),
+                    &lines,
+                    false,
+                )?;
+            }
+            root.present()?;
+            Ok(())
+        });
+        result.map_err(|e| draw_error(&path, e))?;
+        written.push(path);
+    }
+    Ok(written)
+}
+
+/// A metric of a sweep's summary (`summary.json`, or a sweep directory holding one) against
+/// one swept key, into `out` (PNG): one line per combination of the other swept keys, runs that
+/// collided marked with a cross. The metric is a numeric field of the summary's metrics
+/// (`min_h`, `min_clearance`, `max_jerk`, … docs/metrics.md).
+pub fn plot_sweep(summary: &Path, key: &str, metric: &str, out: &Path) -> Result<PathBuf, PlotError> {
+    register_embedded_font()?;
+    let file = if summary.is_dir() {
+        summary.join("summary.json")
+    } else {
+        summary.to_path_buf()
+    };
+    let s = crate::sweep::Summary::read(&file).map_err(|e| PlotError::Sweep(e.to_string()))?;
+    if !s.parameters.iter().any(|p| p == key) {
+        return Err(PlotError::Sweep(format!(
+            "{}: `{key}` is not a swept key (swept: {})",
+            file.display(),
+            s.parameters.join(", ")
+        )));
+    }
+    type Points = Vec<(f64, f64, bool)>;
+    let mut groups: BTreeMap<String, Points> = BTreeMap::new();
+    let mut known_metric = false;
+    for run in &s.runs {
+        let Some(metrics) = &run.metrics else { continue };
+        let value = serde_json::to_value(metrics).expect("metrics serialise");
+        if value.get(metric).is_some() {
+            known_metric = true;
+        }
+        let x = run.parameters.get(key).and_then(|v| v.trim().parse::<f64>().ok());
+        let y = value.get(metric).and_then(|v| v.as_f64());
+        let (Some(x), Some(y)) = (x, y) else { continue };
+        let group: Vec<String> = s
+            .parameters
+            .iter()
+            .filter(|p| *p != key)
+            .map(|p| {
+                let value = run.parameters.get(p).map_or("", String::as_str);
+                // A swept filter table is named by its equation number.
+                let entries = BTreeMap::from([("scenario_resolved".to_string(), format!("{p} = {value}"))]);
+                match crate::analyze::filter_label(&entries) {
+                    Some(label) if p == "filter" => label,
+                    _ => format!("{p} = {value}"),
+                }
+            })
+            .collect();
+        groups
+            .entry(group.join(", "))
+            .or_default()
+            .push((x, y, metrics.collision_time.is_some()));
+    }
+    if !known_metric {
+        let value = s
+            .runs
+            .iter()
+            .find_map(|r| r.metrics.as_ref())
+            .map(|m| serde_json::to_value(m).expect("metrics serialise"));
+        let names: Vec<String> = value
+            .and_then(|v| {
+                v.as_object().map(|o| {
+                    o.iter()
+                        .filter(|(_, v)| v.is_number() || v.is_null())
+                        .map(|(k, _)| k.clone())
+                        .collect()
+                })
+            })
+            .unwrap_or_default();
+        return Err(PlotError::Sweep(format!(
+            "{}: no metric `{metric}` in the summary (numeric metrics: {})",
+            file.display(),
+            names.join(", ")
+        )));
+    }
+    if groups.is_empty() {
+        return Err(PlotError::Sweep(format!(
+            "{}: no run has both a numeric `{key}` and a value of `{metric}`",
+            file.display()
+        )));
+    }
+    for points in groups.values_mut() {
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    let ((x0, x1), (mut y0, mut y1)) = bounds(groups.values().flatten().map(|p| (p.0, p.1)));
+    let zero = y0 < 0.0 && y1 > 0.0 || metric.contains("min_h") || metric.contains("clearance");
+    if zero {
+        y0 = y0.min(0.0);
+        y1 = y1.max(0.0);
+    }
+    let unit = if key.starts_with("delays.") || key.starts_with("assumed_delays.") {
+        format!("{key}  [s]")
+    } else {
+        key.to_string()
+    };
+    let result = draw_png(out, &[file.as_path()], |partial: &Path| -> DrawResult<()> {
+        let root = BitMapBackend::new(partial, (1000, 560)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(format!("{metric} against {key} ({})", s.sweep.name), ("sans-serif", 22))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        chart.configure_mesh().x_desc(unit.as_str()).y_desc(metric).draw()?;
+        if zero {
+            chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(1)))?;
+        }
+        for (i, (group, points)) in groups.iter().enumerate() {
+            let c = PALETTE[i % PALETTE.len()];
+            let style = c.stroke_width(3);
+            let line = chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0, p.1)), style))?;
+            if !group.is_empty() {
+                line.label(group.clone())
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+            }
+            chart.draw_series(
+                points
+                    .iter()
+                    .filter(|p| !p.2)
+                    .map(|p| Circle::new((p.0, p.1), 5, c.filled())),
+            )?;
+            chart.draw_series(
+                points
+                    .iter()
+                    .filter(|p| p.2)
+                    .map(|p| Cross::new((p.0, p.1), 7, RED.stroke_width(3))),
+            )?;
+        }
+        chart
+            .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())?
+            .label("collision")
+            .legend(|(x, y)| Cross::new((x + 9, y), 6, RED.stroke_width(3)));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        Ok(())
+    });
+    result.map_err(|e| draw_error(out, e))?;
+    Ok(out.to_path_buf())
 }

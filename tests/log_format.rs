@@ -66,6 +66,22 @@ fn python_mcap_reads_and_decodes_the_log() {
     assert!((events[0]["time"].as_f64().unwrap() - 2.75).abs() < 1e-9);
     assert!(events.iter().any(|e| e["kind"] == "collision_start"));
     assert_eq!(events.last().unwrap()["kind"], "episode_end");
+    // Each event also as a foxglove.Log on /log (Foxglove's Log panel), at the same time:
+    // INFO 2, WARNING 3 for a collision's start.
+    assert_eq!(d["schemas"]["/log"], "foxglove.Log");
+    let logs = d["logs"].as_array().unwrap();
+    assert_eq!(logs.len(), events.len());
+    for (log, event) in logs.iter().zip(events) {
+        let (tl, te) = (log["time"].as_f64().unwrap(), event["time"].as_f64().unwrap());
+        assert!((tl - te).abs() < 1e-9, "{log} at {te}");
+        let kind = event["kind"].as_str().unwrap();
+        assert!(
+            log["message"].as_str().unwrap().starts_with(&format!("{kind}: ")),
+            "{log}"
+        );
+        assert_eq!(log["level"], if kind == "collision_start" { 3 } else { 2 }, "{log}");
+        assert_eq!(log["name"], "mjsafe");
+    }
 
     // Delays: the acceleration command issued at t arrives at t + 1.5 and steering at t + 0.2;
     // before that the initial input (issued_at = -D) applies.
@@ -362,4 +378,53 @@ fn devices_are_refused_as_logs_at_once() {
         );
         assert!(started.elapsed() < std::time::Duration::from_secs(5));
     }
+}
+
+#[test]
+fn the_scene_shows_predicted_positions_and_one_dimensional_vehicles() {
+    let dir = tempfile::tempdir().unwrap();
+    // (4.67) predicts each channel's state at t + D_i: one entity per channel.
+    let log = dir.path().join("gamma_m.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle_gamma_m.toml"),
+        &log,
+        &["--set", "duration=3.0"],
+    );
+    let d = python_digest(&log);
+    let ids: Vec<&str> = d["scene_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    for id in [
+        "prediction/steering",
+        "prediction/acceleration",
+        "vehicle",
+        "obstacle_0",
+    ] {
+        assert!(ids.contains(&id), "{id} not in {ids:?}");
+    }
+    // The delay-free filter predicts nothing: no prediction entities.
+    let log = dir.path().join("delay_free.mcap");
+    run_ok(&scenario("bicycle_obstacle.toml"), &log, &["--set", "duration=1.0"]);
+    let d = python_digest(&log);
+    assert!(!d["scene_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|v| v.as_str().unwrap().starts_with("prediction")));
+    // A vehicle on a line (the red light's double integrator) is drawn along the x axis.
+    let log = dir.path().join("red_light.mcap");
+    run_ok(&scenario("red_light.toml"), &log, &["--set", "duration=2.0"]);
+    let d = python_digest(&log);
+    assert_eq!(d["schemas"]["/tf"], "foxglove.FrameTransform");
+    assert!(d["counts"]["/tf"].as_u64().unwrap() > 0, "{}", d["counts"]);
+    let ids: Vec<&str> = d["scene_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert!(ids.contains(&"vehicle"), "{ids:?}");
 }

@@ -15,7 +15,7 @@ def main(path):
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         counts, schemas, encodings = {}, {}, {}
         first, last, events, applied, issued, barrier = {}, {}, [], [], [], []
-        scene_ids = set()
+        scene_ids, logs = set(), []
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             topic = channel.topic
             counts[topic] = counts.get(topic, 0) + 1
@@ -28,6 +28,8 @@ def main(path):
                         raise SystemExit(f"{topic}: log_time {message.log_time} != timestamp {stamp}")
                 if topic == "/scene":
                     scene_ids.update(e.id for e in decoded.entities)
+                if topic == "/log":
+                    logs.append({"time": message.log_time / 1e9, "level": decoded.level, "message": decoded.message, "name": decoded.name})
                 continue
             if message.log_time != round(decoded.time * 1e9):
                 raise SystemExit(f"{topic}: log_time {message.log_time} != time {decoded.time}")
@@ -56,6 +58,7 @@ def main(path):
         "issued": issued,
         "barrier": barrier,
         "scene_ids": sorted(scene_ids),
+        "logs": logs,
     }))
 
 

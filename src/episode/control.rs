@@ -478,6 +478,12 @@ impl ControlLoop {
         Ok(())
     }
 
+    /// The latest prediction of each channel still waiting for its target time (the one the
+    /// last tick made): what the Foxglove scene draws.
+    pub fn latest_predictions(&self) -> impl Iterator<Item = &Prediction> {
+        self.pending.iter().filter_map(|q| q.back())
+    }
+
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:
     /// x(t_k) itself, or x(t_k) advanced to an off-grid target with the applied inputs.
     /// Hand them back with [`ControlLoop::recycle`] once logged.

@@ -104,10 +104,12 @@ impl Episode {
         x: &DVector<f64>,
     ) -> Result<(), LogError> {
         let model = self.control.model().clone();
-        let Some([i, j]) = model.planar_position() else {
-            return Ok(());
+        // Planar vehicles in the plane; a vehicle on a line along the world x axis.
+        let (position, heading) = match (model.planar_position(), model.line_position()) {
+            (Some([i, j]), _) => ([x[i], x[j]], model.heading_index().map_or(0.0, |h| x[h])),
+            (None, Some(i)) => ([x[i], 0.0], 0.0),
+            (None, None) => return Ok(()),
         };
-        let position = [x[i], x[j]];
         if k == 0 {
             if let Some((point, heading, reach)) = self.scene.path {
                 let (s, c) = heading.sin_cos();
@@ -131,11 +133,27 @@ impl Episode {
         if !k.is_multiple_of(self.control.steps_per_tick()) {
             return Ok(());
         }
-        let heading = model.heading_index().map_or(0.0, |h| x[h]);
         Self::emit(
             sinks,
             Record::Scene(time, scene::vehicle(time, position, heading, self.scene.hull_radius)),
         )?;
+        // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
+        // channel, made at the previous tick), with a line from where it is now.
+        if let Some([i, j]) = model.planar_position() {
+            let channels = model.channel_names();
+            for p in self.control.latest_predictions() {
+                let name = channels.get(p.channel).map_or("?", String::as_str);
+                let id = format!("prediction/{name}");
+                let predicted = [p.state[i], p.state[j]];
+                Self::emit(
+                    sinks,
+                    Record::Scene(
+                        time,
+                        scene::prediction(time, &id, position, predicted, self.scene.hull_radius),
+                    ),
+                )?;
+            }
+        }
         Self::emit(
             sinks,
             Record::Transform(time, scene::transform(time, position, heading)),

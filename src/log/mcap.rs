@@ -144,7 +144,12 @@ impl Sink for McapSink {
             self.channel_ids[record.topic_index()] = channel;
         }
         let result = writer.write_message(channel, self.sequence, time, &self.buffer);
-        result.map_err(|e| self.error(e.to_string()))
+        result.map_err(|e| self.error(e.to_string()))?;
+        // Every event also as a Foxglove log line, for Foxglove's Log panel.
+        if let Record::Event(event) = record {
+            self.record(&Record::Log(record.time(), super::event_log(event)))?;
+        }
+        Ok(())
     }
 
     fn finish(&mut self, complete: bool) -> Result<(), LogError> {

@@ -35,6 +35,9 @@ pub enum Record {
     /// Foxglove 3D scene (`/scene`) and transform (`/tf`), at a time.
     Scene(f64, foxglove::messages::SceneUpdate),
     Transform(f64, foxglove::messages::FrameTransform),
+    /// An `/event` as a Foxglove log line (`/log`, for Foxglove's Log panel): the MCAP sink
+    /// writes one with every event ([`event_log`]).
+    Log(f64, foxglove::messages::Log),
     /// What the controller read at a tick, when a sensor stands between it and the truth.
     Measured(proto::State),
     /// What the plant received over a step, when actuator dynamics follow the delayed command.
@@ -45,7 +48,7 @@ pub enum Record {
 /// message type, in the order of [`Topic`]. Writers, readers and decoders all use it. The
 /// last two are optional: a log has them only when the scenario has a sensor or actuator
 /// dynamics (their channels are added with the first message).
-pub const TOPICS: [(&str, &str); 11] = [
+pub const TOPICS: [(&str, &str); 12] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
     ("/command/applied", "mjsafe.AppliedCommand"),
@@ -55,6 +58,7 @@ pub const TOPICS: [(&str, &str); 11] = [
     ("/prediction", "mjsafe.Prediction"),
     ("/scene", "foxglove.SceneUpdate"),
     ("/tf", "foxglove.FrameTransform"),
+    ("/log", "foxglove.Log"),
     ("/state/measured", "mjsafe.State"),
     ("/command/actuated", "mjsafe.AppliedCommand"),
 ];
@@ -71,13 +75,14 @@ pub enum Topic {
     Prediction,
     Scene,
     Transform,
+    Log,
     Measured,
     Actuated,
 }
 
 impl Topic {
     /// Every topic, in the order of [`TOPICS`].
-    pub const ALL: [Topic; 11] = [
+    pub const ALL: [Topic; 12] = [
         Topic::State,
         Topic::Issued,
         Topic::Applied,
@@ -87,6 +92,7 @@ impl Topic {
         Topic::Prediction,
         Topic::Scene,
         Topic::Transform,
+        Topic::Log,
         Topic::Measured,
         Topic::Actuated,
     ];
@@ -133,6 +139,11 @@ pub fn schema_data(topic_index: usize) -> std::borrow::Cow<'static, [u8]> {
                 .expect("Foxglove schemas are embedded")
                 .data
         }
+        Topic::Log => {
+            foxglove::messages::Log::get_schema()
+                .expect("Foxglove schemas are embedded")
+                .data
+        }
         _ => std::borrow::Cow::Borrowed(DESCRIPTOR_SET),
     }
 }
@@ -150,6 +161,7 @@ impl Record {
             Record::Prediction(_) => Topic::Prediction,
             Record::Scene(..) => Topic::Scene,
             Record::Transform(..) => Topic::Transform,
+            Record::Log(..) => Topic::Log,
             Record::Measured(_) => Topic::Measured,
             Record::Actuated(_) => Topic::Actuated,
         }
@@ -179,6 +191,7 @@ impl Record {
             Topic::Prediction => Record::Prediction(proto::Prediction::decode(data)?),
             Topic::Scene => Record::Scene(time, foxglove::messages::SceneUpdate::decode(data)?),
             Topic::Transform => Record::Transform(time, foxglove::messages::FrameTransform::decode(data)?),
+            Topic::Log => Record::Log(time, foxglove::messages::Log::decode(data)?),
             Topic::Measured => Record::Measured(proto::State::decode(data)?),
             Topic::Actuated => Record::Actuated(proto::AppliedCommand::decode(data)?),
         })
@@ -196,7 +209,7 @@ impl Record {
             Record::Prediction(m) => m.time,
             Record::Measured(m) => m.time,
             Record::Actuated(m) => m.time,
-            Record::Scene(t, _) | Record::Transform(t, _) => *t,
+            Record::Scene(t, _) | Record::Transform(t, _) | Record::Log(t, _) => *t,
         }
     }
 
@@ -220,10 +233,42 @@ impl Record {
             Record::Prediction(m) => m.encode(buffer),
             Record::Scene(_, m) => m.encode(buffer),
             Record::Transform(_, m) => m.encode(buffer),
+            Record::Log(_, m) => m.encode(buffer),
             Record::Measured(m) => m.encode(buffer),
             Record::Actuated(m) => m.encode(buffer),
         };
         result.expect("a Vec grows to fit any message");
+    }
+}
+
+/// The Foxglove log line of an `/event` (`/log`): level ERROR for `error`, WARNING for
+/// `collision_start` and `interrupted`, INFO otherwise; the message is `kind: message` (with
+/// the participants and, for collisions, the depth), `name` = "mjsafe".
+pub fn event_log(event: &proto::Event) -> foxglove::messages::Log {
+    use foxglove::messages::log::Level;
+    let level = match event.kind.as_str() {
+        "error" => Level::Error,
+        "collision_start" | "interrupted" => Level::Warning,
+        _ => Level::Info,
+    };
+    let mut message = format!("{}: {}", event.kind, event.message);
+    if !event.participants.is_empty() {
+        message.push_str(&format!(" [{}]", event.participants.join(", ")));
+    }
+    if event.kind.starts_with("collision") {
+        message.push_str(&format!(" (depth {:.3} m)", event.depth));
+    }
+    let ns = mcap::sim_time_ns(event.time);
+    foxglove::messages::Log {
+        timestamp: Some(foxglove::messages::Timestamp::new(
+            (ns / 1_000_000_000) as u32,
+            (ns % 1_000_000_000) as u32,
+        )),
+        level: level as i32,
+        message,
+        name: "mjsafe".into(),
+        file: String::new(),
+        line: 0,
     }
 }
 

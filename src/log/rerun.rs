@@ -356,7 +356,8 @@ impl RerunSink {
                 _ => stream.log(world_path(&deletion.id), &::rerun::Clear::flat())?,
             }
         }
-        for entity in &update.entities {
+        // The predicted positions are drawn from `/prediction` (at their issue time) already.
+        for entity in update.entities.iter().filter(|e| !e.id.starts_with("prediction/")) {
             let (strips, colors, radii) = entity_strips(entity);
             let mut archetype = ::rerun::LineStrips2D::new(strips).with_colors(colors).with_radii(radii);
             if entity.lines.is_empty() && entity.cubes.is_empty() && entity.cylinders.len() == 1 {
@@ -472,6 +473,8 @@ impl RerunSink {
                     self.vehicle_position = Some([t.x, t.y]);
                 }
             }
+            // The `/event` it repeats for Foxglove is logged as the event.
+            Record::Log(..) => {}
         }
         Ok(())
     }

@@ -146,6 +146,53 @@ pub fn obstacle(time: f64, name: &str, centre: [f64; 2], radius: f64, known: boo
     }
 }
 
+/// A predicted position p_i(t) of the vehicle: a flat ring of the hull radius (orange) and a
+/// line from the vehicle's current position to it.
+pub fn prediction(time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius: f64) -> SceneUpdate {
+    let r = hull_radius.max(0.05);
+    let mut e = entity(time, id);
+    e.cylinders.push(CylinderPrimitive {
+        pose: Some(pose(to[0], to[1], 0.03, 0.0)),
+        size: Some(Vector3 {
+            x: 2.0 * r,
+            y: 2.0 * r,
+            z: 0.05,
+        }),
+        bottom_scale: 1.0,
+        top_scale: 1.0,
+        color: Some(PREDICTION),
+    });
+    e.lines.push(LinePrimitive {
+        r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+        pose: Some(pose(0.0, 0.0, 0.04, 0.0)),
+        thickness: 0.1,
+        scale_invariant: false,
+        points: [from, to]
+            .iter()
+            .map(|p| Point3 {
+                x: p[0],
+                y: p[1],
+                z: 0.0,
+            })
+            .collect(),
+        color: Some(PREDICTION),
+        colors: vec![],
+        indices: vec![],
+    });
+    SceneUpdate {
+        deletions: vec![],
+        entities: vec![e],
+    }
+}
+
+/// Predicted positions' colour.
+pub const PREDICTION: Color = Color {
+    r: 1.0,
+    g: 0.55,
+    b: 0.0,
+    a: 0.45,
+};
+
 /// world → vehicle.
 pub fn transform(time: f64, position: [f64; 2], heading: f64) -> FrameTransform {
     FrameTransform {

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Regenerates the README's figures (docs/figures/*.png) from fresh runs:
+#   ch4-trajectory.png, ch4-barriers.png, ch4-inputs.png: Ch. 4, Example 2 with the delay-free
+#     CBF-QP (4.9)-(4.11), the predictor filter (4.34) and the gamma-m filter (4.67) overlaid
+#     (as the reference's Figs. 4.6/4.7);
+#   sweep-min_h-vs-delay.png: min h against the acceleration delay D2 (0.25 ... 2 s; (4.67)
+#     needs D1 = 0.2 <= D2) for the delay-free CBF-QP and (4.67) (a sweep, `mjsafe plot-sweep`).
+# The text is drawn with the font embedded in mjsafe, so the PNGs do not depend on the machine.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+cargo build --quiet --bin mjsafe
+bin="${CARGO_TARGET_DIR:-target}/debug/mjsafe"
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+scenario=scenarios/bicycle_obstacle.toml
+"$bin" run "$scenario" --out "$work/delay_free.mcap"
+"$bin" run "$scenario" --out "$work/predictor.mcap" \
+  --set "filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}"
+"$bin" run "$scenario" --out "$work/gamma_m.mcap" \
+  --set "filter={kind='gamma_m', l0=4.0, l1=4.0, m=50.0}"
+"$bin" analyze --brief --plot "$work/plots" "$work/delay_free.mcap" "$work/predictor.mcap" "$work/gamma_m.mcap"
+mkdir -p docs/figures
+for f in trajectory barriers inputs; do
+  cp "$work/plots/overlay-$f.png" "docs/figures/ch4-$f.png"
+done
+"$bin" sweep "$scenario" --out "$work/sweep" --threads 2 \
+  --grid "delays.acceleration=0.25,0.5,0.75,1.0,1.25,1.5,1.75,2.0" \
+  --grid "filter={kind='cbf_qp', l0=4.0, l1=4.0},{kind='gamma_m', l0=4.0, l1=4.0, m=50.0}" >/dev/null
+"$bin" plot-sweep "$work/sweep" --x delays.acceleration --y min_h --out docs/figures/sweep-min_h-vs-delay.png
+ls -l docs/figures

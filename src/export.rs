@@ -1,0 +1,626 @@
+//! `mjsafe export`: the time series of a log as one wide, time-indexed table per topic (CSV or
+//! Parquet), decoded through the one log reader ([`crate::log::read`]) and streamed: each
+//! message becomes a row as it is read (CSV through a buffered writer, Parquet in batches of
+//! [`BATCH_ROWS`] rows and row groups of [`ROW_GROUP_ROWS`]), so memory stays flat in the
+//! log's length. Every table's first column is `time` (s); the columns follow the message
+//! (docs/log-format.md):
+//!
+//! | topic | columns after `time` |
+//! |---|---|
+//! | `/state`, `/state/measured` | `step`, one per state name (`x1`, `x2`, `heading`, `speed`) |
+//! | `/command/issued` | `<channel>.nominal`, `<channel>.filtered` per channel |
+//! | `/command/applied`, `/command/actuated` | `<channel>`, `<channel>.issued_at` per channel |
+//! | `/barrier` | per barrier `<name>.h`, `.constraint`, `.clearance`, `.time_to_collision`, `.known`, `.relative_degree`, `.obstacle` |
+//! | `/filter` | `active`, `infeasible`, `mu`, `<channel>.correction` per channel |
+//! | `/prediction` | `channel`, `issued_at`, `horizon`, `predicted.<state>`, `realized.<state>` per state component, `error`, `relative_error`, `reused_chain`, `chain_mismatch` |
+//! | `/event` | `kind`, `message`, `participants` (space-separated), `depth` |
+//!
+//! The Foxglove topics (`/scene`, `/tf`) are views, not tables, and are not exported. Outputs
+//! follow [`crate::files`]: `.partial` files renamed when the whole log was read, never over
+//! the log, a non-regular file or a file that is not a table of the same format.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::builder::{BooleanBuilder, Float64Builder, StringBuilder, UInt64Builder};
+use arrow_array::{ArrayRef, RecordBatch};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::properties::WriterProperties;
+
+use crate::files::{FileError, OutputFile, Replace};
+use crate::log::read::{read_run_file, Message, ReadError, RunVisitor};
+use crate::log::{Record, Topic};
+
+/// Rows per Parquet batch handed to the writer.
+pub const BATCH_ROWS: usize = 4096;
+/// Rows per Parquet row group (the writer holds one row group's encoded pages at a time).
+pub const ROW_GROUP_ROWS: usize = 16384;
+
+/// The table formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    Csv,
+    Parquet,
+}
+
+impl Format {
+    pub fn extension(self) -> &'static str {
+        match self {
+            Format::Csv => "csv",
+            Format::Parquet => "parquet",
+        }
+    }
+
+    /// How every file of this format that mjsafe writes starts: an existing file that does not
+    /// is never replaced (CSV: the header's first column).
+    fn magic(self) -> &'static [u8] {
+        match self {
+            Format::Csv => b"time,",
+            Format::Parquet => b"PAR1",
+        }
+    }
+
+    fn what(self) -> &'static str {
+        match self {
+            Format::Csv => "CSV table",
+            Format::Parquet => "Parquet table",
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error(transparent)]
+    File(#[from] FileError),
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error("{file}: {message}")]
+    Write { file: String, message: String },
+    #[error("{file}: {topic} at t = {time}: {message}")]
+    Layout {
+        file: String,
+        topic: Topic,
+        time: f64,
+        message: String,
+    },
+    #[error("--topics: {0}")]
+    Topics(String),
+}
+
+/// The topics that are tables, in [`Topic`] order.
+pub fn table_topics() -> Vec<Topic> {
+    Topic::ALL
+        .into_iter()
+        .filter(|t| !matches!(t, Topic::Scene | Topic::Transform | Topic::Log))
+        .collect()
+}
+
+/// Parses `--topics` (comma-separated topic names); empty: every table topic.
+pub fn parse_topics(list: &[String]) -> Result<Vec<Topic>, ExportError> {
+    if list.is_empty() {
+        return Ok(table_topics());
+    }
+    let mut topics = Vec::new();
+    for name in list
+        .iter()
+        .flat_map(|s| s.split(','))
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+    {
+        let topic = Topic::from_name(name).ok_or_else(|| {
+            let known: Vec<&str> = table_topics().iter().map(|t| t.name()).collect();
+            ExportError::Topics(format!("unknown topic `{name}` (tables: {})", known.join(", ")))
+        })?;
+        if !table_topics().contains(&topic) {
+            return Err(ExportError::Topics(format!(
+                "{name} is a Foxglove view, not a table (open the log in Foxglove)"
+            )));
+        }
+        if !topics.contains(&topic) {
+            topics.push(topic);
+        }
+    }
+    topics.sort();
+    Ok(topics)
+}
+
+/// The file a topic of `log` is exported to in `dir`: `<log stem>-<topic>.<ext>` with the
+/// topic's slashes as underscores (`run-state.csv`, `run-command_issued.parquet`).
+pub fn table_path(log: &Path, dir: &Path, topic: Topic, format: Format) -> PathBuf {
+    let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run");
+    let slug = topic.name().trim_start_matches('/').replace('/', "_");
+    dir.join(format!("{stem}-{slug}.{}", format.extension()))
+}
+
+/// What one log's export wrote.
+#[derive(Debug)]
+pub struct Exported {
+    /// (topic, file, rows) of each table written.
+    pub tables: Vec<(Topic, PathBuf, u64)>,
+    /// Topics asked for that the log has no message on (no file written).
+    pub empty: Vec<Topic>,
+}
+
+/// Exports `topics` of `log` into `dir` (default: the log's directory). Nothing is renamed to
+/// its final name unless the whole log was read and every table written.
+pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Format) -> Result<Exported, ExportError> {
+    let dir = match dir {
+        Some(d) => d.to_path_buf(),
+        None => log.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf),
+    };
+    // Every target is checked before the log is read.
+    for &topic in topics {
+        crate::files::check_output(
+            &table_path(log, &dir, topic, format),
+            format.what(),
+            Replace::IfStartsWith(format.magic()),
+            &[log],
+        )?;
+    }
+    let mut export = Export {
+        log,
+        dir: &dir,
+        format,
+        topics,
+        tables: BTreeMap::new(),
+        state_names: None,
+        failure: None,
+        cells: Vec::new(),
+    };
+    let result = read_run_file(log, &mut export);
+    if let Some(failure) = export.failure.take() {
+        return Err(failure);
+    }
+    result?;
+    let mut written = Vec::new();
+    for (topic, table) in std::mem::take(&mut export.tables) {
+        let rows = table.rows;
+        written.push((topic, table.finish()?, rows));
+    }
+    let empty = topics
+        .iter()
+        .copied()
+        .filter(|t| !written.iter().any(|(w, _, _)| w == t))
+        .collect();
+    Ok(Exported { tables: written, empty })
+}
+
+/// A column's type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    F64,
+    U64,
+    Bool,
+    Text,
+}
+
+/// One value of a row.
+#[derive(Debug, Clone, PartialEq)]
+enum Cell {
+    F(f64),
+    U(u64),
+    B(bool),
+    S(String),
+}
+
+/// The export as a visitor of the run reader.
+struct Export<'a> {
+    log: &'a Path,
+    dir: &'a Path,
+    format: Format,
+    topics: &'a [Topic],
+    tables: BTreeMap<Topic, Table>,
+    /// The state names of the first `/state` message (the prediction columns).
+    state_names: Option<Vec<String>>,
+    /// A write error, carried out of the reader.
+    failure: Option<ExportError>,
+    cells: Vec<Cell>,
+}
+
+impl Export<'_> {
+    fn fail(&mut self, e: ExportError) -> ReadError {
+        self.failure = Some(e);
+        ReadError::Foreign {
+            file: self.log.display().to_string(),
+            message: "export stopped".into(),
+        }
+    }
+
+    fn row(&mut self, topic: Topic, time: f64, columns: Vec<(String, Kind)>) -> Result<(), ExportError> {
+        if !self.tables.contains_key(&topic) {
+            let path = table_path(self.log, self.dir, topic, self.format);
+            let table = Table::create(&path, self.log, self.format, columns)?;
+            self.tables.insert(topic, table);
+        } else {
+            let table = &self.tables[&topic];
+            if table.columns != columns {
+                let names = |c: &[(String, Kind)]| c.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(",");
+                return Err(ExportError::Layout {
+                    file: self.log.display().to_string(),
+                    topic,
+                    time,
+                    message: format!(
+                        "the columns change from [{}] to [{}]; a table needs the same columns in every row",
+                        names(&table.columns),
+                        names(&columns)
+                    ),
+                });
+            }
+        }
+        let cells = std::mem::take(&mut self.cells);
+        let table = self.tables.get_mut(&topic).expect("created above");
+        let result = table.push(&cells);
+        self.cells = cells;
+        result
+    }
+}
+
+fn col(name: impl Into<String>, kind: Kind) -> (String, Kind) {
+    (name.into(), kind)
+}
+
+impl RunVisitor for Export<'_> {
+    fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        Ok(())
+    }
+
+    fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+        let topic = message.topic;
+        let wanted = self.topics.contains(&topic);
+        if !(wanted || topic == Topic::State && self.state_names.is_none()) {
+            return Ok(());
+        }
+        let record = message.record()?;
+        let time = record.time();
+        self.cells.clear();
+        let c = &mut self.cells;
+        c.push(Cell::F(time));
+        let mut columns = vec![col("time", Kind::F64)];
+        match &record {
+            Record::State(m) | Record::Measured(m) => {
+                if topic == Topic::State && self.state_names.is_none() {
+                    self.state_names = Some(m.names.clone());
+                }
+                if !wanted {
+                    return Ok(());
+                }
+                columns.push(col("step", Kind::U64));
+                c.push(Cell::U(m.step));
+                for (name, v) in m.names.iter().zip(&m.values) {
+                    columns.push(col(name.clone(), Kind::F64));
+                    c.push(Cell::F(*v));
+                }
+            }
+            Record::Issued(m) => {
+                for (i, ch) in m.channels.iter().enumerate() {
+                    columns.push(col(format!("{ch}.nominal"), Kind::F64));
+                    columns.push(col(format!("{ch}.filtered"), Kind::F64));
+                    c.push(Cell::F(m.nominal.get(i).copied().unwrap_or(f64::NAN)));
+                    c.push(Cell::F(m.filtered.get(i).copied().unwrap_or(f64::NAN)));
+                }
+            }
+            Record::Applied(m) | Record::Actuated(m) => {
+                for (i, ch) in m.channels.iter().enumerate() {
+                    columns.push(col(ch.clone(), Kind::F64));
+                    columns.push(col(format!("{ch}.issued_at"), Kind::F64));
+                    c.push(Cell::F(m.values.get(i).copied().unwrap_or(f64::NAN)));
+                    c.push(Cell::F(m.issued_at.get(i).copied().unwrap_or(f64::NAN)));
+                }
+            }
+            Record::Barrier(m) => {
+                for b in &m.barriers {
+                    let n = &b.name;
+                    for (field, v) in [
+                        ("h", b.h),
+                        ("constraint", b.constraint),
+                        ("clearance", b.clearance),
+                        ("time_to_collision", b.time_to_collision),
+                    ] {
+                        columns.push(col(format!("{n}.{field}"), Kind::F64));
+                        c.push(Cell::F(v));
+                    }
+                    columns.push(col(format!("{n}.known"), Kind::Bool));
+                    c.push(Cell::B(b.known));
+                    columns.push(col(format!("{n}.relative_degree"), Kind::U64));
+                    c.push(Cell::U(u64::from(b.relative_degree)));
+                    columns.push(col(format!("{n}.obstacle"), Kind::Bool));
+                    c.push(Cell::B(b.obstacle));
+                }
+            }
+            Record::Filter(m) => {
+                columns.extend([
+                    col("active", Kind::Bool),
+                    col("infeasible", Kind::Bool),
+                    col("mu", Kind::F64),
+                ]);
+                c.extend([Cell::B(m.active), Cell::B(m.infeasible), Cell::F(m.mu)]);
+                for (i, ch) in m.channels.iter().enumerate() {
+                    columns.push(col(format!("{ch}.correction"), Kind::F64));
+                    c.push(Cell::F(m.correction.get(i).copied().unwrap_or(f64::NAN)));
+                }
+            }
+            Record::Prediction(m) => {
+                columns.extend([
+                    col("channel", Kind::Text),
+                    col("issued_at", Kind::F64),
+                    col("horizon", Kind::F64),
+                ]);
+                c.extend([Cell::S(m.channel.clone()), Cell::F(m.issued_at), Cell::F(m.horizon)]);
+                let name = |i: usize| {
+                    self.state_names
+                        .as_ref()
+                        .filter(|n| n.len() == m.predicted.len())
+                        .map_or_else(|| i.to_string(), |n| n[i].clone())
+                };
+                for (i, v) in m.predicted.iter().enumerate() {
+                    columns.push(col(format!("predicted.{}", name(i)), Kind::F64));
+                    c.push(Cell::F(*v));
+                }
+                for i in 0..m.predicted.len() {
+                    columns.push(col(format!("realized.{}", name(i)), Kind::F64));
+                    c.push(Cell::F(m.realized.get(i).copied().unwrap_or(f64::NAN)));
+                }
+                columns.extend([
+                    col("error", Kind::F64),
+                    col("relative_error", Kind::F64),
+                    col("reused_chain", Kind::Bool),
+                    col("chain_mismatch", Kind::F64),
+                ]);
+                c.extend([
+                    Cell::F(m.error),
+                    Cell::F(m.relative_error),
+                    Cell::B(m.reused_chain),
+                    Cell::F(m.chain_mismatch),
+                ]);
+            }
+            Record::Event(m) => {
+                columns.extend([
+                    col("kind", Kind::Text),
+                    col("message", Kind::Text),
+                    col("participants", Kind::Text),
+                    col("depth", Kind::F64),
+                ]);
+                c.extend([
+                    Cell::S(m.kind.clone()),
+                    Cell::S(m.message.clone()),
+                    Cell::S(m.participants.join(" ")),
+                    Cell::F(m.depth),
+                ]);
+            }
+            Record::Scene(..) | Record::Transform(..) | Record::Log(..) => return Ok(()),
+        }
+        match self.row(topic, time, columns) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.fail(e)),
+        }
+    }
+}
+
+/// One table being written.
+struct Table {
+    output: OutputFile,
+    columns: Vec<(String, Kind)>,
+    rows: u64,
+    sink: Sink,
+}
+
+enum Sink {
+    Csv(BufWriter<File>),
+    Parquet(Box<ParquetTable>),
+}
+
+struct ParquetTable {
+    schema: SchemaRef,
+    builders: Vec<Builder>,
+    buffered: usize,
+    writer: ArrowWriter<File>,
+}
+
+enum Builder {
+    F(Float64Builder),
+    U(UInt64Builder),
+    B(BooleanBuilder),
+    S(StringBuilder),
+}
+
+impl Table {
+    fn create(path: &Path, log: &Path, format: Format, columns: Vec<(String, Kind)>) -> Result<Table, ExportError> {
+        let output = OutputFile::create(path, format.what(), Replace::IfStartsWith(format.magic()), &[log])?;
+        let file = output.try_clone_file()?;
+        let write_error = |message: String| ExportError::Write {
+            file: path.display().to_string(),
+            message,
+        };
+        let sink = match format {
+            Format::Csv => {
+                let mut w = BufWriter::with_capacity(1 << 16, file);
+                let header: Vec<String> = columns.iter().map(|(n, _)| csv_field(n)).collect();
+                writeln!(w, "{}", header.join(",")).map_err(|e| write_error(e.to_string()))?;
+                Sink::Csv(w)
+            }
+            Format::Parquet => {
+                let fields: Vec<Field> = columns
+                    .iter()
+                    .map(|(n, k)| {
+                        let t = match k {
+                            Kind::F64 => DataType::Float64,
+                            Kind::U64 => DataType::UInt64,
+                            Kind::Bool => DataType::Boolean,
+                            Kind::Text => DataType::Utf8,
+                        };
+                        Field::new(n, t, false)
+                    })
+                    .collect();
+                let schema = Arc::new(Schema::new(fields));
+                let props = WriterProperties::builder()
+                    .set_compression(Compression::ZSTD(ZstdLevel::default()))
+                    .set_max_row_group_row_count(Some(ROW_GROUP_ROWS))
+                    .build();
+                let writer =
+                    ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(|e| write_error(e.to_string()))?;
+                let builders = columns
+                    .iter()
+                    .map(|(_, k)| match k {
+                        Kind::F64 => Builder::F(Float64Builder::with_capacity(BATCH_ROWS)),
+                        Kind::U64 => Builder::U(UInt64Builder::with_capacity(BATCH_ROWS)),
+                        Kind::Bool => Builder::B(BooleanBuilder::with_capacity(BATCH_ROWS)),
+                        Kind::Text => Builder::S(StringBuilder::new()),
+                    })
+                    .collect();
+                Sink::Parquet(Box::new(ParquetTable {
+                    schema,
+                    builders,
+                    buffered: 0,
+                    writer,
+                }))
+            }
+        };
+        Ok(Table {
+            output,
+            columns,
+            rows: 0,
+            sink,
+        })
+    }
+
+    fn error(&self, message: String) -> ExportError {
+        ExportError::Write {
+            file: self.output.target().display().to_string(),
+            message,
+        }
+    }
+
+    fn push(&mut self, cells: &[Cell]) -> Result<(), ExportError> {
+        self.rows += 1;
+        let result = match &mut self.sink {
+            Sink::Csv(w) => write_csv_row(w, cells).map_err(|e| e.to_string()),
+            Sink::Parquet(p) => p.push(cells),
+        };
+        result.map_err(|e| self.error(e))
+    }
+
+    fn finish(self) -> Result<PathBuf, ExportError> {
+        let error = |message: String| ExportError::Write {
+            file: self.output.target().display().to_string(),
+            message,
+        };
+        match self.sink {
+            Sink::Csv(mut w) => w.flush().map_err(|e| error(e.to_string()))?,
+            Sink::Parquet(mut p) => {
+                p.flush_batch().map_err(error)?;
+                p.writer.close().map_err(|e| error(e.to_string()))?;
+            }
+        }
+        Ok(self.output.commit()?)
+    }
+}
+
+impl ParquetTable {
+    fn push(&mut self, cells: &[Cell]) -> Result<(), String> {
+        for (b, cell) in self.builders.iter_mut().zip(cells) {
+            match (b, cell) {
+                (Builder::F(b), Cell::F(v)) => b.append_value(*v),
+                (Builder::U(b), Cell::U(v)) => b.append_value(*v),
+                (Builder::B(b), Cell::B(v)) => b.append_value(*v),
+                (Builder::S(b), Cell::S(v)) => b.append_value(v),
+                _ => unreachable!("cells follow the columns"),
+            }
+        }
+        self.buffered += 1;
+        if self.buffered >= BATCH_ROWS {
+            self.flush_batch()?;
+        }
+        Ok(())
+    }
+
+    fn flush_batch(&mut self) -> Result<(), String> {
+        if self.buffered == 0 {
+            return Ok(());
+        }
+        let arrays: Vec<ArrayRef> = self
+            .builders
+            .iter_mut()
+            .map(|b| -> ArrayRef {
+                match b {
+                    Builder::F(b) => Arc::new(b.finish()),
+                    Builder::U(b) => Arc::new(b.finish()),
+                    Builder::B(b) => Arc::new(b.finish()),
+                    Builder::S(b) => Arc::new(b.finish()),
+                }
+            })
+            .collect();
+        self.buffered = 0;
+        let batch = RecordBatch::try_new(self.schema.clone(), arrays).map_err(|e| e.to_string())?;
+        self.writer.write(&batch).map_err(|e| e.to_string())
+    }
+}
+
+/// A CSV field: quoted when it holds a comma, a quote or a line break.
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+/// One CSV row. Floats are written in Rust's shortest round-trip form (`NaN`, `inf`, `-inf`
+/// for the non-finite values), so a reader parsing them exactly gets the logged bits back.
+fn write_csv_row(w: &mut impl Write, cells: &[Cell]) -> std::io::Result<()> {
+    for (i, cell) in cells.iter().enumerate() {
+        if i > 0 {
+            w.write_all(b",")?;
+        }
+        match cell {
+            Cell::F(v) => write!(w, "{v:?}")?,
+            Cell::U(v) => write!(w, "{v}")?,
+            Cell::B(v) => w.write_all(if *v { b"true" } else { b"false" })?,
+            Cell::S(s) => w.write_all(csv_field(s).as_bytes())?,
+        }
+    }
+    w.write_all(b"\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_rows_round_trip_floats_and_quote_text() {
+        let mut out = Vec::new();
+        let cells = [
+            Cell::F(0.1),
+            Cell::F(f64::NAN),
+            Cell::F(f64::NEG_INFINITY),
+            Cell::F(1e-300),
+            Cell::U(7),
+            Cell::B(true),
+            Cell::S("a, \"b\"".into()),
+        ];
+        write_csv_row(&mut out, &cells).unwrap();
+        assert_eq!(
+            String::from_utf8(out).unwrap(),
+            "0.1,NaN,-inf,1e-300,7,true,\"a, \"\"b\"\"\"\n"
+        );
+    }
+
+    #[test]
+    fn topics_parse_and_views_are_refused() {
+        assert_eq!(parse_topics(&[]).unwrap(), table_topics());
+        let t = parse_topics(&["/barrier,/state".into(), "/state".into()]).unwrap();
+        assert_eq!(t, [Topic::State, Topic::Barrier]);
+        assert!(parse_topics(&["/scene".into()])
+            .unwrap_err()
+            .to_string()
+            .contains("not a table"));
+        assert!(parse_topics(&["/nope".into()])
+            .unwrap_err()
+            .to_string()
+            .contains("unknown topic"));
+    }
+}

@@ -1,0 +1,146 @@
+//! Figures: `analyze --brief --plot DIR A B C` on the three Ch. 4 filters (the comparison
+//! scripts/run.sh prints, the overlays scripts/figures.sh copies into docs/figures), and
+//! `plot-sweep`.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::*;
+
+/// Pixels of each colour (r, g, b) in a PNG, counted by Pillow.
+fn colour_counts(png: &Path, colours: &[(u8, u8, u8)]) -> (u32, u32, Vec<u64>) {
+    let script = "import sys, json\nfrom PIL import Image\n\
+                  im = Image.open(sys.argv[1]).convert('RGB')\n\
+                  want = [tuple(c) for c in json.loads(sys.argv[2])]\n\
+                  counts = dict.fromkeys(want, 0)\n\
+                  for c in im.getdata():\n    if c in counts: counts[c] += 1\n\
+                  print(json.dumps([im.width, im.height, [counts[c] for c in want]]))";
+    let want: Vec<[u8; 3]> = colours.iter().map(|&(r, g, b)| [r, g, b]).collect();
+    let o = Command::new(python())
+        .args(["-c", script])
+        .arg(png)
+        .arg(serde_json::to_string(&want).unwrap())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+const BLUE: (u8, u8, u8) = (31, 119, 180);
+const RED: (u8, u8, u8) = (214, 39, 40);
+const GREEN: (u8, u8, u8) = (44, 160, 44);
+
+#[test]
+fn three_filters_compared_and_overlaid() {
+    let dir = tempfile::tempdir().unwrap();
+    let bicycle = scenario("bicycle_obstacle.toml");
+    let runs = [
+        ("delay_free", None),
+        (
+            "predictor",
+            Some("filter={kind='cbf_qp', l0=4.0, l1=4.0, compensation='predictor'}"),
+        ),
+        ("gamma_m", Some("filter={kind='gamma_m', l0=4.0, l1=4.0, m=50.0}")),
+    ];
+    let mut logs = Vec::new();
+    for (name, set) in runs {
+        let log = dir.path().join(format!("{name}.mcap"));
+        let mut extra = vec!["--set", "duration=6.0"];
+        if let Some(set) = set {
+            extra.extend(["--set", set]);
+        }
+        run_ok(&bicycle, &log, &extra);
+        logs.push(log.to_str().unwrap().to_string());
+    }
+    let plots = dir.path().join("plots");
+    let mut args = vec!["analyze", "--brief", "--plot", plots.to_str().unwrap()];
+    args.extend(logs.iter().map(String::as_str));
+    let o = mjsafe(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = stdout(&o);
+    println!("{table}");
+    let lines: Vec<&str> = table.lines().collect();
+    assert!(
+        lines[0].starts_with("filter") && lines[0].contains("min_clearance_m"),
+        "{table}"
+    );
+    // Named by equation number; only (4.67) avoids the obstacle.
+    assert!(
+        lines[1].starts_with("delay-free CBF-QP (4.9)–(4.11)") && lines[1].contains("YES at t="),
+        "{table}"
+    );
+    assert!(
+        lines[2].starts_with("predictor CBF-QP (4.34)") && lines[2].contains("YES at t="),
+        "{table}"
+    );
+    assert!(
+        lines[3].starts_with("γm filter (4.67), m = 50") && lines[3].contains(" no "),
+        "{table}"
+    );
+
+    let files = listing(&plots);
+    for f in ["overlay-trajectory.png", "overlay-barriers.png", "overlay-inputs.png"] {
+        assert!(files.contains(&f.to_string()), "{files:?}");
+    }
+    // Every run is drawn (its colour present) in each overlay.
+    for f in ["overlay-trajectory.png", "overlay-barriers.png", "overlay-inputs.png"] {
+        let (w, h, counts) = colour_counts(&plots.join(f), &[BLUE, RED, GREEN]);
+        assert!(w == 1200 && h >= 600, "{f}: {w}x{h}");
+        assert!(counts.iter().all(|&n| n > 200), "{f}: {counts:?}");
+    }
+    // Two logs of one run: told apart by their file stems in the legend (no error).
+    let o = mjsafe(&[
+        "analyze",
+        "--brief",
+        "--plot",
+        plots.to_str().unwrap(),
+        &logs[0],
+        &logs[0],
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn a_sweep_metric_is_plotted_against_a_swept_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let sweep = dir.path().join("sweep");
+    let o = mjsafe(&[
+        "sweep",
+        "scenarios/bicycle_obstacle_gamma_m.toml",
+        "--out",
+        sweep.to_str().unwrap(),
+        "--threads",
+        "2",
+        "--set",
+        "duration=6.0",
+        "--grid",
+        "delays.acceleration=0.5,1.0,1.5",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = mjsafe(&["plot-sweep", sweep.to_str().unwrap(), "--x", "delays.acceleration"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let png = sweep.join("min_h-vs-delays.acceleration.png");
+    let (w, h, counts) = colour_counts(&png, &[BLUE]);
+    assert_eq!((w, h), (1000, 560));
+    assert!(counts[0] > 100, "the line and its points: {counts:?}");
+
+    let o = mjsafe(&["plot-sweep", sweep.to_str().unwrap(), "--x", "delays.steering"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("`delays.steering` is not a swept key (swept: delays.acceleration)"),
+        "{}",
+        stderr(&o)
+    );
+    let o = mjsafe(&[
+        "plot-sweep",
+        sweep.to_str().unwrap(),
+        "--x",
+        "delays.acceleration",
+        "--y",
+        "nope",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no metric `nope`"), "{}", stderr(&o));
+}
