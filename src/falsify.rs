@@ -185,6 +185,13 @@ fn reflect(z: f64) -> f64 {
 pub fn range_value(range: &Range, u: f64) -> String {
     let v = match range.step {
         None => range.lo + u * (range.hi - range.lo),
+        // Whole LO and STEP: a whole number, written as a TOML integer (seeds, counts; a float
+        // field accepts it too).
+        Some(step) if range.lo.fract() == 0.0 && step.fract() == 0.0 => {
+            let choices = ((range.hi - range.lo) / step + 1e-9).floor();
+            let k = (u * choices).round().clamp(0.0, choices);
+            return format!("{}", (range.lo + k * step) as i64);
+        }
         Some(step) => {
             let choices = ((range.hi - range.lo) / step + 1e-9).floor();
             let k = (u * choices).round().clamp(0.0, choices);
@@ -579,7 +586,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
 }
 
 /// Best score so far against evaluations, one line per search, with the threshold (score 0).
-pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str) -> Result<(), FalsifyError> {
+pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score: &str) -> Result<(), FalsifyError> {
     use plotters::prelude::*;
     crate::plot::register_embedded_font().map_err(|e| FalsifyError::Output(e.to_string()))?;
     let err = |e: &dyn std::fmt::Display| FalsifyError::Output(format!("{}: {e}", path.display()));
@@ -616,7 +623,7 @@ pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str) -> Re
         chart
             .configure_mesh()
             .x_desc("evaluations (runs)")
-            .y_desc(format!("best score so far ({objective} − threshold)"))
+            .y_desc(format!("best score so far: {score}"))
             .draw()?;
         chart
             .draw_series(LineSeries::new([(0.0, 0.0), (x1, 0.0)], BLACK.stroke_width(1)))?
@@ -668,8 +675,18 @@ mod tests {
         assert_eq!(range_value(&r, 0.0), "0.0");
         assert_eq!(range_value(&r, 1.0), "1.5");
         assert_eq!(range_value(&r, 0.2), "0.3");
-        let c = Range { step: None, ..r };
+        let c = Range {
+            step: None,
+            ..r.clone()
+        };
         assert_eq!(range_value(&c, 0.5), "0.75");
+        let seeds = Range {
+            key: "seed".into(),
+            lo: 0.0,
+            hi: 1000.0,
+            step: Some(1.0),
+        };
+        assert_eq!(range_value(&seeds, 0.5), "500");
     }
 
     #[test]
@@ -850,7 +867,12 @@ pub fn falsify(
     .map_err(|e| FalsifyError::Output(e.to_string()))?;
     let png = dir.join("convergence.png");
     let convergence_png = if searches.iter().any(|s| s.best().is_some()) {
-        convergence_png(&png, &refs, &problem.objective)?;
+        let score = if problem.baseline.is_empty() {
+            format!("{} − threshold", problem.objective)
+        } else {
+            format!("max(m − T, T − m_baseline), m = {}", problem.objective)
+        };
+        convergence_png(&png, &refs, &problem.objective, &score)?;
         Some(png)
     } else {
         None
