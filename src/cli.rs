@@ -1223,11 +1223,12 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
     }
     match &report.counterexample {
         Some((scenario, log)) => outln!(
-            "counterexample: {} (its run: {}, {} = {}) | evaluations: {}, {}{}",
+            "counterexample: {} ({}) | evaluations: {}, {}{}",
             scenario.display(),
-            log.display(),
-            problem.objective,
-            report.reproduced.map_or("absent".into(), |v| format!("{v:.4}")),
+            match report.reproduced {
+                Some(v) => format!("its run: {}, {} = {v:.4}", log.display(), problem.objective),
+                None => "not re-run: the search was interrupted".into(),
+            },
             report.evaluations_csv.display(),
             report.evaluations_json.display(),
             report

@@ -779,47 +779,51 @@ pub fn falsify(
             text.as_bytes(),
         )
         .map_err(|e| FalsifyError::Output(e.to_string()))?;
-        // The written file alone reproduces the run (no overrides).
-        let spec = SweepSpec {
-            name: "counterexample".into(),
-            scenario: scenario_path.display().to_string(),
-            scenario_fnv1a: String::new(),
-            set: Vec::new(),
-            grids: Vec::new(),
-            random: None,
-            runs: 1,
-        };
-        let run = Run {
-            index: 0,
-            overrides: Vec::new(),
-            parameters: Vec::new(),
-        };
-        let row = sweep::execute_run(&spec, &run, dir);
-        let log = dir.join(spec.log_name(0));
+        let interrupted = searches.iter().any(|s| s.interrupted);
+        // The written file alone reproduces the run (no overrides); after Ctrl-C the file is
+        // kept but not re-run (the stop request would end that run too).
         let renamed = dir.join("counterexample.mcap");
-        if log.exists() {
-            crate::log::mcap::check_target(&renamed, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))?;
-            std::fs::rename(&log, &renamed).map_err(|reason| FalsifyError::Io {
-                path: renamed.display().to_string(),
-                reason,
-            })?;
-        }
-        reproduced = row.metrics.as_ref().and_then(|m| match m.cell(&problem.objective) {
-            Cell::Num(v) => v,
-            Cell::Int(v) => v.map(|v| v as f64),
-            _ => None,
-        });
-        // The search's own value, bit for bit up to round-off, or the file is not the run.
-        let expected = e.objective;
-        let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
-        if !same {
-            return Err(FalsifyError::Output(format!(
-                "{}: the written counterexample does not reproduce the search's run ({} = {:?} in the search, {:?} from the file)",
-                scenario_path.display(),
-                problem.objective,
-                expected,
-                reproduced
-            )));
+        if !interrupted {
+            let spec = SweepSpec {
+                name: "counterexample".into(),
+                scenario: scenario_path.display().to_string(),
+                scenario_fnv1a: String::new(),
+                set: Vec::new(),
+                grids: Vec::new(),
+                random: None,
+                runs: 1,
+            };
+            let run = Run {
+                index: 0,
+                overrides: Vec::new(),
+                parameters: Vec::new(),
+            };
+            let row = sweep::execute_run(&spec, &run, dir);
+            let log = dir.join(spec.log_name(0));
+            if log.exists() {
+                crate::log::mcap::check_target(&renamed, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))?;
+                std::fs::rename(&log, &renamed).map_err(|reason| FalsifyError::Io {
+                    path: renamed.display().to_string(),
+                    reason,
+                })?;
+            }
+            reproduced = row.metrics.as_ref().and_then(|m| match m.cell(&problem.objective) {
+                Cell::Num(v) => v,
+                Cell::Int(v) => v.map(|v| v as f64),
+                _ => None,
+            });
+            // The search's own value, bit for bit up to round-off, or the file is not the run.
+            let expected = e.objective;
+            let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
+            if !same {
+                return Err(FalsifyError::Output(format!(
+                    "{}: the written counterexample does not reproduce the search's run ({} = {:?} in the search, {:?} from the file)",
+                    scenario_path.display(),
+                    problem.objective,
+                    expected,
+                    reproduced
+                )));
+            }
         }
         counterexample = Some((scenario_path, renamed));
     }

@@ -215,3 +215,51 @@ fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
         assert!(!out.join("evaluations.csv").exists());
     }
 }
+
+#[test]
+fn ctrl_c_keeps_what_the_search_found() {
+    use std::process::{Command, Stdio};
+    use std::time::Duration;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let mut args: Vec<String> = ["falsify", "scenarios/bicycle_obstacle_gamma_m.toml"]
+        .iter()
+        .chain(GAMMA_M_BOX.iter())
+        .map(|s| s.to_string())
+        .collect();
+    args.extend(["--worst", "--budget", "100000", "--threads", "1", "--out"].map(String::from));
+    args.push(out.display().to_string());
+    let child = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(&args)
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the first generation is written to stderr… then interrupt.
+    std::thread::sleep(Duration::from_millis(2500));
+    assert!(Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", text(&o));
+    assert!(stderr(&o).contains("interrupted"), "{}", stderr(&o));
+    let e = evaluations(&out);
+    let search = &e["searches"][0];
+    assert_eq!(search["interrupted"], true);
+    let n = search["evaluations_run"].as_u64().unwrap();
+    assert!(n >= 8 && n < 100000, "{n}");
+    // A violation found before the interruption is written as the counterexample.
+    if !search["runs_to_first_violation"].is_null() {
+        assert!(out.join("counterexample.toml").exists());
+    }
+    assert!(
+        listing(&out)
+            .iter()
+            .all(|f| !f.contains("partial") && !f.starts_with(".evaluations")),
+        "{:?}",
+        listing(&out)
+    );
+}
