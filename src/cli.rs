@@ -691,7 +691,21 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 summary.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
             };
             let out = out.unwrap_or_else(|| dir.join(format!("{y}-vs-{x}.png")));
-            let written = crate::plot::plot_sweep(&summary, &x, &y, &out)?;
+            let file = if summary.is_dir() {
+                summary.join("summary.json")
+            } else {
+                summary.clone()
+            };
+            let read = Summary::read(&file)?;
+            let points: Vec<crate::plot::SweepPoint<'_>> = read
+                .runs
+                .iter()
+                .map(|r| crate::plot::SweepPoint {
+                    parameters: &r.parameters,
+                    metrics: r.metrics.as_ref(),
+                })
+                .collect();
+            let written = crate::plot::plot_sweep(&file, &read.sweep.name, &read.parameters, &points, &x, &y, &out)?;
             eprintln!("plot: {}", written.display());
             Ok(ExitCode::SUCCESS)
         }

@@ -559,18 +559,40 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
     Ok(written)
 }
 
+/// One run of a sweep as the sweep plot reads it: its swept values and its metrics.
+pub struct SweepPoint<'a> {
+    pub parameters: &'a BTreeMap<String, String>,
+    pub metrics: Option<&'a crate::analyze::FlatMetrics>,
+}
+
+struct SweepRows<'a> {
+    name: &'a str,
+    parameters: &'a [String],
+    runs: &'a [SweepPoint<'a>],
+}
+
 /// A metric of a sweep's summary (`summary.json`, or a sweep directory holding one) against
 /// one swept key, into `out` (PNG): one line per combination of the other swept keys, runs that
 /// collided marked with a cross. The metric is a numeric field of the summary's metrics
 /// (`min_h`, `min_clearance`, `max_jerk`, … docs/metrics.md).
-pub fn plot_sweep(summary: &Path, key: &str, metric: &str, out: &Path) -> Result<PathBuf, PlotError> {
+///
+/// `file` names the summary in messages, `name` is the sweep's name; `swept` are its swept keys and `runs` its rows (the
+/// caller reads the summary: plotting never reaches the code that runs sweeps).
+pub fn plot_sweep(
+    file: &Path,
+    name: &str,
+    swept: &[String],
+    runs: &[SweepPoint<'_>],
+    key: &str,
+    metric: &str,
+    out: &Path,
+) -> Result<PathBuf, PlotError> {
     register_embedded_font()?;
-    let file = if summary.is_dir() {
-        summary.join("summary.json")
-    } else {
-        summary.to_path_buf()
+    let s = SweepRows {
+        name,
+        parameters: swept,
+        runs,
     };
-    let s = crate::sweep::Summary::read(&file).map_err(|e| PlotError::Sweep(e.to_string()))?;
     if !s.parameters.iter().any(|p| p == key) {
         return Err(PlotError::Sweep(format!(
             "{}: `{key}` is not a swept key (swept: {})",
@@ -581,7 +603,7 @@ pub fn plot_sweep(summary: &Path, key: &str, metric: &str, out: &Path) -> Result
     type Points = Vec<(f64, f64, bool)>;
     let mut groups: BTreeMap<String, Points> = BTreeMap::new();
     let mut known_metric = false;
-    for run in &s.runs {
+    for run in s.runs {
         let Some(metrics) = &run.metrics else { continue };
         let value = serde_json::to_value(metrics).expect("metrics serialise");
         if value.get(metric).is_some() {
@@ -651,11 +673,11 @@ pub fn plot_sweep(summary: &Path, key: &str, metric: &str, out: &Path) -> Result
     } else {
         key.to_string()
     };
-    let result = draw_png(out, &[file.as_path()], |partial: &Path| -> DrawResult<()> {
+    let result = draw_png(out, &[file], |partial: &Path| -> DrawResult<()> {
         let root = BitMapBackend::new(partial, (1000, 560)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("{metric} against {key} ({})", s.sweep.name), ("sans-serif", 22))
+            .caption(format!("{metric} against {key} ({})", s.name), ("sans-serif", 22))
             .margin(14)
             .x_label_area_size(44)
             .y_label_area_size(70)
