@@ -7,20 +7,6 @@ use common::*;
 
 use std::process::Command;
 
-fn python_digest(log: &std::path::Path) -> serde_json::Value {
-    let o = Command::new(python())
-        .arg(root().join("tests/read_log.py"))
-        .arg(log)
-        .output()
-        .expect("python runs");
-    assert!(
-        o.status.success(),
-        "python reader failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).unwrap()
-}
-
 #[test]
 fn python_mcap_reads_and_decodes_the_log() {
     let dir = tempfile::tempdir().unwrap();

@@ -6,7 +6,6 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use common::*;
 use mjsafe::log::proto;
@@ -285,18 +284,4 @@ fn bad_sensing_and_actuator_tables_name_the_field() {
     ] {
         run_expecting_failure(GAMMA_M, &[set], needles);
     }
-}
-
-fn python_digest(log: &Path) -> serde_json::Value {
-    let o = Command::new(python())
-        .arg(root().join("tests/read_log.py"))
-        .arg(log)
-        .output()
-        .expect("python runs");
-    assert!(
-        o.status.success(),
-        "python reader failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).unwrap()
 }

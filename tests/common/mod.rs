@@ -185,3 +185,19 @@ pub fn assert_same_messages(a: &Path, b: &Path, topics: &[&str], may_be_empty: &
         assert!(x == y, "{topic} differs");
     }
 }
+
+/// The digest of tests/read_log.py: an independent reader (Python `mcap`, CRCs checked,
+/// messages decoded from the embedded schemas).
+pub fn python_digest(log: &std::path::Path) -> serde_json::Value {
+    let o = std::process::Command::new(python())
+        .arg(root().join("tests/read_log.py"))
+        .arg(log)
+        .output()
+        .expect("python runs");
+    assert!(
+        o.status.success(),
+        "python reader failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).unwrap()
+}
