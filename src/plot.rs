@@ -160,6 +160,15 @@ fn bounds(points: impl Iterator<Item = (f64, f64)> + Clone) -> ((f64, f64), (f64
 
 type DrawResult<T> = Result<T, Box<dyn std::error::Error>>;
 
+/// Height over width of a chart's plotting area (image size, margin, x and y label areas and
+/// caption font size in pixels; the caption takes about 1.4 × its font size): the y span that
+/// gives both axes the same metres per pixel is this times the x span.
+fn plot_aspect((width, height): (u32, u32), margin: u32, x_label: u32, y_label: u32, caption: u32) -> f64 {
+    let w = f64::from(width - 2 * margin - y_label);
+    let h = f64::from(height - 2 * margin - x_label) - 1.4 * f64::from(caption);
+    h / w
+}
+
 /// One line of a chart: legend label, (t, value) points, style.
 type Line<'a> = (String, &'a [(f64, f64)], ShapeStyle);
 
@@ -325,8 +334,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .values()
             .flat_map(|((x, y), r)| [(x - r, y - r), (x + r, y + r)]);
         let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles));
-        // Equal axis scales: widen the shorter span.
-        let (cx, cy, half) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0, ((x1 - x0).max((y1 - y0) * 2.0)) / 2.0);
+        // Equal axis scales: widen the shorter span to the plotting area's shape.
+        let aspect = plot_aspect((1000, 500), 12, 36, 50, 22);
+        let (cx, cy, half) = (
+            (x0 + x1) / 2.0,
+            (y0 + y1) / 2.0,
+            ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
+        );
         let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
             let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
@@ -335,7 +349,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 .margin(12)
                 .x_label_area_size(36)
                 .y_label_area_size(50)
-                .build_cartesian_2d((cx - half)..(cx + half), (cy - half / 2.0)..(cy + half / 2.0))?;
+                .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
             chart.configure_mesh().x_desc("x [m]").y_desc("y [m]").draw()?;
             if let Some(reference) = series.reference {
                 chart.draw_series(LineSeries::new(reference, PALETTE[2].stroke_width(2)))?;
@@ -435,7 +449,12 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
             .flat_map(|((x, y), r)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
         let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
         let ((x0, x1), (y0, y1)) = bounds(points);
-        let (cx, cy, half) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0, ((x1 - x0).max((y1 - y0) * 2.0)) / 2.0);
+        let aspect = plot_aspect((1200, 600), 14, 44, 60, 24);
+        let (cx, cy, half) = (
+            (x0 + x1) / 2.0,
+            (y0 + y1) / 2.0,
+            ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
+        );
         let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
             let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
             root.fill(&WHITE)?;
@@ -444,7 +463,7 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
                 .margin(14)
                 .x_label_area_size(44)
                 .y_label_area_size(60)
-                .build_cartesian_2d((cx - half)..(cx + half), (cy - half / 2.0)..(cy + half / 2.0))?;
+                .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
             chart
                 .configure_mesh()
                 .x_desc("x [m]")
@@ -471,7 +490,10 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
                     ))?;
                     if k == 0 {
                         drawn
-                            .label(format!("barrier radius r = obstacle + hull ({hull:.3} m)"))
+                            .label(format!(
+                                "barrier radius r = obstacle {r:.2} m + hull {hull:.2} m = {:.2} m",
+                                r + hull
+                            ))
                             .legend(|(x, y)| PathElement::new([(x, y), (x + 8, y), (x + 12, y), (x + 18, y)], BLACK));
                     }
                 }
