@@ -69,6 +69,13 @@ pub struct BenchRow {
     pub bare_final_state_deviation: f64,
     pub pipeline: Timing,
     pub pipeline_mcap: Timing,
+    /// What a sweep or falsification run pays before its first step (median): scenario parse,
+    /// episode assembly with the MJCF compile, log open.
+    pub startup_seconds: f64,
+    /// Start-up as a share of the logged run's wall time.
+    pub startup_share: f64,
+    /// What it pays after the last step (median): analysing the log.
+    pub analysis_seconds: f64,
     pub log_bytes: u64,
     /// Largest |p_i(t) − x(t + D_i)| over the run, per channel (from the log).
     pub max_prediction_error: std::collections::BTreeMap<String, f64>,
@@ -159,6 +166,7 @@ pub fn run(
         let mut bare = Vec::new();
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
+        let (mut startup, mut analysis) = (Vec::new(), Vec::new());
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
@@ -168,9 +176,22 @@ pub fn run(
 
             pipeline.push(timed_run(&loaded, &mut [])?);
 
+            // As a sweep run: parse, assemble (MJCF compile), open the log; run; analyse.
+            let started = Instant::now();
+            let fresh = scenario::load(scenario_path, &overrides)?;
+            let mut episode = Episode::new(&fresh)?;
             let mut sink = McapSink::create(&log_path, &info, &inputs)?;
-            pipeline_mcap.push(timed_run(&loaded, &mut [&mut sink])?);
+            startup.push(started.elapsed().as_secs_f64());
+            let started = Instant::now();
+            if let Some(e) = episode.run(&mut [&mut sink])?.error {
+                return Err(BenchError::Stopped(e.to_string()));
+            }
+            pipeline_mcap.push(started.elapsed().as_secs_f64());
+            let started = Instant::now();
+            analyze::analyze_file(&log_path)?;
+            analysis.push(started.elapsed().as_secs_f64());
         }
+        let (startup, analysis, logged) = (median(startup), median(analysis), median(pipeline_mcap.clone()));
         let bare = median(bare);
         let metrics = analyze::analyze_file(&log_path)?;
         rows.push(BenchRow {
@@ -185,7 +206,10 @@ pub fn run(
             bare: timing(bare, simulated_time, steps, bare),
             bare_final_state_deviation: replay_deviation,
             pipeline: timing(median(pipeline), simulated_time, steps, bare),
-            pipeline_mcap: timing(median(pipeline_mcap), simulated_time, steps, bare),
+            pipeline_mcap: timing(logged, simulated_time, steps, bare),
+            startup_seconds: startup,
+            startup_share: startup / logged,
+            analysis_seconds: analysis,
             log_bytes: std::fs::metadata(&log_path).map(|m| m.len()).unwrap_or(0),
             max_prediction_error: metrics
                 .prediction
@@ -211,6 +235,8 @@ pub fn table(rows: &[BenchRow]) -> String {
         "+MCAP RTF",
         "+MCAP / bare",
         "us/step",
+        "start-up ms (% of run)",
+        "analysis ms",
         "log MB",
         "max prediction error",
         "reused (max diff)",
@@ -233,6 +259,8 @@ pub fn table(rows: &[BenchRow]) -> String {
             format!("{:.0}x", r.pipeline_mcap.real_time_factor),
             format!("{:.2}", r.pipeline_mcap.ratio_to_bare),
             format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
+            format!("{:.1} ({:.0} %)", r.startup_seconds * 1e3, r.startup_share * 100.0),
+            format!("{:.1}", r.analysis_seconds * 1e3),
             format!("{:.2}", r.log_bytes as f64 / 1e6),
             if errors.is_empty() {
                 "-".into()

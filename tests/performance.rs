@@ -42,6 +42,15 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
         );
     }
     assert!((row["bare"]["ratio_to_bare"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    // Start-up (parse, assembly, log open) and analysis are measured apart from the run; the
+    // share is start-up over the logged run's wall time (no timing is asserted).
+    let (startup, analysis) = (
+        row["startup_seconds"].as_f64().unwrap(),
+        row["analysis_seconds"].as_f64().unwrap(),
+    );
+    assert!(startup > 0.0 && analysis > 0.0, "{row}");
+    let share = startup / row["pipeline_mcap"]["wall_seconds"].as_f64().unwrap();
+    assert!((row["startup_share"].as_f64().unwrap() - share).abs() < 1e-12);
     // The bare loop replays the run's actuation: same trajectory, same final state.
     assert!(row["bare_final_state_deviation"].as_f64().unwrap() < 1e-9, "{row}");
     // The kept log is complete and is the scenario's run (it avoids the obstacle).
