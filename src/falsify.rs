@@ -183,25 +183,13 @@ fn reflect(z: f64) -> f64 {
 /// The value of `range` at u ∈ [0, 1], as TOML text (quantised ranges: the nearest multiple
 /// of STEP from LO not above HI).
 pub fn range_value(range: &Range, u: f64) -> String {
-    let v = match range.step {
-        None => range.lo + u * (range.hi - range.lo),
-        // Whole LO and STEP: a whole number, written as a TOML integer (seeds, counts; a float
-        // field accepts it too).
-        Some(step) if range.lo.fract() == 0.0 && step.fract() == 0.0 => {
-            let choices = ((range.hi - range.lo) / step + 1e-9).floor();
-            let k = (u * choices).round().clamp(0.0, choices);
-            return format!("{}", (range.lo + k * step) as i64);
-        }
+    match range.step {
+        None => format!("{:?}", range.lo + u * (range.hi - range.lo)),
         Some(step) => {
             let choices = ((range.hi - range.lo) / step + 1e-9).floor();
-            let k = (u * choices).round().clamp(0.0, choices);
-            // 12 significant digits drop the round-off of k·step (0.30000000000000004 → 0.3).
-            format!("{:.11e}", range.lo + k * step)
-                .parse()
-                .expect("formatted float parses")
+            sweep::step_value(range, (u * choices).round().clamp(0.0, choices) as u64)
         }
-    };
-    format!("{v:?}")
+    }
 }
 
 /// The search's evaluator: runs candidates (and their baselines) and scores them.

@@ -320,12 +320,22 @@ fn range_value(range: &Range, u: f64) -> String {
         Some(step) => {
             let choices = ((range.hi - range.lo) / step + 1e-9).floor() as u64 + 1;
             let k = ((u * choices as f64) as u64).min(choices - 1);
-            let v = range.lo + k as f64 * step;
-            // 12 significant digits drop the round-off of k·step (0.30000000000000004 → 0.3).
-            let v: f64 = format!("{v:.11e}").parse().expect("formatted float parses");
-            format!("{v:?}")
+            step_value(range, k)
         }
     }
+}
+
+/// LO + k·STEP of a quantised range as TOML text: an integer when LO and STEP are whole
+/// numbers (seeds and counts need one; a float field accepts it too), else a float with the
+/// round-off of k·STEP dropped (12 significant digits: 0.30000000000000004 → 0.3).
+pub fn step_value(range: &Range, k: u64) -> String {
+    let step = range.step.unwrap_or(0.0);
+    let v = range.lo + k as f64 * step;
+    if range.lo.fract() == 0.0 && step.fract() == 0.0 {
+        return format!("{}", v as i64);
+    }
+    let v: f64 = format!("{v:.11e}").parse().expect("formatted float parses");
+    format!("{v:?}")
 }
 
 impl SweepSpec {
@@ -945,5 +955,27 @@ mod tests {
             .map(|j| range_value(&range, draw_generator(8, j).next_f64()))
             .collect();
         assert_ne!(a, c);
+    }
+
+    #[test]
+    fn whole_number_steps_are_integers_seeds_accept() {
+        let seeds = Range {
+            key: "seed".into(),
+            lo: 0.0,
+            hi: 1000.0,
+            step: Some(1.0),
+        };
+        let drawn: Vec<String> = (0..20)
+            .map(|j| range_value(&seeds, draw_generator(3, j).next_f64()))
+            .collect();
+        assert!(
+            drawn.iter().all(|v| v.parse::<u64>().is_ok_and(|n| n <= 1000)),
+            "{drawn:?}"
+        );
+        let halves = Range {
+            step: Some(0.5),
+            ..seeds
+        };
+        assert_eq!(step_value(&halves, 3), "1.5");
     }
 }
