@@ -573,13 +573,9 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
     crate::analyze::csv_lines(&rows)
 }
 
-/// Best score so far against evaluations, one line per search, with the threshold (score 0).
+/// Best score so far against evaluations, one line per search, with the zero line below which
+/// a candidate violates.
 pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score: &str) -> Result<(), FalsifyError> {
-    use plotters::prelude::*;
-    crate::plot::register_embedded_font().map_err(|e| FalsifyError::Output(e.to_string()))?;
-    let err = |e: &dyn std::fmt::Display| FalsifyError::Output(format!("{}: {e}", path.display()));
-    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(b"\x89PNG"), &[])
-        .map_err(|e| err(&e))?;
     let curves: Vec<(String, Vec<(f64, f64)>)> = searches
         .iter()
         .map(|s| {
@@ -593,52 +589,13 @@ pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score
             (s.method.name().to_string(), points)
         })
         .collect();
-    let all = curves.iter().flat_map(|(_, p)| p.iter().copied());
-    let x1 = all.clone().map(|p| p.0).fold(1.0, f64::max);
-    let (mut y0, mut y1) = all.fold((0.0f64, 0.0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
-    let pad = ((y1 - y0) * 0.05).max(1e-3);
-    (y0, y1) = (y0 - pad, y1 + pad);
-    let partial = path.with_extension("partial.png");
-    let drawn = (|| -> Result<(), Box<dyn std::error::Error>> {
-        let root = BitMapBackend::new(&partial, (900, 560)).into_drawing_area();
-        root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(format!("Falsification: best {objective} so far"), ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d(0.0..x1, y0..y1)?;
-        chart
-            .configure_mesh()
-            .x_desc("evaluations (runs)")
-            .y_desc(format!("best score so far: {score}"))
-            .draw()?;
-        chart
-            .draw_series(LineSeries::new([(0.0, 0.0), (x1, 0.0)], BLACK.stroke_width(1)))?
-            .label("violation below 0")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
-        for (i, (name, points)) in curves.iter().enumerate() {
-            let color = [RGBColor(214, 39, 40), RGBColor(31, 119, 180)][i % 2];
-            let style = color.stroke_width(2);
-            chart
-                .draw_series(LineSeries::new(points.iter().copied(), style))?
-                .label(name.clone())
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-        root.present()?;
-        std::fs::rename(&partial, path)?;
-        Ok(())
-    })();
-    if let Err(e) = drawn {
-        let _ = std::fs::remove_file(&partial);
-        return Err(err(&e));
-    }
-    Ok(())
+    crate::plot::line_chart_png(
+        path,
+        &format!("Falsification: best {objective} so far (violation below 0)"),
+        ("evaluations (runs)", &format!("best score so far: {score}")),
+        &curves,
+    )
+    .map_err(|e| FalsifyError::Output(e.to_string()))
 }
 
 #[cfg(test)]

@@ -180,6 +180,18 @@ fn time_chart(
     series: &[Line<'_>],
     zero_line: bool,
 ) -> DrawResult<()> {
+    line_chart(area, title, "t [s]", y_desc, series, zero_line)
+}
+
+/// Chart of named series into `area` (x and y axis descriptions given).
+fn line_chart(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[Line<'_>],
+    zero_line: bool,
+) -> DrawResult<()> {
     let all = series.iter().flat_map(|(_, s, _)| s.iter().copied());
     let ((x0, x1), (mut y0, mut y1)) = bounds(all);
     if zero_line {
@@ -194,7 +206,7 @@ fn time_chart(
         .build_cartesian_2d(x0..x1, y0..y1)?;
     chart
         .configure_mesh()
-        .x_desc("t [s]")
+        .x_desc(x_desc)
         .y_desc(y_desc)
         .light_line_style(WHITE.mix(0.0))
         .draw()?;
@@ -247,6 +259,36 @@ fn draw_error(path: &Path, e: Box<dyn std::error::Error>) -> PlotError {
         .unwrap_or(&message)
         .to_string();
     PlotError::Draw { file, message }
+}
+
+/// One PNG chart of named (x, y) series with the zero line (e.g. a search's best score
+/// against runs): written as the other plots are (never half-drawn under its final name).
+pub fn line_chart_png(
+    path: &Path,
+    title: &str,
+    axes: (&str, &str),
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), PlotError> {
+    register_embedded_font()?;
+    let lines: Vec<Line<'_>> = series
+        .iter()
+        .enumerate()
+        .map(|(i, (name, points))| {
+            (
+                name.clone(),
+                points.as_slice(),
+                PALETTE[i % PALETTE.len()].stroke_width(2),
+            )
+        })
+        .collect();
+    draw_png(path, &[], |partial: &Path| -> DrawResult<()> {
+        let root = BitMapBackend::new(partial, (900, 560)).into_drawing_area();
+        root.fill(&WHITE)?;
+        line_chart(&root, title, axes.0, axes.1, &lines, true)?;
+        root.present()?;
+        Ok(())
+    })
+    .map_err(|e| draw_error(path, e))
 }
 
 /// Writes the plots of `log` into `dir`; returns the files written.
