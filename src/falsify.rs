@@ -19,7 +19,7 @@ use serde::Serialize;
 
 use crate::analyze::{Cell, FlatMetrics};
 use crate::random::SplitMix64;
-use crate::sweep::{self, Range, Run, SweepSpec};
+use crate::sweep::{self, Range, Run};
 
 #[derive(Debug, thiserror::Error)]
 pub enum FalsifyError {
@@ -192,10 +192,19 @@ pub fn range_value(range: &Range, u: f64) -> String {
     }
 }
 
+/// The numeric value of metric `name` (a column of `analyze --csv`), if the run has one.
+fn objective_value(metrics: &FlatMetrics, name: &str) -> Option<f64> {
+    match metrics.cell(name) {
+        Cell::Num(v) => v,
+        Cell::Int(v) => v.map(|v| v as f64),
+        _ => None,
+    }
+}
+
 /// The search's evaluator: runs candidates (and their baselines) and scores them.
 struct Evaluator<'a> {
     problem: &'a Problem,
-    spec: SweepSpec,
+    scenario: &'a Path,
     dir: PathBuf,
     /// File names of in-flight logs (deleted after analysis).
     next_log: AtomicUsize,
@@ -219,7 +228,7 @@ impl Evaluator<'_> {
             overrides,
             parameters: Vec::new(),
         };
-        let row = sweep::execute_run(&self.spec, &run, &self.dir);
+        let row = sweep::execute_logged(self.scenario, &run, &self.dir, format!("candidate-{index}.mcap"));
         if let Some(log) = &row.log {
             let _ = std::fs::remove_file(self.dir.join(log));
         }
@@ -227,14 +236,12 @@ impl Evaluator<'_> {
             return Err(e);
         }
         let metrics = row.metrics.ok_or("the run left no log")?;
-        match metrics.cell(&self.problem.objective) {
-            Cell::Num(Some(v)) => Ok(v),
-            Cell::Int(Some(v)) => Ok(v as f64),
-            _ => Err(format!(
+        objective_value(&metrics, &self.problem.objective).ok_or_else(|| {
+            format!(
                 "the log has no {} (see `mjsafe analyze --json`)",
                 self.problem.objective
-            )),
-        }
+            )
+        })
     }
 
     /// Runs the candidate at `unit` (and its baseline) and scores it.
@@ -349,15 +356,7 @@ pub fn search(
     })?;
     let evaluator = Evaluator {
         problem,
-        spec: SweepSpec {
-            name: "candidate".into(),
-            scenario: problem.scenario.display().to_string(),
-            scenario_fnv1a: String::new(),
-            set: Vec::new(),
-            grids: Vec::new(),
-            random: None,
-            runs: 0,
-        },
+        scenario: &problem.scenario,
         dir: scratch.clone(),
         next_log: AtomicUsize::new(0),
     };
@@ -727,36 +726,18 @@ pub fn falsify(
         let interrupted = searches.iter().any(|s| s.interrupted);
         // The written file alone reproduces the run (no overrides); after Ctrl-C the file is
         // kept but not re-run (the stop request would end that run too).
-        let renamed = dir.join("counterexample.mcap");
+        let log = dir.join("counterexample.mcap");
         if !interrupted {
-            let spec = SweepSpec {
-                name: "counterexample".into(),
-                scenario: scenario_path.display().to_string(),
-                scenario_fnv1a: String::new(),
-                set: Vec::new(),
-                grids: Vec::new(),
-                random: None,
-                runs: 1,
-            };
             let run = Run {
                 index: 0,
                 overrides: Vec::new(),
                 parameters: Vec::new(),
             };
-            let row = sweep::execute_run(&spec, &run, dir);
-            let log = dir.join(spec.log_name(0));
-            if log.exists() {
-                crate::log::mcap::check_target(&renamed, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))?;
-                std::fs::rename(&log, &renamed).map_err(|reason| FalsifyError::Io {
-                    path: renamed.display().to_string(),
-                    reason,
-                })?;
-            }
-            reproduced = row.metrics.as_ref().and_then(|m| match m.cell(&problem.objective) {
-                Cell::Num(v) => v,
-                Cell::Int(v) => v.map(|v| v as f64),
-                _ => None,
-            });
+            let row = sweep::execute_logged(&scenario_path, &run, dir, "counterexample.mcap".into());
+            reproduced = row
+                .metrics
+                .as_ref()
+                .and_then(|m| objective_value(m, &problem.objective));
             // The search's own value, bit for bit up to round-off, or the file is not the run.
             let expected = e.objective;
             let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
@@ -770,7 +751,7 @@ pub fn falsify(
                 )));
             }
         }
-        counterexample = Some((scenario_path, renamed));
+        counterexample = Some((scenario_path, log));
     }
     let refs: Vec<&Search> = searches.iter().collect();
     let evaluations_csv = dir.join("evaluations.csv");

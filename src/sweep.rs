@@ -567,7 +567,12 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 /// Runs one run of the sweep into `dir` and analyses its log. Never fails: a failure is the
 /// row's `error`.
 pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
-    let log_name = spec.log_name(run.index);
+    execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index))
+}
+
+/// One run of `scenario` with the run's overrides into `dir/log_name`, analysed (what every
+/// sweep run and falsification candidate is). Never fails: a failure is the row's `error`.
+pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: String) -> Row {
     let log_path = dir.join(&log_name);
     let mut row = Row {
         index: run.index,
@@ -583,7 +588,7 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
         let _ = std::fs::remove_file(&log_path);
     }
     let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Option<String>, String> {
-        let loaded = scenario::load(Path::new(&spec.scenario), &run.overrides).map_err(|e| e.to_string())?;
+        let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
         let inputs = loaded.inputs();
         let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
         mcap::check_target(&log_path, &inputs).map_err(|e| e.to_string())?;
