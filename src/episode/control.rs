@@ -31,7 +31,8 @@ pub struct Tick {
     pub issued: DVector<f64>,
     /// The filter's decision per channel (None when no barrier is known or no filter is set).
     pub outcomes: Vec<Option<ChannelOutcome>>,
-    /// The state the controller read (with a sensor: its late, biased, noisy measurement).
+    /// With a sensor, the state the controller read (its late, biased, noisy measurement);
+    /// without one it is not kept (the controller read the true state).
     pub measured: DVector<f64>,
 }
 
@@ -543,10 +544,12 @@ impl Controller for ControlLoop {
         }
         if tick {
             match &self.sensor {
-                Some(sensor) => sensor.measure_into(step, self.work.state.as_mut_slice()),
+                Some(sensor) => {
+                    sensor.measure_into(step, self.work.state.as_mut_slice());
+                    self.tick.measured.copy_from(&self.work.state);
+                }
                 None => state(self.work.state.as_mut_slice()),
             }
-            self.tick.measured.copy_from(&self.work.state);
             if let Err(e) = self.control_tick(step_time) {
                 self.error = Some(e);
             }
