@@ -10,7 +10,8 @@
 //!
 //! Integration is classical RK4 on the plant's step grid, with the input sampled at the stage
 //! times exactly as the plant samples it, so on the ODE plant a prediction equals the realised
-//! state up to integration round-off. Consecutive ticks share most of their window: a tick
+//! state up to integration round-off; where the inputs are held over each step and the model
+//! has a closed-form flow (the bicycle (4.78), the unicycle (2.36)), the step is exact. Consecutive ticks share most of their window: a tick
 //! continues the previous tick's trajectory when the fresh measurement agrees with it
 //! (`control.chain_tolerance`, [`PredictorWorkspace::set_chain_reuse`]).
 
@@ -146,6 +147,78 @@ struct Chain {
     head: usize,
     /// Slots of (state, input of the step into the node).
     slots: Vec<f64>,
+    /// The chain's states are `frame` applied to the stored ones (see [`Chain::transport_to`]).
+    frame: PlanarMotion,
+    /// A transformed node.
+    scratch: Vec<f64>,
+}
+
+/// A rigid motion of the plane acting on a state's position (p ↦ R(φ) p + b) and heading
+/// (θ ↦ θ + φ), the symmetry of models that do not depend on where they are or face
+/// ([`Dynamics::planar_motion_invariant`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PlanarMotion {
+    cos: f64,
+    sin: f64,
+    angle: f64,
+    shift: [f64; 2],
+}
+
+impl PlanarMotion {
+    const IDENTITY: PlanarMotion = PlanarMotion {
+        cos: 1.0,
+        sin: 0.0,
+        angle: 0.0,
+        shift: [0.0, 0.0],
+    };
+
+    fn apply(&self, [px, py, heading]: [usize; 3], x: &mut [f64]) {
+        let (a, b) = (x[px], x[py]);
+        x[px] = self.cos * a - self.sin * b + self.shift[0];
+        x[py] = self.sin * a + self.cos * b + self.shift[1];
+        x[heading] += self.angle;
+    }
+
+    fn apply_inverse(&self, [px, py, heading]: [usize; 3], x: &mut [f64]) {
+        let (a, b) = (x[px] - self.shift[0], x[py] - self.shift[1]);
+        x[px] = self.cos * a + self.sin * b;
+        x[py] = -self.sin * a + self.cos * b;
+        x[heading] -= self.angle;
+    }
+
+    /// The motion that takes state `from` to state `to` (position and heading).
+    fn between([px, py, heading]: [usize; 3], from: &[f64], to: &[f64]) -> PlanarMotion {
+        let angle = to[heading] - from[heading];
+        let (sin, cos) = angle.sin_cos();
+        PlanarMotion {
+            cos,
+            sin,
+            angle,
+            shift: [
+                to[px] - (cos * from[px] - sin * from[py]),
+                to[py] - (sin * from[px] + cos * from[py]),
+            ],
+        }
+    }
+
+    /// `next` after `self`.
+    fn then(&self, next: &PlanarMotion) -> PlanarMotion {
+        let (cos, sin) = (
+            next.cos * self.cos - next.sin * self.sin,
+            next.sin * self.cos + next.cos * self.sin,
+        );
+        // Renormalised, so thousands of compositions stay a rotation.
+        let norm = cos.hypot(sin);
+        PlanarMotion {
+            cos: cos / norm,
+            sin: sin / norm,
+            angle: self.angle + next.angle,
+            shift: [
+                next.cos * self.shift[0] - next.sin * self.shift[1] + next.shift[0],
+                next.sin * self.shift[0] + next.cos * self.shift[1] + next.shift[1],
+            ],
+        }
+    }
 }
 
 impl Chain {
@@ -157,6 +230,8 @@ impl Chain {
             len: 0,
             head: 0,
             slots: Vec::new(),
+            frame: PlanarMotion::IDENTITY,
+            scratch: vec![0.0; states],
         }
     }
 
@@ -176,15 +251,36 @@ impl Chain {
         self.tick = tick;
         self.len = 0;
         self.head = 0;
+        self.frame = PlanarMotion::IDENTITY;
     }
 
     fn offset(&self, node: usize) -> usize {
         (self.head + node) % self.capacity() * self.stride()
     }
 
+    /// The stored state of `node` (the chain's state unless it was transported).
     fn state(&self, node: usize) -> &[f64] {
         let o = self.offset(node);
         &self.slots[o..o + self.states]
+    }
+
+    /// out ← the chain's state at `node`.
+    fn state_into(&self, axes: Option<[usize; 3]>, node: usize, out: &mut [f64]) {
+        out.copy_from_slice(self.state(node));
+        if let (Some(axes), true) = (axes, self.frame != PlanarMotion::IDENTITY) {
+            self.frame.apply(axes, out);
+        }
+    }
+
+    /// Moves the whole chain by the rigid motion that takes its node 0 to `fresh` (O(1): only
+    /// the frame changes). For a model invariant under planar motions, whose inputs here are
+    /// all issued history, this is the trajectory integrated from `fresh` (RK4 commutes with
+    /// the affine action, so up to round-off).
+    fn transport_to(&mut self, axes: [usize; 3], fresh: &[f64]) {
+        let mut node0 = std::mem::take(&mut self.scratch);
+        self.state_into(Some(axes), 0, &mut node0);
+        self.frame = self.frame.then(&PlanarMotion::between(axes, &node0, fresh));
+        self.scratch = node0;
     }
 
     fn input(&self, node: usize) -> &[f64] {
@@ -192,10 +288,14 @@ impl Chain {
         &self.slots[o..o + self.channels]
     }
 
-    fn push(&mut self, state: &[f64], input: &[f64]) {
+    /// Appends a node; with `axes`, `state` is in the chain's frame and stored without it.
+    fn push(&mut self, axes: Option<[usize; 3]>, state: &[f64], input: &[f64]) {
         assert!(self.len < self.capacity(), "chain ring sized for the window");
         let (o, states, stride) = (self.offset(self.len), self.states, self.stride());
         self.slots[o..o + states].copy_from_slice(state);
+        if let (Some(axes), true) = (axes, self.frame != PlanarMotion::IDENTITY) {
+            self.frame.apply_inverse(axes, &mut self.slots[o..o + states]);
+        }
         self.slots[o + states..o + stride].copy_from_slice(input);
         self.len += 1;
     }
@@ -208,16 +308,23 @@ impl Chain {
     /// At tick t, if this chain is the previous tick's (t − T, `period_steps` nodes per T)
     /// and `usable`, drops that period from the front and returns max |node 0 − `fresh`|, the
     /// mismatch of the fresh prediction; NaN otherwise.
-    fn advance_to(&mut self, t: f64, period: f64, period_steps: usize, usable: bool, fresh: &[f64]) -> f64 {
+    fn advance_to(
+        &mut self,
+        axes: Option<[usize; 3]>,
+        (t, period, period_steps): (f64, f64, usize),
+        usable: bool,
+        fresh: &[f64],
+    ) -> f64 {
         let step = period / period_steps as f64;
         if !(usable && (self.tick + period - t).abs() < step * GRID_TOLERANCE && self.len > period_steps) {
             return f64::NAN;
         }
         self.drop_front(period_steps);
-        self.state(0)
-            .iter()
-            .zip(fresh)
-            .fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()))
+        let mut node0 = std::mem::take(&mut self.scratch);
+        self.state_into(axes, 0, &mut node0);
+        let mismatch = node0.iter().zip(fresh).fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
+        self.scratch = node0;
+        mismatch
     }
 }
 
@@ -432,6 +539,16 @@ impl PredictorContext<'_> {
         Ok(())
     }
 
+    /// (position x, position y, heading) when the model is invariant under planar rigid
+    /// motions, so a trajectory under the same inputs can be moved instead of re-integrated.
+    fn motion_axes(&self) -> Option<[usize; 3]> {
+        if !self.model.planar_motion_invariant() {
+            return None;
+        }
+        let [px, py] = self.model.planar_position()?;
+        Some([px, py, self.model.heading_index()?])
+    }
+
     /// Predictor steps per control period, when the step divides the period (consecutive
     /// ticks then share the integration grid, so a prediction's trajectory can be reused).
     fn period_steps(&self) -> Option<usize> {
@@ -472,18 +589,30 @@ impl PredictorContext<'_> {
         // (the rule `integrate` uses: a remainder within the grid tolerance of h is a step).
         let full_steps = ((target - t) / step + GRID_TOLERANCE).floor().max(0.0) as usize;
         let last_full = t + full_steps as f64 * step;
-        let mismatch = chain.advance_to(t, self.control_period, period_steps, chain.capacity() > full_steps, x);
-        let reusable = mismatch <= tolerance;
+        let axes = self.motion_axes();
+        let mismatch = chain.advance_to(
+            axes,
+            (t, self.control_period, period_steps),
+            chain.capacity() > full_steps,
+            x,
+        );
+        let mut reusable = mismatch <= tolerance;
+        if let (Some(axes), false) = (axes, mismatch.is_nan()) {
+            // Inputs here are all issued history: the previous trajectory moved onto x(t) is
+            // this tick's, whatever the mismatch.
+            chain.transport_to(axes, x);
+            reusable = true;
+        }
         let from = if reusable {
             chain.tick = t;
             let end = chain.len - 1;
-            rk4.state.copy_from_slice(chain.state(end));
+            chain.state_into(axes, end, &mut rk4.state);
             t + end as f64 * step
         } else {
             // Room for the horizon growing to twice this one before the ring must grow.
             chain.restart(t, 2 * (full_steps + 1).max(period_steps + 1));
             rk4.state.copy_from_slice(x);
-            chain.push(x, &rk4.input);
+            chain.push(None, x, &rk4.input);
             t
         };
         let mut history =
@@ -515,7 +644,12 @@ impl PredictorContext<'_> {
 
         let chain = &mut workspace.chain;
         let usable = chain.len == nodes;
-        let mismatch = chain.advance_to(t, self.control_period, period_steps, usable, &workspace.rk4.state);
+        let mismatch = chain.advance_to(
+            None,
+            (t, self.control_period, period_steps),
+            usable,
+            &workspace.rk4.state,
+        );
         let mut reusable = mismatch <= tolerance;
         if !mismatch.is_nan() {
             // Channels strictly between D_1 and D_r: the previous chain held κ_j on the steps
@@ -548,7 +682,7 @@ impl PredictorContext<'_> {
             )?;
         } else {
             chain.restart(t, nodes);
-            chain.push(&workspace.rk4.state, &workspace.rk4.input);
+            chain.push(None, &workspace.rk4.state, &workspace.rk4.input);
             let mut reached = first;
             for &i in order {
                 if delays[i] > reached {
@@ -634,14 +768,29 @@ impl PredictorContext<'_> {
 
     /// x advanced from `from` to `to` with every channel's issued history (no new commands).
     pub fn advance_with_history(&self, x: &DVector<f64>, from: f64, to: f64) -> Result<DVector<f64>, DelayError> {
-        let PredictorWorkspace {
-            mut rk4, mut cursors, ..
-        } = PredictorWorkspace::new(x.len(), self.queues.len());
-        rk4.state.copy_from_slice(x.as_slice());
-        self.integrate(&mut rk4, from, to, false, None, &mut |_, step, stage_time, u| {
-            self.history_inputs(&mut cursors, step, stage_time, u)
+        let mut workspace = PredictorWorkspace::new(x.len(), self.queues.len());
+        let mut out = x.clone();
+        self.advance_with_history_into(x.as_slice(), (from, to), &mut workspace, out.as_mut_slice())?;
+        Ok(out)
+    }
+
+    /// out ← x advanced from `from` to `to` with every channel's issued history, in
+    /// `workspace` (allocation-free form of [`PredictorContext::advance_with_history`]).
+    pub fn advance_with_history_into(
+        &self,
+        x: &[f64],
+        (from, to): (f64, f64),
+        workspace: &mut PredictorWorkspace,
+        out: &mut [f64],
+    ) -> Result<(), DelayError> {
+        let PredictorWorkspace { rk4, cursors, .. } = workspace;
+        cursors.fill(HistoryCursor::EMPTY);
+        rk4.state.copy_from_slice(x);
+        self.integrate(rk4, from, to, false, None, &mut |_, step, stage_time, u| {
+            self.history_inputs(cursors, step, stage_time, u)
         })?;
-        Ok(DVector::from_vec(rk4.state))
+        out.copy_from_slice(&rk4.state);
+        Ok(())
     }
 
     /// Whether every input is constant on each integration step of a prediction made on the
@@ -662,7 +811,8 @@ impl PredictorContext<'_> {
 
     /// RK4 of `rk4.state` from `from` to `to` on the grid of step h (a final partial step if
     /// `to` is off the grid). `input(step_start_state, step, stage_time, u)` writes u; with
-    /// `constant_input` it is asked once per step (at the first stage) and held.
+    /// `constant_input` it is asked once per step (at the first stage) and held, and a model
+    /// with a closed-form flow ([`Dynamics::flow_into`]) takes the step exactly instead.
     fn integrate(
         &self,
         rk4: &mut Rk4Buffers,
@@ -673,6 +823,7 @@ impl PredictorContext<'_> {
         input: &mut StageInput<'_>,
     ) -> Result<(), DelayError> {
         let h = self.timestep;
+        let axes = self.motion_axes();
         let Rk4Buffers {
             state,
             stage,
@@ -691,6 +842,14 @@ impl PredictorContext<'_> {
                 first_stage,
             };
             input(state, step(true), s, u)?;
+            // Inputs held over the step: the model's exact flow when it has one.
+            if constant_input && self.model.flow_into(state, u, dt) {
+                if let Some(chain) = record.as_deref_mut() {
+                    chain.push(axes, state, u);
+                }
+                s += dt;
+                continue;
+            }
             self.model.dynamics_into(state, u, k1);
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k1.iter())) {
                 *stage = x + k * (dt / 2.0);
@@ -717,7 +876,7 @@ impl PredictorContext<'_> {
                 *x += (k1[i] + k2[i] * 2.0 + k3[i] * 2.0 + k4[i]) * (dt / 6.0);
             }
             if let Some(chain) = record.as_deref_mut() {
-                chain.push(state, u);
+                chain.push(axes, state, u);
             }
             s += dt;
         }
@@ -874,6 +1033,80 @@ mod tests {
             (p[0].state[0] - (0.1 + 0.5 * 2.0 * 0.1 * 0.1)).abs() < 1e-12,
             "{}",
             p[0].state
+        );
+    }
+
+    #[test]
+    fn a_transported_shared_chain_equals_the_recomputed_one() {
+        // The unicycle (2.36) with the delay (2.37) on both channels, ticking every step; the
+        // "measured" state drifts off the model each tick (as on MuJoCo) by far more than
+        // any tolerance, so only moving the chain can reuse it.
+        use crate::delay::VaryingDelay;
+        use crate::dynamics::UnicycleModel;
+        let h = 0.002;
+        let model = UnicycleModel::default();
+        let profile = DelayProfile::Varying(VaryingDelay::Rational);
+        let mut queues: Vec<DelayQueue> = ["speed", "turn_rate"]
+            .iter()
+            .map(|name| DelayQueue::with_profile(name, profile.clone(), 0.0, h).unwrap())
+            .collect();
+        let structure = structure(&queues, h).unwrap();
+        assert_eq!(structure, Structure::Shared);
+        let mut reusing = PredictorWorkspace::new(3, 2);
+        reusing.set_chain_reuse(Some(0.0));
+        let mut full = PredictorWorkspace::new(3, 2);
+        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let mut x = DVector::from_vec(vec![1.0, 1.0, 1.0]);
+        let (mut reused, mut worst, mut worst_mismatch) = (0, 0.0_f64, 0.0_f64);
+        let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
+        for k in 0..400 {
+            let t = k as f64 * h;
+            let context = PredictorContext {
+                model: &model,
+                queues: &queues,
+                timestep: h,
+                control_period: h,
+            };
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut never, &mut reusing, &mut p_reused)
+                .unwrap();
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut never, &mut full, &mut p_full)
+                .unwrap();
+            assert!(!p_full[0].reused_chain);
+            if p_reused[0].reused_chain {
+                reused += 1;
+                worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
+                worst_mismatch = worst_mismatch.max(p_reused[0].chain_mismatch);
+            }
+            for (j, queue) in queues.iter_mut().enumerate() {
+                let u = if j == 0 {
+                    1.0 + 0.5 * (3.0 * t).sin()
+                } else {
+                    (2.0 * t).cos()
+                };
+                queue.push(t, u).unwrap();
+            }
+            let context = PredictorContext {
+                model: &model,
+                queues: &queues,
+                timestep: h,
+                control_period: h,
+            };
+            x = context.advance_with_history(&x, t, t + h).unwrap();
+            // Model mismatch: a slip of a millimetre and a milliradian per step.
+            x[0] += 1e-3 * (0.7 * t).cos();
+            x[1] -= 1e-3;
+            x[2] += 1e-3 * (1.3 * t).sin();
+        }
+        assert_eq!(reused, 399, "every tick after the first moves the previous trajectory");
+        assert!(
+            worst_mismatch > 1e-3,
+            "the measurement left the trajectory: {worst_mismatch}"
+        );
+        assert!(
+            worst < 1e-11,
+            "a moved chain differs from the recomputed one by {worst:e}"
         );
     }
 

@@ -51,8 +51,10 @@ struct TickWorkspace {
     predictions: Vec<Prediction>,
     predictor: PredictorWorkspace,
     law: LawWorkspace,
-    /// States of realised predictions, reused for new pending ones.
+    /// States of realised predictions, reused for new pending ones and realised states.
     spare_states: Vec<DVector<f64>>,
+    /// Advances the state to a prediction's target time between steps.
+    realize: PredictorWorkspace,
 }
 
 /// Scratch space of the delay-free law and the per-channel filters.
@@ -180,6 +182,7 @@ impl ControlLoop {
                 input: DVector::zeros(r),
             },
             spare_states: Vec::new(),
+            realize: PredictorWorkspace::new(n, r),
         };
         ControlLoop {
             predictor_step,
@@ -377,6 +380,7 @@ impl ControlLoop {
             predictor,
             law,
             spare_states,
+            ..
         } = work;
         let laws = Laws {
             model: model.as_ref(),
@@ -497,8 +501,15 @@ impl ControlLoop {
                     break;
                 }
                 let p = self.pending[channel].pop_front().expect("front exists");
-                let realized = if (p.target_time - t_k).abs() <= h * TICK_TOLERANCE {
-                    x_k.clone()
+                let mut realized = self.work.spare_states.pop().unwrap_or_else(|| x_k.clone());
+                // Channels sharing a prediction time (one shared delay) share the realised state.
+                let same_time = out
+                    .iter()
+                    .find(|c: &&Consistency| c.prediction.target_time == p.target_time);
+                if let Some(earlier) = same_time {
+                    realized.copy_from(&earlier.realized);
+                } else if (p.target_time - t_k).abs() <= h * TICK_TOLERANCE {
+                    realized.copy_from(x_k);
                 } else {
                     let context = PredictorContext {
                         model: self.model.as_ref(),
@@ -506,8 +517,13 @@ impl ControlLoop {
                         timestep: h,
                         control_period: self.control_period,
                     };
-                    context.advance_with_history(x_k, t_k, p.target_time)?
-                };
+                    context.advance_with_history_into(
+                        x_k.as_slice(),
+                        (t_k, p.target_time),
+                        &mut self.work.realize,
+                        realized.as_mut_slice(),
+                    )?;
+                }
                 out.push(Consistency {
                     prediction: p,
                     realized,
@@ -520,6 +536,7 @@ impl ControlLoop {
     /// Returns a realised prediction's storage for reuse by later ticks.
     pub fn recycle(&mut self, consistency: Consistency) {
         self.work.spare_states.push(consistency.prediction.state);
+        self.work.spare_states.push(consistency.realized);
     }
 }
 

@@ -1,6 +1,7 @@
 //! MCAP sink: one file per run, protobuf messages with their schema embedded, zstd chunks
-//! (written by [`McapWriter`]), log time = simulation time, written single-threaded so equal
-//! runs give equal bytes.
+//! (written by [`McapWriter`]: messages are appended on the episode's thread, chunks compressed
+//! and written in order on a writer thread), log time = simulation time, so equal runs give
+//! equal bytes.
 //! The file is written as `<path>.partial` (created exclusively, see [`crate::files`]) and
 //! renamed when finished, so a log under its final name is always complete and readable.
 
@@ -46,7 +47,7 @@ pub fn sim_time_ns(time: f64) -> u64 {
 }
 
 /// Adds `topic`'s schema and channel; returns the channel id.
-fn add_channel<W: std::io::Write>(writer: &mut McapWriter<W>, topic: Topic) -> std::io::Result<u16> {
+fn add_channel<W: std::io::Write + Send + 'static>(writer: &mut McapWriter<W>, topic: Topic) -> std::io::Result<u16> {
     let schema = writer.add_schema(topic.schema(), "protobuf", &super::schema_data(topic as usize))?;
     writer.add_channel(schema, topic.name(), "protobuf")
 }
@@ -62,7 +63,7 @@ impl McapSink {
         let output = OutputFile::create(path, "MCAP log", Replace::IfStartsWith(MCAP_MAGIC), inputs)?;
         let file = output.try_clone_file()?;
         let library = format!("mjsafe/{}", env!("CARGO_PKG_VERSION"));
-        let mut writer = McapWriter::new(BufWriter::new(file), "", &library, CHUNK_SIZE, ZSTD_LEVEL)
+        let mut writer = McapWriter::new(BufWriter::new(file), "", &library, CHUNK_SIZE, ZSTD_LEVEL, true)
             .map_err(|e| err(e.to_string()))?;
         // Every topic's channel up front, but the optional ones (added with their first message).
         let mut channel_ids = vec![0; TOPICS.len()];

@@ -10,6 +10,7 @@
 //! are counted as bytes are written.
 
 use std::io::{self, Write};
+use std::sync::mpsc;
 
 /// "\x89MCAP0\r\n".
 pub const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
@@ -112,54 +113,37 @@ struct MetadataIndex {
     name: String,
 }
 
-pub struct McapWriter<W: Write> {
+/// What goes to the data section, in file order.
+enum Job {
+    /// A record outside chunks (header, schema, channel): opcode and content.
+    Record(u8, Vec<u8>),
+    /// A metadata record (its index entry is kept for the summary).
+    Metadata { name: String, content: Vec<u8> },
+    /// A full chunk of message records and, per channel, its message index entries.
+    Chunk {
+        start_time: u64,
+        end_time: u64,
+        records: Vec<u8>,
+        indexes: Vec<(u16, Vec<(u64, u64)>)>,
+    },
+}
+
+/// The data section: owns the output, counts offsets and the CRC, compresses and writes
+/// chunks with their message indexes, and keeps the chunk and metadata indexes.
+struct DataSection<W: Write> {
     out: W,
     /// Bytes written so far (the offset of the next record).
     position: u64,
     /// CRC of the data section (magic included), until the data end record.
     data_crc: crc32fast::Hasher,
-    schemas: Vec<SchemaInfo>,
-    channels: Vec<ChannelInfo>,
-    chunk: Vec<u8>,
-    chunk_bounds: Option<(u64, u64)>,
-    chunk_size: usize,
     compressor: zstd::bulk::Compressor<'static>,
     compressed: Vec<u8>,
-    /// Encoding buffer of records other than messages.
     record: Vec<u8>,
-    bounds: Option<(u64, u64)>,
     chunk_indexes: Vec<ChunkIndex>,
     metadata_indexes: Vec<MetadataIndex>,
 }
 
-impl<W: Write> McapWriter<W> {
-    /// Writes the magic and the header; chunks close once their records reach `chunk_size`
-    /// bytes and are compressed with zstd at `level`.
-    pub fn new(out: W, profile: &str, library: &str, chunk_size: usize, level: i32) -> io::Result<Self> {
-        let mut writer = McapWriter {
-            out,
-            position: 0,
-            data_crc: crc32fast::Hasher::new(),
-            schemas: Vec::new(),
-            channels: Vec::new(),
-            chunk: Vec::with_capacity(chunk_size + chunk_size / 8),
-            chunk_bounds: None,
-            chunk_size,
-            compressor: zstd::bulk::Compressor::new(level)?,
-            compressed: Vec::new(),
-            record: Vec::new(),
-            bounds: None,
-            chunk_indexes: Vec::new(),
-            metadata_indexes: Vec::new(),
-        };
-        writer.write_data(MAGIC)?;
-        writer.record.clear();
-        Fields(&mut writer.record).string(profile).string(library);
-        writer.write_record(op::HEADER)?;
-        Ok(writer)
-    }
-
-    /// Writes `bytes` to the data section.
+impl<W: Write> DataSection<W> {
     fn write_data(&mut self, bytes: &[u8]) -> io::Result<()> {
         self.out.write_all(bytes)?;
         self.data_crc.update(bytes);
@@ -167,28 +151,245 @@ impl<W: Write> McapWriter<W> {
         Ok(())
     }
 
-    /// Writes `self.record` as a record with `opcode` to the data section.
-    fn write_record(&mut self, opcode: u8) -> io::Result<()> {
+    fn write_record(&mut self, opcode: u8, content: &[u8]) -> io::Result<()> {
         let mut prefix = [0u8; 9];
         prefix[0] = opcode;
-        prefix[1..].copy_from_slice(&(self.record.len() as u64).to_le_bytes());
+        prefix[1..].copy_from_slice(&(content.len() as u64).to_le_bytes());
         self.write_data(&prefix)?;
-        let record = std::mem::take(&mut self.record);
-        let result = self.write_data(&record);
-        self.record = record;
-        result
+        self.write_data(content)
+    }
+
+    /// Writes one job; a chunk's record buffer is handed back (emptied) for reuse.
+    fn write(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+        match job {
+            Job::Record(opcode, content) => self.write_record(opcode, &content)?,
+            Job::Metadata { name, content } => {
+                let offset = self.position;
+                self.write_record(op::METADATA, &content)?;
+                self.metadata_indexes.push(MetadataIndex {
+                    offset,
+                    length: self.position - offset,
+                    name,
+                });
+            }
+            Job::Chunk {
+                start_time,
+                end_time,
+                mut records,
+                indexes,
+            } => {
+                self.write_chunk(start_time, end_time, &records, &indexes)?;
+                records.clear();
+                return Ok(Some(records));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Compresses and writes a chunk and its message indexes.
+    fn write_chunk(
+        &mut self,
+        start_time: u64,
+        end_time: u64,
+        records: &[u8],
+        indexes: &[(u16, Vec<(u64, u64)>)],
+    ) -> io::Result<()> {
+        self.compressed.clear();
+        self.compressed.reserve(zstd::zstd_safe::compress_bound(records.len()));
+        self.compressor.compress_to_buffer(records, &mut self.compressed)?;
+        let offset = self.position;
+        self.record.clear();
+        Fields(&mut self.record)
+            .u64(start_time)
+            .u64(end_time)
+            .u64(records.len() as u64)
+            .u32(crc32fast::hash(records))
+            .string("zstd")
+            .u64(self.compressed.len() as u64);
+        let mut prefix = [0u8; 9];
+        prefix[0] = op::CHUNK;
+        prefix[1..].copy_from_slice(&((self.record.len() + self.compressed.len()) as u64).to_le_bytes());
+        self.write_data(&prefix)?;
+        let (header, compressed) = (std::mem::take(&mut self.record), std::mem::take(&mut self.compressed));
+        let result = self.write_data(&header).and_then(|()| self.write_data(&compressed));
+        (self.record, self.compressed) = (header, compressed);
+        result?;
+        let length = self.position - offset;
+
+        let index_start = self.position;
+        let mut message_index_offsets = Vec::new();
+        for (channel, entries) in indexes.iter().filter(|(_, entries)| !entries.is_empty()) {
+            message_index_offsets.push((*channel, self.position));
+            let mut record = std::mem::take(&mut self.record);
+            record.clear();
+            let mut fields = Fields(&mut record);
+            fields.u16(*channel).u32((entries.len() * 16) as u32);
+            for &(time, at) in entries {
+                fields.u64(time).u64(at);
+            }
+            let result = self.write_record(op::MESSAGE_INDEX, &record);
+            self.record = record;
+            result?;
+        }
+        self.chunk_indexes.push(ChunkIndex {
+            start_time,
+            end_time,
+            offset,
+            length,
+            message_index_offsets,
+            message_index_length: self.position - index_start,
+            compressed_size: self.compressed.len() as u64,
+            uncompressed_size: records.len() as u64,
+        });
+        Ok(())
+    }
+}
+
+/// Where the data section is written: on the caller's thread, or on a writer thread that
+/// compresses and writes chunks while the caller fills the next one. Jobs keep their order,
+/// so both give the same bytes.
+enum Back<W: Write + Send + 'static> {
+    Inline(DataSection<W>),
+    Thread(WriterThread<W>),
+}
+
+struct WriterThread<W: Write + Send + 'static> {
+    jobs: Option<mpsc::SyncSender<Job>>,
+    /// Chunk buffers handed back by the thread.
+    spare: mpsc::Receiver<Vec<u8>>,
+    thread: Option<std::thread::JoinHandle<io::Result<DataSection<W>>>>,
+}
+
+impl<W: Write + Send + 'static> WriterThread<W> {
+    /// Waits for every submitted job and returns the data section (or the first write error).
+    fn join(&mut self) -> io::Result<DataSection<W>> {
+        self.jobs.take();
+        let thread = self
+            .thread
+            .take()
+            .ok_or_else(|| io::Error::other("the MCAP writer thread already stopped"))?;
+        thread
+            .join()
+            .map_err(|_| io::Error::other("the MCAP writer thread panicked"))?
+    }
+}
+
+impl<W: Write + Send + 'static> Drop for WriterThread<W> {
+    fn drop(&mut self) {
+        // An abandoned writer: the thread finishes what it has before the file goes.
+        if self.thread.is_some() {
+            let _ = self.join();
+        }
+    }
+}
+
+impl<W: Write + Send + 'static> Back<W> {
+    fn new(section: DataSection<W>, background: bool) -> io::Result<Self> {
+        if !background {
+            return Ok(Back::Inline(section));
+        }
+        // One chunk queued while another is compressed: memory stays at a few chunks.
+        let (jobs, queued) = mpsc::sync_channel::<Job>(1);
+        let (give_back, spare) = mpsc::channel();
+        let thread = std::thread::Builder::new().name("mcap-writer".into()).spawn(move || {
+            let mut section = section;
+            for job in queued {
+                if let Some(buffer) = section.write(job)? {
+                    // The caller may no longer take buffers back; nothing is lost.
+                    let _ = give_back.send(buffer);
+                }
+            }
+            Ok(section)
+        })?;
+        Ok(Back::Thread(WriterThread {
+            jobs: Some(jobs),
+            spare,
+            thread: Some(thread),
+        }))
+    }
+
+    /// Writes `job` (or queues it for the thread); returns a chunk buffer free for reuse.
+    fn submit(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+        match self {
+            Back::Inline(section) => section.write(job),
+            Back::Thread(writer) => {
+                let sent = writer.jobs.as_ref().is_some_and(|jobs| jobs.send(job).is_ok());
+                if !sent {
+                    // The thread stopped at a write error: report that error.
+                    let stopped = writer.join().err();
+                    return Err(stopped.unwrap_or_else(|| io::Error::other("the MCAP writer thread stopped")));
+                }
+                Ok(writer.spare.try_recv().ok())
+            }
+        }
+    }
+
+    /// The data section once every submitted job is written.
+    fn into_section(self) -> io::Result<DataSection<W>> {
+        match self {
+            Back::Inline(section) => Ok(section),
+            Back::Thread(mut writer) => writer.join(),
+        }
+    }
+}
+
+pub struct McapWriter<W: Write + Send + 'static> {
+    back: Back<W>,
+    schemas: Vec<SchemaInfo>,
+    channels: Vec<ChannelInfo>,
+    chunk: Vec<u8>,
+    chunk_bounds: Option<(u64, u64)>,
+    chunk_size: usize,
+    bounds: Option<(u64, u64)>,
+}
+
+impl<W: Write + Send + 'static> McapWriter<W> {
+    /// Writes the magic and the header; chunks close once their records reach `chunk_size`
+    /// bytes and are compressed with zstd at `level` — on a writer thread when `background`
+    /// (the bytes are the same either way).
+    pub fn new(
+        out: W,
+        profile: &str,
+        library: &str,
+        chunk_size: usize,
+        level: i32,
+        background: bool,
+    ) -> io::Result<Self> {
+        let mut section = DataSection {
+            out,
+            position: 0,
+            data_crc: crc32fast::Hasher::new(),
+            compressor: zstd::bulk::Compressor::new(level)?,
+            compressed: Vec::new(),
+            record: Vec::new(),
+            chunk_indexes: Vec::new(),
+            metadata_indexes: Vec::new(),
+        };
+        section.write_data(MAGIC)?;
+        let mut header = Vec::new();
+        Fields(&mut header).string(profile).string(library);
+        section.write_record(op::HEADER, &header)?;
+        Ok(McapWriter {
+            back: Back::new(section, background)?,
+            schemas: Vec::new(),
+            channels: Vec::new(),
+            chunk: Vec::with_capacity(chunk_size + chunk_size / 8),
+            chunk_bounds: None,
+            chunk_size,
+            bounds: None,
+        })
     }
 
     /// Adds a schema (written at once, outside chunks); returns its id (from 1).
     pub fn add_schema(&mut self, name: &str, encoding: &str, data: &[u8]) -> io::Result<u16> {
         let id = self.schemas.len() as u16 + 1;
-        self.record.clear();
-        Fields(&mut self.record)
+        let mut record = Vec::new();
+        Fields(&mut record)
             .u16(id)
             .string(name)
             .string(encoding)
             .bytes_u32(data);
-        self.write_record(op::SCHEMA)?;
+        self.back.submit(Job::Record(op::SCHEMA, record))?;
         self.schemas.push(SchemaInfo {
             id,
             name: name.into(),
@@ -198,12 +399,12 @@ impl<W: Write> McapWriter<W> {
         Ok(id)
     }
 
-    /// Adds a channel without metadata (written at once); returns its id (from 1).
+    /// Adds a channel without metadata (written before the open chunk); returns its id (from 1).
     pub fn add_channel(&mut self, schema_id: u16, topic: &str, message_encoding: &str) -> io::Result<u16> {
         let id = self.channels.len() as u16 + 1;
-        self.record.clear();
-        encode_channel(&mut self.record, id, schema_id, topic, message_encoding);
-        self.write_record(op::CHANNEL)?;
+        let mut record = Vec::new();
+        encode_channel(&mut record, id, schema_id, topic, message_encoding);
+        self.back.submit(Job::Record(op::CHANNEL, record))?;
         self.channels.push(ChannelInfo {
             id,
             schema_id,
@@ -218,15 +419,12 @@ impl<W: Write> McapWriter<W> {
     /// Writes a metadata record (closing the open chunk first, so it sits between chunks).
     pub fn write_metadata(&mut self, name: &str, entries: &[(String, String)]) -> io::Result<()> {
         self.finish_chunk()?;
-        let offset = self.position;
-        self.record.clear();
-        Fields(&mut self.record).string(name).string_map(entries);
-        self.write_record(op::METADATA)?;
-        self.metadata_indexes.push(MetadataIndex {
-            offset,
-            length: self.position - offset,
+        let mut content = Vec::new();
+        Fields(&mut content).string(name).string_map(entries);
+        self.back.submit(Job::Metadata {
             name: name.into(),
-        });
+            content,
+        })?;
         Ok(())
     }
 
@@ -253,64 +451,25 @@ impl<W: Write> McapWriter<W> {
         Ok(())
     }
 
-    /// Compresses and writes the open chunk and its message indexes (nothing if empty).
+    /// Hands the open chunk and its message indexes to the data section (nothing if empty).
     fn finish_chunk(&mut self) -> io::Result<()> {
         let Some((start_time, end_time)) = self.chunk_bounds.take() else {
             return Ok(());
         };
-        self.compressed.clear();
-        self.compressed
-            .reserve(zstd::zstd_safe::compress_bound(self.chunk.len()));
-        self.compressor
-            .compress_to_buffer(&self.chunk[..], &mut self.compressed)?;
-        let offset = self.position;
-        self.record.clear();
-        Fields(&mut self.record)
-            .u64(start_time)
-            .u64(end_time)
-            .u64(self.chunk.len() as u64)
-            .u32(crc32fast::hash(&self.chunk))
-            .string("zstd")
-            .u64(self.compressed.len() as u64);
-        let mut prefix = [0u8; 9];
-        prefix[0] = op::CHUNK;
-        prefix[1..].copy_from_slice(&((self.record.len() + self.compressed.len()) as u64).to_le_bytes());
-        self.write_data(&prefix)?;
-        let (header, compressed) = (std::mem::take(&mut self.record), std::mem::take(&mut self.compressed));
-        let result = self.write_data(&header).and_then(|()| self.write_data(&compressed));
-        (self.record, self.compressed) = (header, compressed);
-        result?;
-        let length = self.position - offset;
-
-        let index_start = self.position;
-        let mut message_index_offsets = Vec::new();
-        for c in 0..self.channels.len() {
-            if self.channels[c].index.is_empty() {
-                continue;
-            }
-            message_index_offsets.push((self.channels[c].id, self.position));
-            self.record.clear();
-            let mut fields = Fields(&mut self.record);
-            fields
-                .u16(self.channels[c].id)
-                .u32((self.channels[c].index.len() * 16) as u32);
-            for &(time, at) in &self.channels[c].index {
-                fields.u64(time).u64(at);
-            }
-            self.channels[c].index.clear();
-            self.write_record(op::MESSAGE_INDEX)?;
-        }
-        self.chunk_indexes.push(ChunkIndex {
+        let capacity = self.chunk.capacity();
+        let records = std::mem::take(&mut self.chunk);
+        let indexes = self
+            .channels
+            .iter_mut()
+            .map(|c| (c.id, std::mem::take(&mut c.index)))
+            .collect();
+        let spare = self.back.submit(Job::Chunk {
             start_time,
             end_time,
-            offset,
-            length,
-            message_index_offsets,
-            message_index_length: self.position - index_start,
-            compressed_size: self.compressed.len() as u64,
-            uncompressed_size: self.chunk.len() as u64,
-        });
-        self.chunk.clear();
+            records,
+            indexes,
+        })?;
+        self.chunk = spare.unwrap_or_else(|| Vec::with_capacity(capacity));
         Ok(())
     }
 
@@ -318,12 +477,24 @@ impl<W: Write> McapWriter<W> {
     /// Returns the output.
     pub fn finish(mut self) -> io::Result<W> {
         self.finish_chunk()?;
-        let data_crc = std::mem::take(&mut self.data_crc).finalize();
-        self.record.clear();
-        Fields(&mut self.record).u32(data_crc);
-        self.write_record(op::DATA_END)?;
+        let McapWriter {
+            back,
+            schemas,
+            channels,
+            bounds,
+            ..
+        } = self;
+        let mut section = back.into_section()?;
+        let data_crc = std::mem::take(&mut section.data_crc).finalize();
+        section.write_record(op::DATA_END, &data_crc.to_le_bytes())?;
+        let DataSection {
+            mut out,
+            position: summary_start,
+            chunk_indexes,
+            metadata_indexes,
+            ..
+        } = section;
 
-        let summary_start = self.position;
         let mut summary = Vec::new();
         let mut offsets: Vec<(u8, u64, u64)> = Vec::new();
         let mut group = |summary: &mut Vec<u8>, opcode: u8, records: &mut dyn FnMut(&mut Vec<u8>)| {
@@ -334,7 +505,7 @@ impl<W: Write> McapWriter<W> {
             }
         };
         group(&mut summary, op::SCHEMA, &mut |s| {
-            for schema in &self.schemas {
+            for schema in &schemas {
                 record(s, op::SCHEMA, |f| {
                     f.u16(schema.id)
                         .string(&schema.name)
@@ -344,34 +515,33 @@ impl<W: Write> McapWriter<W> {
             }
         });
         group(&mut summary, op::CHANNEL, &mut |s| {
-            for c in &self.channels {
+            for c in &channels {
                 record(s, op::CHANNEL, |f| {
                     encode_channel(f.0, c.id, c.schema_id, &c.topic, &c.message_encoding);
                 });
             }
         });
         group(&mut summary, op::STATISTICS, &mut |s| {
-            let (start, end) = self.bounds.unwrap_or((0, 0));
-            let counts: Vec<(u16, u64)> = self
-                .channels
+            let (start, end) = bounds.unwrap_or((0, 0));
+            let counts: Vec<(u16, u64)> = channels
                 .iter()
                 .filter(|c| c.message_count > 0)
                 .map(|c| (c.id, c.message_count))
                 .collect();
             record(s, op::STATISTICS, |f| {
                 f.u64(counts.iter().map(|&(_, n)| n).sum())
-                    .u16(self.schemas.len() as u16)
-                    .u32(self.channels.len() as u32)
+                    .u16(schemas.len() as u16)
+                    .u32(channels.len() as u32)
                     .u32(0)
-                    .u32(self.metadata_indexes.len() as u32)
-                    .u32(self.chunk_indexes.len() as u32)
+                    .u32(metadata_indexes.len() as u32)
+                    .u32(chunk_indexes.len() as u32)
                     .u64(start)
                     .u64(end)
                     .id_map(&counts);
             });
         });
         group(&mut summary, op::CHUNK_INDEX, &mut |s| {
-            for c in &self.chunk_indexes {
+            for c in &chunk_indexes {
                 record(s, op::CHUNK_INDEX, |f| {
                     f.u64(c.start_time)
                         .u64(c.end_time)
@@ -386,7 +556,7 @@ impl<W: Write> McapWriter<W> {
             }
         });
         group(&mut summary, op::METADATA_INDEX, &mut |s| {
-            for m in &self.metadata_indexes {
+            for m in &metadata_indexes {
                 record(s, op::METADATA_INDEX, |f| {
                     f.u64(m.offset).u64(m.length).string(&m.name);
                 });
@@ -408,9 +578,9 @@ impl<W: Write> McapWriter<W> {
         let summary_crc = crc32fast::hash(&summary);
         Fields(&mut summary).u32(summary_crc);
         summary.extend_from_slice(MAGIC);
-        self.out.write_all(&summary)?;
-        self.out.flush()?;
-        Ok(self.out)
+        out.write_all(&summary)?;
+        out.flush()?;
+        Ok(out)
     }
 }
 
@@ -439,7 +609,11 @@ mod tests {
 
     /// Writes a small file with several chunks and metadata.
     fn sample(chunk_size: usize) -> Vec<u8> {
-        let mut w = McapWriter::new(Vec::new(), "", "test", chunk_size, 1).unwrap();
+        sample_written(chunk_size, false)
+    }
+
+    fn sample_written(chunk_size: usize, background: bool) -> Vec<u8> {
+        let mut w = McapWriter::new(Vec::new(), "", "test", chunk_size, 1, background).unwrap();
         let schema = w.add_schema("pkg.A", "protobuf", b"schema bytes").unwrap();
         let a = w.add_channel(schema, "/a", "protobuf").unwrap();
         let b = w.add_channel(schema, "/b", "protobuf").unwrap();
@@ -516,5 +690,55 @@ mod tests {
     #[test]
     fn equal_input_gives_equal_bytes() {
         assert_eq!(sample(4096), sample(4096));
+    }
+
+    #[test]
+    fn the_writer_thread_writes_the_same_bytes() {
+        for chunk_size in [1 << 20, 4096, 512] {
+            assert_eq!(
+                sample_written(chunk_size, true),
+                sample(chunk_size),
+                "chunks of {chunk_size}"
+            );
+        }
+    }
+
+    /// Fails every write after the first `budget` bytes.
+    struct FailingAfter {
+        budget: usize,
+    }
+
+    impl Write for FailingAfter {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            if buf.len() > self.budget {
+                return Err(io::Error::other("disk full"));
+            }
+            self.budget -= buf.len();
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_write_error_on_the_writer_thread_reaches_the_caller() {
+        for background in [false, true] {
+            let mut w = McapWriter::new(FailingAfter { budget: 600 }, "", "test", 512, 1, background).unwrap();
+            let schema = w.add_schema("pkg.A", "protobuf", b"schema").unwrap();
+            let a = w.add_channel(schema, "/a", "protobuf").unwrap();
+            let mut failed = None;
+            for i in 0..10_000u32 {
+                if let Err(e) = w.write_message(a, i, u64::from(i), b"payload of some length") {
+                    failed = Some(e);
+                    break;
+                }
+            }
+            let error = match failed {
+                Some(e) => e,
+                None => w.finish().err().expect("the writes cannot all succeed"),
+            };
+            assert!(error.to_string().contains("disk full"), "{background}: {error}");
+        }
     }
 }

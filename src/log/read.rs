@@ -610,7 +610,7 @@ mod tests {
     /// A log with one /state channel (and a foreign topic) holding `items` in order: a metadata
     /// record by name, or a /state message by step.
     fn log(items: &[&str]) -> Vec<u8> {
-        let mut w = McapWriter::new(Vec::new(), "", "test", 1 << 20, 1).unwrap();
+        let mut w = McapWriter::new(Vec::new(), "", "test", 1 << 20, 1, false).unwrap();
         let schema = w.add_schema("mjsafe.State", "protobuf", b"").unwrap();
         let state = w.add_channel(schema, "/state", "protobuf").unwrap();
         let other = w.add_channel(schema, "/elsewhere", "protobuf").unwrap();
