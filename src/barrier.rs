@@ -277,6 +277,9 @@ impl LieWorkspace {
 
     /// self.lie ← the Lie derivatives of `barrier` along `model` at x.
     pub fn evaluate(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
+        if self.planar_ball_in_closed_form(barrier, model, x) {
+            return;
+        }
         // Slice fills (a memset), not nalgebra's element iterator.
         self.g.as_mut_slice().fill(0.0);
         self.jacobian.as_mut_slice().fill(0.0);
@@ -291,6 +294,39 @@ impl LieWorkspace {
         transpose_times(&self.g, self.grad_h.as_slice(), lie.lg_h.as_mut_slice());
         lie.lf2_h = dot(self.grad_lf_h.as_slice(), self.f.as_slice());
         transpose_times(&self.g, self.grad_lf_h.as_slice(), lie.lg_lf_h.as_mut_slice());
+    }
+
+    /// A ball over the planar position, h = ±(d − r²) with d = ‖p − c‖², from the model's
+    /// closed form of d's Lie derivatives ((4.88)–(4.90) for the bicycle), when it has one.
+    fn planar_ball_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+        let Shape::Ball {
+            indices,
+            centre,
+            radius,
+            inside,
+        } = &barrier.shape
+        else {
+            return false;
+        };
+        if indices.len() != 2 || model.planar_position() != Some([indices[0], indices[1]]) {
+            return false;
+        }
+        let lie = &mut self.lie;
+        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(
+            x,
+            [centre[0], centre[1]],
+            lie.lg_h.as_mut_slice(),
+            lie.lg_lf_h.as_mut_slice(),
+        ) else {
+            return false;
+        };
+        let sign = if *inside { -1.0 } else { 1.0 };
+        (lie.h, lie.lf_h, lie.lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
+        if *inside {
+            lie.lg_h.neg_mut();
+            lie.lg_lf_h.neg_mut();
+        }
+        true
     }
 
     /// out ← the constraint data (a, b) of `barrier` in `form` at x.
@@ -361,6 +397,71 @@ mod tests {
         assert!((lie.lf2_h - 2.0 * v * v).abs() < 1e-12); // (4.89)
         assert!((lie.lg_lf_h[0] - lg1).abs() < 1e-12 && (lie.lg_lf_h[1] - lg2).abs() < 1e-12);
         assert!((lie.lf_h - v * lie.lg_lf_h[1]).abs() < 1e-12); // (4.91)
+    }
+
+    /// A model through its f, G and ∂f/∂x only (no closed forms).
+    struct General<'a>(&'a dyn Dynamics);
+
+    impl Dynamics for General<'_> {
+        fn state_names(&self) -> &[String] {
+            self.0.state_names()
+        }
+        fn channel_names(&self) -> &[String] {
+            self.0.channel_names()
+        }
+        fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+            self.0.drift_into(x, f)
+        }
+        fn add_input_term(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+            self.0.add_input_term(x, u, xdot)
+        }
+        fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
+            self.0.drift_jacobian_into(x, j)
+        }
+        fn input_matrix_into(&self, x: &[f64], g: &mut DMatrix<f64>) {
+            self.0.input_matrix_into(x, g)
+        }
+        fn planar_position(&self) -> Option<[usize; 2]> {
+            self.0.planar_position()
+        }
+    }
+
+    #[test]
+    fn closed_form_planar_ball_derivatives_equal_the_general_ones() {
+        let bicycle = BicycleModel::new(2.5);
+        let unicycle = crate::dynamics::UnicycleModel::default();
+        let models: [&dyn Dynamics; 2] = [&bicycle, &unicycle];
+        let mut worst: f64 = 0.0;
+        for model in models {
+            let n = model.state_dim();
+            for k in 0..100 {
+                let s = k as f64;
+                let mut x = vec![s.sin() * 20.0, s.cos() * 7.0, 0.37 * s - 7.0, 3.0 * (1.3 * s).sin()];
+                x.truncate(n);
+                let mut b = Barrier::circular_obstacle("o", [0, 1], [-3.0 + s.cos(), 0.5], 1.0 + (k % 5) as f64);
+                if let Shape::Ball { inside, .. } = &mut b.shape {
+                    *inside = k % 2 == 0;
+                }
+                let xv = DVector::from_column_slice(&x);
+                let (closed, general) = (
+                    lie_derivatives(&b, model, &xv),
+                    lie_derivatives(&b, &General(model), &xv),
+                );
+                let scale = 1.0 + general.h.abs() + general.lf2_h.abs();
+                for (a, g) in [
+                    (closed.h, general.h),
+                    (closed.lf_h, general.lf_h),
+                    (closed.lf2_h, general.lf2_h),
+                    (closed.lg_h[0], general.lg_h[0]),
+                    (closed.lg_h[1], general.lg_h[1]),
+                    (closed.lg_lf_h[0], general.lg_lf_h[0]),
+                    (closed.lg_lf_h[1], general.lg_lf_h[1]),
+                ] {
+                    worst = worst.max((a - g).abs() / scale);
+                }
+            }
+        }
+        assert!(worst < 1e-13, "largest relative difference {worst:e}");
     }
 
     #[test]

@@ -47,6 +47,19 @@ pub trait Dynamics: Send + Sync {
         self.input_matrix_into(x, g);
         self.drift_jacobian_into(x, j);
     }
+    /// For the squared planar distance d(x) = ‖p − c‖² (p the planar position, c a point):
+    /// `[d, L_f d, L_f² d]`, with the rows L_g d into `lg` and L_g L_f d into `lg_lf`, in closed
+    /// form; `None` when the model has none (the Lie derivatives are then formed from f, G and
+    /// ∂f/∂x). Obstacle barriers (4.81) are d − r².
+    fn squared_distance_lie_into(
+        &self,
+        _x: &[f64],
+        _centre: [f64; 2],
+        _lg: &mut [f64],
+        _lg_lf: &mut [f64],
+    ) -> Option<[f64; 3]> {
+        None
+    }
     /// Whether the dynamics commute with rigid motions of the plane acting on the planar
     /// position and the heading (they do not depend on where the vehicle is or which way it
     /// faces): the shared predictor then moves its previous trajectory onto a new
@@ -143,6 +156,23 @@ impl Dynamics for BicycleModel {
     fn planar_motion_invariant(&self) -> bool {
         true
     }
+    // (4.88)–(4.90): L_f d = 2v(Δx cos θ + Δy sin θ), L_f² d = 2v², L_g d = 0,
+    // L_g L_f d = (2v²/L (Δy cos θ − Δx sin θ), 2(Δx cos θ + Δy sin θ)).
+    fn squared_distance_lie_into(
+        &self,
+        x: &[f64],
+        centre: [f64; 2],
+        lg: &mut [f64],
+        lg_lf: &mut [f64],
+    ) -> Option<[f64; 3]> {
+        let (dx, dy, v) = (x[0] - centre[0], x[1] - centre[1], x[3]);
+        let (s, c) = x[2].sin_cos();
+        let along = dx * c + dy * s;
+        lg.fill(0.0);
+        lg_lf[0] = 2.0 * v * v / self.wheelbase * (dy * c - dx * s);
+        lg_lf[1] = 2.0 * along;
+        Some([dx * dx + dy * dy, 2.0 * v * along, 2.0 * v * v])
+    }
     // Exact with (u_1, u_2) held: v(s) = v_0 + u_2 s, θ advances by u_1/L per metre travelled,
     // so with σ = ∫v (signed distance) (x, y) moves by ∫ (cos, sin)(θ_0 + u_1 σ / L) dσ, a chord.
     fn flow_into(&self, x: &mut [f64], u: &[f64], dt: f64) -> bool {
@@ -234,6 +264,21 @@ impl Dynamics for UnicycleModel {
     fn drift_jacobian_into(&self, _x: &[f64], _j: &mut DMatrix<f64>) {}
     fn planar_motion_invariant(&self) -> bool {
         true
+    }
+    // Driftless: L_f d = L_f² d = 0, L_g d = (2(Δx cos θ + Δy sin θ), 0).
+    fn squared_distance_lie_into(
+        &self,
+        x: &[f64],
+        centre: [f64; 2],
+        lg: &mut [f64],
+        lg_lf: &mut [f64],
+    ) -> Option<[f64; 3]> {
+        let (dx, dy) = (x[0] - centre[0], x[1] - centre[1]);
+        let (s, c) = x[2].sin_cos();
+        lg[0] = 2.0 * (dx * c + dy * s);
+        lg[1] = 0.0;
+        lg_lf.fill(0.0);
+        Some([dx * dx + dy * dy, 0.0, 0.0])
     }
     // Exact with (v, ω) held: an arc of length v dt turning by ω dt.
     fn flow_into(&self, x: &mut [f64], u: &[f64], dt: f64) -> bool {

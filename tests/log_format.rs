@@ -414,3 +414,22 @@ fn the_scene_shows_predicted_positions_and_one_dimensional_vehicles() {
         .collect();
     assert!(ids.contains(&"vehicle"), "{ids:?}");
 }
+
+#[test]
+fn the_scene_draws_every_tick_but_at_most_every_10_ms() {
+    // /tf is published with every scene frame. The bicycle ticks every 10 ms: a frame per
+    // tick; the unicycle ticks every 2 ms step: a frame every fifth tick, while the data
+    // topics keep every tick.
+    let dir = tempfile::tempdir().unwrap();
+    for (file, duration, ticks, frames) in [
+        ("bicycle_obstacle_gamma_m.toml", "1.0", 100, 101),
+        ("unicycle_tv_delay.toml", "1.0", 500, 101),
+    ] {
+        let log = dir.path().join(format!("{file}.mcap"));
+        run_ok(&scenario(file), &log, &["--set", &format!("duration={duration}")]);
+        let d = python_digest(&log);
+        let count = |topic: &str| d["counts"][topic].as_u64().unwrap();
+        assert_eq!(count("/tf"), frames, "{file}: {}", d["counts"]);
+        assert_eq!(count("/command/issued"), ticks, "{file}: {}", d["counts"]);
+    }
+}

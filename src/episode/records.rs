@@ -59,7 +59,7 @@ pub(super) struct SceneState {
     /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
     /// fitting their view to the scene show the episode, not a 400 m line).
     pub(super) path: Option<([f64; 2], f64, f64)>,
-    /// Positions at every fifth control tick since the last published trail segment (which
+    /// Positions at every fifth scene frame since the last published trail segment (which
     /// starts with the previous segment's last point, so the segments join up).
     pub(super) trail: Vec<[f64; 2]>,
     /// Trail segments published so far (entities `trail/0`, `trail/1`, …: each is
@@ -68,8 +68,12 @@ pub(super) struct SceneState {
     pub(super) trail_segments: u64,
 }
 
-/// Control ticks between trail points, and trail intervals per published trail segment.
-const TRAIL_EVERY_TICKS: u64 = 5;
+/// The 3D view's frame period (simulated seconds): a frame at every control tick, but at most
+/// one per 10 ms (viewers draw at ~60 Hz; a 2 ms tick would otherwise encode 5 scene frames
+/// per 10 ms, the largest part of the log). The data topics keep every tick.
+const SCENE_FRAME_PERIOD: f64 = 0.01;
+/// Scene frames between trail points, and trail intervals per published trail segment.
+const TRAIL_EVERY_FRAMES: u64 = 5;
 const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
 
 impl Episode {
@@ -94,8 +98,9 @@ impl Episode {
         })
     }
 
-    /// Foxglove view: static entities at the start, then the vehicle and `/tf` at every
-    /// control tick and the trail every few ticks (planar vehicles only).
+    /// Foxglove view: static entities at the start, then the vehicle, predictions and `/tf`
+    /// every frame (each control tick, at most every [`SCENE_FRAME_PERIOD`]) and the trail
+    /// every few frames (planar vehicles only).
     pub(super) fn emit_scene(
         &mut self,
         sinks: &mut [&mut dyn Sink],
@@ -129,10 +134,13 @@ impl Episode {
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
         }
-        let tick = k / self.control.steps_per_tick();
-        if !k.is_multiple_of(self.control.steps_per_tick()) {
+        let control_period = self.control.steps_per_tick() as f64 * self.control.timestep();
+        let ticks_per_frame = (SCENE_FRAME_PERIOD / control_period - 1e-9).ceil().max(1.0) as u64;
+        let frame_steps = self.control.steps_per_tick() * ticks_per_frame;
+        if !k.is_multiple_of(frame_steps) {
             return Ok(());
         }
+        let frame = k / frame_steps;
         Self::emit(
             sinks,
             Record::Scene(time, scene::vehicle(time, position, heading, self.scene.hull_radius)),
@@ -158,9 +166,9 @@ impl Episode {
             sinks,
             Record::Transform(time, scene::transform(time, position, heading)),
         )?;
-        if tick.is_multiple_of(TRAIL_EVERY_TICKS) {
+        if frame.is_multiple_of(TRAIL_EVERY_FRAMES) {
             self.scene.trail.push(position);
-            let last_tick = k + self.control.steps_per_tick() > self.steps;
+            let last_tick = k + frame_steps > self.steps;
             let points = self.scene.trail.len();
             if points > TRAIL_PUBLISH_EVERY_POINTS || (last_tick && points >= 2) {
                 let id = format!("trail/{}", self.scene.trail_segments);
