@@ -5,7 +5,8 @@
 //!   run of the episode recorded, so it follows the same trajectory and meets the same contacts;
 //! - `pipeline`: the full episode (delay queues, predictors, filters, nominal, events) with
 //!   no sink;
-//! - `pipeline_mcap`: the same with the MCAP sink writing the complete log.
+//! - `pipeline_mcap`: the same with the MCAP sink writing the complete log (its chunks are
+//!   compressed and written on a writer thread; that thread's busy time is reported too).
 //!
 //! Each is repeated and the median wall time reported, with the real-time factor (simulated
 //! time / wall time) and the ratio to `bare`. Several predictor steps and chain-reuse
@@ -69,6 +70,12 @@ pub struct BenchRow {
     pub bare_final_state_deviation: f64,
     pub pipeline: Timing,
     pub pipeline_mcap: Timing,
+    /// Median time the MCAP writer thread spent compressing and writing chunks while the
+    /// episode ran (the work `pipeline_mcap` did not wait for).
+    pub writer_thread_seconds: f64,
+    /// (`pipeline_mcap` wall time + writer thread time) / bare: the whole cost of a logged run,
+    /// what a core busy with another run (a sweep on every core) pays.
+    pub pipeline_mcap_cpu_ratio: f64,
     /// What a sweep or falsification run pays before its first step (median): scenario parse,
     /// episode assembly with the MJCF compile, log open.
     pub startup_seconds: f64,
@@ -166,7 +173,7 @@ pub fn run(
         let mut bare = Vec::new();
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
-        let (mut startup, mut analysis) = (Vec::new(), Vec::new());
+        let (mut startup, mut analysis, mut writer_thread) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
@@ -187,12 +194,14 @@ pub fn run(
                 return Err(BenchError::Stopped(e.to_string()));
             }
             pipeline_mcap.push(started.elapsed().as_secs_f64());
+            writer_thread.push(sink.writer_busy().as_secs_f64());
             let started = Instant::now();
             analyze::analyze_file(&log_path)?;
             analysis.push(started.elapsed().as_secs_f64());
         }
         let (startup, analysis, logged) = (median(startup), median(analysis), median(pipeline_mcap.clone()));
         let bare = median(bare);
+        let writer_thread = median(writer_thread);
         let metrics = analyze::analyze_file(&log_path)?;
         rows.push(BenchRow {
             scenario: loaded.scenario.name.clone(),
@@ -207,6 +216,8 @@ pub fn run(
             bare_final_state_deviation: replay_deviation,
             pipeline: timing(median(pipeline), simulated_time, steps, bare),
             pipeline_mcap: timing(logged, simulated_time, steps, bare),
+            writer_thread_seconds: writer_thread,
+            pipeline_mcap_cpu_ratio: (logged + writer_thread) / bare,
             startup_seconds: startup,
             startup_share: startup / logged,
             analysis_seconds: analysis,
@@ -234,6 +245,7 @@ pub fn table(rows: &[BenchRow]) -> String {
         "pipeline RTF",
         "+MCAP RTF",
         "+MCAP / bare",
+        "with writer thread",
         "us/step",
         "start-up ms (% of run)",
         "analysis ms",
@@ -258,6 +270,7 @@ pub fn table(rows: &[BenchRow]) -> String {
             format!("{:.0}x", r.pipeline.real_time_factor),
             format!("{:.0}x", r.pipeline_mcap.real_time_factor),
             format!("{:.2}", r.pipeline_mcap.ratio_to_bare),
+            format!("{:.2}", r.pipeline_mcap_cpu_ratio),
             format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
             format!("{:.1} ({:.0} %)", r.startup_seconds * 1e3, r.startup_share * 100.0),
             format!("{:.1}", r.analysis_seconds * 1e3),

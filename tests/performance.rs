@@ -51,6 +51,15 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
     assert!(startup > 0.0 && analysis > 0.0, "{row}");
     let share = startup / row["pipeline_mcap"]["wall_seconds"].as_f64().unwrap();
     assert!((row["startup_share"].as_f64().unwrap() - share).abs() < 1e-12);
+    // The writer thread compressed at least one chunk; the whole cost counts its time.
+    let writer = row["writer_thread_seconds"].as_f64().unwrap();
+    assert!(writer > 0.0, "{row}");
+    let whole = (row["pipeline_mcap"]["wall_seconds"].as_f64().unwrap() + writer)
+        / row["bare"]["wall_seconds"].as_f64().unwrap();
+    assert!(
+        (row["pipeline_mcap_cpu_ratio"].as_f64().unwrap() - whole).abs() < 1e-9,
+        "{row}"
+    );
     // The bare loop replays the run's actuation: same trajectory, same final state.
     assert!(row["bare_final_state_deviation"].as_f64().unwrap() < 1e-9, "{row}");
     // The kept log is complete and is the scenario's run (it avoids the obstacle).

@@ -32,6 +32,8 @@ pub struct McapSink {
     /// The `.partial` file (and its lock) until the log is committed or abandoned.
     output: Option<OutputFile>,
     final_path: std::path::PathBuf,
+    /// Time the writer thread spent compressing and writing chunks (known once finished).
+    writer_busy: std::time::Duration,
 }
 
 /// Checks that `path` may receive a log, creating nothing: not an input of the run, not a
@@ -106,11 +108,18 @@ impl McapSink {
             buffer: Vec::new(),
             output: Some(output),
             final_path: path.to_path_buf(),
+            writer_busy: std::time::Duration::ZERO,
         })
     }
 
     pub fn path(&self) -> &Path {
         &self.final_path
+    }
+
+    /// Time the writer thread spent compressing and writing chunks, once finished (CPU time
+    /// the episode's thread did not spend; `mjsafe bench` reports it).
+    pub fn writer_busy(&self) -> std::time::Duration {
+        self.writer_busy
     }
 
     /// Stops without finishing: the `.partial` file is deleted, nothing is left under the
@@ -164,7 +173,8 @@ impl Sink for McapSink {
         writer
             .write_metadata("mjsafe_status", &status)
             .map_err(|e| self.error(e.to_string()))?;
-        let out = writer.finish().map_err(|e| self.error(e.to_string()))?;
+        let (out, busy) = writer.finish_timed().map_err(|e| self.error(e.to_string()))?;
+        self.writer_busy = busy;
         drop(out.into_inner().map_err(|e| self.error(e.error().to_string()))?);
         let output = self.output.take().expect("the output lives until the log is finished");
         output.commit()?;

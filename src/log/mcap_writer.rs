@@ -141,6 +141,8 @@ struct DataSection<W: Write> {
     record: Vec<u8>,
     chunk_indexes: Vec<ChunkIndex>,
     metadata_indexes: Vec<MetadataIndex>,
+    /// Time spent writing jobs (compressing and writing chunks), wherever they ran.
+    busy: std::time::Duration,
 }
 
 impl<W: Write> DataSection<W> {
@@ -161,6 +163,13 @@ impl<W: Write> DataSection<W> {
 
     /// Writes one job; a chunk's record buffer is handed back (emptied) for reuse.
     fn write(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+        let started = std::time::Instant::now();
+        let result = self.write_untimed(job);
+        self.busy += started.elapsed();
+        result
+    }
+
+    fn write_untimed(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
         match job {
             Job::Record(opcode, content) => self.write_record(opcode, &content)?,
             Job::Metadata { name, content } => {
@@ -364,6 +373,7 @@ impl<W: Write + Send + 'static> McapWriter<W> {
             record: Vec::new(),
             chunk_indexes: Vec::new(),
             metadata_indexes: Vec::new(),
+            busy: std::time::Duration::ZERO,
         };
         section.write_data(MAGIC)?;
         let mut header = Vec::new();
@@ -475,7 +485,13 @@ impl<W: Write + Send + 'static> McapWriter<W> {
 
     /// Closes the data section and writes the summary, the footer and the closing magic.
     /// Returns the output.
-    pub fn finish(mut self) -> io::Result<W> {
+    pub fn finish(self) -> io::Result<W> {
+        self.finish_timed().map(|(out, _)| out)
+    }
+
+    /// [`McapWriter::finish`], also returning the time spent compressing and writing chunks
+    /// (on the writer thread when there is one: work the caller did not wait for).
+    pub fn finish_timed(mut self) -> io::Result<(W, std::time::Duration)> {
         self.finish_chunk()?;
         let McapWriter {
             back,
@@ -492,6 +508,7 @@ impl<W: Write + Send + 'static> McapWriter<W> {
             position: summary_start,
             chunk_indexes,
             metadata_indexes,
+            busy,
             ..
         } = section;
 
@@ -580,7 +597,7 @@ impl<W: Write + Send + 'static> McapWriter<W> {
         summary.extend_from_slice(MAGIC);
         out.write_all(&summary)?;
         out.flush()?;
-        Ok(out)
+        Ok((out, busy))
     }
 }
 
