@@ -4,7 +4,8 @@
 //! - `constraint/relative_degree_2`: Lie derivatives and (4.85)/(4.86) for the obstacle (4.81);
 //! - `cbf_qp`, `cbf_qp_in_place`: closed-form delay-free CBF-QP (4.9) (allocating / in place);
 //! - `fixed_channel` (4.44)–(4.47) and `gamma_m` (4.60)–(4.68) for the steering channel;
-//! - `cbf_qp_multi`: Clarabel QP with two obstacles and input limits (bicycle_two_obstacles);
+//! - `cbf_qp_multi`: the active-set QP with two obstacles and input limits (bicycle_two_obstacles),
+//!   with a fresh workspace and with a kept one;
 //! - `clf_cbf_qp/kappa_lb`: Ch. 3 γm CLF-CBF QP (3.27) of linear_distinct_delays.toml;
 //! - `ptsf`, `esf`: Ch. 5 filters of red_light.toml (PTSf (5.27), ESf (5.89) with ρ = 0.6).
 //!
@@ -105,6 +106,12 @@ fn bicycle_filters(c: &mut Criterion) {
     );
     group.bench_function("cbf_qp_multi/2_barriers_limits", |b| {
         b.iter(|| qp::cbf_qp_multi(black_box(&constraints), black_box(&u0), Some((&lower, &upper))))
+    });
+    // As the filter solves it: one workspace kept across ticks.
+    let mut workspace = qp::QpWorkspace::with_capacity(2, 2);
+    let mut u = DVector::zeros(2);
+    group.bench_function("cbf_qp_multi/2_barriers_limits_workspace", |b| {
+        b.iter(|| workspace.solve(black_box(&constraints), black_box(&u0), Some((&lower, &upper)), &mut u))
     });
     group.finish();
 }

@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use mjsafe::barrier::{BarrierForm, Constraint};
 use mjsafe::embed;
+use mjsafe::filter::qp::QpWorkspace;
 use mjsafe::filter::{
     delay_free_qp, ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter,
 };
@@ -42,10 +43,11 @@ struct RobustCbf {
     form: BarrierForm,
     /// l0 ε: how much the constraint is tightened.
     tightening: f64,
-    /// Scratch space: the tightened constraints and the QP's solution (no allocation per tick
-    /// once every barrier is known).
+    /// Scratch space: the tightened constraints, the QP's solution and its workspace (no
+    /// allocation per tick once every barrier is known).
     tightened: Vec<Constraint>,
     input: DVector<f64>,
+    qp: QpWorkspace,
 }
 
 fn build(p: &RobustCbfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
@@ -61,6 +63,7 @@ fn build(p: &RobustCbfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilte
         tightening: p.l0 * p.margin_rate * largest_delay,
         tightened: vec![Constraint::zeros(r); ctx.barriers.len()],
         input: DVector::zeros(r),
+        qp: QpWorkspace::with_capacity(r, ctx.barriers.len()),
     }))
 }
 
@@ -80,7 +83,13 @@ impl SafetyFilter for RobustCbf {
             t.clone_from(c);
             t.a -= self.tightening;
         }
-        let (active, infeasible, mu) = delay_free_qp(&self.tightened[..count], input.nominal, None, &mut self.input);
+        let (active, infeasible, mu) = delay_free_qp(
+            &self.tightened[..count],
+            input.nominal,
+            None,
+            &mut self.qp,
+            &mut self.input,
+        );
         Ok(Some(ChannelOutcome {
             input: self.input[input.channel],
             active,

@@ -57,7 +57,10 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
 #[test]
 fn control_callback_allocates_nothing_in_steady_state() {
     // (scenario, overrides, steady state from): after the longest delay has filled the
-    // pending predictions and the obstacle (t = 2.75 s) is known.
+    // pending predictions and the obstacle (t = 2.75 s, 2.18 s at 10 m/s) is known. Every
+    // scenario in scenarios/ that runs a filter: the numerical QP (two obstacles and input
+    // limits), Ch. 3's κ_LB, and the Ch. 5 chain filters (PTSf, ESf) across their prescribed
+    // time T (the ramp (5.28) after it).
     let cases: &[(&str, &[&str], f64)] = &[
         ("bicycle_obstacle.toml", &[], 3.0),
         ("bicycle_obstacle_gamma_m.toml", &[], 3.0),
@@ -76,15 +79,23 @@ fn control_callback_allocates_nothing_in_steady_state() {
         ("unicycle_tv_delay.toml", &["duration=4.0"], 2.0),
         ("nonlinear_example1.toml", &[], 1.0),
         ("scalar_tv_delay.toml", &["duration=4.0"], 2.0),
+        ("car_obstacle_gamma_m_10.toml", &["duration=4.0"], 2.5),
+        ("bicycle_two_obstacles.toml", &["duration=12.0"], 2.0),
+        ("linear_distinct_delays.toml", &["duration=6.0"], 1.0),
+        ("chain3_ptsf.toml", &[], 0.5),
+        ("red_light.toml", &[], 0.5),
+        ("red_light.toml", &["filter={kind='esf', rate=3.2, horizon=4.0}"], 0.5),
+        ("strict_feedback_pts.toml", &[], 0.2),
     ];
+    let mut failed = Vec::new();
     for (file, overrides, steady_from) in cases {
         let (warm_up, steady) = callback_allocations(file, overrides, *steady_from);
         println!("{file} {overrides:?}: {warm_up} allocations while warming up, {steady} from t = {steady_from} s");
-        assert_eq!(
-            steady, 0,
-            "{file} {overrides:?}: the control callback allocated {steady} times"
-        );
+        if steady != 0 {
+            failed.push(format!("{file} {overrides:?}: {steady}"));
+        }
     }
+    assert!(failed.is_empty(), "the control callback allocated: {failed:?}");
 }
 
 #[test]

@@ -12,6 +12,7 @@ use nalgebra::DVector;
 use crate::barrier::{Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
+use crate::filter::qp::QpWorkspace;
 use crate::filter::ChannelOutcome;
 use crate::nominal::NominalController;
 
@@ -39,9 +40,10 @@ pub trait SafetyFilter: Send {
 
     /// u ← the delay-free safe law κ^DF (4.29) at z, for all channels: the commands the
     /// recursive predictors (4.23) assume for inputs not yet issued inside their window.
-    /// Default: the delay-free CBF-QP (4.9) over every known barrier.
+    /// Default: the delay-free CBF-QP (4.9) over every known barrier (allocation-free for at
+    /// most one barrier; with several, override it with a [`QpWorkspace`] kept in the filter).
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
-        delay_free_qp(input.constraints, input.nominal, None, u);
+        delay_free_qp(input.constraints, input.nominal, None, &mut QpWorkspace::default(), u);
     }
 
     /// The prescribed time T of the run's prescribed-time metrics (Ch. 5), if the filter has one.
@@ -95,12 +97,14 @@ pub struct DelayFreeInput<'a> {
 }
 
 /// u ← the delay-free CBF-QP over all channels from u0 and the constraints: u0 without
-/// constraints (even with limits), the closed form (4.9) for one barrier without limits (no allocation), else
-/// the numerical QP ([`crate::filter::qp`]). Returns (active, infeasible, μ).
+/// constraints (even with limits), the closed form (4.9) for one barrier without limits, else
+/// the numerical QP ([`crate::filter::qp`]) in `qp` (keep one per filter: no allocation once
+/// it has seen the largest problem). Returns (active, infeasible, μ).
 pub fn delay_free_qp(
     constraints: &[Constraint],
     nominal: &DVector<f64>,
     limits: Option<(&[f64], &[f64])>,
+    qp: &mut QpWorkspace,
     u: &mut DVector<f64>,
 ) -> (bool, bool, f64) {
     u.copy_from(nominal);
@@ -108,11 +112,7 @@ pub fn delay_free_qp(
         // Without a known barrier the nominal passes as it is (limits included).
         ([], _) => (false, false, f64::NAN),
         ([c], None) => crate::filter::cbf_qp_in_place(c, u),
-        (constraints, _) => {
-            let o = crate::filter::qp::cbf_qp_multi(constraints, nominal, limits);
-            u.copy_from(&o.input);
-            (o.active, o.infeasible, o.mu)
-        }
+        (constraints, _) => qp.solve(constraints, nominal, limits, u),
     }
 }
 

@@ -7,6 +7,7 @@ use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
+use crate::filter::qp::QpWorkspace;
 use crate::filter::Params;
 use crate::filter::{
     barrier_form, delay_free_qp, ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError,
@@ -55,12 +56,14 @@ impl Params for CbfQpParams {
     }
 }
 
-/// The CBF-QP filter; `input` is the QP's solution for all channels (scratch space).
+/// The CBF-QP filter; `input` is the QP's solution for all channels and `qp` the numerical
+/// QP's workspace (scratch space).
 pub struct CbfQp {
     form: BarrierForm,
     predicted: bool,
     limits: Option<(Vec<f64>, Vec<f64>)>,
     input: DVector<f64>,
+    qp: QpWorkspace,
 }
 
 /// The filter of a `kind = "cbf_qp"` table (limits checked against the channels).
@@ -88,13 +91,8 @@ pub fn build(p: &CbfQpParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilte
         predicted: p.compensation == Compensation::Predictor,
         limits,
         input: DVector::zeros(r),
+        qp: QpWorkspace::with_capacity(r, ctx.barriers.len()),
     }))
-}
-
-impl CbfQp {
-    fn limits(&self) -> Option<(&[f64], &[f64])> {
-        self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()))
-    }
 }
 
 impl SafetyFilter for CbfQp {
@@ -109,7 +107,8 @@ impl SafetyFilter for CbfQp {
             return Ok(None);
         }
         let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
-        let (active, infeasible, mu) = delay_free_qp(input.constraints, input.nominal, limits, &mut self.input);
+        let (active, infeasible, mu) =
+            delay_free_qp(input.constraints, input.nominal, limits, &mut self.qp, &mut self.input);
         Ok(Some(ChannelOutcome {
             input: self.input[input.channel],
             active,
@@ -118,6 +117,7 @@ impl SafetyFilter for CbfQp {
         }))
     }
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
-        delay_free_qp(input.constraints, input.nominal, self.limits(), u);
+        let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
+        delay_free_qp(input.constraints, input.nominal, limits, &mut self.qp, u);
     }
 }

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
 use crate::filter::prescribed_time::{
-    BlowUp, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem,
+    BlowUp, ChainForms, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem,
 };
 use crate::filter::Params;
 use crate::filter::{
@@ -113,11 +113,16 @@ pub enum ChainTransform {
 
 impl ChainTransform {
     pub fn to_chain(&self, x: &[f64]) -> DVector<f64> {
+        let mut z = DVector::zeros(x.len());
+        self.to_chain_into(x, &mut z);
+        z
+    }
+    /// z = T(x) into `z` (of the state's dimension).
+    pub fn to_chain_into(&self, x: &[f64], z: &mut DVector<f64>) {
         match self {
-            ChainTransform::Identity => DVector::from_column_slice(x),
+            ChainTransform::Identity => z.copy_from_slice(x),
             ChainTransform::StrictFeedback => {
-                let z = StrictFeedbackSystem.to_chain(&Vector2::new(x[0], x[1]));
-                DVector::from_column_slice(z.as_slice())
+                z.copy_from_slice(StrictFeedbackSystem.to_chain(&Vector2::new(x[0], x[1])).as_slice())
             }
         }
     }
@@ -179,6 +184,8 @@ enum ChainLaw {
         filter: Arc<PtsfFilter>,
         /// y(t0 + T) = z1 at the prescribed time, once reached (the ramp (5.28) needs it).
         output_at_end: Option<f64>,
+        /// The chain (5.24)–(5.26), scratch space.
+        chain: Box<ChainForms>,
     },
     Esf(Arc<EsfFilter>),
 }
@@ -188,6 +195,8 @@ pub struct ChainFilter {
     law: ChainLaw,
     transform: ChainTransform,
     prescribed_time: Option<f64>,
+    /// z = T(x), scratch space.
+    z: DVector<f64>,
 }
 
 /// The filter of a `kind = "ptsf"` table: gains from x(0) (5.32)–(5.34).
@@ -211,11 +220,13 @@ pub fn build_ptsf(p: &PtsfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyF
     let filter = PtsfFilter::from_initial_state(blow_up, &z0, p.margin, ramp).map_err(design_error)?;
     Ok(Box::new(ChainFilter {
         law: ChainLaw::Ptsf {
+            chain: Box::new(filter.workspace()),
             filter: Arc::new(filter),
             output_at_end: None,
         },
         transform,
         prescribed_time: Some(p.horizon),
+        z: DVector::zeros(n),
     }))
 }
 
@@ -227,6 +238,7 @@ pub fn build_esf(p: &EsfParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFil
         law: ChainLaw::Esf(Arc::new(filter)),
         transform,
         prescribed_time: p.horizon,
+        z: DVector::zeros(ctx.model.state_dim()),
     }))
 }
 
@@ -240,17 +252,24 @@ impl SafetyFilter for ChainFilter {
     }
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
         let (t, x) = (input.time, input.state);
-        let z = self.transform.to_chain(x);
+        self.transform.to_chain_into(x, &mut self.z);
+        let z = &self.z;
         let v_nom = self.transform.chain_input(x, input.nominal[0]);
         let prescribed = |e: PrescribedTimeError| FilterError::Other(format!("prescribed-time filter: {e}"));
         let decision = match &mut self.law {
-            ChainLaw::Ptsf { filter, output_at_end } => {
+            ChainLaw::Ptsf {
+                filter,
+                output_at_end,
+                chain,
+            } => {
                 if t >= filter.blow_up().end_time() - TICK_TOLERANCE * input.timestep && output_at_end.is_none() {
                     *output_at_end = Some(z[0]);
                 }
-                filter.control(t, &z, v_nom, *output_at_end).map_err(prescribed)?
+                filter
+                    .control_with(chain, t, z, v_nom, *output_at_end)
+                    .map_err(prescribed)?
             }
-            ChainLaw::Esf(esf) => esf.control(&z, v_nom).map_err(prescribed)?,
+            ChainLaw::Esf(esf) => esf.control(z, v_nom).map_err(prescribed)?,
         };
         Ok(Some(ChannelOutcome {
             input: self.transform.plant_input(x, decision.input),

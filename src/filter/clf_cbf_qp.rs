@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::{BarrierForm, Shape};
-use crate::filter::linear_delays::{self, ConstrainedStabilizer, QpCase};
+use crate::filter::linear_delays::{self, ConstrainedStabilizer, KappaLbWorkspace, QpCase};
 use crate::filter::Params;
 use crate::filter::{
     ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError, SafetyFilter,
@@ -59,8 +59,9 @@ impl Params for ClfCbfQpParams {
 /// The Ch. 3 constrained stabiliser κ_LB (3.33) at each channel's prediction.
 pub struct ClfCbfQp {
     stabilizer: ConstrainedStabilizer,
-    /// The evaluation state as a vector (scratch space).
+    /// The evaluation state as a vector and κ_LB's workspace (scratch space).
     state: DVector<f64>,
+    kappa: KappaLbWorkspace,
 }
 
 /// The design from the scenario: the linear model (A = ∂f/∂x, B = G), the channel delays,
@@ -136,8 +137,10 @@ pub fn build(spec: &ClfCbfQpParams, ctx: &FilterContext) -> Result<Box<dyn Safet
             .robust_buffer_bound(&DMatrix::identity(n, n), spec.omega_bar)
             .map_err(|e| err("filter.omega_bar", e))?,
     };
+    let stabilizer = build(eta)?;
     Ok(Box::new(ClfCbfQp {
-        stabilizer: build(eta)?,
+        kappa: stabilizer.workspace(),
+        stabilizer,
         state: DVector::zeros(n),
     }))
 }
@@ -153,16 +156,17 @@ impl SafetyFilter for ClfCbfQp {
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
         // (3.33): channel i takes component i of QP-LB solved at p_i(t).
         self.state.copy_from_slice(input.state);
-        let outcome = self.stabilizer.kappa_lb(&self.state);
+        let (case, _, infeasible) = self.stabilizer.kappa_lb_into(&self.state, &mut self.kappa);
         Ok(Some(ChannelOutcome {
-            input: outcome.input[input.channel],
-            active: outcome.case != QpCase::A,
-            infeasible: outcome.infeasible,
+            input: self.kappa.input[input.channel],
+            active: case != QpCase::A,
+            infeasible,
             mu: f64::NAN,
         }))
     }
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
         self.state.copy_from_slice(input.state);
-        u.copy_from(&self.stabilizer.kappa_lb(&self.state).input);
+        self.stabilizer.kappa_lb_into(&self.state, &mut self.kappa);
+        u.copy_from(&self.kappa.input);
     }
 }

@@ -312,27 +312,54 @@ pub struct QpOutcome {
 /// ā1 = γ_f(a1) (3.28), solved in closed form by Cases A–D (3.29)–(3.32).
 pub fn gamma_m_qp(clf: &AffineConstraint, cbf: &AffineConstraint, params: &GammaM) -> QpOutcome {
     let r = clf.b.len();
-    let m = params.m;
-    let a1_bar = gamma_f(params.gamma, clf.a);
-    let a2 = cbf.a;
-    let (b1, b2) = (&clf.b, &cbf.b);
-    let (n1, n2) = (b1.norm_squared(), b2.norm_squared());
-    let outcome = |input: DVector<f64>, relaxation: DVector<f64>, case: QpCase, infeasible: bool| QpOutcome {
+    let (mut input, mut relaxation) = (DVector::zeros(r), DVector::zeros(r));
+    let (case, a1_bar, infeasible) = gamma_m_qp_into(clf, cbf, params, &mut input, &mut relaxation);
+    QpOutcome {
         input,
         relaxation,
         case,
         a1_bar,
         infeasible,
-    };
+    }
+}
+
+/// [`gamma_m_qp`] into `input` (v) and `relaxation` (σ), without allocation; returns the case,
+/// ā1 and the infeasibility flag of [`QpOutcome`].
+pub fn gamma_m_qp_into(
+    clf: &AffineConstraint,
+    cbf: &AffineConstraint,
+    params: &GammaM,
+    input: &mut DVector<f64>,
+    relaxation: &mut DVector<f64>,
+) -> (QpCase, f64, bool) {
+    let m = params.m;
+    let a1_bar = gamma_f(params.gamma, clf.a);
+    let a2 = cbf.a;
+    let (b1, b2) = (&clf.b, &cbf.b);
+    let (n1, n2) = (b1.norm_squared(), b2.norm_squared());
     // Case B alone (F2 inactive or dropped): (3.30), σ = v/m (stationarity).
-    let case_b = |infeasible: bool| {
-        let v = b1 * (-m / (m + 1.0) * a1_bar / n1);
-        let sigma = &v / m;
-        outcome(v, sigma, QpCase::B, infeasible)
+    let case_b = |infeasible: bool, input: &mut DVector<f64>, relaxation: &mut DVector<f64>| {
+        let scale = -m / (m + 1.0) * a1_bar / n1;
+        for i in 0..b1.len() {
+            input[i] = b1[i] * scale;
+            relaxation[i] = input[i] / m;
+        }
+        (QpCase::B, a1_bar, infeasible)
     };
     // Case C alone (F1 inactive or dropped): (3.31).
-    let case_c = |infeasible: bool| outcome(b2 * (-a2 / n2), DVector::zeros(r), QpCase::C, infeasible);
-    let zero = |infeasible: bool| outcome(DVector::zeros(r), DVector::zeros(r), QpCase::A, infeasible);
+    let case_c = |infeasible: bool, input: &mut DVector<f64>, relaxation: &mut DVector<f64>| {
+        let scale = -a2 / n2;
+        for i in 0..b2.len() {
+            input[i] = b2[i] * scale;
+        }
+        relaxation.fill(0.0);
+        (QpCase::C, a1_bar, infeasible)
+    };
+    let zero = |infeasible: bool, input: &mut DVector<f64>, relaxation: &mut DVector<f64>| {
+        input.fill(0.0);
+        relaxation.fill(0.0);
+        (QpCase::A, a1_bar, infeasible)
+    };
 
     // Degenerate constraints do not depend on the input: drop them (flagging an impossible one)
     // and solve with the other alone.
@@ -341,35 +368,55 @@ pub fn gamma_m_qp(clf: &AffineConstraint, cbf: &AffineConstraint, params: &Gamma
         let cbf_infeasible = n2 < DEGENERATE_B && a2 > 0.0;
         let infeasible = clf_infeasible || cbf_infeasible;
         if n2 >= DEGENERATE_B && a2 > 0.0 {
-            return case_c(infeasible);
+            return case_c(infeasible, input, relaxation);
         }
         if n1 >= DEGENERATE_B && a1_bar > 0.0 {
-            return case_b(infeasible);
+            return case_b(infeasible, input, relaxation);
         }
-        return zero(infeasible);
+        return zero(infeasible, input, relaxation);
     }
 
     let b1b2 = b1.dot(b2);
     // Case A (3.29): u = 0 is feasible (Ω1, closed).
     if a1_bar <= 0.0 && a2 <= 0.0 {
-        return zero(false);
+        return zero(false, input, relaxation);
     }
     // Case B (3.30) in Ω2.
     if a1_bar > 0.0 && a2 < m / (m + 1.0) * b1b2 / n1 * a1_bar {
-        return case_b(false);
+        return case_b(false, input, relaxation);
     }
     // Case C (3.31) in Ω3.
     if a2 > 0.0 && a1_bar < b1b2 / n2 * a2 {
-        return case_c(false);
+        return case_c(false, input, relaxation);
     }
     // Case D (3.32) in Ω4: both active; the denominator is ≥ ‖b1‖²‖b2‖²/m > 0.
     let k = 1.0 + 1.0 / m;
     let denominator = k * n1 * n2 - b1b2 * b1b2;
-    let input = (b1 * (-n2 * a1_bar) + b1 * (b1b2 * a2) + b2 * (b1b2 * a1_bar) - b2 * (k * n1 * a2)) / denominator;
+    let (s1, s2, s3, s4) = (-n2 * a1_bar, b1b2 * a2, b1b2 * a1_bar, k * n1 * a2);
     // Half the multiplier of F1, from the same 2×2 KKT system: σ = −(λ1/2) b1ᵀ/m.
     let half_lambda1 = (n2 * a1_bar - b1b2 * a2) / denominator;
-    let relaxation = b1 * (-half_lambda1 / m);
-    outcome(input, relaxation, QpCase::D, false)
+    let sigma = -half_lambda1 / m;
+    for i in 0..b1.len() {
+        input[i] = (b1[i] * s1 + b1[i] * s2 + b2[i] * s3 - b2[i] * s4) / denominator;
+        relaxation[i] = b1[i] * sigma;
+    }
+    (QpCase::D, a1_bar, false)
+}
+
+/// Scratch space of [`ConstrainedStabilizer::kappa_lb_into`]: the constraints (3.8)/(3.9),
+/// (3.41)/(3.42), the products they need, and the solution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KappaLbWorkspace {
+    pub clf: AffineConstraint,
+    pub cbf: AffineConstraint,
+    /// u = v.
+    pub input: DVector<f64>,
+    /// δ = σ.
+    pub relaxation: DVector<f64>,
+    mx: DVector<f64>,
+    px: DVector<f64>,
+    ax: DVector<f64>,
+    gradient: DVector<f64>,
 }
 
 /// A quadratic CLF V = xᵀPx with decay rate xᵀQx (Definition 3.1).
@@ -419,10 +466,15 @@ impl QuadraticClf {
         x.dot(&(&self.p * x))
     }
 
+    /// AᵀP + PA + Q, the matrix of a1 (3.8).
+    fn a1_matrix(&self, system: &LinearSystem) -> DMatrix<f64> {
+        let pa = &self.p * &system.a;
+        pa.transpose() + pa + &self.q
+    }
+
     /// a1(x) = xᵀ(AᵀP + PA + Q)x (3.8), b1(x) = 2xᵀPB (3.9): the constraint of QP-L (3.10).
     pub fn constraint(&self, system: &LinearSystem, x: &DVector<f64>) -> AffineConstraint {
-        let pa = &self.p * &system.a;
-        let m = pa.transpose() + pa + &self.q;
+        let m = self.a1_matrix(system);
         AffineConstraint {
             a: x.dot(&(m * x)),
             b: (system.b.transpose() * (&self.p * x)) * 2.0,
@@ -587,6 +639,8 @@ pub struct ConstrainedStabilizer {
     system: LinearSystem,
     delays: Vec<f64>,
     clf: QuadraticClf,
+    /// AᵀP + PA + Q of a1 (3.8).
+    clf_matrix: DMatrix<f64>,
     barrier: DiskBarrier,
     l0: f64,
     eta: f64,
@@ -626,6 +680,7 @@ impl ConstrainedStabilizer {
             return Err(LinearDelaysError::NegativeBuffer { eta });
         }
         Ok(ConstrainedStabilizer {
+            clf_matrix: clf.a1_matrix(&system),
             system,
             delays,
             clf,
@@ -704,7 +759,66 @@ impl ConstrainedStabilizer {
 
     /// Delay-free CLF-CBF law κ_LB(x) solving QP-LB (3.27) ((3.29)–(3.32)).
     pub fn kappa_lb(&self, x: &DVector<f64>) -> QpOutcome {
-        gamma_m_qp(&self.clf_constraint(x), &self.cbf_constraint(x), &self.qp)
+        let mut workspace = self.workspace();
+        let (case, a1_bar, infeasible) = self.kappa_lb_into(x, &mut workspace);
+        QpOutcome {
+            input: workspace.input,
+            relaxation: workspace.relaxation,
+            case,
+            a1_bar,
+            infeasible,
+        }
+    }
+
+    /// Scratch space for [`ConstrainedStabilizer::kappa_lb_into`].
+    pub fn workspace(&self) -> KappaLbWorkspace {
+        let (n, r) = (self.system.state_dimension(), self.system.input_count());
+        let constraint = || AffineConstraint {
+            a: 0.0,
+            b: DVector::zeros(r),
+        };
+        KappaLbWorkspace {
+            clf: constraint(),
+            cbf: constraint(),
+            input: DVector::zeros(r),
+            relaxation: DVector::zeros(r),
+            mx: DVector::zeros(n),
+            px: DVector::zeros(n),
+            ax: DVector::zeros(n),
+            gradient: DVector::zeros(n),
+        }
+    }
+
+    /// [`ConstrainedStabilizer::kappa_lb`] without allocation: the constraints and u, σ in
+    /// `workspace`; returns the case, ā1 and the infeasibility flag of [`QpOutcome`].
+    pub fn kappa_lb_into(&self, x: &DVector<f64>, workspace: &mut KappaLbWorkspace) -> (QpCase, f64, bool) {
+        let KappaLbWorkspace {
+            clf,
+            cbf,
+            input,
+            relaxation,
+            mx,
+            px,
+            ax,
+            gradient,
+        } = workspace;
+        let (a, b) = (&self.system.a, &self.system.b);
+        // (a1, b1) (3.8)/(3.9), as [`QuadraticClf::constraint`].
+        self.clf_matrix.mul_to(x, mx);
+        clf.a = x.dot(mx);
+        self.clf.p.mul_to(x, px);
+        b.tr_mul_to(px, &mut clf.b);
+        clf.b *= 2.0;
+        // (a2, b2) (3.41)/(3.42), as [`barrier_constraint`]: ∇h = 2(x − c).
+        gradient.copy_from(x);
+        *gradient -= &self.barrier.centre;
+        let h = gradient.norm_squared() - self.barrier.radius * self.barrier.radius;
+        *gradient *= 2.0;
+        a.mul_to(x, ax);
+        cbf.a = -gradient.dot(ax) - self.l0 * (h - self.eta);
+        b.tr_mul_to(gradient, &mut cbf.b);
+        cbf.b.neg_mut();
+        gamma_m_qp_into(clf, cbf, &self.qp, input, relaxation)
     }
 
     fn check_predictions(&self, predictions: &[DVector<f64>]) -> Result<()> {

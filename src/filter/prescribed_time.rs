@@ -154,6 +154,14 @@ impl BlowUp {
     /// make h_3 … h_n jump (h_3 contains −c1 μ2′ x1) and can lose safety. On [t0, t0 + T) the
     /// continuation stays below clip · (d + 1)(d + 2)/2.
     pub fn mu2_jet(&self, time: f64, length: usize) -> Result<Vec<f64>> {
+        let mut jet = vec![0.0; length];
+        self.mu2_jet_into(time, &mut jet)?;
+        Ok(jet)
+    }
+
+    /// [`BlowUp::mu2_jet`] into `jet` (length = `jet.len()`), without allocation.
+    pub fn mu2_jet_into(&self, time: f64, jet: &mut [f64]) -> Result<()> {
+        let length = jet.len();
         if time < self.initial_time {
             return Err(PrescribedTimeError::BeforeInitialTime {
                 time,
@@ -165,18 +173,16 @@ impl BlowUp {
             let degree = length.max(2) - 2;
             let elapsed = time - clip_time;
             // d^j/dt^j Σ_k μ2^(k)(t_c) s^k / k! = Σ_{k ≥ j} μ2^(k)(t_c) s^(k−j) / (k − j)!.
-            let jet = (0..length)
-                .map(|order| {
-                    let mut power_over_factorial = 1.0;
-                    let mut sum = 0.0;
-                    for k in order..=degree {
-                        sum += self.mu_derivative(2, k as u32, clip_time) * power_over_factorial;
-                        power_over_factorial *= elapsed / (k - order + 1) as f64;
-                    }
-                    sum
-                })
-                .collect();
-            return Ok(jet);
+            for (order, value) in jet.iter_mut().enumerate() {
+                let mut power_over_factorial = 1.0;
+                let mut sum = 0.0;
+                for k in order..=degree {
+                    sum += self.mu_derivative(2, k as u32, clip_time) * power_over_factorial;
+                    power_over_factorial *= elapsed / (k - order + 1) as f64;
+                }
+                *value = sum;
+            }
+            return Ok(());
         }
         if time >= self.end_time() {
             return Err(PrescribedTimeError::OutsideHorizon {
@@ -184,9 +190,10 @@ impl BlowUp {
                 end_time: self.end_time(),
             });
         }
-        Ok((0..length)
-            .map(|order| self.mu_derivative(2, order as u32, time))
-            .collect())
+        for (order, value) in jet.iter_mut().enumerate() {
+            *value = self.mu_derivative(2, order as u32, time);
+        }
+        Ok(())
     }
 }
 
@@ -242,88 +249,140 @@ impl ContinuityRamp {
     }
 }
 
-/// Jet of a product by the Leibniz rule, truncated to `length`.
-fn jet_product(a: &[f64], b: &[f64], length: usize) -> Vec<f64> {
-    (0..length)
-        .map(|k| {
-            let mut binomial = 1.0;
-            let mut sum = 0.0;
-            for j in 0..=k {
-                sum += binomial * a[j] * b[k - j];
-                binomial *= (k - j) as f64 / (j + 1) as f64;
-            }
-            sum
-        })
-        .collect()
+/// Jet of a product by the Leibniz rule, truncated to `out.len()`.
+fn jet_product_into(a: &[f64], b: &[f64], out: &mut [f64]) {
+    for (k, value) in out.iter_mut().enumerate() {
+        let mut binomial = 1.0;
+        let mut sum = 0.0;
+        for j in 0..=k {
+            sum += binomial * a[j] * b[k - j];
+            binomial *= (k - j) as f64 / (j + 1) as f64;
+        }
+        *value = sum;
+    }
 }
 
-/// Values (order-0 coefficients) of the linear forms of the PTSf chain at one time.
-struct ChainForms {
-    /// h_i(x, t) = barrier_rows[i − 1] · x (5.24).
-    barrier_rows: Vec<RowDVector<f64>>,
+/// a·x summed in order from 0 (as nalgebra's `dot` sums a row by a row).
+fn dot(a: &[f64], x: &[f64]) -> f64 {
+    a.iter().zip(x).fold(0.0, |sum, (a, x)| sum + a * x)
+}
+
+/// The linear forms of the PTSf chain at one time (values, the order-0 coefficients), with the
+/// scratch space that builds them: sized for an order n once, then rebuilt without allocation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainForms {
+    order: usize,
+    /// How many of h_i (and d/dt α_{i−1}) and α_i the last build produced.
+    barriers: usize,
+    alphas: usize,
+    /// h_i(x, t) = barrier_rows[i − 1] · x (5.24) (row-major, n × n).
+    barrier_rows: Vec<f64>,
     /// α_i(x, t) = alpha_rows[i − 1] · x (5.26), for the gains given.
-    alpha_rows: Vec<RowDVector<f64>>,
+    alpha_rows: Vec<f64>,
     /// d/dt α_{i−1} along (5.23) = alpha_rate_rows[i − 1] · x.
-    alpha_rate_rows: Vec<RowDVector<f64>>,
+    alpha_rate_rows: Vec<f64>,
+    /// μ̄2's jet, and the jets of the coefficients (coefficient j of a form holds the jet of the
+    /// factor of x_{j+1}; α_{i−1}: n × (n + 1), the others n × n).
+    mu2_jet: Vec<f64>,
+    alpha_previous: Vec<f64>,
+    rate: Vec<f64>,
+    barrier: Vec<f64>,
+    product: Vec<f64>,
 }
 
-/// The chain (5.24)–(5.26) for a system of `order` n with the first `gains.len()` gains:
-/// h_1 … h_{k+1} and α_1 … α_k (k = gains.len() ≤ n; h_{n+1} does not exist).
-/// `mu2_jet` must hold μ̄2 and its first n − 1 derivatives.
-fn build_chain(mu2_jet: &[f64], gains: &[f64], order: usize) -> ChainForms {
-    let values = |forms: &[Vec<f64>]| RowDVector::from_iterator(order, forms.iter().map(|c| c[0]));
-    // α_0 ≡ 0 (5.25); coefficient j holds the jet of the factor of x_{j+1}.
-    let mut alpha_previous: Vec<Vec<f64>> = vec![vec![0.0; order + 1]; order];
-    let mut chain = ChainForms {
-        barrier_rows: Vec::new(),
-        alpha_rows: Vec::new(),
-        alpha_rate_rows: Vec::new(),
-    };
-    for i in 1..=(gains.len() + 1).min(order) {
-        // α_i is differentiated n − i more times on the way to α_n.
-        let length = order - i + 1;
-        // d/dt Σ a_j x_j = Σ (ȧ_j x_j + a_j x_{j+1}) along (5.23); α_{i−1} has no x_n term.
-        let rate: Vec<Vec<f64>> = (0..order)
-            .map(|j| {
-                (0..length)
-                    .map(|k| {
-                        let shifted = if j > 0 { alpha_previous[j - 1][k] } else { 0.0 };
-                        alpha_previous[j][k + 1] + shifted
-                    })
-                    .collect()
-            })
-            .collect();
-        // h_i = −x_i + α_{i−1} (5.24).
-        let barrier: Vec<Vec<f64>> = alpha_previous
-            .iter()
-            .enumerate()
-            .map(|(j, coefficient)| {
-                let mut jet = coefficient[..length].to_vec();
-                if j == i - 1 {
-                    jet[0] -= 1.0;
-                }
-                jet
-            })
-            .collect();
-        chain.barrier_rows.push(values(&barrier));
-        chain.alpha_rate_rows.push(values(&rate));
-        if let Some(&gain) = gains.get(i - 1) {
-            // α_i = c_i μ2 h_i + d/dt α_{i−1} (5.26).
-            let alpha: Vec<Vec<f64>> = barrier
-                .iter()
-                .zip(&rate)
-                .map(|(h, r)| {
-                    jet_product(mu2_jet, h, length)
-                        .iter()
-                        .zip(r)
-                        .map(|(p, r)| gain * p + r)
-                        .collect()
-                })
-                .collect();
-            chain.alpha_rows.push(values(&alpha));
-            alpha_previous = alpha;
+impl ChainForms {
+    /// Scratch space for a chain of order n.
+    pub fn new(order: usize) -> ChainForms {
+        ChainForms {
+            order,
+            barriers: 0,
+            alphas: 0,
+            barrier_rows: vec![0.0; order * order],
+            alpha_rows: vec![0.0; order * order],
+            alpha_rate_rows: vec![0.0; order * order],
+            mu2_jet: vec![0.0; order],
+            alpha_previous: vec![0.0; order * (order + 1)],
+            rate: vec![0.0; order * order],
+            barrier: vec![0.0; order * order],
+            product: vec![0.0; order],
         }
     }
+
+    /// h_i (5.24) as a row, i = 1 … (built count).
+    fn barrier_row(&self, i: usize) -> &[f64] {
+        &self.barrier_rows[(i - 1) * self.order..i * self.order]
+    }
+
+    fn alpha_row(&self, i: usize) -> &[f64] {
+        &self.alpha_rows[(i - 1) * self.order..i * self.order]
+    }
+
+    fn alpha_rate_row(&self, i: usize) -> &[f64] {
+        &self.alpha_rate_rows[(i - 1) * self.order..i * self.order]
+    }
+
+    /// The chain (5.24)–(5.26) with the first `gains.len()` gains from μ̄2's jet in
+    /// `self.mu2_jet` (μ̄2 and its first n − 1 derivatives): h_1 … h_{k+1} and α_1 … α_k
+    /// (k = gains.len() ≤ n; h_{n+1} does not exist).
+    fn build(&mut self, gains: &[f64]) {
+        let order = self.order;
+        let stride = order + 1;
+        // α_0 ≡ 0 (5.25).
+        self.alpha_previous.fill(0.0);
+        self.barriers = 0;
+        self.alphas = 0;
+        for i in 1..=(gains.len() + 1).min(order) {
+            // α_i is differentiated n − i more times on the way to α_n.
+            let length = order - i + 1;
+            // d/dt Σ a_j x_j = Σ (ȧ_j x_j + a_j x_{j+1}) along (5.23); α_{i−1} has no x_n term.
+            for j in 0..order {
+                for k in 0..length {
+                    let shifted = if j > 0 {
+                        self.alpha_previous[(j - 1) * stride + k]
+                    } else {
+                        0.0
+                    };
+                    self.rate[j * order + k] = self.alpha_previous[j * stride + k + 1] + shifted;
+                }
+            }
+            // h_i = −x_i + α_{i−1} (5.24).
+            for j in 0..order {
+                self.barrier[j * order..j * order + length]
+                    .copy_from_slice(&self.alpha_previous[j * stride..j * stride + length]);
+                if j == i - 1 {
+                    self.barrier[j * order] -= 1.0;
+                }
+            }
+            for j in 0..order {
+                self.barrier_rows[(i - 1) * order + j] = self.barrier[j * order];
+                self.alpha_rate_rows[(i - 1) * order + j] = self.rate[j * order];
+            }
+            self.barriers = i;
+            if let Some(&gain) = gains.get(i - 1) {
+                // α_i = c_i μ2 h_i + d/dt α_{i−1} (5.26).
+                for j in 0..order {
+                    jet_product_into(
+                        &self.mu2_jet,
+                        &self.barrier[j * order..j * order + length],
+                        &mut self.product[..length],
+                    );
+                    for k in 0..length {
+                        self.alpha_previous[j * stride + k] = gain * self.product[k] + self.rate[j * order + k];
+                    }
+                    self.alpha_rows[(i - 1) * order + j] = self.alpha_previous[j * stride];
+                }
+                self.alphas = i;
+            }
+        }
+    }
+}
+
+/// The chain for `order` n from μ̄2's jet and the first `gains.len()` gains (allocates its
+/// scratch space; the filter keeps one [`ChainForms`]).
+fn build_chain(mu2_jet: &[f64], gains: &[f64], order: usize) -> ChainForms {
+    let mut chain = ChainForms::new(order);
+    chain.mu2_jet.copy_from_slice(mu2_jet);
+    chain.build(gains);
     chain
 }
 
@@ -364,8 +423,8 @@ pub fn initial_gains(blow_up: &BlowUp, initial_state: &DVector<f64>, margin: f64
     for i in 1..order {
         let chain = build_chain(&mu2_jet, &gains, order);
         // Denominator of (5.34): α_{i−1}(t0) − x_i(t0) = h_i(t0) > 0 by induction (5.50).
-        let barrier = chain.barrier_rows[i - 1].dot(&initial_state.transpose());
-        let alpha_rate = chain.alpha_rate_rows[i - 1].dot(&initial_state.transpose());
+        let barrier = dot(chain.barrier_row(i), initial_state.as_slice());
+        let alpha_rate = dot(chain.alpha_rate_row(i), initial_state.as_slice());
         let lower_bound = (initial_state[i] - alpha_rate) / barrier; // (5.34)
         let gain = previous.max(lower_bound) + margin; // (5.32)
         gains.push(gain);
@@ -376,10 +435,8 @@ pub fn initial_gains(blow_up: &BlowUp, initial_state: &DVector<f64>, margin: f64
                                       // grow like products of the earlier gains, so from starts close to the barrier with large
                                       // higher derivatives, h_{i+1}(t0) is a difference of huge terms: check it really is positive.
     let chain = build_chain(&mu2_jet, &gains, order);
-    let barriers: Vec<f64> = chain
-        .barrier_rows
-        .iter()
-        .map(|row| row.dot(&initial_state.transpose()))
+    let barriers: Vec<f64> = (1..=chain.barriers)
+        .map(|i| dot(chain.barrier_row(i), initial_state.as_slice()))
         .collect();
     if barriers.iter().any(|&value| value.is_nan() || value <= 0.0) {
         return Err(PrescribedTimeError::IllConditionedGains { gains, barriers });
@@ -438,36 +495,54 @@ impl PtsfFilter {
         &self.ramp
     }
 
-    fn chain_at(&self, time: f64) -> Result<ChainForms> {
+    /// Scratch space for [`PtsfFilter::control_with`] (keep one per filter).
+    pub fn workspace(&self) -> ChainForms {
+        ChainForms::new(self.order())
+    }
+
+    /// The chain at t ∈ [t0, t0 + T) into `chain`.
+    fn chain_into(&self, time: f64, chain: &mut ChainForms) -> Result<()> {
         if time >= self.blow_up.end_time() {
             return Err(PrescribedTimeError::OutsideHorizon {
                 time,
                 end_time: self.blow_up.end_time(),
             });
         }
-        let mu2_jet = self.blow_up.mu2_jet(time, self.order())?;
-        Ok(build_chain(&mu2_jet, &self.gains, self.order()))
+        if chain.order != self.order() {
+            *chain = self.workspace();
+        }
+        self.blow_up.mu2_jet_into(time, &mut chain.mu2_jet)?;
+        chain.build(&self.gains);
+        Ok(())
     }
 
     /// Row k(t) with α_n(x, t) = k(t) x (5.26), t ∈ [t0, t0 + T).
     pub fn safe_control_row(&self, time: f64) -> Result<RowDVector<f64>> {
-        let chain = self.chain_at(time)?;
-        Ok(chain.alpha_rows[self.order() - 1].clone())
+        let mut chain = self.workspace();
+        self.chain_into(time, &mut chain)?;
+        Ok(RowDVector::from_row_slice(chain.alpha_row(self.order())))
     }
 
     /// α_n(x, t) (5.26): the largest input keeping d/dt h_n ≥ −c_n μ2 h_n (5.31).
     pub fn safe_control(&self, time: f64, state: &DVector<f64>) -> Result<f64> {
+        self.safe_control_with(&mut self.workspace(), time, state)
+    }
+
+    /// [`PtsfFilter::safe_control`] in `chain`'s scratch space (no allocation).
+    pub fn safe_control_with(&self, chain: &mut ChainForms, time: f64, state: &DVector<f64>) -> Result<f64> {
         check_dimension(self.order(), state)?;
-        Ok(self.safe_control_row(time)?.dot(&state.transpose()))
+        self.chain_into(time, chain)?;
+        Ok(dot(chain.alpha_row(self.order()), state.as_slice()))
     }
 
     /// Barrier functions h_1 … h_n (5.24) at (t, x); all positive while the design holds.
     pub fn barriers(&self, time: f64, state: &DVector<f64>) -> Result<DVector<f64>> {
         check_dimension(self.order(), state)?;
-        let chain = self.chain_at(time)?;
+        let mut chain = self.workspace();
+        self.chain_into(time, &mut chain)?;
         Ok(DVector::from_iterator(
             self.order(),
-            chain.barrier_rows.iter().map(|row| row.dot(&state.transpose())),
+            (1..=self.order()).map(|i| dot(chain.barrier_row(i), state.as_slice())),
         ))
     }
 
@@ -480,10 +555,22 @@ impl PtsfFilter {
         nominal: f64,
         output_at_end: Option<f64>,
     ) -> Result<FilterDecision> {
+        self.control_with(&mut self.workspace(), time, state, nominal, output_at_end)
+    }
+
+    /// [`PtsfFilter::control`] in `chain`'s scratch space (no allocation).
+    pub fn control_with(
+        &self,
+        chain: &mut ChainForms,
+        time: f64,
+        state: &DVector<f64>,
+        nominal: f64,
+        output_at_end: Option<f64>,
+    ) -> Result<FilterDecision> {
         check_dimension(self.order(), state)?;
         let end_time = self.blow_up.end_time();
         if time < end_time {
-            let safe = self.safe_control(time, state)?;
+            let safe = self.safe_control_with(chain, time, state)?;
             let overriding = safe < nominal;
             return Ok(FilterDecision {
                 input: if overriding { safe } else { nominal },
@@ -555,7 +642,7 @@ impl EsfFilter {
     /// The safe control −k·x ((5.89) for n = 2).
     pub fn safe_control(&self, state: &DVector<f64>) -> Result<f64> {
         check_dimension(self.order(), state)?;
-        Ok(-self.feedback.dot(&state.transpose()))
+        Ok(-dot(self.feedback.as_slice(), state.as_slice()))
     }
 
     /// ESf barrier functions h_1 … h_n at x.
@@ -702,7 +789,9 @@ impl PtsNominal {
     /// v_nom (5.87). Once μ2 reaches the clip it is held there (the hard clip of §5.4); an
     /// unclipped nominal is only defined on [t0, t0 + T).
     pub fn control(&self, time: f64, chain_state: &Vector2<f64>) -> Result<f64> {
-        let mu2 = self.blow_up.mu2_jet(time, 1)?[0];
+        let mut mu2 = [0.0];
+        self.blow_up.mu2_jet_into(time, &mut mu2)?;
+        let mu2 = mu2[0];
         Ok(-mu2 * self.gain().dot(chain_state))
     }
 }
@@ -1586,7 +1675,7 @@ mod tests {
                 } else {
                     b.mu2_jet(t, 3).unwrap()
                 };
-                let alpha = build_chain(&jet, &gains, 3).alpha_rows[2].dot(&x.transpose());
+                let alpha = dot(build_chain(&jet, &gains, 3).alpha_row(3), x.as_slice());
                 (alpha.min(5.0), 5.0, alpha < 5.0)
             })
         };
