@@ -381,21 +381,12 @@ impl QpWorkspace {
                 }
             }
         }
-        // λ: forward then back substitution.
+        // λ = (L Lᵀ)⁻¹ (2β + N d).
         for a in 0..m {
-            let mut sum = 2.0 * self.beta(a) + dot(&self.normals[a * r..(a + 1) * r], &self.gradient);
-            for j in 0..a {
-                sum -= self.gram[a * m + j] * self.multipliers[j];
-            }
-            self.multipliers[a] = sum / self.gram[a * m + a];
+            let rhs = 2.0 * self.beta(a) + dot(&self.normals[a * r..(a + 1) * r], &self.gradient);
+            self.multipliers[a] = rhs;
         }
-        for a in (0..m).rev() {
-            let mut sum = self.multipliers[a];
-            for j in a + 1..m {
-                sum -= self.gram[j * m + a] * self.multipliers[j];
-            }
-            self.multipliers[a] = sum / self.gram[a * m + a];
-        }
+        cholesky_solve(&self.gram, m, &mut self.multipliers[..m]);
         for i in 0..r {
             let pushed: f64 = (0..m).map(|w| self.normals[w * r + i] * self.multipliers[w]).sum();
             self.p[i] = 0.5 * (pushed - self.gradient[i]);
@@ -403,25 +394,35 @@ impl QpWorkspace {
         // One step of iterative refinement of N v = β: λ and d are of size ρ when a barrier is
         // soft, and their cancellation leaves errors of ρ ε in v, i.e. in g_k on the working set.
         for a in 0..m {
-            let mut sum = self.beta(a) - dot(&self.normals[a * r..(a + 1) * r], &self.p);
-            for j in 0..a {
-                sum -= self.gram[a * m + j] * self.correction[j];
-            }
-            self.correction[a] = sum / self.gram[a * m + a];
+            let residual = self.beta(a) - dot(&self.normals[a * r..(a + 1) * r], &self.p);
+            self.correction[a] = residual;
         }
-        for a in (0..m).rev() {
-            let mut sum = self.correction[a];
-            for j in a + 1..m {
-                sum -= self.gram[j * m + a] * self.correction[j];
-            }
-            self.correction[a] = sum / self.gram[a * m + a];
-        }
+        cholesky_solve(&self.gram, m, &mut self.correction[..m]);
         for i in 0..r {
             self.p[i] += (0..m)
                 .map(|w| self.normals[w * r + i] * self.correction[w])
                 .sum::<f64>();
         }
         true
+    }
+}
+
+/// x ← (L Lᵀ)⁻¹ x for the m × m lower-triangular L in `gram` (row-major): forward, then back
+/// substitution.
+fn cholesky_solve(gram: &[f64], m: usize, x: &mut [f64]) {
+    for a in 0..m {
+        let mut sum = x[a];
+        for j in 0..a {
+            sum -= gram[a * m + j] * x[j];
+        }
+        x[a] = sum / gram[a * m + a];
+    }
+    for a in (0..m).rev() {
+        let mut sum = x[a];
+        for j in a + 1..m {
+            sum -= gram[j * m + a] * x[j];
+        }
+        x[a] = sum / gram[a * m + a];
     }
 }
 
