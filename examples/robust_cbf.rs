@@ -87,7 +87,7 @@ impl SafetyFilter for RobustCbf {
             &self.tightened[..count],
             input.nominal,
             None,
-            &mut self.qp,
+            Some(&mut self.qp),
             &mut self.input,
         );
         Ok(Some(ChannelOutcome {

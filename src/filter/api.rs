@@ -42,8 +42,9 @@ pub trait SafetyFilter: Send {
     /// recursive predictors (4.23) assume for inputs not yet issued inside their window.
     /// Default: the delay-free CBF-QP (4.9) over every known barrier (allocation-free for at
     /// most one barrier; with several, override it with a [`QpWorkspace`] kept in the filter).
+    /// The predictors call it at every step of their window: keep it cheap.
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
-        delay_free_qp(input.constraints, input.nominal, None, &mut QpWorkspace::default(), u);
+        delay_free_qp(input.constraints, input.nominal, None, None, u);
     }
 
     /// The prescribed time T of the run's prescribed-time metrics (Ch. 5), if the filter has one.
@@ -99,12 +100,13 @@ pub struct DelayFreeInput<'a> {
 /// u ← the delay-free CBF-QP over all channels from u0 and the constraints: u0 without
 /// constraints (even with limits), the closed form (4.9) for one barrier without limits, else
 /// the numerical QP ([`crate::filter::qp`]) in `qp` (keep one per filter: no allocation once
-/// it has seen the largest problem). Returns (active, infeasible, μ).
+/// it has seen the largest problem; `None` builds one for this call only when needed).
+/// Returns (active, infeasible, μ).
 pub fn delay_free_qp(
     constraints: &[Constraint],
     nominal: &DVector<f64>,
     limits: Option<(&[f64], &[f64])>,
-    qp: &mut QpWorkspace,
+    qp: Option<&mut QpWorkspace>,
     u: &mut DVector<f64>,
 ) -> (bool, bool, f64) {
     u.copy_from(nominal);
@@ -112,7 +114,10 @@ pub fn delay_free_qp(
         // Without a known barrier the nominal passes as it is (limits included).
         ([], _) => (false, false, f64::NAN),
         ([c], None) => crate::filter::cbf_qp_in_place(c, u),
-        (constraints, _) => qp.solve(constraints, nominal, limits, u),
+        (constraints, _) => match qp {
+            Some(qp) => qp.solve(constraints, nominal, limits, u),
+            None => QpWorkspace::default().solve(constraints, nominal, limits, u),
+        },
     }
 }
 

@@ -107,8 +107,13 @@ impl SafetyFilter for CbfQp {
             return Ok(None);
         }
         let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
-        let (active, infeasible, mu) =
-            delay_free_qp(input.constraints, input.nominal, limits, &mut self.qp, &mut self.input);
+        let (active, infeasible, mu) = delay_free_qp(
+            input.constraints,
+            input.nominal,
+            limits,
+            Some(&mut self.qp),
+            &mut self.input,
+        );
         Ok(Some(ChannelOutcome {
             input: self.input[input.channel],
             active,
@@ -118,6 +123,6 @@ impl SafetyFilter for CbfQp {
     }
     fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
         let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
-        delay_free_qp(input.constraints, input.nominal, limits, &mut self.qp, u);
+        delay_free_qp(input.constraints, input.nominal, limits, Some(&mut self.qp), u);
     }
 }
