@@ -223,19 +223,33 @@ impl Record {
     pub fn encode_into(&self, buffer: &mut Vec<u8>) {
         use prost::Message;
         buffer.clear();
+        // The per-step and per-tick messages through `wire` (prost's bytes, cheaper).
         let result = match self {
-            Record::State(m) => m.encode(buffer),
-            Record::Issued(m) => m.encode(buffer),
-            Record::Applied(m) => m.encode(buffer),
-            Record::Barrier(m) => m.encode(buffer),
-            Record::Filter(m) => m.encode(buffer),
+            Record::State(m) | Record::Measured(m) => {
+                wire::encode_state(m, buffer);
+                Ok(())
+            }
+            Record::Issued(m) => {
+                wire::encode_issued(m, buffer);
+                Ok(())
+            }
+            Record::Applied(m) | Record::Actuated(m) => {
+                wire::encode_applied(m, buffer);
+                Ok(())
+            }
+            Record::Barrier(m) => {
+                wire::encode_barrier(m, buffer);
+                Ok(())
+            }
+            Record::Filter(m) => {
+                wire::encode_filter(m, buffer);
+                Ok(())
+            }
             Record::Event(m) => m.encode(buffer),
             Record::Prediction(m) => m.encode(buffer),
             Record::Scene(_, m) => m.encode(buffer),
             Record::Transform(_, m) => m.encode(buffer),
             Record::Log(_, m) => m.encode(buffer),
-            Record::Measured(m) => m.encode(buffer),
-            Record::Actuated(m) => m.encode(buffer),
         };
         result.expect("a Vec grows to fit any message");
     }
