@@ -259,6 +259,9 @@ impl<W: Write> DataSection<W> {
 /// so both give the same bytes.
 enum Back<W: Write + Send + 'static> {
     Inline(DataSection<W>),
+    /// Inline until the first chunk, then a writer thread (the header, schemas, channels and
+    /// the run metadata are written without waking a thread for each).
+    Deferred(Option<DataSection<W>>),
     Thread(WriterThread<W>),
 }
 
@@ -294,9 +297,14 @@ impl<W: Write + Send + 'static> Drop for WriterThread<W> {
 
 impl<W: Write + Send + 'static> Back<W> {
     fn new(section: DataSection<W>, background: bool) -> io::Result<Self> {
-        if !background {
-            return Ok(Back::Inline(section));
-        }
+        Ok(if background {
+            Back::Deferred(Some(section))
+        } else {
+            Back::Inline(section)
+        })
+    }
+
+    fn spawn(section: DataSection<W>) -> io::Result<Self> {
         // One chunk queued while another is compressed: memory stays at a few chunks.
         let (jobs, queued) = mpsc::sync_channel::<Job>(1);
         let (give_back, spare) = mpsc::channel();
@@ -321,6 +329,12 @@ impl<W: Write + Send + 'static> Back<W> {
     fn submit(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
         match self {
             Back::Inline(section) => section.write(job),
+            Back::Deferred(section) if matches!(job, Job::Chunk { .. }) => {
+                let section = section.take().expect("a deferred back holds its section");
+                *self = Back::spawn(section)?;
+                self.submit(job)
+            }
+            Back::Deferred(section) => section.as_mut().expect("a deferred back holds its section").write(job),
             Back::Thread(writer) => {
                 let sent = writer.jobs.as_ref().is_some_and(|jobs| jobs.send(job).is_ok());
                 if !sent {
@@ -336,7 +350,8 @@ impl<W: Write + Send + 'static> Back<W> {
     /// The data section once every submitted job is written.
     fn into_section(self) -> io::Result<DataSection<W>> {
         match self {
-            Back::Inline(section) => Ok(section),
+            Back::Inline(section) | Back::Deferred(Some(section)) => Ok(section),
+            Back::Deferred(None) => Err(io::Error::other("the MCAP writer thread did not start")),
             Back::Thread(mut writer) => writer.join(),
         }
     }

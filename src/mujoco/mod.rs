@@ -127,6 +127,13 @@ unsafe impl Send for Model {}
 /// Size of MuJoCo's error buffer for `mj_loadXML`.
 const ERROR_BUFFER: usize = 1000;
 
+thread_local! {
+    /// One MuJoCo virtual file system per thread, initialised once (mj_defaultVFS zeroes its
+    /// ~2 MB, which cost every episode's start-up): each load adds the model text as a file
+    /// and deletes it again.
+    static MODEL_VFS: std::cell::RefCell<Option<Box<ffi::mjVFS>>> = const { std::cell::RefCell::new(None) };
+}
+
 impl Model {
     /// Loads and compiles an MJCF file.
     pub fn from_xml_file(path: &Path) -> Result<Model, MjError> {
@@ -150,26 +157,35 @@ impl Model {
         }
         let vfs_name = CString::new("mjsafe_model.xml").expect("static name");
         let mut error = vec![0 as std::os::raw::c_char; ERROR_BUFFER];
-        // SAFETY: the VFS is heap-allocated (it is ~2 MB), initialised by mj_defaultVFS,
-        // the file buffer is sized by MuJoCo before we copy into it, and mj_deleteVFS frees it.
-        let raw = unsafe {
-            let mut vfs: Box<std::mem::MaybeUninit<ffi::mjVFS>> = Box::new_uninit();
-            ffi::mj_defaultVFS(vfs.as_mut_ptr());
-            let mut vfs = vfs.assume_init();
-            let size = bytes.len() as i32;
-            if ffi::mj_makeEmptyFileVFS(&mut *vfs, vfs_name.as_ptr(), size) != 0 {
-                return Err(MjError::Load {
-                    origin: origin.to_string(),
-                    message: "MuJoCo's virtual file system refused the model text".into(),
-                });
-            }
-            let slot = ffi::mj_findFileVFS(&*vfs, vfs_name.as_ptr());
-            let dest = vfs.filedata[slot as usize] as *mut u8;
-            std::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, bytes.len());
-            let model = ffi::mj_loadXML(vfs_name.as_ptr(), &*vfs, error.as_mut_ptr(), ERROR_BUFFER as i32);
-            ffi::mj_deleteVFS(&mut *vfs);
-            model
+        let refused = || MjError::Load {
+            origin: origin.to_string(),
+            message: "MuJoCo's virtual file system refused the model text".into(),
         };
+        let raw = MODEL_VFS.with(|cell| {
+            let mut cell = cell.borrow_mut();
+            let vfs = cell.get_or_insert_with(|| {
+                // SAFETY: mj_defaultVFS initialises the whole (heap-allocated, ~2 MB) struct.
+                unsafe {
+                    let mut vfs: Box<std::mem::MaybeUninit<ffi::mjVFS>> = Box::new_uninit();
+                    ffi::mj_defaultVFS(vfs.as_mut_ptr());
+                    vfs.assume_init()
+                }
+            });
+            // SAFETY: the VFS is initialised; the file buffer is sized by MuJoCo before we copy
+            // into it, and the file is deleted (its buffer freed) before the VFS is used again.
+            unsafe {
+                ffi::mj_deleteFileVFS(&mut **vfs, vfs_name.as_ptr());
+                if ffi::mj_makeEmptyFileVFS(&mut **vfs, vfs_name.as_ptr(), bytes.len() as i32) != 0 {
+                    return Err(refused());
+                }
+                let slot = ffi::mj_findFileVFS(&**vfs, vfs_name.as_ptr());
+                let dest = vfs.filedata[slot as usize] as *mut u8;
+                std::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, bytes.len());
+                let model = ffi::mj_loadXML(vfs_name.as_ptr(), &**vfs, error.as_mut_ptr(), ERROR_BUFFER as i32);
+                ffi::mj_deleteFileVFS(&mut **vfs, vfs_name.as_ptr());
+                Ok(model)
+            }
+        })?;
         match NonNull::new(raw) {
             Some(ptr) => Ok(Model { ptr }),
             None => {
