@@ -224,34 +224,19 @@ impl Record {
         use prost::Message;
         buffer.clear();
         // The per-step and per-tick messages through `wire` (prost's bytes, cheaper).
-        let result = match self {
-            Record::State(m) | Record::Measured(m) => {
-                wire::encode_state(m, buffer);
-                Ok(())
-            }
-            Record::Issued(m) => {
-                wire::encode_issued(m, buffer);
-                Ok(())
-            }
-            Record::Applied(m) | Record::Actuated(m) => {
-                wire::encode_applied(m, buffer);
-                Ok(())
-            }
-            Record::Barrier(m) => {
-                wire::encode_barrier(m, buffer);
-                Ok(())
-            }
-            Record::Filter(m) => {
-                wire::encode_filter(m, buffer);
-                Ok(())
-            }
-            Record::Event(m) => m.encode(buffer),
-            Record::Prediction(m) => m.encode(buffer),
-            Record::Scene(_, m) => m.encode(buffer),
-            Record::Transform(_, m) => m.encode(buffer),
-            Record::Log(_, m) => m.encode(buffer),
-        };
-        result.expect("a Vec grows to fit any message");
+        const FITS: &str = "a Vec grows to fit any message";
+        match self {
+            Record::State(m) | Record::Measured(m) => wire::encode_state(m, buffer),
+            Record::Issued(m) => wire::encode_issued(m, buffer),
+            Record::Applied(m) | Record::Actuated(m) => wire::encode_applied(m, buffer),
+            Record::Barrier(m) => wire::encode_barrier(m, buffer),
+            Record::Filter(m) => wire::encode_filter(m, buffer),
+            Record::Event(m) => m.encode(buffer).expect(FITS),
+            Record::Prediction(m) => m.encode(buffer).expect(FITS),
+            Record::Scene(_, m) => m.encode(buffer).expect(FITS),
+            Record::Transform(_, m) => m.encode(buffer).expect(FITS),
+            Record::Log(_, m) => m.encode(buffer).expect(FITS),
+        }
     }
 }
 
