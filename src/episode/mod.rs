@@ -20,7 +20,7 @@ use crate::scenario::{LoadedScenario, ScenarioError};
 
 pub use crate::filter::TICK_TOLERANCE;
 pub use control::{Consistency, ControlLoop, InputDisturbance, Tick};
-use records::{obstacle_scene, prediction_record, RecordBuffers, SceneState};
+use records::{obstacle_scene, RecordBuffers, SceneState};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EpisodeError {
@@ -320,7 +320,8 @@ impl Episode {
             match self.control.realize(time, &x) {
                 Ok(done) => {
                     for c in done {
-                        Self::emit(sinks, prediction_record(&c, &channels))?;
+                        self.records.set_prediction(&c, &channels);
+                        Self::emit_ref(sinks, &self.records.prediction)?;
                         self.control.recycle(c);
                     }
                 }

@@ -18,6 +18,9 @@ pub(super) struct RecordBuffers {
     pub(super) filter: Record,
     pub(super) measured: Record,
     pub(super) actuated: Record,
+    pub(super) prediction: Record,
+    /// p_i(t) − x(φ_i⁻¹(t)) of the last prediction record.
+    prediction_error: DVector<f64>,
 }
 
 impl RecordBuffers {
@@ -48,7 +51,45 @@ impl RecordBuffers {
                 channels: channels.to_vec(),
                 ..Default::default()
             }),
+            prediction: Record::Prediction(proto::Prediction::default()),
+            prediction_error: DVector::zeros(state_names.len()),
         }
+    }
+
+    /// `self.prediction` ← the record of a prediction against the realised state
+    /// (Definition 4.3), in place.
+    pub(super) fn set_prediction(&mut self, c: &Consistency, channels: &[String]) {
+        let Record::Prediction(m) = &mut self.prediction else {
+            unreachable!("the prediction buffer is a prediction record");
+        };
+        self.prediction_error.copy_from(&c.prediction.state);
+        self.prediction_error -= &c.realized;
+        let norm = self.prediction_error.norm();
+        // Every field, by name: a field added to the message fails to compile here.
+        let proto::Prediction {
+            time,
+            channel,
+            issued_at,
+            horizon,
+            predicted,
+            realized,
+            error,
+            relative_error,
+            reused_chain,
+            chain_mismatch,
+        } = m;
+        *time = c.prediction.target_time;
+        channel.clone_from(&channels[c.prediction.channel]);
+        *issued_at = c.prediction.issued_at;
+        *horizon = c.prediction.target_time - c.prediction.issued_at;
+        predicted.clear();
+        predicted.extend(c.prediction.state.iter());
+        realized.clear();
+        realized.extend(c.realized.iter());
+        *error = norm;
+        *relative_error = norm / c.realized.norm().max(1.0);
+        *reused_chain = c.prediction.reused_chain;
+        *chain_mismatch = c.prediction.chain_mismatch;
     }
 }
 
@@ -314,22 +355,6 @@ pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
         _ => ([0.0, 0.0], o.radius),
     };
     Record::Scene(time, scene::obstacle(time, &o.barrier.name, centre, radius, o.known))
-}
-
-pub(super) fn prediction_record(c: &Consistency, channels: &[String]) -> Record {
-    let error = (&c.prediction.state - &c.realized).norm();
-    Record::Prediction(proto::Prediction {
-        time: c.prediction.target_time,
-        channel: channels[c.prediction.channel].clone(),
-        issued_at: c.prediction.issued_at,
-        horizon: c.prediction.target_time - c.prediction.issued_at,
-        predicted: c.prediction.state.iter().copied().collect(),
-        realized: c.realized.iter().copied().collect(),
-        error,
-        relative_error: error / c.realized.norm().max(1.0),
-        reused_chain: c.prediction.reused_chain,
-        chain_mismatch: c.prediction.chain_mismatch,
-    })
 }
 
 #[cfg(test)]
