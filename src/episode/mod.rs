@@ -173,12 +173,7 @@ impl Episode {
             depths: Vec::new(),
             xdot: vec![0.0; model.state_dim()],
             records: RecordBuffers::new(model.state_names(), model.channel_names()),
-            scene: SceneState {
-                hull_radius,
-                path,
-                trail: Vec::new(),
-                trail_segments: 0,
-            },
+            scene: SceneState::new(hull_radius, path, model.channel_names()),
         })
     }
 

@@ -107,6 +107,29 @@ pub(super) struct SceneState {
     /// published once and persists, so the log and the memory grow linearly, not
     /// quadratically, with the episode's length).
     pub(super) trail_segments: u64,
+    /// The per-frame records, updated in place: the vehicle, `/tf`, and per channel the
+    /// predicted position (entity `prediction/<channel>`).
+    vehicle: Record,
+    transform: Record,
+    predictions: Vec<(String, Record)>,
+}
+
+impl SceneState {
+    pub(super) fn new(hull_radius: f64, path: Option<([f64; 2], f64, f64)>, channels: &[String]) -> SceneState {
+        let scene = || Record::Scene(0.0, Default::default());
+        SceneState {
+            hull_radius,
+            path,
+            trail: Vec::new(),
+            trail_segments: 0,
+            vehicle: scene(),
+            transform: Record::Transform(0.0, Default::default()),
+            predictions: channels
+                .iter()
+                .map(|name| (format!("prediction/{name}"), scene()))
+                .collect(),
+        }
+    }
 }
 
 /// The 3D view's frame period (simulated seconds): a frame at every control tick, but at most
@@ -182,31 +205,31 @@ impl Episode {
             return Ok(());
         }
         let frame = k / frame_steps;
-        Self::emit(
-            sinks,
-            Record::Scene(time, scene::vehicle(time, position, heading, self.scene.hull_radius)),
-        )?;
+        let hull_radius = self.scene.hull_radius;
+        if let Record::Scene(t, update) = &mut self.scene.vehicle {
+            *t = time;
+            scene::vehicle_into(update, time, position, heading, hull_radius);
+        }
+        Self::emit_ref(sinks, &self.scene.vehicle)?;
         // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
         // channel, made at the previous tick), with a line from where it is now.
         if let Some([i, j]) = model.planar_position() {
-            let channels = model.channel_names();
             for p in self.control.latest_predictions() {
-                let name = channels.get(p.channel).map_or("?", String::as_str);
-                let id = format!("prediction/{name}");
-                let predicted = [p.state[i], p.state[j]];
-                Self::emit(
-                    sinks,
-                    Record::Scene(
-                        time,
-                        scene::prediction(time, &id, position, predicted, self.scene.hull_radius),
-                    ),
-                )?;
+                let Some((id, record)) = self.scene.predictions.get_mut(p.channel) else {
+                    continue;
+                };
+                if let Record::Scene(t, update) = record {
+                    *t = time;
+                    scene::prediction_into(update, time, id, position, [p.state[i], p.state[j]], hull_radius);
+                }
+                Self::emit_ref(sinks, record)?;
             }
         }
-        Self::emit(
-            sinks,
-            Record::Transform(time, scene::transform(time, position, heading)),
-        )?;
+        if let Record::Transform(t, transform) = &mut self.scene.transform {
+            *t = time;
+            scene::transform_into(transform, time, position, heading);
+        }
+        Self::emit_ref(sinks, &self.scene.transform)?;
         if frame.is_multiple_of(TRAIL_EVERY_FRAMES) {
             self.scene.trail.push(position);
             let last_tick = k + frame_steps > self.steps;

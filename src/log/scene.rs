@@ -46,43 +46,61 @@ fn entity(time: f64, id: &str) -> SceneEntity {
 
 /// The vehicle: its hull (a flat cylinder of the hull radius) and a body box along the heading.
 pub fn vehicle(time: f64, position: [f64; 2], heading: f64, hull_radius: f64) -> SceneUpdate {
+    let mut update = SceneUpdate::default();
+    vehicle_into(&mut update, time, position, heading, hull_radius);
+    update
+}
+
+/// `update` ← [`vehicle`], reusing its buffers when it already holds the vehicle (the
+/// per-tick scene then allocates nothing).
+pub fn vehicle_into(update: &mut SceneUpdate, time: f64, position: [f64; 2], heading: f64, hull_radius: f64) {
     let r = hull_radius.max(0.05);
-    let mut e = entity(time, "vehicle");
-    e.cylinders.push(CylinderPrimitive {
-        pose: Some(pose(position[0], position[1], 0.05, 0.0)),
-        size: Some(Vector3 {
-            x: 2.0 * r,
-            y: 2.0 * r,
-            z: 0.1,
-        }),
-        bottom_scale: 1.0,
-        top_scale: 1.0,
-        color: Some(Color {
-            r: 0.2,
-            g: 0.4,
-            b: 0.9,
-            a: 0.35,
-        }),
+    let shaped =
+        matches!(update.entities.as_slice(), [e] if e.id == "vehicle" && e.cylinders.len() == 1 && e.cubes.len() == 1);
+    if !shaped {
+        let mut e = entity(time, "vehicle");
+        e.cylinders.push(CylinderPrimitive {
+            pose: None,
+            size: None,
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(Color {
+                r: 0.2,
+                g: 0.4,
+                b: 0.9,
+                a: 0.35,
+            }),
+        });
+        e.cubes.push(CubePrimitive {
+            pose: None,
+            size: None,
+            color: Some(Color {
+                r: 0.2,
+                g: 0.4,
+                b: 0.9,
+                a: 1.0,
+            }),
+        });
+        *update = SceneUpdate {
+            deletions: vec![],
+            entities: vec![e],
+        };
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
+    e.cylinders[0].pose = Some(pose(position[0], position[1], 0.05, 0.0));
+    e.cylinders[0].size = Some(Vector3 {
+        x: 2.0 * r,
+        y: 2.0 * r,
+        z: 0.1,
     });
     let (s, c) = heading.sin_cos();
-    e.cubes.push(CubePrimitive {
-        pose: Some(pose(position[0] + 0.5 * r * c, position[1] + 0.5 * r * s, 0.3, heading)),
-        size: Some(Vector3 {
-            x: 1.6 * r,
-            y: 0.7 * r,
-            z: 0.4,
-        }),
-        color: Some(Color {
-            r: 0.2,
-            g: 0.4,
-            b: 0.9,
-            a: 1.0,
-        }),
+    e.cubes[0].pose = Some(pose(position[0] + 0.5 * r * c, position[1] + 0.5 * r * s, 0.3, heading));
+    e.cubes[0].size = Some(Vector3 {
+        x: 1.6 * r,
+        y: 0.7 * r,
+        z: 0.4,
     });
-    SceneUpdate {
-        deletions: vec![],
-        entities: vec![e],
-    }
 }
 
 /// A polyline in the world frame (trail, reference path).
@@ -149,39 +167,53 @@ pub fn obstacle(time: f64, name: &str, centre: [f64; 2], radius: f64, known: boo
 /// A predicted position p_i(t) of the vehicle: a flat ring of the hull radius (orange) and a
 /// line from the vehicle's current position to it.
 pub fn prediction(time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius: f64) -> SceneUpdate {
+    let mut update = SceneUpdate::default();
+    prediction_into(&mut update, time, id, from, to, hull_radius);
+    update
+}
+
+/// `update` ← [`prediction`], reusing its buffers when it already holds entity `id`.
+pub fn prediction_into(update: &mut SceneUpdate, time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius: f64) {
+    let shaped = matches!(update.entities.as_slice(), [e] if e.id == id && e.cylinders.len() == 1 && e.lines.len() == 1 && e.lines[0].points.len() == 2);
+    if !shaped {
+        let mut e = entity(time, id);
+        e.cylinders.push(CylinderPrimitive {
+            pose: None,
+            size: None,
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(PREDICTION),
+        });
+        e.lines.push(LinePrimitive {
+            r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+            pose: Some(pose(0.0, 0.0, 0.04, 0.0)),
+            thickness: 0.1,
+            scale_invariant: false,
+            points: vec![Point3::default(); 2],
+            color: Some(PREDICTION),
+            colors: vec![],
+            indices: vec![],
+        });
+        *update = SceneUpdate {
+            deletions: vec![],
+            entities: vec![e],
+        };
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
     let r = hull_radius.max(0.05);
-    let mut e = entity(time, id);
-    e.cylinders.push(CylinderPrimitive {
-        pose: Some(pose(to[0], to[1], 0.03, 0.0)),
-        size: Some(Vector3 {
-            x: 2.0 * r,
-            y: 2.0 * r,
-            z: 0.05,
-        }),
-        bottom_scale: 1.0,
-        top_scale: 1.0,
-        color: Some(PREDICTION),
+    e.cylinders[0].pose = Some(pose(to[0], to[1], 0.03, 0.0));
+    e.cylinders[0].size = Some(Vector3 {
+        x: 2.0 * r,
+        y: 2.0 * r,
+        z: 0.05,
     });
-    e.lines.push(LinePrimitive {
-        r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
-        pose: Some(pose(0.0, 0.0, 0.04, 0.0)),
-        thickness: 0.1,
-        scale_invariant: false,
-        points: [from, to]
-            .iter()
-            .map(|p| Point3 {
-                x: p[0],
-                y: p[1],
-                z: 0.0,
-            })
-            .collect(),
-        color: Some(PREDICTION),
-        colors: vec![],
-        indices: vec![],
-    });
-    SceneUpdate {
-        deletions: vec![],
-        entities: vec![e],
+    for (point, p) in e.lines[0].points.iter_mut().zip([from, to]) {
+        *point = Point3 {
+            x: p[0],
+            y: p[1],
+            z: 0.0,
+        };
     }
 }
 
@@ -195,17 +227,26 @@ pub const PREDICTION: Color = Color {
 
 /// world → vehicle.
 pub fn transform(time: f64, position: [f64; 2], heading: f64) -> FrameTransform {
-    FrameTransform {
-        timestamp: Some(timestamp(time)),
-        parent_frame_id: WORLD_FRAME.into(),
-        child_frame_id: VEHICLE_FRAME.into(),
-        translation: Some(Vector3 {
-            x: position[0],
-            y: position[1],
-            z: 0.0,
-        }),
-        rotation: Some(yaw(heading)),
+    let mut transform = FrameTransform::default();
+    transform_into(&mut transform, time, position, heading);
+    transform
+}
+
+/// `transform` ← [`transform`], reusing its frame names.
+pub fn transform_into(transform: &mut FrameTransform, time: f64, position: [f64; 2], heading: f64) {
+    if transform.parent_frame_id != WORLD_FRAME {
+        transform.parent_frame_id = WORLD_FRAME.into();
     }
+    if transform.child_frame_id != VEHICLE_FRAME {
+        transform.child_frame_id = VEHICLE_FRAME.into();
+    }
+    transform.timestamp = Some(timestamp(time));
+    transform.translation = Some(Vector3 {
+        x: position[0],
+        y: position[1],
+        z: 0.0,
+    });
+    transform.rotation = Some(yaw(heading));
 }
 
 /// Trail colour.
@@ -222,3 +263,43 @@ pub const PATH: Color = Color {
     b: 0.2,
     a: 0.9,
 };
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn updates_in_place_equal_fresh_ones_whatever_they_held() {
+        let stale = [
+            SceneUpdate::default(),
+            vehicle(9.0, [3.0, -4.0], 2.0, 0.5),
+            prediction(9.0, "prediction/other", [1.0, 1.0], [2.0, 2.0], 0.5),
+        ];
+        for k in 0..20 {
+            let s = k as f64;
+            let (time, position, heading) = (0.01 * s, [s.sin() * 10.0, s.cos()], 0.3 * s - 3.0);
+            for old in &stale {
+                let mut update = old.clone();
+                vehicle_into(&mut update, time, position, heading, 1.5);
+                assert_eq!(update, vehicle(time, position, heading, 1.5));
+                let mut update = old.clone();
+                prediction_into(&mut update, time, "prediction/steering", position, [s, -s], 1.5);
+                assert_eq!(update, prediction(time, "prediction/steering", position, [s, -s], 1.5));
+            }
+            let mut tf = FrameTransform::default();
+            transform_into(&mut tf, time, position, heading);
+            transform_into(&mut tf, time, position, heading);
+            assert_eq!(tf, transform(time, position, heading));
+        }
+        // The vehicle as drawn: hull at the position, body box half a radius ahead, yawed.
+        let v = vehicle(1.5, [2.0, 3.0], 0.0, 2.0);
+        let e = &v.entities[0];
+        assert_eq!((e.id.as_str(), e.frame_id.as_str()), ("vehicle", WORLD_FRAME));
+        assert_eq!(e.timestamp, Some(Timestamp::new(1, 500_000_000)));
+        let hull = e.cylinders[0].pose.unwrap().position.unwrap();
+        let body = e.cubes[0].pose.unwrap().position.unwrap();
+        assert_eq!((hull.x, hull.y, body.x, body.y), (2.0, 3.0, 3.0, 3.0));
+        let line = &prediction(0.0, "p", [0.0, 1.0], [2.0, 3.0], 1.0).entities[0].lines[0];
+        assert_eq!((line.points[0].y, line.points[1].x), (1.0, 2.0));
+    }
+}
