@@ -861,9 +861,7 @@ impl PredictorContext<'_> {
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k2.iter())) {
                 *stage = x + k * (dt / 2.0);
             }
-            if !constant_input {
-                input(state, step(false), s + dt / 2.0, u)?;
-            }
+            // Stage 3 samples the input at the same time as stage 2: u holds it.
             self.model.dynamics_into(stage, u, k3);
             for (stage, (x, k)) in stage.iter_mut().zip(state.iter().zip(k3.iter())) {
                 *stage = x + k * dt;
