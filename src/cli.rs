@@ -555,32 +555,25 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             recover,
         } => {
             if let Some(dir) = &plot {
+                // Each written plot on stderr; an error line for a plot that failed.
+                let report = |result: Result<Vec<std::path::PathBuf>, crate::plot::PlotError>| match result {
+                    Ok(written) => {
+                        for w in written {
+                            eprintln!("plot: {}", w.display());
+                        }
+                        true
+                    }
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        false
+                    }
+                };
                 let mut failed = false;
                 for file in &files {
-                    match crate::plot::plot_log(file, dir) {
-                        Ok(written) => {
-                            for w in written {
-                                eprintln!("plot: {}", w.display());
-                            }
-                        }
-                        Err(e) => {
-                            eprintln!("error: {e}");
-                            failed = true;
-                        }
-                    }
+                    failed |= !report(crate::plot::plot_log(file, dir));
                 }
                 if files.len() > 1 && !failed {
-                    match crate::plot::plot_overlay(&files, dir) {
-                        Ok(written) => {
-                            for w in written {
-                                eprintln!("plot: {}", w.display());
-                            }
-                        }
-                        Err(e) => {
-                            eprintln!("error: {e}");
-                            failed = true;
-                        }
-                    }
+                    failed |= !report(crate::plot::plot_overlay(&files, dir));
                 }
                 if failed {
                     return Ok(ExitCode::FAILURE);
