@@ -927,6 +927,16 @@ pub fn linear_explicit(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The predictor context of a test whose control period is the step h.
+    fn on_grid<'a>(model: &'a dyn Dynamics, queues: &'a [DelayQueue], h: f64) -> PredictorContext<'a> {
+        PredictorContext {
+            model,
+            queues,
+            timestep: h,
+            control_period: h,
+        }
+    }
     use crate::delay::VaryingDelay;
     use nalgebra::DMatrix;
 
@@ -956,12 +966,7 @@ mod tests {
         let model = LinearModel::new(a, b);
         let x = DVector::from_element(1, 0.7);
         let queues = [queue];
-        let context = PredictorContext {
-            model: &model,
-            queues: &queues,
-            timestep: h,
-            control_period: h,
-        };
+        let context = on_grid(&model, &queues, h);
         let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.fill(0.0);
         let numerical = context.predict(&Structure::Shared, t, &x, &mut law).unwrap();
         assert!((numerical[0].target_time - profile.prediction_time(t)).abs() < 1e-12);
@@ -1011,12 +1016,7 @@ mod tests {
                 delays: vec![0.1, 0.3]
             }
         );
-        let context = PredictorContext {
-            model: &model,
-            queues: &queues,
-            timestep: h,
-            control_period: h,
-        };
+        let context = on_grid(&model, &queues, h);
         // κ_1 = −1 (a known constant law): p_2 velocity = 0 + 2·0.3 (channel 2 history), position
         // = 0.1·1 (history) + 0.2·(−1) (law) + ∫ velocity.
         let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.copy_from_slice(&[-1.0, 99.0]);
@@ -1059,12 +1059,7 @@ mod tests {
         let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
         for k in 0..400 {
             let t = k as f64 * h;
-            let context = PredictorContext {
-                model: &model,
-                queues: &queues,
-                timestep: h,
-                control_period: h,
-            };
+            let context = on_grid(&model, &queues, h);
             context
                 .predict_into(&structure, t, x.as_slice(), &mut never, &mut reusing, &mut p_reused)
                 .unwrap();
@@ -1085,12 +1080,7 @@ mod tests {
                 };
                 queue.push(t, u).unwrap();
             }
-            let context = PredictorContext {
-                model: &model,
-                queues: &queues,
-                timestep: h,
-                control_period: h,
-            };
+            let context = on_grid(&model, &queues, h);
             x = context.advance_with_history(&x, t, t + h).unwrap();
             // Model mismatch: a slip of a millimetre and a milliradian per step.
             x[0] += 1e-3 * (0.7 * t).cos();
@@ -1139,12 +1129,7 @@ mod tests {
             if k == kick_tick {
                 x[0] += 1e-3;
             }
-            let context = PredictorContext {
-                model: &model,
-                queues: &queues,
-                timestep: h,
-                control_period: h,
-            };
+            let context = on_grid(&model, &queues, h);
             let mut law = kappa;
             context
                 .predict_into(&structure, t, x.as_slice(), &mut law, &mut reusing, &mut p_reused)
@@ -1166,12 +1151,7 @@ mod tests {
                 let off_law = if k == off_law_tick && j == 1 { 0.5 } else { 0.0 };
                 queue.push(t, u[j] + off_law).unwrap();
             }
-            let context = PredictorContext {
-                model: &model,
-                queues: &queues,
-                timestep: h,
-                control_period: h,
-            };
+            let context = on_grid(&model, &queues, h);
             x = context.advance_with_history(&x, t, t + h).unwrap();
         }
         out
