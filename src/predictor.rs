@@ -338,6 +338,9 @@ pub struct PredictorWorkspace {
     held: Vec<Option<f64>>,
     law_input: Vec<f64>,
     chain: Chain,
+    /// The recursive predictors' trajectory on [t, t + D_1] (issued history only), moved
+    /// from tick to tick like the shared predictor's.
+    lead: Chain,
     /// p_1 of the last recursive prediction made through the chain.
     first_prediction: Vec<f64>,
     /// Reuse the previous tick's recursive chain when p_1 lands within this distance of it.
@@ -357,6 +360,7 @@ impl PredictorWorkspace {
             held: vec![None; channels],
             law_input: vec![0.0; channels],
             chain: Chain::new(states, channels),
+            lead: Chain::new(states, channels),
             first_prediction: vec![0.0; states],
             chain_tolerance: None,
         }
@@ -378,6 +382,7 @@ impl PredictorWorkspace {
     pub fn set_chain_reuse(&mut self, tolerance: Option<f64>) {
         self.chain_tolerance = tolerance;
         self.invalidate_chain();
+        self.lead.tick = f64::NAN;
     }
 
     /// Forgets the last chain (the control law changed, e.g. a barrier became known).
@@ -476,7 +481,17 @@ impl PredictorContext<'_> {
                 let target = self.queues[0].profile().prediction_time(t);
                 let (reused, mismatch) = match (workspace.chain_tolerance, self.period_steps()) {
                     (Some(tolerance), Some(period_steps)) => {
-                        self.shared_with_chain(t, target, x, workspace, (period_steps, tolerance), constant_input)?
+                        let PredictorWorkspace {
+                            rk4, cursors, chain, ..
+                        } = workspace;
+                        self.history_trajectory(
+                            t,
+                            target,
+                            x,
+                            (rk4, cursors, chain),
+                            (period_steps, tolerance),
+                            constant_input,
+                        )?
                     }
                     _ => {
                         let PredictorWorkspace { rk4, cursors, .. } = workspace;
@@ -566,25 +581,23 @@ impl PredictorContext<'_> {
         constant_input.then(|| (period_steps, (window / self.timestep).round() as usize + 1))
     }
 
-    /// The shared prediction p(t) = x(φ⁻¹(t)) (2.19) through `workspace.chain`, which keeps
-    /// the trajectory's states on the step grid from t. Tick t + T reuses the previous
-    /// trajectory on [t + T, t + K h] (its last full step before φ⁻¹(t): every input there was
+    /// x(`target`) from x(t) under issued history only, through `chain`, which keeps the
+    /// trajectory's states on the step grid from t: the shared prediction p(t) = x(φ⁻¹(t))
+    /// (2.19), and the recursive predictors' p_1. Tick t + T reuses the previous trajectory on
+    /// [t + T, t + K h] (its last full step before the previous target: every input there was
     /// issued before t, so it is the same history) when x(t + T) is within `tolerance` of it,
-    /// and integrates only from t + K h to φ⁻¹(t + T). Leaves p(t) in `workspace.rk4.state`.
-    /// Returns (reused, mismatch).
-    fn shared_with_chain(
+    /// or moved onto x(t + T) for a model invariant under planar motions, and integrates only
+    /// from t + K h to the target. Leaves x(target) in `rk4.state`. Returns (reused, mismatch).
+    fn history_trajectory(
         &self,
         t: f64,
         target: f64,
         x: &[f64],
-        workspace: &mut PredictorWorkspace,
+        (rk4, cursors, chain): (&mut Rk4Buffers, &mut [HistoryCursor], &mut Chain),
         (period_steps, tolerance): (usize, f64),
         constant_input: bool,
     ) -> Result<(bool, f64), DelayError> {
         let step = self.timestep;
-        let PredictorWorkspace {
-            rk4, cursors, chain, ..
-        } = workspace;
         // Nodes t + k h, k = 0..=K, with t + K h the last grid point not after the target
         // (the rule `integrate` uses: a remainder within the grid tolerance of h is a step).
         let full_steps = ((target - t) / step + GRID_TOLERANCE).floor().max(0.0) as usize;
@@ -636,10 +649,17 @@ impl PredictorContext<'_> {
     ) -> Result<(bool, f64), DelayError> {
         let (first, last) = (delays[order[0]], delays[order[order.len() - 1]]);
         let step = self.timestep;
-        // p_1 (4.23) from x(t): every channel's history over [t, t + D_1].
-        workspace.rk4.state.copy_from_slice(x);
+        // p_1 (4.23) from x(t): every channel's history over [t, t + D_1]. For a model
+        // invariant under planar motions that trajectory is the previous tick's moved onto
+        // x(t) (see `history_trajectory`): one new step instead of D_1 / h.
         workspace.held.fill(None);
-        self.recursive_segment(order, delays, t, (0.0, first), law, workspace, false)?;
+        if self.motion_axes().is_some() {
+            let PredictorWorkspace { rk4, cursors, lead, .. } = workspace;
+            self.history_trajectory(t, t + first, x, (rk4, cursors, lead), (period_steps, tolerance), true)?;
+        } else {
+            workspace.rk4.state.copy_from_slice(x);
+            self.recursive_segment(order, delays, t, (0.0, first), law, workspace, false)?;
+        }
         workspace.first_prediction.copy_from_slice(&workspace.rk4.state);
 
         let chain = &mut workspace.chain;
@@ -1095,6 +1115,63 @@ mod tests {
         assert!(
             worst < 1e-11,
             "a moved chain differs from the recomputed one by {worst:e}"
+        );
+    }
+
+    #[test]
+    fn a_moved_recursive_lead_equals_the_recomputed_p_1() {
+        // The bicycle (4.78), D = (0.2, 0.5) s, ticking every 0.01 s; the measured state
+        // slips off the model every tick by far more than the chain tolerance, so p_1
+        // (history only over [t, t + D_1]) is the previous tick's trajectory moved, not reused.
+        use crate::dynamics::BicycleModel;
+        let h = 0.01;
+        let model = BicycleModel::new(6.0);
+        let mut queues: Vec<DelayQueue> = [("steering", 0.2), ("acceleration", 0.5)]
+            .iter()
+            .map(|&(name, d)| DelayQueue::new(name, d, 0.0, h).unwrap())
+            .collect();
+        let structure = structure(&queues, h).unwrap();
+        let kappa = |_: f64, z: &[f64], u: &mut [f64]| {
+            u[0] = -0.1 * z[1] - 0.3 * z[2];
+            u[1] = 3.0 - z[3];
+        };
+        let mut reusing = PredictorWorkspace::new(4, 2);
+        reusing.set_chain_reuse(Some(1e-4));
+        let mut full = PredictorWorkspace::new(4, 2);
+        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
+        let (mut moved, mut worst) = (0, 0.0_f64);
+        for k in 0..200 {
+            let t = k as f64 * h;
+            let context = on_grid(&model, &queues, h);
+            let mut law = kappa;
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut law, &mut reusing, &mut p_reused)
+                .unwrap();
+            context
+                .predict_into(&structure, t, x.as_slice(), &mut law, &mut full, &mut p_full)
+                .unwrap();
+            if reusing.lead.len > 0 && reusing.lead.tick == t && reusing.lead.frame != PlanarMotion::IDENTITY {
+                moved += 1;
+            }
+            worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
+            let mut u = [0.0; 2];
+            for (j, queue) in queues.iter_mut().enumerate() {
+                kappa(t, p_full[j].state.as_slice(), &mut u);
+                queue.push(t, u[j] + 0.05 * (7.0 * t).sin()).unwrap();
+            }
+            let context = on_grid(&model, &queues, h);
+            x = context.advance_with_history(&x, t, t + h).unwrap();
+            x[0] += 1e-3;
+            x[2] -= 1e-3 * (0.9 * t).cos();
+        }
+        assert_eq!(
+            moved, 199,
+            "every tick after the first moves the previous p_1 trajectory"
+        );
+        assert!(
+            worst < 1e-11,
+            "a moved p_1 differs from the recomputed one by {worst:e}"
         );
     }
 
