@@ -283,6 +283,17 @@ impl Chain {
         self.scratch = node0;
     }
 
+    /// max |node 0 − `fresh`| over the components a planar motion leaves alone.
+    fn mismatch_off_motion(&mut self, axes: [usize; 3], fresh: &[f64]) -> f64 {
+        let mut node0 = std::mem::take(&mut self.scratch);
+        self.state_into(Some(axes), 0, &mut node0);
+        let mismatch = (0..fresh.len())
+            .filter(|i| !axes.contains(i))
+            .fold(0.0_f64, |m, i| m.max((node0[i] - fresh[i]).abs()));
+        self.scratch = node0;
+        mismatch
+    }
+
     fn input(&self, node: usize) -> &[f64] {
         let o = self.offset(node) + self.states;
         &self.slots[o..o + self.channels]
@@ -343,6 +354,10 @@ pub struct PredictorWorkspace {
     lead: Chain,
     /// p_1 of the last recursive prediction made through the chain.
     first_prediction: Vec<f64>,
+    /// (start time, state) of the last prediction's final partial step, NaN time when it
+    /// took none (see [`PredictorWorkspace::partial_step`]).
+    partial_start: f64,
+    partial_state: Vec<f64>,
     /// Reuse the previous tick's recursive chain when p_1 lands within this distance of it.
     chain_tolerance: Option<f64>,
 }
@@ -362,6 +377,8 @@ impl PredictorWorkspace {
             chain: Chain::new(states, channels),
             lead: Chain::new(states, channels),
             first_prediction: vec![0.0; states],
+            partial_start: f64::NAN,
+            partial_state: vec![0.0; states],
             chain_tolerance: None,
         }
     }
@@ -383,6 +400,12 @@ impl PredictorWorkspace {
         self.chain_tolerance = tolerance;
         self.invalidate_chain();
         self.lead.tick = f64::NAN;
+    }
+
+    /// Where the last shared prediction's final partial step (from its last grid node to
+    /// φ⁻¹(t), off the grid) started: (time, predicted state); `None` when it took none.
+    pub fn partial_step(&self) -> Option<(f64, &[f64])> {
+        (!self.partial_start.is_nan()).then_some((self.partial_start, self.partial_state.as_slice()))
     }
 
     /// Forgets the last chain (the control law changed, e.g. a barrier became known).
@@ -462,6 +485,7 @@ impl PredictorContext<'_> {
         out: &mut [Prediction],
     ) -> Result<(), DelayError> {
         workspace.cursors.fill(HistoryCursor::EMPTY);
+        workspace.partial_start = f64::NAN;
         let constant_input = self.inputs_constant_per_step(structure);
         let set = |p: &mut Prediction, channel: usize, target_time: f64, state: &[f64]| {
             p.channel = channel;
@@ -484,14 +508,21 @@ impl PredictorContext<'_> {
                         let PredictorWorkspace {
                             rk4, cursors, chain, ..
                         } = workspace;
-                        self.history_trajectory(
+                        let outcome = self.history_trajectory(
                             t,
                             target,
                             x,
                             (rk4, cursors, chain),
                             (period_steps, tolerance),
                             constant_input,
-                        )?
+                        )?;
+                        // The chain ends at the last grid node before the target.
+                        let last_node = t + (chain.len - 1) as f64 * self.timestep;
+                        if target - last_node > self.timestep * GRID_TOLERANCE {
+                            workspace.partial_start = last_node;
+                            chain.state_into(self.motion_axes(), chain.len - 1, &mut workspace.partial_state);
+                        }
+                        outcome
                     }
                     _ => {
                         let PredictorWorkspace { rk4, cursors, .. } = workspace;
@@ -512,7 +543,7 @@ impl PredictorContext<'_> {
                 let chain_window = self.chain_window(order, delays, constant_input);
                 match (workspace.chain_tolerance, chain_window) {
                     (Some(tolerance), Some((period_steps, nodes))) => {
-                        let (reused, mismatch) = self.recursive_with_chain(
+                        let (reused, lead_moved, mismatch) = self.recursive_with_chain(
                             (order, delays),
                             t,
                             x,
@@ -524,13 +555,13 @@ impl PredictorContext<'_> {
                         for &i in order {
                             let node = ((delays[i] - first) / self.timestep).round() as usize;
                             let state = if node == 0 {
-                                // The fresh p_1 (node 0 of a reused chain is only within tolerance).
+                                // p_1 from x(t) (node 0 of a reused chain is only within tolerance).
                                 &workspace.first_prediction
                             } else {
                                 workspace.chain.state(node)
                             };
                             set(&mut out[i], i, t + delays[i], state);
-                            out[i].reused_chain = reused;
+                            out[i].reused_chain = reused || (node == 0 && lead_moved);
                             out[i].chain_mismatch = mismatch;
                         }
                     }
@@ -612,9 +643,12 @@ impl PredictorContext<'_> {
         let mut reusable = mismatch <= tolerance;
         if let (Some(axes), false) = (axes, mismatch.is_nan()) {
             // Inputs here are all issued history: the previous trajectory moved onto x(t) is
-            // this tick's, whatever the mismatch.
-            chain.transport_to(axes, x);
-            reusable = true;
+            // this tick's whatever its position and heading, if the rest of the state (the
+            // bicycle's speed) agrees; exactly when there is no rest (the unicycle).
+            if chain.mismatch_off_motion(axes, x) <= tolerance {
+                chain.transport_to(axes, x);
+                reusable = true;
+            }
         }
         let from = if reusable {
             chain.tick = t;
@@ -636,8 +670,8 @@ impl PredictorContext<'_> {
     }
 
     /// The recursive predictions through `workspace.chain`, reusing the previous tick's chain
-    /// when it still holds (see [`PredictorWorkspace::set_chain_reuse`]). Leaves the fresh
-    /// p_1 in `workspace.first_prediction`. Returns (reused, mismatch).
+    /// when it still holds (see [`PredictorWorkspace::set_chain_reuse`]). Leaves p_1 in
+    /// `workspace.first_prediction`. Returns (chain reused, p_1 moved, mismatch).
     fn recursive_with_chain(
         &self,
         (order, delays): (&[usize], &[f64]),
@@ -646,16 +680,19 @@ impl PredictorContext<'_> {
         law: &mut ControlLaw<'_>,
         workspace: &mut PredictorWorkspace,
         (period_steps, nodes, tolerance): (usize, usize, f64),
-    ) -> Result<(bool, f64), DelayError> {
+    ) -> Result<(bool, bool, f64), DelayError> {
         let (first, last) = (delays[order[0]], delays[order[order.len() - 1]]);
         let step = self.timestep;
         // p_1 (4.23) from x(t): every channel's history over [t, t + D_1]. For a model
         // invariant under planar motions that trajectory is the previous tick's moved onto
-        // x(t) (see `history_trajectory`): one new step instead of D_1 / h.
+        // x(t) when the rest of the state agrees within the tolerance (see
+        // `history_trajectory`): one new step instead of D_1 / h.
         workspace.held.fill(None);
+        let mut lead_moved = false;
         if self.motion_axes().is_some() {
             let PredictorWorkspace { rk4, cursors, lead, .. } = workspace;
-            self.history_trajectory(t, t + first, x, (rk4, cursors, lead), (period_steps, tolerance), true)?;
+            (lead_moved, _) =
+                self.history_trajectory(t, t + first, x, (rk4, cursors, lead), (period_steps, tolerance), true)?;
         } else {
             workspace.rk4.state.copy_from_slice(x);
             self.recursive_segment(order, delays, t, (0.0, first), law, workspace, false)?;
@@ -712,7 +749,7 @@ impl PredictorContext<'_> {
             }
         }
         debug_assert_eq!(workspace.chain.len, nodes);
-        Ok((reusable, mismatch))
+        Ok((reusable, lead_moved, mismatch))
     }
 
     /// Integrates `workspace.rk4.state` over [t + from, t + to] inside the segment that ends at
@@ -784,6 +821,20 @@ impl PredictorContext<'_> {
             *u_j = self.history_input(j, cursor, step.start, step.end, stage_time)?;
         }
         Ok(())
+    }
+
+    /// `out` ← x(t_k + δ) from the measured `x_k`, given a prediction's final partial step
+    /// [t_k, t_k + δ] from `from` to `to` under the same issued history and step grid: that
+    /// step moved by the planar motion taking `from` onto `x_k` (exact up to round-off for a
+    /// model invariant under planar motions, as RK4 commutes with it). False, `out`
+    /// untouched, for other models.
+    pub fn move_partial_step(&self, from: &[f64], to: &[f64], x_k: &[f64], out: &mut [f64]) -> bool {
+        let Some(axes) = self.motion_axes() else {
+            return false;
+        };
+        out.copy_from_slice(to);
+        PlanarMotion::between(axes, from, x_k).apply(axes, out);
+        true
     }
 
     /// x advanced from `from` to `to` with every channel's issued history (no new commands).
@@ -1076,6 +1127,7 @@ mod tests {
         let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
         let mut x = DVector::from_vec(vec![1.0, 1.0, 1.0]);
         let (mut reused, mut worst, mut worst_mismatch) = (0, 0.0_f64, 0.0_f64);
+        let (mut partial_steps, mut worst_partial) = (0, 0.0_f64);
         let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
         for k in 0..400 {
             let t = k as f64 * h;
@@ -1087,6 +1139,23 @@ mod tests {
                 .predict_into(&structure, t, x.as_slice(), &mut never, &mut full, &mut p_full)
                 .unwrap();
             assert!(!p_full[0].reused_chain);
+            // The realised state at the target from any state at the partial step's start
+            // (the consistency check's x(t_k)) is that step moved.
+            if let Some((start, from)) = reusing.partial_step() {
+                partial_steps += 1;
+                let from = DVector::from_column_slice(from);
+                let x_k = &from + DVector::from_vec(vec![2e-3, -1e-3, 3e-3]);
+                let mut moved = DVector::zeros(3);
+                let target = p_reused[0].target_time;
+                assert!(context.move_partial_step(
+                    from.as_slice(),
+                    p_reused[0].state.as_slice(),
+                    x_k.as_slice(),
+                    moved.as_mut_slice()
+                ));
+                let advanced = context.advance_with_history(&x_k, start, target).unwrap();
+                worst_partial = worst_partial.max((moved - advanced).amax());
+            }
             if p_reused[0].reused_chain {
                 reused += 1;
                 worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
@@ -1116,13 +1185,18 @@ mod tests {
             worst < 1e-11,
             "a moved chain differs from the recomputed one by {worst:e}"
         );
+        assert!(partial_steps > 390, "{partial_steps}");
+        assert!(
+            worst_partial < 1e-13,
+            "a moved partial step differs by {worst_partial:e}"
+        );
     }
 
-    #[test]
-    fn a_moved_recursive_lead_equals_the_recomputed_p_1() {
-        // The bicycle (4.78), D = (0.2, 0.5) s, ticking every 0.01 s; the measured state
-        // slips off the model every tick by far more than the chain tolerance, so p_1
-        // (history only over [t, t + D_1]) is the previous tick's trajectory moved, not reused.
+    /// The bicycle (4.78), D = (0.2, 0.5) s, ticking every 0.01 s, chain tolerance 1e-4; after
+    /// every tick the measured state slips off the model by 1 mm and 1 mrad, and its speed by
+    /// `speed_slip`. Returns (ticks whose p_1 moved the previous trajectory, largest
+    /// |p_1 − recomputed p_1| among them, largest among the others).
+    fn lead_run(speed_slip: f64) -> (usize, f64, f64) {
         use crate::dynamics::BicycleModel;
         let h = 0.01;
         let model = BicycleModel::new(6.0);
@@ -1140,7 +1214,7 @@ mod tests {
         let mut full = PredictorWorkspace::new(4, 2);
         let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
         let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
-        let (mut moved, mut worst) = (0, 0.0_f64);
+        let (mut moved, mut worst_moved, mut worst_fresh) = (0, 0.0_f64, 0.0_f64);
         for k in 0..200 {
             let t = k as f64 * h;
             let context = on_grid(&model, &queues, h);
@@ -1151,10 +1225,14 @@ mod tests {
             context
                 .predict_into(&structure, t, x.as_slice(), &mut law, &mut full, &mut p_full)
                 .unwrap();
-            if reusing.lead.len > 0 && reusing.lead.tick == t && reusing.lead.frame != PlanarMotion::IDENTITY {
+            let difference = (&p_reused[0].state - &p_full[0].state).amax();
+            if reusing.lead.tick == t && reusing.lead.frame != PlanarMotion::IDENTITY {
                 moved += 1;
+                worst_moved = worst_moved.max(difference);
+                assert!(p_reused[0].reused_chain, "a moved p_1 is flagged for the audit");
+            } else {
+                worst_fresh = worst_fresh.max(difference);
             }
-            worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
             let mut u = [0.0; 2];
             for (j, queue) in queues.iter_mut().enumerate() {
                 kappa(t, p_full[j].state.as_slice(), &mut u);
@@ -1164,7 +1242,16 @@ mod tests {
             x = context.advance_with_history(&x, t, t + h).unwrap();
             x[0] += 1e-3;
             x[2] -= 1e-3 * (0.9 * t).cos();
+            x[3] += speed_slip;
         }
+        (moved, worst_moved, worst_fresh)
+    }
+
+    #[test]
+    fn a_moved_recursive_lead_equals_the_recomputed_p_1() {
+        // Position and heading off the model: p_1 (history only over [t, t + D_1]) is the
+        // previous tick's trajectory moved, every tick, exactly.
+        let (moved, worst, _) = lead_run(0.0);
         assert_eq!(
             moved, 199,
             "every tick after the first moves the previous p_1 trajectory"
@@ -1173,6 +1260,14 @@ mod tests {
             worst < 1e-11,
             "a moved p_1 differs from the recomputed one by {worst:e}"
         );
+        // The speed is not moved by a planar motion: off by more than the tolerance, p_1 is
+        // integrated afresh (exact); within it, moved, off by about the slip times D_1.
+        let (moved, _, fresh) = lead_run(1e-3);
+        assert_eq!(moved, 0);
+        assert!(fresh < 1e-12, "{fresh:e}");
+        let (moved, worst, _) = lead_run(2e-6);
+        assert!(moved > 20, "{moved}");
+        assert!(worst > 1e-9 && worst < 1e-4, "{worst:e}");
     }
 
     /// Closed loop of a double integrator with three channels (D = 0.1, 0.2, 0.3 s) whose

@@ -43,6 +43,14 @@ pub struct Consistency {
     pub realized: DVector<f64>,
 }
 
+/// A prediction waiting for its target time, with where the predictor's final partial step
+/// to it started (time, predicted state), when it took one.
+#[derive(Debug, Clone)]
+struct Pending {
+    prediction: Prediction,
+    partial_step: Option<(f64, DVector<f64>)>,
+}
+
 /// Scratch space of one control tick, sized when the loop is built (and when a barrier becomes
 /// known, outside the callback), so that a tick allocates nothing.
 struct TickWorkspace {
@@ -118,7 +126,7 @@ pub struct ControlLoop {
     applied: Vec<(f64, f64)>,
     applied_buffer: Vec<f64>,
     /// Predictions waiting for their target time, per channel.
-    pending: Vec<VecDeque<Prediction>>,
+    pending: Vec<VecDeque<Pending>>,
     work: TickWorkspace,
     /// An error raised inside the callback (reported after the step).
     error: Option<FilterError>,
@@ -466,15 +474,22 @@ impl ControlLoop {
         }
         for p in predictions.iter() {
             if p.target_time > t + TICK_TOLERANCE * *timestep {
-                let mut state = spare_states.pop().unwrap_or_else(|| p.state.clone());
-                state.copy_from(&p.state);
-                pending[p.channel].push_back(Prediction {
-                    channel: p.channel,
-                    issued_at: p.issued_at,
-                    target_time: p.target_time,
-                    state,
-                    reused_chain: p.reused_chain,
-                    chain_mismatch: p.chain_mismatch,
+                let mut copy = |from: &[f64]| {
+                    let mut state = spare_states.pop().unwrap_or_else(|| p.state.clone());
+                    state.copy_from_slice(from);
+                    state
+                };
+                let partial_step = predictor.partial_step().map(|(start, state)| (start, copy(state)));
+                pending[p.channel].push_back(Pending {
+                    prediction: Prediction {
+                        channel: p.channel,
+                        issued_at: p.issued_at,
+                        target_time: p.target_time,
+                        state: copy(p.state.as_slice()),
+                        reused_chain: p.reused_chain,
+                        chain_mismatch: p.chain_mismatch,
+                    },
+                    partial_step,
                 });
             }
         }
@@ -486,43 +501,63 @@ impl ControlLoop {
     /// The latest prediction of each channel still waiting for its target time (the one the
     /// last tick made): what the Foxglove scene draws.
     pub fn latest_predictions(&self) -> impl Iterator<Item = &Prediction> {
-        self.pending.iter().filter_map(|q| q.back())
+        self.pending.iter().filter_map(|q| q.back().map(|p| &p.prediction))
     }
 
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:
-    /// x(t_k) itself, or x(t_k) advanced to an off-grid target with the applied inputs.
+    /// x(t_k) itself, or x(t_k) advanced to an off-grid target with the applied inputs (for a
+    /// model invariant under planar motions, the predictor's own final partial step from t_k
+    /// moved onto x(t_k), when it ran on this grid with these inputs).
     /// Hand them back with [`ControlLoop::recycle`] once logged.
     pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>) -> Result<Vec<Consistency>, DelayError> {
         let h = self.timestep;
         let mut out = Vec::new();
+        // The predictor's final partial step ran on this grid with these inputs.
+        let same_step = self.actuators.is_none() && (self.predictor_step - h).abs() <= h * TICK_TOLERANCE;
         for channel in 0..self.pending.len() {
             while let Some(p) = self.pending[channel].front() {
-                if p.target_time >= t_k + h * (1.0 - TICK_TOLERANCE) {
+                if p.prediction.target_time >= t_k + h * (1.0 - TICK_TOLERANCE) {
                     break;
                 }
-                let p = self.pending[channel].pop_front().expect("front exists");
+                let Pending {
+                    prediction: p,
+                    partial_step,
+                } = self.pending[channel].pop_front().expect("front exists");
                 let mut realized = self.work.spare_states.pop().unwrap_or_else(|| x_k.clone());
+                let context = PredictorContext {
+                    model: self.model.as_ref(),
+                    queues: self.actuators.as_deref().unwrap_or(&self.queues),
+                    timestep: h,
+                    control_period: self.control_period,
+                };
                 // Channels sharing a prediction time (one shared delay) share the realised state.
                 let same_time = out
                     .iter()
                     .find(|c: &&Consistency| c.prediction.target_time == p.target_time);
+                let moved = |realized: &mut DVector<f64>| match &partial_step {
+                    Some((start, from)) if same_step && (start - t_k).abs() <= h * TICK_TOLERANCE => context
+                        .move_partial_step(
+                            from.as_slice(),
+                            p.state.as_slice(),
+                            x_k.as_slice(),
+                            realized.as_mut_slice(),
+                        ),
+                    _ => false,
+                };
                 if let Some(earlier) = same_time {
                     realized.copy_from(&earlier.realized);
                 } else if (p.target_time - t_k).abs() <= h * TICK_TOLERANCE {
                     realized.copy_from(x_k);
-                } else {
-                    let context = PredictorContext {
-                        model: self.model.as_ref(),
-                        queues: self.actuators.as_deref().unwrap_or(&self.queues),
-                        timestep: h,
-                        control_period: self.control_period,
-                    };
+                } else if !moved(&mut realized) {
                     context.advance_with_history_into(
                         x_k.as_slice(),
                         (t_k, p.target_time),
                         &mut self.work.realize,
                         realized.as_mut_slice(),
                     )?;
+                }
+                if let Some((_, state)) = partial_step {
+                    self.work.spare_states.push(state);
                 }
                 out.push(Consistency {
                     prediction: p,
