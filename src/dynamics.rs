@@ -261,6 +261,14 @@ impl Dynamics for UnicycleModel {
         xdot[1] += s * u[0];
         xdot[2] += u[1];
     }
+    // (2.36) written out: the predictors' RK4 stages call it in their inner loop (the
+    // default zero-fills f first). `0.0 +` keeps the default's bits (no −0).
+    fn dynamics_into(&self, x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        let (s, c) = x[2].sin_cos();
+        xdot[0] = 0.0 + c * u[0];
+        xdot[1] = 0.0 + s * u[0];
+        xdot[2] = 0.0 + u[1];
+    }
     fn drift_jacobian_into(&self, _x: &[f64], _j: &mut DMatrix<f64>) {}
     fn planar_motion_invariant(&self) -> bool {
         true
