@@ -301,13 +301,20 @@ fn put_message(out: &mut Vec<u8>, field: u8, body: impl FnOnce(&mut Vec<u8>)) {
     let at = out.len();
     out.push(0);
     body(out);
-    let length = (out.len() - at - 1) as u64;
+    let end = out.len();
+    let mut length = (end - at - 1) as u64;
     if length < 0x80 {
         out[at] = length as u8;
     } else {
-        let mut prefix = Vec::with_capacity(10);
-        put_varint(&mut prefix, length);
-        out.splice(at..at + 1, prefix);
+        // A longer prefix: move the body up in place (no allocation once `out` has the room).
+        let width = (64 - length.leading_zeros() as usize).div_ceil(7);
+        out.resize(end + width - 1, 0);
+        out.copy_within(at + 1..end, at + width);
+        for byte in &mut out[at..at + width] {
+            *byte = (length as u8) | 0x80;
+            length >>= 7;
+        }
+        out[at + width - 1] &= 0x7f;
     }
 }
 
@@ -605,6 +612,19 @@ mod tests {
             buffer.clear();
             encode_barrier(&barrier, &mut buffer);
             assert_eq!(buffer, barrier.encode_to_vec(), "{barrier:?}");
+        }
+    }
+
+    #[test]
+    fn submessage_length_prefixes_have_prosts_widths() {
+        for length in [0, 1, 127, 128, 129, 16_383, 16_384, 16_385, 2_097_151, 2_097_152] {
+            let body = |out: &mut Vec<u8>| out.extend((0..length).map(|i| i as u8));
+            let mut out = vec![9, 9];
+            put_message(&mut out, 3, body);
+            let mut expected = vec![9, 9, (3 << 3) | 2];
+            prost::encoding::encode_varint(length as u64, &mut expected);
+            body(&mut expected);
+            assert!(out == expected, "{length}");
         }
     }
 }
