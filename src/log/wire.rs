@@ -401,6 +401,31 @@ pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
     }
 }
 
+pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
+    let proto::Prediction {
+        time,
+        channel,
+        issued_at,
+        horizon,
+        predicted,
+        realized,
+        error,
+        relative_error,
+        reused_chain,
+        chain_mismatch,
+    } = m;
+    put_f64(out, 1, *time);
+    put_str(out, 2, channel);
+    put_f64(out, 3, *issued_at);
+    put_f64(out, 4, *horizon);
+    put_packed_f64(out, 5, predicted);
+    put_packed_f64(out, 6, realized);
+    put_f64(out, 7, *error);
+    put_f64(out, 8, *relative_error);
+    put_bool(out, 9, *reused_chain);
+    put_f64(out, 10, *chain_mismatch);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -625,6 +650,59 @@ mod tests {
             prost::encoding::encode_varint(length as u64, &mut expected);
             body(&mut expected);
             assert!(out == expected, "{length}");
+        }
+    }
+
+    const VALUES: [f64; 8] = [
+        0.0,
+        -0.0,
+        f64::NAN,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        3.25,
+        -1e300,
+        1e-310,
+    ];
+
+    /// Scalars cycling through zeros (omitted), −0, NaN, infinities and ordinary values.
+    fn v(i: usize) -> f64 {
+        VALUES[i % VALUES.len()]
+    }
+
+    /// An empty, a short and a 300-byte string.
+    fn text(k: usize, short: &str) -> String {
+        match k % 3 {
+            0 => String::new(),
+            1 => short.to_string(),
+            _ => "s".repeat(300),
+        }
+    }
+
+    fn predictions() -> Vec<proto::Prediction> {
+        (0..12)
+            .map(|k| proto::Prediction {
+                time: v(k),
+                channel: text(k, "steering"),
+                issued_at: v(k + 1),
+                horizon: v(k + 2),
+                predicted: (0..k % 4).map(|i| v(k + i)).collect(),
+                realized: (0..(k + 1) % 4).map(|i| v(k + 3 * i)).collect(),
+                error: v(k + 3),
+                relative_error: v(k + 4),
+                reused_chain: k % 2 == 1,
+                chain_mismatch: v(k + 5),
+            })
+            .chain([proto::Prediction::default()])
+            .collect()
+    }
+
+    #[test]
+    fn the_prediction_encoder_writes_exactly_prosts_bytes() {
+        let mut buffer = Vec::new();
+        for m in predictions() {
+            buffer.clear();
+            encode_prediction(&m, &mut buffer);
+            assert_eq!(buffer, m.encode_to_vec(), "{m:?}");
         }
     }
 }
