@@ -452,7 +452,8 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
     put_f64(out, 10, *chain_mismatch);
 }
 
-// Foxglove's messages (`/scene`, `/tf`): `*_fields` write a submessage's fields.
+// Foxglove's messages (`/scene`, `/tf`): `*_fields` write a submessage's fields, `put_*` a
+// whole submessage.
 
 /// An optional submessage: nothing when absent, else written even when its body is empty.
 fn put_optional<T>(out: &mut Vec<u8>, field: u8, value: &Option<T>, fields: impl Fn(&mut Vec<u8>, &T)) {
@@ -480,40 +481,56 @@ fn duration_fields(out: &mut Vec<u8>, d: &Duration) {
     put_u64(out, 2, u64::from(d.nsec()));
 }
 
-fn vector3_fields(out: &mut Vec<u8>, v: &Vector3) {
-    let Vector3 { x, y, z } = v;
-    put_f64(out, 1, *x);
-    put_f64(out, 2, *y);
-    put_f64(out, 3, *z);
+/// A submessage of doubles only (fields 1, 2, … of Vector3, Point3, Quaternion, Color): at
+/// most 38 bytes, so its length takes one byte. Assembled on the stack and appended whole
+/// (a copy of constant size, inlined), then cut to its length: cheaper than a push per field.
+fn put_doubles<const N: usize>(out: &mut Vec<u8>, field: u8, values: [f64; N]) {
+    const { assert!(N <= 4) };
+    let mut bytes = [0u8; 2 + 4 * 9];
+    bytes[0] = (field << 3) | LEN as u8;
+    let mut end = 2;
+    for (number, value) in (1u8..).zip(values) {
+        // As put_f64: 0 and −0 omitted.
+        if value != 0.0 {
+            bytes[end] = (number << 3) | FIXED64 as u8;
+            bytes[end + 1..end + 9].copy_from_slice(&value.to_le_bytes());
+            end += 9;
+        }
+    }
+    bytes[1] = (end - 2) as u8;
+    let start = out.len();
+    out.extend_from_slice(&bytes);
+    out.truncate(start + end);
 }
 
-fn point3_fields(out: &mut Vec<u8>, p: &Point3) {
-    let Point3 { x, y, z } = p;
-    put_f64(out, 1, *x);
-    put_f64(out, 2, *y);
-    put_f64(out, 3, *z);
+fn put_vector3(out: &mut Vec<u8>, field: u8, v: &Vector3) {
+    let Vector3 { x, y, z } = *v;
+    put_doubles(out, field, [x, y, z]);
 }
 
-fn quaternion_fields(out: &mut Vec<u8>, q: &Quaternion) {
-    let Quaternion { x, y, z, w } = q;
-    put_f64(out, 1, *x);
-    put_f64(out, 2, *y);
-    put_f64(out, 3, *z);
-    put_f64(out, 4, *w);
+fn put_point3(out: &mut Vec<u8>, field: u8, p: &Point3) {
+    let Point3 { x, y, z } = *p;
+    put_doubles(out, field, [x, y, z]);
 }
 
-fn color_fields(out: &mut Vec<u8>, c: &Color) {
-    let Color { r, g, b, a } = c;
-    put_f64(out, 1, *r);
-    put_f64(out, 2, *g);
-    put_f64(out, 3, *b);
-    put_f64(out, 4, *a);
+fn put_quaternion(out: &mut Vec<u8>, field: u8, q: &Quaternion) {
+    let Quaternion { x, y, z, w } = *q;
+    put_doubles(out, field, [x, y, z, w]);
+}
+
+fn put_color(out: &mut Vec<u8>, field: u8, c: &Color) {
+    let Color { r, g, b, a } = *c;
+    put_doubles(out, field, [r, g, b, a]);
 }
 
 fn pose_fields(out: &mut Vec<u8>, p: &Pose) {
     let Pose { position, orientation } = p;
-    put_optional(out, 1, position, vector3_fields);
-    put_optional(out, 2, orientation, quaternion_fields);
+    if let Some(position) = position {
+        put_vector3(out, 1, position);
+    }
+    if let Some(orientation) = orientation {
+        put_quaternion(out, 2, orientation);
+    }
 }
 
 fn key_value_fields(out: &mut Vec<u8>, kv: &KeyValuePair) {
@@ -525,8 +542,12 @@ fn key_value_fields(out: &mut Vec<u8>, kv: &KeyValuePair) {
 fn cube_fields(out: &mut Vec<u8>, c: &CubePrimitive) {
     let CubePrimitive { pose, size, color } = c;
     put_optional(out, 1, pose, pose_fields);
-    put_optional(out, 2, size, vector3_fields);
-    put_optional(out, 3, color, color_fields);
+    if let Some(size) = size {
+        put_vector3(out, 2, size);
+    }
+    if let Some(color) = color {
+        put_color(out, 3, color);
+    }
 }
 
 fn cylinder_fields(out: &mut Vec<u8>, c: &CylinderPrimitive) {
@@ -538,10 +559,14 @@ fn cylinder_fields(out: &mut Vec<u8>, c: &CylinderPrimitive) {
         color,
     } = c;
     put_optional(out, 1, pose, pose_fields);
-    put_optional(out, 2, size, vector3_fields);
+    if let Some(size) = size {
+        put_vector3(out, 2, size);
+    }
     put_f64(out, 3, *bottom_scale);
     put_f64(out, 4, *top_scale);
-    put_optional(out, 5, color, color_fields);
+    if let Some(color) = color {
+        put_color(out, 5, color);
+    }
 }
 
 fn line_fields(out: &mut Vec<u8>, l: &LinePrimitive) {
@@ -559,9 +584,15 @@ fn line_fields(out: &mut Vec<u8>, l: &LinePrimitive) {
     put_optional(out, 2, pose, pose_fields);
     put_f64(out, 3, *thickness);
     put_bool(out, 4, *scale_invariant);
-    put_repeated(out, 5, points, point3_fields);
-    put_optional(out, 6, color, color_fields);
-    put_repeated(out, 7, colors, color_fields);
+    for point in points {
+        put_point3(out, 5, point);
+    }
+    if let Some(color) = color {
+        put_color(out, 6, color);
+    }
+    for color in colors {
+        put_color(out, 7, color);
+    }
     put_packed_fixed32(out, 8, indices);
 }
 
@@ -631,8 +662,12 @@ pub(crate) fn encode_frame_transform(m: &FrameTransform, out: &mut Vec<u8>) {
     put_optional(out, 1, timestamp, timestamp_fields);
     put_str(out, 2, parent_frame_id);
     put_str(out, 3, child_frame_id);
-    put_optional(out, 4, translation, vector3_fields);
-    put_optional(out, 5, rotation, quaternion_fields);
+    if let Some(translation) = translation {
+        put_vector3(out, 4, translation);
+    }
+    if let Some(rotation) = rotation {
+        put_quaternion(out, 5, rotation);
+    }
 }
 
 #[cfg(test)]
