@@ -223,7 +223,8 @@ impl Record {
     pub fn encode_into(&self, buffer: &mut Vec<u8>) {
         use prost::Message;
         buffer.clear();
-        // The per-step and per-tick messages through `wire` (prost's bytes, cheaper).
+        // The per-step and per-frame messages through `wire` (prost's bytes, cheaper); the
+        // rare events through prost.
         const FITS: &str = "a Vec grows to fit any message";
         match self {
             Record::State(m) | Record::Measured(m) => wire::encode_state(m, buffer),
@@ -231,10 +232,10 @@ impl Record {
             Record::Applied(m) | Record::Actuated(m) => wire::encode_applied(m, buffer),
             Record::Barrier(m) => wire::encode_barrier(m, buffer),
             Record::Filter(m) => wire::encode_filter(m, buffer),
+            Record::Prediction(m) => wire::encode_prediction(m, buffer),
+            Record::Scene(_, m) => wire::encode_scene_update(m, buffer),
+            Record::Transform(_, m) => wire::encode_frame_transform(m, buffer),
             Record::Event(m) => m.encode(buffer).expect(FITS),
-            Record::Prediction(m) => m.encode(buffer).expect(FITS),
-            Record::Scene(_, m) => m.encode(buffer).expect(FITS),
-            Record::Transform(_, m) => m.encode(buffer).expect(FITS),
             Record::Log(_, m) => m.encode(buffer).expect(FITS),
         }
     }

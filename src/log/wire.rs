@@ -3,13 +3,20 @@
 //! encoding: `encode_*` write exactly the bytes prost writes (proto3: zero scalars and empty
 //! strings omitted, doubles packed, fields in number order; tested against prost on varied
 //! messages), several times cheaper than prost's generic path, which measures every nested
-//! length before writing (docs/performance.md). Messages are destructured field by field, so a
-//! field added to the schema fails to compile here until it is encoded.
+//! length before writing (docs/performance.md): mjsafe's per-step messages, `/prediction`, and
+//! Foxglove's `/scene` and `/tf` (a scene update holding primitives mjsafe does not draw goes
+//! through prost). Messages are destructured field by field, so a field added to the schema
+//! fails to compile here until it is encoded.
 //!
 //! Each `merge_*` accepts the plain encoding prost writes (known fields with their proto3 wire
 //! types, packed or unpacked doubles, UTF-8 strings) and gives the message prost would decode;
 //! anything else (unknown fields, other wire types, malformed bytes) makes it return `None`, and
 //! the caller decodes with prost, which then gives the same message or the same error as before.
+
+use foxglove::messages::{
+    Color, CubePrimitive, CylinderPrimitive, Duration, FrameTransform, KeyValuePair, LinePrimitive, Point3, Pose,
+    Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
+};
 
 use crate::log::proto;
 
@@ -235,6 +242,7 @@ fn merge_barrier_value(buf: &[u8], m: &mut proto::BarrierValue) -> Option<()> {
 
 fn put_key(out: &mut Vec<u8>, field: u8, wire: u64) {
     // Field numbers here are < 16: the key is one byte.
+    debug_assert!(field < 16);
     out.push((field << 3) | wire as u8);
 }
 
@@ -258,6 +266,14 @@ fn put_u64(out: &mut Vec<u8>, field: u8, value: u64) {
     if value != 0 {
         put_key(out, field, VARINT);
         put_varint(out, value);
+    }
+}
+
+/// An int32 or enum field (negative values take ten bytes, as prost writes them).
+fn put_i32(out: &mut Vec<u8>, field: u8, value: i32) {
+    if value != 0 {
+        put_key(out, field, VARINT);
+        put_varint(out, i64::from(value) as u64);
     }
 }
 
@@ -295,19 +311,36 @@ fn put_packed_f64(out: &mut Vec<u8>, field: u8, values: &[f64]) {
     }
 }
 
+fn put_packed_fixed32(out: &mut Vec<u8>, field: u8, values: &[u32]) {
+    if !values.is_empty() {
+        put_key(out, field, LEN);
+        put_varint(out, 4 * values.len() as u64);
+        for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
 /// A length-delimited submessage written by `body` (its length prefix placed afterwards).
 fn put_message(out: &mut Vec<u8>, field: u8, body: impl FnOnce(&mut Vec<u8>)) {
     put_key(out, field, LEN);
     let at = out.len();
     out.push(0);
     body(out);
-    let length = (out.len() - at - 1) as u64;
+    let end = out.len();
+    let mut length = (end - at - 1) as u64;
     if length < 0x80 {
         out[at] = length as u8;
     } else {
-        let mut prefix = Vec::with_capacity(10);
-        put_varint(&mut prefix, length);
-        out.splice(at..at + 1, prefix);
+        // A longer prefix: move the body up in place (no allocation once `out` has the room).
+        let width = (64 - length.leading_zeros() as usize).div_ceil(7);
+        out.resize(end + width - 1, 0);
+        out.copy_within(at + 1..end, at + width);
+        for byte in &mut out[at..at + width] {
+            *byte = (length as u8) | 0x80;
+            length >>= 7;
+        }
+        out[at + width - 1] &= 0x7f;
     }
 }
 
@@ -391,6 +424,249 @@ pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
             put_f64(out, 7, *time_to_collision);
             put_bool(out, 8, *obstacle);
         });
+    }
+}
+
+pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
+    let proto::Prediction {
+        time,
+        channel,
+        issued_at,
+        horizon,
+        predicted,
+        realized,
+        error,
+        relative_error,
+        reused_chain,
+        chain_mismatch,
+    } = m;
+    put_f64(out, 1, *time);
+    put_str(out, 2, channel);
+    put_f64(out, 3, *issued_at);
+    put_f64(out, 4, *horizon);
+    put_packed_f64(out, 5, predicted);
+    put_packed_f64(out, 6, realized);
+    put_f64(out, 7, *error);
+    put_f64(out, 8, *relative_error);
+    put_bool(out, 9, *reused_chain);
+    put_f64(out, 10, *chain_mismatch);
+}
+
+// Foxglove's messages (`/scene`, `/tf`): `*_fields` write a submessage's fields, `put_*` a
+// whole submessage.
+
+/// An optional submessage: nothing when absent, else written even when its body is empty.
+fn put_optional<T>(out: &mut Vec<u8>, field: u8, value: &Option<T>, fields: impl Fn(&mut Vec<u8>, &T)) {
+    if let Some(value) = value {
+        put_message(out, field, |out| fields(out, value));
+    }
+}
+
+/// A repeated submessage: every element, empty ones included.
+fn put_repeated<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&mut Vec<u8>, &T)) {
+    for value in values {
+        put_message(out, field, |out| fields(out, value));
+    }
+}
+
+// Timestamp and Duration are foxglove's own wrappers (not generated) with private fields:
+// read through their accessors instead of destructured.
+fn timestamp_fields(out: &mut Vec<u8>, t: &Timestamp) {
+    put_u64(out, 1, u64::from(t.sec()));
+    put_u64(out, 2, u64::from(t.nsec()));
+}
+
+fn duration_fields(out: &mut Vec<u8>, d: &Duration) {
+    put_i32(out, 1, d.sec());
+    put_u64(out, 2, u64::from(d.nsec()));
+}
+
+/// A submessage of doubles only (fields 1, 2, … of Vector3, Point3, Quaternion, Color): at
+/// most 38 bytes, so its length takes one byte. Assembled on the stack and appended whole
+/// (a copy of constant size, inlined), then cut to its length: cheaper than a push per field.
+fn put_doubles<const N: usize>(out: &mut Vec<u8>, field: u8, values: [f64; N]) {
+    const { assert!(N <= 4) };
+    let mut bytes = [0u8; 2 + 4 * 9];
+    bytes[0] = (field << 3) | LEN as u8;
+    let mut end = 2;
+    for (number, value) in (1u8..).zip(values) {
+        // As put_f64: 0 and −0 omitted.
+        if value != 0.0 {
+            bytes[end] = (number << 3) | FIXED64 as u8;
+            bytes[end + 1..end + 9].copy_from_slice(&value.to_le_bytes());
+            end += 9;
+        }
+    }
+    bytes[1] = (end - 2) as u8;
+    let start = out.len();
+    out.extend_from_slice(&bytes);
+    out.truncate(start + end);
+}
+
+fn put_vector3(out: &mut Vec<u8>, field: u8, v: &Vector3) {
+    let Vector3 { x, y, z } = *v;
+    put_doubles(out, field, [x, y, z]);
+}
+
+fn put_point3(out: &mut Vec<u8>, field: u8, p: &Point3) {
+    let Point3 { x, y, z } = *p;
+    put_doubles(out, field, [x, y, z]);
+}
+
+fn put_quaternion(out: &mut Vec<u8>, field: u8, q: &Quaternion) {
+    let Quaternion { x, y, z, w } = *q;
+    put_doubles(out, field, [x, y, z, w]);
+}
+
+fn put_color(out: &mut Vec<u8>, field: u8, c: &Color) {
+    let Color { r, g, b, a } = *c;
+    put_doubles(out, field, [r, g, b, a]);
+}
+
+fn pose_fields(out: &mut Vec<u8>, p: &Pose) {
+    let Pose { position, orientation } = p;
+    if let Some(position) = position {
+        put_vector3(out, 1, position);
+    }
+    if let Some(orientation) = orientation {
+        put_quaternion(out, 2, orientation);
+    }
+}
+
+fn key_value_fields(out: &mut Vec<u8>, kv: &KeyValuePair) {
+    let KeyValuePair { key, value } = kv;
+    put_str(out, 1, key);
+    put_str(out, 2, value);
+}
+
+fn cube_fields(out: &mut Vec<u8>, c: &CubePrimitive) {
+    let CubePrimitive { pose, size, color } = c;
+    put_optional(out, 1, pose, pose_fields);
+    if let Some(size) = size {
+        put_vector3(out, 2, size);
+    }
+    if let Some(color) = color {
+        put_color(out, 3, color);
+    }
+}
+
+fn cylinder_fields(out: &mut Vec<u8>, c: &CylinderPrimitive) {
+    let CylinderPrimitive {
+        pose,
+        size,
+        bottom_scale,
+        top_scale,
+        color,
+    } = c;
+    put_optional(out, 1, pose, pose_fields);
+    if let Some(size) = size {
+        put_vector3(out, 2, size);
+    }
+    put_f64(out, 3, *bottom_scale);
+    put_f64(out, 4, *top_scale);
+    if let Some(color) = color {
+        put_color(out, 5, color);
+    }
+}
+
+fn line_fields(out: &mut Vec<u8>, l: &LinePrimitive) {
+    let LinePrimitive {
+        r#type,
+        pose,
+        thickness,
+        scale_invariant,
+        points,
+        color,
+        colors,
+        indices,
+    } = l;
+    put_i32(out, 1, *r#type);
+    put_optional(out, 2, pose, pose_fields);
+    put_f64(out, 3, *thickness);
+    put_bool(out, 4, *scale_invariant);
+    for point in points {
+        put_point3(out, 5, point);
+    }
+    if let Some(color) = color {
+        put_color(out, 6, color);
+    }
+    for color in colors {
+        put_color(out, 7, color);
+    }
+    put_packed_fixed32(out, 8, indices);
+}
+
+/// Whether an entity holds only the primitives mjsafe draws (cubes, cylinders, lines), which
+/// [`entity_fields`] encodes.
+fn hand_encoded(e: &SceneEntity) -> bool {
+    e.arrows.is_empty() && e.spheres.is_empty() && e.triangles.is_empty() && e.texts.is_empty() && e.models.is_empty()
+}
+
+fn entity_fields(out: &mut Vec<u8>, e: &SceneEntity) {
+    let SceneEntity {
+        timestamp,
+        frame_id,
+        id,
+        lifetime,
+        frame_locked,
+        metadata,
+        arrows,
+        cubes,
+        spheres,
+        cylinders,
+        lines,
+        triangles,
+        texts,
+        models,
+    } = e;
+    debug_assert!(arrows.is_empty() && spheres.is_empty() && triangles.is_empty());
+    debug_assert!(texts.is_empty() && models.is_empty());
+    put_optional(out, 1, timestamp, timestamp_fields);
+    put_str(out, 2, frame_id);
+    put_str(out, 3, id);
+    put_optional(out, 4, lifetime, duration_fields);
+    put_bool(out, 5, *frame_locked);
+    put_repeated(out, 6, metadata, key_value_fields);
+    put_repeated(out, 8, cubes, cube_fields);
+    put_repeated(out, 10, cylinders, cylinder_fields);
+    put_repeated(out, 11, lines, line_fields);
+}
+
+fn deletion_fields(out: &mut Vec<u8>, d: &SceneEntityDeletion) {
+    let SceneEntityDeletion { timestamp, r#type, id } = d;
+    put_optional(out, 1, timestamp, timestamp_fields);
+    put_i32(out, 2, *r#type);
+    put_str(out, 3, id);
+}
+
+/// A scene update; one with primitives mjsafe does not draw (arrows, spheres, triangles,
+/// texts, models) goes through prost.
+pub(crate) fn encode_scene_update(m: &SceneUpdate, out: &mut Vec<u8>) {
+    let SceneUpdate { deletions, entities } = m;
+    if !entities.iter().all(hand_encoded) {
+        prost::Message::encode(m, out).expect("a Vec grows to fit any message");
+        return;
+    }
+    put_repeated(out, 1, deletions, deletion_fields);
+    put_repeated(out, 2, entities, entity_fields);
+}
+
+pub(crate) fn encode_frame_transform(m: &FrameTransform, out: &mut Vec<u8>) {
+    let FrameTransform {
+        timestamp,
+        parent_frame_id,
+        child_frame_id,
+        translation,
+        rotation,
+    } = m;
+    put_optional(out, 1, timestamp, timestamp_fields);
+    put_str(out, 2, parent_frame_id);
+    put_str(out, 3, child_frame_id);
+    if let Some(translation) = translation {
+        put_vector3(out, 4, translation);
+    }
+    if let Some(rotation) = rotation {
+        put_quaternion(out, 5, rotation);
     }
 }
 
@@ -606,5 +882,345 @@ mod tests {
             encode_barrier(&barrier, &mut buffer);
             assert_eq!(buffer, barrier.encode_to_vec(), "{barrier:?}");
         }
+    }
+
+    const VALUES: [f64; 8] = [
+        0.0,
+        -0.0,
+        f64::NAN,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        3.25,
+        -1e300,
+        1e-310,
+    ];
+
+    /// Scalars cycling through zeros (omitted), −0, NaN, infinities and ordinary values.
+    fn v(i: usize) -> f64 {
+        VALUES[i % VALUES.len()]
+    }
+
+    /// An empty, a short and a 300-byte string.
+    fn text(k: usize, short: &str) -> String {
+        match k % 3 {
+            0 => String::new(),
+            1 => short.to_string(),
+            _ => "s".repeat(300),
+        }
+    }
+
+    fn predictions() -> Vec<proto::Prediction> {
+        (0..12)
+            .map(|k| proto::Prediction {
+                time: v(k),
+                channel: text(k, "steering"),
+                issued_at: v(k + 1),
+                horizon: v(k + 2),
+                predicted: (0..k % 4).map(|i| v(k + i)).collect(),
+                realized: (0..(k + 1) % 4).map(|i| v(k + 3 * i)).collect(),
+                error: v(k + 3),
+                relative_error: v(k + 4),
+                reused_chain: k % 2 == 1,
+                chain_mismatch: v(k + 5),
+            })
+            .chain([proto::Prediction::default()])
+            .collect()
+    }
+
+    #[test]
+    fn the_prediction_encoder_writes_exactly_prosts_bytes() {
+        let mut buffer = Vec::new();
+        for m in predictions() {
+            buffer.clear();
+            encode_prediction(&m, &mut buffer);
+            assert_eq!(buffer, m.encode_to_vec(), "{m:?}");
+        }
+    }
+
+    /// Absent, all zero (an empty body, still written), zero seconds, zero nanoseconds, the
+    /// largest.
+    fn timestamp(k: usize) -> Option<Timestamp> {
+        [
+            None,
+            Some(Timestamp::MIN),
+            Some(Timestamp::new(0, 5)),
+            Some(Timestamp::new(7, 0)),
+            Some(Timestamp::new(12, 345_000_000)),
+            Some(Timestamp::MAX),
+        ][k % 6]
+    }
+
+    /// As [`timestamp`], and negative seconds (int32: ten bytes).
+    fn lifetime(k: usize) -> Option<Duration> {
+        [
+            None,
+            Some(Duration::new(0, 0)),
+            Some(Duration::new(0, 5)),
+            Some(Duration::new(3, 0)),
+            Some(Duration::new(-4, 858_407_346)),
+            Some(Duration::MIN),
+            Some(Duration::MAX),
+        ][k % 7]
+    }
+
+    fn vector3(k: usize) -> Option<Vector3> {
+        (!k.is_multiple_of(3)).then(|| Vector3 {
+            x: v(k),
+            y: v(k + 1),
+            z: v(k + 2),
+        })
+    }
+
+    fn quaternion(k: usize) -> Option<Quaternion> {
+        (!k.is_multiple_of(4)).then(|| Quaternion {
+            x: v(k),
+            y: v(k + 3),
+            z: v(k + 5),
+            w: v(k + 7),
+        })
+    }
+
+    fn pose(k: usize) -> Option<Pose> {
+        (!k.is_multiple_of(5)).then(|| Pose {
+            position: vector3(k),
+            orientation: quaternion(k + 1),
+        })
+    }
+
+    fn color(k: usize) -> Color {
+        Color {
+            r: v(k),
+            g: v(k + 2),
+            b: v(k + 4),
+            a: v(k + 6),
+        }
+    }
+
+    /// Every line type, and enum values outside it (negative ones take ten bytes).
+    fn line(k: usize) -> LinePrimitive {
+        use foxglove::messages::line_primitive::Type;
+        LinePrimitive {
+            r#type: [
+                Type::LineStrip as i32,
+                Type::LineLoop as i32,
+                Type::LineList as i32,
+                -1,
+                7,
+            ][k % 5],
+            pose: pose(k),
+            thickness: v(k),
+            scale_invariant: k.is_multiple_of(2),
+            points: (0..k % 6)
+                .map(|i| Point3 {
+                    x: v(k + i),
+                    y: v(k + 2 * i),
+                    z: v(i),
+                })
+                .collect(),
+            color: (k % 3 != 1).then(|| color(k)),
+            colors: (0..k % 3).map(|i| color(k + i)).collect(),
+            indices: (0..k % 5).map(|i| [0, 1, 300, u32::MAX][i % 4]).collect(),
+        }
+    }
+
+    /// Entities with none, one or several of each field and primitive mjsafe draws.
+    fn entity(k: usize) -> SceneEntity {
+        SceneEntity {
+            timestamp: timestamp(k),
+            frame_id: text(k, "world"),
+            id: text(k + 1, "vehicle"),
+            lifetime: lifetime(k),
+            frame_locked: k % 2 == 1,
+            metadata: (0..k % 3)
+                .map(|i| KeyValuePair {
+                    key: text(k + i + 1, "key"),
+                    value: text(k + i, "value"),
+                })
+                .collect(),
+            cubes: (0..k % 3)
+                .map(|i| CubePrimitive {
+                    pose: pose(k + i),
+                    size: vector3(k + i + 1),
+                    color: (i != 1).then(|| color(k + i)),
+                })
+                .collect(),
+            cylinders: (0..(k + 1) % 4)
+                .map(|i| CylinderPrimitive {
+                    pose: pose(k + 2 * i),
+                    size: vector3(k + i),
+                    bottom_scale: v(k + i),
+                    top_scale: v(k + i + 1),
+                    color: (i != 2).then(|| color(k + 3 * i)),
+                })
+                .collect(),
+            lines: (0..k % 4).map(|i| line(k + i)).collect(),
+            ..Default::default()
+        }
+    }
+
+    fn deletion(k: usize) -> SceneEntityDeletion {
+        SceneEntityDeletion {
+            timestamp: timestamp(k),
+            r#type: [0, 1, -3][k % 3],
+            id: text(k, "trail/0"),
+        }
+    }
+
+    fn assert_scene_as_prost(update: &SceneUpdate) {
+        let mut buffer = vec![1, 2, 3];
+        buffer.clear();
+        encode_scene_update(update, &mut buffer);
+        assert!(buffer == update.encode_to_vec(), "{update:?}");
+    }
+
+    #[test]
+    fn the_scene_and_transform_encoders_write_exactly_prosts_bytes() {
+        use crate::log::scene;
+        for k in 0..60 {
+            assert_scene_as_prost(&SceneUpdate {
+                deletions: (0..k % 3).map(|i| deletion(k + i)).collect(),
+                entities: (0..k % 4).map(|i| entity(k + i)).collect(),
+            });
+            let transform = FrameTransform {
+                timestamp: timestamp(k),
+                parent_frame_id: text(k, "world"),
+                child_frame_id: text(k / 3, "vehicle"),
+                translation: vector3(k),
+                rotation: quaternion(k),
+            };
+            let mut buffer = Vec::new();
+            encode_frame_transform(&transform, &mut buffer);
+            assert_eq!(buffer, transform.encode_to_vec(), "{transform:?}");
+        }
+        // What mjsafe draws.
+        let trail: Vec<[f64; 2]> = (0..11).map(|i| [i as f64, 0.5 * i as f64]).collect();
+        for update in [
+            SceneUpdate::default(),
+            scene::vehicle(1.5, [2.0, -3.0], 0.7, 1.2),
+            scene::prediction(0.0, "prediction/steering", [0.0, 0.0], [1.0, -0.0], 0.0),
+            scene::obstacle(2.75, "obstacle_0", [30.0, 0.5], 1.5, true),
+            scene::polyline(12.0, "trail/3", &trail, scene::TRAIL, 0.15),
+            scene::polyline(0.0, "reference_path", &[], scene::PATH, 0.1),
+        ] {
+            assert_scene_as_prost(&update);
+        }
+    }
+
+    #[test]
+    fn nested_lengths_across_the_varint_widths_match_prost() {
+        // An entity id or a metadata value of n bytes: the pair, the entity and the update cross
+        // 127/128 and 16383/16384 bytes at neighbouring n.
+        for n in (0..300).chain(16_300..16_420) {
+            let mut e = entity(4);
+            e.id = "i".repeat(n);
+            assert_scene_as_prost(&SceneUpdate {
+                deletions: vec![],
+                entities: vec![e.clone()],
+            });
+            e.id.clear();
+            e.metadata = vec![KeyValuePair {
+                key: "k".into(),
+                value: "v".repeat(n),
+            }];
+            assert_scene_as_prost(&SceneUpdate {
+                deletions: vec![deletion(1)],
+                entities: vec![e],
+            });
+        }
+        // A line of 80 000 points: line, entity and update over 2 MB (four-byte lengths).
+        let points: Vec<[f64; 2]> = (0..80_000).map(|i| [i as f64, -1.5 * i as f64]).collect();
+        assert_scene_as_prost(&crate::log::scene::polyline(
+            3.0,
+            "trail/0",
+            &points,
+            Color::default(),
+            0.15,
+        ));
+    }
+
+    #[test]
+    fn submessage_length_prefixes_have_prosts_widths() {
+        for length in [0, 1, 127, 128, 129, 16_383, 16_384, 16_385, 2_097_151, 2_097_152] {
+            let body = |out: &mut Vec<u8>| out.extend((0..length).map(|i| i as u8));
+            let mut out = vec![9, 9];
+            put_message(&mut out, 3, body);
+            let mut expected = vec![9, 9, (3 << 3) | 2];
+            prost::encoding::encode_varint(length as u64, &mut expected);
+            body(&mut expected);
+            assert!(out == expected, "{length}");
+        }
+    }
+
+    #[test]
+    fn scene_updates_with_primitives_mjsafe_does_not_draw_go_through_prost() {
+        use foxglove::messages::{
+            ArrowPrimitive, ModelPrimitive, SpherePrimitive, TextPrimitive, TriangleListPrimitive,
+        };
+        let mut entities = vec![entity(5); 5];
+        entities[0].arrows.push(ArrowPrimitive {
+            shaft_length: 2.0,
+            color: Some(color(5)),
+            ..Default::default()
+        });
+        entities[1].spheres.push(SpherePrimitive {
+            size: vector3(1),
+            ..Default::default()
+        });
+        entities[2].triangles.push(TriangleListPrimitive {
+            indices: vec![0, 1, 2],
+            ..Default::default()
+        });
+        entities[3].texts.push(TextPrimitive {
+            text: "collision".into(),
+            ..Default::default()
+        });
+        entities[4].models.push(ModelPrimitive {
+            url: "file:///car.glb".into(),
+            ..Default::default()
+        });
+        for e in &entities {
+            assert!(!hand_encoded(e));
+            assert_scene_as_prost(&SceneUpdate {
+                deletions: vec![deletion(1)],
+                entities: vec![entity(2), e.clone()],
+            });
+        }
+        assert!(hand_encoded(&entity(5)));
+    }
+
+    #[test]
+    fn encoding_into_a_buffer_with_room_allocates_nothing() {
+        use crate::log::{scene, Record};
+        use crate::mujoco::counting_alloc::{allocations, count_allocations};
+        let trail: Vec<[f64; 2]> = (0..700).map(|i| [i as f64, 0.25 * i as f64]).collect();
+        let mut barrier = proto::Barrier {
+            time: 1.0,
+            barriers: vec![proto::BarrierValue::default(); 3],
+        };
+        barrier.barriers[1].name = "b".repeat(200);
+        let records = [
+            Record::Scene(1.0, scene::vehicle(1.0, [1.0, 2.0], 0.5, 1.0)),
+            Record::Scene(
+                1.0,
+                scene::prediction(1.0, "prediction/steering", [1.0, 2.0], [3.0, 2.5], 1.0),
+            ),
+            // Nested lengths of three bytes.
+            Record::Scene(1.0, scene::polyline(1.0, "trail/0", &trail, scene::TRAIL, 0.15)),
+            Record::Transform(1.0, scene::transform(1.0, [1.0, 2.0], 0.5)),
+            Record::Prediction(predictions()[5].clone()),
+            Record::State(states()[0].clone()),
+            Record::Barrier(barrier),
+        ];
+        let mut buffer = Vec::new();
+        for record in &records {
+            record.encode_into(&mut buffer);
+        }
+        allocations(true);
+        count_allocations(true);
+        for record in &records {
+            record.encode_into(&mut buffer);
+        }
+        count_allocations(false);
+        assert_eq!(allocations(true), 0);
     }
 }
