@@ -285,6 +285,9 @@ impl Chain {
 
     /// max |node 0 − `fresh`| over the components a planar motion leaves alone.
     fn mismatch_off_motion(&mut self, axes: [usize; 3], fresh: &[f64]) -> f64 {
+        if fresh.len() == axes.len() {
+            return 0.0;
+        }
         let mut node0 = std::mem::take(&mut self.scratch);
         self.state_into(Some(axes), 0, &mut node0);
         let mismatch = (0..fresh.len())
