@@ -1273,6 +1273,55 @@ mod tests {
         assert!(worst > 1e-9 && worst < 1e-4, "{worst:e}");
     }
 
+    #[test]
+    fn a_shared_bicycle_prediction_is_moved_only_when_its_speed_agrees() {
+        // Equal delays make the bicycle's predictor shared (2.19). A planar motion moves
+        // position and heading, not speed: with the measured speed off the trajectory by more
+        // than the tolerance, the prediction must be integrated afresh (it was moved before).
+        use crate::dynamics::BicycleModel;
+        let h = 0.01;
+        let model = BicycleModel::new(6.0);
+        for (speed_slip, expect_moved) in [(0.0, true), (1e-3, false)] {
+            let mut queues: Vec<DelayQueue> = ["steering", "acceleration"]
+                .iter()
+                .map(|name| DelayQueue::new(name, 0.3, 0.0, h).unwrap())
+                .collect();
+            let structure = structure(&queues, h).unwrap();
+            assert_eq!(structure, Structure::Shared);
+            let mut reusing = PredictorWorkspace::new(4, 2);
+            reusing.set_chain_reuse(Some(1e-4));
+            let mut full = PredictorWorkspace::new(4, 2);
+            let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+            let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
+            let (mut reused, mut worst) = (0, 0.0_f64);
+            let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
+            for k in 0..100 {
+                let t = k as f64 * h;
+                let context = on_grid(&model, &queues, h);
+                context
+                    .predict_into(&structure, t, x.as_slice(), &mut never, &mut reusing, &mut p_reused)
+                    .unwrap();
+                context
+                    .predict_into(&structure, t, x.as_slice(), &mut never, &mut full, &mut p_full)
+                    .unwrap();
+                reused += usize::from(p_reused[0].reused_chain);
+                worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
+                for (j, queue) in queues.iter_mut().enumerate() {
+                    queue.push(t, [0.02 * (3.0 * t).sin(), 0.5][j]).unwrap();
+                }
+                let context = on_grid(&model, &queues, h);
+                x = context.advance_with_history(&x, t, t + h).unwrap();
+                x[0] += 1e-3;
+                x[3] += speed_slip;
+            }
+            assert_eq!(reused, if expect_moved { 99 } else { 0 }, "slip {speed_slip}");
+            assert!(
+                worst < 1e-11,
+                "slip {speed_slip}: off the recomputed prediction by {worst:e}"
+            );
+        }
+    }
+
     /// Closed loop of a double integrator with three channels (D = 0.1, 0.2, 0.3 s) whose
     /// commands are κ_j at their own predictions, except at tick `off_law_tick` where channel 2
     /// (the middle delay) issues κ_2 + 0.5, and at tick `kick_tick` where the state is
