@@ -228,8 +228,9 @@ impl Constraint {
     }
 
     /// a + b·u.
+    #[inline]
     pub fn value(&self, u: &DVector<f64>) -> f64 {
-        self.a + self.b.dot(u)
+        self.a + dot(self.b.as_slice(), u.as_slice())
     }
 }
 
@@ -354,7 +355,9 @@ impl LieWorkspace {
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+/// a·b summed in order from 0 (as nalgebra's `dot` for fewer than 8 entries).
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0, |sum, (a, b)| sum + a * b)
 }
 
