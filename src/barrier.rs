@@ -330,7 +330,54 @@ impl LieWorkspace {
         true
     }
 
-    /// out ← the constraint data (a, b) of `barrier` in `form` at x.
+    /// [`LieWorkspace::constraint_into`] from the model's closed form for a planar ball (see
+    /// [`LieWorkspace::planar_ball_in_closed_form`]), with the row b written straight into
+    /// `out` (the same arithmetic as through `lie`).
+    #[inline]
+    fn planar_ball_constraint(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) -> bool {
+        let Shape::Ball {
+            indices,
+            centre,
+            radius,
+            inside,
+        } = &barrier.shape
+        else {
+            return false;
+        };
+        if indices.len() != 2 || model.planar_position() != Some([indices[0], indices[1]]) {
+            return false;
+        }
+        let lie = &mut self.lie;
+        let (lg, lg_lf) = match form {
+            BarrierForm::RelativeDegree1 { .. } => (out.b.as_mut_slice(), lie.lg_lf_h.as_mut_slice()),
+            BarrierForm::RelativeDegree2 { .. } => (lie.lg_h.as_mut_slice(), out.b.as_mut_slice()),
+        };
+        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(x, [centre[0], centre[1]], lg, lg_lf) else {
+            return false;
+        };
+        let sign = if *inside { -1.0 } else { 1.0 };
+        let (h, lf_h, lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
+        out.h = h;
+        out.a = match form {
+            BarrierForm::RelativeDegree1 { alpha } => lf_h + alpha * h,
+            BarrierForm::RelativeDegree2 { l0, l1 } => lf2_h + l1 * lf_h + l0 * h,
+        };
+        if *inside {
+            for b in out.b.iter_mut() {
+                *b = -*b;
+            }
+        }
+        true
+    }
+
+    /// out ← the constraint data (a, b) of `barrier` in `form` at x (`lie` is then scratch).
     pub fn constraint_into(
         &mut self,
         barrier: &Barrier,
@@ -339,6 +386,9 @@ impl LieWorkspace {
         x: &[f64],
         out: &mut Constraint,
     ) {
+        if self.planar_ball_constraint(barrier, form, model, x, out) {
+            return;
+        }
         self.evaluate(barrier, model, x);
         let lie = &self.lie;
         out.h = lie.h;
@@ -461,6 +511,50 @@ mod tests {
                     (closed.lg_lf_h[1], general.lg_lf_h[1]),
                 ] {
                     worst = worst.max((a - g).abs() / scale);
+                }
+            }
+        }
+        assert!(worst < 1e-13, "largest relative difference {worst:e}");
+    }
+
+    #[test]
+    fn closed_form_planar_ball_constraints_equal_the_general_ones() {
+        let bicycle = BicycleModel::new(2.5);
+        let unicycle = crate::dynamics::UnicycleModel::default();
+        let models: [&dyn Dynamics; 2] = [&bicycle, &unicycle];
+        let forms = [
+            BarrierForm::RelativeDegree1 { alpha: 1.7 },
+            BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.5 },
+        ];
+        let mut worst: f64 = 0.0;
+        for model in models {
+            let n = model.state_dim();
+            let (mut closed, mut general) = (LieWorkspace::new(model), LieWorkspace::new(model));
+            let (mut c, mut g) = (Constraint::zeros(2), Constraint::zeros(2));
+            for k in 0..100 {
+                let s = k as f64;
+                let mut x = vec![s.sin() * 20.0, s.cos() * 7.0, 0.37 * s - 7.0, 3.0 * (1.3 * s).sin()];
+                x.truncate(n);
+                let mut b = Barrier::circular_obstacle("o", [0, 1], [-3.0 + s.cos(), 0.5], 1.0 + (k % 5) as f64);
+                if let Shape::Ball { inside, .. } = &mut b.shape {
+                    *inside = k % 2 == 0;
+                }
+                for form in forms {
+                    closed.constraint_into(&b, form, model, &x, &mut c);
+                    general.constraint_into(&b, form, &General(model), &x, &mut g);
+                    let scale = 1.0 + g.h.abs() + g.a.abs();
+                    for (a, e) in [(c.h, g.h), (c.a, g.a), (c.b[0], g.b[0]), (c.b[1], g.b[1])] {
+                        worst = worst.max((a - e).abs() / scale);
+                    }
+                    // The same arithmetic as through the Lie derivatives of the closed form.
+                    let lie = lie_derivatives(&b, model, &DVector::from_column_slice(&x));
+                    let (a, row) = match form {
+                        BarrierForm::RelativeDegree1 { alpha } => (lie.lf_h + alpha * lie.h, &lie.lg_h),
+                        BarrierForm::RelativeDegree2 { l0, l1 } => {
+                            (lie.lf2_h + l1 * lie.lf_h + l0 * lie.h, &lie.lg_lf_h)
+                        }
+                    };
+                    assert_eq!((c.h, c.a, &c.b), (lie.h, a, row));
                 }
             }
         }
