@@ -405,6 +405,16 @@ impl LieWorkspace {
     }
 }
 
+/// dst ← src (equal lengths): two entries (the planar vehicles' inputs) moved directly,
+/// anything else through `copy_from_slice` (a memcpy call).
+#[inline]
+pub(crate) fn copy_small(dst: &mut [f64], src: &[f64]) {
+    match (dst, src) {
+        ([d0, d1], &[s0, s1]) => (*d0, *d1) = (s0, s1),
+        (dst, src) => dst.copy_from_slice(src),
+    }
+}
+
 /// a·b summed in order from 0 (as nalgebra's `dot` for fewer than 8 entries).
 #[inline]
 pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {

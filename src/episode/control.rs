@@ -415,7 +415,7 @@ impl ControlLoop {
                     constraints: &law.constraints[..count],
                 };
                 filter.delay_free(&input, &mut law.input);
-                u.copy_from_slice(law.input.as_slice());
+                crate::barrier::copy_small(u, law.input.as_slice());
             };
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
             if let Some(audit) = chain_audit {

@@ -110,7 +110,7 @@ pub fn delay_free_qp(
     qp: Option<&mut QpWorkspace>,
     u: &mut DVector<f64>,
 ) -> (bool, bool, f64) {
-    u.as_mut_slice().copy_from_slice(nominal.as_slice());
+    crate::barrier::copy_small(u.as_mut_slice(), nominal.as_slice());
     match (constraints, limits) {
         // Without a known barrier the nominal passes as it is (limits included).
         ([], _) => (false, false, f64::NAN),
