@@ -245,9 +245,12 @@ pub struct LieDerivatives {
 }
 
 /// Scratch space and result of one Lie-derivative evaluation, sized for one model and reused
-/// (no allocation per evaluation: the predictors evaluate barriers many times per tick).
+/// (no allocation per evaluation: the predictors evaluate barriers many times per tick). It
+/// serves the model it was built for (its sizes and planar position are that model's).
 #[derive(Debug, Clone)]
 pub struct LieWorkspace {
+    /// The model's [`Dynamics::planar_position`] (looked up once, not per evaluation).
+    planar_position: Option<[usize; 2]>,
     f: DVector<f64>,
     g: DMatrix<f64>,
     jacobian: DMatrix<f64>,
@@ -261,6 +264,7 @@ impl LieWorkspace {
     pub fn new(model: &dyn Dynamics) -> LieWorkspace {
         let (n, r) = (model.state_dim(), model.input_dim());
         LieWorkspace {
+            planar_position: model.planar_position(),
             f: DVector::zeros(n),
             g: DMatrix::zeros(n, r),
             jacobian: DMatrix::zeros(n, n),
@@ -297,9 +301,10 @@ impl LieWorkspace {
         transpose_times(&self.g, self.grad_lf_h.as_slice(), lie.lg_lf_h.as_mut_slice());
     }
 
-    /// A ball over the planar position, h = ±(d − r²) with d = ‖p − c‖², from the model's
-    /// closed form of d's Lie derivatives ((4.88)–(4.90) for the bicycle), when it has one.
-    fn planar_ball_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+    /// (centre, radius, inside) of a ball over the model's planar position (two indices, two
+    /// centre coordinates), the shape the closed forms below handle.
+    #[inline]
+    fn planar_ball(&self, barrier: &Barrier) -> Option<([f64; 2], f64, bool)> {
         let Shape::Ball {
             indices,
             centre,
@@ -307,23 +312,29 @@ impl LieWorkspace {
             inside,
         } = &barrier.shape
         else {
-            return false;
+            return None;
         };
-        if indices.len() != 2 || model.planar_position() != Some([indices[0], indices[1]]) {
-            return false;
+        match (indices.as_slice(), centre.as_slice()) {
+            (&[i, j], &[cx, cy]) if self.planar_position == Some([i, j]) => Some(([cx, cy], *radius, *inside)),
+            _ => None,
         }
-        let lie = &mut self.lie;
-        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(
-            x,
-            [centre[0], centre[1]],
-            lie.lg_h.as_mut_slice(),
-            lie.lg_lf_h.as_mut_slice(),
-        ) else {
+    }
+
+    /// A ball over the planar position, h = ±(d − r²) with d = ‖p − c‖², from the model's
+    /// closed form of d's Lie derivatives ((4.88)–(4.90) for the bicycle), when it has one.
+    fn planar_ball_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+        let Some((centre, radius, inside)) = self.planar_ball(barrier) else {
             return false;
         };
-        let sign = if *inside { -1.0 } else { 1.0 };
+        let lie = &mut self.lie;
+        let Some([d, lf_d, lf2_d]) =
+            model.squared_distance_lie_into(x, centre, lie.lg_h.as_mut_slice(), lie.lg_lf_h.as_mut_slice())
+        else {
+            return false;
+        };
+        let sign = if inside { -1.0 } else { 1.0 };
         (lie.h, lie.lf_h, lie.lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
-        if *inside {
+        if inside {
             lie.lg_h.neg_mut();
             lie.lg_lf_h.neg_mut();
         }
@@ -333,7 +344,7 @@ impl LieWorkspace {
     /// [`LieWorkspace::constraint_into`] from the model's closed form for a planar ball (see
     /// [`LieWorkspace::planar_ball_in_closed_form`]), with the row b written straight into
     /// `out` (the same arithmetic as through `lie`).
-    #[inline]
+    #[inline(always)]
     fn planar_ball_constraint(
         &mut self,
         barrier: &Barrier,
@@ -342,34 +353,25 @@ impl LieWorkspace {
         x: &[f64],
         out: &mut Constraint,
     ) -> bool {
-        let Shape::Ball {
-            indices,
-            centre,
-            radius,
-            inside,
-        } = &barrier.shape
-        else {
+        let Some((centre, radius, inside)) = self.planar_ball(barrier) else {
             return false;
         };
-        if indices.len() != 2 || model.planar_position() != Some([indices[0], indices[1]]) {
-            return false;
-        }
         let lie = &mut self.lie;
         let (lg, lg_lf) = match form {
             BarrierForm::RelativeDegree1 { .. } => (out.b.as_mut_slice(), lie.lg_lf_h.as_mut_slice()),
             BarrierForm::RelativeDegree2 { .. } => (lie.lg_h.as_mut_slice(), out.b.as_mut_slice()),
         };
-        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(x, [centre[0], centre[1]], lg, lg_lf) else {
+        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(x, centre, lg, lg_lf) else {
             return false;
         };
-        let sign = if *inside { -1.0 } else { 1.0 };
+        let sign = if inside { -1.0 } else { 1.0 };
         let (h, lf_h, lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
         out.h = h;
         out.a = match form {
             BarrierForm::RelativeDegree1 { alpha } => lf_h + alpha * h,
             BarrierForm::RelativeDegree2 { l0, l1 } => lf2_h + l1 * lf_h + l0 * h,
         };
-        if *inside {
+        if inside {
             for b in out.b.iter_mut() {
                 *b = -*b;
             }
@@ -378,6 +380,7 @@ impl LieWorkspace {
     }
 
     /// out ← the constraint data (a, b) of `barrier` in `form` at x (`lie` is then scratch).
+    #[inline(always)]
     pub fn constraint_into(
         &mut self,
         barrier: &Barrier,
@@ -386,9 +389,22 @@ impl LieWorkspace {
         x: &[f64],
         out: &mut Constraint,
     ) {
-        if self.planar_ball_constraint(barrier, form, model, x, out) {
-            return;
+        if !self.planar_ball_constraint(barrier, form, model, x, out) {
+            self.general_constraint_into(barrier, form, model, x, out);
         }
+    }
+
+    /// [`LieWorkspace::constraint_into`] through [`LieWorkspace::evaluate`] (out of line: the
+    /// closed form stays small enough to inline into the callers).
+    #[inline(never)]
+    fn general_constraint_into(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) {
         self.evaluate(barrier, model, x);
         let lie = &self.lie;
         out.h = lie.h;
@@ -539,7 +555,7 @@ mod tests {
         let mut worst: f64 = 0.0;
         for model in models {
             let n = model.state_dim();
-            let (mut closed, mut general) = (LieWorkspace::new(model), LieWorkspace::new(model));
+            let (mut closed, mut general) = (LieWorkspace::new(model), LieWorkspace::new(&General(model)));
             let (mut c, mut g) = (Constraint::zeros(2), Constraint::zeros(2));
             for k in 0..100 {
                 let s = k as f64;

@@ -102,7 +102,7 @@ pub struct DelayFreeInput<'a> {
 /// the numerical QP ([`crate::filter::qp`]) in `qp` (keep one per filter: no allocation once
 /// it has seen the largest problem; `None` builds one for this call only when needed).
 /// Returns (active, infeasible, μ).
-#[inline]
+#[inline(always)]
 pub fn delay_free_qp(
     constraints: &[Constraint],
     nominal: &DVector<f64>,
