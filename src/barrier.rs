@@ -228,8 +228,9 @@ impl Constraint {
     }
 
     /// a + b·u.
+    #[inline]
     pub fn value(&self, u: &DVector<f64>) -> f64 {
-        self.a + self.b.dot(u)
+        self.a + dot(self.b.as_slice(), u.as_slice())
     }
 }
 
@@ -244,9 +245,12 @@ pub struct LieDerivatives {
 }
 
 /// Scratch space and result of one Lie-derivative evaluation, sized for one model and reused
-/// (no allocation per evaluation: the predictors evaluate barriers many times per tick).
+/// (no allocation per evaluation: the predictors evaluate barriers many times per tick). It
+/// serves the model it was built for (its sizes and planar position are that model's).
 #[derive(Debug, Clone)]
 pub struct LieWorkspace {
+    /// The model's [`Dynamics::planar_position`] (looked up once, not per evaluation).
+    planar_position: Option<[usize; 2]>,
     f: DVector<f64>,
     g: DMatrix<f64>,
     jacobian: DMatrix<f64>,
@@ -260,6 +264,7 @@ impl LieWorkspace {
     pub fn new(model: &dyn Dynamics) -> LieWorkspace {
         let (n, r) = (model.state_dim(), model.input_dim());
         LieWorkspace {
+            planar_position: model.planar_position(),
             f: DVector::zeros(n),
             g: DMatrix::zeros(n, r),
             jacobian: DMatrix::zeros(n, n),
@@ -296,9 +301,10 @@ impl LieWorkspace {
         transpose_times(&self.g, self.grad_lf_h.as_slice(), lie.lg_lf_h.as_mut_slice());
     }
 
-    /// A ball over the planar position, h = ±(d − r²) with d = ‖p − c‖², from the model's
-    /// closed form of d's Lie derivatives ((4.88)–(4.90) for the bicycle), when it has one.
-    fn planar_ball_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+    /// (centre, radius, inside) of a ball over the model's planar position (two indices, two
+    /// centre coordinates), the shape the closed forms below handle.
+    #[inline]
+    fn planar_ball(&self, barrier: &Barrier) -> Option<([f64; 2], f64, bool)> {
         let Shape::Ball {
             indices,
             centre,
@@ -306,31 +312,92 @@ impl LieWorkspace {
             inside,
         } = &barrier.shape
         else {
-            return false;
+            return None;
         };
-        if indices.len() != 2 || model.planar_position() != Some([indices[0], indices[1]]) {
-            return false;
+        match (indices.as_slice(), centre.as_slice()) {
+            (&[i, j], &[cx, cy]) if self.planar_position == Some([i, j]) => Some(([cx, cy], *radius, *inside)),
+            _ => None,
         }
-        let lie = &mut self.lie;
-        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(
-            x,
-            [centre[0], centre[1]],
-            lie.lg_h.as_mut_slice(),
-            lie.lg_lf_h.as_mut_slice(),
-        ) else {
+    }
+
+    /// A ball over the planar position, h = ±(d − r²) with d = ‖p − c‖², from the model's
+    /// closed form of d's Lie derivatives ((4.88)–(4.90) for the bicycle), when it has one.
+    fn planar_ball_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+        let Some((centre, radius, inside)) = self.planar_ball(barrier) else {
             return false;
         };
-        let sign = if *inside { -1.0 } else { 1.0 };
+        let lie = &mut self.lie;
+        let Some([d, lf_d, lf2_d]) =
+            model.squared_distance_lie_into(x, centre, lie.lg_h.as_mut_slice(), lie.lg_lf_h.as_mut_slice())
+        else {
+            return false;
+        };
+        let sign = if inside { -1.0 } else { 1.0 };
         (lie.h, lie.lf_h, lie.lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
-        if *inside {
+        if inside {
             lie.lg_h.neg_mut();
             lie.lg_lf_h.neg_mut();
         }
         true
     }
 
-    /// out ← the constraint data (a, b) of `barrier` in `form` at x.
+    /// [`LieWorkspace::constraint_into`] from the model's closed form for a planar ball (see
+    /// [`LieWorkspace::planar_ball_in_closed_form`]), with the row b written straight into
+    /// `out` (the same arithmetic as through `lie`).
+    #[inline(always)]
+    fn planar_ball_constraint(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) -> bool {
+        let Some((centre, radius, inside)) = self.planar_ball(barrier) else {
+            return false;
+        };
+        let lie = &mut self.lie;
+        let (lg, lg_lf) = match form {
+            BarrierForm::RelativeDegree1 { .. } => (out.b.as_mut_slice(), lie.lg_lf_h.as_mut_slice()),
+            BarrierForm::RelativeDegree2 { .. } => (lie.lg_h.as_mut_slice(), out.b.as_mut_slice()),
+        };
+        let Some([d, lf_d, lf2_d]) = model.squared_distance_lie_into(x, centre, lg, lg_lf) else {
+            return false;
+        };
+        let sign = if inside { -1.0 } else { 1.0 };
+        let (h, lf_h, lf2_h) = (sign * (d - radius * radius), sign * lf_d, sign * lf2_d);
+        out.h = h;
+        out.a = match form {
+            BarrierForm::RelativeDegree1 { alpha } => lf_h + alpha * h,
+            BarrierForm::RelativeDegree2 { l0, l1 } => lf2_h + l1 * lf_h + l0 * h,
+        };
+        if inside {
+            for b in out.b.iter_mut() {
+                *b = -*b;
+            }
+        }
+        true
+    }
+
+    /// out ← the constraint data (a, b) of `barrier` in `form` at x (`lie` is then scratch).
+    #[inline(always)]
     pub fn constraint_into(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) {
+        if !self.planar_ball_constraint(barrier, form, model, x, out) {
+            self.general_constraint_into(barrier, form, model, x, out);
+        }
+    }
+
+    /// [`LieWorkspace::constraint_into`] through [`LieWorkspace::evaluate`] (out of line: the
+    /// closed form stays small enough to inline into the callers).
+    #[inline(never)]
+    fn general_constraint_into(
         &mut self,
         barrier: &Barrier,
         form: BarrierForm,
@@ -354,7 +421,19 @@ impl LieWorkspace {
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+/// dst ← src (equal lengths): two entries (the planar vehicles' inputs) moved directly,
+/// anything else through `copy_from_slice` (a memcpy call).
+#[inline]
+pub(crate) fn copy_small(dst: &mut [f64], src: &[f64]) {
+    match (dst, src) {
+        ([d0, d1], &[s0, s1]) => (*d0, *d1) = (s0, s1),
+        (dst, src) => dst.copy_from_slice(src),
+    }
+}
+
+/// a·b summed in order from 0 (as nalgebra's `dot` for fewer than 8 entries).
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0, |sum, (a, b)| sum + a * b)
 }
 
@@ -458,6 +537,50 @@ mod tests {
                     (closed.lg_lf_h[1], general.lg_lf_h[1]),
                 ] {
                     worst = worst.max((a - g).abs() / scale);
+                }
+            }
+        }
+        assert!(worst < 1e-13, "largest relative difference {worst:e}");
+    }
+
+    #[test]
+    fn closed_form_planar_ball_constraints_equal_the_general_ones() {
+        let bicycle = BicycleModel::new(2.5);
+        let unicycle = crate::dynamics::UnicycleModel::default();
+        let models: [&dyn Dynamics; 2] = [&bicycle, &unicycle];
+        let forms = [
+            BarrierForm::RelativeDegree1 { alpha: 1.7 },
+            BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.5 },
+        ];
+        let mut worst: f64 = 0.0;
+        for model in models {
+            let n = model.state_dim();
+            let (mut closed, mut general) = (LieWorkspace::new(model), LieWorkspace::new(&General(model)));
+            let (mut c, mut g) = (Constraint::zeros(2), Constraint::zeros(2));
+            for k in 0..100 {
+                let s = k as f64;
+                let mut x = vec![s.sin() * 20.0, s.cos() * 7.0, 0.37 * s - 7.0, 3.0 * (1.3 * s).sin()];
+                x.truncate(n);
+                let mut b = Barrier::circular_obstacle("o", [0, 1], [-3.0 + s.cos(), 0.5], 1.0 + (k % 5) as f64);
+                if let Shape::Ball { inside, .. } = &mut b.shape {
+                    *inside = k % 2 == 0;
+                }
+                for form in forms {
+                    closed.constraint_into(&b, form, model, &x, &mut c);
+                    general.constraint_into(&b, form, &General(model), &x, &mut g);
+                    let scale = 1.0 + g.h.abs() + g.a.abs();
+                    for (a, e) in [(c.h, g.h), (c.a, g.a), (c.b[0], g.b[0]), (c.b[1], g.b[1])] {
+                        worst = worst.max((a - e).abs() / scale);
+                    }
+                    // The same arithmetic as through the Lie derivatives of the closed form.
+                    let lie = lie_derivatives(&b, model, &DVector::from_column_slice(&x));
+                    let (a, row) = match form {
+                        BarrierForm::RelativeDegree1 { alpha } => (lie.lf_h + alpha * lie.h, &lie.lg_h),
+                        BarrierForm::RelativeDegree2 { l0, l1 } => {
+                            (lie.lf2_h + l1 * lie.lf_h + l0 * lie.h, &lie.lg_lf_h)
+                        }
+                    };
+                    assert_eq!((c.h, c.a, &c.b), (lie.h, a, row));
                 }
             }
         }

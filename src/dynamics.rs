@@ -165,12 +165,16 @@ impl Dynamics for BicycleModel {
         lg: &mut [f64],
         lg_lf: &mut [f64],
     ) -> Option<[f64; 3]> {
-        let (dx, dy, v) = (x[0] - centre[0], x[1] - centre[1], x[3]);
-        let (s, c) = x[2].sin_cos();
+        // Destructured: no bounds checks, no memset (the predictors call it at every step).
+        let (&[px, py, heading, v, ..], [lg_0, lg_1], [lg_lf_0, lg_lf_1]) = (x, lg, lg_lf) else {
+            return None;
+        };
+        let (dx, dy) = (px - centre[0], py - centre[1]);
+        let (s, c) = heading.sin_cos();
         let along = dx * c + dy * s;
-        lg.fill(0.0);
-        lg_lf[0] = 2.0 * v * v / self.wheelbase * (dy * c - dx * s);
-        lg_lf[1] = 2.0 * along;
+        (*lg_0, *lg_1) = (0.0, 0.0);
+        *lg_lf_0 = 2.0 * v * v / self.wheelbase * (dy * c - dx * s);
+        *lg_lf_1 = 2.0 * along;
         Some([dx * dx + dy * dy, 2.0 * v * along, 2.0 * v * v])
     }
     // Exact with (u_1, u_2) held: v(s) = v_0 + u_2 s, θ advances by u_1/L per metre travelled,

@@ -130,14 +130,19 @@ impl BicyclePathLqr {
     }
 
     /// Tracking error of state x = (x1, x2, heading, speed).
+    #[inline]
     pub fn error(&self, x: &[f64]) -> [f64; 3] {
+        let &[px, py, heading, speed, ..] = x else {
+            panic!("a bicycle state has 4 components, found {}", x.len());
+        };
         let (s, c) = self.path_direction;
-        let cross_track = -s * (x[0] - self.path_point[0]) + c * (x[1] - self.path_point[1]);
-        let heading_error = wrap_angle(x[2] - self.path_heading);
-        [cross_track, heading_error, x[3] - self.reference_speed]
+        let cross_track = -s * (px - self.path_point[0]) + c * (py - self.path_point[1]);
+        let heading_error = wrap_angle(heading - self.path_heading);
+        [cross_track, heading_error, speed - self.reference_speed]
     }
 
     /// u ← −K e(x).
+    #[inline]
     pub fn input_into(&self, x: &[f64], u: &mut [f64]) {
         let error = self.error(x);
         for (u, k) in u.iter_mut().zip(&self.gain) {
@@ -147,9 +152,19 @@ impl BicyclePathLqr {
 }
 
 /// Angle in (−π, π].
+#[inline]
 pub fn wrap_angle(angle: f64) -> f64 {
     let two_pi = std::f64::consts::TAU;
-    let mut a = angle.rem_euclid(two_pi);
+    // rem_euclid's fmod returns |angle| < 2π unchanged (exactly): skip the call there.
+    let mut a = if angle.abs() < two_pi {
+        if angle < 0.0 {
+            angle + two_pi
+        } else {
+            angle
+        }
+    } else {
+        angle.rem_euclid(two_pi)
+    };
     if a > std::f64::consts::PI {
         a -= two_pi;
     }
@@ -525,6 +540,36 @@ mod tests {
         )
         .unwrap();
         assert!((p[(0, 0)] - (a + (a * a + q).sqrt())).abs() < 1e-10);
+    }
+
+    #[test]
+    fn wrap_angle_without_fmod_is_the_rem_euclid_form() {
+        let reference = |angle: f64| {
+            let a = angle.rem_euclid(std::f64::consts::TAU);
+            if a > std::f64::consts::PI {
+                a - std::f64::consts::TAU
+            } else {
+                a
+            }
+        };
+        let tau = std::f64::consts::TAU;
+        let mut angles = vec![0.0, -0.0, 1e-300, -1e-300, 7.0 * tau, -7.0 * tau + 0.1, 1e6, -1e6];
+        for edge in [tau, std::f64::consts::PI] {
+            for sign in [1.0, -1.0] {
+                let e = sign * edge;
+                angles.extend([
+                    e,
+                    e.next_up(),
+                    e.next_down(),
+                    e.next_up().next_up(),
+                    e.next_down().next_down(),
+                ]);
+            }
+        }
+        angles.extend((-2000..2000).map(|k| k as f64 * 0.00731));
+        for angle in angles {
+            assert_eq!(wrap_angle(angle).to_bits(), reference(angle).to_bits(), "{angle:e}");
+        }
     }
 
     #[test]

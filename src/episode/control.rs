@@ -80,6 +80,7 @@ impl LawWorkspace {
     /// nominal ← u0 at (`time`, `nominal_state`) and constraints ← the constraint data of
     /// every known barrier at z in the filter's form. Returns the number of constraints (0
     /// for a filter without a barrier form).
+    #[inline(always)]
     fn nominal_and_constraints(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
         laws.nominal
             .input_into(time, nominal_state, self.nominal.as_mut_slice());
@@ -423,7 +424,7 @@ impl ControlLoop {
                     constraints: &law.constraints[..count],
                 };
                 filter.delay_free(&input, &mut law.input);
-                u.copy_from_slice(law.input.as_slice());
+                crate::barrier::copy_small(u, law.input.as_slice());
             };
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
             if let Some(audit) = chain_audit {

@@ -102,6 +102,7 @@ pub struct DelayFreeInput<'a> {
 /// the numerical QP ([`crate::filter::qp`]) in `qp` (keep one per filter: no allocation once
 /// it has seen the largest problem; `None` builds one for this call only when needed).
 /// Returns (active, infeasible, μ).
+#[inline(always)]
 pub fn delay_free_qp(
     constraints: &[Constraint],
     nominal: &DVector<f64>,
@@ -109,15 +110,29 @@ pub fn delay_free_qp(
     qp: Option<&mut QpWorkspace>,
     u: &mut DVector<f64>,
 ) -> (bool, bool, f64) {
-    u.copy_from(nominal);
+    crate::barrier::copy_small(u.as_mut_slice(), nominal.as_slice());
     match (constraints, limits) {
         // Without a known barrier the nominal passes as it is (limits included).
         ([], _) => (false, false, f64::NAN),
         ([c], None) => crate::filter::cbf_qp_in_place(c, u),
-        (constraints, _) => match qp {
-            Some(qp) => qp.solve(constraints, nominal, limits, u),
-            None => QpWorkspace::default().solve(constraints, nominal, limits, u),
-        },
+        // Out of line: the closed form above stays small enough to inline into the callers
+        // (the predictors evaluate it at every step of their window).
+        (constraints, _) => numerical_qp(constraints, nominal, limits, qp, u),
+    }
+}
+
+/// The numerical QP of [`delay_free_qp`] (u holds u0).
+#[inline(never)]
+fn numerical_qp(
+    constraints: &[Constraint],
+    nominal: &DVector<f64>,
+    limits: Option<(&[f64], &[f64])>,
+    qp: Option<&mut QpWorkspace>,
+    u: &mut DVector<f64>,
+) -> (bool, bool, f64) {
+    match qp {
+        Some(qp) => qp.solve(constraints, nominal, limits, u),
+        None => QpWorkspace::default().solve(constraints, nominal, limits, u),
     }
 }
 

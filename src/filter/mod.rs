@@ -58,16 +58,35 @@ pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome 
 
 /// [`cbf_qp()`] without allocation: `input` holds u0 on entry and u on return. Returns
 /// (active, infeasible, μ) as in [`FilterOutcome`].
+///
+/// On slices (the recursive predictors call it at every step of their window): the same
+/// sums in the same order as nalgebra's `dot`/`norm_squared`/`axpy` for fewer than 8 channels.
+#[inline]
 pub fn cbf_qp_in_place(constraint: &Constraint, input: &mut DVector<f64>) -> (bool, bool, f64) {
-    let mu = constraint.value(input);
+    let (b, u) = (constraint.b.as_slice(), input.as_mut_slice());
+    // Two channels (the planar vehicles): the same code with the length known, unrolled.
+    if let (Ok(b), Ok(u)) = (<&[f64; 2]>::try_from(b), <&mut [f64; 2]>::try_from(&mut *u)) {
+        return cbf_qp_on_slices(constraint.a, b, u);
+    }
+    cbf_qp_on_slices(constraint.a, b, u)
+}
+
+/// (4.9)/(4.11) for a + b·(u0 + v) ≥ 0 with u holding u0.
+#[inline(always)]
+fn cbf_qp_on_slices(a: f64, b: &[f64], u: &mut [f64]) -> (bool, bool, f64) {
+    let mu = a + crate::barrier::dot(b, u);
     if mu >= 0.0 {
         return (false, false, mu);
     }
-    let bb = constraint.b.norm_squared();
+    let bb = crate::barrier::dot(b, b);
     if bb < DEGENERATE_B {
         return (false, true, mu);
     }
-    input.axpy(-mu / bb, &constraint.b, 1.0);
+    // u ← u0 − μ b / ‖b‖² (4.9), (4.11).
+    let scale = -mu / bb;
+    for (u, b) in u.iter_mut().zip(b) {
+        *u += scale * b;
+    }
     (true, false, mu)
 }
 
@@ -276,6 +295,48 @@ mod tests {
         let zeta = (m + 1.0) / m * z + c.b[1] * omega[1];
         let xi = 1.0 + 5.0 / m;
         assert!((out.input - (u0[0] - zeta / xi)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn cbf_qp_in_place_repeats_the_nalgebra_arithmetic_bit_for_bit() {
+        // The slice form (unrolled for two channels) against the nalgebra expressions it replaced.
+        for r in 1..=5 {
+            for k in 0..300 {
+                let s = k as f64 + 0.37 * r as f64;
+                let b = DVector::from_fn(r, |i, _| {
+                    if k % 7 == 0 {
+                        0.0
+                    } else {
+                        (1.7 * s + i as f64).sin() * 3.0
+                    }
+                });
+                let u0 = DVector::from_fn(r, |i, _| (0.9 * s - 2.0 * i as f64).cos() * 2.0);
+                let c = Constraint {
+                    h: 0.0,
+                    a: (0.3 * s).sin() * 5.0,
+                    b,
+                };
+                let mu = c.a + c.b.dot(&u0);
+                let mut expected = u0.clone();
+                let bb = c.b.norm_squared();
+                let flags = match (mu >= 0.0, bb < DEGENERATE_B) {
+                    (true, _) => (false, false),
+                    (false, true) => (false, true),
+                    (false, false) => {
+                        expected.axpy(-mu / bb, &c.b, 1.0);
+                        (true, false)
+                    }
+                };
+                let mut u = u0.clone();
+                let (active, infeasible, got_mu) = cbf_qp_in_place(&c, &mut u);
+                assert_eq!((active, infeasible), flags);
+                assert_eq!(got_mu.to_bits(), mu.to_bits());
+                assert_eq!(c.value(&u0).to_bits(), mu.to_bits());
+                for (u, e) in u.iter().zip(expected.iter()) {
+                    assert_eq!(u.to_bits(), e.to_bits(), "r = {r}, k = {k}");
+                }
+            }
+        }
     }
 
     #[test]
