@@ -76,9 +76,7 @@ impl Barrier {
                     h
                 }
             }
-            Shape::HalfSpace { coefficients, offset } => {
-                coefficients.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + offset
-            }
+            Shape::HalfSpace { coefficients, offset } => half_space_h(coefficients, offset, x),
             Shape::Quadratic { q, c, d } => {
                 let quadratic: f64 = q
                     .iter()
@@ -185,6 +183,12 @@ impl Barrier {
     }
 }
 
+/// h = cᵀx + d of a half-space.
+#[inline(always)]
+fn half_space_h(coefficients: &[f64], offset: &f64, x: &[f64]) -> f64 {
+    coefficients.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + offset
+}
+
 /// ‖x_S − c‖² over the selected state components.
 fn squared_distance(indices: &[usize], centre: &[f64], x: &[f64]) -> f64 {
     indices.iter().zip(centre).map(|(&i, c)| (x[i] - c).powi(2)).sum()
@@ -282,7 +286,7 @@ impl LieWorkspace {
 
     /// self.lie ← the Lie derivatives of `barrier` along `model` at x.
     pub fn evaluate(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
-        if self.planar_ball_in_closed_form(barrier, model, x) {
+        if self.planar_ball_in_closed_form(barrier, model, x) || self.half_space_in_closed_form(barrier, model, x) {
             return;
         }
         // Slice fills (a memset), not nalgebra's element iterator.
@@ -341,6 +345,53 @@ impl LieWorkspace {
         true
     }
 
+    /// A half-space h = cᵀx + d from the model's closed form of the Lie derivatives of cᵀx
+    /// ([`Dynamics::linear_lie_into`]), when it has one.
+    fn half_space_in_closed_form(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) -> bool {
+        let Shape::HalfSpace { coefficients, offset } = &barrier.shape else {
+            return false;
+        };
+        let lie = &mut self.lie;
+        let Some([lf_h, lf2_h]) =
+            model.linear_lie_into(x, coefficients, lie.lg_h.as_mut_slice(), lie.lg_lf_h.as_mut_slice())
+        else {
+            return false;
+        };
+        (lie.h, lie.lf_h, lie.lf2_h) = (half_space_h(coefficients, offset, x), lf_h, lf2_h);
+        true
+    }
+
+    /// [`LieWorkspace::constraint_into`] from the model's closed form for a half-space (see
+    /// [`LieWorkspace::half_space_in_closed_form`]), with the row b written straight into `out`.
+    #[inline(always)]
+    fn half_space_constraint(
+        &mut self,
+        barrier: &Barrier,
+        form: BarrierForm,
+        model: &dyn Dynamics,
+        x: &[f64],
+        out: &mut Constraint,
+    ) -> bool {
+        let Shape::HalfSpace { coefficients, offset } = &barrier.shape else {
+            return false;
+        };
+        let lie = &mut self.lie;
+        let (lg, lg_lf) = match form {
+            BarrierForm::RelativeDegree1 { .. } => (out.b.as_mut_slice(), lie.lg_lf_h.as_mut_slice()),
+            BarrierForm::RelativeDegree2 { .. } => (lie.lg_h.as_mut_slice(), out.b.as_mut_slice()),
+        };
+        let Some([lf_h, lf2_h]) = model.linear_lie_into(x, coefficients, lg, lg_lf) else {
+            return false;
+        };
+        let h = half_space_h(coefficients, offset, x);
+        out.h = h;
+        out.a = match form {
+            BarrierForm::RelativeDegree1 { alpha } => lf_h + alpha * h,
+            BarrierForm::RelativeDegree2 { l0, l1 } => lf2_h + l1 * lf_h + l0 * h,
+        };
+        true
+    }
+
     /// [`LieWorkspace::constraint_into`] from the model's closed form for a planar ball (see
     /// [`LieWorkspace::planar_ball_in_closed_form`]), with the row b written straight into
     /// `out` (the same arithmetic as through `lie`).
@@ -394,8 +445,9 @@ impl LieWorkspace {
         }
     }
 
-    /// [`LieWorkspace::constraint_into`] through [`LieWorkspace::evaluate`] (out of line: the
-    /// closed form stays small enough to inline into the callers).
+    /// [`LieWorkspace::constraint_into`] for anything but a planar ball: a half-space in the
+    /// model's closed form, else from f and G (and ∂f/∂x for relative degree 2) (out of line:
+    /// the ball's closed form stays small enough to inline into the callers).
     #[inline(never)]
     fn general_constraint_into(
         &mut self,
@@ -405,19 +457,36 @@ impl LieWorkspace {
         x: &[f64],
         out: &mut Constraint,
     ) {
-        self.evaluate(barrier, model, x);
-        let lie = &self.lie;
-        out.h = lie.h;
+        if self.half_space_constraint(barrier, form, model, x, out) {
+            return;
+        }
         match form {
             BarrierForm::RelativeDegree1 { alpha } => {
-                out.a = lie.lf_h + alpha * lie.h;
+                self.first_order(barrier, model, x);
+                let lie = &self.lie;
+                (out.h, out.a) = (lie.h, lie.lf_h + alpha * lie.h);
                 out.b.copy_from(&lie.lg_h);
             }
             BarrierForm::RelativeDegree2 { l0, l1 } => {
-                out.a = lie.lf2_h + l1 * lie.lf_h + l0 * lie.h;
+                self.evaluate(barrier, model, x);
+                let lie = &self.lie;
+                (out.h, out.a) = (lie.h, lie.lf2_h + l1 * lie.lf_h + l0 * lie.h);
                 out.b.copy_from(&lie.lg_lf_h);
             }
         }
+    }
+
+    /// lie.h, lie.lf_h, lie.lg_h as [`LieWorkspace::evaluate`] forms them, from f and G alone
+    /// (relative degree 1, (4.7)/(4.8), needs no ∂f/∂x); the second-order terms are left stale.
+    fn first_order(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
+        self.g.as_mut_slice().fill(0.0);
+        model.drift_into(x, self.f.as_mut_slice());
+        model.input_matrix_into(x, &mut self.g);
+        barrier.gradient_into(x, self.grad_h.as_mut_slice());
+        let lie = &mut self.lie;
+        lie.h = barrier.h_at(x);
+        lie.lf_h = dot(self.grad_h.as_slice(), self.f.as_slice());
+        transpose_times(&self.g, self.grad_h.as_slice(), lie.lg_h.as_mut_slice());
     }
 }
 
@@ -585,6 +654,109 @@ mod tests {
             }
         }
         assert!(worst < 1e-13, "largest relative difference {worst:e}");
+    }
+
+    /// (h, a, b) of `form` from the Lie derivatives, as bits.
+    fn constraint_bits(lie: &LieDerivatives, form: BarrierForm) -> (u64, u64, Vec<u64>) {
+        let (a, row) = match form {
+            BarrierForm::RelativeDegree1 { alpha } => (lie.lf_h + alpha * lie.h, &lie.lg_h),
+            BarrierForm::RelativeDegree2 { l0, l1 } => (lie.lf2_h + l1 * lie.lf_h + l0 * lie.h, &lie.lg_lf_h),
+        };
+        (lie.h.to_bits(), a.to_bits(), row.iter().map(|v| v.to_bits()).collect())
+    }
+
+    fn bits_of(c: &Constraint) -> (u64, u64, Vec<u64>) {
+        (c.h.to_bits(), c.a.to_bits(), c.b.iter().map(|v| v.to_bits()).collect())
+    }
+
+    const FORMS: [BarrierForm; 2] = [
+        BarrierForm::RelativeDegree1 { alpha: 1.7 },
+        BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.5 },
+    ];
+
+    #[test]
+    fn closed_form_half_spaces_equal_the_general_path_bit_for_bit() {
+        let bicycle = BicycleModel::new(2.5);
+        let unicycle = crate::dynamics::UnicycleModel::default();
+        let line = crate::dynamics::DoubleIntegratorModel::new(1);
+        let plane = crate::dynamics::DoubleIntegratorModel::new(2);
+        let models: [&dyn Dynamics; 4] = [&bicycle, &unicycle, &line, &plane];
+        for model in models {
+            let (n, r) = (model.state_dim(), model.input_dim());
+            let (mut closed, mut general) = (LieWorkspace::new(model), LieWorkspace::new(&General(model)));
+            let (mut c, mut g) = (Constraint::zeros(r), Constraint::zeros(r));
+            for k in 0..200 {
+                let s = k as f64;
+                let x: Vec<f64> = (0..n).map(|i| 10.0 * (0.7 * s + 1.9 * i as f64).sin() - 2.0).collect();
+                // Every length up to n (the rest of ∇h is 0), with zero and −0 coefficients.
+                let coefficients = (0..1 + k % n)
+                    .map(|i| match (k + i) % 5 {
+                        0 => 0.0,
+                        1 => -0.0,
+                        _ => 3.0 * (1.3 * s + i as f64).cos(),
+                    })
+                    .collect();
+                let b = Barrier {
+                    name: "h".into(),
+                    shape: Shape::HalfSpace {
+                        coefficients,
+                        offset: 0.1 * s - 2.0,
+                    },
+                };
+                let xv = DVector::from_column_slice(&x);
+                let (lie, general_lie) = (
+                    lie_derivatives(&b, model, &xv),
+                    lie_derivatives(&b, &General(model), &xv),
+                );
+                for form in FORMS {
+                    let expected = constraint_bits(&general_lie, form);
+                    assert_eq!(constraint_bits(&lie, form), expected, "{k}");
+                    closed.constraint_into(&b, form, model, &x, &mut c);
+                    general.constraint_into(&b, form, &General(model), &x, &mut g);
+                    assert_eq!(bits_of(&c), expected, "{k} {form:?}");
+                    assert_eq!(bits_of(&g), expected, "{k} {form:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn first_order_constraints_without_the_jacobian_equal_the_full_evaluation() {
+        let example1 = crate::dynamics::NonlinearExample1::default();
+        let quadratic = Barrier {
+            name: "h".into(),
+            shape: Shape::Quadratic {
+                q: vec![vec![0.0, 0.3], vec![-0.2, 1.0]],
+                c: vec![-1.0, 0.5],
+                d: 1.0,
+            },
+        };
+        let linear = LinearModel::new(
+            DMatrix::from_row_slice(3, 3, &[0.1, 1.0, 0.0, 0.0, -0.3, 1.0, 0.2, 0.0, 0.5]),
+            DMatrix::from_row_slice(3, 2, &[0.0, 1.0, 0.5, 0.0, 1.0, -2.0]),
+        );
+        let ball = Barrier::circular_obstacle("o", [0, 2], [1.0, -0.5], 1.5);
+        let half = Barrier {
+            name: "h".into(),
+            shape: Shape::HalfSpace {
+                coefficients: vec![1.0, -2.0],
+                offset: 0.3,
+            },
+        };
+        let cases: [(&dyn Dynamics, &Barrier); 3] = [(&example1, &quadratic), (&linear, &ball), (&linear, &half)];
+        for (model, b) in cases {
+            let (n, r) = (model.state_dim(), model.input_dim());
+            let mut workspace = LieWorkspace::new(model);
+            let mut c = Constraint::zeros(r);
+            for k in 0..50 {
+                let x: Vec<f64> = (0..n).map(|i| 4.0 * (0.9 * k as f64 + i as f64).cos()).collect();
+                let lie = lie_derivatives(b, model, &DVector::from_column_slice(&x));
+                for form in FORMS {
+                    workspace.constraint_into(b, form, model, &x, &mut c);
+                    assert_eq!(bits_of(&c), constraint_bits(&lie, form));
+                }
+            }
+        }
     }
 
     #[test]

@@ -60,6 +60,14 @@ pub trait Dynamics: Send + Sync {
     ) -> Option<[f64; 3]> {
         None
     }
+    /// For a linear function ℓ(x) = c·x (`c` over the leading state components, the rest 0):
+    /// `[L_f ℓ, L_f² ℓ]`, with the rows L_g ℓ into `lg` and L_g L_f ℓ into `lg_lf`, in closed
+    /// form; `None` when the model has none. Half-space barriers (2.47) are ℓ + d. The sums
+    /// are the general path's nonzero terms in its order from 0.0 (so `0.0 + …`: no −0), the
+    /// same bits for a finite state.
+    fn linear_lie_into(&self, _x: &[f64], _c: &[f64], _lg: &mut [f64], _lg_lf: &mut [f64]) -> Option<[f64; 2]> {
+        None
+    }
     /// Whether the dynamics commute with rigid motions of the plane acting on the planar
     /// position and the heading (they do not depend on where the vehicle is or which way it
     /// faces): the shared predictor then moves its previous trajectory onto a new
@@ -177,6 +185,23 @@ impl Dynamics for BicycleModel {
         *lg_lf_1 = 2.0 * along;
         Some([dx * dx + dy * dy, 2.0 * v * along, 2.0 * v * v])
     }
+    // (4.78) with ℓ = c·x: L_f ℓ = v (c_x cos θ + c_y sin θ), L_g ℓ = (c_θ v/L, c_v),
+    // ∇L_f ℓ = (0, 0, v (c_y cos θ − c_x sin θ), c_x cos θ + c_y sin θ), so L_f² ℓ = 0 and
+    // L_g L_f ℓ = (v/L · v (c_y cos θ − c_x sin θ), c_x cos θ + c_y sin θ).
+    fn linear_lie_into(&self, x: &[f64], c: &[f64], lg: &mut [f64], lg_lf: &mut [f64]) -> Option<[f64; 2]> {
+        let (&[_, _, heading, v, ..], [lg_0, lg_1], [lg_lf_0, lg_lf_1]) = (x, lg, lg_lf) else {
+            return None;
+        };
+        let k = |i| coefficient(c, i);
+        let (s, cos) = heading.sin_cos();
+        let steer_gain = v / self.wheelbase;
+        // ∂f/∂x's columns 2 and 3 against c.
+        let lf_grad_heading = 0.0 + -v * s * k(0) + v * cos * k(1);
+        let lf_grad_speed = 0.0 + cos * k(0) + s * k(1);
+        (*lg_0, *lg_1) = (0.0 + steer_gain * k(2), 0.0 + k(3));
+        (*lg_lf_0, *lg_lf_1) = (0.0 + steer_gain * lf_grad_heading, 0.0 + lf_grad_speed);
+        Some([0.0 + k(0) * (v * cos) + k(1) * (v * s), 0.0])
+    }
     // Exact with (u_1, u_2) held: v(s) = v_0 + u_2 s, θ advances by u_1/L per metre travelled,
     // so with σ = ∫v (signed distance) (x, y) moves by ∫ (cos, sin)(θ_0 + u_1 σ / L) dσ, a chord.
     fn flow_into(&self, x: &mut [f64], u: &[f64], dt: f64) -> bool {
@@ -198,6 +223,12 @@ impl Dynamics for BicycleModel {
     fn heading_index(&self) -> Option<usize> {
         Some(2)
     }
+}
+
+/// c_i, 0 past the end of c (the coefficients of ℓ = c·x over the leading components).
+#[inline(always)]
+fn coefficient(c: &[f64], i: usize) -> f64 {
+    c.get(i).copied().unwrap_or(0.0)
 }
 
 /// (x, y, θ) ← the end of a circular arc of signed length `distance` turning by 2 `half_turn`:
@@ -292,6 +323,17 @@ impl Dynamics for UnicycleModel {
         lg_lf.fill(0.0);
         Some([dx * dx + dy * dy, 0.0, 0.0])
     }
+    // Driftless: L_f ℓ = L_f² ℓ = 0, L_g ℓ = (c_x cos θ + c_y sin θ, c_θ), L_g L_f ℓ = 0.
+    fn linear_lie_into(&self, x: &[f64], c: &[f64], lg: &mut [f64], lg_lf: &mut [f64]) -> Option<[f64; 2]> {
+        let (&[_, _, heading, ..], [lg_0, lg_1], [lg_lf_0, lg_lf_1]) = (x, lg, lg_lf) else {
+            return None;
+        };
+        let k = |i| coefficient(c, i);
+        let (s, cos) = heading.sin_cos();
+        (*lg_0, *lg_1) = (0.0 + cos * k(0) + s * k(1), 0.0 + k(2));
+        (*lg_lf_0, *lg_lf_1) = (0.0, 0.0);
+        Some([0.0, 0.0])
+    }
     // Exact with (v, ω) held: an arc of length v dt turning by ω dt.
     fn flow_into(&self, x: &mut [f64], u: &[f64], dt: f64) -> bool {
         advance_along_arc(x, u[0] * dt, 0.5 * u[1] * dt);
@@ -363,6 +405,17 @@ impl Dynamics for DoubleIntegratorModel {
         for i in 0..self.dim {
             g[(self.dim + i, i)] = 1.0;
         }
+    }
+    // ℓ = c·x = c_p·p + c_v·v: L_f ℓ = c_p·v, L_g ℓ = c_v, L_f² ℓ = 0, L_g L_f ℓ = c_p.
+    fn linear_lie_into(&self, x: &[f64], c: &[f64], lg: &mut [f64], lg_lf: &mut [f64]) -> Option<[f64; 2]> {
+        let d = self.dim;
+        let k = |i| coefficient(c, i);
+        let mut lf = 0.0;
+        for (i, (lg, lg_lf)) in lg.iter_mut().zip(lg_lf.iter_mut()).enumerate() {
+            lf += k(i) * x[d + i];
+            (*lg, *lg_lf) = (0.0 + k(d + i), 0.0 + k(i));
+        }
+        Some([lf, 0.0])
     }
     fn planar_position(&self) -> Option<[usize; 2]> {
         (self.dim == 2).then_some([0, 1])
