@@ -12,7 +12,7 @@ use std::sync::Arc;
 use nalgebra::DVector;
 
 use crate::actuator::Actuator;
-use crate::barrier::{Barrier, Constraint, LieWorkspace};
+use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
 use crate::filter::{ChannelInput, ChannelOutcome, DelayFreeInput, FilterError, SafetyFilter, TICK_TOLERANCE};
@@ -87,6 +87,28 @@ impl LawWorkspace {
         let Some(form) = laws.form else {
             return 0;
         };
+        self.constraints_into(laws, form, z)
+    }
+
+    /// [`LawWorkspace::nominal_and_constraints`] with the constraints out of line: for the
+    /// per-channel loop of a tick (the κ closure, called at every predictor step, keeps them
+    /// inline).
+    #[inline(always)]
+    fn channel_laws(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
+        laws.nominal
+            .input_into(time, nominal_state, self.nominal.as_mut_slice());
+        laws.form.map_or(0, |form| self.constraints_out_of_line(laws, form, z))
+    }
+
+    #[inline(never)]
+    fn constraints_out_of_line(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64]) -> usize {
+        self.constraints_into(laws, form, z)
+    }
+
+    /// constraints ← the constraint data of every known barrier at z in `form`; returns their
+    /// number.
+    #[inline(always)]
+    fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64]) -> usize {
         for (b, c) in laws.barriers.iter().zip(self.constraints.iter_mut()) {
             self.lie.constraint_into(b, form, laws.model, z, c);
         }
@@ -98,7 +120,7 @@ impl LawWorkspace {
 struct Laws<'a> {
     model: &'a dyn Dynamics,
     nominal: &'a dyn NominalController,
-    form: Option<crate::barrier::BarrierForm>,
+    form: Option<BarrierForm>,
     barriers: &'a [Barrier],
 }
 
@@ -399,8 +421,8 @@ impl ControlLoop {
         };
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
-        let filter_predicts = filter.uses_prediction();
-        let structure = if filter_predicts || nominal.uses_prediction() {
+        let (filter_predicts, nominal_predicts) = (filter.uses_prediction(), nominal.uses_prediction());
+        let structure = if filter_predicts || nominal_predicts {
             &*structure
         } else {
             &Structure::None
@@ -444,15 +466,19 @@ impl ControlLoop {
             }
         }
 
+        let mut count = 0;
         for (i, p) in predictions.iter().enumerate() {
             let eval_state = if filter_predicts { &p.state } else { &*state };
-            let (nominal_time, nominal_state) = if nominal.uses_prediction() {
+            let (nominal_time, nominal_state) = if nominal_predicts {
                 (p.target_time, &p.state)
             } else {
                 (t, eval_state)
             };
-            let count =
-                law.nominal_and_constraints(&laws, nominal_time, nominal_state.as_slice(), eval_state.as_slice());
+            // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
+            let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
+            if !shared {
+                count = law.channel_laws(&laws, nominal_time, nominal_state.as_slice(), eval_state.as_slice());
+            }
             let outcome = filter.filter_channel(&ChannelInput {
                 time: t,
                 channel: i,
@@ -574,6 +600,14 @@ impl ControlLoop {
         self.work.spare_states.push(consistency.prediction.state);
         self.work.spare_states.push(consistency.realized);
     }
+}
+
+/// Whether two predictions have the same target time and state, bit for bit.
+#[inline]
+fn same_point(a: &Prediction, b: &Prediction) -> bool {
+    let same_bits =
+        |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(a, b)| a.to_bits() == b.to_bits());
+    a.target_time.to_bits() == b.target_time.to_bits() && same_bits(a.state.as_slice(), b.state.as_slice())
 }
 
 /// Whether the queue's delay is constant and a whole multiple of the control period.
