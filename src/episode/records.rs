@@ -21,6 +21,8 @@ pub(super) struct RecordBuffers {
     pub(super) prediction: Record,
     /// p_i(t) − x(φ_i⁻¹(t)) of the last prediction record.
     prediction_error: DVector<f64>,
+    /// The channel the prediction record names (its name is copied only when it changes).
+    prediction_channel: Option<usize>,
 }
 
 impl RecordBuffers {
@@ -53,6 +55,7 @@ impl RecordBuffers {
             }),
             prediction: Record::Prediction(proto::Prediction::default()),
             prediction_error: DVector::zeros(state_names.len()),
+            prediction_channel: None,
         }
     }
 
@@ -62,8 +65,10 @@ impl RecordBuffers {
         let Record::Prediction(m) = &mut self.prediction else {
             unreachable!("the prediction buffer is a prediction record");
         };
-        self.prediction_error.copy_from(&c.prediction.state);
-        self.prediction_error -= &c.realized;
+        let (state, realized_state) = (c.prediction.state.as_slice(), c.realized.as_slice());
+        for ((e, p), x) in self.prediction_error.iter_mut().zip(state).zip(realized_state) {
+            *e = p - x;
+        }
         let norm = self.prediction_error.norm();
         // Every field, by name: a field added to the message fails to compile here.
         let proto::Prediction {
@@ -79,13 +84,16 @@ impl RecordBuffers {
             chain_mismatch,
         } = m;
         *time = c.prediction.target_time;
-        channel.clone_from(&channels[c.prediction.channel]);
+        if self.prediction_channel != Some(c.prediction.channel) {
+            channel.clone_from(&channels[c.prediction.channel]);
+            self.prediction_channel = Some(c.prediction.channel);
+        }
         *issued_at = c.prediction.issued_at;
         *horizon = c.prediction.target_time - c.prediction.issued_at;
         predicted.clear();
-        predicted.extend(c.prediction.state.iter());
+        predicted.extend_from_slice(state);
         realized.clear();
-        realized.extend(c.realized.iter());
+        realized.extend_from_slice(realized_state);
         *error = norm;
         *relative_error = norm / c.realized.norm().max(1.0);
         *reused_chain = c.prediction.reused_chain;
@@ -112,16 +120,24 @@ pub(super) struct SceneState {
     vehicle: Record,
     transform: Record,
     predictions: Vec<(String, Record)>,
+    /// Plant steps per scene frame (see [`frame_steps`]).
+    frame_steps: u64,
 }
 
 impl SceneState {
-    pub(super) fn new(hull_radius: f64, path: Option<([f64; 2], f64, f64)>, channels: &[String]) -> SceneState {
+    pub(super) fn new(
+        hull_radius: f64,
+        path: Option<([f64; 2], f64, f64)>,
+        channels: &[String],
+        frame_steps: u64,
+    ) -> SceneState {
         let scene = || Record::Scene(0.0, Default::default());
         SceneState {
             hull_radius,
             path,
             trail: Vec::new(),
             trail_segments: 0,
+            frame_steps,
             vehicle: scene(),
             transform: Record::Transform(0.0, Default::default()),
             predictions: channels
@@ -139,6 +155,14 @@ const SCENE_FRAME_PERIOD: f64 = 0.01;
 /// Scene frames between trail points, and trail intervals per published trail segment.
 const TRAIL_EVERY_FRAMES: u64 = 5;
 const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
+
+/// Plant steps per 3D view frame: a whole number of control ticks, the fewest that span
+/// [`SCENE_FRAME_PERIOD`].
+pub(super) fn frame_steps(steps_per_tick: u64, timestep: f64) -> u64 {
+    let control_period = steps_per_tick as f64 * timestep;
+    let ticks_per_frame = (SCENE_FRAME_PERIOD / control_period - 1e-9).ceil().max(1.0) as u64;
+    steps_per_tick * ticks_per_frame
+}
 
 impl Episode {
     pub(super) fn emit(sinks: &mut [&mut dyn Sink], record: Record) -> Result<(), LogError> {
@@ -172,9 +196,15 @@ impl Episode {
         time: f64,
         x: &DVector<f64>,
     ) -> Result<(), LogError> {
-        let model = self.control.model().clone();
+        // Every frame step (step 0 among them, which also draws the static entities).
+        let frame_steps = self.scene.frame_steps;
+        if !k.is_multiple_of(frame_steps) {
+            return Ok(());
+        }
+        let model = self.control.model();
+        let planar = model.planar_position();
         // Planar vehicles in the plane; a vehicle on a line along the world x axis.
-        let (position, heading) = match (model.planar_position(), model.line_position()) {
+        let (position, heading) = match (planar, model.line_position()) {
             (Some([i, j]), _) => ([x[i], x[j]], model.heading_index().map_or(0.0, |h| x[h])),
             (None, Some(i)) => ([x[i], 0.0], 0.0),
             (None, None) => return Ok(()),
@@ -198,12 +228,6 @@ impl Episode {
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
         }
-        let control_period = self.control.steps_per_tick() as f64 * self.control.timestep();
-        let ticks_per_frame = (SCENE_FRAME_PERIOD / control_period - 1e-9).ceil().max(1.0) as u64;
-        let frame_steps = self.control.steps_per_tick() * ticks_per_frame;
-        if !k.is_multiple_of(frame_steps) {
-            return Ok(());
-        }
         let frame = k / frame_steps;
         let hull_radius = self.scene.hull_radius;
         if let Record::Scene(t, update) = &mut self.scene.vehicle {
@@ -213,7 +237,7 @@ impl Episode {
         Self::emit_ref(sinks, &self.scene.vehicle)?;
         // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
         // channel, made at the previous tick), with a line from where it is now.
-        if let Some([i, j]) = model.planar_position() {
+        if let Some([i, j]) = planar {
             for p in self.control.latest_predictions() {
                 let Some((id, record)) = self.scene.predictions.get_mut(p.channel) else {
                     continue;
@@ -258,16 +282,16 @@ impl Episode {
             if let Record::Measured(m) = &mut records.measured {
                 (m.time, m.step) = (tick.time, step);
                 m.values.clear();
-                m.values.extend(tick.measured.iter());
+                m.values.extend_from_slice(tick.measured.as_slice());
             }
             Self::emit_ref(sinks, &records.measured)?;
         }
         if let Record::Issued(m) = &mut records.issued {
             m.time = tick.time;
             m.nominal.clear();
-            m.nominal.extend(tick.nominal.iter());
+            m.nominal.extend_from_slice(tick.nominal.as_slice());
             m.filtered.clear();
-            m.filtered.extend(tick.issued.iter());
+            m.filtered.extend_from_slice(tick.issued.as_slice());
         }
         Self::emit_ref(sinks, &records.issued)?;
         let solved = tick.outcomes.iter().flatten();
@@ -277,8 +301,8 @@ impl Episode {
             m.infeasible = solved.clone().any(|o| o.infeasible);
             m.mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
             m.correction.clear();
-            m.correction
-                .extend(tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0));
+            let (issued, nominal) = (tick.issued.as_slice(), tick.nominal.as_slice());
+            m.correction.extend(issued.iter().zip(nominal).map(|(u, u0)| u - u0));
         }
         Self::emit_ref(sinks, &records.filter)
     }
