@@ -324,8 +324,7 @@ impl Episode {
             match self.control.realize(time, &x) {
                 Ok(done) => {
                     for c in done {
-                        self.records.set_prediction(&c, &channels);
-                        Self::emit_ref(sinks, &self.records.prediction)?;
+                        Self::emit_ref(sinks, self.records.set_prediction(&c))?;
                         self.control.recycle(c);
                     }
                 }
