@@ -71,7 +71,8 @@ impl RecordBuffers {
         };
         let (state, realized_state) = (c.prediction.state.as_slice(), c.realized.as_slice());
         assert_eq!(state.len(), realized_state.len(), "a prediction of the whole state");
-        let norm = nalgebra_norm(state.len(), |i| state[i] - realized_state[i]);
+        let n = state.len();
+        let norm = nalgebra_norm(n, |i| state[i] - realized_state[i]);
         // Every field, by name: a field added to the message fails to compile here.
         let proto::Prediction {
             time,
@@ -93,7 +94,7 @@ impl RecordBuffers {
         realized.clear();
         realized.extend_from_slice(realized_state);
         *error = norm;
-        *relative_error = norm / nalgebra_norm(realized_state.len(), |i| realized_state[i]).max(1.0);
+        *relative_error = norm / nalgebra_norm(n, |i| realized_state[i]).max(1.0);
         *reused_chain = c.prediction.reused_chain;
         *chain_mismatch = c.prediction.chain_mismatch;
         record
@@ -103,6 +104,7 @@ impl RecordBuffers {
 /// The Euclidean norm of (v(0), …, v(n − 1)), summed as nalgebra's `norm` sums a dynamic
 /// vector (eight partial sums over whole blocks of eight, then the rest in order), so that the
 /// logged errors keep their bits; without forming the vector.
+#[inline]
 fn nalgebra_norm(n: usize, v: impl Fn(usize) -> f64) -> f64 {
     let mut acc = [0.0; 8];
     let mut i = 0;

@@ -438,7 +438,9 @@ impl<W: Write + Send + 'static> McapWriter<W> {
             topic: topic.into(),
             message_encoding: message_encoding.into(),
             message_count: 0,
-            index: Vec::new(),
+            // Room for a share of a chunk of small messages (later chunks start with the room
+            // the previous one needed).
+            index: Vec::with_capacity(self.chunk_size / 256),
         });
         Ok(id)
     }
@@ -462,6 +464,7 @@ impl<W: Write + Send + 'static> McapWriter<W> {
 
     /// Appends one message whose payload `encode` appends to the buffer it is given: the open
     /// chunk itself, so the payload is encoded in place rather than encoded and then copied.
+    #[inline]
     pub fn write_message_with(
         &mut self,
         channel_id: u16,
@@ -470,7 +473,6 @@ impl<W: Write + Send + 'static> McapWriter<W> {
         encode: impl FnOnce(&mut Vec<u8>),
     ) -> io::Result<()> {
         let channel = &mut self.channels[usize::from(channel_id) - 1];
-        channel.message_count += 1;
         let start = self.chunk.len();
         channel.index.push((log_time, start as u64));
         let mut prefix = [0u8; MESSAGE_PREFIX];
@@ -509,7 +511,9 @@ impl<W: Write + Send + 'static> McapWriter<W> {
             .channels
             .iter_mut()
             .map(|c| {
+                // A channel's messages are counted by chunk, from its index entries.
                 let room = c.index.len();
+                c.message_count += room as u64;
                 (c.id, std::mem::replace(&mut c.index, Vec::with_capacity(room)))
             })
             .collect();
