@@ -26,6 +26,8 @@ pub trait Plant: Send {
     fn timestep(&self) -> f64;
     /// The state x at the current time.
     fn state(&self) -> DVector<f64>;
+    /// x ← the state at the current time (`x` has the state's dimension; no allocation).
+    fn state_into(&self, x: &mut DVector<f64>);
     /// One step of size `timestep()`.
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError>;
     /// What drove the last step: MuJoCo's `ctrl` (as the callback left it), or the ODE plant's
@@ -95,6 +97,11 @@ impl Plant for MujocoPlant {
     fn state(&self) -> DVector<f64> {
         let d = self.sim.data();
         self.vehicle.read_state(d.qpos(), d.qvel(), d.act())
+    }
+    fn state_into(&self, x: &mut DVector<f64>) {
+        let d = self.sim.data();
+        self.vehicle
+            .read_state_into(d.qpos(), d.qvel(), d.act(), x.as_mut_slice());
     }
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError> {
         let mut adapter = CallbackAdapter {
@@ -167,6 +174,9 @@ impl Plant for OdePlant {
     }
     fn state(&self) -> DVector<f64> {
         self.x.clone()
+    }
+    fn state_into(&self, x: &mut DVector<f64>) {
+        x.copy_from(&self.x);
     }
     fn step(&mut self, controller: &mut dyn Controller) -> Result<(), MjError> {
         let h = self.timestep;

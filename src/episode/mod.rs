@@ -173,7 +173,12 @@ impl Episode {
             depths: Vec::new(),
             xdot: vec![0.0; model.state_dim()],
             records: RecordBuffers::new(model.state_names(), model.channel_names()),
-            scene: SceneState::new(hull_radius, path, model.channel_names()),
+            scene: SceneState::new(
+                hull_radius,
+                path,
+                model.channel_names(),
+                records::frame_steps(steps_per_tick, timestep),
+            ),
         })
     }
 
@@ -277,6 +282,10 @@ impl Episode {
     fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<StopReason>), EpisodeError> {
         let h = self.control.timestep();
         let channels = self.control.model().channel_names().to_vec();
+        // Per-step values, allocated once: x(t_k), and the input the plant received during
+        // step k.
+        let mut x = DVector::zeros(self.control.model().state_dim());
+        let mut applied = DVector::zeros(channels.len());
 
         for k in 0..=self.steps {
             let time = k as f64 * h;
@@ -290,12 +299,12 @@ impl Episode {
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
 
-            let x = self.plant.state();
+            self.plant.state_into(&mut x);
             self.emit_scene(sinks, k, time, &x)?;
             if let Record::State(m) = &mut self.records.state {
                 (m.time, m.step) = (time, k);
                 m.values.clear();
-                m.values.extend(x.iter());
+                m.values.extend_from_slice(x.as_slice());
             }
             Self::emit_ref(sinks, &self.records.state)?;
             // Checked after the state is logged, so even a run stopped before its first step
@@ -315,8 +324,7 @@ impl Episode {
             match self.control.realize(time, &x) {
                 Ok(done) => {
                     for c in done {
-                        self.records.set_prediction(&c, &channels);
-                        Self::emit_ref(sinks, &self.records.prediction)?;
+                        Self::emit_ref(sinks, self.records.set_prediction(&c))?;
                         self.control.recycle(c);
                     }
                 }
@@ -341,13 +349,17 @@ impl Episode {
             if let Some(tick) = self.control.take_tick() {
                 Self::emit_tick(sinks, tick, k, sensor, &mut self.records)?;
             }
-            let mut applied = DVector::from_iterator(channels.len(), self.control.applied().iter().map(|a| a.0));
+            let applied_now = self.control.applied();
+            debug_assert_eq!(applied_now.len(), applied.len(), "one applied input per channel");
+            for (a, &(value, _)) in applied.iter_mut().zip(applied_now) {
+                *a = value;
+            }
             if let Record::Applied(m) = &mut self.records.applied {
                 m.time = time;
                 m.values.clear();
-                m.values.extend(applied.iter());
+                m.values.extend_from_slice(applied.as_slice());
                 m.issued_at.clear();
-                m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
+                m.issued_at.extend(applied_now.iter().map(|a| a.1));
             }
             Self::emit_ref(sinks, &self.records.applied)?;
             // With actuator dynamics the plant received the actuators' output, not the command.
@@ -356,7 +368,7 @@ impl Episode {
                 if let Record::Actuated(m) = &mut self.records.actuated {
                     m.time = time;
                     m.values.clear();
-                    m.values.extend(actuated);
+                    m.values.extend_from_slice(actuated);
                     m.issued_at.clear();
                     m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
                 }

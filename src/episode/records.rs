@@ -18,9 +18,8 @@ pub(super) struct RecordBuffers {
     pub(super) filter: Record,
     pub(super) measured: Record,
     pub(super) actuated: Record,
-    pub(super) prediction: Record,
-    /// p_i(t) − x(φ_i⁻¹(t)) of the last prediction record.
-    prediction_error: DVector<f64>,
+    /// One prediction record per channel (each names its channel once).
+    predictions: Vec<Record>,
 }
 
 impl RecordBuffers {
@@ -51,24 +50,33 @@ impl RecordBuffers {
                 channels: channels.to_vec(),
                 ..Default::default()
             }),
-            prediction: Record::Prediction(proto::Prediction::default()),
-            prediction_error: DVector::zeros(state_names.len()),
+            predictions: channels
+                .iter()
+                .map(|channel| {
+                    Record::Prediction(proto::Prediction {
+                        channel: channel.clone(),
+                        ..Default::default()
+                    })
+                })
+                .collect(),
         }
     }
 
-    /// `self.prediction` ← the record of a prediction against the realised state
-    /// (Definition 4.3), in place.
-    pub(super) fn set_prediction(&mut self, c: &Consistency, channels: &[String]) {
-        let Record::Prediction(m) = &mut self.prediction else {
-            unreachable!("the prediction buffer is a prediction record");
+    /// The record of a prediction against the realised state (Definition 4.3), updated in
+    /// place: the prediction's channel's record.
+    pub(super) fn set_prediction(&mut self, c: &Consistency) -> &Record {
+        let record = &mut self.predictions[c.prediction.channel];
+        let Record::Prediction(m) = record else {
+            unreachable!("the prediction buffers are prediction records");
         };
-        self.prediction_error.copy_from(&c.prediction.state);
-        self.prediction_error -= &c.realized;
-        let norm = self.prediction_error.norm();
+        let (state, realized_state) = (c.prediction.state.as_slice(), c.realized.as_slice());
+        assert_eq!(state.len(), realized_state.len(), "a prediction of the whole state");
+        let n = state.len();
+        let norm = nalgebra_norm(n, |i| state[i] - realized_state[i]);
         // Every field, by name: a field added to the message fails to compile here.
         let proto::Prediction {
             time,
-            channel,
+            channel: _,
             issued_at,
             horizon,
             predicted,
@@ -79,18 +87,44 @@ impl RecordBuffers {
             chain_mismatch,
         } = m;
         *time = c.prediction.target_time;
-        channel.clone_from(&channels[c.prediction.channel]);
         *issued_at = c.prediction.issued_at;
         *horizon = c.prediction.target_time - c.prediction.issued_at;
         predicted.clear();
-        predicted.extend(c.prediction.state.iter());
+        predicted.extend_from_slice(state);
         realized.clear();
-        realized.extend(c.realized.iter());
+        realized.extend_from_slice(realized_state);
         *error = norm;
-        *relative_error = norm / c.realized.norm().max(1.0);
+        *relative_error = norm / nalgebra_norm(n, |i| realized_state[i]).max(1.0);
         *reused_chain = c.prediction.reused_chain;
         *chain_mismatch = c.prediction.chain_mismatch;
+        record
     }
+}
+
+/// The Euclidean norm of (v(0), …, v(n − 1)), summed as nalgebra's `norm` sums a dynamic
+/// vector (eight partial sums over whole blocks of eight, then the rest in order), so that the
+/// logged errors keep their bits; without forming the vector.
+#[inline]
+fn nalgebra_norm(n: usize, v: impl Fn(usize) -> f64) -> f64 {
+    let mut acc = [0.0; 8];
+    let mut i = 0;
+    while n - i >= 8 {
+        for (k, a) in acc.iter_mut().enumerate() {
+            let x = v(i + k);
+            *a += x * x;
+        }
+        i += 8;
+    }
+    let mut sum = 0.0;
+    sum += acc[0] + acc[4];
+    sum += acc[1] + acc[5];
+    sum += acc[2] + acc[6];
+    sum += acc[3] + acc[7];
+    for k in i..n {
+        let x = v(k);
+        sum += x * x;
+    }
+    (0.0 + sum).sqrt()
 }
 
 /// What the Foxglove 3D view needs beyond the state.
@@ -112,16 +146,24 @@ pub(super) struct SceneState {
     vehicle: Record,
     transform: Record,
     predictions: Vec<(String, Record)>,
+    /// Plant steps per scene frame (see [`frame_steps`]).
+    frame_steps: u64,
 }
 
 impl SceneState {
-    pub(super) fn new(hull_radius: f64, path: Option<([f64; 2], f64, f64)>, channels: &[String]) -> SceneState {
+    pub(super) fn new(
+        hull_radius: f64,
+        path: Option<([f64; 2], f64, f64)>,
+        channels: &[String],
+        frame_steps: u64,
+    ) -> SceneState {
         let scene = || Record::Scene(0.0, Default::default());
         SceneState {
             hull_radius,
             path,
             trail: Vec::new(),
             trail_segments: 0,
+            frame_steps,
             vehicle: scene(),
             transform: Record::Transform(0.0, Default::default()),
             predictions: channels
@@ -139,6 +181,14 @@ const SCENE_FRAME_PERIOD: f64 = 0.01;
 /// Scene frames between trail points, and trail intervals per published trail segment.
 const TRAIL_EVERY_FRAMES: u64 = 5;
 const TRAIL_PUBLISH_EVERY_POINTS: usize = 10;
+
+/// Plant steps per 3D view frame: a whole number of control ticks, the fewest that span
+/// [`SCENE_FRAME_PERIOD`].
+pub(super) fn frame_steps(steps_per_tick: u64, timestep: f64) -> u64 {
+    let control_period = steps_per_tick as f64 * timestep;
+    let ticks_per_frame = (SCENE_FRAME_PERIOD / control_period - 1e-9).ceil().max(1.0) as u64;
+    steps_per_tick * ticks_per_frame
+}
 
 impl Episode {
     pub(super) fn emit(sinks: &mut [&mut dyn Sink], record: Record) -> Result<(), LogError> {
@@ -172,9 +222,15 @@ impl Episode {
         time: f64,
         x: &DVector<f64>,
     ) -> Result<(), LogError> {
-        let model = self.control.model().clone();
+        // Every frame step (step 0 among them, which also draws the static entities).
+        let frame_steps = self.scene.frame_steps;
+        if !k.is_multiple_of(frame_steps) {
+            return Ok(());
+        }
+        let model = self.control.model();
+        let planar = model.planar_position();
         // Planar vehicles in the plane; a vehicle on a line along the world x axis.
-        let (position, heading) = match (model.planar_position(), model.line_position()) {
+        let (position, heading) = match (planar, model.line_position()) {
             (Some([i, j]), _) => ([x[i], x[j]], model.heading_index().map_or(0.0, |h| x[h])),
             (None, Some(i)) => ([x[i], 0.0], 0.0),
             (None, None) => return Ok(()),
@@ -198,12 +254,6 @@ impl Episode {
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
         }
-        let control_period = self.control.steps_per_tick() as f64 * self.control.timestep();
-        let ticks_per_frame = (SCENE_FRAME_PERIOD / control_period - 1e-9).ceil().max(1.0) as u64;
-        let frame_steps = self.control.steps_per_tick() * ticks_per_frame;
-        if !k.is_multiple_of(frame_steps) {
-            return Ok(());
-        }
         let frame = k / frame_steps;
         let hull_radius = self.scene.hull_radius;
         if let Record::Scene(t, update) = &mut self.scene.vehicle {
@@ -213,7 +263,7 @@ impl Episode {
         Self::emit_ref(sinks, &self.scene.vehicle)?;
         // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
         // channel, made at the previous tick), with a line from where it is now.
-        if let Some([i, j]) = model.planar_position() {
+        if let Some([i, j]) = planar {
             for p in self.control.latest_predictions() {
                 let Some((id, record)) = self.scene.predictions.get_mut(p.channel) else {
                     continue;
@@ -258,16 +308,16 @@ impl Episode {
             if let Record::Measured(m) = &mut records.measured {
                 (m.time, m.step) = (tick.time, step);
                 m.values.clear();
-                m.values.extend(tick.measured.iter());
+                m.values.extend_from_slice(tick.measured.as_slice());
             }
             Self::emit_ref(sinks, &records.measured)?;
         }
         if let Record::Issued(m) = &mut records.issued {
             m.time = tick.time;
             m.nominal.clear();
-            m.nominal.extend(tick.nominal.iter());
+            m.nominal.extend_from_slice(tick.nominal.as_slice());
             m.filtered.clear();
-            m.filtered.extend(tick.issued.iter());
+            m.filtered.extend_from_slice(tick.issued.as_slice());
         }
         Self::emit_ref(sinks, &records.issued)?;
         let solved = tick.outcomes.iter().flatten();
@@ -277,8 +327,8 @@ impl Episode {
             m.infeasible = solved.clone().any(|o| o.infeasible);
             m.mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
             m.correction.clear();
-            m.correction
-                .extend(tick.issued.iter().zip(&tick.nominal).map(|(u, u0)| u - u0));
+            let (issued, nominal) = (tick.issued.as_slice(), tick.nominal.as_slice());
+            m.correction.extend(issued.iter().zip(nominal).map(|(u, u0)| u - u0));
         }
         Self::emit_ref(sinks, &records.filter)
     }
@@ -382,6 +432,31 @@ pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_norm_has_the_bits_of_nalgebras() {
+        let special = [0.0, -0.0, 1e-300, -3.5, 1e200, f64::NAN, f64::INFINITY, 1.0 / 3.0];
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        for n in 0..=40 {
+            for trial in 0..50 {
+                let v: Vec<f64> = (0..n)
+                    .map(|i| {
+                        seed ^= seed << 13;
+                        seed ^= seed >> 7;
+                        seed ^= seed << 17;
+                        let x = (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                        if trial % 10 == 9 && i % 7 == 3 {
+                            special[(seed % 8) as usize]
+                        } else {
+                            x * 10f64.powi((seed % 13) as i32 - 6)
+                        }
+                    })
+                    .collect();
+                let expected = nalgebra::DVector::from_vec(v.clone()).norm();
+                assert_eq!(super::nalgebra_norm(n, |i| v[i]).to_bits(), expected.to_bits(), "{v:?}");
+            }
+        }
+    }
+
     #[test]
     fn time_to_contact_solves_the_constant_velocity_geometry() {
         // 10 m away head-on at 2 m/s, r = 6: contact after (10 − 6)/2 = 2 s.

@@ -27,8 +27,6 @@ pub struct McapSink {
     writer: Option<McapWriter<BufWriter<File>>>,
     channel_ids: Vec<u16>,
     sequence: u32,
-    /// Encoding buffer reused by every record.
-    buffer: Vec<u8>,
     /// The `.partial` file (and its lock) until the log is committed or abandoned.
     output: Option<OutputFile>,
     final_path: std::path::PathBuf,
@@ -45,7 +43,15 @@ pub fn check_target(path: &Path, inputs: &[&Path]) -> Result<(), crate::files::F
 
 /// Nanoseconds of simulation time (log and publish time of every message).
 pub fn sim_time_ns(time: f64) -> u64 {
-    (time.max(0.0) * 1e9).round() as u64
+    // `ns.round() as u64` (half away from zero, saturating) without a call into libm: below
+    // 2^53 the fraction ns − ⌊ns⌋ is exact, above it every double is an integer.
+    let ns = time.max(0.0) * 1e9;
+    let whole = ns as u64;
+    if ns - whole as f64 >= 0.5 {
+        whole.saturating_add(1)
+    } else {
+        whole
+    }
 }
 
 /// Adds `topic`'s schema and channel; returns the channel id.
@@ -105,7 +111,6 @@ impl McapSink {
             writer: Some(writer),
             channel_ids,
             sequence: 0,
-            buffer: Vec::new(),
             output: Some(output),
             final_path: path.to_path_buf(),
             writer_busy: std::time::Duration::ZERO,
@@ -144,16 +149,17 @@ impl Sink for McapSink {
         };
         let time = sim_time_ns(record.time());
         self.sequence += 1;
-        record.encode_into(&mut self.buffer);
-        let mut channel = self.channel_ids[record.topic_index()];
+        let topic = record.topic_index();
+        let mut channel = self.channel_ids[topic];
         if channel == 0 {
             channel = add_channel(writer, record.kind()).map_err(|e| LogError::Write {
                 path: self.final_path.display().to_string(),
                 message: e.to_string(),
             })?;
-            self.channel_ids[record.topic_index()] = channel;
+            self.channel_ids[topic] = channel;
         }
-        let result = writer.write_message(channel, self.sequence, time, &self.buffer);
+        // Encoded straight into the writer's open chunk.
+        let result = writer.write_message_with(channel, self.sequence, time, |chunk| record.encode_append(chunk));
         result.map_err(|e| self.error(e.to_string()))?;
         // Every event also as a Foxglove log line, for Foxglove's Log panel.
         if let Record::Event(event) = record {
@@ -209,6 +215,51 @@ mod tests {
             max_delay: 0.0,
             planar_position: None,
             heading_index: None,
+        }
+    }
+
+    #[test]
+    fn sim_time_ns_rounds_as_f64_round_does() {
+        let mut times = vec![
+            0.0,
+            -0.0,
+            -1.0,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            0.5e-9,
+            1.5e-9,
+            2.5e-9,
+        ];
+        // Just below a half; around 2^52 ns (the last halves), 2^53 (the last odd integers),
+        // 2^63 and 2^64 (saturation).
+        let below_half = f64::from_bits(0.5f64.to_bits() - 1);
+        for ns in [
+            below_half,
+            2f64.powi(52) - 0.5,
+            2f64.powi(53) + 2.0,
+            2f64.powi(63),
+            2f64.powi(64),
+            1e29,
+        ] {
+            let t = ns / 1e9;
+            times.extend([t, f64::from_bits(t.to_bits() + 1), f64::from_bits(t.to_bits() - 1)]);
+        }
+        // Every step time of long runs at common timesteps, and values near halves.
+        for h in [0.001, 0.002, 0.005, 0.01, 1.0 / 3.0] {
+            times.extend((0..200_000).map(|k| k as f64 * h));
+        }
+        let mut x = 1e-12_f64;
+        while x < 1e12 {
+            for t in [x, x * 1.000_000_000_1, (x * 1e9).floor() / 1e9 + 0.5e-9] {
+                times.extend([t, f64::from_bits(t.to_bits() + 1), f64::from_bits(t.to_bits() - 1)]);
+            }
+            x *= 1.37;
+        }
+        for t in times {
+            assert_eq!(sim_time_ns(t), (t.max(0.0) * 1e9).round() as u64, "{t:e}");
         }
     }
 

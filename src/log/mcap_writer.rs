@@ -362,8 +362,10 @@ pub struct McapWriter<W: Write + Send + 'static> {
     schemas: Vec<SchemaInfo>,
     channels: Vec<ChannelInfo>,
     chunk: Vec<u8>,
+    /// (earliest, latest) log time of the open chunk's messages.
     chunk_bounds: Option<(u64, u64)>,
     chunk_size: usize,
+    /// (earliest, latest) log time of the chunks handed on so far.
     bounds: Option<(u64, u64)>,
 }
 
@@ -436,7 +438,9 @@ impl<W: Write + Send + 'static> McapWriter<W> {
             topic: topic.into(),
             message_encoding: message_encoding.into(),
             message_count: 0,
-            index: Vec::new(),
+            // Room for a share of a chunk of small messages (later chunks start with the room
+            // the previous one needed).
+            index: Vec::with_capacity(self.chunk_size / 256),
         });
         Ok(id)
     }
@@ -455,21 +459,38 @@ impl<W: Write + Send + 'static> McapWriter<W> {
 
     /// Appends one message to the open chunk.
     pub fn write_message(&mut self, channel_id: u16, sequence: u32, log_time: u64, data: &[u8]) -> io::Result<()> {
+        self.write_message_with(channel_id, sequence, log_time, |chunk| chunk.extend_from_slice(data))
+    }
+
+    /// Appends one message whose payload `encode` appends to the buffer it is given: the open
+    /// chunk itself, so the payload is encoded in place rather than encoded and then copied.
+    #[inline]
+    pub fn write_message_with(
+        &mut self,
+        channel_id: u16,
+        sequence: u32,
+        log_time: u64,
+        encode: impl FnOnce(&mut Vec<u8>),
+    ) -> io::Result<()> {
         let channel = &mut self.channels[usize::from(channel_id) - 1];
-        channel.message_count += 1;
-        channel.index.push((log_time, self.chunk.len() as u64));
+        let start = self.chunk.len();
+        channel.index.push((log_time, start as u64));
         let mut prefix = [0u8; MESSAGE_PREFIX];
         prefix[0] = op::MESSAGE;
-        prefix[1..9].copy_from_slice(&((MESSAGE_PREFIX - 9 + data.len()) as u64).to_le_bytes());
         prefix[9..11].copy_from_slice(&channel_id.to_le_bytes());
         prefix[11..15].copy_from_slice(&sequence.to_le_bytes());
         prefix[15..23].copy_from_slice(&log_time.to_le_bytes());
         prefix[23..31].copy_from_slice(&log_time.to_le_bytes());
         self.chunk.extend_from_slice(&prefix);
-        self.chunk.extend_from_slice(data);
-        let widen = |(lo, hi): (u64, u64)| (lo.min(log_time), hi.max(log_time));
-        self.chunk_bounds = Some(self.chunk_bounds.map_or((log_time, log_time), widen));
-        self.bounds = Some(self.bounds.map_or((log_time, log_time), widen));
+        encode(&mut self.chunk);
+        // The record's length (all but the opcode and the length itself), now that it is known.
+        let length = (self.chunk.len() - start - 9) as u64;
+        let at: &mut [u8; 8] = (&mut self.chunk[start + 1..start + 9])
+            .try_into()
+            .expect("a message record starts with its opcode and its 8-byte length");
+        *at = length.to_le_bytes();
+        let (lo, hi) = self.chunk_bounds.unwrap_or((log_time, log_time));
+        self.chunk_bounds = Some((lo.min(log_time), hi.max(log_time)));
         if self.chunk.len() >= self.chunk_size {
             self.finish_chunk()?;
         }
@@ -481,12 +502,20 @@ impl<W: Write + Send + 'static> McapWriter<W> {
         let Some((start_time, end_time)) = self.chunk_bounds.take() else {
             return Ok(());
         };
+        let widen = |(lo, hi): (u64, u64)| (lo.min(start_time), hi.max(end_time));
+        self.bounds = Some(self.bounds.map_or((start_time, end_time), widen));
         let capacity = self.chunk.capacity();
         let records = std::mem::take(&mut self.chunk);
+        // Each channel's next index starts with the room this one needed (no regrowing).
         let indexes = self
             .channels
             .iter_mut()
-            .map(|c| (c.id, std::mem::take(&mut c.index)))
+            .map(|c| {
+                // A channel's messages are counted by chunk, from its index entries.
+                let room = c.index.len();
+                c.message_count += room as u64;
+                (c.id, std::mem::replace(&mut c.index, Vec::with_capacity(room)))
+            })
             .collect();
         let spare = self.back.submit(Job::Chunk {
             start_time,

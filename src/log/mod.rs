@@ -221,8 +221,13 @@ impl Record {
 
     /// buffer ← the protobuf encoding (reusing the buffer's allocation).
     pub fn encode_into(&self, buffer: &mut Vec<u8>) {
-        use prost::Message;
         buffer.clear();
+        self.encode_append(buffer);
+    }
+
+    /// Appends the protobuf encoding to `buffer` (the MCAP sink encodes into its open chunk).
+    pub fn encode_append(&self, buffer: &mut Vec<u8>) {
+        use prost::Message;
         // The per-step and per-frame messages through `wire` (prost's bytes, cheaper); the
         // rare events through prost.
         const FITS: &str = "a Vec grows to fit any message";

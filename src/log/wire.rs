@@ -292,25 +292,6 @@ fn put_str(out: &mut Vec<u8>, field: u8, value: &str) {
     }
 }
 
-fn put_strings(out: &mut Vec<u8>, field: u8, values: &[String]) {
-    // Every element, empty ones included.
-    for value in values {
-        put_key(out, field, LEN);
-        put_varint(out, value.len() as u64);
-        out.extend_from_slice(value.as_bytes());
-    }
-}
-
-fn put_packed_f64(out: &mut Vec<u8>, field: u8, values: &[f64]) {
-    if !values.is_empty() {
-        put_key(out, field, LEN);
-        put_varint(out, 8 * values.len() as u64);
-        for v in values {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-}
-
 fn put_packed_fixed32(out: &mut Vec<u8>, field: u8, values: &[u32]) {
     if !values.is_empty() {
         put_key(out, field, LEN);
@@ -323,24 +304,226 @@ fn put_packed_fixed32(out: &mut Vec<u8>, field: u8, values: &[u32]) {
 
 /// A length-delimited submessage written by `body` (its length prefix placed afterwards).
 fn put_message(out: &mut Vec<u8>, field: u8, body: impl FnOnce(&mut Vec<u8>)) {
+    put_message_guessing(out, field, 1, body);
+}
+
+/// [`put_message`] leaving room for a length prefix of `guess` bytes (1 or 2: a body of less
+/// than 128 or 16384 bytes), which saves moving the body when the guess is right.
+fn put_message_guessing(out: &mut Vec<u8>, field: u8, guess: usize, body: impl FnOnce(&mut Vec<u8>)) {
+    debug_assert!(guess == 1 || guess == 2);
     put_key(out, field, LEN);
     let at = out.len();
     out.push(0);
+    if guess == 2 {
+        out.push(0);
+    }
     body(out);
     let end = out.len();
-    let mut length = (end - at - 1) as u64;
-    if length < 0x80 {
+    let mut length = (end - at - guess) as u64;
+    // The guess was right (the usual case): the prefix in place.
+    if guess == 1 && length < 0x80 {
         out[at] = length as u8;
+        return;
+    }
+    if guess == 2 && (0x80..0x4000).contains(&length) {
+        out[at] = (length as u8) | 0x80;
+        out[at + 1] = (length >> 7) as u8;
+        return;
+    }
+    // Another prefix width: move the body in place (no allocation once `out` has the room).
+    let width = varint_len(length);
+    if width > guess {
+        out.resize(end + width - guess, 0);
+        out.copy_within(at + guess..end, at + width);
     } else {
-        // A longer prefix: move the body up in place (no allocation once `out` has the room).
-        let width = (64 - length.leading_zeros() as usize).div_ceil(7);
-        out.resize(end + width - 1, 0);
-        out.copy_within(at + 1..end, at + width);
-        for byte in &mut out[at..at + width] {
-            *byte = (length as u8) | 0x80;
-            length >>= 7;
+        out.copy_within(at + guess..end, at + width);
+        out.truncate(end - (guess - width));
+    }
+    for byte in &mut out[at..at + width] {
+        *byte = (length as u8) | 0x80;
+        length >>= 7;
+    }
+    out[at + width - 1] &= 0x7f;
+}
+
+// mjsafe's own messages are flat (a barrier value is the one submessage, itself flat), so
+// their size is cheap to compute exactly: each encoder first sizes the message, makes that
+// much room at the end of the buffer at once, then writes the fields with plain stores (no
+// capacity check, no call, per field).
+
+/// Bytes of `value` as a varint (1 to 10).
+fn varint_len(value: u64) -> usize {
+    if value < 0x80 {
+        1
+    } else {
+        (64 - value.leading_zeros() as usize).div_ceil(7)
+    }
+}
+
+/// Bytes of a double field (omitted when 0 or −0).
+fn f64_len(value: f64) -> usize {
+    if value != 0.0 {
+        9
+    } else {
+        0
+    }
+}
+
+/// Bytes of a uint field (omitted when 0).
+fn u64_len(value: u64) -> usize {
+    if value != 0 {
+        1 + varint_len(value)
+    } else {
+        0
+    }
+}
+
+fn bool_len(value: bool) -> usize {
+    if value {
+        2
+    } else {
+        0
+    }
+}
+
+/// Bytes of a length-delimited field of `len` bytes (its key, length and body).
+fn len_field_len(len: usize) -> usize {
+    1 + varint_len(len as u64) + len
+}
+
+/// Bytes of a string field (omitted when empty).
+fn str_len(value: &str) -> usize {
+    if value.is_empty() {
+        0
+    } else {
+        len_field_len(value.len())
+    }
+}
+
+/// Bytes of a repeated string field (every element, empty ones included).
+fn strings_len(values: &[String]) -> usize {
+    values.iter().map(|v| len_field_len(v.len())).sum()
+}
+
+/// Bytes of a packed double field (omitted when empty).
+fn packed_f64_len(values: &[f64]) -> usize {
+    if values.is_empty() {
+        0
+    } else {
+        len_field_len(8 * values.len())
+    }
+}
+
+/// The room made at the end of a buffer for a message of known size, filled front to back.
+struct Room<'a> {
+    buf: &'a mut [u8],
+    at: usize,
+}
+
+impl<'a> Room<'a> {
+    /// `size` bytes at the end of `out` (no allocation when `out` has the capacity).
+    fn new(out: &'a mut Vec<u8>, size: usize) -> Room<'a> {
+        let start = out.len();
+        out.resize(start + size, 0);
+        Room {
+            buf: &mut out[start..],
+            at: 0,
         }
-        out[at + width - 1] &= 0x7f;
+    }
+
+    /// Checks that the message filled its room exactly (a size function and its writer agree).
+    fn done(self) {
+        assert_eq!(self.at, self.buf.len(), "a message's size and its bytes disagree");
+    }
+
+    fn byte(&mut self, byte: u8) {
+        self.buf[self.at] = byte;
+        self.at += 1;
+    }
+
+    fn array<const N: usize>(&mut self, bytes: [u8; N]) {
+        let end = self.at + N;
+        let slot: &mut [u8; N] = (&mut self.buf[self.at..end]).try_into().expect("N bytes");
+        *slot = bytes;
+        self.at = end;
+    }
+
+    fn bytes(&mut self, bytes: &[u8]) {
+        let end = self.at + bytes.len();
+        self.buf[self.at..end].copy_from_slice(bytes);
+        self.at = end;
+    }
+
+    fn key(&mut self, field: u8, wire: u64) {
+        // Field numbers here are < 16: the key is one byte.
+        debug_assert!(field < 16);
+        self.byte((field << 3) | wire as u8);
+    }
+
+    fn varint(&mut self, mut value: u64) {
+        while value >= 0x80 {
+            self.byte((value as u8) | 0x80);
+            value >>= 7;
+        }
+        self.byte(value as u8);
+    }
+
+    fn f64(&mut self, field: u8, value: f64) {
+        // As put_f64: 0 and −0 omitted, NaN written.
+        if value != 0.0 {
+            let [a, b, c, d, e, f, g, h] = value.to_le_bytes();
+            self.array([(field << 3) | FIXED64 as u8, a, b, c, d, e, f, g, h]);
+        }
+    }
+
+    fn u64(&mut self, field: u8, value: u64) {
+        if value != 0 {
+            self.key(field, VARINT);
+            self.varint(value);
+        }
+    }
+
+    fn bool(&mut self, field: u8, value: bool) {
+        if value {
+            self.array([(field << 3) | VARINT as u8, 1]);
+        }
+    }
+
+    /// The key and length of a length-delimited field of `len` bytes.
+    #[inline(always)]
+    fn len_prefix(&mut self, field: u8, len: usize) {
+        if len < 0x80 {
+            self.array([(field << 3) | LEN as u8, len as u8]);
+        } else {
+            self.key(field, LEN);
+            self.varint(len as u64);
+        }
+    }
+
+    fn str(&mut self, field: u8, value: &str) {
+        if !value.is_empty() {
+            self.len_prefix(field, value.len());
+            self.bytes(value.as_bytes());
+        }
+    }
+
+    fn strings(&mut self, field: u8, values: &[String]) {
+        for value in values {
+            self.len_prefix(field, value.len());
+            self.bytes(value.as_bytes());
+        }
+    }
+
+    fn packed_f64(&mut self, field: u8, values: &[f64]) {
+        if !values.is_empty() {
+            self.len_prefix(field, 8 * values.len());
+            let end = self.at + 8 * values.len();
+            let (slots, _) = self.buf[self.at..end].as_chunks_mut::<8>();
+            for (slot, value) in slots.iter_mut().zip(values) {
+                *slot = value.to_le_bytes();
+            }
+            self.at = end;
+        }
     }
 }
 
@@ -351,10 +534,13 @@ pub(crate) fn encode_state(m: &proto::State, out: &mut Vec<u8>) {
         names,
         values,
     } = m;
-    put_f64(out, 1, *time);
-    put_u64(out, 2, *step);
-    put_strings(out, 3, names);
-    put_packed_f64(out, 4, values);
+    let size = f64_len(*time) + u64_len(*step) + strings_len(names) + packed_f64_len(values);
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    room.u64(2, *step);
+    room.strings(3, names);
+    room.packed_f64(4, values);
+    room.done();
 }
 
 pub(crate) fn encode_issued(m: &proto::IssuedCommand, out: &mut Vec<u8>) {
@@ -364,10 +550,13 @@ pub(crate) fn encode_issued(m: &proto::IssuedCommand, out: &mut Vec<u8>) {
         nominal,
         filtered,
     } = m;
-    put_f64(out, 1, *time);
-    put_strings(out, 2, channels);
-    put_packed_f64(out, 3, nominal);
-    put_packed_f64(out, 4, filtered);
+    let size = f64_len(*time) + strings_len(channels) + packed_f64_len(nominal) + packed_f64_len(filtered);
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    room.strings(2, channels);
+    room.packed_f64(3, nominal);
+    room.packed_f64(4, filtered);
+    room.done();
 }
 
 pub(crate) fn encode_applied(m: &proto::AppliedCommand, out: &mut Vec<u8>) {
@@ -377,10 +566,13 @@ pub(crate) fn encode_applied(m: &proto::AppliedCommand, out: &mut Vec<u8>) {
         values,
         issued_at,
     } = m;
-    put_f64(out, 1, *time);
-    put_strings(out, 2, channels);
-    put_packed_f64(out, 3, values);
-    put_packed_f64(out, 4, issued_at);
+    let size = f64_len(*time) + strings_len(channels) + packed_f64_len(values) + packed_f64_len(issued_at);
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    room.strings(2, channels);
+    room.packed_f64(3, values);
+    room.packed_f64(4, issued_at);
+    room.done();
 }
 
 pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
@@ -392,18 +584,59 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
         infeasible,
         mu,
     } = m;
-    put_f64(out, 1, *time);
-    put_bool(out, 2, *active);
-    put_strings(out, 3, channels);
-    put_packed_f64(out, 4, correction);
-    put_bool(out, 5, *infeasible);
-    put_f64(out, 6, *mu);
+    let size = f64_len(*time)
+        + bool_len(*active)
+        + strings_len(channels)
+        + packed_f64_len(correction)
+        + bool_len(*infeasible)
+        + f64_len(*mu);
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    room.bool(2, *active);
+    room.strings(3, channels);
+    room.packed_f64(4, correction);
+    room.bool(5, *infeasible);
+    room.f64(6, *mu);
+    room.done();
+}
+
+/// Bytes of a barrier value's body.
+fn barrier_value_len(value: &proto::BarrierValue) -> usize {
+    let proto::BarrierValue {
+        name,
+        h,
+        constraint,
+        known,
+        relative_degree,
+        clearance,
+        time_to_collision,
+        obstacle,
+    } = value;
+    str_len(name)
+        + f64_len(*h)
+        + f64_len(*constraint)
+        + bool_len(*known)
+        + u64_len(u64::from(*relative_degree))
+        + f64_len(*clearance)
+        + f64_len(*time_to_collision)
+        + bool_len(*obstacle)
 }
 
 pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
     let proto::Barrier { time, barriers } = m;
-    put_f64(out, 1, *time);
-    for value in barriers {
+    // The first values' lengths, kept from the sizing for the writing.
+    let mut lengths = [0; 8];
+    let mut size = f64_len(*time);
+    for (i, value) in barriers.iter().enumerate() {
+        let length = barrier_value_len(value);
+        if let Some(slot) = lengths.get_mut(i) {
+            *slot = length;
+        }
+        size += len_field_len(length);
+    }
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    for (i, value) in barriers.iter().enumerate() {
         let proto::BarrierValue {
             name,
             h,
@@ -414,17 +647,18 @@ pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
             time_to_collision,
             obstacle,
         } = value;
-        put_message(out, 2, |out| {
-            put_str(out, 1, name);
-            put_f64(out, 2, *h);
-            put_f64(out, 3, *constraint);
-            put_bool(out, 4, *known);
-            put_u64(out, 5, u64::from(*relative_degree));
-            put_f64(out, 6, *clearance);
-            put_f64(out, 7, *time_to_collision);
-            put_bool(out, 8, *obstacle);
-        });
+        let length = lengths.get(i).copied().unwrap_or_else(|| barrier_value_len(value));
+        room.len_prefix(2, length);
+        room.str(1, name);
+        room.f64(2, *h);
+        room.f64(3, *constraint);
+        room.bool(4, *known);
+        room.u64(5, u64::from(*relative_degree));
+        room.f64(6, *clearance);
+        room.f64(7, *time_to_collision);
+        room.bool(8, *obstacle);
     }
+    room.done();
 }
 
 pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
@@ -440,16 +674,28 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
         reused_chain,
         chain_mismatch,
     } = m;
-    put_f64(out, 1, *time);
-    put_str(out, 2, channel);
-    put_f64(out, 3, *issued_at);
-    put_f64(out, 4, *horizon);
-    put_packed_f64(out, 5, predicted);
-    put_packed_f64(out, 6, realized);
-    put_f64(out, 7, *error);
-    put_f64(out, 8, *relative_error);
-    put_bool(out, 9, *reused_chain);
-    put_f64(out, 10, *chain_mismatch);
+    let size = f64_len(*time)
+        + str_len(channel)
+        + f64_len(*issued_at)
+        + f64_len(*horizon)
+        + packed_f64_len(predicted)
+        + packed_f64_len(realized)
+        + f64_len(*error)
+        + f64_len(*relative_error)
+        + bool_len(*reused_chain)
+        + f64_len(*chain_mismatch);
+    let mut room = Room::new(out, size);
+    room.f64(1, *time);
+    room.str(2, channel);
+    room.f64(3, *issued_at);
+    room.f64(4, *horizon);
+    room.packed_f64(5, predicted);
+    room.packed_f64(6, realized);
+    room.f64(7, *error);
+    room.f64(8, *relative_error);
+    room.bool(9, *reused_chain);
+    room.f64(10, *chain_mismatch);
+    room.done();
 }
 
 // Foxglove's messages (`/scene`, `/tf`): `*_fields` write a submessage's fields, `put_*` a
@@ -466,6 +712,13 @@ fn put_optional<T>(out: &mut Vec<u8>, field: u8, value: &Option<T>, fields: impl
 fn put_repeated<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&mut Vec<u8>, &T)) {
     for value in values {
         put_message(out, field, |out| fields(out, value));
+    }
+}
+
+/// [`put_repeated`] for elements that usually take 128 bytes or more (entities, lines).
+fn put_repeated_long<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&mut Vec<u8>, &T)) {
+    for value in values {
+        put_message_guessing(out, field, 2, |out| fields(out, value));
     }
 }
 
@@ -492,8 +745,10 @@ fn put_doubles<const N: usize>(out: &mut Vec<u8>, field: u8, values: [f64; N]) {
     for (number, value) in (1u8..).zip(values) {
         // As put_f64: 0 and −0 omitted.
         if value != 0.0 {
-            bytes[end] = (number << 3) | FIXED64 as u8;
-            bytes[end + 1..end + 9].copy_from_slice(&value.to_le_bytes());
+            // An array store, not a slice copy (which carries an overlap check in this profile).
+            let [a, b, c, d, e, f, g, h] = value.to_le_bytes();
+            let slot: &mut [u8; 9] = (&mut bytes[end..end + 9]).try_into().expect("9 bytes");
+            *slot = [(number << 3) | FIXED64 as u8, a, b, c, d, e, f, g, h];
             end += 9;
         }
     }
@@ -629,7 +884,7 @@ fn entity_fields(out: &mut Vec<u8>, e: &SceneEntity) {
     put_repeated(out, 6, metadata, key_value_fields);
     put_repeated(out, 8, cubes, cube_fields);
     put_repeated(out, 10, cylinders, cylinder_fields);
-    put_repeated(out, 11, lines, line_fields);
+    put_repeated_long(out, 11, lines, line_fields);
 }
 
 fn deletion_fields(out: &mut Vec<u8>, d: &SceneEntityDeletion) {
@@ -648,7 +903,7 @@ pub(crate) fn encode_scene_update(m: &SceneUpdate, out: &mut Vec<u8>) {
         return;
     }
     put_repeated(out, 1, deletions, deletion_fields);
-    put_repeated(out, 2, entities, entity_fields);
+    put_repeated_long(out, 2, entities, entity_fields);
 }
 
 pub(crate) fn encode_frame_transform(m: &FrameTransform, out: &mut Vec<u8>) {
@@ -881,6 +1136,35 @@ mod tests {
             buffer.clear();
             encode_barrier(&barrier, &mut buffer);
             assert_eq!(buffer, barrier.encode_to_vec(), "{barrier:?}");
+        }
+    }
+
+    #[test]
+    fn barrier_records_with_many_values_match_prost() {
+        // More values than the encoder keeps lengths of between sizing and writing.
+        for count in [7, 8, 9, 20] {
+            let barrier = proto::Barrier {
+                time: 1.5,
+                barriers: (0..count)
+                    .map(|i| proto::BarrierValue {
+                        name: if i == 9 {
+                            "w".repeat(200)
+                        } else {
+                            format!("obstacle_{i}")
+                        },
+                        h: i as f64 - 3.0,
+                        constraint: -0.5 * i as f64,
+                        known: i % 2 == 0,
+                        relative_degree: i % 3,
+                        clearance: 0.25 * i as f64,
+                        time_to_collision: f64::INFINITY,
+                        obstacle: i % 4 != 1,
+                    })
+                    .collect(),
+            };
+            let mut buffer = vec![7];
+            encode_barrier(&barrier, &mut buffer);
+            assert_eq!(buffer[1..], barrier.encode_to_vec(), "{count} values");
         }
     }
 
@@ -1139,15 +1423,28 @@ mod tests {
     }
 
     #[test]
+    fn varint_lengths_match_prost() {
+        let mut values: Vec<u64> = vec![0, u64::MAX];
+        for bits in 1..64 {
+            values.extend([(1u64 << bits) - 1, 1u64 << bits, (1u64 << bits) + 1]);
+        }
+        for value in values {
+            assert_eq!(varint_len(value), prost::encoding::encoded_len_varint(value), "{value}");
+        }
+    }
+
+    #[test]
     fn submessage_length_prefixes_have_prosts_widths() {
         for length in [0, 1, 127, 128, 129, 16_383, 16_384, 16_385, 2_097_151, 2_097_152] {
             let body = |out: &mut Vec<u8>| out.extend((0..length).map(|i| i as u8));
-            let mut out = vec![9, 9];
-            put_message(&mut out, 3, body);
             let mut expected = vec![9, 9, (3 << 3) | 2];
             prost::encoding::encode_varint(length as u64, &mut expected);
             body(&mut expected);
-            assert!(out == expected, "{length}");
+            for guess in [1, 2] {
+                let mut out = vec![9, 9];
+                put_message_guessing(&mut out, 3, guess, body);
+                assert!(out == expected, "{length}, guessing {guess}");
+            }
         }
     }
 
