@@ -240,12 +240,14 @@ fn merge_barrier_value(buf: &[u8], m: &mut proto::BarrierValue) -> Option<()> {
     Some(())
 }
 
+#[inline]
 fn put_key(out: &mut Vec<u8>, field: u8, wire: u64) {
     // Field numbers here are < 16: the key is one byte.
     debug_assert!(field < 16);
     out.push((field << 3) | wire as u8);
 }
 
+#[inline]
 fn put_varint(out: &mut Vec<u8>, mut value: u64) {
     while value >= 0x80 {
         out.push((value as u8) | 0x80);
@@ -254,6 +256,7 @@ fn put_varint(out: &mut Vec<u8>, mut value: u64) {
     out.push(value as u8);
 }
 
+#[inline]
 fn put_f64(out: &mut Vec<u8>, field: u8, value: f64) {
     // proto3 omits 0 (and −0, which compares equal); NaN is written.
     if value != 0.0 {
@@ -262,6 +265,7 @@ fn put_f64(out: &mut Vec<u8>, field: u8, value: f64) {
     }
 }
 
+#[inline]
 fn put_u64(out: &mut Vec<u8>, field: u8, value: u64) {
     if value != 0 {
         put_key(out, field, VARINT);
@@ -270,6 +274,7 @@ fn put_u64(out: &mut Vec<u8>, field: u8, value: u64) {
 }
 
 /// An int32 or enum field (negative values take ten bytes, as prost writes them).
+#[inline]
 fn put_i32(out: &mut Vec<u8>, field: u8, value: i32) {
     if value != 0 {
         put_key(out, field, VARINT);
@@ -277,6 +282,7 @@ fn put_i32(out: &mut Vec<u8>, field: u8, value: i32) {
     }
 }
 
+#[inline]
 fn put_bool(out: &mut Vec<u8>, field: u8, value: bool) {
     if value {
         put_key(out, field, VARINT);
@@ -284,6 +290,7 @@ fn put_bool(out: &mut Vec<u8>, field: u8, value: bool) {
     }
 }
 
+#[inline]
 fn put_str(out: &mut Vec<u8>, field: u8, value: &str) {
     if !value.is_empty() {
         put_key(out, field, LEN);
@@ -303,12 +310,14 @@ fn put_packed_fixed32(out: &mut Vec<u8>, field: u8, values: &[u32]) {
 }
 
 /// A length-delimited submessage written by `body` (its length prefix placed afterwards).
+#[inline]
 fn put_message(out: &mut Vec<u8>, field: u8, body: impl FnOnce(&mut Vec<u8>)) {
     put_message_guessing(out, field, 1, body);
 }
 
 /// [`put_message`] leaving room for a length prefix of `guess` bytes (1 or 2: a body of less
 /// than 128 or 16384 bytes), which saves moving the body when the guess is right.
+#[inline]
 fn put_message_guessing(out: &mut Vec<u8>, field: u8, guess: usize, body: impl FnOnce(&mut Vec<u8>)) {
     debug_assert!(guess == 1 || guess == 2);
     put_key(out, field, LEN);
@@ -702,6 +711,7 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
 // whole submessage.
 
 /// An optional submessage: nothing when absent, else written even when its body is empty.
+#[inline]
 fn put_optional<T>(out: &mut Vec<u8>, field: u8, value: &Option<T>, fields: impl Fn(&mut Vec<u8>, &T)) {
     if let Some(value) = value {
         put_message(out, field, |out| fields(out, value));
@@ -709,6 +719,7 @@ fn put_optional<T>(out: &mut Vec<u8>, field: u8, value: &Option<T>, fields: impl
 }
 
 /// A repeated submessage: every element, empty ones included.
+#[inline]
 fn put_repeated<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&mut Vec<u8>, &T)) {
     for value in values {
         put_message(out, field, |out| fields(out, value));
@@ -716,6 +727,7 @@ fn put_repeated<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&
 }
 
 /// [`put_repeated`] for elements that usually take 128 bytes or more (entities, lines).
+#[inline]
 fn put_repeated_long<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl Fn(&mut Vec<u8>, &T)) {
     for value in values {
         put_message_guessing(out, field, 2, |out| fields(out, value));
@@ -724,6 +736,7 @@ fn put_repeated_long<T>(out: &mut Vec<u8>, field: u8, values: &[T], fields: impl
 
 // Timestamp and Duration are foxglove's own wrappers (not generated) with private fields:
 // read through their accessors instead of destructured.
+#[inline]
 fn timestamp_fields(out: &mut Vec<u8>, t: &Timestamp) {
     put_u64(out, 1, u64::from(t.sec()));
     put_u64(out, 2, u64::from(t.nsec()));
@@ -737,6 +750,7 @@ fn duration_fields(out: &mut Vec<u8>, d: &Duration) {
 /// A submessage of doubles only (fields 1, 2, … of Vector3, Point3, Quaternion, Color): at
 /// most 38 bytes, so its length takes one byte. Assembled on the stack and appended whole
 /// (a copy of constant size, inlined), then cut to its length: cheaper than a push per field.
+#[inline]
 fn put_doubles<const N: usize>(out: &mut Vec<u8>, field: u8, values: [f64; N]) {
     const { assert!(N <= 4) };
     let mut bytes = [0u8; 2 + 4 * 9];
@@ -758,26 +772,31 @@ fn put_doubles<const N: usize>(out: &mut Vec<u8>, field: u8, values: [f64; N]) {
     out.truncate(start + end);
 }
 
+#[inline]
 fn put_vector3(out: &mut Vec<u8>, field: u8, v: &Vector3) {
     let Vector3 { x, y, z } = *v;
     put_doubles(out, field, [x, y, z]);
 }
 
+#[inline]
 fn put_point3(out: &mut Vec<u8>, field: u8, p: &Point3) {
     let Point3 { x, y, z } = *p;
     put_doubles(out, field, [x, y, z]);
 }
 
+#[inline]
 fn put_quaternion(out: &mut Vec<u8>, field: u8, q: &Quaternion) {
     let Quaternion { x, y, z, w } = *q;
     put_doubles(out, field, [x, y, z, w]);
 }
 
+#[inline]
 fn put_color(out: &mut Vec<u8>, field: u8, c: &Color) {
     let Color { r, g, b, a } = *c;
     put_doubles(out, field, [r, g, b, a]);
 }
 
+#[inline]
 fn pose_fields(out: &mut Vec<u8>, p: &Pose) {
     let Pose { position, orientation } = p;
     if let Some(position) = position {
@@ -794,6 +813,7 @@ fn key_value_fields(out: &mut Vec<u8>, kv: &KeyValuePair) {
     put_str(out, 2, value);
 }
 
+#[inline]
 fn cube_fields(out: &mut Vec<u8>, c: &CubePrimitive) {
     let CubePrimitive { pose, size, color } = c;
     put_optional(out, 1, pose, pose_fields);
@@ -805,6 +825,7 @@ fn cube_fields(out: &mut Vec<u8>, c: &CubePrimitive) {
     }
 }
 
+#[inline]
 fn cylinder_fields(out: &mut Vec<u8>, c: &CylinderPrimitive) {
     let CylinderPrimitive {
         pose,
@@ -824,6 +845,7 @@ fn cylinder_fields(out: &mut Vec<u8>, c: &CylinderPrimitive) {
     }
 }
 
+#[inline]
 fn line_fields(out: &mut Vec<u8>, l: &LinePrimitive) {
     let LinePrimitive {
         r#type,
