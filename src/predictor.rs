@@ -1027,6 +1027,36 @@ mod tests {
     }
 
     /// |numerical (2.19) − explicit (2.21)| for (2.30) with (2.31) at t = 4, plant step h.
+    /// A workspace reusing trajectories at chain tolerance `tolerance` and one integrating
+    /// every window, with their predictions: (reusing, full, reused predictions, full ones).
+    fn twin(
+        states: usize,
+        channels: usize,
+        tolerance: f64,
+    ) -> (PredictorWorkspace, PredictorWorkspace, Vec<Prediction>, Vec<Prediction>) {
+        let mut reusing = PredictorWorkspace::new(states, channels);
+        reusing.set_chain_reuse(Some(tolerance));
+        let full = PredictorWorkspace::new(states, channels);
+        let (p_reused, p_full) = (reusing.predictions(), full.predictions());
+        (reusing, full, p_reused, p_full)
+    }
+
+    /// The same tick predicted in each (workspace, predictions) pair.
+    fn predict_both(
+        context: &PredictorContext<'_>,
+        structure: &Structure,
+        t: f64,
+        x: &DVector<f64>,
+        law: &mut ControlLaw<'_>,
+        pairs: [(&mut PredictorWorkspace, &mut Vec<Prediction>); 2],
+    ) {
+        for (workspace, predictions) in pairs {
+            context
+                .predict_into(structure, t, x.as_slice(), law, workspace, predictions)
+                .unwrap();
+        }
+    }
+
     fn explicit_vs_numerical(h: f64) -> (f64, f64) {
         let profile = DelayProfile::Varying(VaryingDelay::CosinePrediction {
             a: 1.0,
@@ -1124,10 +1154,7 @@ mod tests {
             .collect();
         let structure = structure(&queues, h).unwrap();
         assert_eq!(structure, Structure::Shared);
-        let mut reusing = PredictorWorkspace::new(3, 2);
-        reusing.set_chain_reuse(Some(0.0));
-        let mut full = PredictorWorkspace::new(3, 2);
-        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let (mut reusing, mut full, mut p_reused, mut p_full) = twin(3, 2, 0.0);
         let mut x = DVector::from_vec(vec![1.0, 1.0, 1.0]);
         let (mut reused, mut worst, mut worst_mismatch) = (0, 0.0_f64, 0.0_f64);
         let (mut partial_steps, mut worst_partial) = (0, 0.0_f64);
@@ -1135,12 +1162,14 @@ mod tests {
         for k in 0..400 {
             let t = k as f64 * h;
             let context = on_grid(&model, &queues, h);
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut never, &mut reusing, &mut p_reused)
-                .unwrap();
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut never, &mut full, &mut p_full)
-                .unwrap();
+            predict_both(
+                &context,
+                &structure,
+                t,
+                &x,
+                &mut never,
+                [(&mut reusing, &mut p_reused), (&mut full, &mut p_full)],
+            );
             assert!(!p_full[0].reused_chain);
             // The realised state at the target from any state at the partial step's start
             // (the consistency check's x(t_k)) is that step moved.
@@ -1212,22 +1241,21 @@ mod tests {
             u[0] = -0.1 * z[1] - 0.3 * z[2];
             u[1] = 3.0 - z[3];
         };
-        let mut reusing = PredictorWorkspace::new(4, 2);
-        reusing.set_chain_reuse(Some(1e-4));
-        let mut full = PredictorWorkspace::new(4, 2);
-        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let (mut reusing, mut full, mut p_reused, mut p_full) = twin(4, 2, 1e-4);
         let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
         let (mut moved, mut worst_moved, mut worst_fresh) = (0, 0.0_f64, 0.0_f64);
         for k in 0..200 {
             let t = k as f64 * h;
             let context = on_grid(&model, &queues, h);
             let mut law = kappa;
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut law, &mut reusing, &mut p_reused)
-                .unwrap();
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut law, &mut full, &mut p_full)
-                .unwrap();
+            predict_both(
+                &context,
+                &structure,
+                t,
+                &x,
+                &mut law,
+                [(&mut reusing, &mut p_reused), (&mut full, &mut p_full)],
+            );
             let difference = (&p_reused[0].state - &p_full[0].state).amax();
             if reusing.lead.tick == t && reusing.lead.frame != PlanarMotion::IDENTITY {
                 moved += 1;
@@ -1288,22 +1316,21 @@ mod tests {
                 .collect();
             let structure = structure(&queues, h).unwrap();
             assert_eq!(structure, Structure::Shared);
-            let mut reusing = PredictorWorkspace::new(4, 2);
-            reusing.set_chain_reuse(Some(1e-4));
-            let mut full = PredictorWorkspace::new(4, 2);
-            let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+            let (mut reusing, mut full, mut p_reused, mut p_full) = twin(4, 2, 1e-4);
             let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
             let (mut reused, mut worst) = (0, 0.0_f64);
             let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
             for k in 0..100 {
                 let t = k as f64 * h;
                 let context = on_grid(&model, &queues, h);
-                context
-                    .predict_into(&structure, t, x.as_slice(), &mut never, &mut reusing, &mut p_reused)
-                    .unwrap();
-                context
-                    .predict_into(&structure, t, x.as_slice(), &mut never, &mut full, &mut p_full)
-                    .unwrap();
+                predict_both(
+                    &context,
+                    &structure,
+                    t,
+                    &x,
+                    &mut never,
+                    [(&mut reusing, &mut p_reused), (&mut full, &mut p_full)],
+                );
                 reused += usize::from(p_reused[0].reused_chain);
                 worst = worst.max((&p_reused[0].state - &p_full[0].state).amax());
                 for (j, queue) in queues.iter_mut().enumerate() {
@@ -1342,10 +1369,7 @@ mod tests {
             .map(|&(name, d)| DelayQueue::new(name, d, 0.05, h).unwrap())
             .collect();
         let structure = structure(&queues, h).unwrap();
-        let mut reusing = PredictorWorkspace::new(2, 3);
-        reusing.set_chain_reuse(Some(tolerance));
-        let mut full = PredictorWorkspace::new(2, 3);
-        let (mut p_reused, mut p_full) = (reusing.predictions(), full.predictions());
+        let (mut reusing, mut full, mut p_reused, mut p_full) = twin(2, 3, tolerance);
         let mut x = DVector::from_vec(vec![1.0, -0.5]);
         let mut out = Vec::new();
         for k in 0..60 {
@@ -1355,12 +1379,14 @@ mod tests {
             }
             let context = on_grid(&model, &queues, h);
             let mut law = kappa;
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut law, &mut reusing, &mut p_reused)
-                .unwrap();
-            context
-                .predict_into(&structure, t, x.as_slice(), &mut law, &mut full, &mut p_full)
-                .unwrap();
+            predict_both(
+                &context,
+                &structure,
+                t,
+                &x,
+                &mut law,
+                [(&mut reusing, &mut p_reused), (&mut full, &mut p_full)],
+            );
             let difference = p_reused
                 .iter()
                 .zip(&p_full)
