@@ -12,14 +12,16 @@ use std::path::Path;
 
 use crate::files::{OutputFile, Replace};
 
-use super::mcap_writer::McapWriter;
+use super::mcap_writer::{LogOutput, McapWriter};
 use super::{LogError, Record, RunInfo, Sink, Topic, LOG_FORMAT_VERSION, TOPICS};
 
 /// The first bytes of every MCAP file: an existing file that starts otherwise is never replaced.
 pub const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
 
-/// Uncompressed bytes per chunk.
-const CHUNK_SIZE: usize = 1 << 20;
+/// Uncompressed bytes per chunk: the last chunk is compressed while the run waits to close
+/// the log, so smaller chunks shorten that wait (0.5 ms at 256 KiB against 1 ms at 1 MiB, bicycle
+/// log; the log grows by 0.7 %).
+const CHUNK_SIZE: usize = 1 << 18;
 /// zstd level: 1 is the fastest; higher levels shrink logs by ~10% at several times the cost.
 const ZSTD_LEVEL: i32 = 1;
 
@@ -55,7 +57,7 @@ pub fn sim_time_ns(time: f64) -> u64 {
 }
 
 /// Adds `topic`'s schema and channel; returns the channel id.
-fn add_channel<W: std::io::Write + Send + 'static>(writer: &mut McapWriter<W>, topic: Topic) -> std::io::Result<u16> {
+fn add_channel<W: LogOutput>(writer: &mut McapWriter<W>, topic: Topic) -> std::io::Result<u16> {
     let schema = writer.add_schema(topic.schema(), "protobuf", &super::schema_data(topic as usize))?;
     writer.add_channel(schema, topic.name(), "protobuf")
 }

@@ -31,6 +31,27 @@ mod op {
     pub const DATA_END: u8 = 0x0F;
 }
 
+/// Written bytes made durable part-way once this many accumulate (checked after each chunk,
+/// on the writer thread): the final flush at commit then has little left to wait for.
+const SYNC_EVERY: u64 = 256 << 10;
+
+/// Where a log goes. A file makes the bytes written so far durable in [`LogOutput::sync_written`]
+/// (called between chunks, off the episode thread); an in-memory output has nothing to do.
+pub trait LogOutput: Write + Send + 'static {
+    fn sync_written(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+impl LogOutput for Vec<u8> {}
+
+impl LogOutput for io::BufWriter<std::fs::File> {
+    fn sync_written(&mut self) -> io::Result<()> {
+        self.flush()?;
+        self.get_ref().sync_data()
+    }
+}
+
 /// Message record bytes before the payload: opcode, length, channel, sequence, two times.
 const MESSAGE_PREFIX: usize = 1 + 8 + 2 + 4 + 8 + 8;
 
@@ -130,10 +151,12 @@ enum Job {
 
 /// The data section: owns the output, counts offsets and the CRC, compresses and writes
 /// chunks with their message indexes, and keeps the chunk and metadata indexes.
-struct DataSection<W: Write> {
+struct DataSection<W: LogOutput> {
     out: W,
     /// Bytes written so far (the offset of the next record).
     position: u64,
+    /// `position` at the last [`LogOutput::sync_written`].
+    synced: u64,
     /// CRC of the data section (magic included), until the data end record.
     data_crc: crc32fast::Hasher,
     compressor: zstd::bulk::Compressor<'static>,
@@ -145,7 +168,7 @@ struct DataSection<W: Write> {
     busy: std::time::Duration,
 }
 
-impl<W: Write> DataSection<W> {
+impl<W: LogOutput> DataSection<W> {
     fn write_data(&mut self, bytes: &[u8]) -> io::Result<()> {
         self.out.write_all(bytes)?;
         self.data_crc.update(bytes);
@@ -188,6 +211,10 @@ impl<W: Write> DataSection<W> {
                 indexes,
             } => {
                 self.write_chunk(start_time, end_time, &records, &indexes)?;
+                if self.position - self.synced >= SYNC_EVERY {
+                    self.out.sync_written()?;
+                    self.synced = self.position;
+                }
                 records.clear();
                 return Ok(Some(records));
             }
@@ -257,7 +284,7 @@ impl<W: Write> DataSection<W> {
 /// Where the data section is written: on the caller's thread, or on a writer thread that
 /// compresses and writes chunks while the caller fills the next one. Jobs keep their order,
 /// so both give the same bytes.
-enum Back<W: Write + Send + 'static> {
+enum Back<W: LogOutput> {
     Inline(DataSection<W>),
     /// Inline until the first chunk, then a writer thread (the header, schemas, channels and
     /// the run metadata are written without waking a thread for each).
@@ -265,14 +292,14 @@ enum Back<W: Write + Send + 'static> {
     Thread(WriterThread<W>),
 }
 
-struct WriterThread<W: Write + Send + 'static> {
+struct WriterThread<W: LogOutput> {
     jobs: Option<mpsc::SyncSender<Job>>,
     /// Chunk buffers handed back by the thread.
     spare: mpsc::Receiver<Vec<u8>>,
     thread: Option<std::thread::JoinHandle<io::Result<DataSection<W>>>>,
 }
 
-impl<W: Write + Send + 'static> WriterThread<W> {
+impl<W: LogOutput> WriterThread<W> {
     /// Waits for every submitted job and returns the data section (or the first write error).
     fn join(&mut self) -> io::Result<DataSection<W>> {
         self.jobs.take();
@@ -286,7 +313,7 @@ impl<W: Write + Send + 'static> WriterThread<W> {
     }
 }
 
-impl<W: Write + Send + 'static> Drop for WriterThread<W> {
+impl<W: LogOutput> Drop for WriterThread<W> {
     fn drop(&mut self) {
         // An abandoned writer: the thread finishes what it has before the file goes.
         if self.thread.is_some() {
@@ -295,7 +322,7 @@ impl<W: Write + Send + 'static> Drop for WriterThread<W> {
     }
 }
 
-impl<W: Write + Send + 'static> Back<W> {
+impl<W: LogOutput> Back<W> {
     fn new(section: DataSection<W>, background: bool) -> io::Result<Self> {
         Ok(if background {
             Back::Deferred(Some(section))
@@ -357,7 +384,7 @@ impl<W: Write + Send + 'static> Back<W> {
     }
 }
 
-pub struct McapWriter<W: Write + Send + 'static> {
+pub struct McapWriter<W: LogOutput> {
     back: Back<W>,
     schemas: Vec<SchemaInfo>,
     channels: Vec<ChannelInfo>,
@@ -369,7 +396,7 @@ pub struct McapWriter<W: Write + Send + 'static> {
     bounds: Option<(u64, u64)>,
 }
 
-impl<W: Write + Send + 'static> McapWriter<W> {
+impl<W: LogOutput> McapWriter<W> {
     /// Writes the magic and the header; chunks close once their records reach `chunk_size`
     /// bytes and are compressed with zstd at `level` — on a writer thread when `background`
     /// (the bytes are the same either way).
@@ -384,6 +411,7 @@ impl<W: Write + Send + 'static> McapWriter<W> {
         let mut section = DataSection {
             out,
             position: 0,
+            synced: 0,
             data_crc: crc32fast::Hasher::new(),
             compressor: zstd::bulk::Compressor::new(level)?,
             compressed: Vec::new(),
@@ -779,6 +807,65 @@ mod tests {
         }
         fn flush(&mut self) -> io::Result<()> {
             Ok(())
+        }
+    }
+
+    impl LogOutput for FailingAfter {}
+
+    /// An in-memory output that records how many bytes it held at each sync.
+    #[derive(Default)]
+    struct SyncRecording {
+        bytes: Vec<u8>,
+        synced_at: std::sync::Arc<std::sync::Mutex<Vec<usize>>>,
+    }
+
+    impl Write for SyncRecording {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.bytes.write(buf)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl LogOutput for SyncRecording {
+        fn sync_written(&mut self) -> io::Result<()> {
+            self.synced_at.lock().unwrap().push(self.bytes.len());
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn written_bytes_are_synced_between_chunks_about_every_sync_every_bytes() {
+        for background in [false, true] {
+            let output = SyncRecording::default();
+            let synced_at = output.synced_at.clone();
+            // Incompressible payloads: the file grows by about a chunk per chunk.
+            let mut w = McapWriter::new(output, "", "test", 64 << 10, 1, background).unwrap();
+            let schema = w.add_schema("pkg.A", "protobuf", b"schema").unwrap();
+            let a = w.add_channel(schema, "/a", "protobuf").unwrap();
+            let mut state = 0x9E37_79B9_7F4A_7C15u64;
+            for i in 0..4000u32 {
+                let payload: Vec<u8> = (0..300)
+                    .map(|_| {
+                        state ^= state << 13;
+                        state ^= state >> 7;
+                        state ^= state << 17;
+                        state as u8
+                    })
+                    .collect();
+                w.write_message(a, i, u64::from(i), &payload).unwrap();
+            }
+            let written = w.finish().unwrap().bytes.len();
+            let synced_at = synced_at.lock().unwrap().clone();
+            // 1.3 MB written: a sync once 256 KiB accumulate (at most a chunk more).
+            assert!(synced_at.len() >= 3, "{synced_at:?}");
+            let mut last = 0;
+            for at in synced_at {
+                assert!(at - last >= SYNC_EVERY as usize && at - last < SYNC_EVERY as usize + (80 << 10));
+                last = at;
+            }
+            assert!(written - last < SYNC_EVERY as usize + (80 << 10));
         }
     }
 
