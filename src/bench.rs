@@ -45,8 +45,12 @@ pub struct Timing {
     pub wall_seconds: f64,
     pub real_time_factor: f64,
     pub microseconds_per_step: f64,
-    /// Wall time / the bare loop's wall time.
+    /// Median over the repeats of wall time / the same repeat's bare-loop wall time (each
+    /// repeat times the bare loop and the runs back to back, so a machine that slows down
+    /// between repeats moves both).
     pub ratio_to_bare: f64,
+    /// First and third quartiles of those per-repeat ratios: the spread on this machine.
+    pub ratio_quartiles: [f64; 2],
 }
 
 /// One benchmarked configuration (scenario with one predictor step).
@@ -73,8 +77,8 @@ pub struct BenchRow {
     /// Median time the MCAP writer thread spent compressing and writing chunks while the
     /// episode ran (the work `pipeline_mcap` did not wait for).
     pub writer_thread_seconds: f64,
-    /// (`pipeline_mcap` wall time + writer thread time) / bare: the whole cost of a logged run,
-    /// what a core busy with another run (a sweep on every core) pays.
+    /// Median over the repeats of (`pipeline_mcap` wall time + writer thread time) / bare: the
+    /// whole cost of a logged run, what a core busy with another run (a sweep on every core) pays.
     pub pipeline_mcap_cpu_ratio: f64,
     /// What a sweep or falsification run pays before its first step (median): scenario parse,
     /// episode assembly with the MJCF compile, log open.
@@ -90,22 +94,29 @@ pub struct BenchRow {
     pub collision: bool,
 }
 
-fn median(mut samples: Vec<f64>) -> f64 {
-    samples.sort_by(f64::total_cmp);
-    let n = samples.len();
-    if n % 2 == 1 {
-        samples[n / 2]
-    } else {
-        0.5 * (samples[n / 2 - 1] + samples[n / 2])
-    }
+/// The q-quantile of `samples` (linear between order statistics; q = 0.5 is the median).
+fn quantile(samples: &[f64], q: f64) -> f64 {
+    let mut sorted = samples.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let at = q * (sorted.len() - 1) as f64;
+    let (below, above) = (at.floor() as usize, at.ceil() as usize);
+    sorted[below] + (at - below as f64) * (sorted[above] - sorted[below])
 }
 
-fn timing(wall_seconds: f64, simulated_time: f64, steps: u64, bare_seconds: f64) -> Timing {
+fn median(samples: &[f64]) -> f64 {
+    quantile(samples, 0.5)
+}
+
+/// Per-repeat `walls` against the same repeats' `bare` walls.
+fn timing(walls: &[f64], simulated_time: f64, steps: u64, bare: &[f64]) -> Timing {
+    let wall_seconds = median(walls);
+    let ratios: Vec<f64> = walls.iter().zip(bare).map(|(w, b)| w / b).collect();
     Timing {
         wall_seconds,
         real_time_factor: simulated_time / wall_seconds,
         microseconds_per_step: wall_seconds / steps as f64 * 1e6,
-        ratio_to_bare: wall_seconds / bare_seconds,
+        ratio_to_bare: median(&ratios),
+        ratio_quartiles: [quantile(&ratios, 0.25), quantile(&ratios, 0.75)],
     }
 }
 
@@ -199,9 +210,11 @@ pub fn run(
             analyze::analyze_file(&log_path)?;
             analysis.push(started.elapsed().as_secs_f64());
         }
-        let (startup, analysis, logged) = (median(startup), median(analysis), median(pipeline_mcap.clone()));
-        let bare = median(bare);
-        let writer_thread = median(writer_thread);
+        let whole: Vec<f64> = (pipeline_mcap.iter().zip(&writer_thread).zip(&bare))
+            .map(|((logged, writer), bare)| (logged + writer) / bare)
+            .collect();
+        let (startup, analysis, logged) = (median(&startup), median(&analysis), median(&pipeline_mcap));
+        let writer_thread = median(&writer_thread);
         let metrics = analyze::analyze_file(&log_path)?;
         rows.push(BenchRow {
             scenario: loaded.scenario.name.clone(),
@@ -212,12 +225,12 @@ pub fn run(
             steps,
             simulated_time,
             repeats,
-            bare: timing(bare, simulated_time, steps, bare),
+            bare: timing(&bare, simulated_time, steps, &bare),
             bare_final_state_deviation: replay_deviation,
-            pipeline: timing(median(pipeline), simulated_time, steps, bare),
-            pipeline_mcap: timing(logged, simulated_time, steps, bare),
+            pipeline: timing(&pipeline, simulated_time, steps, &bare),
+            pipeline_mcap: timing(&pipeline_mcap, simulated_time, steps, &bare),
             writer_thread_seconds: writer_thread,
-            pipeline_mcap_cpu_ratio: (logged + writer_thread) / bare,
+            pipeline_mcap_cpu_ratio: median(&whole),
             startup_seconds: startup,
             startup_share: startup / logged,
             analysis_seconds: analysis,
@@ -244,7 +257,7 @@ pub fn table(rows: &[BenchRow]) -> String {
         "bare RTF",
         "pipeline RTF",
         "+MCAP RTF",
-        "+MCAP / bare",
+        "+MCAP / bare (quartiles)",
         "with writer thread",
         "us/step",
         "start-up ms (% of run)",
@@ -269,7 +282,10 @@ pub fn table(rows: &[BenchRow]) -> String {
             format!("{:.0}x", r.bare.real_time_factor),
             format!("{:.0}x", r.pipeline.real_time_factor),
             format!("{:.0}x", r.pipeline_mcap.real_time_factor),
-            format!("{:.2}", r.pipeline_mcap.ratio_to_bare),
+            format!(
+                "{:.2} ({:.2}-{:.2})",
+                r.pipeline_mcap.ratio_to_bare, r.pipeline_mcap.ratio_quartiles[0], r.pipeline_mcap.ratio_quartiles[1]
+            ),
             format!("{:.2}", r.pipeline_mcap_cpu_ratio),
             format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
             format!("{:.1} ({:.0} %)", r.startup_seconds * 1e3, r.startup_share * 100.0),
@@ -285,4 +301,34 @@ pub fn table(rows: &[BenchRow]) -> String {
         ]);
     }
     analyze::align_columns(&lines)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantiles_interpolate_between_order_statistics() {
+        let samples = [4.0, 1.0, 3.0, 2.0];
+        assert_eq!(median(&samples), 2.5);
+        assert_eq!(quantile(&samples, 0.25), 1.75);
+        assert_eq!(quantile(&samples, 0.75), 3.25);
+        assert_eq!((quantile(&samples, 0.0), quantile(&samples, 1.0)), (1.0, 4.0));
+        assert_eq!(median(&[7.0]), 7.0);
+    }
+
+    #[test]
+    fn ratios_pair_each_run_with_its_own_bare_loop() {
+        // The machine halves its speed during the second repeat, after its bare loop: the
+        // paired ratios are 1.5, 3 and 1.5, median 1.5 (the medians' ratio would be 3 / 1).
+        let bare = [1.0, 1.0, 2.0];
+        let walls = [1.5, 3.0, 3.0];
+        let t = timing(&walls, 10.0, 100, &bare);
+        assert_eq!(t.wall_seconds, 3.0);
+        assert_eq!(t.ratio_to_bare, 1.5);
+        assert_eq!(t.ratio_quartiles, [1.5, 2.25]);
+        let skewed = timing(&[1.0, 3.0, 2.0], 10.0, 100, &[1.0, 1.0, 1.0]);
+        assert_eq!((skewed.ratio_to_bare, skewed.ratio_quartiles), (2.0, [1.5, 2.5]));
+        assert_eq!(skewed.real_time_factor, 5.0);
+    }
 }

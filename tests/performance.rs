@@ -42,6 +42,14 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
         );
     }
     assert!((row["bare"]["ratio_to_bare"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    // One repeat: its ratio is the median and both quartiles.
+    for timing in ["pipeline", "pipeline_mcap"] {
+        let t = &row[timing];
+        let ratio = t["ratio_to_bare"].as_f64().unwrap();
+        let direct = t["wall_seconds"].as_f64().unwrap() / row["bare"]["wall_seconds"].as_f64().unwrap();
+        assert!((ratio - direct).abs() < 1e-12, "{timing}: {t}");
+        assert_eq!(t["ratio_quartiles"], serde_json::json!([ratio, ratio]), "{timing}");
+    }
     // Start-up (parse, assembly, log open) and analysis are measured apart from the run; the
     // share is start-up over the logged run's wall time (no timing is asserted).
     let (startup, analysis) = (
