@@ -74,8 +74,8 @@ pub struct BenchRow {
     pub bare_final_state_deviation: f64,
     pub pipeline: Timing,
     pub pipeline_mcap: Timing,
-    /// Median time the MCAP writer thread spent compressing and writing chunks while the
-    /// episode ran (the work `pipeline_mcap` did not wait for).
+    /// Median time the MCAP writer thread spent compressing, writing and syncing chunks (the
+    /// syncs wait for the disk) while the episode ran (the work `pipeline_mcap` did not wait for).
     pub writer_thread_seconds: f64,
     /// Median over the repeats of (`pipeline_mcap` wall time + writer thread time) / bare: the
     /// whole cost of a logged run, what a core busy with another run (a sweep on every core) pays.

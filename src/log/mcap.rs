@@ -123,8 +123,9 @@ impl McapSink {
         &self.final_path
     }
 
-    /// Time the writer thread spent compressing and writing chunks, once finished (CPU time
-    /// the episode's thread did not spend; `mjsafe bench` reports it).
+    /// Time the writer thread spent compressing, writing and syncing chunks, once finished
+    /// (work the episode's thread did not wait for; the syncs wait for the disk, not the CPU;
+    /// `mjsafe bench` reports it).
     pub fn writer_busy(&self) -> std::time::Duration {
         self.writer_busy
     }

@@ -7,7 +7,8 @@
 //! schemas and channels, metadata, zstd chunks each followed by their message indexes, data
 //! end with the data-section CRC, then a summary (schemas, channels, statistics, chunk and
 //! metadata indexes, summary offsets) and the footer with the summary CRC. No seeking: offsets
-//! are counted as bytes are written.
+//! are counted as bytes are written. Written bytes are made durable every 256 KiB between
+//! chunks ([`LogOutput`]), so closing a log waits only for the last of them.
 
 use std::io::{self, Write};
 use std::sync::mpsc;
@@ -38,6 +39,7 @@ const SYNC_EVERY: u64 = 256 << 10;
 /// Where a log goes. A file makes the bytes written so far durable in [`LogOutput::sync_written`]
 /// (called between chunks, off the episode thread); an in-memory output has nothing to do.
 pub trait LogOutput: Write + Send + 'static {
+    /// Makes every byte written so far durable (a file: flush, then `fdatasync`).
     fn sync_written(&mut self) -> io::Result<()> {
         Ok(())
     }
@@ -561,7 +563,7 @@ impl<W: LogOutput> McapWriter<W> {
         self.finish_timed().map(|(out, _)| out)
     }
 
-    /// [`McapWriter::finish`], also returning the time spent compressing and writing chunks
+    /// [`McapWriter::finish`], also returning the time spent compressing, writing and syncing chunks
     /// (on the writer thread when there is one: work the caller did not wait for).
     pub fn finish_timed(mut self) -> io::Result<(W, std::time::Duration)> {
         self.finish_chunk()?;
