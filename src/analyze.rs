@@ -156,6 +156,87 @@ pub fn analyze_reader(input: impl Read, file: &str) -> Result<RunMetrics, Analyz
     analysis.conclude(result)
 }
 
+/// The analysis of a running episode, as a sink: each record a metric reads is encoded as
+/// the log encodes it and handed to the same analysis [`analyze_file`] runs on the log, with
+/// the same run metadata first and the same status last, so the metrics are those of the run's
+/// log (`tests/analysis_sink.rs` compares them on every scenario) without writing, compressing
+/// or reading one. What a falsification candidate runs with (`sweep::execute_analysed`).
+pub struct AnalysisSink {
+    analysis: Option<Analysis>,
+    /// What stands for the log's path in errors.
+    name: String,
+    /// The record being handed on, encoded (reused).
+    encoded: Vec<u8>,
+    /// Records observed, as the log would count its messages.
+    records: u64,
+    metrics: Option<Result<RunMetrics, AnalyzeError>>,
+}
+
+impl AnalysisSink {
+    /// An analysis of the run described by `info`; `name` stands for the log in the metrics'
+    /// `file` and in errors.
+    pub fn new(info: &crate::log::RunInfo, name: &str) -> AnalysisSink {
+        let mut analysis = Analysis::new(name);
+        // Infallible: the run metadata is read, never checked against anything.
+        let _ = analysis.metadata(read::RUN_METADATA, &info.metadata());
+        AnalysisSink {
+            analysis: Some(analysis),
+            name: name.to_string(),
+            encoded: Vec::new(),
+            records: 0,
+            metrics: None,
+        }
+    }
+
+    /// The run's metrics once the episode has finished the sink (an incomplete run's have
+    /// `complete` false, as its log's would), or why there are none.
+    pub fn metrics(self) -> Result<RunMetrics, AnalyzeError> {
+        self.metrics.unwrap_or_else(|| {
+            Err(AnalyzeError::Read(ReadError::Foreign {
+                file: self.name,
+                message: "the run did not finish its analysis".into(),
+            }))
+        })
+    }
+}
+
+impl crate::log::Sink for AnalysisSink {
+    fn record(&mut self, record: &crate::log::Record) -> Result<(), crate::log::LogError> {
+        let Some(analysis) = self.analysis.as_mut() else {
+            return Ok(());
+        };
+        self.records += 1;
+        let topic = record.kind();
+        if !reads(topic) {
+            return Ok(());
+        }
+        self.encoded.clear();
+        record.encode_append(&mut self.encoded);
+        let time = crate::log::mcap::sim_time_ns(record.time());
+        let message = Message::new(topic, time, &self.encoded, &self.name);
+        if let Err(e) = analysis.message(&message) {
+            // Our own encoding that the analysis cannot decode: the metrics say so.
+            let analysis = self.analysis.take().expect("checked above");
+            self.metrics = Some(analysis.conclude(Err(e)));
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), crate::log::LogError> {
+        if let Some(mut analysis) = self.analysis.take() {
+            let _ = analysis.metadata(read::STATUS_METADATA, &crate::log::status_metadata(complete));
+            // A log has a channel for every topic but the optional ones, messages or not.
+            let topics = Topic::ALL.into_iter().filter(|t| !t.is_optional()).collect();
+            let read = RunRead {
+                messages: self.records,
+                topics,
+            };
+            self.metrics = Some(analysis.conclude(Ok(read)));
+        }
+        Ok(())
+    }
+}
+
 #[derive(Default)]
 struct Accumulator {
     scenario: String,
@@ -204,8 +285,8 @@ struct Accumulator {
 }
 
 /// The state of one analysis: the metrics so far.
-struct Analysis<'f> {
-    file: &'f str,
+struct Analysis {
+    file: String,
     acc: Accumulator,
     decoder: Decoder,
     saw_mjsafe_metadata: bool,
@@ -286,7 +367,7 @@ fn apply_run_metadata(acc: &mut Accumulator, metadata: &BTreeMap<String, String>
     acc.max_delay = metadata.get("max_delay").and_then(|s| s.parse().ok());
 }
 
-impl RunVisitor for Analysis<'_> {
+impl RunVisitor for Analysis {
     fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
         match name {
             read::RUN_METADATA => {
@@ -303,6 +384,9 @@ impl RunVisitor for Analysis<'_> {
     }
 
     fn message(&mut self, m: &Message<'_>) -> Result<(), ReadError> {
+        if !reads(m.topic) {
+            return Ok(());
+        }
         let acc = &mut self.acc;
         match m.topic {
             Topic::State => acc.add_state(self.decoder.state(m)?),
@@ -311,17 +395,24 @@ impl RunVisitor for Analysis<'_> {
             Topic::Issued => acc.add_issued(self.decoder.issued(m)?),
             Topic::Prediction => acc.add_prediction(m.decode()?),
             Topic::Event => acc.add_event(m.decode()?),
-            // Read by no metric.
-            Topic::Applied | Topic::Scene | Topic::Transform | Topic::Log | Topic::Measured | Topic::Actuated => {}
+            _ => {}
         }
         Ok(())
     }
 }
 
-impl<'f> Analysis<'f> {
-    fn new(file: &'f str) -> Self {
+/// Whether some metric reads `topic` (the others' messages are not decoded).
+fn reads(topic: Topic) -> bool {
+    match topic {
+        Topic::State | Topic::Barrier | Topic::Filter | Topic::Issued | Topic::Prediction | Topic::Event => true,
+        Topic::Applied | Topic::Scene | Topic::Transform | Topic::Log | Topic::Measured | Topic::Actuated => false,
+    }
+}
+
+impl Analysis {
+    fn new(file: &str) -> Self {
         Analysis {
-            file,
+            file: file.to_string(),
             acc: Accumulator::default(),
             decoder: Decoder::default(),
             saw_mjsafe_metadata: false,
@@ -344,7 +435,7 @@ impl<'f> Analysis<'f> {
                 message,
             }) => {
                 let partial = (saw_mjsafe_metadata && acc.states > 0).then(|| {
-                    let mut m = acc.finish(file, &[]);
+                    let mut m = acc.finish(&file, &[]);
                     m.complete = false;
                     m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
                     Box::new(m)
@@ -360,12 +451,12 @@ impl<'f> Analysis<'f> {
         };
         if acc.states == 0 {
             return Err(ReadError::Foreign {
-                file: file.into(),
+                file,
                 message: "no mjsafe metadata record or no /state messages".into(),
             }
             .into());
         }
-        Ok(acc.finish(file, &read.missing_topics()))
+        Ok(acc.finish(&file, &read.missing_topics()))
     }
 }
 

@@ -205,9 +205,8 @@ fn objective_value(metrics: &FlatMetrics, name: &str) -> Option<f64> {
 struct Evaluator<'a> {
     problem: &'a Problem,
     scenario: &'a Path,
-    dir: PathBuf,
-    /// File names of in-flight logs (deleted after analysis).
-    next_log: AtomicUsize,
+    /// Numbers the candidates' runs (names in their errors).
+    next_run: AtomicUsize,
 }
 
 impl Evaluator<'_> {
@@ -222,23 +221,21 @@ impl Evaluator<'_> {
 
     /// The metric of one run of the scenario with `overrides`, or why there is none.
     fn metric(&self, overrides: Vec<String>) -> Result<f64, String> {
-        let index = self.next_log.fetch_add(1, Ordering::Relaxed);
+        let index = self.next_run.fetch_add(1, Ordering::Relaxed);
         let run = Run {
             index,
             overrides,
             parameters: Vec::new(),
         };
-        let row = sweep::execute_logged(self.scenario, &run, &self.dir, format!("candidate-{index}.mcap"));
-        if let Some(log) = &row.log {
-            let _ = std::fs::remove_file(self.dir.join(log));
-        }
+        // Analysed as it runs: the metrics its log would give, without writing one.
+        let row = sweep::execute_analysed(self.scenario, &run, &format!("candidate {index}"));
         if let Some(e) = row.error {
             return Err(e);
         }
-        let metrics = row.metrics.ok_or("the run left no log")?;
+        let metrics = row.metrics.ok_or("the run gave no metrics")?;
         objective_value(&metrics, &self.problem.objective).ok_or_else(|| {
             format!(
-                "the log has no {} (see `mjsafe analyze --json`)",
+                "the run has no {} (see `mjsafe analyze --json` of its log)",
                 self.problem.objective
             )
         })
@@ -309,12 +306,7 @@ fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)]) {
 }
 
 /// Runs one search. `progress` is called after every generation with the search so far.
-pub fn search(
-    problem: &Problem,
-    method: Method,
-    dir: &Path,
-    mut progress: impl FnMut(&Search),
-) -> Result<Search, FalsifyError> {
+pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Search)) -> Result<Search, FalsifyError> {
     if problem.ranges.is_empty() {
         return Err(FalsifyError::Spec(
             "nothing to search: give at least one --range KEY=LO..HI".into(),
@@ -343,22 +335,10 @@ pub fn search(
             crate::scenario::load(&problem.scenario, overrides).map_err(|e| FalsifyError::Spec(e.to_string()))?;
         crate::episode::Episode::new(&loaded).map_err(|e| FalsifyError::Spec(e.to_string()))?;
     }
-    let scratch = dir.join(format!(
-        ".evaluations-{}",
-        match method {
-            Method::Cmaes => "cmaes",
-            Method::Random => "random",
-        }
-    ));
-    std::fs::create_dir_all(&scratch).map_err(|reason| FalsifyError::Io {
-        path: scratch.display().to_string(),
-        reason,
-    })?;
     let evaluator = Evaluator {
         problem,
         scenario: &problem.scenario,
-        dir: scratch.clone(),
-        next_log: AtomicUsize::new(0),
+        next_run: AtomicUsize::new(0),
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(problem.threads.max(1))
@@ -375,7 +355,6 @@ pub fn search(
         Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
     };
-    let _ = std::fs::remove_dir_all(&scratch);
     result?;
     Ok(found)
 }
@@ -699,9 +678,9 @@ pub fn falsify(
         path: dir.display().to_string(),
         reason,
     })?;
-    let mut searches = vec![search(problem, Method::Cmaes, dir, &mut progress)?];
+    let mut searches = vec![search(problem, Method::Cmaes, &mut progress)?];
     if compare_random && !searches[0].interrupted {
-        searches.push(search(problem, Method::Random, dir, &mut progress)?);
+        searches.push(search(problem, Method::Random, &mut progress)?);
     }
     let optimiser = &searches[0];
     let chosen = if problem.worst {

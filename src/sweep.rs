@@ -570,18 +570,42 @@ pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
     execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index))
 }
 
-/// One run of `scenario` with the run's overrides into `dir/log_name`, analysed (what every
-/// sweep run and falsification candidate is). Never fails: a failure is the row's `error`.
-pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: String) -> Row {
-    let log_path = dir.join(&log_name);
-    let mut row = Row {
+/// A run's row before it runs.
+fn row_of(run: &Run) -> Row {
+    Row {
         index: run.index,
         parameters: run.parameters.iter().cloned().collect(),
         log: None,
         metrics: None,
         error: None,
         not_run: false,
-    };
+    }
+}
+
+/// The row's error: `error` (the run's own, or why it could not run), else the analysis's,
+/// else the metrics' (a run stopped by an error), else `incomplete` for an incomplete run.
+fn settle(mut row: Row, error: Option<String>, incomplete: &str) -> Row {
+    row.error = error
+        .or(row.error)
+        .or_else(|| row.metrics.as_ref().and_then(|m| m.error.clone()))
+        .or_else(|| {
+            row.metrics
+                .as_ref()
+                .filter(|m| !m.complete)
+                .map(|_| incomplete.to_string())
+        });
+    row
+}
+
+fn panicked(payload: &(dyn std::any::Any + Send)) -> String {
+    format!("the run panicked: {}", panic_message(payload))
+}
+
+/// One run of `scenario` with the run's overrides into `dir/log_name`, analysed (what every
+/// sweep run is). Never fails: a failure is the row's `error`.
+pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: String) -> Row {
+    let log_path = dir.join(&log_name);
+    let mut row = row_of(run);
     // A log of an earlier sweep under this name must not pass for this run's (anything else
     // there is kept, and refused as this run's log).
     if mcap::check_target(&log_path, &[]).is_ok() {
@@ -601,7 +625,7 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
     let error = match outcome {
         Ok(Ok(in_run)) => in_run,
         Ok(Err(e)) => Some(e),
-        Err(payload) => Some(format!("the run panicked: {}", panic_message(payload.as_ref()))),
+        Err(payload) => Some(panicked(payload.as_ref())),
     };
     if log_path.exists() {
         row.log = Some(log_name);
@@ -610,16 +634,35 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
             Err(e) => row.error = Some(e.to_string()),
         }
     }
-    row.error = error
-        .or(row.error)
-        .or_else(|| row.metrics.as_ref().and_then(|m| m.error.clone()))
-        .or_else(|| {
-            row.metrics
-                .as_ref()
-                .filter(|m| !m.complete)
-                .map(|_| "the log is incomplete".to_string())
-        });
-    row
+    settle(row, error, "the log is incomplete")
+}
+
+/// One run of `scenario` with the run's overrides, analysed while it runs and not logged (what
+/// a falsification candidate is): the metrics its log would give ([`analyze::AnalysisSink`]),
+/// without writing, compressing and reading the log. `name` stands for the log in the metrics
+/// and errors. Never fails: a failure is the row's `error`.
+pub fn execute_analysed(scenario_path: &Path, run: &Run, name: &str) -> Row {
+    let mut row = row_of(run);
+    type Analysed = (Option<String>, Result<analyze::RunMetrics, analyze::AnalyzeError>);
+    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Analysed, String> {
+        let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
+        let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
+        let mut sink = analyze::AnalysisSink::new(episode.info(), name);
+        let summary = episode.run(&mut [&mut sink]).map_err(|e| e.to_string())?;
+        Ok((summary.error.map(|e| e.to_string()), sink.metrics()))
+    }));
+    let error = match outcome {
+        Ok(Ok((in_run, metrics))) => {
+            match metrics {
+                Ok(m) => row.metrics = Some(FlatMetrics::from(&m)),
+                Err(e) => row.error = Some(e.to_string()),
+            }
+            in_run
+        }
+        Ok(Err(e)) => Some(e),
+        Err(payload) => Some(panicked(payload.as_ref())),
+    };
+    settle(row, error, "the run is incomplete")
 }
 
 /// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared

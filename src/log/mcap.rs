@@ -5,7 +5,6 @@
 //! The file is written as `<path>.partial` (created exclusively, see [`crate::files`]) and
 //! renamed when finished, so a log under its final name is always complete and readable.
 
-use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
@@ -13,7 +12,7 @@ use std::path::Path;
 use crate::files::{OutputFile, Replace};
 
 use super::mcap_writer::{LogOutput, McapWriter};
-use super::{LogError, Record, RunInfo, Sink, Topic, LOG_FORMAT_VERSION, TOPICS};
+use super::{LogError, Record, RunInfo, Sink, Topic, TOPICS};
 
 /// The first bytes of every MCAP file: an existing file that starts otherwise is never replaced.
 pub const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -80,34 +79,11 @@ impl McapSink {
         for topic in Topic::ALL.into_iter().filter(|t| !t.is_optional()) {
             channel_ids[topic as usize] = add_channel(&mut writer, topic).map_err(|e| err(e.to_string()))?;
         }
-        let metadata = BTreeMap::from([
-            ("mjsafe_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-            ("log_format_version".to_string(), LOG_FORMAT_VERSION.to_string()),
-            ("mujoco_version".to_string(), info.mujoco_version.clone()),
-            ("scenario_name".to_string(), info.scenario_name.clone()),
-            ("scenario_path".to_string(), info.scenario_path.clone()),
-            ("scenario".to_string(), info.scenario_text.clone()),
-            ("scenario_resolved".to_string(), info.scenario_resolved.clone()),
-            ("overrides".to_string(), info.overrides.join("\n")),
-            ("timestep".to_string(), format!("{}", info.timestep)),
-            ("control_period".to_string(), format!("{}", info.control_period)),
-        ]);
-        let mut metadata = metadata;
-        metadata.insert("max_delay".to_string(), format!("{}", info.max_delay));
-        let indices = |list: &[usize]| list.iter().map(usize::to_string).collect::<Vec<_>>().join(" ");
-        metadata.insert(
-            "planar_position".to_string(),
-            info.planar_position.map_or(String::new(), |p| indices(&p)),
-        );
-        metadata.insert(
-            "heading_index".to_string(),
-            info.heading_index.map_or(String::new(), |h| indices(&[h])),
-        );
-        if let Some(t) = info.prescribed_time {
-            metadata.insert("prescribed_time".to_string(), format!("{t}"));
-        }
         writer
-            .write_metadata("mjsafe", &metadata.into_iter().collect::<Vec<_>>())
+            .write_metadata(
+                super::read::RUN_METADATA,
+                &info.metadata().into_iter().collect::<Vec<_>>(),
+            )
             .map_err(|e| err(e.to_string()))?;
         Ok(McapSink {
             writer: Some(writer),
@@ -175,12 +151,9 @@ impl Sink for McapSink {
         let Some(mut writer) = self.writer.take() else {
             return Ok(());
         };
-        let status = [(
-            "complete".to_string(),
-            if complete { "true" } else { "false" }.to_string(),
-        )];
+        let status: Vec<_> = super::status_metadata(complete).into_iter().collect();
         writer
-            .write_metadata("mjsafe_status", &status)
+            .write_metadata(super::read::STATUS_METADATA, &status)
             .map_err(|e| self.error(e.to_string()))?;
         let (out, busy) = writer.finish_timed().map_err(|e| self.error(e.to_string()))?;
         self.writer_busy = busy;

@@ -2,6 +2,8 @@
 //! back into the simulation). The MCAP sink is the file format of record; rerun comes later
 //! as a second sink.
 
+use std::collections::BTreeMap;
+
 pub mod info;
 pub mod mcap;
 pub mod mcap_writer;
@@ -298,6 +300,45 @@ pub struct RunInfo {
     /// them (`Dynamics::planar_position`, `heading_index`); None for non-planar systems.
     pub planar_position: Option<[usize; 2]>,
     pub heading_index: Option<usize>,
+}
+
+impl RunInfo {
+    /// The run metadata record's entries ([`read::RUN_METADATA`]): what every reader of a run
+    /// learns before its first message (the MCAP log's record, and what an in-memory analysis
+    /// is given the same way).
+    pub fn metadata(&self) -> BTreeMap<String, String> {
+        let indices = |list: &[usize]| list.iter().map(usize::to_string).collect::<Vec<_>>().join(" ");
+        let mut metadata = BTreeMap::from([
+            ("mjsafe_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("log_format_version".to_string(), LOG_FORMAT_VERSION.to_string()),
+            ("mujoco_version".to_string(), self.mujoco_version.clone()),
+            ("scenario_name".to_string(), self.scenario_name.clone()),
+            ("scenario_path".to_string(), self.scenario_path.clone()),
+            ("scenario".to_string(), self.scenario_text.clone()),
+            ("scenario_resolved".to_string(), self.scenario_resolved.clone()),
+            ("overrides".to_string(), self.overrides.join("\n")),
+            ("timestep".to_string(), format!("{}", self.timestep)),
+            ("control_period".to_string(), format!("{}", self.control_period)),
+            ("max_delay".to_string(), format!("{}", self.max_delay)),
+            (
+                "planar_position".to_string(),
+                self.planar_position.map_or(String::new(), |p| indices(&p)),
+            ),
+            (
+                "heading_index".to_string(),
+                self.heading_index.map_or(String::new(), |h| indices(&[h])),
+            ),
+        ]);
+        if let Some(t) = self.prescribed_time {
+            metadata.insert("prescribed_time".to_string(), format!("{t}"));
+        }
+        metadata
+    }
+}
+
+/// The status metadata record's entries ([`read::STATUS_METADATA`]), written when a run ends.
+pub fn status_metadata(complete: bool) -> BTreeMap<String, String> {
+    BTreeMap::from([("complete".to_string(), complete.to_string())])
 }
 
 #[derive(Debug, thiserror::Error)]

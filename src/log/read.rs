@@ -222,7 +222,18 @@ pub struct Message<'a> {
     file: &'a str,
 }
 
-impl Message<'_> {
+impl<'a> Message<'a> {
+    /// A message handed on without a file (an in-memory analysis of a running episode);
+    /// `file` names its source in errors.
+    pub(crate) fn new(topic: Topic, log_time: u64, data: &'a [u8], file: &'a str) -> Message<'a> {
+        Message {
+            topic,
+            log_time,
+            data,
+            file,
+        }
+    }
+
     /// The decoding error of this message as a [`ReadError`].
     fn decode_error(&self, e: prost::DecodeError) -> ReadError {
         ReadError::Decode {
