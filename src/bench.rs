@@ -74,6 +74,9 @@ pub struct BenchRow {
     pub bare_final_state_deviation: f64,
     pub pipeline: Timing,
     pub pipeline_mcap: Timing,
+    /// The run analysed in memory instead of logged (`analyze::AnalysisSink`, its metrics
+    /// included): what a falsification candidate costs.
+    pub pipeline_analysed: Timing,
     /// Median time the MCAP writer thread spent compressing, writing and syncing chunks (the
     /// syncs wait for the disk) while the episode ran (the work `pipeline_mcap` did not wait for).
     pub writer_thread_seconds: f64,
@@ -185,6 +188,7 @@ pub fn run(
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
         let (mut startup, mut analysis, mut writer_thread) = (Vec::new(), Vec::new(), Vec::new());
+        let mut analysed = Vec::new();
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
@@ -209,6 +213,17 @@ pub fn run(
             let started = Instant::now();
             analyze::analyze_file(&log_path)?;
             analysis.push(started.elapsed().as_secs_f64());
+
+            // As a falsification candidate: analysed as it runs, no log.
+            let mut episode = Episode::new(&loaded)?;
+            let mut sink = analyze::AnalysisSink::new(episode.info(), "the in-memory analysis");
+            let started = Instant::now();
+            let summary = episode.run(&mut [&mut sink])?;
+            sink.metrics()?;
+            analysed.push(started.elapsed().as_secs_f64());
+            if let Some(e) = summary.error {
+                return Err(BenchError::Stopped(e.to_string()));
+            }
         }
         let whole: Vec<f64> = (pipeline_mcap.iter().zip(&writer_thread).zip(&bare))
             .map(|((logged, writer), bare)| (logged + writer) / bare)
@@ -229,6 +244,7 @@ pub fn run(
             bare_final_state_deviation: replay_deviation,
             pipeline: timing(&pipeline, simulated_time, steps, &bare),
             pipeline_mcap: timing(&pipeline_mcap, simulated_time, steps, &bare),
+            pipeline_analysed: timing(&analysed, simulated_time, steps, &bare),
             writer_thread_seconds: writer_thread,
             pipeline_mcap_cpu_ratio: median(&whole),
             startup_seconds: startup,
@@ -259,6 +275,7 @@ pub fn table(rows: &[BenchRow]) -> String {
         "+MCAP RTF",
         "+MCAP / bare (quartiles)",
         "with writer thread",
+        "analysed in memory / bare",
         "us/step",
         "start-up ms (% of run)",
         "analysis ms",
@@ -287,6 +304,7 @@ pub fn table(rows: &[BenchRow]) -> String {
                 r.pipeline_mcap.ratio_to_bare, r.pipeline_mcap.ratio_quartiles[0], r.pipeline_mcap.ratio_quartiles[1]
             ),
             format!("{:.2}", r.pipeline_mcap_cpu_ratio),
+            format!("{:.2}", r.pipeline_analysed.ratio_to_bare),
             format!("{:.2}", r.pipeline_mcap.microseconds_per_step),
             format!("{:.1} ({:.0} %)", r.startup_seconds * 1e3, r.startup_share * 100.0),
             format!("{:.1}", r.analysis_seconds * 1e3),

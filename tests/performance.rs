@@ -31,7 +31,7 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
     assert!((row["simulated_time"].as_f64().unwrap() - 2.0).abs() < 1e-12);
     // The default predictor step is the control period (every delay is a multiple of it).
     assert!((row["predictor_step"].as_f64().unwrap() - 0.01).abs() < 1e-12);
-    for timing in ["bare", "pipeline", "pipeline_mcap"] {
+    for timing in ["bare", "pipeline", "pipeline_mcap", "pipeline_analysed"] {
         let t = &row[timing];
         let wall = t["wall_seconds"].as_f64().unwrap();
         assert!(wall > 0.0 && wall.is_finite(), "{timing}: {t}");
@@ -43,7 +43,7 @@ fn bench_reports_the_pipeline_against_the_bare_physics_loop() {
     }
     assert!((row["bare"]["ratio_to_bare"].as_f64().unwrap() - 1.0).abs() < 1e-12);
     // One repeat: its ratio is the median and both quartiles.
-    for timing in ["pipeline", "pipeline_mcap"] {
+    for timing in ["pipeline", "pipeline_mcap", "pipeline_analysed"] {
         let t = &row[timing];
         let ratio = t["ratio_to_bare"].as_f64().unwrap();
         let direct = t["wall_seconds"].as_f64().unwrap() / row["bare"]["wall_seconds"].as_f64().unwrap();
