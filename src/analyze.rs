@@ -393,7 +393,7 @@ impl RunVisitor for Analysis {
             Topic::Barrier => acc.add_barrier(self.decoder.barrier(m)?),
             Topic::Filter => acc.add_filter(self.decoder.filter(m)?),
             Topic::Issued => acc.add_issued(self.decoder.issued(m)?),
-            Topic::Prediction => acc.add_prediction(m.decode()?),
+            Topic::Prediction => acc.add_prediction(self.decoder.prediction(m)?),
             Topic::Event => acc.add_event(m.decode()?),
             _ => {}
         }
@@ -552,15 +552,21 @@ impl Accumulator {
         }
     }
 
-    fn add_prediction(&mut self, m: proto::Prediction) {
-        let stats = self.prediction.entry(m.channel).or_default();
-        stats.count += 1;
-        stats.max_error = stats.max_error.max(m.error);
-        stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
-        stats.sum_squares += m.error * m.error;
-        stats.reused_chain += u64::from(m.reused_chain);
-        if m.chain_mismatch.is_finite() {
-            stats.max_chain_mismatch = stats.max_chain_mismatch.max(m.chain_mismatch);
+    fn add_prediction(&mut self, m: &proto::Prediction) {
+        let add = |stats: &mut PredictionStats| {
+            stats.count += 1;
+            stats.max_error = stats.max_error.max(m.error);
+            stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
+            stats.sum_squares += m.error * m.error;
+            stats.reused_chain += u64::from(m.reused_chain);
+            if m.chain_mismatch.is_finite() {
+                stats.max_chain_mismatch = stats.max_chain_mismatch.max(m.chain_mismatch);
+            }
+        };
+        // The channel's key is allocated once, at its first prediction.
+        match self.prediction.get_mut(&m.channel) {
+            Some(stats) => add(stats),
+            None => add(self.prediction.entry(m.channel.clone()).or_default()),
         }
     }
 

@@ -275,6 +275,7 @@ pub struct Decoder {
     barrier: proto::Barrier,
     filter: proto::Filter,
     issued: proto::IssuedCommand,
+    prediction: proto::Prediction,
 }
 
 impl Decoder {
@@ -296,6 +297,11 @@ impl Decoder {
     pub fn issued(&mut self, m: &Message<'_>) -> Result<&proto::IssuedCommand, ReadError> {
         m.decode_into(&mut self.issued, wire::merge_issued)?;
         Ok(&self.issued)
+    }
+
+    pub fn prediction(&mut self, m: &Message<'_>) -> Result<&proto::Prediction, ReadError> {
+        m.decode_into(&mut self.prediction, wire::merge_prediction)?;
+        Ok(&self.prediction)
     }
 }
 

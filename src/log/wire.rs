@@ -240,6 +240,37 @@ fn merge_barrier_value(buf: &[u8], m: &mut proto::BarrierValue) -> Option<()> {
     Some(())
 }
 
+pub(crate) fn merge_prediction(buf: &[u8], m: &mut proto::Prediction) -> Option<()> {
+    let mut r = Fields::new(buf);
+    let mut channel = None;
+    m.time = 0.0;
+    m.issued_at = 0.0;
+    m.horizon = 0.0;
+    m.predicted.clear();
+    m.realized.clear();
+    m.error = 0.0;
+    m.relative_error = 0.0;
+    m.reused_chain = false;
+    m.chain_mismatch = 0.0;
+    while !r.done() {
+        match r.key()? {
+            (1, FIXED64) => m.time = r.f64()?,
+            (2, LEN) if channel.is_none() => channel = Some(r.bytes()?),
+            (3, FIXED64) => m.issued_at = r.f64()?,
+            (4, FIXED64) => m.horizon = r.f64()?,
+            (5, wire) => r.repeated_f64(wire, &mut m.predicted)?,
+            (6, wire) => r.repeated_f64(wire, &mut m.realized)?,
+            (7, FIXED64) => m.error = r.f64()?,
+            (8, FIXED64) => m.relative_error = r.f64()?,
+            (9, VARINT) => m.reused_chain = r.varint()? != 0,
+            (10, FIXED64) => m.chain_mismatch = r.f64()?,
+            _ => return None,
+        }
+    }
+    set_str(&mut m.channel, channel.unwrap_or(b""))?;
+    Some(())
+}
+
 #[inline]
 fn put_key(out: &mut Vec<u8>, field: u8, wire: u64) {
     // Field numbers here are < 16: the key is one byte.
@@ -1070,6 +1101,66 @@ mod tests {
             assert!(merge_barrier(&bytes, &mut reused).is_some());
             assert_eq!(reused, proto::Barrier::decode(&bytes[..]).unwrap());
         }
+    }
+
+    #[test]
+    fn fast_prediction_decoding_matches_prost_also_when_the_message_is_reused() {
+        let predictions = [
+            proto::Prediction {
+                time: 1.5,
+                channel: "acceleration".into(),
+                issued_at: 0.2,
+                horizon: 1.3,
+                predicted: vec![-20.0, 0.5, -0.0, 3.0],
+                realized: vec![-19.9, 0.4, 0.01, f64::INFINITY],
+                error: 0.125,
+                relative_error: 1e-300,
+                reused_chain: true,
+                chain_mismatch: f64::NAN,
+            },
+            proto::Prediction::default(),
+            proto::Prediction {
+                time: 1.51,
+                channel: "steering".into(),
+                predicted: vec![1.0],
+                error: -0.0,
+                chain_mismatch: 2e-5,
+                ..Default::default()
+            },
+            proto::Prediction {
+                channel: "o".repeat(300),
+                ..Default::default()
+            },
+        ];
+        let mut reused = proto::Prediction::default();
+        for m in predictions {
+            let bytes = m.encode_to_vec();
+            let expected = proto::Prediction::decode(&bytes[..]).unwrap();
+            assert!(merge_prediction(&bytes, &mut reused).is_some(), "{m:?}");
+            let bits = |m: &proto::Prediction| {
+                let scalars = [
+                    m.time,
+                    m.issued_at,
+                    m.horizon,
+                    m.error,
+                    m.relative_error,
+                    m.chain_mismatch,
+                ];
+                (scalars.map(f64::to_bits), m.channel.clone(), m.reused_chain)
+            };
+            assert_eq!(bits(&reused), bits(&expected));
+            assert!(
+                same_bits(&reused.predicted, &expected.predicted) && same_bits(&reused.realized, &expected.realized)
+            );
+        }
+        // A channel given twice (prost keeps the last): left to prost.
+        let mut bytes = proto::Prediction {
+            channel: "a".into(),
+            ..Default::default()
+        }
+        .encode_to_vec();
+        bytes.extend_from_slice(&[2 << 3 | 2, 1, b'b']);
+        assert!(merge_prediction(&bytes, &mut reused).is_none());
     }
 
     #[test]
