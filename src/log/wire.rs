@@ -39,7 +39,20 @@ impl<'a> Fields<'a> {
     }
 
     /// A varint as prost reads it (at most 10 bytes, the 10th at most 1).
+    #[inline]
     fn varint(&mut self) -> Option<u64> {
+        // Keys, lengths and flags here are one byte.
+        let first = *self.buf.get(self.pos)?;
+        if first < 0x80 {
+            self.pos += 1;
+            return Some(u64::from(first));
+        }
+        self.long_varint()
+    }
+
+    /// [`Fields::varint`] of two bytes or more.
+    #[inline(never)]
+    fn long_varint(&mut self) -> Option<u64> {
         let mut value = 0u64;
         for i in 0..10 {
             let b = *self.buf.get(self.pos)?;
@@ -56,6 +69,7 @@ impl<'a> Fields<'a> {
     }
 
     /// (field number, wire type) of the next field.
+    #[inline]
     fn key(&mut self) -> Option<(u64, u64)> {
         let key = self.varint()?;
         Some((key >> 3, key & 7))
