@@ -167,7 +167,8 @@ pub struct AnalysisSink {
     name: String,
     /// The record being handed on, encoded (reused).
     encoded: Vec<u8>,
-    /// Records observed, as the log would count its messages.
+    /// Records observed (the read's message count; the log also counts each event's `/log`
+    /// line, and no metric reads the count).
     records: u64,
     metrics: Option<Result<RunMetrics, AnalyzeError>>,
 }
@@ -225,8 +226,8 @@ impl crate::log::Sink for AnalysisSink {
     fn finish(&mut self, complete: bool) -> Result<(), crate::log::LogError> {
         if let Some(mut analysis) = self.analysis.take() {
             let _ = analysis.metadata(read::STATUS_METADATA, &crate::log::status_metadata(complete));
-            // A log has a channel for every topic but the optional ones, messages or not.
-            let topics = Topic::ALL.into_iter().filter(|t| !t.is_optional()).collect();
+            // The topics the run's log would have channels for.
+            let topics = Topic::always_logged().collect();
             let read = RunRead {
                 messages: self.records,
                 topics,

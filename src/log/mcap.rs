@@ -76,7 +76,7 @@ impl McapSink {
             .map_err(|e| err(e.to_string()))?;
         // Every topic's channel up front, but the optional ones (added with their first message).
         let mut channel_ids = vec![0; TOPICS.len()];
-        for topic in Topic::ALL.into_iter().filter(|t| !t.is_optional()) {
+        for topic in Topic::always_logged() {
             channel_ids[topic as usize] = add_channel(&mut writer, topic).map_err(|e| err(e.to_string()))?;
         }
         writer

@@ -105,6 +105,11 @@ impl Topic {
         matches!(self, Topic::Measured | Topic::Actuated)
     }
 
+    /// The topics every log has a channel for (from its start, messages or not).
+    pub fn always_logged() -> impl Iterator<Item = Topic> {
+        Topic::ALL.into_iter().filter(|t| !t.is_optional())
+    }
+
     /// The topic name (`/state`, …).
     pub fn name(self) -> &'static str {
         TOPICS[self as usize].0
