@@ -33,6 +33,8 @@ pub enum MjError {
     MissingName { kind: &'static str, name: String },
     #[error("MuJoCo could not allocate mjData for the model")]
     DataAllocation,
+    #[error("MuJoCo could not allocate a copy of the model")]
+    ModelCopy,
     #[error("the control callback panicked at t = {time}: {message}")]
     CallbackPanicked { time: f64, message: String },
     #[error("MuJoCo warning during the step at t = {time}: {message}")]
@@ -119,6 +121,9 @@ impl Integrator {
 /// A compiled MuJoCo model (`mjModel`), freed on drop.
 pub struct Model {
     ptr: NonNull<ffi::mjModel>,
+    /// For the compiled text this model is a copy of: an id (unique in the process) that its
+    /// other copies share. They have the same sizes, so their `mjData` has the same layout.
+    layout: Option<u64>,
 }
 
 // SAFETY: an mjModel is plain heap data; mjsafe never shares one mutably across threads.
@@ -132,6 +137,50 @@ thread_local! {
     /// ~2 MB, which cost every episode's start-up): each load adds the model text as a file
     /// and deletes it again.
     static MODEL_VFS: std::cell::RefCell<Option<Box<ffi::mjVFS>>> = const { std::cell::RefCell::new(None) };
+    /// The last model compiled on this thread from text that names no other file, with that
+    /// text. A sweep or a search compiles one model text for every run; a copy of the compiled
+    /// model (`mj_copyModel`) is that model without the parse and the compile, whose temporary
+    /// `mjData` zeroed MuJoCo's stack several times per load.
+    static COMPILED: std::cell::RefCell<Option<(String, Model)>> = const { std::cell::RefCell::new(None) };
+    /// The `mjData` of the last dropped simulation of a cached model on this thread: the next
+    /// episode of that model resets it (`mj_resetData`, what `mj_makeData` does after
+    /// allocating) instead of allocating 4 MB that the allocator may have handed back to the
+    /// system (the faults cost up to 2 ms of start-up).
+    static SPARE_DATA: std::cell::RefCell<Option<SpareData>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Ids of compiled model texts ([`Model::layout`]).
+static NEXT_LAYOUT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+/// An `mjData` kept for reuse, with the layout it was made for; deleted when replaced.
+struct SpareData {
+    layout: u64,
+    ptr: NonNull<ffi::mjData>,
+}
+
+impl SpareData {
+    /// The pointer, now owned by the caller.
+    fn into_ptr(self) -> NonNull<ffi::mjData> {
+        std::mem::ManuallyDrop::new(self).ptr
+    }
+}
+
+impl Drop for SpareData {
+    fn drop(&mut self) {
+        // SAFETY: the spare owns its data.
+        unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) }
+    }
+}
+
+/// Whether MJCF text can name another file (an `<include>`, a mesh, texture, height field or
+/// skin): an attribute whose name starts with `file` (`file=`, `fileright=`, …). Such a model
+/// also depends on those files, so it is never served from [`COMPILED`]. Conservative: the
+/// word in a comment followed by `=` counts too.
+fn names_other_files(xml: &str) -> bool {
+    xml.match_indices("file").any(|(at, _)| {
+        let rest = xml[at + 4..].trim_start_matches(|c: char| c.is_ascii_alphabetic());
+        rest.trim_start().starts_with('=')
+    })
 }
 
 impl Model {
@@ -145,7 +194,9 @@ impl Model {
     }
 
     /// Compiles MJCF text held in memory (through MuJoCo's virtual file system).
-    /// `origin` names the text in error messages (e.g. the file it came from).
+    /// `origin` names the text in error messages (e.g. the file it came from). Text that names
+    /// no other file and equals the last text compiled on this thread gets a copy of that
+    /// model instead of a second compile.
     pub fn from_xml_string(xml: &str, origin: &str) -> Result<Model, MjError> {
         check_version()?;
         install_callback();
@@ -155,6 +206,40 @@ impl Model {
                 origin: origin.to_string(),
             });
         }
+        let cacheable = !names_other_files(xml);
+        if cacheable {
+            let cached = COMPILED.with(|cell| match &*cell.borrow() {
+                Some((text, model)) if text == xml => Some(model.try_clone()),
+                _ => None,
+            });
+            if let Some(model) = cached {
+                return model;
+            }
+        }
+        let mut model = Self::compile(xml, origin)?;
+        if cacheable {
+            model.layout = Some(NEXT_LAYOUT.fetch_add(1, std::sync::atomic::Ordering::Relaxed));
+            let copy = model.try_clone()?;
+            COMPILED.with(|cell| *cell.borrow_mut() = Some((xml.to_string(), copy)));
+        }
+        Ok(model)
+    }
+
+    /// A copy of the model (`mj_copyModel`): the same sizes, options and values.
+    pub fn try_clone(&self) -> Result<Model, MjError> {
+        // SAFETY: a live source model; a null destination makes MuJoCo allocate the copy.
+        let raw = unsafe { ffi::mj_copyModel(std::ptr::null_mut(), self.ptr.as_ptr()) };
+        let layout = self.layout;
+        NonNull::new(raw)
+            .map(|ptr| Model { ptr, layout })
+            .ok_or(MjError::ModelCopy)
+    }
+
+    /// `mj_loadXML` of the text through this thread's virtual file system.
+    fn compile(xml: &str, origin: &str) -> Result<Model, MjError> {
+        #[cfg(test)]
+        tests::COMPILES.with(|n| n.set(n.get() + 1));
+        let bytes = xml.as_bytes();
         let vfs_name = CString::new("mjsafe_model.xml").expect("static name");
         let mut error = vec![0 as std::os::raw::c_char; ERROR_BUFFER];
         let refused = || MjError::Load {
@@ -187,7 +272,7 @@ impl Model {
             }
         })?;
         match NonNull::new(raw) {
-            Some(ptr) => Ok(Model { ptr }),
+            Some(ptr) => Ok(Model { ptr, layout: None }),
             None => {
                 // SAFETY: MuJoCo NUL-terminates the error buffer.
                 let message = unsafe { CStr::from_ptr(error.as_ptr()) }
@@ -442,22 +527,51 @@ pub struct Data {
     nv: usize,
     nu: usize,
     na: usize,
+    /// The model's [`Model::layout`]: the data is kept for reuse when dropped.
+    layout: Option<u64>,
 }
 
 // SAFETY: plain heap data owned by one episode at a time.
 unsafe impl Send for Data {}
 
 impl Data {
+    /// `mj_makeData`, or the spare data of the same model layout reset (`mj_resetData`).
     pub fn new(model: &Model) -> Result<Data, MjError> {
-        // SAFETY: live model.
-        let raw = unsafe { ffi::mj_makeData(model.ptr.as_ptr()) };
-        let ptr = NonNull::new(raw).ok_or(MjError::DataAllocation)?;
+        let spare = model.layout.and_then(|layout| {
+            SPARE_DATA
+                .try_with(|cell| {
+                    let mut slot = cell.borrow_mut();
+                    match &*slot {
+                        Some(spare) if spare.layout == layout => slot.take(),
+                        _ => None,
+                    }
+                })
+                .ok()
+                .flatten()
+        });
+        let ptr = match spare {
+            Some(spare) => {
+                let ptr = spare.into_ptr();
+                // SAFETY: data made for a model of this layout (the same compiled text), now
+                // owned here; mj_resetData sets every field as mj_makeData does.
+                unsafe { ffi::mj_resetData(model.ptr.as_ptr(), ptr.as_ptr()) };
+                ptr
+            }
+            None => {
+                #[cfg(test)]
+                tests::MADE.with(|n| n.set(n.get() + 1));
+                // SAFETY: live model.
+                let raw = unsafe { ffi::mj_makeData(model.ptr.as_ptr()) };
+                NonNull::new(raw).ok_or(MjError::DataAllocation)?
+            }
+        };
         Ok(Data {
             ptr,
             nq: model.nq(),
             nv: model.nv(),
             nu: model.nu(),
             na: model.na(),
+            layout: model.layout,
         })
     }
 
@@ -526,8 +640,17 @@ impl Data {
 
 impl Drop for Data {
     fn drop(&mut self) {
-        // SAFETY: we own the data.
-        unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) }
+        match self.layout {
+            Some(layout) => {
+                let spare = SpareData { layout, ptr: self.ptr };
+                // The one it replaces is deleted after the slot is released; at thread exit
+                // (slot gone) the closure is dropped unrun, and with it `spare`.
+                let replaced = SPARE_DATA.try_with(move |cell| cell.borrow_mut().replace(spare));
+                drop(replaced);
+            }
+            // SAFETY: we own the data.
+            None => unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) },
+        }
     }
 }
 
@@ -768,5 +891,134 @@ impl Simulation {
     pub fn forward(&mut self) {
         // SAFETY: live model and data of that model.
         unsafe { ffi::mj_forward(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    thread_local! {
+        /// `mj_loadXML` calls on this thread.
+        pub(super) static COMPILES: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+        /// `mj_makeData` calls on this thread for a simulation.
+        pub(super) static MADE: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    }
+
+    const SLIDER: &str = r#"<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1"/>
+    <body name="cart" pos="0 0 0.1">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <geom type="box" size="0.2 0.1 0.1" mass="2" contype="0" conaffinity="0"/>
+    </body>
+    <body name="ball" pos="0.5 0 0.3">
+      <freejoint/>
+      <geom type="sphere" size="0.05" mass="0.1"/>
+    </body>
+  </worldbody>
+  <actuator><motor joint="x" name="push"/></actuator>
+</mujoco>"#;
+
+    fn compiles() -> usize {
+        COMPILES.with(|n| n.get())
+    }
+
+    fn made() -> usize {
+        MADE.with(|n| n.get())
+    }
+
+    /// qpos and qvel after 200 steps with a constant push (the ball lands on the floor and
+    /// stays in contact).
+    fn trajectory(model: Model) -> (Vec<f64>, Vec<f64>) {
+        let mut sim = Simulation::new(model).unwrap();
+        sim.set_ctrl(&[1.5]);
+        for _ in 0..200 {
+            sim.step_without_hook();
+        }
+        assert!(!sim.data().contacts().is_empty(), "the ball rests on the floor");
+        (sim.data().qpos().to_vec(), sim.data().qvel().to_vec())
+    }
+
+    #[test]
+    fn text_naming_another_file_is_recognised() {
+        for xml in [
+            r#"<mesh file="hull.stl"/>"#,
+            r#"<texture fileright = "r.png"/>"#,
+            "<include file='parts.xml'/>",
+            r#"<hfield name="h" file="h.png"/>"#,
+            "<!-- file= in a comment counts too -->",
+        ] {
+            assert!(names_other_files(xml), "{xml}");
+        }
+        for xml in [
+            SLIDER,
+            "<!-- this file is the plant only -->",
+            "<geom name=\"profile\"/>",
+        ] {
+            assert!(!names_other_files(xml), "{xml}");
+        }
+        for model in [
+            "bicycle",
+            "car",
+            "unicycle",
+            "double_integrator_1d",
+            "double_integrator_2d",
+        ] {
+            let path = format!("{}/models/{model}.xml", env!("CARGO_MANIFEST_DIR"));
+            assert!(!names_other_files(&std::fs::read_to_string(&path).unwrap()), "{path}");
+        }
+    }
+
+    #[test]
+    fn the_same_text_is_compiled_once_per_thread_and_its_copies_are_the_model() {
+        // A thread of its own: the cache and the counter start empty.
+        std::thread::spawn(|| {
+            let fresh = Model::from_xml_string(SLIDER, "slider").unwrap();
+            assert_eq!(compiles(), 1);
+            let mut copy = Model::from_xml_string(SLIDER, "slider").unwrap();
+            assert_eq!(compiles(), 1, "served from the cache");
+            assert_eq!((copy.nq(), copy.nv(), copy.nu()), (fresh.nq(), fresh.nv(), fresh.nu()));
+            assert_eq!(copy.timestep(), 0.002);
+            // A change to a served copy stays in that copy.
+            copy.set_timestep(0.01);
+            let again = Model::from_xml_string(SLIDER, "slider").unwrap();
+            assert_eq!(again.timestep(), 0.002);
+            // The copy steps bit for bit as the compiled model, on the first run's mjData
+            // (reset, not allocated again).
+            let expected = trajectory(fresh);
+            assert!(expected.0[0] > 0.01, "{expected:?}");
+            assert_eq!(made(), 1);
+            assert_eq!(trajectory(again), expected);
+            assert_eq!(made(), 1, "the spare mjData was reused");
+            let twice = Model::from_xml_string(SLIDER, "slider").unwrap();
+            assert_eq!(trajectory(twice), expected);
+            assert_eq!(made(), 1);
+            // Other text is compiled (and becomes the cached one); text naming a file always is.
+            let other = SLIDER.replace("mass=\"2\"", "mass=\"3\"");
+            let heavier = Model::from_xml_string(&other, "slider").unwrap();
+            assert_eq!(compiles(), 2);
+            assert!(trajectory(heavier).0[0] < expected.0[0]);
+            assert_eq!(made(), 2, "another text, another layout");
+            // A model not from the cache gets its own mjData.
+            let direct = Model::compile(SLIDER, "slider").unwrap();
+            assert_eq!(trajectory(direct), expected);
+            assert_eq!(made(), 3);
+            let naming = format!("{SLIDER}<!-- file= -->");
+            Model::from_xml_string(&naming, "slider").unwrap();
+            Model::from_xml_string(&naming, "slider").unwrap();
+            assert_eq!(compiles(), 5);
+            // Errors are not cached.
+            for _ in 0..2 {
+                let e = Model::from_xml_string("<mujoco><bad/></mujoco>", "broken")
+                    .err()
+                    .unwrap();
+                assert!(e.to_string().contains("broken"), "{e}");
+            }
+            assert_eq!(compiles(), 7);
+        })
+        .join()
+        .unwrap();
     }
 }
