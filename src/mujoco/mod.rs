@@ -121,9 +121,6 @@ impl Integrator {
 /// A compiled MuJoCo model (`mjModel`), freed on drop.
 pub struct Model {
     ptr: NonNull<ffi::mjModel>,
-    /// For the compiled text this model is a copy of: an id (unique in the process) that its
-    /// other copies share. They have the same sizes, so their `mjData` has the same layout.
-    layout: Option<u64>,
 }
 
 // SAFETY: an mjModel is plain heap data; mjsafe never shares one mutably across threads.
@@ -142,19 +139,21 @@ thread_local! {
     /// model (`mj_copyModel`) is that model without the parse and the compile, whose temporary
     /// `mjData` zeroed MuJoCo's stack several times per load.
     static COMPILED: std::cell::RefCell<Option<(String, Model)>> = const { std::cell::RefCell::new(None) };
-    /// The `mjData` of the last dropped simulation of a cached model on this thread: the next
-    /// episode of that model resets it (`mj_resetData`, what `mj_makeData` does after
+    /// The `mjData` of the last simulation dropped on this thread: the next one of a model
+    /// with the same sizes resets it (`mj_resetData`, what `mj_makeData` does after
     /// allocating) instead of allocating 4 MB that the allocator may have handed back to the
     /// system (the faults cost up to 2 ms of start-up).
     static SPARE_DATA: std::cell::RefCell<Option<SpareData>> = const { std::cell::RefCell::new(None) };
 }
 
-/// Ids of compiled model texts ([`Model::layout`]).
-static NEXT_LAYOUT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+/// The `int` sizes that open `mjModel` (nq … nbuffer, before `opt`): `mj_makeData` lays out
+/// `mjData` from them alone, so models with equal sizes can share one.
+const SIZE_FIELDS: usize = std::mem::offset_of!(ffi::mjModel, opt) / std::mem::size_of::<std::os::raw::c_int>();
+type Sizes = [std::os::raw::c_int; SIZE_FIELDS];
 
-/// An `mjData` kept for reuse, with the layout it was made for; deleted when replaced.
+/// An `mjData` kept for reuse, with the model sizes it was made for; deleted when replaced.
 struct SpareData {
-    layout: u64,
+    sizes: Sizes,
     ptr: NonNull<ffi::mjData>,
 }
 
@@ -216,9 +215,8 @@ impl Model {
                 return model;
             }
         }
-        let mut model = Self::compile(xml, origin)?;
+        let model = Self::compile(xml, origin)?;
         if cacheable {
-            model.layout = Some(NEXT_LAYOUT.fetch_add(1, std::sync::atomic::Ordering::Relaxed));
             let copy = model.try_clone()?;
             COMPILED.with(|cell| *cell.borrow_mut() = Some((xml.to_string(), copy)));
         }
@@ -229,10 +227,7 @@ impl Model {
     pub fn try_clone(&self) -> Result<Model, MjError> {
         // SAFETY: a live source model; a null destination makes MuJoCo allocate the copy.
         let raw = unsafe { ffi::mj_copyModel(std::ptr::null_mut(), self.ptr.as_ptr()) };
-        let layout = self.layout;
-        NonNull::new(raw)
-            .map(|ptr| Model { ptr, layout })
-            .ok_or(MjError::ModelCopy)
+        NonNull::new(raw).map(|ptr| Model { ptr }).ok_or(MjError::ModelCopy)
     }
 
     /// `mj_loadXML` of the text through this thread's virtual file system.
@@ -272,7 +267,7 @@ impl Model {
             }
         })?;
         match NonNull::new(raw) {
-            Some(ptr) => Ok(Model { ptr, layout: None }),
+            Some(ptr) => Ok(Model { ptr }),
             None => {
                 // SAFETY: MuJoCo NUL-terminates the error buffer.
                 let message = unsafe { CStr::from_ptr(error.as_ptr()) }
@@ -290,6 +285,14 @@ impl Model {
     fn raw(&self) -> &ffi::mjModel {
         // SAFETY: ptr is a live mjModel owned by self.
         unsafe { self.ptr.as_ref() }
+    }
+
+    /// The sizes `mjData` is laid out from.
+    fn sizes(&self) -> Sizes {
+        // SAFETY: a live mjModel opens with SIZE_FIELDS ints (bindgen's layout of 2.2.2's
+        // struct: no padding before `opt`), all set by the compiler or mj_copyModel.
+        let ints = unsafe { std::slice::from_raw_parts(self.ptr.as_ptr() as *const std::os::raw::c_int, SIZE_FIELDS) };
+        ints.try_into().expect("SIZE_FIELDS ints")
     }
 
     pub fn nq(&self) -> usize {
@@ -527,33 +530,33 @@ pub struct Data {
     nv: usize,
     nu: usize,
     na: usize,
-    /// The model's [`Model::layout`]: the data is kept for reuse when dropped.
-    layout: Option<u64>,
+    /// The model sizes it was laid out for: kept for reuse with them when dropped.
+    sizes: Sizes,
 }
 
 // SAFETY: plain heap data owned by one episode at a time.
 unsafe impl Send for Data {}
 
 impl Data {
-    /// `mj_makeData`, or the spare data of the same model layout reset (`mj_resetData`).
+    /// `mj_makeData`, or this thread's spare data of a model with the same sizes, reset
+    /// (`mj_resetData`).
     pub fn new(model: &Model) -> Result<Data, MjError> {
-        let spare = model.layout.and_then(|layout| {
-            SPARE_DATA
-                .try_with(|cell| {
-                    let mut slot = cell.borrow_mut();
-                    match &*slot {
-                        Some(spare) if spare.layout == layout => slot.take(),
-                        _ => None,
-                    }
-                })
-                .ok()
-                .flatten()
-        });
+        let sizes = model.sizes();
+        let spare = SPARE_DATA
+            .try_with(|cell| {
+                let mut slot = cell.borrow_mut();
+                match &*slot {
+                    Some(spare) if spare.sizes == sizes => slot.take(),
+                    _ => None,
+                }
+            })
+            .ok()
+            .flatten();
         let ptr = match spare {
             Some(spare) => {
                 let ptr = spare.into_ptr();
-                // SAFETY: data made for a model of this layout (the same compiled text), now
-                // owned here; mj_resetData sets every field as mj_makeData does.
+                // SAFETY: data laid out for a model of these sizes, now owned here;
+                // mj_resetData sets every field from `model` as mj_makeData does.
                 unsafe { ffi::mj_resetData(model.ptr.as_ptr(), ptr.as_ptr()) };
                 ptr
             }
@@ -571,7 +574,7 @@ impl Data {
             nv: model.nv(),
             nu: model.nu(),
             na: model.na(),
-            layout: model.layout,
+            sizes,
         })
     }
 
@@ -640,17 +643,14 @@ impl Data {
 
 impl Drop for Data {
     fn drop(&mut self) {
-        match self.layout {
-            Some(layout) => {
-                let spare = SpareData { layout, ptr: self.ptr };
-                // The one it replaces is deleted after the slot is released; at thread exit
-                // (slot gone) the closure is dropped unrun, and with it `spare`.
-                let replaced = SPARE_DATA.try_with(move |cell| cell.borrow_mut().replace(spare));
-                drop(replaced);
-            }
-            // SAFETY: we own the data.
-            None => unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) },
-        }
+        let spare = SpareData {
+            sizes: self.sizes,
+            ptr: self.ptr,
+        };
+        // The one it replaces is deleted after the slot is released; at thread exit (slot
+        // gone) the closure is dropped unrun, and with it `spare`.
+        let replaced = SPARE_DATA.try_with(move |cell| cell.borrow_mut().replace(spare));
+        drop(replaced);
     }
 }
 
@@ -1000,15 +1000,22 @@ mod tests {
             let heavier = Model::from_xml_string(&other, "slider").unwrap();
             assert_eq!(compiles(), 2);
             assert!(trajectory(heavier).0[0] < expected.0[0]);
-            assert_eq!(made(), 2, "another text, another layout");
-            // A model not from the cache gets its own mjData.
+            assert_eq!(made(), 1, "another mass, the same sizes: the same mjData");
+            // A model compiled anew with the same sizes steps the same on it.
             let direct = Model::compile(SLIDER, "slider").unwrap();
             assert_eq!(trajectory(direct), expected);
+            assert_eq!(made(), 1);
+            // Other sizes get their own mjData; the spare is the last one dropped.
+            let with_site = SLIDER.replace("<freejoint/>", "<freejoint/><site name=\"s\"/>");
+            let sited = trajectory(Model::from_xml_string(&with_site, "slider").unwrap());
+            assert_eq!(sited, expected, "a site changes the sizes, not the motion");
+            assert_eq!(made(), 2);
+            assert_eq!(trajectory(Model::from_xml_string(SLIDER, "slider").unwrap()), expected);
             assert_eq!(made(), 3);
             let naming = format!("{SLIDER}<!-- file= -->");
             Model::from_xml_string(&naming, "slider").unwrap();
             Model::from_xml_string(&naming, "slider").unwrap();
-            assert_eq!(compiles(), 5);
+            assert_eq!(compiles(), 7);
             // Errors are not cached.
             for _ in 0..2 {
                 let e = Model::from_xml_string("<mujoco><bad/></mujoco>", "broken")
@@ -1016,7 +1023,7 @@ mod tests {
                     .unwrap();
                 assert!(e.to_string().contains("broken"), "{e}");
             }
-            assert_eq!(compiles(), 7);
+            assert_eq!(compiles(), 9);
         })
         .join()
         .unwrap();
