@@ -270,10 +270,14 @@ impl Model {
             Some(ptr) => Ok(Model { ptr }),
             None => {
                 // SAFETY: MuJoCo NUL-terminates the error buffer.
-                let message = unsafe { CStr::from_ptr(error.as_ptr()) }
-                    .to_string_lossy()
-                    .trim()
-                    .to_string();
+                let text = unsafe { CStr::from_ptr(error.as_ptr()) }.to_string_lossy();
+                // One line: MuJoCo puts the element's name and position on a second one.
+                let message = text
+                    .lines()
+                    .map(str::trim)
+                    .filter(|l| !l.is_empty())
+                    .collect::<Vec<_>>()
+                    .join("; ");
                 Err(MjError::Load {
                     origin: origin.to_string(),
                     message,
@@ -1016,14 +1020,23 @@ mod tests {
             Model::from_xml_string(&naming, "slider").unwrap();
             Model::from_xml_string(&naming, "slider").unwrap();
             assert_eq!(compiles(), 7);
-            // Errors are not cached.
+            // Errors are not cached, and are one line.
             for _ in 0..2 {
                 let e = Model::from_xml_string("<mujoco><bad/></mujoco>", "broken")
                     .err()
                     .unwrap();
                 assert!(e.to_string().contains("broken"), "{e}");
+                let missing = SLIDER.replace(
+                    "<worldbody>",
+                    "<asset><mesh name=\"m\" file=\"missing.stl\"/></asset><worldbody>",
+                );
+                let e = Model::from_xml_string(&missing, "meshed").err().unwrap().to_string();
+                assert!(
+                    e.contains("missing.stl") && e.contains("line = ") && !e.contains('\n'),
+                    "{e}"
+                );
             }
-            assert_eq!(compiles(), 9);
+            assert_eq!(compiles(), 11);
         })
         .join()
         .unwrap();
