@@ -147,8 +147,12 @@ struct Chain {
     head: usize,
     /// Slots of (state, input of the step into the node).
     slots: Vec<f64>,
+    /// Nodes the slots hold (`slots.len() / stride`).
+    capacity: usize,
     /// The chain's states are `frame` applied to the stored ones (see [`Chain::transport_to`]).
     frame: PlanarMotion,
+    /// Whether `frame` is not the identity (stored states are then not the chain's).
+    moved: bool,
     /// A transformed node.
     scratch: Vec<f64>,
 }
@@ -230,7 +234,9 @@ impl Chain {
             len: 0,
             head: 0,
             slots: Vec::new(),
+            capacity: 0,
             frame: PlanarMotion::IDENTITY,
+            moved: false,
             scratch: vec![0.0; states],
         }
     }
@@ -240,22 +246,32 @@ impl Chain {
     }
 
     fn capacity(&self) -> usize {
-        self.slots.len() / self.stride()
+        self.capacity
     }
 
     /// Empties the chain for tick t, sized for `nodes` (allocates only the first time).
     fn restart(&mut self, tick: f64, nodes: usize) {
-        if self.capacity() < nodes {
+        if self.capacity < nodes {
             self.slots.resize(nodes * self.stride(), 0.0);
+            self.capacity = nodes;
         }
         self.tick = tick;
         self.len = 0;
         self.head = 0;
         self.frame = PlanarMotion::IDENTITY;
+        self.moved = false;
     }
 
     fn offset(&self, node: usize) -> usize {
-        (self.head + node) % self.capacity() * self.stride()
+        debug_assert!(node < self.capacity && self.head < self.capacity);
+        // node < capacity and head < capacity: one wrap at most.
+        let slot = self.head + node;
+        let slot = if slot >= self.capacity {
+            slot - self.capacity
+        } else {
+            slot
+        };
+        slot * self.stride()
     }
 
     /// The stored state of `node` (the chain's state unless it was transported).
@@ -267,7 +283,7 @@ impl Chain {
     /// out ← the chain's state at `node`.
     fn state_into(&self, axes: Option<[usize; 3]>, node: usize, out: &mut [f64]) {
         out.copy_from_slice(self.state(node));
-        if let (Some(axes), true) = (axes, self.frame != PlanarMotion::IDENTITY) {
+        if let (Some(axes), true) = (axes, self.moved) {
             self.frame.apply(axes, out);
         }
     }
@@ -280,6 +296,7 @@ impl Chain {
         let mut node0 = std::mem::take(&mut self.scratch);
         self.state_into(Some(axes), 0, &mut node0);
         self.frame = self.frame.then(&PlanarMotion::between(axes, &node0, fresh));
+        self.moved = self.frame != PlanarMotion::IDENTITY;
         self.scratch = node0;
     }
 
@@ -307,7 +324,7 @@ impl Chain {
         assert!(self.len < self.capacity(), "chain ring sized for the window");
         let (o, states, stride) = (self.offset(self.len), self.states, self.stride());
         self.slots[o..o + states].copy_from_slice(state);
-        if let (Some(axes), true) = (axes, self.frame != PlanarMotion::IDENTITY) {
+        if let (Some(axes), true) = (axes, self.moved) {
             self.frame.apply_inverse(axes, &mut self.slots[o..o + states]);
         }
         self.slots[o + states..o + stride].copy_from_slice(input);
@@ -315,7 +332,7 @@ impl Chain {
     }
 
     fn drop_front(&mut self, nodes: usize) {
-        self.head = (self.head + nodes) % self.capacity();
+        self.head = (self.head + nodes) % self.capacity;
         self.len -= nodes;
     }
 
