@@ -36,6 +36,13 @@ mod op {
 /// arrives, on the writer thread): the final flush at commit then has little left to wait for.
 const SYNC_EVERY: u64 = 256 << 10;
 
+/// Chunks that may wait for the writer thread before the episode waits for it. The writer
+/// compresses a 256 KiB chunk in ≈ 1.5 ms and syncs every 256 KiB written, while an episode
+/// fills a chunk every 2–3 ms; with one slot the episode waited 0.25–0.6 ms per run, and for
+/// 6–25 ms when a sync stalled on a busy disk. Sixteen (4 MiB of records at most) absorb such
+/// stalls and still bound the memory of a log on a disk slower than the run.
+const QUEUED_CHUNKS: usize = 16;
+
 /// Where a log goes. A file makes the bytes written so far durable in [`LogOutput::sync_written`]
 /// (called between chunks, off the episode thread); an in-memory output has nothing to do.
 pub trait LogOutput: Write + Send + 'static {
@@ -336,8 +343,7 @@ impl<W: LogOutput> Back<W> {
     }
 
     fn spawn(section: DataSection<W>) -> io::Result<Self> {
-        // One chunk queued while another is compressed: memory stays at a few chunks.
-        let (jobs, queued) = mpsc::sync_channel::<Job>(1);
+        let (jobs, queued) = mpsc::sync_channel::<Job>(QUEUED_CHUNKS);
         let (give_back, spare) = mpsc::channel();
         let thread = std::thread::Builder::new().name("mcap-writer".into()).spawn(move || {
             let mut section = section;
