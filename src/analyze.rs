@@ -128,6 +128,10 @@ pub struct RunMetrics {
     /// never computed from a default. Empty (and left out of the JSON) for a whole log.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub missing: BTreeMap<String, String>,
+    /// MuJoCo warnings after which the simulated physics was not the model's (`mujoco_warning`
+    /// events): the metrics above describe that other physics. Left out of the JSON when none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// Reads and analyses one log file (through the run reader, [`read::read_run_file`]).
@@ -283,6 +287,7 @@ struct Accumulator {
     max_lateral_jerk: Option<f64>,
     complete: Option<bool>,
     error: Option<String>,
+    warnings: Vec<String>,
 }
 
 /// The state of one analysis: the metrics so far.
@@ -598,6 +603,7 @@ impl Accumulator {
                 }
             }
             "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message),
+            crate::episode::MUJOCO_WARNING => self.warnings.push(m.message),
             _ => {}
         }
     }
@@ -792,6 +798,7 @@ impl Accumulator {
             complete: self.complete.unwrap_or(false) && self.error.is_none(),
             error: self.error.filter(|_| given("error")),
             missing,
+            warnings: self.warnings,
         }
     }
 }
@@ -845,10 +852,11 @@ pub fn table(runs: &[RunMetrics]) -> String {
                     .join(" "),
                 _ => "-".to_string(),
             },
-            match (&r.error, r.complete) {
-                (Some(e), _) => format!("error: {e}"),
-                (None, true) => "complete".into(),
-                (None, false) => "incomplete".into(),
+            match (&r.error, r.complete, r.warnings.len()) {
+                (Some(e), _, _) => format!("error: {e}"),
+                (None, true, 0) => "complete".into(),
+                (None, true, n) => format!("complete, {n} MuJoCo warning(s)"),
+                (None, false, _) => "incomplete".into(),
             },
         ]);
     }

@@ -73,7 +73,8 @@ Exit codes:
   1    error: bad input, unreadable or damaged file, a run stopped on an error, a merge with
        missing runs, a sweep that could not run or write its summary
   2    usage error (unknown flag, missing argument)
-  3    sweep: some runs failed (summary written, their rows hold the error)
+  3    sweep: some runs failed (summary written, their rows hold the error); falsify: every
+       candidate failed (evaluations written, their rows hold the error)
   4    --fail-on-collision: the run, or some run of the sweep, collided
   130  interrupted (Ctrl-C, SIGTERM): logs finished as incomplete
   141  stdout was a closed pipe"
@@ -141,7 +142,8 @@ pub struct Cli {
     pub command: Command,
     /// Most steps one episode may take (duration / timestep); longer runs are refused before
     /// they start.
-    #[arg(long, global = true, value_name = "N", default_value_t = episode::DEFAULT_MAX_STEPS)]
+    #[arg(long, global = true, value_name = "N", default_value_t = episode::DEFAULT_MAX_STEPS,
+          value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..))]
     pub max_steps: u64,
 }
 
@@ -378,7 +380,7 @@ pub enum Command {
         #[arg(long = "chain-tolerance", value_name = "T1,T2,…", value_delimiter = ',')]
         chain_tolerances: Vec<f64>,
         /// Runs per configuration (the median is reported).
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
         repeat: usize,
         /// Directory for the benchmark's MCAP logs.
         #[arg(long, default_value = "logs")]
@@ -649,6 +651,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 .map(|r| sweep::parse_range(r))
                 .collect::<Result<Vec<_>, _>>()?;
             falsify::check_objective(&objective)?;
+            if !threshold.is_finite() {
+                bail!("--threshold: expected a finite number, found {threshold}");
+            }
             let threads = match threads {
                 Some(0) => bail!("--threads: expected at least 1"),
                 Some(k) => k,
@@ -724,6 +729,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                     values.into_iter().map(Some).collect()
                 }
             };
+            if let Some(bad) = predictor_steps.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
+                bail!("--predictor-step: expected positive numbers of seconds, found {bad}");
+            }
+            if let Some(bad) = chain_tolerances.iter().find(|t| !(t.is_finite() && **t >= 0.0)) {
+                bail!("--chain-tolerance: expected finite numbers >= 0, found {bad}");
+            }
             let (steps, tolerances) = (or_default(predictor_steps), or_default(chain_tolerances));
             let rows = crate::bench::run(&scenario, &overrides, &steps, &tolerances, repeat, &log_dir)
                 .with_context(|| format!("benchmarking {}", scenario.display()))?;
@@ -846,10 +857,15 @@ fn run_scenario(
             "complete": summary.error.is_none(),
             "error": summary.error.as_ref().map(ToString::to_string),
         });
+        let mut value = value;
+        // Only with warnings, so the object of a clean run keeps its keys.
+        if !metrics.warnings.is_empty() {
+            value["warnings"] = serde_json::json!(metrics.warnings);
+        }
         outln!("{value}");
     } else {
         outln!(
-            "{}: {} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
+            "{}: {}{} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
             loaded.scenario.name,
             metrics
                 .collision
@@ -858,12 +874,22 @@ fn run_scenario(
                     "COLLISION at t = {:.3} s with {} (depth {:.3} m)",
                     c.time, c.with, c.depth
                 )),
+            match metrics.warnings.len() {
+                0 => String::new(),
+                n => format!(
+                    " | {n} MUJOCO WARNING{}: physics not the model's",
+                    if n > 1 { "S" } else { "" }
+                ),
+            },
             metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
             summary.steps,
             summary.simulated_time,
             summary.real_time_factor(),
             log_path.display()
         );
+    }
+    for warning in &metrics.warnings {
+        eprintln!("warning: MuJoCo: {warning}; the run's metrics describe that physics, not the model's");
     }
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
@@ -951,6 +977,14 @@ fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
         for run in runs.iter().filter(|r| !r.missing.is_empty()) {
             let absent: Vec<String> = run.missing.iter().map(|(m, why)| format!("{m} ({why})")).collect();
             eprintln!("warning: {}: metrics absent: {}", run.file, absent.join(", "));
+        }
+        for run in &runs {
+            for warning in &run.warnings {
+                eprintln!(
+                    "warning: {}: MuJoCo: {warning}; the metrics describe that physics, not the model's",
+                    run.file
+                );
+            }
         }
     }
     match format {
@@ -1124,6 +1158,13 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
+    if dir.exists() && !dir.is_dir() {
+        bail!(
+            "--out {}: expected a directory for the sweep's logs and summary, found a file",
+            dir.display()
+        );
+    }
+    Summary::check_outputs(&dir, shard).with_context(|| format!("writing the summary into {}", dir.display()))?;
     let _graceful = episode::GracefulStop::begin();
     let terminal = std::io::stderr().is_terminal();
     let mut progress = Progress {
@@ -1253,6 +1294,18 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
     if report.searches.iter().any(|s| s.interrupted) {
         eprintln!("error: the search was interrupted; what it found so far is written");
         return Ok(ExitCode::from(130));
+    }
+    // A search whose every candidate failed learned nothing about safety: not a result.
+    let evaluations = report.searches.iter().flat_map(|s| s.evaluations.iter());
+    let failed = evaluations.clone().filter(|e| e.error.is_some()).count();
+    if failed > 0 {
+        let first = evaluations.clone().find_map(|e| e.error.as_deref()).unwrap_or_default();
+        let total = evaluations.count();
+        if failed == total {
+            eprintln!("error: every candidate failed ({total} runs); the first: {first}");
+            return Ok(ExitCode::from(3));
+        }
+        eprintln!("warning: {failed} of {total} candidates failed (their rows hold the error); the first: {first}");
     }
     Ok(ExitCode::SUCCESS)
 }

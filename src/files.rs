@@ -162,31 +162,46 @@ pub fn open_input(path: &Path, what: &'static str) -> Result<File, FileError> {
 }
 
 /// The `.partial` files being written by this process, removed by [`remove_partials`] when
-/// the process has to exit at once (a second Ctrl-C, a MuJoCo error).
-static PARTIALS: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+/// the process has to exit at once (a second Ctrl-C, a MuJoCo error). Files are created,
+/// renamed and deleted under this lock, so none escapes the removal.
+static PARTIALS: Registry = std::sync::Mutex::new(Partials {
+    paths: Vec::new(),
+    closed: false,
+});
 
-fn register_partial(path: &Path) {
-    if let Ok(mut partials) = PARTIALS.lock() {
-        partials.push(path.to_path_buf());
+#[derive(Debug)]
+struct Partials {
+    paths: Vec<PathBuf>,
+    /// Set by [`remove_partials`]: the process is exiting, no new output may start.
+    closed: bool,
+}
+
+type Registry = std::sync::Mutex<Partials>;
+
+/// The registry, even if a thread panicked while holding it (the list stays valid).
+fn partials(registry: &Registry) -> std::sync::MutexGuard<'_, Partials> {
+    registry.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn unregister(partials: &mut Partials, path: &Path) {
+    if let Some(i) = partials.paths.iter().position(|p| p == path) {
+        partials.paths.swap_remove(i);
     }
 }
 
-fn unregister_partial(path: &Path) {
-    if let Ok(mut partials) = PARTIALS.lock() {
-        if let Some(i) = partials.iter().position(|p| p == path) {
-            partials.swap_remove(i);
-        }
-    }
-}
-
-/// Removes every `.partial` file this process is writing (before an immediate exit). Uses
-/// `try_lock`: a signal arriving while the list is being changed skips the removal rather
-/// than deadlock.
+/// Removes every `.partial` file this process is writing (before an immediate exit) and
+/// refuses every later [`OutputFile::create`]. Called from the Ctrl-C handler's thread (the
+/// `ctrlc` crate runs it outside the signal context) and from MuJoCo's error callback, never
+/// while the calling thread holds the lock, so waiting for it cannot deadlock.
 pub fn remove_partials() {
-    if let Ok(partials) = PARTIALS.try_lock() {
-        for path in partials.iter() {
-            let _ = std::fs::remove_file(path);
-        }
+    remove_all(&PARTIALS);
+}
+
+fn remove_all(registry: &Registry) {
+    let mut partials = partials(registry);
+    partials.closed = true;
+    for path in partials.paths.drain(..) {
+        let _ = std::fs::remove_file(path);
     }
 }
 
@@ -208,6 +223,7 @@ pub struct OutputFile {
     partial: PathBuf,
     target: PathBuf,
     what: &'static str,
+    registry: &'static Registry,
 }
 
 /// `<path>.partial`.
@@ -306,6 +322,17 @@ impl OutputFile {
         replace: Replace,
         inputs: &[&Path],
     ) -> Result<OutputFile, FileError> {
+        Self::create_in(&PARTIALS, target, what, replace, inputs)
+    }
+
+    /// [`OutputFile::create`] registered in `registry`.
+    fn create_in(
+        registry: &'static Registry,
+        target: &Path,
+        what: &'static str,
+        replace: Replace,
+        inputs: &[&Path],
+    ) -> Result<OutputFile, FileError> {
         check_output(target, what, replace, inputs)?;
         let shown = target.display().to_string();
         let write_error = |reason: String| FileError::Write {
@@ -328,33 +355,55 @@ impl OutputFile {
                 )));
             }
         }
-        let file = OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&partial)
-            .map_err(|e| write_error(format!("cannot create {}: {e}", partial.display())))?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                return Err(write_error(format!(
-                    "another process is writing it ({} is locked)",
-                    partial.display()
-                )))
-            }
-            Err(std::fs::TryLockError::Error(e)) => {
-                return Err(write_error(format!("cannot lock {}: {e}", partial.display())))
-            }
+        let opened = |options: &mut OpenOptions| {
+            options
+                .write(true)
+                .open(&partial)
+                .map_err(|e| write_error(format!("cannot create {}: {e}", partial.display())))
+        };
+        // A new file is created and registered under the lock, so an exit in progress either
+        // refuses it or removes it. A stale one is registered only once locked (it may be
+        // another process's).
+        let mut list = partials(registry);
+        if list.closed {
+            return Err(write_error("the process is exiting (interrupted)".into()));
         }
-        file.set_len(0)
-            .map_err(|e| write_error(format!("cannot truncate {}: {e}", partial.display())))?;
-        register_partial(&partial);
-        Ok(OutputFile {
+        let file = match opened(OpenOptions::new().create_new(true)) {
+            Ok(file) => {
+                list.paths.push(partial.clone());
+                drop(list);
+                if let Err(e) = lock(&file, &partial, &write_error) {
+                    // Another process opened it first: it is theirs now.
+                    unregister(&mut partials(registry), &partial);
+                    return Err(e);
+                }
+                file
+            }
+            Err(_) => {
+                drop(list);
+                let file = opened(&mut OpenOptions::new())?;
+                lock(&file, &partial, &write_error)?;
+                let mut list = partials(registry);
+                if list.closed {
+                    let _ = std::fs::remove_file(&partial);
+                    return Err(write_error("the process is exiting (interrupted)".into()));
+                }
+                list.paths.push(partial.clone());
+                file
+            }
+        };
+        // Registered: dropping `out` on an error deletes the file.
+        let out = OutputFile {
             file: Some(file),
             partial,
             target: target.to_path_buf(),
             what,
-        })
+            registry,
+        };
+        let file = out.file.as_ref().expect("just opened");
+        file.set_len(0)
+            .map_err(|e| write_error(format!("cannot truncate {}: {e}", out.partial.display())))?;
+        Ok(out)
     }
 
     /// The open `.partial` file.
@@ -397,36 +446,54 @@ impl OutputFile {
     }
 
     /// Flushes the file to disk and renames it to its final name (re-checking that the final
-    /// name is still not a non-regular file).
+    /// name is still not a non-regular file). On an error the `.partial` file is deleted.
     pub fn commit(mut self) -> Result<PathBuf, FileError> {
-        let file = self.file.take().expect("the file is open until commit or drop");
-        unregister_partial(&self.partial);
+        let file = self.file.as_ref().expect("the file is open until commit or drop");
         file.sync_all()
             .map_err(|e| self.error(format!("cannot flush {}: {e}", self.partial.display())))?;
+        // Renamed under the lock: an exit in progress has removed it, or finds it renamed.
+        let mut registry = partials(self.registry);
+        if registry.closed {
+            return Err(self.error("the process is exiting (interrupted)".into()));
+        }
         if let Ok(meta) = std::fs::symlink_metadata(&self.target) {
             if !meta.file_type().is_file() {
                 let kind = kind_of(meta.file_type());
-                let _ = std::fs::remove_file(&self.partial);
+                drop(registry);
                 return Err(self.error(format!("it is now {kind}, which mjsafe never replaces")));
             }
         }
         let renamed = std::fs::rename(&self.partial, &self.target);
-        drop(file);
-        match renamed {
-            Ok(()) => Ok(self.target.clone()),
-            Err(e) => {
-                let _ = std::fs::remove_file(&self.partial);
-                Err(self.error(format!("cannot move the finished file into place: {e}")))
-            }
+        if renamed.is_ok() {
+            unregister(&mut registry, &self.partial);
+            self.file = None;
         }
+        drop(registry);
+        renamed
+            .map(|()| self.target.clone())
+            .map_err(|e| self.error(format!("cannot move the finished file into place: {e}")))
+    }
+}
+
+/// Locks an opened `.partial` file (`flock`); held by another process, this is an error.
+fn lock(file: &File, partial: &Path, write_error: &dyn Fn(String) -> FileError) -> Result<(), FileError> {
+    match file.try_lock() {
+        Ok(()) => Ok(()),
+        Err(std::fs::TryLockError::WouldBlock) => Err(write_error(format!(
+            "another process is writing it ({} is locked)",
+            partial.display()
+        ))),
+        Err(std::fs::TryLockError::Error(e)) => Err(write_error(format!("cannot lock {}: {e}", partial.display()))),
     }
 }
 
 impl Drop for OutputFile {
     fn drop(&mut self) {
         if self.file.take().is_some() {
-            unregister_partial(&self.partial);
+            // Deleted before it leaves the list, so an exit in between still removes it.
+            let mut registry = partials(self.registry);
             let _ = std::fs::remove_file(&self.partial);
+            unregister(&mut registry, &self.partial);
         }
     }
 }
@@ -479,6 +546,36 @@ mod tests {
         drop(dropped);
         assert!(!partial_path(&target).exists());
         assert_eq!(std::fs::read(&target).unwrap(), b"abc");
+    }
+
+    #[test]
+    fn no_partial_file_survives_an_exit_in_progress() {
+        let registry: &'static Registry = Box::leak(Box::new(Registry::new(Partials {
+            paths: Vec::new(),
+            closed: false,
+        })));
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("r.mcap");
+        let open = OutputFile::create_in(registry, &target, "log", Replace::Any, &[]).unwrap();
+        // A stale partial of a killed process, not held by anyone.
+        let stale = dir.path().join("s.mcap");
+        std::fs::write(partial_path(&stale), b"old").unwrap();
+        remove_all(registry);
+        assert!(!partial_path(&target).exists(), "the open output is removed");
+        // Created after the removal: refused, nothing created or left.
+        let e = OutputFile::create_in(registry, &dir.path().join("late.mcap"), "log", Replace::Any, &[]).unwrap_err();
+        assert!(e.to_string().contains("exiting"), "{e}");
+        let e = OutputFile::create_in(registry, &stale, "log", Replace::Any, &[]).unwrap_err();
+        assert!(e.to_string().contains("exiting"), "{e}");
+        // Committed after the removal: an error, and no final file appears.
+        let e = open.commit().unwrap_err();
+        assert!(e.to_string().contains("exiting"), "{e}");
+        let mut left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["s.mcap.partial"], "only the stale file, untouched");
     }
 
     #[test]

@@ -9,7 +9,7 @@ use nalgebra::DVector;
 
 use crate::barrier::Barrier;
 use crate::dynamics::Dynamics;
-use crate::mujoco::{CallbackContext, ControlHook, DataView, MjError, Simulation};
+use crate::mujoco::{CallbackContext, ControlHook, DataView, MjError, PhysicsWarning, Simulation};
 use crate::vehicle::MujocoVehicle;
 
 /// The control side, as a plant sees it.
@@ -40,6 +40,11 @@ pub trait Plant: Send {
     fn step_with_actuation(&mut self, actuation: &[f64]);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>);
+    /// A warning of the physics engine, raised since the last call, after which the physics
+    /// is not the model's (each kind once; see [`Simulation::take_warning`]).
+    fn take_warning(&mut self) -> Option<PhysicsWarning> {
+        None
+    }
 }
 
 /// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model.
@@ -113,6 +118,9 @@ impl Plant for MujocoPlant {
     }
     fn actuation(&self) -> Vec<f64> {
         self.sim.data().ctrl().to_vec()
+    }
+    fn take_warning(&mut self) -> Option<PhysicsWarning> {
+        self.sim.take_warning()
     }
     fn step_with_actuation(&mut self, actuation: &[f64]) {
         self.sim.set_ctrl(actuation);

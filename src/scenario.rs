@@ -516,8 +516,25 @@ fn positive_finite(x: f64) -> bool {
 
 /// Checks what serde cannot: signs, ranges and consistency. Model-dependent checks (state
 /// size, channel names, timestep multiples) happen when the episode binds the model.
+/// Why `name` cannot name output files (`<name>-….mcap` inside the output directory), if it
+/// cannot: it must be one path component, so it never leaves the directory.
+pub fn file_name_problem(name: &str) -> Option<String> {
+    if name.trim().is_empty() {
+        return Some("expected a non-empty name".into());
+    }
+    if name == "." || name == ".." || name.contains(['/', '\\', '\0']) {
+        return Some(format!(
+            "expected one path component, without `/` or `\\` and other than `.` and `..` (it names the log files inside the output directory), found {name:?}"
+        ));
+    }
+    None
+}
+
 fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
+    if let Some(problem) = file_name_problem(&sc.name) {
+        return Err(s.field_error("name", problem));
+    }
     if !positive_finite(sc.duration) {
         return Err(s.field_error(
             "duration",

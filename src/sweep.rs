@@ -365,6 +365,9 @@ impl SweepSpec {
                 }
                 scenario_path = Some(path.parent().unwrap_or(Path::new("")).join(s));
             }
+            if let Some(problem) = parsed.name.as_deref().and_then(scenario::file_name_problem) {
+                return Err(err(format!("key `name`: {problem}")));
+            }
             name = parsed.name;
             set = parsed.set;
             for (i, g) in parsed.grid.into_iter().enumerate() {
@@ -740,6 +743,14 @@ pub fn execute(
 const SUMMARY_JSON_START: &[u8] = b"{\n  \"mjsafe_version\"";
 const SUMMARY_CSV_START: &[u8] = b"index,log,";
 
+/// `summary` or `summary-shard-<i>-of-<N>`.
+fn summary_stem(shard: Option<Shard>) -> String {
+    match shard {
+        None => "summary".into(),
+        Some(s) => format!("summary-shard-{}-of-{}", s.index, s.count),
+    }
+}
+
 /// A sweep summary: the sweep, which shard (none: all runs), and one row per run by index.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -765,10 +776,19 @@ impl Summary {
 
     /// Base name of the summary files: `summary` or `summary-shard-<i>-of-<N>`.
     pub fn file_stem(&self) -> String {
-        match self.shard {
-            None => "summary".into(),
-            Some(s) => format!("summary-shard-{}-of-{}", s.index, s.count),
+        summary_stem(self.shard)
+    }
+
+    /// Checks before any run that [`Summary::write`] may write the summary of `shard` into
+    /// `dir` (nothing there, or a summary it may replace), so a sweep does not run for hours
+    /// and then fail to write it.
+    pub fn check_outputs(dir: &Path, shard: Option<Shard>) -> Result<(), SweepError> {
+        let stem = summary_stem(shard);
+        for (extension, start) in [("json", SUMMARY_JSON_START), ("csv", SUMMARY_CSV_START)] {
+            let path = dir.join(format!("{stem}.{extension}"));
+            crate::files::check_output(&path, "sweep summary", Replace::IfStartsWith(start), &[])?;
         }
+        Ok(())
     }
 
     pub fn failures(&self) -> usize {

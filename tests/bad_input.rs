@@ -225,3 +225,116 @@ fn a_missing_file_is_named_once_with_the_reason_once() {
         assert_eq!(e.matches("No such file or directory").count(), 1, "{args:?}: {e}");
     }
 }
+
+#[test]
+fn a_name_that_would_leave_the_output_directory_is_refused() {
+    // The scenario's `name` names the default log (`logs/<name>-….mcap`).
+    for name in ["../escaped", "a/b", ".."] {
+        let text = base(&bicycle()).replace("name = \"bad\"", &format!("name = {name:?}"));
+        expect_error(&text, &["key `name`", "one path component"]);
+    }
+    // A sweep file's `name` names every run's log inside --out.
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = write(dir.path(), "case.toml", &base(&bicycle()));
+    let sweep = write(
+        dir.path(),
+        "x.sweep.toml",
+        &format!(
+            "scenario = {:?}\nname = '../escaped'\n[[grid]]\nkey = 'seed'\nvalues = [1]\n",
+            scenario.to_str().unwrap()
+        ),
+    );
+    let out = dir.path().join("out");
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        sweep.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("x.sweep.toml") && err.contains("key `name`"), "{err}");
+    assert!(
+        !dir.path().join("escaped-0.mcap").exists() && !out.exists(),
+        "nothing runs"
+    );
+}
+
+#[test]
+fn a_sweep_whose_summary_cannot_be_written_runs_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = write(dir.path(), "case.toml", &base(&bicycle()));
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    write(&out, "summary.json", "notes\n");
+    let o = mjsafe(&[
+        "sweep",
+        scenario.to_str().unwrap(),
+        "--grid",
+        "seed=1,2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("summary.json"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("summary.json")], "no run was made");
+    assert_eq!(std::fs::read_to_string(out.join("summary.json")).unwrap(), "notes\n");
+}
+
+#[test]
+fn falsify_refuses_a_nan_threshold_and_fails_when_every_candidate_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = write(dir.path(), "case.toml", &base(&bicycle()));
+    let out = dir.path().join("fz");
+    let falsify = |extra: &[&str]| {
+        let mut args = vec![
+            "falsify",
+            scenario.to_str().unwrap(),
+            "--budget",
+            "4",
+            "--threads",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        mjsafe(&args)
+    };
+    let o = falsify(&["--range", "delays.steering=0..0.4:0.01", "--threshold", "nan"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--threshold") && stderr(&o).contains("finite"),
+        "{}",
+        stderr(&o)
+    );
+    // Without :STEP the drawn delays are off the timestep grid (the centre, 0.2 s, which is
+    // checked before the search, is on it): every candidate fails.
+    let o = falsify(&["--range", "delays.steering=0..0.4"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("every candidate failed") && err.contains("multiple"),
+        "{err}"
+    );
+    assert!(out.join("evaluations.csv").exists(), "the evaluations are written");
+}
+
+#[test]
+fn a_model_without_a_positive_timestep_is_named_as_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let xml = std::fs::read_to_string(bicycle()).unwrap();
+    for value in ["0", "-1"] {
+        let model = write(
+            dir.path(),
+            "zero_step.xml",
+            &xml.replace(r#"timestep="0.002""#, &format!(r#"timestep="{value}""#)),
+        );
+        expect_error(&base(&model), &["key `vehicle.model`", "<option timestep>", "positive"]);
+    }
+}

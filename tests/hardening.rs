@@ -147,7 +147,24 @@ fn absurd_timesteps_and_durations_are_refused_before_anything_runs() {
             "--out",
             "x.mcap",
         ],
-        &["key `vehicle.timestep`", "delay or control period"],
+        &[
+            "key `delays.u1`",
+            "200000000000 steps of 0.000000000001 s, more than the limit of 100000000 steps",
+        ],
+        &[],
+    );
+    // The key named is the delay that is too long, not the timestep.
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--set",
+            "delays.steering=1e300",
+            "--out",
+            "x.mcap",
+        ],
+        &["key `delays.steering`", "more than the limit of 100000000 steps"],
         &[],
     );
 }
@@ -292,4 +309,51 @@ fn a_signal_before_stepping_ends_the_process_at_once_and_leaves_nothing() {
     assert!(waited < Duration::from_secs(2), "took {waited:?} to stop");
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert!(left.is_empty(), "{left:?}");
+}
+
+/// A MuJoCo warning that changes the physics (nconmax = 1: contacts dropped) is logged once as
+/// a `mujoco_warning` event and shown by `run` and `analyze`; the stock model raises none.
+#[test]
+fn physics_changing_mujoco_warnings_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let stock = std::fs::read_to_string(root().join("models/car.xml")).unwrap();
+    let small = stock.replace(r#"<size nstack="100000"/>"#, r#"<size nstack="100000" nconmax="1"/>"#);
+    assert_ne!(small, stock, "models/car.xml has no <size nstack=\"100000\"/>");
+    let model = write(dir.path(), "car_ncon.xml", &small);
+    let scenario = scenario("car_obstacle_gamma_m.toml");
+    let run = |model: Option<&Path>, log: &str| {
+        let out = dir.path().join(log);
+        let set_model = model.map(|m| format!("vehicle.model='{}'", m.display()));
+        let mut args = vec!["run", scenario.to_str().unwrap(), "--set", "duration=1.0", "--json"];
+        if let Some(set) = &set_model {
+            args.extend(["--set", set]);
+        }
+        args.extend(["--out", out.to_str().unwrap()]);
+        let o = mjsafe(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let summary: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+        (summary, stderr(&o), out)
+    };
+
+    let (summary, err, log) = run(Some(&model), "warned.mcap");
+    let warnings = summary["warnings"].as_array().expect("summary lists the warnings");
+    assert_eq!(warnings.len(), 1, "{summary}");
+    let message = warnings[0].as_str().unwrap();
+    for needle in ["contact buffer full", "at t = 0 s", "nconmax = 1", "raise nconmax"] {
+        assert!(message.contains(needle), "`{needle}` not in {message}");
+    }
+    assert!(err.contains("warning: MuJoCo: contact buffer full"), "{err}");
+    let events = read_topic::<mjsafe::log::proto::Event>(&log, "/event");
+    let warned: Vec<_> = events.iter().filter(|e| e.kind == "mujoco_warning").collect();
+    assert_eq!(warned.len(), 1, "once per warning kind: {events:?}");
+    assert_eq!(warned[0].participants, ["contact_buffer_full"]);
+    assert_eq!(warned[0].message, message);
+    assert_eq!(analyze_json(&log)["warnings"], summary["warnings"]);
+
+    let (summary, err, log) = run(None, "stock.mcap");
+    assert!(summary.get("warnings").is_none(), "{summary}");
+    assert!(!err.contains("MuJoCo"), "{err}");
+    assert!(analyze_json(&log).get("warnings").is_none());
+    let events = read_topic::<mjsafe::log::proto::Event>(&log, "/event");
+    assert!(events.iter().all(|e| e.kind != "mujoco_warning"), "{events:?}");
 }

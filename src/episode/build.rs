@@ -41,13 +41,23 @@ pub(super) struct PlantParts {
 
 /// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
 /// (contype 0, conaffinity 1: it collides with the vehicle hull and nothing else).
-fn model_with_obstacles(xml: &str, loaded: &LoadedScenario) -> Result<String, ScenarioError> {
+fn model_with_obstacles(
+    xml: &str,
+    model_path: &std::path::Path,
+    loaded: &LoadedScenario,
+) -> Result<String, ScenarioError> {
     let obstacles = &loaded.scenario.obstacles;
     if obstacles.is_empty() {
         return Ok(xml.to_string());
     }
     let Some(at) = xml.rfind("</worldbody>") else {
-        return Err(loaded.field_error("vehicle.model", "the MJCF has no <worldbody> to place obstacles in"));
+        return Err(loaded.field_error(
+            "vehicle.model",
+            format!(
+                "{}: expected a <worldbody> to place the obstacles in",
+                model_path.display()
+            ),
+        ));
     };
     let mut geoms = String::new();
     for (i, o) in obstacles.iter().enumerate() {
@@ -97,7 +107,7 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
         (VehicleBinding::Mjcf(bind), Some(model_path)) => {
             let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
                 .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
-            let xml = model_with_obstacles(&xml, loaded)?;
+            let xml = model_with_obstacles(&xml, &model_path, loaded)?;
             let mut model = Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| {
                 EpisodeError::Model {
                     file: file.clone(),

@@ -12,7 +12,6 @@ use std::time::Instant;
 use nalgebra::DVector;
 
 use crate::barrier::{self, Barrier};
-use crate::delay::DelayProfile;
 use crate::log::{LogError, Record, RunInfo, Sink};
 use crate::mujoco::{self, MjError};
 use crate::plant::Plant;
@@ -340,6 +339,12 @@ impl Episode {
             if let Some(e) = self.control.take_error() {
                 return self.stop_with_error(sinks, time, k, e.to_string());
             }
+            while let Some(w) = self.plant.take_warning() {
+                Self::emit(
+                    sinks,
+                    Self::event(time, MUJOCO_WARNING, w.message, vec![w.name.to_string()], 0.0),
+                )?;
+            }
             if let Some(actuation) = &mut self.actuation {
                 actuation.push(self.plant.actuation());
             }
@@ -465,9 +470,23 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
     let steps = |seconds: f64| seconds / timestep;
     let too_many = |seconds: f64| steps(seconds).is_nan() || steps(seconds) > budget as f64;
     if !(timestep.is_finite() && timestep > 0.0) {
+        // The scenario's own timestep is checked on load: this one is the model's.
+        let (key, what) = match sc.vehicle.timestep {
+            Some(_) => ("vehicle.timestep", "the timestep"),
+            None => ("vehicle.model", "the model's <option timestep>"),
+        };
         return Err(loaded.field_error(
-            "vehicle.timestep",
-            format!("expected a positive number of seconds, found {timestep:e}"),
+            key,
+            format!("{what} must be a positive number of seconds, found {timestep:e}"),
+        ));
+    }
+    if build::steps(loaded, timestep) == 0 {
+        return Err(loaded.field_error(
+            "duration",
+            format!(
+                "{} s is less than one step of {timestep} s: expected at least one step",
+                sc.duration
+            ),
         ));
     }
     if too_many(sc.duration) {
@@ -481,21 +500,25 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
             ),
         ));
     }
-    let longest = [
-        sc.control.period.unwrap_or(0.0),
-        sc.control.predictor_step.unwrap_or(0.0),
-    ]
-    .into_iter()
-    .chain(sc.delays.values().filter_map(DelayProfile::constant_delay))
-    .fold(0.0, f64::max);
-    if too_many(longest) {
+    let periods = [
+        ("control.period".to_string(), sc.control.period),
+        ("control.predictor_step".to_string(), sc.control.predictor_step),
+    ];
+    let delays = sc
+        .delays
+        .iter()
+        .map(|(channel, profile)| (format!("delays.{channel}"), profile.constant_delay()));
+    let too_long = periods
+        .into_iter()
+        .chain(delays)
+        .filter_map(|(key, seconds)| Some((key, seconds?)))
+        .find(|&(_, seconds)| too_many(seconds));
+    if let Some((key, seconds)) = too_long {
         return Err(loaded.field_error(
-            "vehicle.timestep",
+            &key,
             format!(
-                "a delay or control period of {} s is {} steps of {} s, more than the limit of {budget} steps",
-                longest,
-                steps(longest).ceil(),
-                timestep
+                "{seconds} s is {} steps of {timestep} s, more than the limit of {budget} steps (raise it with --max-steps)",
+                steps(seconds).ceil(),
             ),
         ));
     }
@@ -540,6 +563,10 @@ pub fn request_stop() {
 pub fn stop_requested() -> bool {
     STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst)
 }
+
+/// The `/event` kind of a MuJoCo warning after which the physics is not the model's (the run
+/// goes on; its metrics list the warning).
+pub const MUJOCO_WARNING: &str = "mujoco_warning";
 
 /// The message of an episode stopped by [`request_stop`].
 pub const INTERRUPTED: &str = "interrupted by a signal";

@@ -254,13 +254,13 @@ impl Record {
 }
 
 /// The Foxglove log line of an `/event` (`/log`): level ERROR for `error`, WARNING for
-/// `collision_start` and `interrupted`, INFO otherwise; the message is `kind: message` (with
+/// `collision_start`, `interrupted` and `mujoco_warning`, INFO otherwise; the message is `kind: message` (with
 /// the participants and, for collisions, the depth), `name` = "mjsafe".
 pub fn event_log(event: &proto::Event) -> foxglove::messages::Log {
     use foxglove::messages::log::Level;
     let level = match event.kind.as_str() {
         "error" => Level::Error,
-        "collision_start" | "interrupted" => Level::Warning,
+        "collision_start" | "interrupted" | crate::episode::MUJOCO_WARNING => Level::Warning,
         _ => Level::Info,
     };
     let mut message = format!("{}: {}", event.kind, event.message);

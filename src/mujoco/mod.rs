@@ -193,9 +193,10 @@ impl Model {
     }
 
     /// Compiles MJCF text held in memory (through MuJoCo's virtual file system).
-    /// `origin` names the text in error messages (e.g. the file it came from). Text that names
-    /// no other file and equals the last text compiled on this thread gets a copy of that
-    /// model instead of a second compile.
+    /// `origin` names the text in error messages (e.g. the file it came from); the files the
+    /// text names are found from `origin`'s folder (the working directory if it has none).
+    /// Text that names no other file and equals the last text compiled on this thread gets a
+    /// copy of that model instead of a second compile.
     pub fn from_xml_string(xml: &str, origin: &str) -> Result<Model, MjError> {
         check_version()?;
         install_callback();
@@ -235,7 +236,36 @@ impl Model {
         #[cfg(test)]
         tests::COMPILES.with(|n| n.set(n.get() + 1));
         let bytes = xml.as_bytes();
-        let vfs_name = CString::new("mjsafe_model.xml").expect("static name");
+        // MuJoCo resolves `<include>`, mesh and texture paths from the directory of this name
+        // (its VFS keeps only the file part), so it carries the model file's directory: the
+        // resolved one, or as given if that is too long for MuJoCo's names.
+        const NAME: &str = "mjsafe_model.xml";
+        let fits = |dir: &Path| {
+            CString::new(dir.join(NAME).into_os_string().into_encoded_bytes())
+                .ok()
+                .filter(|n| n.as_bytes().len() < ffi::mjMAXVFSNAME as usize)
+        };
+        let vfs_name = match Path::new(origin).parent().filter(|d| !d.as_os_str().is_empty()) {
+            None => CString::new(NAME).expect("static name"),
+            Some(dir) => match std::fs::canonicalize(dir)
+                .ok()
+                .and_then(|d| fits(&d))
+                .or_else(|| fits(dir))
+            {
+                Some(name) => name,
+                None if names_other_files(xml) => {
+                    return Err(MjError::Load {
+                        origin: origin.to_string(),
+                        message: format!(
+                            "its folder's path is too long for MuJoCo to find the files it names \
+                             (at most {} bytes); move it or run from a folder nearer to it",
+                            ffi::mjMAXVFSNAME as usize - NAME.len() - 2
+                        ),
+                    })
+                }
+                None => CString::new(NAME).expect("static name"),
+            },
+        };
         let mut error = vec![0 as std::os::raw::c_char; ERROR_BUFFER];
         let refused = || MjError::Load {
             origin: origin.to_string(),
@@ -633,16 +663,43 @@ impl Data {
             .collect()
     }
 
-    /// Counts of MuJoCo's "bad number" warnings (qpos, qvel, qacc, ctrl) so far.
-    fn bad_number_warnings(&self) -> [i32; 4] {
-        let w = &self.raw().warning;
-        [
-            w[ffi::mjtWarning::mjWARN_BADQPOS as usize].number,
-            w[ffi::mjtWarning::mjWARN_BADQVEL as usize].number,
-            w[ffi::mjtWarning::mjWARN_BADQACC as usize].number,
-            w[ffi::mjtWarning::mjWARN_BADCTRL as usize].number,
-        ]
+    /// How often MuJoCo raised each warning so far (`mjData.warning[i].number`).
+    fn warning_counts(&self) -> [i32; NWARNING] {
+        self.raw().warning.map(|w| w.number)
     }
+
+    /// `mjData.warning[i].lastinfo`: the size or index MuJoCo reported with the warning.
+    fn warning_info(&self, warning: ffi::mjtWarning) -> i32 {
+        self.raw().warning[warning as usize].lastinfo
+    }
+}
+
+const NWARNING: usize = ffi::mjtWarning::mjNWARNING as usize;
+
+/// MuJoCo's "bad number" warnings (qpos, qvel, qacc, ctrl): the step reports them as errors.
+const BAD_NUMBERS: [(ffi::mjtWarning, &str); 4] = [
+    (ffi::mjtWarning::mjWARN_BADQPOS, "qpos"),
+    (ffi::mjtWarning::mjWARN_BADQVEL, "qvel"),
+    (ffi::mjtWarning::mjWARN_BADQACC, "qacc"),
+    (ffi::mjtWarning::mjWARN_BADCTRL, "ctrl"),
+];
+
+/// The warnings after which the step went on with physics other than the model's (contacts or
+/// constraints dropped, a near-singular inertia): reported once each, the run goes on.
+/// (`mjWARN_VGEOMFULL` is visualisation only.)
+const DEGRADING: [ffi::mjtWarning; 3] = [
+    ffi::mjtWarning::mjWARN_CONTACTFULL,
+    ffi::mjtWarning::mjWARN_CNSTRFULL,
+    ffi::mjtWarning::mjWARN_INERTIA,
+];
+
+/// A MuJoCo warning after which the simulated physics is not what the model describes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhysicsWarning {
+    /// Short name, e.g. `contact_buffer_full`.
+    pub name: &'static str,
+    /// What happened and the model attribute to change.
+    pub message: String,
 }
 
 impl Drop for Data {
@@ -794,12 +851,24 @@ pub struct Simulation {
     data: Data,
     model: Model,
     step: u64,
+    /// Bit i: warning i of [`DEGRADING`] was raised (set once) / not yet taken.
+    raised: u8,
+    pending: u8,
+    /// Start time of the step that first raised each.
+    raised_at: [f64; DEGRADING.len()],
 }
 
 impl Simulation {
     pub fn new(model: Model) -> Result<Simulation, MjError> {
         let data = Data::new(&model)?;
-        Ok(Simulation { data, model, step: 0 })
+        Ok(Simulation {
+            data,
+            model,
+            step: 0,
+            raised: 0,
+            pending: 0,
+            raised_at: [0.0; DEGRADING.len()],
+        })
     }
 
     pub fn model(&self) -> &Model {
@@ -830,9 +899,10 @@ impl Simulation {
 
     /// One `mj_step`, with `hook` receiving every control callback of the step.
     /// A panic inside the hook is caught in the callback and returned here as an error;
-    /// so is any MuJoCo "bad number" warning (MuJoCo would silently reset the state).
+    /// so is any MuJoCo "bad number" warning (MuJoCo would silently reset the state). The
+    /// first of each warning that changes the physics is kept for [`Simulation::take_warning`].
     pub fn step(&mut self, hook: &mut dyn ControlHook) -> Result<(), MjError> {
-        let warnings_before = self.data.bad_number_warnings();
+        let warnings_before = self.data.warning_counts();
         let start_time = self.data.time();
         // SAFETY (lifetime erasure): the pointer is removed from ACTIVE before this function
         // returns, so it never outlives `hook`.
@@ -860,10 +930,9 @@ impl Simulation {
                 message,
             });
         }
-        let warnings_after = self.data.bad_number_warnings();
-        const WHAT: [&str; 4] = ["qpos", "qvel", "qacc", "ctrl"];
-        for (i, what) in WHAT.iter().enumerate() {
-            if warnings_after[i] > warnings_before[i] {
+        let warnings_after = self.data.warning_counts();
+        for (warning, what) in BAD_NUMBERS {
+            if warnings_after[warning as usize] > warnings_before[warning as usize] {
                 return Err(MjError::Unstable {
                     time: start_time,
                     message: format!(
@@ -874,7 +943,56 @@ impl Simulation {
                 });
             }
         }
+        for (i, warning) in DEGRADING.iter().enumerate() {
+            let bit = 1 << i;
+            if self.raised & bit == 0 && warnings_after[*warning as usize] > warnings_before[*warning as usize] {
+                self.raised |= bit;
+                self.pending |= bit;
+                self.raised_at[i] = start_time;
+            }
+        }
         Ok(())
+    }
+
+    /// A warning that changed the physics, raised by a step since the last call: each kind
+    /// once per simulation, the first time it occurs.
+    pub fn take_warning(&mut self) -> Option<PhysicsWarning> {
+        if self.pending == 0 {
+            return None;
+        }
+        let i = self.pending.trailing_zeros() as usize;
+        self.pending &= !(1 << i);
+        let warning = DEGRADING[i];
+        // MuJoCo's text of its last warning (kept out of its log file and stdout).
+        let mujoco = take_warning().map_or(String::new(), |w| format!(" (MuJoCo: {w})"));
+        let info = self.data.warning_info(warning);
+        let at = format!("at t = {} s", self.raised_at[i]);
+        let m = self.model.raw();
+        let size = |attribute: &str, value: i32| {
+            if value >= 0 {
+                format!("({attribute} = {value}): raise {attribute} in the model's <size>")
+            } else {
+                format!("({attribute} unset, the buffer comes from nstack = {}): raise nstack or set {attribute} in the model's <size>", m.nstack)
+            }
+        };
+        let (name, message) = match warning {
+            ffi::mjtWarning::mjWARN_CONTACTFULL => (
+                "contact_buffer_full",
+                format!("contact buffer full {at} {}; contacts beyond it were dropped", size("nconmax", m.nconmax)),
+            ),
+            ffi::mjtWarning::mjWARN_CNSTRFULL => (
+                "constraint_buffer_full",
+                format!("constraint buffer full {at} {}; constraints beyond it were dropped", size("njmax", m.njmax)),
+            ),
+            _ => (
+                "inertia_singular",
+                format!("inertia matrix too close to singular {at} (dof {info}): raise the model's masses, inertias or armature"),
+            ),
+        };
+        Some(PhysicsWarning {
+            name,
+            message: format!("{message}{mujoco}"),
+        })
     }
 
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
