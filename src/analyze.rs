@@ -603,7 +603,7 @@ impl Accumulator {
                 }
             }
             "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message),
-            crate::episode::MUJOCO_WARNING => self.warnings.push(m.message),
+            crate::log::MUJOCO_WARNING => self.warnings.push(m.message),
             _ => {}
         }
     }

@@ -342,7 +342,13 @@ impl Episode {
             while let Some(w) = self.plant.take_warning() {
                 Self::emit(
                     sinks,
-                    Self::event(time, MUJOCO_WARNING, w.message, vec![w.name.to_string()], 0.0),
+                    Self::event(
+                        time,
+                        crate::log::MUJOCO_WARNING,
+                        w.message,
+                        vec![w.name.to_string()],
+                        0.0,
+                    ),
                 )?;
             }
             if let Some(actuation) = &mut self.actuation {
@@ -563,10 +569,6 @@ pub fn request_stop() {
 pub fn stop_requested() -> bool {
     STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst)
 }
-
-/// The `/event` kind of a MuJoCo warning after which the physics is not the model's (the run
-/// goes on; its metrics list the warning).
-pub const MUJOCO_WARNING: &str = "mujoco_warning";
 
 /// The message of an episode stopped by [`request_stop`].
 pub const INTERRUPTED: &str = "interrupted by a signal";

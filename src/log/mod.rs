@@ -253,6 +253,10 @@ impl Record {
     }
 }
 
+/// The `/event` kind of a MuJoCo warning after which the physics is not the model's (the run
+/// goes on; its metrics list the warning).
+pub const MUJOCO_WARNING: &str = "mujoco_warning";
+
 /// The Foxglove log line of an `/event` (`/log`): level ERROR for `error`, WARNING for
 /// `collision_start`, `interrupted` and `mujoco_warning`, INFO otherwise; the message is `kind: message` (with
 /// the participants and, for collisions, the depth), `name` = "mjsafe".
@@ -260,7 +264,7 @@ pub fn event_log(event: &proto::Event) -> foxglove::messages::Log {
     use foxglove::messages::log::Level;
     let level = match event.kind.as_str() {
         "error" => Level::Error,
-        "collision_start" | "interrupted" | crate::episode::MUJOCO_WARNING => Level::Warning,
+        "collision_start" | "interrupted" | MUJOCO_WARNING => Level::Warning,
         _ => Level::Info,
     };
     let mut message = format!("{}: {}", event.kind, event.message);

@@ -482,7 +482,7 @@ impl RerunSink {
     fn event(&mut self, stream: &RecordingStream, m: &proto::Event) -> Result<(), ::rerun::RecordingStreamError> {
         let level = match m.kind.as_str() {
             "error" => ::rerun::TextLogLevel::ERROR,
-            "collision_start" | "collision_end" | crate::episode::MUJOCO_WARNING => ::rerun::TextLogLevel::WARN,
+            "collision_start" | "collision_end" | crate::log::MUJOCO_WARNING => ::rerun::TextLogLevel::WARN,
             _ => ::rerun::TextLogLevel::INFO,
         };
         let mut text = m.kind.clone();
