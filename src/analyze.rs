@@ -42,7 +42,9 @@ pub struct Collision {
     pub time: f64,
     /// The obstacle first touched.
     pub with: String,
-    /// Deepest penetration over all contacts of the run (MuJoCo contact distance), metres.
+    /// Deepest penetration over all contacts of the run (MuJoCo contact distance), metres; NaN
+    /// (null in JSON, reason under `missing`) when a contact is still going on where the log
+    /// ends without closing it.
     pub depth: f64,
 }
 
@@ -124,8 +126,9 @@ pub struct RunMetrics {
     pub complete: bool,
     pub error: Option<String>,
     /// The metrics the log cannot give, each with the reason (a log topic or a run metadata
-    /// key it lacks, e.g. in a topic-filtered copy): their values above are absent (`null`),
-    /// never computed from a default. Empty (and left out of the JSON) for a whole log.
+    /// key it lacks, e.g. in a topic-filtered copy; a contact the log never closes): their
+    /// values above are absent (`null`), never computed from a default. Empty (and left out
+    /// of the JSON) for a whole log of this version.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub missing: BTreeMap<String, String>,
     /// MuJoCo warnings after which the simulated physics was not the model's (`mujoco_warning`
@@ -270,14 +273,17 @@ struct Accumulator {
     /// later tick (written right after it) to know whether the filter was overriding.
     pending_jerk: Option<(f64, f64)>,
     previous_overriding: bool,
-    max_jerk: f64,
-    max_jerk_overriding: f64,
+    /// None until a pair of commands (one with the filter active) defines it.
+    max_jerk: Option<f64>,
+    max_jerk_overriding: Option<f64>,
     terminal: PrescribedTimeMetrics,
     max_delay: Option<f64>,
     min_clearance: Option<f64>,
     min_time_to_collision: Option<f64>,
     /// Appearance time per obstacle name.
     appeared: BTreeMap<String, f64>,
+    /// Obstacles with a `collision_start` and no `collision_end` yet.
+    open_contacts: std::collections::BTreeSet<String>,
     delay_attributed_steps: u64,
     intervention_integral: f64,
     /// Last four planar positions (time, x, y) for the jerk, and the position indices.
@@ -514,7 +520,7 @@ impl Accumulator {
         }
         if let Some((time, jerk)) = self.pending_jerk.take() {
             if (time - m.time).abs() < 1e-9 && (m.active || self.previous_overriding) {
-                self.max_jerk_overriding = self.max_jerk_overriding.max(jerk);
+                self.max_jerk_overriding = Some(self.max_jerk_overriding.map_or(jerk, |j| j.max(jerk)));
             }
         }
         self.previous_overriding = m.active;
@@ -541,7 +547,7 @@ impl Accumulator {
                     .zip(previous)
                     .map(|(u, p)| ((u - p) / dt).abs())
                     .fold(0.0, f64::max);
-                self.max_jerk = self.max_jerk.max(jerk);
+                self.max_jerk = Some(self.max_jerk.map_or(jerk, |j| j.max(jerk)));
                 self.pending_jerk = Some((m.time, jerk));
             }
         }
@@ -590,6 +596,11 @@ impl Accumulator {
                     .find(|p| *p != "vehicle")
                     .cloned()
                     .unwrap_or_default();
+                if m.kind == "collision_start" {
+                    self.open_contacts.insert(with.clone());
+                } else {
+                    self.open_contacts.remove(&with);
+                }
                 match self.collision.as_mut() {
                     Some(c) => c.depth = c.depth.max(m.depth),
                     None if m.kind == "collision_start" => {
@@ -735,8 +746,20 @@ impl Accumulator {
     }
 
     /// The metrics; those the log cannot give (see [`Accumulator::absent`]) are `None`.
-    fn finish(self, file: &str, missing_topics: &[Topic]) -> RunMetrics {
-        let missing = self.absent(missing_topics);
+    fn finish(mut self, file: &str, missing_topics: &[Topic]) -> RunMetrics {
+        let mut missing = self.absent(missing_topics);
+        // A contact the log never closes (a log cut short, or written before episodes closed
+        // their contacts at the end): its deepest penetration is not in the log.
+        if let (Some(c), Some(open)) = (self.collision.as_mut(), self.open_contacts.first()) {
+            missing.insert(
+                "collision.depth".into(),
+                format!(
+                    "the contact with {open} is still going on where the log ends: only its depth at first contact ({:.4} m) is in the log",
+                    c.depth
+                ),
+            );
+            c.depth = f64::NAN;
+        }
         let given = |metric: &str| !missing.contains_key(metric);
         let known = |metric: &str, value| given(metric).then_some(value);
         let timestep = self.timestep.unwrap_or(0.0);
@@ -769,7 +792,10 @@ impl Accumulator {
             steps: self.last_step,
             collision: self.collision.filter(|_| given("collision")),
             min_h: self.min_h.filter(|_| given("min_h")),
-            time_h_negative: known("time_h_negative", self.negative_steps as f64 * timestep),
+            // Only for a run with barriers (as min_h): 0 s would claim a safe set was kept.
+            time_h_negative: self
+                .min_h
+                .and_then(|_| known("time_h_negative", self.negative_steps as f64 * timestep)),
             filter_active_fraction: known(
                 "filter_active_fraction",
                 if self.ticks > 0 {
@@ -782,14 +808,17 @@ impl Accumulator {
             max_correction: given("max_correction").then_some(self.max_correction),
             first_override_time: self.first_override_time.filter(|_| given("first_override_time")),
             override_duration: known("override_duration", self.active_ticks_time),
-            max_jerk: known("max_jerk", self.max_jerk),
-            max_jerk_overriding: known("max_jerk_overriding", self.max_jerk_overriding),
+            max_jerk: self.max_jerk.filter(|_| given("max_jerk")),
+            max_jerk_overriding: self.max_jerk_overriding.filter(|_| given("max_jerk_overriding")),
             min_clearance: self.min_clearance.filter(|_| given("min_clearance")),
             min_time_to_collision: self.min_time_to_collision.filter(|_| given("min_time_to_collision")),
-            delay_attributed_violation_time: known(
-                "delay_attributed_violation_time",
-                self.delay_attributed_steps as f64 * timestep,
-            ),
+            // Only for a run with obstacles (whose appearance it measures from).
+            delay_attributed_violation_time: self.min_clearance.and_then(|_| {
+                known(
+                    "delay_attributed_violation_time",
+                    self.delay_attributed_steps as f64 * timestep,
+                )
+            }),
             intervention_integral: known("intervention_integral", self.intervention_integral),
             max_longitudinal_jerk: self.max_longitudinal_jerk.filter(|_| given("max_longitudinal_jerk")),
             max_lateral_jerk: self.max_lateral_jerk.filter(|_| given("max_lateral_jerk")),

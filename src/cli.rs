@@ -871,8 +871,14 @@ fn run_scenario(
                 .collision
                 .as_ref()
                 .map_or("no collision".to_string(), |c| format!(
-                    "COLLISION at t = {:.3} s with {} (depth {:.3} m)",
-                    c.time, c.with, c.depth
+                    "COLLISION at t = {:.3} s with {} ({})",
+                    c.time,
+                    c.with,
+                    if c.depth.is_nan() {
+                        "depth not in the log".to_string()
+                    } else {
+                        format!("depth {:.3} m", c.depth)
+                    }
                 )),
             match metrics.warnings.len() {
                 0 => String::new(),

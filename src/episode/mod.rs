@@ -309,6 +309,7 @@ impl Episode {
             // Checked after the state is logged, so even a run stopped before its first step
             // leaves a log with its initial state.
             if stop_requested() {
+                self.close_contacts(sinks, time)?;
                 Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
                 return Ok((k, Some(StopReason::Interrupted)));
             }
@@ -389,6 +390,7 @@ impl Episode {
             self.check_contacts(sinks, time)?;
         }
         let end = self.steps as f64 * h;
+        self.close_contacts(sinks, end)?;
         Self::emit(
             sinks,
             Self::event(
@@ -441,6 +443,26 @@ impl Episode {
         Ok(())
     }
 
+    /// A `collision_end` for every contact still going on when the episode stops (its end,
+    /// an interruption, an error): it carries the deepest penetration so far, so a run that
+    /// ends in contact does not report only the depth at first contact.
+    fn close_contacts(&mut self, sinks: &mut [&mut dyn Sink], time: f64) -> Result<(), LogError> {
+        for o in self.obstacles.iter_mut().filter(|o| o.in_contact) {
+            o.in_contact = false;
+            let deepest = std::mem::take(&mut o.contact_depth);
+            let message = format!(
+                "the episode ended with the vehicle hull still touching {} (deepest penetration {deepest:.4} m)",
+                o.barrier.name
+            );
+            let participants = vec!["vehicle".to_string(), o.barrier.name.clone()];
+            Self::emit(
+                sinks,
+                Self::event(time, "collision_end", message, participants, deepest),
+            )?;
+        }
+        Ok(())
+    }
+
     fn stop_with_error(
         &mut self,
         sinks: &mut [&mut dyn Sink],
@@ -448,6 +470,7 @@ impl Episode {
         steps: u64,
         message: String,
     ) -> Result<(u64, Option<StopReason>), EpisodeError> {
+        self.close_contacts(sinks, time)?;
         Self::emit(sinks, Self::event(time, "error", message.clone(), vec![], 0.0))?;
         Ok((steps, Some(StopReason::Error(message))))
     }

@@ -1,0 +1,61 @@
+//! Metrics a run does not have are absent (null), never 0 from a default; a run that ends in
+//! contact reports its deepest penetration, not the depth at first contact.
+
+mod common;
+use common::*;
+
+fn run(dir: &std::path::Path, name: &str, sets: &[&str]) -> serde_json::Value {
+    let log = dir.join(format!("{name}.mcap"));
+    let scenario = root().join("scenarios/bicycle_obstacle.toml");
+    let mut args = vec!["run", scenario.to_str().unwrap(), "--out", log.to_str().unwrap()];
+    for s in sets {
+        args.extend(["--set", s]);
+    }
+    let o = mjsafe(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    analyze_json(&log)
+}
+
+#[test]
+fn a_run_that_ends_in_contact_reports_its_deepest_penetration() {
+    let dir = tempfile::tempdir().unwrap();
+    // The bicycle hits the obstacle at 3.684 s and is still inside it at 5 s.
+    let m = run(dir.path(), "mid", &["duration=5.0"]);
+    let depth = m["collision"]["depth"].as_f64().unwrap();
+    let clearance = m["min_clearance"].as_f64().unwrap();
+    // The depth is the contact distance, the clearance its negative (equal on every closed
+    // contact); at first contact the depth was 3 mm.
+    assert!(depth > 1.0, "{m}");
+    assert!(
+        (depth + clearance).abs() < 1e-9,
+        "depth {depth} vs clearance {clearance}"
+    );
+    assert!(m.get("missing").is_none(), "{m}");
+}
+
+#[test]
+fn metrics_without_the_data_they_need_are_null() {
+    let dir = tempfile::tempdir().unwrap();
+    // No filter: never an override, so no pair of commands around one.
+    let m = run(dir.path(), "none", &["filter={kind='none'}"]);
+    assert!(m["first_override_time"].is_null(), "{m}");
+    assert!(m["max_jerk_overriding"].is_null(), "{m}");
+    assert!(m["max_jerk"].as_f64().unwrap() > 0.0, "{m}");
+    // One step: one command, no rate of change.
+    let m = run(dir.path(), "one", &["duration=0.002"]);
+    assert!(m["max_jerk"].is_null() && m["max_jerk_overriding"].is_null(), "{m}");
+    // No obstacle and no barrier: nothing to be outside of, nothing that appeared.
+    let m = run(dir.path(), "free", &["obstacles=[]"]);
+    for metric in [
+        "min_h",
+        "time_h_negative",
+        "min_clearance",
+        "delay_attributed_violation_time",
+    ] {
+        assert!(m[metric].is_null(), "{metric}: {m}");
+    }
+    // With the obstacle they are numbers, 0 included.
+    let m = run(dir.path(), "with", &[]);
+    assert!(m["time_h_negative"].as_f64().unwrap() > 0.0, "{m}");
+    assert!(m["delay_attributed_violation_time"].as_f64().is_some(), "{m}");
+}
