@@ -1067,6 +1067,12 @@ impl From<&RunMetrics> for FlatMetrics {
 }
 
 impl FlatMetrics {
+    /// Whether a column of [`FlatMetrics::columns`] holds numbers (what `falsify --objective`
+    /// and `plot-sweep --y` accept).
+    pub fn is_numeric_column(name: &str) -> bool {
+        !matches!(name, "scenario" | "collision_with" | "complete" | "error")
+    }
+
     /// Column names covering `rows`: the scalar columns, then per group the union of the
     /// channels (sorted), then `complete` and `error`.
     pub fn columns<'a>(rows: impl IntoIterator<Item = &'a FlatMetrics> + Clone) -> Vec<String> {

@@ -88,7 +88,7 @@ Examples:
   mjsafe run scenarios/bicycle_obstacle.toml --set delays.steering=0.4 --out logs/slow.mcap
   mjsafe run scenarios/bicycle_obstacle_gamma_m.toml --json --fail-on-collision
   mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --shard 0/4 --threads 8
-  mjsafe analyze --merge logs/sweep-bicycle_delays --out logs/sweep-bicycle_delays
+  mjsafe analyze --merge logs/sweep-bicycle_obstacle --out logs/sweep-bicycle_obstacle
   mjsafe analyze --csv logs/*.mcap
   mjsafe completions bash > /etc/bash_completion.d/mjsafe
   mjsafe man | man -l -"
@@ -125,7 +125,7 @@ Examples:
   mjsafe analyze logs/run.mcap
   mjsafe analyze --json logs/*.mcap
   mjsafe analyze --compare logs/a.mcap logs/b.mcap
-  mjsafe analyze --merge logs/sweep-bicycle_delays --out logs/sweep-bicycle_delays
+  mjsafe analyze --merge logs/sweep-bicycle_obstacle --out logs/sweep-bicycle_obstacle
   mjsafe analyze --plot figures logs/run.mcap"
     };
 }
@@ -348,6 +348,7 @@ pub enum Command {
     },
     /// Topics, message counts, schemas, time span, mjsafe metadata and scenario of a log.
     Info {
+        /// The MCAP log written by `mjsafe run`, `sweep` or `falsify`.
         file: PathBuf,
         /// Also print the effective scenario (after --set overrides).
         #[arg(long)]
@@ -757,7 +758,10 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Man { dir } => {
-            let command = <Cli as clap::CommandFactory>::command();
+            // `mjsafe help CMD` is `mjsafe CMD --help`: no page of its own, so none listed.
+            let mut command = <Cli as clap::CommandFactory>::command();
+            command.build();
+            let command = command.mut_subcommand("help", |help| help.hide(true));
             match dir {
                 Some(dir) => {
                     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

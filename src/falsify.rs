@@ -81,7 +81,7 @@ pub struct Problem {
 /// The metrics `--objective` accepts: the numeric columns of the flat metrics.
 pub fn check_objective(name: &str) -> Result<(), FalsifyError> {
     let probe = FlatMetrics::columns(std::iter::empty());
-    let numeric = |c: &str| !matches!(c, "scenario" | "collision_with" | "complete" | "error");
+    let numeric = FlatMetrics::is_numeric_column;
     let known = probe.iter().any(|c| c == name) || name.contains('.');
     if !known || !numeric(name) {
         let names: Vec<&str> = probe.iter().map(String::as_str).filter(|c| numeric(c)).collect();

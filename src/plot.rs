@@ -666,15 +666,21 @@ pub fn plot_sweep(
     }
     type Points = Vec<(f64, f64, bool)>;
     let mut groups: BTreeMap<String, Points> = BTreeMap::new();
-    let mut known_metric = false;
+    use crate::analyze::{Cell, FlatMetrics};
+    // The numeric columns of the summary's metrics, per-channel ones included.
+    let numeric: Vec<String> = FlatMetrics::columns(s.runs.iter().filter_map(|r| r.metrics))
+        .into_iter()
+        .filter(|c| FlatMetrics::is_numeric_column(c))
+        .collect();
+    let known_metric = numeric.iter().any(|c| c == metric);
     for run in s.runs {
-        let Some(metrics) = &run.metrics else { continue };
-        let value = serde_json::to_value(metrics).expect("metrics serialise");
-        if value.get(metric).is_some() {
-            known_metric = true;
-        }
+        let Some(metrics) = run.metrics else { continue };
         let x = run.parameters.get(key).and_then(|v| v.trim().parse::<f64>().ok());
-        let y = value.get(metric).and_then(|v| v.as_f64());
+        let y = match metrics.cell(metric) {
+            Cell::Num(v) => v,
+            Cell::Int(v) => v.map(|n| n as f64),
+            Cell::Text(_) | Cell::Bool(_) => None,
+        };
         let (Some(x), Some(y)) = (x, y) else { continue };
         let group: Vec<String> = s
             .parameters
@@ -696,25 +702,10 @@ pub fn plot_sweep(
             .push((x, y, metrics.collision_time.is_some()));
     }
     if !known_metric {
-        let value = s
-            .runs
-            .iter()
-            .find_map(|r| r.metrics.as_ref())
-            .map(|m| serde_json::to_value(m).expect("metrics serialise"));
-        let names: Vec<String> = value
-            .and_then(|v| {
-                v.as_object().map(|o| {
-                    o.iter()
-                        .filter(|(_, v)| v.is_number() || v.is_null())
-                        .map(|(k, _)| k.clone())
-                        .collect()
-                })
-            })
-            .unwrap_or_default();
         return Err(PlotError::Sweep(format!(
             "{}: no metric `{metric}` in the summary (numeric metrics: {})",
             file.display(),
-            names.join(", ")
+            numeric.join(", ")
         )));
     }
     if groups.is_empty() {

@@ -326,4 +326,11 @@ fn man_page_renders() {
     }
     let run_page = std::fs::read_to_string(pages.join("mjsafe-run.1")).unwrap();
     assert!(run_page.contains("fail\\-on\\-collision"), "{run_page}");
+    // Every page the top page lists is written (`mjsafe help` has none, and is not listed).
+    let top = std::fs::read_to_string(pages.join("mjsafe.1")).unwrap();
+    for listed in top.split("mjsafe\\-").skip(1).filter_map(|rest| rest.split_once("(1)")) {
+        let page = format!("mjsafe-{}.1", listed.0.replace("\\-", "-"));
+        assert!(names.contains(&page), "{page} is listed but not written: {names:?}");
+    }
+    assert!(!top.contains("mjsafe\\-help(1)"), "{top}");
 }

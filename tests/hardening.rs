@@ -153,6 +153,20 @@ fn absurd_timesteps_and_durations_are_refused_before_anything_runs() {
         ],
         &[],
     );
+    // Less than one step is not a run.
+    expect_clean_failure(
+        dir.path(),
+        &[
+            "run",
+            &scenario_arg("bicycle_obstacle.toml"),
+            "--set",
+            "duration=0.0001",
+            "--out",
+            "x.mcap",
+        ],
+        &["key `duration`", "less than one step of 0.002 s"],
+        &[],
+    );
     // The key named is the delay that is too long, not the timestep.
     expect_clean_failure(
         dir.path(),

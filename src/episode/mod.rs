@@ -509,7 +509,7 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
             format!("{what} must be a positive number of seconds, found {timestep:e}"),
         ));
     }
-    if build::steps(loaded, timestep) == 0 {
+    if sc.duration / timestep < 1.0 - TICK_TOLERANCE {
         return Err(loaded.field_error(
             "duration",
             format!(
