@@ -731,7 +731,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
         };
         if !ok {
             return Err(s.field_error(
-                &format!("barriers[{i}]"),
+                &format!("barriers.{i}"),
                 "expected a ball (indices and centre of equal length, radius > 0) or a half-space (finite coefficients and offset)",
             ));
         }
@@ -739,22 +739,22 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     for (i, o) in sc.obstacles.iter().enumerate() {
         if !positive_finite(o.radius) {
             return Err(s.field_error(
-                &format!("obstacles[{i}].radius"),
+                &format!("obstacles.{i}.radius"),
                 format!("expected a positive radius, found {}", o.radius),
             ));
         }
         if o.centre.iter().any(|v| !v.is_finite()) {
-            return Err(s.field_error(&format!("obstacles[{i}].centre"), "expected two finite coordinates"));
+            return Err(s.field_error(&format!("obstacles.{i}.centre"), "expected two finite coordinates"));
         }
         if !o.appear_jitter.is_finite() || o.appear_jitter < 0.0 {
             return Err(s.field_error(
-                &format!("obstacles[{i}].appear_jitter"),
+                &format!("obstacles.{i}.appear_jitter"),
                 format!("expected a jitter >= 0, found {}", o.appear_jitter),
             ));
         }
         if !o.appear_at.is_finite() || o.appear_at < 0.0 {
             return Err(s.field_error(
-                &format!("obstacles[{i}].appear_at"),
+                &format!("obstacles.{i}.appear_at"),
                 format!("expected a time >= 0, found {}", o.appear_at),
             ));
         }

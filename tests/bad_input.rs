@@ -140,7 +140,7 @@ fn obstacle_inside_the_vehicle_at_the_start() {
         "{}\n[[obstacles]]\ncentre = [-21.0, 0.0]\nradius = 1.0\n",
         base(&bicycle())
     );
-    expect_error(&text, &["obstacles[0]", "overlaps the vehicle"]);
+    expect_error(&text, &["obstacles.0", "overlaps the vehicle"]);
 }
 
 #[test]

@@ -151,7 +151,7 @@ fn filter_bad_input_is_rejected_before_the_run() {
     expect_error(&["filter.l1=1.0"], &["filter", "l1² >= 4 l0"]);
     expect_error(
         &["obstacles.0.centre=[-20.0, 1.0]"],
-        &["obstacles[0]", "overlaps the vehicle"],
+        &["obstacles.0", "overlaps the vehicle"],
     );
 }
 

@@ -133,28 +133,24 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
         "{}",
         stderr(&o)
     );
-    let o = mjsafe(&[
-        "plot-sweep",
-        sweep.to_str().unwrap(),
-        "--x",
-        "delays.acceleration",
-        "--y",
-        "nope",
-    ]);
+    let plot_y = |metric: &str| {
+        mjsafe(&[
+            "plot-sweep",
+            sweep.to_str().unwrap(),
+            "--x",
+            "delays.acceleration",
+            "--y",
+            metric,
+        ])
+    };
+    let o = plot_y("nope");
     assert!(!o.status.success());
     assert!(stderr(&o).contains("no metric `nope`"), "{}", stderr(&o));
     // The list of numeric metrics names per-channel ones and no text column.
     assert!(stderr(&o).contains("max_correction.steering"), "{}", stderr(&o));
     assert!(!stderr(&o).contains(", error"), "{}", stderr(&o));
     // A per-channel metric plots like any other.
-    let o = mjsafe(&[
-        "plot-sweep",
-        sweep.to_str().unwrap(),
-        "--x",
-        "delays.acceleration",
-        "--y",
-        "max_correction.steering",
-    ]);
+    let o = plot_y("max_correction.steering");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(sweep
         .join("max_correction.steering-vs-delays.acceleration.png")

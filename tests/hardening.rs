@@ -153,34 +153,19 @@ fn absurd_timesteps_and_durations_are_refused_before_anything_runs() {
         ],
         &[],
     );
-    // Less than one step is not a run.
-    expect_clean_failure(
-        dir.path(),
-        &[
-            "run",
-            &scenario_arg("bicycle_obstacle.toml"),
-            "--set",
-            "duration=0.0001",
-            "--out",
-            "x.mcap",
-        ],
-        &["key `duration`", "less than one step of 0.002 s"],
-        &[],
-    );
-    // The key named is the delay that is too long, not the timestep.
-    expect_clean_failure(
-        dir.path(),
-        &[
-            "run",
-            &scenario_arg("bicycle_obstacle.toml"),
-            "--set",
+    // Less than one step is not a run; the key named is the delay that is too long, not the
+    // timestep.
+    for (set, needles) in [
+        ("duration=0.0001", ["key `duration`", "less than one step of 0.002 s"]),
+        (
             "delays.steering=1e300",
-            "--out",
-            "x.mcap",
-        ],
-        &["key `delays.steering`", "more than the limit of 100000000 steps"],
-        &[],
-    );
+            ["key `delays.steering`", "more than the limit of 100000000 steps"],
+        ),
+    ] {
+        let scenario = scenario_arg("bicycle_obstacle.toml");
+        let args = ["run", &scenario, "--set", set, "--out", "x.mcap"];
+        expect_clean_failure(dir.path(), &args, &needles, &[]);
+    }
 }
 
 #[test]

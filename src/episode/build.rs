@@ -380,7 +380,7 @@ pub(super) fn barriers(loaded: &LoadedScenario, n: usize) -> Result<Vec<Barrier>
         if b.max_index() >= n {
             return Err(loaded
                 .field_error(
-                    &format!("barriers[{i}]"),
+                    &format!("barriers.{i}"),
                     format!("refers to state index {}, the state has {n} components", b.max_index()),
                 )
                 .into());
@@ -411,7 +411,7 @@ pub(super) fn obstacles(
         if barrier.h(x0) < 0.0 {
             return Err(loaded
                 .field_error(
-                    &format!("obstacles[{i}]"),
+                    &format!("obstacles.{i}"),
                     format!(
                         "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
                         barrier.clearance(x0)
