@@ -1306,11 +1306,10 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
         return Ok(ExitCode::from(130));
     }
     // A search whose every candidate failed learned nothing about safety: not a result.
-    let evaluations = report.searches.iter().flat_map(|s| s.evaluations.iter());
-    let failed = evaluations.clone().filter(|e| e.error.is_some()).count();
-    if failed > 0 {
-        let first = evaluations.clone().find_map(|e| e.error.as_deref()).unwrap_or_default();
-        let total = evaluations.count();
+    let evaluations: Vec<_> = report.searches.iter().flat_map(|s| &s.evaluations).collect();
+    let errors: Vec<&str> = evaluations.iter().filter_map(|e| e.error.as_deref()).collect();
+    if let Some(first) = errors.first() {
+        let (failed, total) = (errors.len(), evaluations.len());
         if failed == total {
             eprintln!("error: every candidate failed ({total} runs); the first: {first}");
             return Ok(ExitCode::from(3));

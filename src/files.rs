@@ -355,12 +355,7 @@ impl OutputFile {
                 )));
             }
         }
-        let opened = |options: &mut OpenOptions| {
-            options
-                .write(true)
-                .open(&partial)
-                .map_err(|e| write_error(format!("cannot create {}: {e}", partial.display())))
-        };
+        let cannot_create = |e: std::io::Error| write_error(format!("cannot create {}: {e}", partial.display()));
         // A new file is created and registered under the lock, so an exit in progress either
         // refuses it or removes it. A stale one is registered only once locked (it may be
         // another process's).
@@ -368,7 +363,7 @@ impl OutputFile {
         if list.closed {
             return Err(write_error("the process is exiting (interrupted)".into()));
         }
-        let file = match opened(OpenOptions::new().create_new(true)) {
+        let file = match OpenOptions::new().write(true).create_new(true).open(&partial) {
             Ok(file) => {
                 list.paths.push(partial.clone());
                 drop(list);
@@ -379,9 +374,10 @@ impl OutputFile {
                 }
                 file
             }
+            Err(e) if e.kind() != std::io::ErrorKind::AlreadyExists => return Err(cannot_create(e)),
             Err(_) => {
                 drop(list);
-                let file = opened(&mut OpenOptions::new())?;
+                let file = OpenOptions::new().write(true).open(&partial).map_err(cannot_create)?;
                 lock(&file, &partial, &write_error)?;
                 let mut list = partials(registry);
                 if list.closed {

@@ -751,6 +751,16 @@ fn summary_stem(shard: Option<Shard>) -> String {
     }
 }
 
+/// The summary files of `shard` in `dir` (JSON, CSV), each with the start of the text a file
+/// it may replace begins with.
+fn summary_files(dir: &Path, shard: Option<Shard>) -> [(PathBuf, &'static [u8]); 2] {
+    let stem = summary_stem(shard);
+    [
+        (dir.join(format!("{stem}.json")), SUMMARY_JSON_START),
+        (dir.join(format!("{stem}.csv")), SUMMARY_CSV_START),
+    ]
+}
+
 /// A sweep summary: the sweep, which shard (none: all runs), and one row per run by index.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -783,9 +793,7 @@ impl Summary {
     /// `dir` (nothing there, or a summary it may replace), so a sweep does not run for hours
     /// and then fail to write it.
     pub fn check_outputs(dir: &Path, shard: Option<Shard>) -> Result<(), SweepError> {
-        let stem = summary_stem(shard);
-        for (extension, start) in [("json", SUMMARY_JSON_START), ("csv", SUMMARY_CSV_START)] {
-            let path = dir.join(format!("{stem}.{extension}"));
+        for (path, start) in summary_files(dir, shard) {
             crate::files::check_output(&path, "sweep summary", Replace::IfStartsWith(start), &[])?;
         }
         Ok(())
@@ -837,14 +845,9 @@ impl Summary {
             path: dir.display().to_string(),
             reason: source,
         })?;
-        let json = dir.join(format!("{}.json", self.file_stem()));
-        let csv = dir.join(format!("{}.csv", self.file_stem()));
+        let [(json, json_start), (csv, csv_start)] = summary_files(dir, self.shard);
         let mut outputs = Vec::new();
-        let files = [
-            (&json, self.to_json(), SUMMARY_JSON_START),
-            (&csv, self.to_csv(), SUMMARY_CSV_START),
-        ];
-        for (path, text, start) in files {
+        for (path, text, start) in [(&json, self.to_json(), json_start), (&csv, self.to_csv(), csv_start)] {
             let mut out = OutputFile::create(path, "sweep summary", Replace::IfStartsWith(start), inputs)?;
             out.write_all(text.as_bytes())?;
             outputs.push(out);

@@ -530,21 +530,17 @@ fn check_step_budget(loaded: &LoadedScenario, timestep: f64) -> Result<(), Scena
         ));
     }
     let periods = [
-        ("control.period".to_string(), sc.control.period),
-        ("control.predictor_step".to_string(), sc.control.predictor_step),
-    ];
-    let delays = sc
-        .delays
-        .iter()
-        .map(|(channel, profile)| (format!("delays.{channel}"), profile.constant_delay()));
-    let too_long = periods
-        .into_iter()
-        .chain(delays)
+        ("period", sc.control.period),
+        ("predictor_step", sc.control.predictor_step),
+    ]
+    .map(|(name, seconds)| (("control", name), seconds));
+    let delays = (sc.delays.iter()).map(|(channel, profile)| (("delays", channel.as_str()), profile.constant_delay()));
+    let too_long = (periods.into_iter().chain(delays))
         .filter_map(|(key, seconds)| Some((key, seconds?)))
         .find(|&(_, seconds)| too_many(seconds));
-    if let Some((key, seconds)) = too_long {
+    if let Some(((section, name), seconds)) = too_long {
         return Err(loaded.field_error(
-            &key,
+            &format!("{section}.{name}"),
             format!(
                 "{seconds} s is {} steps of {timestep} s, more than the limit of {budget} steps (raise it with --max-steps)",
                 steps(seconds).ceil(),

@@ -963,8 +963,6 @@ impl Simulation {
         let i = self.pending.trailing_zeros() as usize;
         self.pending &= !(1 << i);
         let warning = DEGRADING[i];
-        // MuJoCo's text of its last warning (kept out of its log file and stdout).
-        let mujoco = take_warning().map_or(String::new(), |w| format!(" (MuJoCo: {w})"));
         let info = self.data.warning_info(warning);
         let at = format!("at t = {} s", self.raised_at[i]);
         let m = self.model.raw();
@@ -989,10 +987,9 @@ impl Simulation {
                 format!("inertia matrix too close to singular {at} (dof {info}): raise the model's masses, inertias or armature"),
             ),
         };
-        Some(PhysicsWarning {
-            name,
-            message: format!("{message}{mujoco}"),
-        })
+        // MuJoCo's own text is not added: the thread keeps only its last warning, which may be
+        // another kind raised in the same step; the message above says all it says.
+        Some(PhysicsWarning { name, message })
     }
 
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
