@@ -113,6 +113,7 @@ Examples:
   mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --dry-run
   mjsafe sweep scenarios/bicycle_obstacle.toml --random 20 --seed 7 --range obstacles.0.radius=2.0..3.0
   mjsafe sweep --sweep scenarios/bicycle_delays.sweep.toml --shard \"$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT\"
+  mjsafe sweep scenarios/bicycle_obstacle.toml --random 1000 --range obstacles.0.centre.1=-3..3 --no-logs   # summary only
 Exit: 0 all runs done, 3 some runs failed (summary written), 1 the sweep could not run,
 4 with --fail-on-collision some run collided, 130 interrupted."
     };
@@ -265,6 +266,10 @@ pub enum Command {
         /// Exit with 4 when some run collided (and none failed); without it collisions exit 0.
         #[arg(long)]
         fail_on_collision: bool,
+        /// Keep no logs, only the summary: each run is analysed while it runs (the metrics its
+        /// log would give). A row's log is one `mjsafe run SCENARIO --set …` with its overrides.
+        #[arg(long)]
+        no_logs: bool,
     },
     /// Search the --range box for a run that violates safety: CMA-ES minimises an analysis
     /// metric (default min_h) and stops at the first violation (metric < threshold). Writes
@@ -613,6 +618,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             progress,
             dry_run,
             fail_on_collision,
+            no_logs,
         } => {
             let args = SweepArgs {
                 scenario,
@@ -630,6 +636,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 progress,
                 dry_run,
                 fail_on_collision,
+                keep: if no_logs {
+                    sweep::Keep::Metrics
+                } else {
+                    sweep::Keep::Logs
+                },
             };
             run_sweep(&args, &options)
         }
@@ -1142,6 +1153,7 @@ struct SweepOptions {
     progress: bool,
     dry_run: bool,
     fail_on_collision: bool,
+    keep: sweep::Keep,
 }
 
 fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
@@ -1160,11 +1172,11 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     if options.dry_run {
         for &i in &indices {
             let run = spec.run(i);
-            outln!(
-                "{i}  {}  {}",
-                dir.join(spec.log_name(i)).display(),
-                run.overrides.join(" ")
-            );
+            let log = match options.keep {
+                sweep::Keep::Logs => dir.join(spec.log_name(i)).display().to_string(),
+                sweep::Keep::Metrics => "(no log)".into(),
+            };
+            outln!("{i}  {log}  {}", run.overrides.join(" "));
         }
         return Ok(ExitCode::SUCCESS);
     }
@@ -1186,8 +1198,10 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         started: Instant::now(),
     };
     progress.show();
-    let rows = sweep::execute(&spec, &indices, &dir, threads, |row| progress.update(row))
-        .with_context(|| format!("running the sweep into {}", dir.display()))?;
+    let rows = sweep::execute(&spec, &indices, &dir, (threads, options.keep), |row| {
+        progress.update(row)
+    })
+    .with_context(|| format!("running the sweep into {}", dir.display()))?;
     progress.finish();
     let summary = Summary::new(&spec, shard, rows);
     let (json, csv) = summary
@@ -1197,7 +1211,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     let not_run = summary.runs.iter().filter(|r| r.not_run).count();
     let failures = summary.failures() - not_run;
     outln!(
-        "{}: {} of {} runs{}{} in {:.1} s on {} threads, {} failed | logs in {} | summary: {}, {}",
+        "{}: {} of {} runs{}{} in {:.1} s on {} threads, {} failed | {} | summary: {}, {}",
         spec.name,
         indices.len() - not_run,
         spec.runs,
@@ -1210,7 +1224,10 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         progress.started.elapsed().as_secs_f64(),
         threads.min(indices.len().max(1)),
         failures,
-        dir.display(),
+        match options.keep {
+            sweep::Keep::Logs => format!("logs in {}", dir.display()),
+            sweep::Keep::Metrics => "no logs kept".into(),
+        },
         csv.display(),
         json.display()
     );

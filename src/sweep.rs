@@ -567,10 +567,23 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "panic".into())
 }
 
-/// Runs one run of the sweep into `dir` and analyses its log. Never fails: a failure is the
-/// row's `error`.
-pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path) -> Row {
-    execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index))
+/// What a sweep keeps of each run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Keep {
+    /// Its log in the sweep directory, analysed once written.
+    Logs,
+    /// Only its metrics, analysed while it runs ([`execute_analysed`]): the same metrics its
+    /// log would give, without writing, compressing and reading one.
+    Metrics,
+}
+
+/// Runs one run of the sweep (into `dir` when it keeps logs) and analyses it. Never fails: a
+/// failure is the row's `error`.
+pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path, keep: Keep) -> Row {
+    match keep {
+        Keep::Logs => execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index)),
+        Keep::Metrics => execute_analysed(Path::new(&spec.scenario), run, &format!("run {}", run.index)),
+    }
 }
 
 /// A run's row before it runs.
@@ -669,14 +682,14 @@ pub fn execute_analysed(scenario_path: &Path, run: &Run, name: &str) -> Row {
 }
 
 /// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared
-/// counter), calling `done` on the calling thread as each run finishes. Rows come back in the
+/// counter), keeping what `keep` says, calling `done` on the calling thread as each run finishes. Rows come back in the
 /// order of `indices`, whatever the thread count. After [`crate::episode::request_stop`] no
 /// new run starts; the runs not started are rows with that error.
 pub fn execute(
     spec: &SweepSpec,
     indices: &[usize],
     dir: &Path,
-    threads: usize,
+    (threads, keep): (usize, Keep),
     mut done: impl FnMut(&Row),
 ) -> Result<Vec<Row>, SweepError> {
     std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
@@ -702,7 +715,7 @@ pub fn execute(
                     let Some(&index) = indices.get(position) else {
                         break;
                     };
-                    let row = execute_run(spec, &spec.run(index), dir);
+                    let row = execute_run(spec, &spec.run(index), dir, keep);
                     if tx.send((position, row)).is_err() {
                         break;
                     }

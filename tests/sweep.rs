@@ -171,6 +171,54 @@ fn summaries_do_not_depend_on_the_thread_count() {
 }
 
 #[test]
+fn a_metrics_only_sweep_gives_the_logged_sweeps_summary_without_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let logged = dir.path().join("logged");
+    let metrics_only = dir.path().join("metrics-only");
+    // A steering delay the episode rejects (0.123 is not a whole number of steps) makes a row
+    // with an error; the γm runs log predictions, so their prediction errors are compared too.
+    let args = |out: &Path, extra: &[&str]| {
+        let mut args = grid_args(out, extra);
+        let at = args.iter().position(|a| a == "delays.steering=0.1,0.2").unwrap();
+        args[at] = "delays.steering=0.1,0.2,0.123".into();
+        args
+    };
+    for (out, extra) in [(&logged, &[][..]), (&metrics_only, &["--no-logs"][..])] {
+        let o = mjsafe(&args(out, extra).iter().map(String::as_str).collect::<Vec<_>>());
+        assert_eq!(o.status.code(), Some(3), "one run fails: {}", stderr(&o));
+    }
+    let kept: Vec<String> = std::fs::read_dir(&metrics_only)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| !name.starts_with("summary."))
+        .collect();
+    assert!(kept.is_empty(), "--no-logs keeps only the summary: {kept:?}");
+
+    let mut with_logs = json(&logged.join("summary.json"));
+    let without = json(&metrics_only.join("summary.json"));
+    let runs = with_logs["runs"].as_array_mut().unwrap();
+    assert_eq!(runs.len(), 6);
+    let predicted = |run: &Value| {
+        let counts = run["metrics"]["prediction_count"].as_object();
+        counts.is_some_and(|c| c.values().any(|n| n.as_u64() > Some(0)))
+    };
+    assert!(runs.iter().any(predicted), "some run predicts");
+    for (i, run) in runs.iter_mut().enumerate() {
+        assert_eq!(run["log"].is_string(), i < 4, "{run}");
+        assert!(without["runs"][i]["log"].is_null(), "{}", without["runs"][i]);
+        run["log"] = Value::Null;
+    }
+    assert_eq!(
+        with_logs, without,
+        "the metrics analysed while running are the logs' metrics"
+    );
+    assert!(without["runs"][4]["error"]
+        .as_str()
+        .unwrap()
+        .contains("delays.steering"));
+}
+
+#[test]
 fn shards_merge_into_the_unsharded_summary() {
     let dir = tempfile::tempdir().unwrap();
     let whole = dir.path().join("whole");
