@@ -147,6 +147,9 @@ impl Plant for MujocoPlant {
 pub struct OdePlant {
     dynamics: Arc<dyn Dynamics>,
     x: DVector<f64>,
+    /// The state at the start of the last step: contacts are reported for it, as MuJoCo's
+    /// are (its collision phase runs on the state a step starts from).
+    step_start: DVector<f64>,
     timestep: f64,
     step: u64,
     disturbance: Option<Disturbance>,
@@ -161,6 +164,7 @@ impl OdePlant {
     pub fn new(dynamics: Arc<dyn Dynamics>, x0: DVector<f64>, timestep: f64) -> OdePlant {
         OdePlant {
             dynamics,
+            step_start: x0.clone(),
             x: x0,
             timestep,
             step: 0,
@@ -207,6 +211,7 @@ impl Plant for OdePlant {
         let k3 = derivative(2, h / 2.0, &(&x + &k2 * (h / 2.0)));
         let k4 = derivative(3, h, &(&x + &k3 * h));
         self.x = &x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
+        self.step_start = x;
         self.step += 1;
         Ok(())
     }
@@ -225,14 +230,16 @@ impl Plant for OdePlant {
         let k2 = derivative(1, h / 2.0, &(x + &k1 * (h / 2.0)));
         let k3 = derivative(2, h / 2.0, &(x + &k2 * (h / 2.0)));
         let k4 = derivative(3, h, &(x + &k3 * h));
-        self.x = x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
+        let next = x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
+        self.step_start = std::mem::replace(&mut self.x, next);
         self.step += 1;
     }
-    /// Geometric: the overlap of the vehicle's hull circle with each obstacle.
+    /// Geometric: the overlap of the vehicle's hull circle with each obstacle, at the state
+    /// the last step started from (the state the episode logs with this step's barriers).
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {
         depths.clear();
         depths.extend(obstacles.iter().map(|o| {
-            let depth = -o.clearance(&self.x);
+            let depth = -o.clearance(&self.step_start);
             (depth > 0.0).then_some(depth)
         }));
     }

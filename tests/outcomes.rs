@@ -62,3 +62,48 @@ fn without_the_obstacle_known_the_nominal_tracks_the_path() {
     // It drives into the obstacle on y = 0, which the controller never learns about.
     assert!(!m["collision"].is_null(), "{m}");
 }
+
+/// Contact events carry the time of the state whose overlap they report: on both plants the
+/// first `collision_start` is at the first `/barrier` time with negative clearance, each
+/// `collision_end` at the next time the clearance is back to ≥ 0, and on the ODE plant (the
+/// overlap of circles) the start's depth is that state's −clearance.
+#[test]
+fn collision_events_carry_the_time_of_the_state_they_measure() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    for plant in ["mujoco", "ode"] {
+        let log = dir.path().join(format!("{plant}.mcap"));
+        let set_plant = format!("plant='{plant}'");
+        run_ok(&scenario("bicycle_obstacle.toml"), &log, &["--set", &set_plant]);
+        // (time, clearance) of obstacle_0 at every step.
+        let clearance: Vec<(f64, f64)> = read_topic::<proto::Barrier>(&log, "/barrier")
+            .iter()
+            .filter_map(|b| {
+                let value = b.barriers.iter().find(|v| v.name == "obstacle_0" && v.known)?;
+                Some((b.time, value.clearance))
+            })
+            .collect();
+        // Sign changes: into contact (clearance < 0) and out of it.
+        let mut expected = Vec::new();
+        let mut touching = false;
+        for &(time, c) in &clearance {
+            if (c < 0.0) != touching {
+                touching = c < 0.0;
+                expected.push((if touching { "collision_start" } else { "collision_end" }, time, -c));
+            }
+        }
+        let events: Vec<proto::Event> = read_topic::<proto::Event>(&log, "/event")
+            .into_iter()
+            .filter(|e| e.kind.starts_with("collision"))
+            .collect();
+        assert!(!expected.is_empty(), "{plant}: bicycle_obstacle collides");
+        // The last end may be the episode's own (a run ending in contact).
+        for (i, (kind, time, depth)) in expected.iter().enumerate() {
+            let event = &events[i];
+            assert_eq!((event.kind.as_str(), event.time), (*kind, *time), "{plant}: event {i}: {event:?}");
+            if plant == "ode" && *kind == "collision_start" {
+                assert!((event.depth - depth).abs() < 1e-12, "{plant}: {event:?} against {depth}");
+            }
+        }
+    }
+}
