@@ -272,6 +272,11 @@ struct Accumulator {
     /// |du/dt| between the last two issued commands, waiting for the /filter record of the
     /// later tick (written right after it) to know whether the filter was overriding.
     pending_jerk: Option<(f64, f64)>,
+    /// The last /filter record (time, active), and whether the one before it was active: a
+    /// tick's jerk counts as overriding when either tick's filter was. A /filter written
+    /// before its tick's /command/issued (a log rewritten with the ties of one log time in
+    /// another order) settles the jerk when the command comes.
+    last_filter: Option<(f64, bool)>,
     previous_overriding: bool,
     /// None until a pair of commands (one with the filter active) defines it.
     max_jerk: Option<f64>,
@@ -518,12 +523,11 @@ impl Accumulator {
             self.first_override_time.get_or_insert(m.time);
             self.active_ticks_time += self.control_period.unwrap_or(0.0);
         }
+        self.previous_overriding = self.last_filter.is_some_and(|(_, active)| active);
+        self.last_filter = Some((m.time, m.active));
         if let Some((time, jerk)) = self.pending_jerk.take() {
-            if (time - m.time).abs() < 1e-9 && (m.active || self.previous_overriding) {
-                self.max_jerk_overriding = Some(self.max_jerk_overriding.map_or(jerk, |j| j.max(jerk)));
-            }
+            self.settle_jerk(time, jerk);
         }
-        self.previous_overriding = m.active;
         self.infeasible_ticks += u64::from(m.infeasible);
         let correction = m.correction.iter().map(|c| c * c).sum::<f64>().sqrt();
         self.intervention_integral += correction * self.control_period.unwrap_or(0.0);
@@ -533,6 +537,16 @@ impl Accumulator {
                 None => {
                     self.max_correction.insert(channel.clone(), 0.0f64.max(c.abs()));
                 }
+            }
+        }
+    }
+
+    /// The jerk of the tick at `time` counts as overriding when the filter of that tick (the
+    /// last /filter, if it is that tick's) or of the tick before was active.
+    fn settle_jerk(&mut self, time: f64, jerk: f64) {
+        if let Some((filter_time, active)) = self.last_filter {
+            if (filter_time - time).abs() < 1e-9 && (active || self.previous_overriding) {
+                self.max_jerk_overriding = Some(self.max_jerk_overriding.map_or(jerk, |j| j.max(jerk)));
             }
         }
     }
@@ -548,7 +562,11 @@ impl Accumulator {
                     .map(|(u, p)| ((u - p) / dt).abs())
                     .fold(0.0, f64::max);
                 self.max_jerk = Some(self.max_jerk.map_or(jerk, |j| j.max(jerk)));
-                self.pending_jerk = Some((m.time, jerk));
+                if self.last_filter.is_some_and(|(time, _)| (time - m.time).abs() < 1e-9) {
+                    self.settle_jerk(m.time, jerk);
+                } else {
+                    self.pending_jerk = Some((m.time, jerk));
+                }
             }
         }
         if self.is_prescribed_time(m.time) {

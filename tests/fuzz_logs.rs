@@ -141,6 +141,7 @@ fn kind(e: &AnalyzeError) -> &'static str {
         AnalyzeError::Corrupt { .. } | AnalyzeError::Read(ReadError::Corrupt { .. }) => "corrupt",
         AnalyzeError::Read(ReadError::Foreign { .. }) => "foreign",
         AnalyzeError::Read(ReadError::Decode { .. }) => "decode",
+        AnalyzeError::Read(ReadError::Unordered { .. }) => "unordered",
         AnalyzeError::Read(ReadError::File(_)) => "io",
     }
 }

@@ -10,10 +10,21 @@ use std::path::{Path, PathBuf};
 
 /// Re-writes `src` into `dst` (tests/rewrite_log.py); `drop`: topics or metadata records left out.
 fn rewrite(src: &Path, dst: &Path, compression: &str, chunk_size: &str, metadata: &str, drop: &str) {
+    rewrite_in_order(src, dst, (compression, chunk_size, metadata, drop), "file");
+}
+
+/// [`rewrite`] with the messages in `order` (tests/rewrite_log.py: `halves`, `by_topic`,
+/// `reverse`, `halves-noindex`, or `file`).
+fn rewrite_in_order(
+    src: &Path,
+    dst: &Path,
+    (compression, chunk_size, metadata, drop): (&str, &str, &str, &str),
+    order: &str,
+) {
     let o = std::process::Command::new(python())
         .arg(root().join("tests/rewrite_log.py"))
         .args([src, dst])
-        .args([compression, chunk_size, metadata, drop])
+        .args([compression, chunk_size, metadata, drop, order])
         .output()
         .unwrap();
     assert!(
@@ -153,6 +164,59 @@ fn the_replay_of_every_layout_is_the_recording_of_the_original() {
             assert!(o.status.success(), "{name}, {layout}: recordings differ:\n{}", text(&o));
             println!("{name}, {layout}: same recording");
         }
+    }
+}
+
+/// The tables `export` writes of `log` into `out`: file name → bytes.
+fn exported(log: &Path, out: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    let o = mjsafe(&["export", log.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "export {}: {}", log.display(), stderr(&o));
+    std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// MCAP does not require messages in log-time order. A copy written out of it (halves swapped,
+/// topic by topic, reversed, with and without an index) gives the original's metrics and
+/// tables, its messages handed on in log-time order; a stream, read once, is an error saying
+/// so, never metrics of the file order. (Reversed, the messages of one log time are reversed
+/// too: the metrics are the same, and the tables list the two `/prediction` rows of a tick in
+/// the other order, since messages of one log time keep their file order.)
+#[test]
+fn messages_out_of_log_time_order_read_as_the_original() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, sets) in [("bicycle_obstacle_gamma_m", &[][..]), ("bicycle_obstacle", &[][..])] {
+        let log = original(dir.path(), name, sets);
+        let expected = metrics(&log);
+        let tables = exported(&log, &dir.path().join(name).join("tables-original"));
+        for order in ["halves", "by_topic", "reverse", "halves-noindex"] {
+            let copy = copy_path(&log, order);
+            rewrite_in_order(&log, &copy, ("zstd", "65536", "first", ""), order);
+            assert_eq!(metrics(&copy), expected, "{name}: {order}");
+            let copy_tables = exported(&copy, &dir.path().join(name).join(format!("tables-{order}")));
+            if order != "reverse" {
+                assert!(copy_tables == tables, "{name}: {order}: the exported tables differ");
+            }
+            println!("{name}, {order}: same metrics and tables");
+        }
+        let o = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "cat '{}' | '{}' analyze /dev/stdin",
+                copy_path(&log, "halves").display(),
+                env!("CARGO_BIN_EXE_mjsafe")
+            ))
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{}", stdout(&o));
+        assert!(stderr(&o).contains("not in log-time order"), "{}", stderr(&o));
     }
 }
 

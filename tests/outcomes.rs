@@ -100,9 +100,16 @@ fn collision_events_carry_the_time_of_the_state_they_measure() {
         // The last end may be the episode's own (a run ending in contact).
         for (i, (kind, time, depth)) in expected.iter().enumerate() {
             let event = &events[i];
-            assert_eq!((event.kind.as_str(), event.time), (*kind, *time), "{plant}: event {i}: {event:?}");
+            assert_eq!(
+                (event.kind.as_str(), event.time),
+                (*kind, *time),
+                "{plant}: event {i}: {event:?}"
+            );
             if plant == "ode" && *kind == "collision_start" {
-                assert!((event.depth - depth).abs() < 1e-12, "{plant}: {event:?} against {depth}");
+                assert!(
+                    (event.depth - depth).abs() < 1e-12,
+                    "{plant}: {event:?} against {depth}"
+                );
             }
         }
     }

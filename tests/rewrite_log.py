@@ -2,27 +2,41 @@
 schemas, channels, messages (same order and times) and metadata, with another chunk
 compression, chunk size and metadata position. No mjsafe code involved. DROP (optional,
 comma-separated) leaves topics (`/barrier`) or metadata records (`mjsafe_status`) out, as a
-topic filter would: a dropped topic has no channel and no messages in the copy.
+topic filter would: a dropped topic has no channel and no messages in the copy. ORDER
+(optional) writes the messages out of log-time order, which MCAP allows: `halves` (the second
+half of the messages first), `by_topic` (each channel's messages in turn), `reverse` (last
+first, the messages of one log time too); with `-noindex` (`halves-noindex`) the copy has no
+chunk or message indexes, so a reader cannot tell the order from them.
 
-usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last) [DROP]"""
+usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last) [DROP] [ORDER]"""
 import sys
 
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 
-def main(src, dst, compression, chunk_size, metadata_at, drop=""):
+def main(src, dst, compression, chunk_size, metadata_at, drop="", order="file"):
     drop = set(filter(None, drop.split(",")))
     with open(src, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
         metadata = [m for m in reader.iter_metadata() if m.name not in drop]
         messages = list(reader.iter_messages(log_time_order=False))
+    order, _, index = order.partition("-")
+    if order == "halves":
+        messages = messages[len(messages) // 2 :] + messages[: len(messages) // 2]
+    elif order == "by_topic":
+        messages.sort(key=lambda m: m[1].id)
+    elif order == "reverse":
+        messages.reverse()
+    else:
+        assert order == "file", order
     with open(dst, "wb") as out:
         writer = Writer(
             out,
             chunk_size=int(chunk_size),
             compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression],
+            index_types=IndexType.NONE if index == "noindex" else IndexType.ALL,
         )
         writer.start(profile="", library="rewrite_log.py")
         schema_ids, channel_ids = {}, {}

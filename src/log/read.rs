@@ -33,6 +33,14 @@ pub enum ReadError {
     },
     #[error("{file}: an MCAP file, but not an mjsafe log ({message})")]
     Foreign { file: String, message: String },
+    /// A message earlier in log time than one before it, where the reader cannot reorder them.
+    #[error("{file}: messages not in log-time order (one at t = {at} s after one at t = {after} s): {remedy}")]
+    Unordered {
+        file: String,
+        at: f64,
+        after: f64,
+        remedy: &'static str,
+    },
     #[error("{file}: message on {topic} does not decode as {schema}: {message}")]
     Decode {
         file: String,
@@ -364,6 +372,12 @@ struct Pass<'f> {
     /// Other metadata records met before the run metadata, handed on right after it (and
     /// dropped when a message comes first: the second pass hands them on in file order).
     held: Vec<(String, BTreeMap<String, String>)>,
+    /// Messages are handed on in file order, which must be log-time order: a message earlier
+    /// than the last one handed on is an error with this remedy (None: not checked, as when
+    /// the messages are collected to be sorted).
+    order_remedy: Option<&'static str>,
+    /// Log time of the last message handed on.
+    last_time: u64,
 }
 
 impl<'f> Pass<'f> {
@@ -377,6 +391,8 @@ impl<'f> Pass<'f> {
             looking_for_metadata: false,
             late_metadata: None,
             held: Vec::new(),
+            order_remedy: Some(STREAM_ORDER_REMEDY),
+            last_time: 0,
         }
     }
 
@@ -468,12 +484,21 @@ impl<'f> Pass<'f> {
         };
         match channel.route {
             Route::Ignore => Ok(()),
-            Route::Topic(topic) => visitor.message(&Message {
-                topic,
-                log_time,
-                data,
-                file: self.file,
+            Route::Topic(_) if log_time < self.last_time && self.order_remedy.is_some() => Err(ReadError::Unordered {
+                file: self.file.into(),
+                at: log_time as f64 * 1e-9,
+                after: self.last_time as f64 * 1e-9,
+                remedy: self.order_remedy.unwrap_or_default(),
             }),
+            Route::Topic(topic) => {
+                self.last_time = log_time;
+                visitor.message(&Message {
+                    topic,
+                    log_time,
+                    data,
+                    file: self.file,
+                })
+            }
             Route::WrongSchema(expected) => Err(self.foreign(format!(
                 "topic {} has schema {}, expected {}",
                 channel.topic,
@@ -538,18 +563,45 @@ impl<'f> Pass<'f> {
 /// which cannot be read twice, is then an error (as for [`read_run_stream`]).
 pub fn read_run_file(path: &Path, visitor: &mut impl RunVisitor) -> RunResult {
     let file = path.display().to_string();
+    if std::fs::metadata(path).is_ok_and(|m| m.is_file()) && !in_log_time_order(path) {
+        // Handed on sorted by log time (ties in file order), as a reader in log-time order
+        // gives them: the same run whatever the layout.
+        let mut sorting = Sorting {
+            visitor,
+            arena: Vec::new(),
+            messages: Vec::new(),
+        };
+        let result = read_run_passes(path, &file, &mut sorting, None);
+        return sorting.finish(result, &file);
+    }
+    read_run_passes(path, &file, visitor, Some(INDEX_ORDER_REMEDY))
+}
+
+/// The remedies of [`ReadError::Unordered`].
+const STREAM_ORDER_REMEDY: &str = "a stream is read once and cannot be reordered: read the file by its path";
+const INDEX_ORDER_REMEDY: &str = "its index says they are in order; the file is damaged";
+
+/// [`read_run_file`] in file order: one pass, or two when the run metadata comes late.
+fn read_run_passes(
+    path: &Path,
+    file: &str,
+    visitor: &mut impl RunVisitor,
+    order_remedy: Option<&'static str>,
+) -> RunResult {
     let open = || crate::files::open_input(path, "log");
     // No BufReader: the reader asks for large blocks itself.
-    let mut pass = Pass::new(&file);
+    let mut pass = Pass::new(file);
+    pass.order_remedy = order_remedy;
     let result = pass.read(open()?, visitor);
     if let Some(read) = pass.conclude(result)? {
         return Ok(read);
     }
     if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
-        return Err(late_in_stream(&file));
+        return Err(late_in_stream(file));
     }
     let metadata = pass.late_metadata.take().expect("the pass stopped at it");
-    let mut pass = Pass::new(&file);
+    let mut pass = Pass::new(file);
+    pass.order_remedy = order_remedy;
     pass.run_metadata = true;
     visitor.metadata(RUN_METADATA, &metadata)?;
     let result = pass.read(open()?, visitor);
@@ -562,6 +614,145 @@ pub fn read_run_stream(input: impl Read, file: &str, visitor: &mut impl RunVisit
     let mut pass = Pass::new(file);
     let result = pass.read(input, visitor);
     pass.conclude(result)?.ok_or_else(|| late_in_stream(file))
+}
+
+/// Collects a pass's messages and hands them on sorted by log time, the run metadata (and
+/// other metadata) as they come.
+struct Sorting<'v, V> {
+    visitor: &'v mut V,
+    /// The messages' bytes, one after the other.
+    arena: Vec<u8>,
+    /// (log time, topic, start in `arena`, length), in file order.
+    messages: Vec<(u64, Topic, usize, usize)>,
+}
+
+impl<V: RunVisitor> RunVisitor for Sorting<'_, V> {
+    fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        self.visitor.metadata(name, entries)
+    }
+    fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+        self.messages
+            .push((message.log_time, message.topic, self.arena.len(), message.data.len()));
+        self.arena.extend_from_slice(message.data);
+        Ok(())
+    }
+}
+
+impl<V: RunVisitor> Sorting<'_, V> {
+    /// Hands on the collected messages in log-time order (stable: ties keep file order), then
+    /// the pass's result. Before damage the messages read are handed on, as a read in file
+    /// order hands them.
+    fn finish(mut self, result: RunResult, file: &str) -> RunResult {
+        if matches!(result, Ok(_) | Err(ReadError::Corrupt { .. })) {
+            self.messages.sort_by_key(|m| m.0);
+            for &(log_time, topic, start, len) in &self.messages {
+                let data = &self.arena[start..start + len];
+                self.visitor.message(&Message::new(topic, log_time, data, file))?;
+            }
+        }
+        result
+    }
+}
+
+/// Whether the messages of the regular file at `path` are in log-time order in file order:
+/// told by the file's index (its summary's chunk indexes and each chunk's message indexes)
+/// when it has a complete one, else by reading every message's log time. A file that cannot
+/// be read here counts as in order (the read in file order reports why it cannot be read).
+fn in_log_time_order(path: &Path) -> bool {
+    let Ok(mut file) = std::fs::File::open(path) else {
+        return true;
+    };
+    if let Some(ordered) = indexed_log_time_order(&mut file) {
+        return ordered;
+    }
+    let mut last = 0u64;
+    let mut ordered = true;
+    let _ = read_log(file, |opcode, data| {
+        if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
+            let log_time = u64::from_le_bytes(data[6..14].try_into().expect("8 bytes"));
+            if log_time < last {
+                ordered = false;
+                return Err(VisitError::Stop);
+            }
+            last = log_time;
+        }
+        Ok(())
+    });
+    ordered
+}
+
+/// `len` bytes of `file` at `offset` (None past its end or beyond [`RECORD_LIMIT`]).
+fn read_at(file: &std::fs::File, offset: u64, len: u64) -> Option<Vec<u8>> {
+    use std::os::unix::fs::FileExt;
+    let mut bytes = vec![0; usize::try_from(len).ok().filter(|&n| n <= RECORD_LIMIT)?];
+    file.read_exact_at(&mut bytes, offset).ok()?;
+    Some(bytes)
+}
+
+/// The records (opcode, body) laid out one after the other in `bytes`; None when they do not
+/// split into whole records.
+fn records_in(mut bytes: &[u8]) -> Option<Vec<(u8, &[u8])>> {
+    let mut records = Vec::new();
+    while let Some(&opcode) = bytes.first() {
+        let len = usize::try_from(u64::from_le_bytes(bytes.get(1..9)?.try_into().ok()?)).ok()?;
+        let end = 9usize.checked_add(len)?;
+        records.push((opcode, bytes.get(9..end)?));
+        bytes = &bytes[end..];
+    }
+    Some(records)
+}
+
+/// [`in_log_time_order`] from the file's index: every chunk's message index entries, in the
+/// chunks' file order and by offset within a chunk. None when the file has no summary with
+/// chunk indexes, a chunk has no message indexes, or any of it does not parse.
+fn indexed_log_time_order(file: &mut std::fs::File) -> Option<bool> {
+    use mcap::records::{op, Record as R};
+    // Footer: opcode, length, summary start, summary offset start, summary CRC; then the magic.
+    const TAIL: u64 = 1 + 8 + 8 + 8 + 4 + 8;
+    let len = file.metadata().ok()?.len();
+    let tail = read_at(file, len.checked_sub(TAIL)?, TAIL)?;
+    if tail[0] != op::FOOTER || tail[29..] != *mcap::MAGIC {
+        return None;
+    }
+    let summary_start = u64::from_le_bytes(tail[9..17].try_into().ok()?);
+    if summary_start == 0 {
+        return None;
+    }
+    let summary = read_at(file, summary_start, (len - TAIL).checked_sub(summary_start)?)?;
+    let mut chunks = Vec::new();
+    for (opcode, body) in records_in(&summary)? {
+        if opcode == op::CHUNK_INDEX {
+            match mcap::parse_record(opcode, body).ok()? {
+                R::ChunkIndex(chunk) => chunks.push(chunk),
+                _ => return None,
+            }
+        }
+    }
+    if chunks.is_empty() {
+        return None;
+    }
+    chunks.sort_by_key(|c| c.chunk_start_offset);
+    let mut last = 0u64;
+    let mut entries = Vec::new();
+    for chunk in &chunks {
+        let start = *chunk.message_index_offsets.values().min()?;
+        let indexes = read_at(file, start, chunk.message_index_length)?;
+        entries.clear();
+        for (opcode, body) in records_in(&indexes)? {
+            match mcap::parse_record(opcode, body).ok()? {
+                R::MessageIndex(index) => entries.extend(index.records.iter().map(|e| (e.offset, e.log_time))),
+                _ => return None,
+            }
+        }
+        entries.sort_unstable();
+        for &(_, log_time) in &entries {
+            if log_time < last {
+                return Some(false);
+            }
+            last = log_time;
+        }
+    }
+    Some(true)
 }
 
 fn late_in_stream(file: &str) -> ReadError {
