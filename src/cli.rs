@@ -36,7 +36,7 @@ fn write_stdout(args: std::fmt::Arguments) {
     }
 }
 
-use crate::analyze::{self, RunMetrics};
+use crate::analyze::{self, FlatMetrics, RunMetrics};
 use crate::episode::{self, Episode};
 use crate::falsify;
 use crate::log::mcap::McapSink;
@@ -662,6 +662,13 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 .iter()
                 .map(|r| sweep::parse_range(r))
                 .collect::<Result<Vec<_>, _>>()?;
+            let mut keys = std::collections::BTreeSet::new();
+            if let Some(twice) = ranges.iter().find(|r| !keys.insert(r.key.as_str())) {
+                bail!(
+                    "--range {}: the key is given twice (each key takes one --range)",
+                    twice.key
+                );
+            }
             falsify::check_objective(&objective)?;
             if !threshold.is_finite() {
                 bail!("--threshold: expected a finite number, found {threshold}");
@@ -673,6 +680,31 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             };
             // The scenario and every override are checked once before the search starts.
             let base = scenario::load(&scenario, &overrides)?;
+            if let Some((group, _)) = objective.split_once('.') {
+                // A per-channel metric names a channel of the vehicle: told by one run of the
+                // scenario as given (when it runs), not by a whole budget of absent values.
+                let run = sweep::Run {
+                    index: 0,
+                    overrides: overrides.clone(),
+                    parameters: Vec::new(),
+                };
+                let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
+                if let Some(metrics) = &row.metrics {
+                    let columns = FlatMetrics::columns([metrics]);
+                    if !columns.contains(&objective) {
+                        let prefix = format!("{group}.");
+                        let known: Vec<&str> = columns
+                            .iter()
+                            .map(String::as_str)
+                            .filter(|c| c.starts_with(&prefix))
+                            .collect();
+                        bail!(
+                            "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
+                            if known.is_empty() { "none".to_string() } else { known.join(", ") }
+                        );
+                    }
+                }
+            }
             let problem = falsify::Problem {
                 scenario,
                 set: overrides,
@@ -1302,6 +1334,7 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
             scenario.display(),
             match report.reproduced {
                 Some(v) => format!("its run: {}, {} = {v:.4}", log.display(), problem.objective),
+                None if report.rerun_interrupted => format!("its run was interrupted: {} is incomplete", log.display()),
                 None => "not re-run: the search was interrupted".into(),
             },
             report.evaluations_csv.display(),
@@ -1320,6 +1353,10 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
     }
     if report.searches.iter().any(|s| s.interrupted) {
         eprintln!("error: the search was interrupted; what it found so far is written");
+        return Ok(ExitCode::from(130));
+    }
+    if report.rerun_interrupted {
+        eprintln!("error: interrupted while re-running the counterexample; the search's outputs are written, its log is incomplete");
         return Ok(ExitCode::from(130));
     }
     // A search whose every candidate failed learned nothing about safety: not a result.

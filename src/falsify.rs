@@ -167,8 +167,10 @@ impl Search {
     }
 }
 
-/// Score of a candidate whose objective is absent: worse than any real one, never a violation.
-const ABSENT_SCORE: f64 = 1e12;
+/// Score of a candidate whose objective is absent: worse than any real one (a real score is
+/// a difference of finite metrics and thresholds), never a violation. Written as an empty
+/// CSV cell.
+const ABSENT_SCORE: f64 = f64::MAX;
 
 /// u ∈ R → [0, 1], reflected at the bounds (period 2).
 fn reflect(z: f64) -> f64 {
@@ -540,7 +542,11 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                 .chain([
                     number(e.objective),
                     number(e.baseline),
-                    format!("{}", e.score),
+                    if e.score == ABSENT_SCORE {
+                        String::new()
+                    } else {
+                        format!("{}", e.score)
+                    },
                     e.violation.to_string(),
                     e.error.clone().unwrap_or_default(),
                 ])
@@ -630,6 +636,8 @@ pub struct Report {
     pub counterexample: Option<(PathBuf, PathBuf)>,
     /// The objective of the counterexample's own run (from the written file).
     pub reproduced: Option<f64>,
+    /// Ctrl-C came during the counterexample's run: its log is incomplete.
+    pub rerun_interrupted: bool,
     pub evaluations_csv: PathBuf,
     pub evaluations_json: PathBuf,
     pub convergence_png: Option<PathBuf>,
@@ -639,6 +647,44 @@ pub struct Report {
 const CSV_START: &[u8] = b"method,index,";
 const JSON_START: &[u8] = b"{\n  \"mjsafe_version\"";
 const SCENARIO_START: &[u8] = b"# Counterexample found by `mjsafe falsify`";
+
+/// The files a search writes into its directory.
+struct Outputs {
+    scenario: PathBuf,
+    log: PathBuf,
+    csv: PathBuf,
+    json: PathBuf,
+    png: PathBuf,
+}
+
+impl Outputs {
+    fn in_dir(dir: &Path) -> Outputs {
+        Outputs {
+            scenario: dir.join("counterexample.toml"),
+            log: dir.join("counterexample.mcap"),
+            csv: dir.join("evaluations.csv"),
+            json: dir.join("evaluations.json"),
+            png: dir.join("convergence.png"),
+        }
+    }
+
+    /// Each output may be written: absent, or a file of the kind it replaces.
+    fn check(&self, problem: &Problem) -> Result<(), FalsifyError> {
+        use crate::files::{check_output, Replace};
+        let inputs = [problem.scenario.as_path()];
+        let checks = [
+            (&self.scenario, "counterexample scenario", SCENARIO_START),
+            (&self.csv, "falsification evaluations", CSV_START),
+            (&self.json, "falsification evaluations", JSON_START),
+            (&self.png, "PNG plot", crate::plot::PNG_MAGIC),
+        ];
+        for (path, what, start) in checks {
+            check_output(path, what, Replace::IfStartsWith(start), &inputs)
+                .map_err(|e| FalsifyError::Output(e.to_string()))?;
+        }
+        crate::log::mcap::check_target(&self.log, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))
+    }
+}
 
 #[derive(Serialize)]
 struct EvaluationsFile<'a> {
@@ -674,66 +720,26 @@ pub fn falsify(
     compare_random: bool,
     mut progress: impl FnMut(&Search),
 ) -> Result<Report, FalsifyError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(FalsifyError::Output(format!(
+            "--out {}: expected a directory for the search's outputs, found a file",
+            dir.display()
+        )));
+    }
     std::fs::create_dir_all(dir).map_err(|reason| FalsifyError::Io {
         path: dir.display().to_string(),
         reason,
     })?;
+    // Every output is checked before the first run: the search is never lost to a file in
+    // the way.
+    let outputs = Outputs::in_dir(dir);
+    outputs.check(problem)?;
     let mut searches = vec![search(problem, Method::Cmaes, &mut progress)?];
     if compare_random && !searches[0].interrupted {
         searches.push(search(problem, Method::Random, &mut progress)?);
     }
-    let optimiser = &searches[0];
-    let chosen = if problem.worst {
-        optimiser.worst_violation()
-    } else {
-        optimiser.first_violation()
-    };
-    let mut counterexample = None;
-    let mut reproduced = None;
-    if let Some(e) = chosen {
-        let text = counterexample_text(problem, e, search_line)?;
-        let scenario_path = dir.join("counterexample.toml");
-        let inputs = [problem.scenario.as_path()];
-        crate::files::write_atomically(
-            &scenario_path,
-            "counterexample scenario",
-            crate::files::Replace::IfStartsWith(SCENARIO_START),
-            &inputs,
-            text.as_bytes(),
-        )
-        .map_err(|e| FalsifyError::Output(e.to_string()))?;
-        let interrupted = searches.iter().any(|s| s.interrupted);
-        // The written file alone reproduces the run (no overrides); after Ctrl-C the file is
-        // kept but not re-run (the stop request would end that run too).
-        let log = dir.join("counterexample.mcap");
-        if !interrupted {
-            let run = Run {
-                index: 0,
-                overrides: Vec::new(),
-                parameters: Vec::new(),
-            };
-            let row = sweep::execute_logged(&scenario_path, &run, dir, "counterexample.mcap".into());
-            reproduced = row
-                .metrics
-                .as_ref()
-                .and_then(|m| objective_value(m, &problem.objective));
-            // The search's own value, bit for bit up to round-off, or the file is not the run.
-            let expected = e.objective;
-            let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
-            if !same {
-                return Err(FalsifyError::Output(format!(
-                    "{}: the written counterexample does not reproduce the search's run ({} = {:?} in the search, {:?} from the file)",
-                    scenario_path.display(),
-                    problem.objective,
-                    expected,
-                    reproduced
-                )));
-            }
-        }
-        counterexample = Some((scenario_path, log));
-    }
     let refs: Vec<&Search> = searches.iter().collect();
-    let evaluations_csv = dir.join("evaluations.csv");
+    let evaluations_csv = outputs.csv.clone();
     crate::files::write_atomically(
         &evaluations_csv,
         "falsification evaluations",
@@ -765,7 +771,7 @@ pub fn falsify(
             .collect(),
     };
     let json = serde_json::to_string_pretty(&file).map_err(|e| FalsifyError::Output(e.to_string()))? + "\n";
-    let evaluations_json = dir.join("evaluations.json");
+    let evaluations_json = outputs.json.clone();
     crate::files::write_atomically(
         &evaluations_json,
         "falsification evaluations",
@@ -774,7 +780,7 @@ pub fn falsify(
         json.as_bytes(),
     )
     .map_err(|e| FalsifyError::Output(e.to_string()))?;
-    let png = dir.join("convergence.png");
+    let png = outputs.png.clone();
     let convergence_png = if searches.iter().any(|s| s.best().is_some()) {
         let score = if problem.baseline.is_empty() {
             format!("{} − threshold", problem.objective)
@@ -786,10 +792,73 @@ pub fn falsify(
     } else {
         None
     };
+    let optimiser = &searches[0];
+    let chosen = if problem.worst {
+        optimiser.worst_violation()
+    } else {
+        optimiser.first_violation()
+    };
+    let mut counterexample = None;
+    let mut reproduced = None;
+    let mut rerun_interrupted = false;
+    if let Some(e) = chosen {
+        let text = counterexample_text(problem, e, search_line)?;
+        let inputs = [problem.scenario.as_path()];
+        crate::files::write_atomically(
+            &outputs.scenario,
+            "counterexample scenario",
+            crate::files::Replace::IfStartsWith(SCENARIO_START),
+            &inputs,
+            text.as_bytes(),
+        )
+        .map_err(|e| FalsifyError::Output(e.to_string()))?;
+        let interrupted = searches.iter().any(|s| s.interrupted);
+        // The written file alone reproduces the run (no overrides); after Ctrl-C the file is
+        // kept but not re-run (the stop request would end that run too).
+        if !interrupted {
+            let run = Run {
+                index: 0,
+                overrides: Vec::new(),
+                parameters: Vec::new(),
+            };
+            let row = sweep::execute_logged(&outputs.scenario, &run, dir, "counterexample.mcap".into());
+            if crate::episode::stop_requested() {
+                // Ctrl-C during the re-run: its log is finished as incomplete, not a reproduction.
+                rerun_interrupted = true;
+            } else {
+                reproduced = row
+                    .metrics
+                    .as_ref()
+                    .and_then(|m| objective_value(m, &problem.objective));
+                // The search's own value, bit for bit up to round-off, or the file is not the run.
+                let expected = e.objective;
+                let same =
+                    matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
+                if let (false, Some(error)) = (same, &row.error) {
+                    return Err(FalsifyError::Output(format!(
+                        "{}: the counterexample's run failed: {error} (evaluations written)",
+                        outputs.scenario.display()
+                    )));
+                }
+                if !same {
+                    let shown = |v: Option<f64>| v.map_or("absent".to_string(), |v| format!("{v:e}"));
+                    return Err(FalsifyError::Output(format!(
+                        "{}: the written counterexample does not reproduce the search's run ({} = {} in the search, {} from the file; evaluations written)",
+                        outputs.scenario.display(),
+                        problem.objective,
+                        shown(expected),
+                        shown(reproduced)
+                    )));
+                }
+            }
+        }
+        counterexample = Some((outputs.scenario.clone(), outputs.log.clone()));
+    }
     Ok(Report {
         searches,
         counterexample,
         reproduced,
+        rerun_interrupted,
         evaluations_csv,
         evaluations_json,
         convergence_png,

@@ -229,7 +229,7 @@ fn line_chart(
 }
 
 /// The start of every PNG file: an existing file that does not start so is never replaced.
-const PNG_MAGIC: &[u8] = b"\x89PNG";
+pub(crate) const PNG_MAGIC: &[u8] = b"\x89PNG";
 
 /// Draws a PNG into a hidden `.partial.png` sibling (plotters picks the format by extension)
 /// and renames it to `path` when complete: never a half-drawn plot under the final name, never

@@ -205,6 +205,24 @@ fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
             vec!["--range", "delays.steering=0..0.3", "--baseline", "delays.brake=0"],
             "delays.brake",
         ),
+        (
+            vec![
+                "--range",
+                "obstacles.0.centre.1=-3..3",
+                "--range",
+                "obstacles.0.centre.1=-1..1",
+            ],
+            "obstacles.0.centre.1: the key is given twice",
+        ),
+        (
+            vec![
+                "--range",
+                "obstacles.0.centre.1=-3..3",
+                "--objective",
+                "max_correction.brake",
+            ],
+            "its per-channel max_correction metrics: max_correction.acceleration, max_correction.steering",
+        ),
     ] {
         let out = dir.path().join("f");
         let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
@@ -262,4 +280,116 @@ fn ctrl_c_keeps_what_the_search_found() {
         "{:?}",
         listing(&out)
     );
+}
+
+/// Outputs in the way are refused before the first run (not after the whole budget), and the
+/// evaluations are written before the counterexample is re-run.
+#[test]
+fn outputs_in_the_way_are_refused_before_the_search() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("counterexample.mcap"), "notes, not a log").unwrap();
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &GAMMA_M_BOX, &out);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("counterexample.mcap") && err.contains("not an mjsafe MCAP log"),
+        "{err}"
+    );
+    assert!(!err.contains("runs |"), "no run before the refusal: {err}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("counterexample.mcap")).unwrap(),
+        "notes, not a log"
+    );
+    let file = dir.path().join("file");
+    std::fs::write(&file, "").unwrap();
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &GAMMA_M_BOX, &file);
+    assert!(stderr(&o).contains("expected a directory"), "{}", stderr(&o));
+}
+
+/// Candidates that fail score worse than any real candidate, whatever the threshold (their
+/// score cell is empty), and are never violations.
+#[test]
+fn failed_candidates_score_worse_than_any_real_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let args = [
+        "--range",
+        "obstacles.0.radius=-3..5",
+        "--threshold",
+        "-1e13",
+        "--budget",
+        "16",
+    ];
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let e = evaluations(&out);
+    let rows = e["searches"][0]["evaluations"].as_array().unwrap();
+    let (failed, real): (Vec<&serde_json::Value>, Vec<&serde_json::Value>) =
+        rows.iter().partition(|r| !r["error"].is_null());
+    assert!(!failed.is_empty() && !real.is_empty(), "{rows:?}");
+    let worst_real = real
+        .iter()
+        .map(|r| r["score"].as_f64().unwrap())
+        .fold(f64::MIN, f64::max);
+    for r in &failed {
+        assert!(
+            r["score"].as_f64().unwrap() > worst_real && r["violation"] == false,
+            "{r}"
+        );
+    }
+    let csv = std::fs::read_to_string(out.join("evaluations.csv")).unwrap();
+    let failed_line = csv.lines().find(|l| l.contains("expected a positive radius")).unwrap();
+    assert!(
+        failed_line.contains(",,,false,"),
+        "no objective, baseline or score: {failed_line}"
+    );
+}
+
+/// Ctrl-C while the counterexample is re-run: exit 130, the evaluations written, and the
+/// counterexample not reported as reproduced (its log is incomplete).
+#[test]
+fn ctrl_c_during_the_counterexample_run_is_not_a_reproduction() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let mut args: Vec<String> = ["falsify", "scenarios/bicycle_obstacle_gamma_m.toml"]
+        .iter()
+        .chain(GAMMA_M_BOX.iter())
+        .map(|s| s.to_string())
+        .collect();
+    // A long counterexample run (the search's own runs are analysed in memory and leave no file).
+    args.extend(["--set", "duration=600.0", "--budget", "8", "--threads", "2", "--out"].map(String::from));
+    args.push(out.display().to_string());
+    let child = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(&args)
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the counterexample's log is being written… then interrupt.
+    let partial = out.join("counterexample.mcap.partial");
+    let started = Instant::now();
+    while !partial.exists() {
+        assert!(
+            started.elapsed() < Duration::from_secs(120),
+            "no counterexample run began"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", text(&o));
+    assert!(stdout(&o).contains("its run was interrupted"), "{}", stdout(&o));
+    assert!(!stdout(&o).contains("its run: "), "{}", stdout(&o));
+    assert!(out.join("evaluations.json").exists() && out.join("counterexample.toml").exists());
+    let m = analyze_json(&out.join("counterexample.mcap"));
+    assert_eq!(m["complete"], false, "{m}");
 }
