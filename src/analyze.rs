@@ -945,7 +945,7 @@ fn finite(x: f64) -> Option<f64> {
 /// A run's metrics as one flat record (no nesting beyond per-channel maps): the rows of
 /// `analyze --csv`, `analyze --compare` and the sweep summaries. Floats that are not finite
 /// are `None`. Definitions: docs/metrics.md.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FlatMetrics {
     pub scenario: String,
     pub simulated_time: Option<f64>,

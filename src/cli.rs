@@ -739,8 +739,18 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 summary.clone()
             };
             let read = Summary::read(&file)?;
-            let points: Vec<crate::plot::SweepPoint<'_>> = read
-                .runs
+            // A run that failed or stopped early has no metrics of a whole run: not a point.
+            let (whole, left_out): (Vec<&Row>, Vec<&Row>) = read.runs.iter().partition(|r| r.error.is_none());
+            if !left_out.is_empty() {
+                let indices: Vec<usize> = left_out.iter().map(|r| r.index).collect();
+                eprintln!(
+                    "warning: {} of {} runs left out (failed or incomplete: their rows hold the error): {}",
+                    left_out.len(),
+                    read.runs.len(),
+                    abbreviate(&indices)
+                );
+            }
+            let points: Vec<crate::plot::SweepPoint<'_>> = whole
                 .iter()
                 .map(|r| crate::plot::SweepPoint {
                     parameters: &r.parameters,

@@ -635,6 +635,69 @@ struct SweepRows<'a> {
     runs: &'a [SweepPoint<'a>],
 }
 
+/// The unit of a flat metric whose unit does not depend on the vehicle (docs/metrics.md):
+/// times in seconds, clearances and depths in metres.
+fn metric_unit(metric: &str) -> Option<&'static str> {
+    match metric {
+        "simulated_time"
+        | "collision_time"
+        | "time_h_negative"
+        | "first_override_time"
+        | "override_duration"
+        | "min_time_to_collision"
+        | "delay_attributed_violation_time"
+        | "prescribed_time" => Some("s"),
+        "min_clearance" | "collision_depth" => Some("m"),
+        _ => None,
+    }
+}
+
+/// (x, y, collided) of one line of a sweep plot.
+type SweepLine = Vec<(f64, f64, bool)>;
+
+/// The lines of a sweep plot of `metric` against `key`: one per combination of the other swept
+/// values, named by them (a swept filter table by its equation number; two lines whose names
+/// agree, such as two gains of one filter, by their values).
+fn sweep_lines(parameters: &[String], runs: &[SweepPoint<'_>], key: &str, metric: &str) -> BTreeMap<String, SweepLine> {
+    use crate::analyze::Cell;
+    let mut lines: BTreeMap<String, (String, SweepLine)> = BTreeMap::new();
+    for run in runs {
+        let Some(metrics) = run.metrics else { continue };
+        let x = run.parameters.get(key).and_then(|v| v.trim().parse::<f64>().ok());
+        let y = match metrics.cell(metric) {
+            Cell::Num(v) => v,
+            Cell::Int(v) => v.map(|n| n as f64),
+            Cell::Text(_) | Cell::Bool(_) => None,
+        };
+        let (Some(x), Some(y)) = (x, y) else { continue };
+        let (mut values, mut names) = (Vec::new(), Vec::new());
+        for p in parameters.iter().filter(|p| *p != key) {
+            let value = run.parameters.get(p).map_or("", String::as_str);
+            let entries = BTreeMap::from([("scenario_resolved".to_string(), format!("{p} = {value}"))]);
+            names.push(match crate::analyze::filter_label(&entries) {
+                Some(label) if p == "filter" => label,
+                _ => format!("{p} = {value}"),
+            });
+            values.push(format!("{p} = {value}"));
+        }
+        let line = lines
+            .entry(values.join(", "))
+            .or_insert_with(|| (names.join(", "), Vec::new()));
+        line.1.push((x, y, metrics.collision_time.is_some()));
+    }
+    let mut named = BTreeMap::<&str, usize>::new();
+    for (name, _) in lines.values() {
+        *named.entry(name.as_str()).or_default() += 1;
+    }
+    lines
+        .iter()
+        .map(|(values, (name, points))| {
+            let label = if named[name.as_str()] > 1 { values } else { name };
+            (label.clone(), points.clone())
+        })
+        .collect()
+}
+
 /// A metric of a sweep's summary (`summary.json`, or a sweep directory holding one) against
 /// one swept key, into `out` (PNG): one line per combination of the other swept keys, runs that
 /// collided marked with a cross. The metric is a numeric field of the summary's metrics
@@ -664,43 +727,14 @@ pub fn plot_sweep(
             s.parameters.join(", ")
         )));
     }
-    type Points = Vec<(f64, f64, bool)>;
-    let mut groups: BTreeMap<String, Points> = BTreeMap::new();
-    use crate::analyze::{Cell, FlatMetrics};
+    use crate::analyze::FlatMetrics;
     // The numeric columns of the summary's metrics, per-channel ones included.
     let numeric: Vec<String> = FlatMetrics::columns(s.runs.iter().filter_map(|r| r.metrics))
         .into_iter()
         .filter(|c| FlatMetrics::is_numeric_column(c))
         .collect();
     let known_metric = numeric.iter().any(|c| c == metric);
-    for run in s.runs {
-        let Some(metrics) = run.metrics else { continue };
-        let x = run.parameters.get(key).and_then(|v| v.trim().parse::<f64>().ok());
-        let y = match metrics.cell(metric) {
-            Cell::Num(v) => v,
-            Cell::Int(v) => v.map(|n| n as f64),
-            Cell::Text(_) | Cell::Bool(_) => None,
-        };
-        let (Some(x), Some(y)) = (x, y) else { continue };
-        let group: Vec<String> = s
-            .parameters
-            .iter()
-            .filter(|p| *p != key)
-            .map(|p| {
-                let value = run.parameters.get(p).map_or("", String::as_str);
-                // A swept filter table is named by its equation number.
-                let entries = BTreeMap::from([("scenario_resolved".to_string(), format!("{p} = {value}"))]);
-                match crate::analyze::filter_label(&entries) {
-                    Some(label) if p == "filter" => label,
-                    _ => format!("{p} = {value}"),
-                }
-            })
-            .collect();
-        groups
-            .entry(group.join(", "))
-            .or_default()
-            .push((x, y, metrics.collision_time.is_some()));
-    }
+    let mut groups = sweep_lines(s.parameters, s.runs, key, metric);
     if !known_metric {
         return Err(PlotError::Sweep(format!(
             "{}: no metric `{metric}` in the summary (numeric metrics: {})",
@@ -728,6 +762,10 @@ pub fn plot_sweep(
     } else {
         key.to_string()
     };
+    let y_desc = match metric_unit(metric) {
+        Some(unit) => format!("{metric}  [{unit}]"),
+        None => metric.to_string(),
+    };
     let result = draw_png(out, &[file], |partial: &Path| -> DrawResult<()> {
         let root = BitMapBackend::new(partial, (1000, 560)).into_drawing_area();
         root.fill(&WHITE)?;
@@ -737,7 +775,11 @@ pub fn plot_sweep(
             .x_label_area_size(44)
             .y_label_area_size(70)
             .build_cartesian_2d(x0..x1, y0..y1)?;
-        chart.configure_mesh().x_desc(unit.as_str()).y_desc(metric).draw()?;
+        chart
+            .configure_mesh()
+            .x_desc(unit.as_str())
+            .y_desc(y_desc.as_str())
+            .draw()?;
         if zero {
             chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(1)))?;
         }
@@ -777,4 +819,44 @@ pub fn plot_sweep(
     });
     result.map_err(|e| draw_error(out, e))?;
     Ok(out.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn two_gains_of_one_filter_are_two_lines_named_by_their_values() {
+        use crate::analyze::FlatMetrics;
+        let filters = ["{kind='cbf_qp', l0=1.0, l1=3.0}", "{kind='cbf_qp', l0=4.0, l1=4.0}"];
+        let swept = vec!["delays.steering".to_string(), "filter".to_string()];
+        let mut rows = Vec::new();
+        for (i, filter) in filters.iter().enumerate() {
+            for delay in ["0.0", "0.2"] {
+                let parameters = std::collections::BTreeMap::from([
+                    ("delays.steering".to_string(), delay.to_string()),
+                    ("filter".to_string(), filter.to_string()),
+                ]);
+                let metrics = FlatMetrics {
+                    min_h: Some(i as f64),
+                    ..FlatMetrics::default()
+                };
+                rows.push((parameters, metrics));
+            }
+        }
+        let points: Vec<super::SweepPoint> = rows
+            .iter()
+            .map(|(parameters, metrics)| super::SweepPoint {
+                parameters,
+                metrics: Some(metrics),
+            })
+            .collect();
+        let lines = super::sweep_lines(&swept, &points, "delays.steering", "min_h");
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        for (filter, (label, points)) in filters.iter().zip(&lines) {
+            assert!(label.contains(filter), "{label}");
+            assert_eq!(points.len(), 2, "{label}");
+        }
+        // One gain per filter kind: the line is named by the filter's equation numbers.
+        let one = super::sweep_lines(&swept, &points[..2], "delays.steering", "min_h");
+        assert_eq!(one.keys().collect::<Vec<_>>(), ["delay-free CBF-QP (4.9)–(4.11)"]);
+    }
 }
