@@ -1126,6 +1126,24 @@ fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Resu
         );
         return Ok(ExitCode::FAILURE);
     }
+    // Runs an interrupted shard never started or stopped are as missing as runs of a shard not
+    // given (a failed run is a result: its row holds the error).
+    let not_run: Vec<usize> = merged
+        .runs
+        .iter()
+        .filter(|r| r.not_run || r.interrupted)
+        .map(|r| r.index)
+        .collect();
+    if !not_run.is_empty() {
+        eprintln!(
+            "error: {} of {} runs were not run to their end (their shard was interrupted): {}; run those shards again and merge{}",
+            not_run.len(),
+            merged.sweep.runs,
+            abbreviate(&not_run),
+            if out.is_some() { "; nothing written" } else { "" }
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     if let Some(dir) = out {
         let merged_files: Vec<&Path> = inputs.iter().map(|(file, _)| Path::new(file.as_str())).collect();
         let (json, csv) = merged

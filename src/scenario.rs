@@ -464,6 +464,12 @@ pub fn plain_serde_message(message: &str) -> String {
     out
 }
 
+/// Checks the form of one `a.b.c=VALUE` override (a dotted key, `=`, a TOML value) without a
+/// scenario to apply it to: what `--set` rejects whatever the scenario.
+pub fn check_override(spec: &str) -> Result<(), ScenarioError> {
+    apply_override(&mut toml::Table::new(), spec)
+}
+
 /// Applies one `a.b.c=VALUE` override; numeric segments index arrays (`obstacles.0.radius`).
 fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioError> {
     let err = |message: String| ScenarioError::Override {

@@ -442,6 +442,9 @@ impl SweepSpec {
                     .into(),
             ));
         }
+        for spec in &set {
+            scenario::check_override(spec).map_err(|e| SweepError::Spec(e.to_string()))?;
+        }
         let text = crate::files::read_limited(&scenario_path, "scenario", crate::files::SCENARIO_LIMIT)?;
         let name = match name {
             Some(n) => n,
@@ -471,7 +474,7 @@ impl SweepSpec {
                     factors.join(" × ")
                 ))
             })?;
-        Ok(SweepSpec {
+        let spec = SweepSpec {
             name,
             scenario: scenario_path.display().to_string(),
             scenario_fnv1a: fnv1a(&text),
@@ -479,7 +482,17 @@ impl SweepSpec {
             grids,
             random,
             runs,
-        })
+        };
+        // A scenario that the base overrides break, whatever the swept values (an unknown
+        // key in `--set`), is the sweep's error, not a row error in every run: told by the
+        // first run failing exactly as the base does.
+        if let Err(base) = scenario::load(&scenario_path, &spec.set) {
+            let first = scenario::load(&scenario_path, &spec.run(0).overrides);
+            if first.is_err_and(|e| e.to_string() == base.to_string()) {
+                return Err(SweepError::Spec(format!("every run would fail: {base}")));
+            }
+        }
+        Ok(spec)
     }
 
     /// Sweep keys in column order: grid keys, then range keys.
@@ -557,6 +570,10 @@ pub struct Row {
     /// Whether the run was never started (the sweep was interrupted first).
     #[serde(default)]
     pub not_run: bool,
+    /// Whether Ctrl-C / SIGTERM stopped the run before its end (its row holds the partial
+    /// metrics and the error): a merge counts it as not run.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub interrupted: bool,
 }
 
 fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
@@ -595,6 +612,7 @@ fn row_of(run: &Run) -> Row {
         metrics: None,
         error: None,
         not_run: false,
+        interrupted: false,
     }
 }
 
@@ -715,7 +733,8 @@ pub fn execute(
                     let Some(&index) = indices.get(position) else {
                         break;
                     };
-                    let row = execute_run(spec, &spec.run(index), dir, keep);
+                    let mut row = execute_run(spec, &spec.run(index), dir, keep);
+                    row.interrupted = row.error.is_some() && crate::episode::stop_requested();
                     if tx.send((position, row)).is_err() {
                         break;
                     }
@@ -742,6 +761,7 @@ pub fn execute(
                 log: None,
                 metrics: None,
                 not_run: true,
+                interrupted: false,
                 error: Some(if crate::episode::stop_requested() {
                     "not run: the sweep was interrupted".into()
                 } else {
@@ -918,7 +938,13 @@ impl Summary {
         };
         let mut rows: BTreeMap<usize, (&str, Row)> = BTreeMap::new();
         for (file, s) in inputs {
-            if s.sweep != first.sweep {
+            // The scenario is told by its contents (hash), not by how its path was spelled:
+            // shards started from other directories or checkouts are the same sweep.
+            let same_sweep = SweepSpec {
+                scenario: first.sweep.scenario.clone(),
+                ..s.sweep.clone()
+            } == first.sweep;
+            if !same_sweep {
                 return Err(SweepError::Merge(format!(
                     "{file} and {first_file} are summaries of different sweeps ({})",
                     describe_difference(&first.sweep, &s.sweep)
@@ -960,9 +986,8 @@ impl Summary {
 
 /// Which field of two sweeps differs, for the merge error.
 fn describe_difference(a: &SweepSpec, b: &SweepSpec) -> String {
-    let fields: [(&str, bool); 7] = [
+    let fields: [(&str, bool); 6] = [
         ("name", a.name != b.name),
-        ("scenario", a.scenario != b.scenario),
         ("scenario file contents", a.scenario_fnv1a != b.scenario_fnv1a),
         ("--set", a.set != b.set),
         ("grids", a.grids != b.grids),

@@ -276,6 +276,62 @@ fn shards_merge_into_the_unsharded_summary() {
     let o = mjsafe(&["analyze", "--merge", "--csv", shards.to_str().unwrap()]);
     assert_eq!(o.stdout, read(&whole.join("summary.csv")));
 
+    // A shard started from another directory (the scenario path spelled otherwise, the same
+    // file) is the same sweep.
+    let elsewhere = dir.path().join("elsewhere");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    std::fs::copy(
+        shards.join("summary-shard-0-of-2.json"),
+        elsewhere.join("summary-shard-0-of-2.json"),
+    )
+    .unwrap();
+    let mut args = grid_args(&elsewhere, &["--shard", "1/2"]);
+    args[1] = "bicycle_obstacle.toml".into();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(&args)
+        .current_dir(root().join("scenarios"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = mjsafe(&["analyze", "--merge", "--csv", elsewhere.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(o.stdout, read(&whole.join("summary.csv")));
+
+    // A shard whose runs were interrupted or never started (Ctrl-C, a preempted task) is as
+    // incomplete as a missing shard: exit 1, nothing written.
+    for field in ["not_run", "interrupted"] {
+        let cut = dir.path().join(format!("cut-{field}"));
+        std::fs::create_dir_all(&cut).unwrap();
+        std::fs::copy(
+            shards.join("summary-shard-0-of-2.json"),
+            cut.join("summary-shard-0-of-2.json"),
+        )
+        .unwrap();
+        let mut shard1 = json(&shards.join("summary-shard-1-of-2.json"));
+        shard1["runs"][1][field] = Value::Bool(true);
+        std::fs::write(
+            cut.join("summary-shard-1-of-2.json"),
+            serde_json::to_string_pretty(&shard1).unwrap(),
+        )
+        .unwrap();
+        let target = dir.path().join(format!("merged-{field}"));
+        let o = mjsafe(&[
+            "analyze",
+            "--merge",
+            cut.to_str().unwrap(),
+            "--out",
+            target.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{field}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains("1 of 4 runs were not run to their end"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(stderr(&o).contains(": 3;"), "{}", stderr(&o));
+        assert!(!target.exists());
+    }
+
     // Shards of another sweep do not merge.
     let other = dir.path().join("other");
     let args: Vec<String> = grid_args(&other, &["--shard", "1/2", "--set", "duration=4.0"]);
@@ -434,7 +490,7 @@ fn sweep_file_expands_grids_in_order() {
 fn bad_sweep_arguments_name_the_argument() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("never");
-    let cases: [(&[&str], &str); 7] = [
+    let cases: [(&[&str], &str); 9] = [
         (
             &["--grid", "delays.steering=0.1,[0.2"],
             "--grid delays.steering=0.1,[0.2: missing closing `]`",
@@ -460,12 +516,21 @@ fn bad_sweep_arguments_name_the_argument() {
             "--shard 2/2: expected 0 <= INDEX < COUNT",
         ),
         (&["--range", "obstacles.0.radius=2..3"], "--range needs --random N"),
+        // Base overrides every run shares: the sweep's error (exit 1), not a failed row per run.
+        (
+            &["--grid", "delays.steering=0.1,0.2", "--set", "duration"],
+            "--set duration: expected KEY=VALUE",
+        ),
+        (
+            &["--grid", "delays.steering=0.1,0.2", "--set", "bogus=1"],
+            "every run would fail: ",
+        ),
     ];
     for (extra, expected) in cases {
         let mut args = vec!["sweep", SCENARIO, "--out", out.to_str().unwrap()];
         args.extend_from_slice(extra);
         let o = mjsafe(&args);
-        assert!(!o.status.success(), "{extra:?} accepted");
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {}", stderr(&o));
         assert!(stderr(&o).contains(expected), "{extra:?}: {}", stderr(&o));
     }
     assert!(!out.exists(), "a rejected sweep writes nothing");
