@@ -765,6 +765,24 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
+    // Names key the obstacles' barrier values, events and table columns: one each. A name
+    // left out is `obstacle_<index>`; the barriers are `barrier_<index>`.
+    let mut names: std::collections::BTreeMap<String, String> = (0..sc.barriers.len())
+        .map(|j| (format!("barrier_{j}"), format!("barriers.{j}")))
+        .collect();
+    for (i, o) in sc.obstacles.iter().enumerate() {
+        let key = format!("obstacles.{i}.name");
+        let name = o.name.clone().unwrap_or_else(|| format!("obstacle_{i}"));
+        if name.trim().is_empty() {
+            return Err(s.field_error(&key, "expected a name that is not empty"));
+        }
+        if let Some(other) = names.insert(name.clone(), format!("obstacles.{i}")) {
+            return Err(s.field_error(
+                &key,
+                format!("`{name}` is already the name of {other}; names must be unique (they key the logged barriers and table columns)"),
+            ));
+        }
+    }
     Ok(())
 }
 

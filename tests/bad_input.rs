@@ -338,3 +338,25 @@ fn a_model_without_a_positive_timestep_is_named_as_the_model() {
         expect_error(&base(&model), &["key `vehicle.model`", "<option timestep>", "positive"]);
     }
 }
+
+#[test]
+fn obstacle_names_are_unique_and_not_empty() {
+    // Names key the logged barrier values and the exported columns: a duplicate made a
+    // Parquet table no reader opens.
+    run_expecting_failure(
+        "bicycle_two_obstacles.toml",
+        &["obstacles.1.name=\"cone_left\""],
+        &["key `obstacles.1.name`", "`cone_left` is already the name of obstacles.0"],
+    );
+    // A name left out is obstacle_<index>.
+    run_expecting_failure(
+        "bicycle_two_obstacles.toml",
+        &["obstacles.0.name=\"obstacle_1\"", "obstacles.1.name=\"obstacle_1\""],
+        &["key `obstacles.1.name`", "already the name of obstacles.0"],
+    );
+    run_expecting_failure(
+        "bicycle_two_obstacles.toml",
+        &["obstacles.1.name=\" \""],
+        &["key `obstacles.1.name`", "not empty"],
+    );
+}
