@@ -1455,6 +1455,30 @@ impl Progress {
 fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], out: Option<&Path>) -> Result<ExitCode> {
     let explicit = !topics.is_empty();
     let topics = crate::export::parse_topics(topics)?;
+    // Two logs whose tables would have the same names (the same stem into one directory)
+    // would overwrite each other's tables: refused before any is written.
+    let mut targets: std::collections::BTreeMap<PathBuf, &Path> = std::collections::BTreeMap::new();
+    for file in files {
+        let dir = out.map_or_else(
+            || file.parent().unwrap_or(Path::new("")).to_path_buf(),
+            Path::to_path_buf,
+        );
+        let stem = file.file_stem().map(PathBuf::from).unwrap_or_default();
+        if let Some(other) = targets.insert(dir.join(&stem), file) {
+            bail!(
+                "{} and {}: both would write {}-*.{} in {}; export them into different --out directories",
+                other.display(),
+                file.display(),
+                stem.display(),
+                format.extension(),
+                if dir.as_os_str().is_empty() {
+                    ".".into()
+                } else {
+                    dir.display().to_string()
+                }
+            );
+        }
+    }
     let mut failed = false;
     for file in files {
         match crate::export::export_log(file, out, &topics, format) {
@@ -1464,6 +1488,13 @@ fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], o
                 }
                 for topic in exported.empty.iter().filter(|_| explicit) {
                     eprintln!("note: {}: no messages on {topic}, no table written", file.display());
+                }
+                for path in &exported.removed {
+                    eprintln!(
+                        "note: removed {}: an earlier export's table of a topic {} has no messages on",
+                        path.display(),
+                        file.display()
+                    );
                 }
             }
             Err(e) => {

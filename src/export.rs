@@ -144,6 +144,8 @@ pub struct Exported {
     pub tables: Vec<(Topic, PathBuf, u64)>,
     /// Topics asked for that the log has no message on (no file written).
     pub empty: Vec<Topic>,
+    /// Tables of those topics an earlier export had written under this log's name, removed.
+    pub removed: Vec<PathBuf>,
 }
 
 /// Exports `topics` of `log` into `dir` (default: the log's directory). Nothing is renamed to
@@ -182,12 +184,32 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
         let rows = table.rows;
         written.push((topic, table.finish()?, rows));
     }
-    let empty = topics
+    let empty: Vec<Topic> = topics
         .iter()
         .copied()
         .filter(|t| !written.iter().any(|(w, _, _)| w == t))
         .collect();
-    Ok(Exported { tables: written, empty })
+    // A table of a topic this log has no message on, left by an earlier export under the same
+    // name (another log of that name), is not this log's: removed, so the tables of one stem
+    // are one log's. Only files that are tables of this format are touched.
+    let mut removed = Vec::new();
+    for &topic in &empty {
+        let path = table_path(log, &dir, topic, format);
+        let ours = std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
+            && crate::files::starts_with(&path, format.magic());
+        if ours {
+            std::fs::remove_file(&path).map_err(|e| ExportError::Write {
+                file: path.display().to_string(),
+                message: format!("cannot remove the earlier table of a topic this log does not have: {e}"),
+            })?;
+            removed.push(path);
+        }
+    }
+    Ok(Exported {
+        tables: written,
+        empty,
+        removed,
+    })
 }
 
 /// A column's type.

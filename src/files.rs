@@ -262,6 +262,14 @@ pub fn same_path(a: &Path, b: &Path) -> bool {
     same_file(a, b) || normalised(a) == normalised(b)
 }
 
+/// Whether the file at `path` can be read and starts with `magic`.
+pub fn starts_with(path: &Path, magic: &[u8]) -> bool {
+    let mut head = vec![0u8; magic.len()];
+    File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok_and(|()| head == magic)
+}
+
 /// Checks that `target` may be written as an output: it is not an input of the same run, and
 /// it does not exist or is a regular file `replace` allows replacing. Nothing is created.
 pub fn check_output(target: &Path, what: &'static str, replace: Replace, inputs: &[&Path]) -> Result<(), FileError> {
@@ -296,11 +304,7 @@ pub fn check_output(target: &Path, what: &'static str, replace: Replace, inputs:
         Ok(_) => match replace {
             Replace::Any => Ok(()),
             Replace::IfStartsWith(magic) => {
-                let mut head = vec![0u8; magic.len()];
-                let matches = File::open(target)
-                    .and_then(|mut f| f.read_exact(&mut head))
-                    .is_ok_and(|()| head == magic);
-                if matches {
+                if starts_with(target, magic) {
                     Ok(())
                 } else {
                     Err(write_error(format!(

@@ -346,7 +346,10 @@ fn obstacle_names_are_unique_and_not_empty() {
     run_expecting_failure(
         "bicycle_two_obstacles.toml",
         &["obstacles.1.name=\"cone_left\""],
-        &["key `obstacles.1.name`", "`cone_left` is already the name of obstacles.0"],
+        &[
+            "key `obstacles.1.name`",
+            "`cone_left` is already the name of obstacles.0",
+        ],
     );
     // A name left out is obstacle_<index>.
     run_expecting_failure(

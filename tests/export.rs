@@ -377,3 +377,42 @@ fn export_memory_does_not_grow_with_log_length() {
     // file is closed (about 1.6 MB more from 300 s to 900 s, measured). Flat within 4 MB.
     assert!(long_kb < short_kb + 4096, "{short_kb} kB -> {long_kb} kB");
 }
+
+/// The tables of one name are one log's: two logs of one stem into one directory are refused
+/// before anything is written, and re-exporting under a name whose earlier log had a topic this
+/// one lacks removes that table (a CSV of another run's predictions beside this run's tables).
+#[test]
+fn the_tables_of_one_name_are_one_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    let (with_predictions, without) = (a.join("run.mcap"), b.join("run.mcap"));
+    run_ok(
+        &scenario("bicycle_obstacle_gamma_m.toml"),
+        &with_predictions,
+        &["--set", "duration=4.0"],
+    );
+    run_ok(&scenario("bicycle_obstacle.toml"), &without, &["--set", "duration=1.0"]);
+    let out = dir.path().join("tables");
+    let o = mjsafe(&[
+        "export",
+        with_predictions.to_str().unwrap(),
+        without.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(stderr(&o).contains("both would write run-*.csv"), "{}", stderr(&o));
+    assert!(!out.exists(), "nothing written");
+
+    // The γm run's tables, then the other run's under the same name.
+    for log in [&with_predictions, &without] {
+        let o = mjsafe(&["export", log.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let tables = listing(&out);
+    assert!(!tables.contains(&"run-prediction.csv".to_string()), "{tables:?}");
+    let state = std::fs::read_to_string(out.join("run-state.csv")).unwrap();
+    assert_eq!(state.lines().count(), 1 + 501, "the second run's 1 s of states");
+}
