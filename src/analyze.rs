@@ -310,8 +310,9 @@ struct Analysis {
 }
 
 /// The run's safety filter named by its equation number in the reference, from the resolved
-/// scenario of the run metadata (`filter.kind` and its parameters; "no delays" when every
-/// input delay is zero): the label of plot legends and `analyze --brief`.
+/// scenario of the run metadata (`filter.kind` and its parameters; "no delays" when the run's
+/// largest actuator latency, metadata `max_delay`, is zero, or without it every `[delays]`
+/// entry is): the label of plot legends and `analyze --brief`.
 pub fn filter_label(metadata: &BTreeMap<String, String>) -> Option<String> {
     let text = metadata.get("scenario_resolved").or_else(|| metadata.get("scenario"))?;
     let scenario: toml::Table = text.parse().ok()?;
@@ -339,12 +340,15 @@ pub fn filter_label(metadata: &BTreeMap<String, String>) -> Option<String> {
         "esf" => "ESf (Ch. 5)".into(),
         other => other.to_string(),
     };
-    let delays = scenario.get("delays").and_then(|d| d.as_table());
-    let no_delays = metadata.get("max_delay").and_then(|d| d.parse::<f64>().ok()) == Some(0.0)
-        || delays.is_some_and(|d| {
+    // The run's largest actuator latency when the log has it (jitter and extra latency
+    // included); else the scenario's `[delays]`, all zero.
+    let no_delays = match metadata.get("max_delay").and_then(|d| d.parse::<f64>().ok()) {
+        Some(max_delay) => max_delay == 0.0,
+        None => scenario.get("delays").and_then(|d| d.as_table()).is_some_and(|d| {
             d.values()
                 .all(|v| v.as_float().or(v.as_integer().map(|i| i as f64)) == Some(0.0))
-        });
+        }),
+    };
     Some(if no_delays && kind != "none" {
         format!("{label}, no delays")
     } else {
@@ -1347,4 +1351,27 @@ pub fn comparison_json(rows: &[Comparison]) -> serde_json::Value {
             })
             .collect(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    #[test]
+    fn no_delays_is_said_only_when_the_actuators_had_none() {
+        let scenario = "[filter]\nkind = 'cbf_qp'\n[delays]\nsteering = 0.0\nacceleration = 0.0\n";
+        let metadata = |max_delay: Option<&str>| {
+            let mut m = BTreeMap::from([("scenario_resolved".to_string(), scenario.to_string())]);
+            if let Some(d) = max_delay {
+                m.insert("max_delay".to_string(), d.to_string());
+            }
+            m
+        };
+        let label = |max_delay| super::filter_label(&metadata(max_delay)).unwrap();
+        // Zero [delays] but 0.3 s of extra actuator latency: delayed.
+        assert_eq!(label(Some("0.3")), "delay-free CBF-QP (4.9)–(4.11)");
+        assert_eq!(label(Some("0")), "delay-free CBF-QP (4.9)–(4.11), no delays");
+        // A log without `max_delay`: the scenario's delays tell.
+        assert_eq!(label(None), "delay-free CBF-QP (4.9)–(4.11), no delays");
+    }
 }
