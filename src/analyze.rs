@@ -782,6 +782,44 @@ impl Accumulator {
             );
             c.depth = f64::NAN;
         }
+        if let Some(t) = self.prescribed_time {
+            // The values at T come from the messages logged at T: none when the run ended at
+            // or before T (the barriers and commands of a step are logged at its start, so
+            // the final state has none).
+            let end = self.last_time;
+            let half_step = 0.5 * self.timestep.unwrap_or(0.0);
+            let reason = |topic: &str| {
+                if end < t - half_step {
+                    format!("no {topic} message at T = {t} s: the run ends before T, at t = {end} s")
+                } else if end < t + half_step && topic != "/state" {
+                    format!("no {topic} message at T = {t} s: the run ends at T, and {topic} is logged at the start of each step, not at the final state")
+                } else {
+                    format!("no {topic} message at T = {t} s")
+                }
+            };
+            let absent_values = [
+                (
+                    "at_prescribed_time.barrier",
+                    self.terminal.barrier.is_none(),
+                    "/barrier",
+                ),
+                (
+                    "at_prescribed_time.state_residuals",
+                    self.terminal.state_residuals.is_empty(),
+                    "/state",
+                ),
+                (
+                    "at_prescribed_time.input_residual",
+                    self.terminal.input_residual.is_none(),
+                    "/command/issued",
+                ),
+            ];
+            for (metric, absent, topic) in absent_values {
+                if absent && !missing.contains_key(metric) {
+                    missing.insert(metric.to_string(), reason(topic));
+                }
+            }
+        }
         let given = |metric: &str| !missing.contains_key(metric);
         let known = |metric: &str, value| given(metric).then_some(value);
         let timestep = self.timestep.unwrap_or(0.0);

@@ -59,3 +59,43 @@ fn metrics_without_the_data_they_need_are_null() {
     assert!(m["time_h_negative"].as_f64().unwrap() > 0.0, "{m}");
     assert!(m["delay_attributed_violation_time"].as_f64().is_some(), "{m}");
 }
+
+/// A prescribed-time run that ends at or before T has no values at T: each is null with its
+/// reason, never a silent gap.
+#[test]
+fn values_at_the_prescribed_time_are_null_with_a_reason_when_the_run_does_not_reach_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let at = |m: &serde_json::Value, key: &str| m["at_prescribed_time"][key].clone();
+    let red_light = |sets: &[&str]| {
+        let log = dir.path().join(format!("red_light-{}.mcap", sets.join("-")));
+        let mut extra = Vec::new();
+        for s in sets {
+            extra.extend(["--set", s]);
+        }
+        run_ok(&scenario("red_light.toml"), &log, &extra);
+        analyze_json(&log)
+    };
+    // T = 4 s (red_light): ends at T, before T, after T.
+    let ends_at_t = red_light(&["duration=4.0"]);
+    assert!(at(&ends_at_t, "barrier").is_null() && at(&ends_at_t, "input_residual").is_null());
+    assert_eq!(
+        at(&ends_at_t, "state_residuals").as_array().unwrap().len(),
+        2,
+        "the final state is at T"
+    );
+    let reason = ends_at_t["missing"]["at_prescribed_time.barrier"].as_str().unwrap();
+    assert!(reason.contains("the run ends at T"), "{reason}");
+    assert!(ends_at_t["missing"]["at_prescribed_time.input_residual"].is_string());
+
+    let before = red_light(&["duration=2.0"]);
+    for key in ["barrier", "state_residuals", "input_residual"] {
+        let reason = before["missing"][format!("at_prescribed_time.{key}")]
+            .as_str()
+            .unwrap_or_else(|| panic!("{key}: {before}"));
+        assert!(reason.contains("ends before T, at t = 2 s"), "{reason}");
+    }
+
+    let after = red_light(&[]);
+    assert!(after["missing"].is_null(), "{after}");
+    assert!(at(&after, "barrier").is_f64() && at(&after, "input_residual").is_f64());
+}
