@@ -1527,7 +1527,10 @@ fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCo
     if info.error.is_some() {
         outln!("messages:  {} read before the damage", info.messages);
     } else {
-        outln!("messages:  {} in {} chunks", info.messages, info.chunks);
+        match info.chunks {
+            Some(chunks) => outln!("messages:  {} in {chunks} chunks", info.messages),
+            None => outln!("messages:  {} (counted: no statistics record)", info.messages),
+        }
     }
     outln!(
         "time:      {:.3} .. {:.3} s ({:.3} s of simulation time)",

@@ -184,8 +184,8 @@ fn exported(log: &Path, out: &Path) -> std::collections::BTreeMap<String, Vec<u8
 }
 
 /// MCAP does not require messages in log-time order. A copy written out of it (halves swapped,
-/// topic by topic, reversed, with and without an index) gives the original's metrics and
-/// tables, its messages handed on in log-time order; a stream, read once, is an error saying
+/// topic by topic, reversed, with and without an index or a summary) gives the original's
+/// metrics, info and tables, its messages handed on in log-time order; a stream, read once, is an error saying
 /// so, never metrics of the file order. (Reversed, the messages of one log time are reversed
 /// too: the metrics are the same, and the tables list the two `/prediction` rows of a tick in
 /// the other order, since messages of one log time keep their file order.)
@@ -194,12 +194,21 @@ fn messages_out_of_log_time_order_read_as_the_original() {
     let dir = tempfile::tempdir().unwrap();
     for (name, sets) in [("bicycle_obstacle_gamma_m", &[][..]), ("bicycle_obstacle", &[][..])] {
         let log = original(dir.path(), name, sets);
-        let expected = metrics(&log);
+        let (expected, expected_info) = (metrics(&log), info(&log));
         let tables = exported(&log, &dir.path().join(name).join("tables-original"));
-        for order in ["halves", "by_topic", "reverse", "halves-noindex"] {
+        for order in [
+            "halves",
+            "by_topic",
+            "reverse",
+            "halves-noindex",
+            "halves-nosummary",
+            "file-nosummary",
+        ] {
             let copy = copy_path(&log, order);
             rewrite_in_order(&log, &copy, ("zstd", "65536", "first", ""), order);
             assert_eq!(metrics(&copy), expected, "{name}: {order}");
+            // Without a statistics record `info` counts the messages.
+            assert_eq!(info(&copy), expected_info, "{name}: {order}");
             let copy_tables = exported(&copy, &dir.path().join(name).join(format!("tables-{order}")));
             if order != "reverse" {
                 assert!(copy_tables == tables, "{name}: {order}: the exported tables differ");

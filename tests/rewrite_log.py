@@ -6,7 +6,8 @@ topic filter would: a dropped topic has no channel and no messages in the copy. 
 (optional) writes the messages out of log-time order, which MCAP allows: `halves` (the second
 half of the messages first), `by_topic` (each channel's messages in turn), `reverse` (last
 first, the messages of one log time too); with `-noindex` (`halves-noindex`) the copy has no
-chunk or message indexes, so a reader cannot tell the order from them.
+chunk or message indexes, so a reader cannot tell the order from them, and with `-nosummary`
+no summary section at all (no indexes, no statistics, no repeated schemas and channels).
 
 usage: rewrite_log.py IN OUT COMPRESSION(zstd|lz4|none) CHUNK_SIZE METADATA(first|last) [DROP] [ORDER]"""
 import sys
@@ -36,7 +37,11 @@ def main(src, dst, compression, chunk_size, metadata_at, drop="", order="file"):
             out,
             chunk_size=int(chunk_size),
             compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression],
-            index_types=IndexType.NONE if index == "noindex" else IndexType.ALL,
+            index_types=IndexType.NONE if index in ("noindex", "nosummary") else IndexType.ALL,
+            repeat_channels=index != "nosummary",
+            repeat_schemas=index != "nosummary",
+            use_statistics=index != "nosummary",
+            use_summary_offsets=index != "nosummary",
         )
         writer.start(profile="", library="rewrite_log.py")
         schema_ids, channel_ids = {}, {}

@@ -26,7 +26,9 @@ pub struct LogInfo {
     pub file: String,
     pub bytes: u64,
     pub messages: u64,
-    pub chunks: u32,
+    /// From the summary's statistics record; None without one (a damaged log, or a writer
+    /// that writes no statistics), whose counts are those of the messages read.
+    pub chunks: Option<u32>,
     /// Log time of the first and last message, seconds (simulation time in mjsafe logs).
     pub start: f64,
     pub end: f64,
@@ -34,8 +36,8 @@ pub struct LogInfo {
     /// Metadata records by name (`mjsafe`, `mjsafe_status`), in file order.
     pub metadata: Vec<(String, BTreeMap<String, String>)>,
     /// Only from [`log_info_recover`] on a damaged log: the damage. The counts, times and
-    /// channels are then those of the messages read before it (`chunks`: 0, as the chunk count
-    /// is in the summary).
+    /// channels are then those of the messages read before it (`chunks`: None, as the chunk
+    /// count is in the summary).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
@@ -80,22 +82,17 @@ impl InfoRecords {
         Ok(())
     }
 
-    /// The info; from the statistics record when `counted` is false.
+    /// The info: from the statistics record when `counted` is false and the file has one,
+    /// else counted from the messages read.
     fn info(self, file: String, bytes: u64, counted: bool) -> Result<LogInfo, ReadError> {
-        let (messages, chunks, (start, end), per_channel) = if counted {
-            (self.messages, 0, self.times.unwrap_or((0, 0)), self.counts)
-        } else {
-            let stats = self.statistics.ok_or_else(|| ReadError::Foreign {
-                file: file.clone(),
-                message: "the summary has no statistics record".into(),
-            })?;
-            let times = (stats.message_start_time, stats.message_end_time);
-            (
+        let (messages, chunks, (start, end), per_channel) = match self.statistics {
+            Some(stats) if !counted => (
                 stats.message_count,
-                stats.chunk_count,
-                times,
+                Some(stats.chunk_count),
+                (stats.message_start_time, stats.message_end_time),
                 stats.channel_message_counts,
-            )
+            ),
+            _ => (self.messages, None, self.times.unwrap_or((0, 0)), self.counts),
         };
         let schemas = &self.schemas;
         let channels = self
