@@ -481,9 +481,17 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
         .ok_or_else(|| err("expected KEY=VALUE, e.g. delays.steering=0.4".into()))?;
     let key = key.trim();
     let value: toml::Table = format!("value = {}", raw.trim()).parse().map_err(|_| {
+        let raw = raw.trim();
+        let digits = raw.strip_prefix(['-', '+']).unwrap_or(raw);
+        if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+            return err(format!(
+                "`{raw}` is outside TOML's integers (`{}` to `{}`); a float is written with a decimal point",
+                i64::MIN,
+                i64::MAX
+            ));
+        }
         err(format!(
-            "`{}` is not a TOML value (numbers as 0.4, strings quoted as '\"text\"', arrays as [1, 2])",
-            raw.trim()
+            "`{raw}` is not a TOML value (numbers as 0.4, strings quoted as '\"text\"', arrays as [1, 2])"
         ))
     })?;
     let value = value.get("value").cloned().expect("parsed above");
