@@ -240,6 +240,13 @@ fn draw_png(
     draw: impl FnOnce(&Path) -> DrawResult<()>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(PNG_MAGIC), inputs)?;
+    // The plots are PNG: another extension would name a PNG as something else.
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        return Err(format!("{}: expected a .png file name (plots are PNG)", path.display()).into());
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: cannot create its directory: {e}", path.display()))?;
+    }
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("plot.png");
     let partial = path.with_file_name(format!(".{}.partial.png", name.trim_end_matches(".png")));
     let drawn = draw(&partial).and_then(|()| std::fs::rename(&partial, path).map_err(|e| e.into()));

@@ -155,4 +155,23 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
     assert!(sweep
         .join("max_correction.steering-vs-delays.acceleration.png")
         .exists());
+    // The plot is PNG: another extension is refused; a missing directory is made.
+    let plot_to = |out: &Path| {
+        mjsafe(&[
+            "plot-sweep",
+            sweep.to_str().unwrap(),
+            "--x",
+            "delays.acceleration",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o = plot_to(&sweep.join("plot.svg"));
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("expected a .png file name"), "{}", stderr(&o));
+    assert!(!sweep.join("plot.svg").exists());
+    let nested = sweep.join("plots/min_h/delays.png");
+    let o = plot_to(&nested);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(nested.exists());
 }
