@@ -1188,6 +1188,17 @@ fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Resu
     Ok(ExitCode::SUCCESS)
 }
 
+/// `arg` as a POSIX shell reads it back: as is when it holds only safe characters, else in
+/// single quotes (a quote inside written `'\''`).
+fn shell_quoted(arg: &str) -> String {
+    let safe = |c: char| c.is_ascii_alphanumeric() || "_-./=:,+@%".contains(c);
+    if !arg.is_empty() && arg.chars().all(safe) {
+        arg.to_string()
+    } else {
+        format!("'{}'", arg.replace('\'', "'\\''"))
+    }
+}
+
 /// `1, 2, 3, …` cut after 20 entries.
 fn abbreviate(indices: &[usize]) -> String {
     let mut text: Vec<String> = indices.iter().take(20).map(|i| i.to_string()).collect();
@@ -1354,7 +1365,11 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
 
 fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> Result<ExitCode> {
     let _graceful = episode::GracefulStop::begin();
-    let search_line = std::env::args().skip(1).collect::<Vec<_>>().join(" ");
+    // The command line as a shell takes it back (quoted where needed).
+    let search_line = std::iter::once("mjsafe".to_string())
+        .chain(std::env::args().skip(1).map(|a| shell_quoted(&a)))
+        .collect::<Vec<_>>()
+        .join(" ");
     let started = Instant::now();
     let report = falsify::falsify(problem, out, &search_line, compare_random, |s| {
         let best = s.best().map_or("none yet".to_string(), |e| format!("{:.4}", e.score));
@@ -1626,7 +1641,28 @@ fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCo
 
 #[cfg(test)]
 mod tests {
-    use super::shorten_numbers;
+    use super::{shell_quoted, shorten_numbers};
+
+    #[test]
+    fn arguments_are_quoted_as_a_shell_reads_them_back() {
+        assert_eq!(shell_quoted("--range"), "--range");
+        assert_eq!(shell_quoted("obstacles.0.centre.1=-3..3"), "obstacles.0.centre.1=-3..3");
+        assert_eq!(
+            shell_quoted("filter={kind='gamma_m', m=40.0}"),
+            "'filter={kind='\\''gamma_m'\\'', m=40.0}'"
+        );
+        assert_eq!(shell_quoted(""), "''");
+        // A shell gives back the argument.
+        let quoted = shell_quoted("filter={kind='gamma_m', m=40.0} $HOME");
+        let o = std::process::Command::new("sh")
+            .args(["-c", &format!("printf %s {quoted}")])
+            .output()
+            .unwrap();
+        assert_eq!(
+            String::from_utf8(o.stdout).unwrap(),
+            "filter={kind='gamma_m', m=40.0} $HOME"
+        );
+    }
 
     #[test]
     fn long_numbers_mjsafe_formatted_are_shortened_and_the_users_text_is_not() {

@@ -237,7 +237,7 @@ impl Evaluator<'_> {
         let metrics = row.metrics.ok_or("the run gave no metrics")?;
         objective_value(&metrics, &self.problem.objective).ok_or_else(|| {
             format!(
-                "the run has no {} (see `mjsafe analyze --json` of its log)",
+                "the run has no {} (a candidate is analysed without a log: `mjsafe run` the scenario with its overrides and `mjsafe analyze --json` that log to see its metrics)",
                 self.problem.objective
             )
         })
@@ -494,9 +494,9 @@ pub fn counterexample_text(
     let body = toml::to_string(&scenario).map_err(|e| FalsifyError::Output(e.to_string()))?;
     let mut text = String::new();
     text.push_str(&format!(
-        "# Counterexample found by `mjsafe falsify` ({}, evaluation {} of the search): {} = {}{}\n",
+        "# Counterexample found by `mjsafe falsify` ({}, index {} in evaluations.csv): {} = {}{}\n",
         "CMA-ES",
-        evaluation.index + 1,
+        evaluation.index,
         problem.objective,
         evaluation.objective.map_or("absent".into(), |v| format!("{v}")),
         evaluation

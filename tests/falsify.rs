@@ -55,6 +55,15 @@ fn finds_a_violation_of_gamma_m_and_the_written_scenario_reproduces_it() {
     let scenario = out.join("counterexample.toml");
     let text = std::fs::read_to_string(&scenario).unwrap();
     assert!(text.starts_with("# Counterexample found by `mjsafe falsify`"), "{text}");
+    // It names its row of evaluations.csv by the row's index, and the search as a shell takes it.
+    assert!(
+        text.contains(&format!("index {} in evaluations.csv", first - 1)),
+        "{text}"
+    );
+    assert!(
+        text.contains("# search: mjsafe falsify scenarios/bicycle_obstacle_gamma_m.toml --range"),
+        "{text}"
+    );
     let log = dir.path().join("again.mcap");
     let summary = run_ok(&scenario, &log, &[]);
     assert!(summary.contains("COLLISION"), "{summary}");
