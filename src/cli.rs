@@ -1532,6 +1532,12 @@ fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], o
                 for topic in exported.empty.iter().filter(|_| explicit) {
                     eprintln!("note: {}: no messages on {topic}, no table written", file.display());
                 }
+                if !exported.complete {
+                    eprintln!(
+                        "note: {}: the run did not complete (interrupted, stopped on an error, or its log still being written): its tables end where its log does",
+                        file.display()
+                    );
+                }
                 for path in &exported.removed {
                     eprintln!(
                         "note: removed {}: an earlier export's table of a topic {} has no messages on",

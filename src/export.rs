@@ -132,7 +132,10 @@ pub fn parse_topics(list: &[String]) -> Result<Vec<Topic>, ExportError> {
 /// The file a topic of `log` is exported to in `dir`: `<log stem>-<topic>.<ext>` with the
 /// topic's slashes as underscores (`run-state.csv`, `run-command_issued.parquet`).
 pub fn table_path(log: &Path, dir: &Path, topic: Topic, format: Format) -> PathBuf {
-    let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run");
+    // A log still being written (`run.mcap.partial`) has the tables of `run.mcap`.
+    let name = log.file_name().and_then(|s| s.to_str()).unwrap_or("run");
+    let name = name.strip_suffix(".partial").unwrap_or(name);
+    let stem = Path::new(name).file_stem().and_then(|s| s.to_str()).unwrap_or("run");
     let slug = topic.name().trim_start_matches('/').replace('/', "_");
     dir.join(format!("{stem}-{slug}.{}", format.extension()))
 }
@@ -146,6 +149,9 @@ pub struct Exported {
     pub empty: Vec<Topic>,
     /// Tables of those topics an earlier export had written under this log's name, removed.
     pub removed: Vec<PathBuf>,
+    /// The log says its run completed (`mjsafe_status`): else the tables end where the run
+    /// stopped (an interruption, an error, a log still being written).
+    pub complete: bool,
 }
 
 /// Exports `topics` of `log` into `dir` (default: the log's directory). Nothing is renamed to
@@ -173,6 +179,7 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
         state_names: None,
         failure: None,
         cells: Vec::new(),
+        complete: false,
     };
     let result = read_run_file(log, &mut export);
     if let Some(failure) = export.failure.take() {
@@ -209,6 +216,7 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
         tables: written,
         empty,
         removed,
+        complete: export.complete,
     })
 }
 
@@ -242,6 +250,8 @@ struct Export<'a> {
     /// A write error, carried out of the reader.
     failure: Option<ExportError>,
     cells: Vec<Cell>,
+    /// `mjsafe_status` says the run completed.
+    complete: bool,
 }
 
 impl Export<'_> {
@@ -287,7 +297,10 @@ fn col(name: impl Into<String>, kind: Kind) -> (String, Kind) {
 }
 
 impl RunVisitor for Export<'_> {
-    fn metadata(&mut self, _: &str, _: &BTreeMap<String, String>) -> Result<(), ReadError> {
+    fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
+        if name == crate::log::read::STATUS_METADATA {
+            self.complete = entries.get("complete").is_some_and(|c| c == "true");
+        }
         Ok(())
     }
 

@@ -416,3 +416,30 @@ fn the_tables_of_one_name_are_one_logs() {
     let state = std::fs::read_to_string(out.join("run-state.csv")).unwrap();
     assert_eq!(state.lines().count(), 1 + 501, "the second run's 1 s of states");
 }
+
+/// A run that did not complete exports what its log holds, with a note saying so; a log still
+/// being written (`NAME.mcap.partial`) has the tables of `NAME.mcap`.
+#[test]
+fn incomplete_runs_and_partial_logs_are_named_as_such() {
+    let dir = tempfile::tempdir().unwrap();
+    let blowup = write(dir.path(), "blowup.toml", &blowup_scenario());
+    let log = dir.path().join("blowup.mcap");
+    let o = mjsafe(&["run", blowup.to_str().unwrap(), "--out", log.to_str().unwrap()]);
+    assert!(!o.status.success() && log.exists(), "{}", text(&o));
+    let o = mjsafe(&["export", log.to_str().unwrap(), "--topics", "/state"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("the run did not complete"), "{}", stderr(&o));
+
+    let complete = dir.path().join("run.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle.toml"),
+        &complete,
+        &["--set", "duration=0.5"],
+    );
+    let partial = dir.path().join("copy.mcap.partial");
+    std::fs::copy(&complete, &partial).unwrap();
+    let o = mjsafe(&["export", partial.to_str().unwrap(), "--topics", "/state"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("did not complete"), "{}", stderr(&o));
+    assert!(dir.path().join("copy-state.csv").exists(), "{:?}", listing(dir.path()));
+}

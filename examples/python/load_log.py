@@ -35,9 +35,11 @@ def read_table(path):
     if path.endswith(".parquet"):
         frame = pd.read_parquet(path)
     else:
-        # round_trip: the exact doubles the log holds (the export writes them round-trippable).
-        frame = pd.read_csv(path, float_precision="round_trip", keep_default_na=False,
-                            na_values=["NaN"])
+        # The exact doubles the log holds (the export writes them round-trippable): pandas 3
+        # parses them exactly by default and deprecates `float_precision`; older pandas needs
+        # "round_trip".
+        exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+        frame = pd.read_csv(path, keep_default_na=False, na_values=["NaN"], **exact)
     return frame.set_index("time")
 
 
