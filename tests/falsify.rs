@@ -28,6 +28,32 @@ fn falsify(scenario: &str, extra: &[&str], out: &Path) -> std::process::Output {
     mjsafe(&args)
 }
 
+/// `mjsafe falsify` of the γm bicycle over [`GAMMA_M_BOX`] with `extra`, into `out`, running.
+fn spawn_gamma_m_search(extra: &[&str], out: &Path) -> std::process::Child {
+    use std::process::Stdio;
+    std::process::Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(["falsify", "scenarios/bicycle_obstacle_gamma_m.toml"])
+        .args(GAMMA_M_BOX)
+        .args(extra)
+        .arg("--out")
+        .arg(out)
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Ctrl-C to `child`, and what it printed until it ended.
+fn interrupt(child: std::process::Child) -> std::process::Output {
+    let kill = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    child.wait_with_output().unwrap()
+}
+
 fn evaluations(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("evaluations.json")).unwrap()).unwrap()
 }
@@ -245,32 +271,12 @@ fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
 
 #[test]
 fn ctrl_c_keeps_what_the_search_found() {
-    use std::process::{Command, Stdio};
-    use std::time::Duration;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("f");
-    let mut args: Vec<String> = ["falsify", "scenarios/bicycle_obstacle_gamma_m.toml"]
-        .iter()
-        .chain(GAMMA_M_BOX.iter())
-        .map(|s| s.to_string())
-        .collect();
-    args.extend(["--worst", "--budget", "100000", "--threads", "1", "--out"].map(String::from));
-    args.push(out.display().to_string());
-    let child = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
-        .args(&args)
-        .current_dir(root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_gamma_m_search(&["--worst", "--budget", "100000", "--threads", "1"], &out);
     // Until the first generation is written to stderr… then interrupt.
-    std::thread::sleep(Duration::from_millis(2500));
-    assert!(Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap()
-        .success());
-    let o = child.wait_with_output().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    let o = interrupt(child);
     assert_eq!(o.status.code(), Some(130), "{}", text(&o));
     assert!(stderr(&o).contains("interrupted"), "{}", stderr(&o));
     let e = evaluations(&out);
@@ -360,25 +366,11 @@ fn failed_candidates_score_worse_than_any_real_one() {
 /// counterexample not reported as reproduced (its log is incomplete).
 #[test]
 fn ctrl_c_during_the_counterexample_run_is_not_a_reproduction() {
-    use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("f");
-    let mut args: Vec<String> = ["falsify", "scenarios/bicycle_obstacle_gamma_m.toml"]
-        .iter()
-        .chain(GAMMA_M_BOX.iter())
-        .map(|s| s.to_string())
-        .collect();
     // A long counterexample run (the search's own runs are analysed in memory and leave no file).
-    args.extend(["--set", "duration=600.0", "--budget", "8", "--threads", "2", "--out"].map(String::from));
-    args.push(out.display().to_string());
-    let child = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
-        .args(&args)
-        .current_dir(root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_gamma_m_search(&["--set", "duration=600.0", "--budget", "8", "--threads", "2"], &out);
     // Until the counterexample's log is being written… then interrupt.
     let partial = out.join("counterexample.mcap.partial");
     let started = Instant::now();
@@ -389,12 +381,7 @@ fn ctrl_c_during_the_counterexample_run_is_not_a_reproduction() {
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    assert!(Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap()
-        .success());
-    let o = child.wait_with_output().unwrap();
+    let o = interrupt(child);
     assert_eq!(o.status.code(), Some(130), "{}", text(&o));
     assert!(stdout(&o).contains("its run was interrupted"), "{}", stdout(&o));
     assert!(!stdout(&o).contains("its run: "), "{}", stdout(&o));
