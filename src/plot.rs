@@ -152,7 +152,14 @@ fn bounds(points: impl Iterator<Item = (f64, f64)> + Clone) -> ((f64, f64), (f64
         if !lo.is_finite() {
             return (0.0, 1.0);
         }
-        let span = (hi - lo).max(1e-9);
+        // A single value (one point, a constant series) gets a range around it: ±10 % of its
+        // size, or ±1 around 0, so its ticks differ and it sits inside the frame.
+        let span = if hi - lo > 1e-12 * lo.abs().max(hi.abs()) {
+            hi - lo
+        } else {
+            let half = if lo == 0.0 { 1.0 } else { 0.1 * lo.abs() };
+            return (lo - half, hi + half);
+        };
         (lo - 0.05 * span, hi + 0.05 * span)
     };
     (pad(fold(|p| p.0)), pad(fold(|p| p.1)))
@@ -659,6 +666,33 @@ fn metric_unit(metric: &str) -> Option<&'static str> {
     }
 }
 
+/// The corner of the plot area (x and y ranges) with the fewest points within a third of the
+/// width and height of it: where the legend hides the least.
+fn emptiest_corner(
+    points: impl Iterator<Item = (f64, f64)>,
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+) -> SeriesLabelPosition {
+    // Lower left, lower right, upper left, upper right.
+    let mut counts = [0usize; 4];
+    for (x, y) in points {
+        let (u, v) = ((x - x0) / (x1 - x0), (y - y0) / (y1 - y0));
+        let (left, right, low, high) = (u < 0.4, u > 0.6, v < 0.4, v > 0.6);
+        counts[0] += usize::from(left && low);
+        counts[1] += usize::from(right && low);
+        counts[2] += usize::from(left && high);
+        counts[3] += usize::from(right && high);
+    }
+    let corners = [
+        SeriesLabelPosition::LowerLeft,
+        SeriesLabelPosition::LowerRight,
+        SeriesLabelPosition::UpperLeft,
+        SeriesLabelPosition::UpperRight,
+    ];
+    let best = (0..4).min_by_key(|&i| counts[i]).unwrap_or(0);
+    corners[best].clone()
+}
+
 /// (x, y, collided) of one line of a sweep plot.
 type SweepLine = Vec<(f64, f64, bool)>;
 
@@ -769,6 +803,7 @@ pub fn plot_sweep(
     } else {
         key.to_string()
     };
+    let legend_corner = emptiest_corner(groups.values().flatten().map(|p| (p.0, p.1)), (x0, x1), (y0, y1));
     let y_desc = match metric_unit(metric) {
         Some(unit) => format!("{metric}  [{unit}]"),
         None => metric.to_string(),
@@ -817,7 +852,7 @@ pub fn plot_sweep(
             .legend(|(x, y)| Cross::new((x + 9, y), 6, RED.stroke_width(3)));
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerLeft)
+            .position(legend_corner)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
@@ -830,6 +865,18 @@ pub fn plot_sweep(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_legend_goes_where_the_points_are_not() {
+        use plotters::chart::SeriesLabelPosition as P;
+        // A line from the upper left to the lower right leaves the other two corners free.
+        let falling = (0..=10).map(|i| (f64::from(i), 10.0 - f64::from(i)));
+        let corner = super::emptiest_corner(falling, (0.0, 10.0), (0.0, 10.0));
+        assert!(matches!(corner, P::LowerLeft | P::UpperRight), "{corner:?}");
+        let rising = (0..=10).map(|i| (f64::from(i), f64::from(i)));
+        let corner = super::emptiest_corner(rising, (0.0, 10.0), (0.0, 10.0));
+        assert!(matches!(corner, P::LowerRight | P::UpperLeft), "{corner:?}");
+    }
+
     #[test]
     fn two_gains_of_one_filter_are_two_lines_named_by_their_values() {
         use crate::analyze::FlatMetrics;
