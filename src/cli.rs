@@ -494,63 +494,10 @@ pub fn run() -> ExitCode {
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", shorten_numbers(&format!("{e:#}")));
+            eprintln!("error: {}", crate::message::shorten_numbers(&format!("{e:#}")));
             ExitCode::from(exit::ERROR)
         }
     }
-}
-
-/// `text` with every number of more than 15 characters that mjsafe formatted (e.g. a 1e300
-/// printed in full) written in scientific notation. What the user wrote is quoted verbatim:
-/// digits that are part of a word or a path (`run-12345678901234567.mcap`), a value right
-/// after `=` (an echoed `--set KEY=VALUE`), and a whole number between backticks (an integer
-/// literal as typed; a float between backticks is the parser's rendering of it and is
-/// shortened).
-pub fn shorten_numbers(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    let mut quoted = false;
-    // The last character written.
-    let mut previous: Option<char> = None;
-    let mut rest = text;
-    while let Some(c) = rest.chars().next() {
-        if !c.is_ascii_digit() {
-            quoted ^= c == '`';
-            out.push(c);
-            previous = Some(c);
-            rest = &rest[c.len_utf8()..];
-            continue;
-        }
-        let mut len = rest
-            .char_indices()
-            .find(|&(i, c)| {
-                !(c.is_ascii_digit() || (c == '.' && rest[i + 1..].starts_with(|d: char| d.is_ascii_digit())))
-            })
-            .map_or(rest.len(), |(i, _)| i);
-        // An exponent (`e300`, `e-16`) belongs to the number.
-        let exponent = rest[len..]
-            .strip_prefix(['e', 'E'])
-            .map(|e| e.strip_prefix(['-', '+']).unwrap_or(e));
-        if let Some(digits) = exponent.filter(|e| e.starts_with(|d: char| d.is_ascii_digit())) {
-            let exponent_digits = digits.find(|d: char| !d.is_ascii_digit()).unwrap_or(digits.len());
-            len = rest.len() - digits.len() + exponent_digits;
-        }
-        let (number, after) = rest.split_at(len);
-        let mut next = after.chars();
-        let in_word = previous.is_some_and(|c| c.is_alphanumeric() || matches!(c, '/' | '_' | '.' | '\\'))
-            || match next.next() {
-                None => false,
-                Some('.') => next.next().is_some_and(char::is_alphanumeric),
-                Some(c) => c.is_alphanumeric() || matches!(c, '/' | '_'),
-            };
-        let as_typed = in_word || previous == Some('=') || (quoted && !number.contains('.'));
-        match number.parse::<f64>() {
-            Ok(x) if number.len() > 15 && !as_typed => out.push_str(&format!("{x:.6e}")),
-            _ => out.push_str(number),
-        }
-        previous = number.chars().last();
-        rest = after;
-    }
-    out
 }
 
 fn dispatch(command: Command) -> Result<ExitCode> {
@@ -691,7 +638,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 .map(|r| sweep::parse_range(r))
                 .collect::<Result<Vec<_>, _>>()?;
             let mut keys = std::collections::BTreeSet::new();
-            if let Some(twice) = ranges.iter().find(|r| !keys.insert(r.key.as_str())) {
+            if let Some(twice) = ranges.iter().find(|r| !keys.insert(scenario::canonical_key(&r.key))) {
                 bail!(
                     "--range {}: the key is given twice (each key takes one --range)",
                     twice.key
@@ -1188,14 +1135,29 @@ fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Resu
     Ok(ExitCode::SUCCESS)
 }
 
-/// `arg` as a POSIX shell reads it back: as is when it holds only safe characters, else in
-/// single quotes (a quote inside written `'\''`).
+/// `arg` as a shell reads it back, on one line: as is when it holds only safe characters, in
+/// single quotes (a quote inside written `'\''`) when it holds no control character, else
+/// ANSI-C quoted (`$'…\n…'`: bash, zsh).
 fn shell_quoted(arg: &str) -> String {
     let safe = |c: char| c.is_ascii_alphanumeric() || "_-./=:,+@%".contains(c);
     if !arg.is_empty() && arg.chars().all(safe) {
         arg.to_string()
-    } else {
+    } else if !arg.chars().any(char::is_control) {
         format!("'{}'", arg.replace('\'', "'\\''"))
+    } else {
+        // On one line: ANSI-C quoting (bash, zsh) spells the control characters out.
+        let escaped: String = arg
+            .chars()
+            .map(|c| match c {
+                '\\' => "\\\\".to_string(),
+                '\'' => "\\'".to_string(),
+                '\n' => "\\n".to_string(),
+                '\t' => "\\t".to_string(),
+                c if c.is_control() => format!("\\x{:02x}", u32::from(c)),
+                c => c.to_string(),
+            })
+            .collect();
+        format!("$'{escaped}'")
     }
 }
 
@@ -1506,7 +1468,7 @@ fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], o
             || file.parent().unwrap_or(Path::new("")).to_path_buf(),
             Path::to_path_buf,
         );
-        let stem = file.file_stem().map(PathBuf::from).unwrap_or_default();
+        let stem = PathBuf::from(crate::export::table_stem(file));
         if let Some(other) = targets.insert(dir.join(&stem), file) {
             bail!(
                 "{} and {}: both would write {}-*.{} in {}; export them into different --out directories",
@@ -1534,14 +1496,7 @@ fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], o
                 }
                 if !exported.complete {
                     eprintln!(
-                        "note: {}: the run did not complete (interrupted, stopped on an error, or its log still being written): its tables end where its log does",
-                        file.display()
-                    );
-                }
-                for path in &exported.removed {
-                    eprintln!(
-                        "note: removed {}: an earlier export's table of a topic {} has no messages on",
-                        path.display(),
+                        "note: {}: the run did not complete (interrupted or stopped on an error): its tables end where its log does",
                         file.display()
                     );
                 }
@@ -1647,7 +1602,7 @@ fn info(file: &Path, resolved: bool, json: bool, recover: bool) -> Result<ExitCo
 
 #[cfg(test)]
 mod tests {
-    use super::{shell_quoted, shorten_numbers};
+    use super::shell_quoted;
 
     #[test]
     fn arguments_are_quoted_as_a_shell_reads_them_back() {
@@ -1668,35 +1623,14 @@ mod tests {
             String::from_utf8(o.stdout).unwrap(),
             "filter={kind='gamma_m', m=40.0} $HOME"
         );
-    }
-
-    #[test]
-    fn long_numbers_mjsafe_formatted_are_shortened_and_the_users_text_is_not() {
-        let huge = format!("{}", 1e300);
-        let tiny = format!("{}", -1e-300);
-        // Numbers mjsafe formatted: shortened, exponent included.
-        assert_eq!(
-            shorten_numbers(&format!("found {huge}, clearance {tiny} m")),
-            "found 1.000000e300, clearance -1.000000e-300 m"
-        );
-        assert_eq!(
-            shorten_numbers("gains [1.9999999999999998e300, 2.220446049250313e-16]"),
-            "gains [2.000000e300, 2.220446e-16]"
-        );
-        assert_eq!(shorten_numbers(&format!("l0 = {huge}")), "l0 = 1.000000e300");
-        assert_eq!(
-            shorten_numbers(&format!("floating point `{huge}.0`")),
-            "floating point `1.000000e300`"
-        );
-        // What the user wrote: paths, an echoed --set value, an integer literal in backticks.
-        for verbatim in [
-            "/tmp/run-12345678901234567.mcap: cannot read log",
-            "/tmp/12345678901234567/s.toml: key `duration`",
-            "s12345678901234567.toml",
-            "--set seed=18446744073709551615: `18446744073709551615` is not a TOML value",
-            "found 12, 3.5 and 1e300",
-        ] {
-            assert_eq!(shorten_numbers(verbatim), verbatim);
-        }
+        // A newline stays on the line (the counterexample's `# search:` comment).
+        let multiline = "description=\"\"\"a\nb's\\\"\"\"";
+        let quoted = shell_quoted(multiline);
+        assert!(!quoted.contains('\n'), "{quoted}");
+        let o = std::process::Command::new("bash")
+            .args(["-c", &format!("printf %s {quoted}")])
+            .output()
+            .unwrap();
+        assert_eq!(String::from_utf8(o.stdout).unwrap(), multiline);
     }
 }

@@ -132,12 +132,21 @@ pub fn parse_topics(list: &[String]) -> Result<Vec<Topic>, ExportError> {
 /// The file a topic of `log` is exported to in `dir`: `<log stem>-<topic>.<ext>` with the
 /// topic's slashes as underscores (`run-state.csv`, `run-command_issued.parquet`).
 pub fn table_path(log: &Path, dir: &Path, topic: Topic, format: Format) -> PathBuf {
-    // A log still being written (`run.mcap.partial`) has the tables of `run.mcap`.
-    let name = log.file_name().and_then(|s| s.to_str()).unwrap_or("run");
-    let name = name.strip_suffix(".partial").unwrap_or(name);
-    let stem = Path::new(name).file_stem().and_then(|s| s.to_str()).unwrap_or("run");
+    let stem = table_stem(log);
     let slug = topic.name().trim_start_matches('/').replace('/', "_");
     dir.join(format!("{stem}-{slug}.{}", format.extension()))
+}
+
+/// The name a log's tables start with: its file name without `.mcap` (a `run.mcap.partial`,
+/// a copy of a log not yet renamed, has the tables of `run.mcap`).
+pub fn table_stem(log: &Path) -> String {
+    let name = log.file_name().and_then(|s| s.to_str()).unwrap_or("run");
+    let name = name.strip_suffix(".partial").unwrap_or(name);
+    Path::new(name)
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("run")
+        .to_string()
 }
 
 /// What one log's export wrote.
@@ -147,8 +156,6 @@ pub struct Exported {
     pub tables: Vec<(Topic, PathBuf, u64)>,
     /// Topics asked for that the log has no message on (no file written).
     pub empty: Vec<Topic>,
-    /// Tables of those topics an earlier export had written under this log's name, removed.
-    pub removed: Vec<PathBuf>,
     /// The log says its run completed (`mjsafe_status`): else the tables end where the run
     /// stopped (an interruption, an error, a log still being written).
     pub complete: bool,
@@ -186,36 +193,34 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
         return Err(failure);
     }
     result?;
+    // A table of a topic this log has no message on, left by an earlier export under the same
+    // name (another log of that name), would pass for this log's: refused before any table is
+    // renamed into place (the new tables' `.partial` files are removed).
+    let empty: Vec<Topic> = topics
+        .iter()
+        .copied()
+        .filter(|t| !export.tables.contains_key(t))
+        .collect();
+    for &topic in &empty {
+        let path = table_path(log, &dir, topic, format);
+        if std::fs::symlink_metadata(&path).is_ok() {
+            return Err(ExportError::Write {
+                file: path.display().to_string(),
+                message: format!(
+                    "{} has no {topic} messages, and a file under the name of that table (an earlier export of another log of this name?) would pass for it; remove it or export into another directory",
+                    log.display()
+                ),
+            });
+        }
+    }
     let mut written = Vec::new();
     for (topic, table) in std::mem::take(&mut export.tables) {
         let rows = table.rows;
         written.push((topic, table.finish()?, rows));
     }
-    let empty: Vec<Topic> = topics
-        .iter()
-        .copied()
-        .filter(|t| !written.iter().any(|(w, _, _)| w == t))
-        .collect();
-    // A table of a topic this log has no message on, left by an earlier export under the same
-    // name (another log of that name), is not this log's: removed, so the tables of one stem
-    // are one log's. Only files that are tables of this format are touched.
-    let mut removed = Vec::new();
-    for &topic in &empty {
-        let path = table_path(log, &dir, topic, format);
-        let ours = std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
-            && crate::files::starts_with(&path, format.magic());
-        if ours {
-            std::fs::remove_file(&path).map_err(|e| ExportError::Write {
-                file: path.display().to_string(),
-                message: format!("cannot remove the earlier table of a topic this log does not have: {e}"),
-            })?;
-            removed.push(path);
-        }
-    }
     Ok(Exported {
         tables: written,
         empty,
-        removed,
         complete: export.complete,
     })
 }

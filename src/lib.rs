@@ -18,6 +18,7 @@ pub mod falsify;
 pub mod files;
 pub mod filter;
 pub mod log;
+pub mod message;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod nominal;

@@ -464,6 +464,20 @@ pub fn plain_serde_message(message: &str) -> String {
     out
 }
 
+/// The field a dotted override key names, spelled one way: array indices as numbers
+/// (`obstacles.00.radius` and `obstacles.+0.radius` are `obstacles.0.radius`, as an override
+/// applies them), so two spellings of one field are seen to be one.
+pub fn canonical_key(key: &str) -> String {
+    key.trim()
+        .split('.')
+        .map(|segment| match segment.parse::<usize>() {
+            Ok(index) => index.to_string(),
+            Err(_) => segment.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join(".")
+}
+
 /// Checks the form of one `a.b.c=VALUE` override (a dotted key, `=`, a TOML value) without a
 /// scenario to apply it to: what `--set` rejects whatever the scenario.
 pub fn check_override(spec: &str) -> Result<(), ScenarioError> {

@@ -411,7 +411,7 @@ impl SweepSpec {
 
         let mut keys = BTreeSet::new();
         for key in grids.iter().map(|g| &g.key).chain(ranges.iter().map(|r| &r.key)) {
-            if !keys.insert(key.clone()) {
+            if !keys.insert(scenario::canonical_key(key)) {
                 return Err(SweepError::Spec(format!(
                     "`{key}` is swept twice (each key takes one --grid or one --range)"
                 )));
@@ -628,6 +628,8 @@ fn settle(mut row: Row, error: Option<String>, incomplete: &str) -> Row {
                 .filter(|m| !m.complete)
                 .map(|_| incomplete.to_string())
         });
+    // Kept in summaries and shown in tables: in the one-line form people read.
+    row.error = row.error.map(|e| crate::message::shorten_numbers(&e));
     row
 }
 

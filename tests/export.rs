@@ -379,8 +379,8 @@ fn export_memory_does_not_grow_with_log_length() {
 }
 
 /// The tables of one name are one log's: two logs of one stem into one directory are refused
-/// before anything is written, and re-exporting under a name whose earlier log had a topic this
-/// one lacks removes that table (a CSV of another run's predictions beside this run's tables).
+/// before anything is written, and so is an export beside a table of a topic the log lacks (a
+/// CSV of another run's predictions would pass for this run's).
 #[test]
 fn the_tables_of_one_name_are_one_logs() {
     let dir = tempfile::tempdir().unwrap();
@@ -406,15 +406,39 @@ fn the_tables_of_one_name_are_one_logs() {
     assert!(stderr(&o).contains("both would write run-*.csv"), "{}", stderr(&o));
     assert!(!out.exists(), "nothing written");
 
-    // The γm run's tables, then the other run's under the same name.
-    for log in [&with_predictions, &without] {
-        let o = mjsafe(&["export", log.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-        assert!(o.status.success(), "{}", stderr(&o));
-    }
-    let tables = listing(&out);
-    assert!(!tables.contains(&"run-prediction.csv".to_string()), "{tables:?}");
-    let state = std::fs::read_to_string(out.join("run-state.csv")).unwrap();
-    assert_eq!(state.lines().count(), 1 + 501, "the second run's 1 s of states");
+    // The γm run's tables, then the other run's under the same name: its export is refused
+    // (the γm run's prediction table would pass for its own), and nothing of it is written.
+    let export = |log: &Path| mjsafe(&["export", log.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(export(&with_predictions).status.success());
+    let before = std::fs::read(out.join("run-state.csv")).unwrap();
+    let o = export(&without);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(
+        stderr(&o).contains("run-prediction.csv") && stderr(&o).contains("has no /prediction messages"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read(out.join("run-state.csv")).unwrap(),
+        before,
+        "the earlier tables are kept"
+    );
+    assert!(
+        listing(&out).iter().all(|f| !f.contains("partial")),
+        "{:?}",
+        listing(&out)
+    );
+    // A log not yet renamed (`run.mcap.partial`) has the tables of `run.mcap`: the same names.
+    let partial = dir.path().join("run.mcap.partial");
+    std::fs::copy(&without, &partial).unwrap();
+    let o = mjsafe(&[
+        "export",
+        without.to_str().unwrap(),
+        partial.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("both would write run-*.csv"), "{}", stderr(&o));
 }
 
 /// A run that did not complete exports what its log holds, with a note saying so; a log still

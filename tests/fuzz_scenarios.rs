@@ -162,7 +162,7 @@ struct Counts {
 
 /// What a user would see: one error line (as the binary prints it).
 fn check_message(case: &str, message: &str, file: &str, text: &str) {
-    let shown = mjsafe::cli::shorten_numbers(message);
+    let shown = mjsafe::message::shorten_numbers(message);
     assert!(!shown.contains('\n'), "{case}: error of more than one line: {shown}");
     assert!(
         shown.contains(file),
@@ -178,8 +178,8 @@ fn check_message(case: &str, message: &str, file: &str, text: &str) {
     assert!(
         !shown
             .split(|c: char| !c.is_ascii_digit())
-            .any(|digits| digits.len() > 15 && !text.contains(digits)),
-        "{case}: a number of more than 15 digits the scenario does not hold: {shown}"
+            .any(|digits| digits.len() > mjsafe::message::LONGEST_NUMBER && !text.contains(digits)),
+        "{case}: a long number the scenario does not hold: {shown}"
     );
 }
 
@@ -351,14 +351,14 @@ fn mutated_sweep_files_never_panic_hang_or_give_unclear_errors() {
                     for &i in indices.iter().take(2).chain(indices.last()) {
                         let run = spec.run(i);
                         if let Err(e) = mjsafe::scenario::load(Path::new(&spec.scenario), &run.overrides) {
-                            let message = mjsafe::cli::shorten_numbers(&e.to_string());
+                            let message = mjsafe::message::shorten_numbers(&e.to_string());
                             assert!(!message.contains('\n'), "{what}: {message}");
                         }
                     }
                     true
                 }
                 Err(e) => {
-                    let message = mjsafe::cli::shorten_numbers(&e.to_string());
+                    let message = mjsafe::message::shorten_numbers(&e.to_string());
                     assert!(
                         !message.contains('\n'),
                         "{what}: error of more than one line: {message}"

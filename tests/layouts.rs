@@ -226,6 +226,7 @@ fn messages_out_of_log_time_order_read_as_the_original() {
             .unwrap();
         assert!(!o.status.success(), "{}", stdout(&o));
         assert!(stderr(&o).contains("not in log-time order"), "{}", stderr(&o));
+        assert!(stderr(&o).contains("a stream is read once"), "{}", stderr(&o));
     }
 }
 

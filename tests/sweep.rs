@@ -453,6 +453,31 @@ fn failing_runs_are_rows_with_their_error() {
     assert_eq!(csv.lines().count(), 4, "{csv}");
 }
 
+/// A row's error is in the one-line form people read: a 1e300 mjsafe printed in full (301
+/// digits) is shortened in the table and both summary files.
+#[test]
+fn row_errors_are_shortened_as_the_error_line_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("huge");
+    let o = mjsafe(&[
+        "sweep",
+        SCENARIO,
+        "--grid",
+        "filter.l0=1e300",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stdout(&o).contains("1.000000e300"), "{}", stdout(&o));
+    for file in ["summary.csv", "summary.json"] {
+        let text = String::from_utf8(read(&out.join(file))).unwrap();
+        assert!(
+            text.contains("1.000000e300") && !text.contains("0000000000000000000000"),
+            "{file}: {text}"
+        );
+    }
+}
+
 #[test]
 fn sweep_file_expands_grids_in_order() {
     let dir = tempfile::tempdir().unwrap();
@@ -490,7 +515,7 @@ fn sweep_file_expands_grids_in_order() {
 fn bad_sweep_arguments_name_the_argument() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("never");
-    let cases: [(&[&str], &str); 9] = [
+    let cases: [(&[&str], &str); 10] = [
         (
             &["--grid", "delays.steering=0.1,[0.2"],
             "--grid delays.steering=0.1,[0.2: missing closing `]`",
@@ -524,6 +549,16 @@ fn bad_sweep_arguments_name_the_argument() {
         (
             &["--grid", "delays.steering=0.1,0.2", "--set", "bogus=1"],
             "every run would fail: ",
+        ),
+        // Two spellings of one field (an index is a number): swept twice.
+        (
+            &[
+                "--grid",
+                "obstacles.0.radius=1.0,2.0",
+                "--grid",
+                "obstacles.00.radius=3.0",
+            ],
+            "`obstacles.00.radius` is swept twice",
         ),
     ];
     for (extra, expected) in cases {

@@ -34,7 +34,7 @@ pub enum ReadError {
     #[error("{file}: an MCAP file, but not an mjsafe log ({message})")]
     Foreign { file: String, message: String },
     /// A message earlier in log time than one before it, where the reader cannot reorder them.
-    #[error("{file}: messages not in log-time order (one at t = {at} s after one at t = {after} s): {remedy}")]
+    #[error("{file}: messages not in log-time order (one at t = {at:.6} s after one at t = {after:.6} s): {remedy}")]
     Unordered {
         file: String,
         at: f64,
@@ -563,7 +563,8 @@ impl<'f> Pass<'f> {
 /// which cannot be read twice, is then an error (as for [`read_run_stream`]).
 pub fn read_run_file(path: &Path, visitor: &mut impl RunVisitor) -> RunResult {
     let file = path.display().to_string();
-    if std::fs::metadata(path).is_ok_and(|m| m.is_file()) && !in_log_time_order(path) {
+    let regular = std::fs::metadata(path).is_ok_and(|m| m.is_file());
+    if regular && !in_log_time_order(path) {
         // Handed on sorted by log time (ties in file order), as a reader in log-time order
         // gives them: the same run whatever the layout.
         let mut sorting = Sorting {
@@ -574,7 +575,13 @@ pub fn read_run_file(path: &Path, visitor: &mut impl RunVisitor) -> RunResult {
         let result = read_run_passes(path, &file, &mut sorting, None);
         return sorting.finish(result, &file);
     }
-    read_run_passes(path, &file, visitor, Some(INDEX_ORDER_REMEDY))
+    // A pipe or device is read once, as a stream.
+    let remedy = if regular {
+        INDEX_ORDER_REMEDY
+    } else {
+        STREAM_ORDER_REMEDY
+    };
+    read_run_passes(path, &file, visitor, Some(remedy))
 }
 
 /// The remedies of [`ReadError::Unordered`].
