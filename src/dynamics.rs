@@ -471,8 +471,11 @@ impl Dynamics for LinearModel {
     fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
         g.copy_from(&self.b);
     }
+    /// A system of two states moves in the plane of its state (Ch. 3's (3.34) avoids a disk in
+    /// (x1, x2)); with more, x2 is in general not a position (a chain of integrators: a
+    /// velocity), so it does not.
     fn planar_position(&self) -> Option<[usize; 2]> {
-        (self.a.nrows() >= 2).then_some([0, 1])
+        (self.a.nrows() == 2).then_some([0, 1])
     }
 }
 
@@ -555,6 +558,15 @@ impl Dynamics for StrictFeedbackModel {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn only_a_two_state_linear_system_moves_in_a_plane() {
+        let planar = |n: usize| LinearModel::new(DMatrix::zeros(n, n), DMatrix::zeros(n, 1)).planar_position();
+        assert_eq!(planar(2), Some([0, 1]));
+        assert_eq!(planar(1), None);
+        // A chain of three integrators: x2 is a velocity.
+        assert_eq!(planar(3), None);
+    }
     use super::*;
 
     #[test]
