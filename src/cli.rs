@@ -538,6 +538,31 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             recover,
         } => {
             if let Some(dir) = &plot {
+                // Plots are named by the log's file name: two logs of one name, or a log named
+                // like the overlays, would overwrite each other's plots.
+                let mut stems = std::collections::BTreeMap::new();
+                for file in &files {
+                    let stem = file
+                        .file_stem()
+                        .map(|s| s.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    if stem == "overlay" && files.len() > 1 {
+                        bail!(
+                            "{}: its plots would be named like the overlays (overlay-*.png); rename the log",
+                            file.display()
+                        );
+                    }
+                    // The same log twice draws the same plots (and is told apart in the legends).
+                    let other = stems.insert(stem.clone(), file);
+                    if let Some(other) = other.filter(|other| !crate::files::same_path(other, file)) {
+                        bail!(
+                            "{} and {}: both would write {stem}-*.png in {}; plot them into different --plot directories",
+                            other.display(),
+                            file.display(),
+                            dir.display()
+                        );
+                    }
+                }
                 // Each written plot on stderr; an error line for a plot that failed.
                 let report = |result: Result<Vec<std::path::PathBuf>, crate::plot::PlotError>| match result {
                     Ok(written) => {

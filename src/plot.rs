@@ -495,14 +495,21 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
     // Trajectories, obstacles and the barrier radius around them.
     if runs.iter().any(|r| !r.series.path.is_empty()) {
         let path = dir.join("overlay-trajectory.png");
-        let mut obstacles: BTreeMap<String, ((f64, f64), f64)> = BTreeMap::new();
-        for r in &runs {
-            obstacles.extend(r.series.obstacles.clone());
+        // Every run's obstacles with that run's hull (runs may move or resize an obstacle of
+        // one name, or drive vehicles of other hulls): each distinct ring drawn once.
+        let mut rings: Vec<((f64, f64), f64, f64)> = Vec::new();
+        for r in runs.iter().filter(|r| !r.series.path.is_empty()) {
+            let hull = r.series.hull_radius.unwrap_or(0.0);
+            for &(centre, radius) in r.series.obstacles.values() {
+                if !rings.contains(&(centre, radius, hull)) {
+                    rings.push((centre, radius, hull));
+                }
+            }
         }
-        let hull = runs.iter().find_map(|r| r.series.hull_radius).unwrap_or(0.0);
-        let extent = obstacles
-            .values()
-            .flat_map(|((x, y), r)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
+        let same_ring = rings.windows(2).all(|w| (w[0].1, w[0].2) == (w[1].1, w[1].2));
+        let extent = rings
+            .iter()
+            .flat_map(|&((x, y), r, hull)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
         let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
         let ((x0, x1), (y0, y1)) = bounds(points);
         let aspect = plot_aspect((1200, 600), 14, 44, 60, 24);
@@ -527,9 +534,9 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
                 .label_style(("sans-serif", 16))
                 .draw()?;
             let obstacle_color = RGBColor(120, 120, 120);
-            for (k, ((x, y), r)) in obstacles.values().enumerate() {
+            for (k, &((x, y), r, hull)) in rings.iter().enumerate() {
                 let drawn = chart.draw_series(std::iter::once(Polygon::new(
-                    circle((*x, *y), *r).collect::<Vec<_>>(),
+                    circle((x, y), r).collect::<Vec<_>>(),
                     obstacle_color.mix(0.35).filled(),
                 )))?;
                 if k == 0 {
@@ -539,22 +546,28 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
                 }
                 if hull > 0.0 {
                     let drawn = chart.draw_series(DashedLineSeries::new(
-                        circle((*x, *y), r + hull),
+                        circle((x, y), r + hull),
                         8,
                         6,
                         BLACK.stroke_width(2),
                     ))?;
                     if k == 0 {
-                        drawn
-                            .label(format!(
+                        let label = if same_ring {
+                            format!(
                                 "barrier radius r = obstacle {r:.2} m + hull {hull:.2} m = {:.2} m",
                                 r + hull
-                            ))
+                            )
+                        } else {
+                            "barrier radius r = obstacle + the run's hull radius".to_string()
+                        };
+                        drawn
+                            .label(label)
                             .legend(|(x, y)| PathElement::new([(x, y), (x + 8, y), (x + 12, y), (x + 18, y)], BLACK));
                     }
                 }
             }
-            for (i, run) in runs.iter().enumerate() {
+            // Runs that do not move in a plane have no path: not in this plot's legend.
+            for (i, run) in runs.iter().enumerate().filter(|(_, r)| !r.series.path.is_empty()) {
                 let style = color(i).stroke_width(3);
                 chart
                     .draw_series(LineSeries::new(run.series.path.iter().copied(), style))?

@@ -175,3 +175,41 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(nested.exists());
 }
+
+/// Plots are named by their log's file name: logs of one name, or a log named like the
+/// overlays, are refused before anything is drawn (they overwrote each other's plots).
+#[test]
+fn plots_of_logs_of_one_name_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    for d in [&a, &b] {
+        std::fs::create_dir_all(d).unwrap();
+        run_ok(
+            &scenario("scalar_tv_delay.toml"),
+            &d.join("run.mcap"),
+            &["--set", "duration=1.0"],
+        );
+    }
+    let plots = dir.path().join("plots");
+    let (first, second) = (a.join("run.mcap"), b.join("run.mcap"));
+    let o = mjsafe(&[
+        "analyze",
+        "--plot",
+        plots.to_str().unwrap(),
+        first.to_str().unwrap(),
+        second.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(stderr(&o).contains("both would write run-*.png"), "{}", stderr(&o));
+    assert!(!plots.exists(), "nothing drawn");
+    let overlay = dir.path().join("overlay.mcap");
+    std::fs::copy(&first, &overlay).unwrap();
+    let o = mjsafe(&[
+        "analyze",
+        "--plot",
+        plots.to_str().unwrap(),
+        overlay.to_str().unwrap(),
+        second.to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("named like the overlays"), "{}", stderr(&o));
+}
