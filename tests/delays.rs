@@ -185,3 +185,23 @@ fn delay_profiles_that_break_the_assumptions_are_rejected_before_the_run() {
         &["delays.u1", "longer than the 1 s of input history"],
     );
 }
+
+/// A prediction whose target time lies past the run's end has no realised state: none is
+/// logged (its "realised" state was the final state extrapolated past the run).
+#[test]
+fn no_prediction_is_realised_past_the_end_of_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["scalar_tv_delay", "unicycle_tv_delay"] {
+        let log = dir.path().join(format!("{name}.mcap"));
+        run_ok(&scenario(&format!("{name}.toml")), &log, &["--set", "duration=2.0"]);
+        let end = analyze_json(&log)["simulated_time"].as_f64().unwrap();
+        let predictions = read_topic::<proto::Prediction>(&log, "/prediction");
+        assert!(!predictions.is_empty(), "{name}");
+        let last = predictions.iter().map(|p| p.time).fold(f64::MIN, f64::max);
+        assert!(
+            last <= end + 1e-9,
+            "{name}: a prediction realised at {last} > the end {end}"
+        );
+        assert!(last > end - 0.01, "{name}: predictions up to the end ({last}, {end})");
+    }
+}

@@ -35,7 +35,7 @@ fn callback_allocations(file: &str, overrides: &[&str], steady_from: f64) -> (u6
         let time = k as f64 * h;
         episode.reveal_obstacles(time);
         let x = episode.plant.state();
-        for c in episode.control.realize(time, &x).unwrap() {
+        for c in episode.control.realize(time, &x, false).unwrap() {
             episode.control.recycle(c);
         }
         allocations(true);

@@ -536,14 +536,22 @@ impl ControlLoop {
     /// model invariant under planar motions, the predictor's own final partial step from t_k
     /// moved onto x(t_k), when it ran on this grid with these inputs).
     /// Hand them back with [`ControlLoop::recycle`] once logged.
-    pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>) -> Result<Vec<Consistency>, DelayError> {
+    ///
+    /// `last`: x_k is the run's final state, so only predictions of that time are realised (a
+    /// target later than the run's end has no realised state: not extrapolated past it).
+    pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>, last: bool) -> Result<Vec<Consistency>, DelayError> {
         let h = self.timestep;
+        let reach = if last {
+            h * TICK_TOLERANCE
+        } else {
+            h * (1.0 - TICK_TOLERANCE)
+        };
         let mut out = Vec::new();
         // The predictor's final partial step ran on this grid with these inputs.
         let same_step = self.actuators.is_none() && (self.predictor_step - h).abs() <= h * TICK_TOLERANCE;
         for channel in 0..self.pending.len() {
             while let Some(p) = self.pending[channel].front() {
-                if p.prediction.target_time >= t_k + h * (1.0 - TICK_TOLERANCE) {
+                if p.prediction.target_time >= t_k + reach {
                     break;
                 }
                 let Pending {

@@ -321,7 +321,7 @@ impl Episode {
                     format!("non-finite state {:?} at t = {time}", x.as_slice()),
                 );
             }
-            match self.control.realize(time, &x) {
+            match self.control.realize(time, &x, k == self.steps) {
                 Ok(done) => {
                     for c in done {
                         Self::emit_ref(sinks, self.records.set_prediction(&c))?;
