@@ -537,6 +537,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             plot,
             recover,
         } => {
+            // A plot that cannot be drawn (a damaged log: no plot of part of a run) fails the
+            // command after the metrics are printed, not instead of them.
+            let mut plots_failed = false;
             if let Some(dir) = &plot {
                 // Plots are named by the log's file name: two logs of one name, or a log named
                 // like the overlays, would overwrite each other's plots.
@@ -576,15 +579,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                         false
                     }
                 };
-                let mut failed = false;
                 for file in &files {
-                    failed |= !report(crate::plot::plot_log(file, dir));
+                    plots_failed |= !report(crate::plot::plot_log(file, dir));
                 }
-                if files.len() > 1 && !failed {
-                    failed |= !report(crate::plot::plot_overlay(&files, dir));
-                }
-                if failed {
-                    return Ok(ExitCode::FAILURE);
+                if files.len() > 1 && !plots_failed {
+                    plots_failed |= !report(crate::plot::plot_overlay(&files, dir));
                 }
             }
             let format = if brief {
@@ -596,13 +595,14 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             } else {
                 Format::Table
             };
-            if compare {
-                compare_files(&files, format, recover)
+            let code = if compare {
+                compare_files(&files, format, recover)?
             } else if merge {
-                merge_summaries(&files, format, out.as_deref())
+                merge_summaries(&files, format, out.as_deref())?
             } else {
-                Ok(analyze_files(&files, format, recover))
-            }
+                analyze_files(&files, format, recover)
+            };
+            Ok(if plots_failed { ExitCode::FAILURE } else { code })
         }
         Command::Sweep {
             scenario,

@@ -177,7 +177,8 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
 }
 
 /// Plots are named by their log's file name: logs of one name, or a log named like the
-/// overlays, are refused before anything is drawn (they overwrote each other's plots).
+/// overlays, are refused before anything is drawn (they overwrote each other's plots); a log
+/// that cannot be plotted does not take the metrics table with it.
 #[test]
 fn plots_of_logs_of_one_name_are_refused() {
     let dir = tempfile::tempdir().unwrap();
@@ -212,4 +213,20 @@ fn plots_of_logs_of_one_name_are_refused() {
         second.to_str().unwrap(),
     ]);
     assert!(stderr(&o).contains("named like the overlays"), "{}", stderr(&o));
+
+    // A damaged log has no plots (no plot of part of a run), and the metrics table is still
+    // printed; the command fails.
+    let bytes = std::fs::read(&first).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let o = mjsafe(&[
+        "analyze",
+        "--plot",
+        plots.to_str().unwrap(),
+        cut.to_str().unwrap(),
+        second.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(stdout(&o).contains("run.mcap"), "the intact log's row: {}", stdout(&o));
+    assert!(stderr(&o).contains("cut.mcap"), "{}", stderr(&o));
 }
