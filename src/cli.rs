@@ -817,10 +817,24 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             let command = command.mut_subcommand("help", |help| help.hide(true));
             match dir {
                 Some(dir) => {
-                    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-                    clap_mangen::generate_to(command, &dir)
-                        .with_context(|| format!("writing the man pages into {}", dir.display()))?;
-                    eprintln!("man pages written into {}", dir.display());
+                    if dir.exists() && !dir.is_dir() {
+                        bail!(
+                            "--dir {}: expected a directory for the man pages, found a file",
+                            dir.display()
+                        );
+                    }
+                    let pages = man_pages(command)?;
+                    // Every page checked before any is written (the files rules: never over a
+                    // file that is not a man page of mjsafe's, a link or a directory), each
+                    // written as `.partial` and renamed.
+                    use crate::files::{check_output, write_atomically, Replace};
+                    for (name, _) in &pages {
+                        check_output(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[])?;
+                    }
+                    for (name, text) in &pages {
+                        write_atomically(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[], text)?;
+                    }
+                    eprintln!("{} man pages written into {}", pages.len(), dir.display());
                 }
                 None => {
                     let mut text = Vec::new();
@@ -831,6 +845,30 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// How every man page clap_mangen renders starts: an existing file that does not start so is
+/// never replaced.
+const MAN_START: &[u8] = b".ie \\n(.g .ds Aq \\(aq\n";
+
+/// (file name, roff text) of the page of `command` and of each of its subcommands, as
+/// `clap_mangen::generate_to` names and renders them.
+fn man_pages(command: clap::Command) -> std::io::Result<Vec<(String, Vec<u8>)>> {
+    fn collect(command: clap::Command, pages: &mut Vec<(String, Vec<u8>)>) -> std::io::Result<()> {
+        for sub in command.get_subcommands().filter(|s| !s.is_hide_set()).cloned() {
+            collect(sub, pages)?;
+        }
+        let man = clap_mangen::Man::new(command);
+        let mut text = Vec::new();
+        man.render(&mut text)?;
+        pages.push((man.get_filename(), text));
+        Ok(())
+    }
+    let mut command = command.disable_help_subcommand(true);
+    command.build();
+    let mut pages = Vec::new();
+    collect(command, &mut pages)?;
+    Ok(pages)
 }
 
 /// How `mjsafe run` reports: the text line or JSON, and whether a collision fails the process.

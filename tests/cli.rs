@@ -333,4 +333,30 @@ fn man_page_renders() {
         assert!(names.contains(&page), "{page} is listed but not written: {names:?}");
     }
     assert!(!top.contains("mjsafe\\-help(1)"), "{top}");
+    // Written again: the earlier pages are replaced.
+    let (c, _, err) = code(&["man", "--dir", pages.to_str().unwrap()]);
+    assert_eq!(c, Some(0), "{err}");
+    // A file that is not a man page, a link or a directory under a page's name: refused
+    // before any page is written, and left as it was.
+    let notes = dir.path().join("notes.txt");
+    std::fs::write(&notes, "precious\n").unwrap();
+    for (name, make) in [
+        ("mjsafe.1", "file"),
+        ("mjsafe-run.1", "link"),
+        ("mjsafe-info.1", "directory"),
+    ] {
+        let other = dir.path().join(format!("man-{make}"));
+        std::fs::create_dir_all(&other).unwrap();
+        let target = other.join(name);
+        match make {
+            "file" => std::fs::write(&target, "precious\n").unwrap(),
+            "link" => std::os::unix::fs::symlink(&notes, &target).unwrap(),
+            _ => std::fs::create_dir(&target).unwrap(),
+        }
+        let (c, _, err) = code(&["man", "--dir", other.to_str().unwrap()]);
+        assert_eq!(c, Some(1), "{make}: {err}");
+        assert!(err.contains(name), "{make}: {err}");
+        assert_eq!(listing(&other), [name], "{make}: nothing written");
+    }
+    assert_eq!(std::fs::read_to_string(&notes).unwrap(), "precious\n");
 }
