@@ -376,7 +376,7 @@ pub enum Command {
         /// Override a field: KEY.PATH=VALUE in TOML value syntax (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
-        /// Predictor RK4 steps (seconds, multiples of the control period) to compare, one row
+        /// Predictor RK4 steps (seconds, multiples of the timestep, as `control.predictor_step`) to compare, one row
         /// each with its measured prediction error (default: the scenario's).
         #[arg(long = "predictor-step", value_name = "S1,S2,…", value_delimiter = ',')]
         predictor_steps: Vec<f64>,
@@ -541,6 +541,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             // command after the metrics are printed, not instead of them.
             let mut plots_failed = false;
             if let Some(dir) = &plot {
+                if dir.exists() && !dir.is_dir() {
+                    bail!(
+                        "--plot {}: expected a directory for the plots, found a file",
+                        dir.display()
+                    );
+                }
                 // Plots are named by the log's file name: two logs of one name, or a log named
                 // like the overlays, would overwrite each other's plots.
                 let mut stems = std::collections::BTreeMap::new();

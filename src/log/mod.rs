@@ -352,7 +352,7 @@ pub fn status_metadata(complete: bool) -> BTreeMap<String, String> {
 
 #[derive(Debug, thiserror::Error)]
 pub enum LogError {
-    #[error("log file {path}: {message}")]
+    #[error("{path}: {message}")]
     Write { path: String, message: String },
     #[error(transparent)]
     Output(#[from] crate::files::FileError),
