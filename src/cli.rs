@@ -1117,11 +1117,17 @@ fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<Exi
     let rows = analyze::compare(&ma, &mb);
     match format {
         Format::Json => {
-            let value = serde_json::json!({
+            // Why a metric is absent on either side (as `analyze --json` names it).
+            let mut value = serde_json::json!({
                 "a": a.display().to_string(),
                 "b": b.display().to_string(),
                 "metrics": analyze::comparison_json(&rows),
             });
+            for (key, m) in [("missing_a", &ma), ("missing_b", &mb)] {
+                if !m.missing.is_empty() {
+                    value[key] = serde_json::json!(m.missing);
+                }
+            }
             outln!(
                 "{}",
                 serde_json::to_string_pretty(&value).expect("JSON values serialise")
@@ -1131,6 +1137,15 @@ fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<Exi
         Format::Table | Format::Brief => {
             outln!("A: {}\nB: {}\n", a.display(), b.display());
             outln!("{}", analyze::comparison_table(&rows));
+        }
+    }
+    if format != Format::Json {
+        // An absent value is not "not applicable": its reason, as `analyze` warns.
+        for (side, m) in [("A", &ma), ("B", &mb)] {
+            if !m.missing.is_empty() {
+                let absent: Vec<String> = m.missing.iter().map(|(k, why)| format!("{k} ({why})")).collect();
+                eprintln!("warning: {side} {}: metrics absent: {}", m.file, absent.join(", "));
+            }
         }
     }
     let damaged: Vec<_> = [damage_a, damage_b].into_iter().flatten().collect();

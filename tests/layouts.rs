@@ -296,6 +296,24 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
             "{}",
             stderr(&o)
         );
+        // So does a comparison with the original: the reasons, not a bare `-`.
+        let o = mjsafe(&["analyze", "--compare", log.to_str().unwrap(), copy.to_str().unwrap()]);
+        assert_eq!(
+            stderr(&o).contains("warning: B") && stderr(&o).contains("metrics absent"),
+            !absent.is_empty(),
+            "{}",
+            stderr(&o)
+        );
+        let o = mjsafe(&[
+            "analyze",
+            "--compare",
+            "--json",
+            log.to_str().unwrap(),
+            copy.to_str().unwrap(),
+        ]);
+        let compared: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+        assert_eq!(compared["missing_b"].is_object(), !absent.is_empty(), "{compared}");
+        assert!(compared["missing_a"].is_null(), "{compared}");
         println!("without {drop}: {missing}");
     }
     // Without the status record: not known to be complete, and said so.
