@@ -441,6 +441,9 @@ fn channel_unit(channel: &str) -> String {
     match channel {
         "steering" => "steering: tan δ  [–]".into(),
         "acceleration" => "acceleration  [m/s²]".into(),
+        // The unicycle (2.36).
+        "speed" => "speed  [m/s]".into(),
+        "turn_rate" => "turn_rate  [rad/s]".into(),
         "force" | "u" => format!("{channel}  [N per kg = m/s²]"),
         other => other.to_string(),
     }
