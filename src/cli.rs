@@ -378,12 +378,22 @@ pub enum Command {
         overrides: Vec<String>,
         /// Predictor RK4 steps (seconds, multiples of the timestep, as `control.predictor_step`) to compare, one row
         /// each with its measured prediction error (default: the scenario's).
-        #[arg(long = "predictor-step", value_name = "S1,S2,…", value_delimiter = ',')]
+        #[arg(
+            long = "predictor-step",
+            value_name = "S1,S2,…",
+            value_delimiter = ',',
+            allow_negative_numbers = true
+        )]
         predictor_steps: Vec<f64>,
         /// Chain-reuse tolerances of the recursive predictors (control.chain_tolerance) to
         /// compare, one row each with the largest difference reuse made to a prediction
         /// (default: the scenario's).
-        #[arg(long = "chain-tolerance", value_name = "T1,T2,…", value_delimiter = ',')]
+        #[arg(
+            long = "chain-tolerance",
+            value_name = "T1,T2,…",
+            value_delimiter = ',',
+            allow_negative_numbers = true
+        )]
         chain_tolerances: Vec<f64>,
         /// Runs per configuration (the median is reported).
         #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]

@@ -478,6 +478,9 @@ pub fn canonical_key(key: &str) -> String {
         .join(".")
 }
 
+/// The largest |coordinate| and radius of an obstacle, metres.
+const OBSTACLE_EXTENT: f64 = 1e9;
+
 /// Checks the form of one `a.b.c=VALUE` override (a dotted key, `=`, a TOML value) without a
 /// scenario to apply it to: what `--set` rejects whatever the scenario.
 pub fn check_override(spec: &str) -> Result<(), ScenarioError> {
@@ -773,6 +776,14 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
         }
         if o.centre.iter().any(|v| !v.is_finite()) {
             return Err(s.field_error(&format!("obstacles.{i}.centre"), "expected two finite coordinates"));
+        }
+        // h = ‖p − c‖² − r² keeps metre-scale precision only well below 1e9 m (and overflows
+        // to inf past 1e154).
+        if o.centre.iter().chain([&o.radius]).any(|v| v.abs() > OBSTACLE_EXTENT) {
+            return Err(s.field_error(
+                &format!("obstacles.{i}"),
+                format!("expected a centre and radius within ±{OBSTACLE_EXTENT:e} m (h = d² − r² loses its precision beyond)"),
+            ));
         }
         if !o.appear_jitter.is_finite() || o.appear_jitter < 0.0 {
             return Err(s.field_error(

@@ -362,4 +362,10 @@ fn obstacle_names_are_unique_and_not_empty() {
         &["obstacles.1.name=\" \""],
         &["key `obstacles.1.name`", "not empty"],
     );
+    // Far enough that h = d² − r² is inf (min h was null with no reason).
+    run_expecting_failure(
+        "bicycle_obstacle.toml",
+        &["obstacles.0.centre=[1e300, 0.0]"],
+        &["key `obstacles.0`", "within ±1e9 m"],
+    );
 }

@@ -518,10 +518,7 @@ mod tests {
         tee.finish(false).unwrap();
         assert!(tee.other_failed());
         assert_eq!(log.finished, Some(false));
-        assert_eq!(
-            error_events(&log.records),
-            ["log file x.rrd: disk full; the run stopped"]
-        );
+        assert_eq!(error_events(&log.records), ["x.rrd: disk full; the run stopped"]);
         assert_eq!(log.records.last().unwrap().time(), 0.5);
 
         // Fails when finished: the log of a complete run is still marked incomplete.
