@@ -1213,6 +1213,22 @@ fn merge_summaries(args: &[PathBuf], format: Format, out: Option<&Path>) -> Resu
         );
         return Ok(ExitCode::FAILURE);
     }
+    // Shards of one sweep run with and without --no-logs: the same metrics, but only some
+    // rows have a log to open.
+    let without_log: Vec<usize> = merged
+        .runs
+        .iter()
+        .filter(|r| r.log.is_none() && r.error.is_none())
+        .map(|r| r.index)
+        .collect();
+    if !without_log.is_empty() && merged.runs.iter().any(|r| r.log.is_some()) {
+        eprintln!(
+            "warning: {} of {} runs have no log (their shards ran with --no-logs): {}",
+            without_log.len(),
+            merged.sweep.runs,
+            abbreviate(&without_log)
+        );
+    }
     if let Some(dir) = out {
         let merged_files: Vec<&Path> = inputs.iter().map(|(file, _)| Path::new(file.as_str())).collect();
         let (json, csv) = merged

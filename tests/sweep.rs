@@ -212,6 +212,21 @@ fn a_metrics_only_sweep_gives_the_logged_sweeps_summary_without_logs() {
         with_logs, without,
         "the metrics analysed while running are the logs' metrics"
     );
+    // Shards of one sweep with and without logs merge (the same metrics), with a warning.
+    let mixed = dir.path().join("mixed");
+    for (shard, extra) in [("0/2", &[][..]), ("1/2", &["--no-logs"][..])] {
+        let mut shard_args = args(&mixed, extra);
+        shard_args.extend(["--shard".to_string(), shard.to_string()]);
+        let o = mjsafe(&shard_args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(o.status.code().is_some_and(|c| c == 0 || c == 3), "{}", stderr(&o));
+    }
+    let o = mjsafe(&["analyze", "--merge", mixed.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("have no log (their shards ran with --no-logs): 1, 3"),
+        "{}",
+        stderr(&o)
+    );
     assert!(without["runs"][4]["error"]
         .as_str()
         .unwrap()
