@@ -559,28 +559,24 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 }
                 // Plots are named by the log's file name: two logs of one name, or a log named
                 // like the overlays, would overwrite each other's plots.
-                let mut stems = std::collections::BTreeMap::new();
-                for file in &files {
-                    let stem = file
-                        .file_stem()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_default();
-                    if stem == "overlay" && files.len() > 1 {
-                        bail!(
-                            "{}: its plots would be named like the overlays (overlay-*.png); rename the log",
-                            file.display()
-                        );
-                    }
-                    // The same log twice draws the same plots (and is told apart in the legends).
-                    let other = stems.insert(stem.clone(), file);
-                    if let Some(other) = other.filter(|other| !crate::files::same_path(other, file)) {
-                        bail!(
-                            "{} and {}: both would write {stem}-*.png in {}; plot them into different --plot directories",
-                            other.display(),
-                            file.display(),
-                            dir.display()
-                        );
-                    }
+                let stem = |file: &Path| PathBuf::from(file.file_stem().unwrap_or_default());
+                if let Some(file) = files
+                    .iter()
+                    .find(|f| stem(f) == Path::new("overlay") && files.len() > 1)
+                {
+                    bail!(
+                        "{}: its plots would be named like the overlays (overlay-*.png); rename the log",
+                        file.display()
+                    );
+                }
+                if let Some((a, b)) = same_output_names(&files, stem) {
+                    bail!(
+                        "{} and {}: both would write {}-*.png in {}; plot them into different --plot directories",
+                        a.display(),
+                        b.display(),
+                        stem(a).display(),
+                        dir.display()
+                    );
                 }
                 // Each written plot on stderr; an error line for a plot that failed.
                 let report = |result: Result<Vec<std::path::PathBuf>, crate::plot::PlotError>| match result {
@@ -678,12 +674,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 .iter()
                 .map(|r| sweep::parse_range(r))
                 .collect::<Result<Vec<_>, _>>()?;
-            let mut keys = std::collections::BTreeSet::new();
-            if let Some(twice) = ranges.iter().find(|r| !keys.insert(scenario::canonical_key(&r.key))) {
-                bail!(
-                    "--range {}: the key is given twice (each key takes one --range)",
-                    twice.key
-                );
+            if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
+                bail!("--range {twice}: the key is given twice (each key takes one --range)");
             }
             falsify::check_objective(&objective)?;
             if !threshold.is_finite() {
@@ -1271,6 +1263,16 @@ fn shell_quoted(arg: &str) -> String {
     }
 }
 
+/// The first two different files whose outputs `name` names alike (the same file given twice
+/// writes the same outputs, and is allowed).
+fn same_output_names(files: &[PathBuf], name: impl Fn(&Path) -> PathBuf) -> Option<(&Path, &Path)> {
+    let mut seen: std::collections::BTreeMap<PathBuf, &Path> = std::collections::BTreeMap::new();
+    files.iter().find_map(|file| {
+        let other = seen.insert(name(file), file)?;
+        (!crate::files::same_path(other, file)).then_some((other, file.as_path()))
+    })
+}
+
 /// `1, 2, 3, …` cut after 20 entries.
 fn abbreviate(indices: &[usize]) -> String {
     let mut text: Vec<String> = indices.iter().take(20).map(|i| i.to_string()).collect();
@@ -1572,27 +1574,25 @@ fn export(files: &[PathBuf], format: crate::export::Format, topics: &[String], o
     let topics = crate::export::parse_topics(topics)?;
     // Two logs whose tables would have the same names (the same stem into one directory)
     // would overwrite each other's tables: refused before any is written.
-    let mut targets: std::collections::BTreeMap<PathBuf, &Path> = std::collections::BTreeMap::new();
-    for file in files {
-        let dir = out.map_or_else(
+    let dir = |file: &Path| {
+        out.map_or_else(
             || file.parent().unwrap_or(Path::new("")).to_path_buf(),
             Path::to_path_buf,
+        )
+    };
+    let tables = |file: &Path| dir(file).join(crate::export::table_stem(file));
+    if let Some((a, b)) = same_output_names(files, tables) {
+        let shown = match dir(b).display().to_string() {
+            d if d.is_empty() => ".".to_string(),
+            d => d,
+        };
+        bail!(
+            "{} and {}: both would write {}-*.{} in {shown}; export them into different --out directories",
+            a.display(),
+            b.display(),
+            crate::export::table_stem(b),
+            format.extension()
         );
-        let stem = PathBuf::from(crate::export::table_stem(file));
-        if let Some(other) = targets.insert(dir.join(&stem), file) {
-            bail!(
-                "{} and {}: both would write {}-*.{} in {}; export them into different --out directories",
-                other.display(),
-                file.display(),
-                stem.display(),
-                format.extension(),
-                if dir.as_os_str().is_empty() {
-                    ".".into()
-                } else {
-                    dir.display().to_string()
-                }
-            );
-        }
     }
     let mut failed = false;
     for file in files {

@@ -742,15 +742,15 @@ fn sweep_lines(parameters: &[String], runs: &[SweepPoint<'_>], key: &str, metric
             .or_insert_with(|| (names.join(", "), Vec::new()));
         line.1.push((x, y, metrics.collision_time.is_some()));
     }
-    let mut named = BTreeMap::<&str, usize>::new();
+    let mut named = BTreeMap::<String, usize>::new();
     for (name, _) in lines.values() {
-        *named.entry(name.as_str()).or_default() += 1;
+        *named.entry(name.clone()).or_default() += 1;
     }
     lines
-        .iter()
+        .into_iter()
         .map(|(values, (name, points))| {
-            let label = if named[name.as_str()] > 1 { values } else { name };
-            (label.clone(), points.clone())
+            let label = if named[&name] > 1 { values } else { name };
+            (label, points)
         })
         .collect()
 }

@@ -147,6 +147,13 @@ struct RandomEntry {
     seed: u64,
 }
 
+/// The first key that names a field an earlier key names (spelled either way:
+/// [`scenario::canonical_key`]): each swept field takes one axis.
+pub fn swept_twice<'a>(keys: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let mut seen = BTreeSet::new();
+    keys.into_iter().find(|key| !seen.insert(scenario::canonical_key(key)))
+}
+
 /// Splits `v1,v2,…` at the commas outside brackets, braces and quotes, so TOML arrays,
 /// inline tables and strings may contain commas. Every value is trimmed and non-empty.
 pub fn split_values(text: &str) -> Result<Vec<String>, String> {
@@ -409,13 +416,14 @@ impl SweepSpec {
         random_count = args.random.or(random_count);
         seed = args.seed.or(seed);
 
-        let mut keys = BTreeSet::new();
-        for key in grids.iter().map(|g| &g.key).chain(ranges.iter().map(|r| &r.key)) {
-            if !keys.insert(scenario::canonical_key(key)) {
-                return Err(SweepError::Spec(format!(
-                    "`{key}` is swept twice (each key takes one --grid or one --range)"
-                )));
-            }
+        let keys = grids
+            .iter()
+            .map(|g| g.key.as_str())
+            .chain(ranges.iter().map(|r| r.key.as_str()));
+        if let Some(key) = swept_twice(keys) {
+            return Err(SweepError::Spec(format!(
+                "`{key}` is swept twice (each key takes one --grid or one --range)"
+            )));
         }
         let random = match (random_count, ranges.is_empty()) {
             (None, true) => None,

@@ -7,7 +7,7 @@ use std::path::Path;
 use mcap::records::Record as McapRecord;
 use serde::Serialize;
 
-use super::read::{message_index_parses, read_log, ReadError, StreamError, VisitError, MESSAGE_HEADER_LEN};
+use super::read::{message_index_parses, message_parts, read_log, ReadError, StreamError, VisitError};
 
 /// One channel of a log, from its summary section.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -57,9 +57,7 @@ struct InfoRecords {
 
 impl InfoRecords {
     fn visit(&mut self, opcode: u8, data: &[u8]) -> Result<(), VisitError> {
-        if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
-            let channel = u16::from_le_bytes([data[0], data[1]]);
-            let time = u64::from_le_bytes(data[6..14].try_into().expect("8 bytes"));
+        if let Some((channel, time, _)) = message_parts(opcode, data) {
             *self.counts.entry(channel).or_default() += 1;
             self.messages += 1;
             self.times = Some(self.times.map_or((time, time), |(a, b)| (a.min(time), b.max(time))));

@@ -64,6 +64,18 @@ const READ_SIZE: usize = 1 << 18;
 /// publish time) before the message data.
 pub const MESSAGE_HEADER_LEN: usize = 2 + 4 + 8 + 8;
 
+/// (channel id, log time, data) of a record `read_log` visits, when it is a Message record
+/// (taken apart directly: no record parsing, no copy).
+#[inline]
+pub fn message_parts(opcode: u8, record: &[u8]) -> Option<(u16, u64, &[u8])> {
+    if opcode != mcap::records::op::MESSAGE || record.len() < MESSAGE_HEADER_LEN {
+        return None;
+    }
+    let channel = u16::from_le_bytes([record[0], record[1]]);
+    let log_time = u64::from_le_bytes(record[6..14].try_into().expect("8 bytes"));
+    Some((channel, log_time, &record[MESSAGE_HEADER_LEN..]))
+}
+
 /// Why streaming the records stopped.
 pub enum StreamError {
     /// The bytes are not (or no longer) valid MCAP: a CRC mismatch, a truncation, a framing
@@ -407,10 +419,8 @@ impl<'f> Pass<'f> {
     /// apart here directly (no record parsing, no copy) and routed by channel id.
     fn read(&mut self, input: impl Read, visitor: &mut impl RunVisitor) -> Result<u64, StreamError> {
         read_log(input, |opcode, data| {
-            if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
-                let channel = u16::from_le_bytes([data[0], data[1]]);
-                let log_time = u64::from_le_bytes(data[6..14].try_into().expect("8 bytes"));
-                Ok(self.message(channel, log_time, &data[MESSAGE_HEADER_LEN..], visitor)?)
+            if let Some((channel, log_time, body)) = message_parts(opcode, data) {
+                Ok(self.message(channel, log_time, body, visitor)?)
             } else if opcode == mcap::records::op::MESSAGE_INDEX && message_index_parses(data) {
                 // Not used: skipped once known to parse.
                 Ok(())
@@ -675,8 +685,7 @@ fn in_log_time_order(path: &Path) -> bool {
     let mut last = 0u64;
     let mut ordered = true;
     let _ = read_log(file, |opcode, data| {
-        if opcode == mcap::records::op::MESSAGE && data.len() >= MESSAGE_HEADER_LEN {
-            let log_time = u64::from_le_bytes(data[6..14].try_into().expect("8 bytes"));
+        if let Some((_, log_time, _)) = message_parts(opcode, data) {
             if log_time < last {
                 ordered = false;
                 return Err(VisitError::Stop);
