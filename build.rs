@@ -43,6 +43,7 @@ fn main() {
         .map(|d| (d, "MUJOCO_INCLUDE_DIR"))
         .or_else(|| prefix.as_ref().map(|p| (p.join("include"), "MUJOCO_DIR")));
 
+    let mut include_dir: Option<PathBuf> = None;
     match lib_override {
         Some((dir, from)) => {
             if !dir.join("libmujoco.so").exists() {
@@ -55,6 +56,7 @@ fn main() {
             }
             let include = include_override.unwrap_or_else(|| (dir.join("../include"), from));
             check_header(&include.0, include.1);
+            include_dir = Some(include.0);
             println!("cargo:rustc-link-search=native={}", dir.display());
             // Found at run time without LD_LIBRARY_PATH.
             println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
@@ -62,6 +64,7 @@ fn main() {
         None => {
             if let Some((dir, from)) = include_override {
                 check_header(&dir, from);
+                include_dir = Some(dir);
             }
             let found = SYSTEM_LIB_DIRS
                 .iter()
@@ -76,6 +79,14 @@ fn main() {
             }
         }
     }
+    // mj_loadXML behind a C++ try/catch (src/mujoco/load_xml.cpp): no exception reaches Rust.
+    println!("cargo:rerun-if-changed=src/mujoco/load_xml.cpp");
+    let mut shim = cc::Build::new();
+    shim.cpp(true).file("src/mujoco/load_xml.cpp").warnings(true);
+    if let Some(dir) = &include_dir {
+        shim.include(dir);
+    }
+    shim.compile("mjsafe_load_xml");
     println!("cargo:rustc-link-lib=dylib=mujoco");
 
     let out_dir = std::env::var("OUT_DIR").expect("cargo sets OUT_DIR");

@@ -48,11 +48,11 @@ fn delay_free_law<'a>(
     lqr: &'a BicyclePathLqr,
     barrier: &'a Barrier,
     form: BarrierForm,
-) -> impl FnMut(f64, &[f64], &mut [f64]) + 'a {
+) -> impl FnMut(f64, &[f64], &[usize], &mut [f64]) + 'a {
     let mut lie = LieWorkspace::new(model);
     let mut constraint = Constraint::zeros(model.input_dim());
     let mut input = DVector::zeros(model.input_dim());
-    move |_t: f64, z: &[f64], u: &mut [f64]| {
+    move |_t: f64, z: &[f64], _free: &[usize], u: &mut [f64]| {
         lqr.input_into(z, input.as_mut_slice());
         lie.constraint_into(barrier, form, model, z, &mut constraint);
         filter::cbf_qp_in_place(&constraint, &mut input);

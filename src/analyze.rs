@@ -283,6 +283,8 @@ struct Accumulator {
     max_jerk_overriding: Option<f64>,
     terminal: PrescribedTimeMetrics,
     max_delay: Option<f64>,
+    /// Whether the run's controller predicted (metadata `predicts`; absent in older logs).
+    predicts: Option<bool>,
     min_clearance: Option<f64>,
     min_time_to_collision: Option<f64>,
     /// Appearance time per obstacle name.
@@ -386,6 +388,7 @@ fn apply_run_metadata(acc: &mut Accumulator, metadata: &BTreeMap<String, String>
     acc.control_period = metadata.get("control_period").and_then(|s| s.parse().ok());
     acc.prescribed_time = metadata.get("prescribed_time").and_then(|s| s.parse().ok());
     acc.max_delay = metadata.get("max_delay").and_then(|s| s.parse().ok());
+    acc.predicts = metadata.get("predicts").and_then(|s| s.parse().ok());
 }
 
 impl RunVisitor for Analysis {
@@ -713,7 +716,8 @@ impl Accumulator {
             ("filter_active_fraction", true, &[Filter], &[]),
             ("filter_infeasible_ticks", true, &[Filter], &[]),
             ("max_correction", true, &[Filter], &[]),
-            ("prediction", true, &[Prediction], &[]),
+            // A run that made no predictions lacks nothing without its (empty) topic.
+            ("prediction", self.predicts != Some(false), &[Prediction], &[]),
             ("first_override_time", true, &[Filter], &[]),
             ("override_duration", true, &[Filter], &["control_period"]),
             ("max_jerk", true, &[Issued], &[]),

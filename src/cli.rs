@@ -146,6 +146,15 @@ pub struct Cli {
     #[arg(long, global = true, value_name = "N", default_value_t = episode::DEFAULT_MAX_STEPS,
           value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..))]
     pub max_steps: u64,
+    /// Most integration steps one episode may take, estimated before it starts (plant steps
+    /// plus predictor steps).
+    #[arg(long, global = true, value_name = "N", default_value_t = episode::cost::DEFAULT_MAX_WORK,
+          value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..))]
+    pub max_work: u64,
+    /// Largest log one run may write, estimated before it starts (bytes, before compression).
+    #[arg(long, global = true, value_name = "BYTES", default_value_t = episode::cost::DEFAULT_MAX_LOG_BYTES,
+          value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..))]
+    pub max_log_size: u64,
 }
 
 #[derive(Debug, Subcommand)]
@@ -301,9 +310,14 @@ pub enum Command {
         /// Runs executed at once (default: all cores); the result does not depend on it.
         #[arg(long, value_name = "K")]
         threads: Option<usize>,
-        /// Keep searching after the first violation and report the worst one found.
+        /// Keep searching after the first violation (pushing its severity) and report the worst
+        /// qualified one evaluated: the lowest objective among candidates whose baseline is safe.
         #[arg(long)]
         worst: bool,
+        /// The baseline is safe when its objective is at least this (default 0: the boundary of
+        /// min_h and min_clearance), whatever --threshold is.
+        #[arg(long, value_name = "TB", default_value_t = 0.0, allow_negative_numbers = true)]
+        baseline_threshold: f64,
         /// The reference configuration of each candidate, as overrides applied after the
         /// candidate's (repeatable), e.g. --baseline delays.steering=0 --baseline
         /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
@@ -501,6 +515,8 @@ pub fn run() -> ExitCode {
     install_stop_handler();
     let cli = Cli::parse();
     episode::set_max_steps(cli.max_steps);
+    episode::cost::set_max_work(cli.max_work);
+    episode::cost::set_max_log_bytes(cli.max_log_size);
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(e) => {
@@ -666,6 +682,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             seed,
             threads,
             worst,
+            baseline_threshold,
             baseline,
             compare_random,
             out,
@@ -680,6 +697,9 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             falsify::check_objective(&objective)?;
             if !threshold.is_finite() {
                 bail!("--threshold: expected a finite number, found {threshold}");
+            }
+            if !baseline_threshold.is_finite() {
+                bail!("--baseline-threshold: expected a finite number, found {baseline_threshold}");
             }
             let threads = match threads {
                 Some(0) => bail!("--threads: expected at least 1"),
@@ -719,6 +739,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 ranges,
                 objective,
                 threshold,
+                baseline_threshold,
                 baseline,
                 budget,
                 seed,
@@ -911,6 +932,64 @@ fn install_stop_handler() {
     });
 }
 
+/// A progress line on a terminal (stderr) for a run that takes more than two seconds: the
+/// simulated time reached, the fraction done and the speed, once a second; cleared when the
+/// value is dropped. Nothing when stderr is not a terminal.
+struct RunProgress {
+    done: Option<(
+        std::sync::Arc<std::sync::atomic::AtomicBool>,
+        std::thread::JoinHandle<()>,
+    )>,
+}
+
+impl RunProgress {
+    fn start(steps: u64, timestep: f64) -> RunProgress {
+        use std::io::IsTerminal;
+        if !std::io::stderr().is_terminal() {
+            return RunProgress { done: None };
+        }
+        let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = done.clone();
+        let thread = std::thread::spawn(move || {
+            let started = Instant::now();
+            let mut shown = false;
+            let mut next = std::time::Duration::from_secs(2);
+            while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                let elapsed = started.elapsed();
+                if elapsed < next {
+                    continue;
+                }
+                next = elapsed + std::time::Duration::from_secs(1);
+                let step = episode::progress().min(steps);
+                let simulated = step as f64 * timestep;
+                eprint!(
+                    "\r\x1b[Krun: t = {simulated:.2} s of {:.2} s ({:.0} %), {:.2}x real time",
+                    steps as f64 * timestep,
+                    100.0 * step as f64 / steps.max(1) as f64,
+                    simulated / elapsed.as_secs_f64()
+                );
+                shown = true;
+            }
+            if shown {
+                eprint!("\r\x1b[K");
+            }
+        });
+        RunProgress {
+            done: Some((done, thread)),
+        }
+    }
+}
+
+impl Drop for RunProgress {
+    fn drop(&mut self) {
+        if let Some((done, thread)) = self.done.take() {
+            done.store(true, std::sync::atomic::Ordering::Relaxed);
+            let _ = thread.join();
+        }
+    }
+}
+
 fn run_scenario(
     path: &Path,
     overrides: &[String],
@@ -926,6 +1005,7 @@ fn run_scenario(
     crate::log::mcap::check_target(&log_path, &inputs)?;
     rerun.check(&log_path, &inputs)?;
     let mut episode = Episode::new(&loaded)?;
+    episode.check_log_budget()?;
     let mut sink = McapSink::create(&log_path, episode.info(), &inputs)?;
     let extra_sinks = match rerun.sinks(&log_path, episode.info(), &inputs) {
         Ok(sinks) => sinks,
@@ -936,6 +1016,7 @@ fn run_scenario(
     };
     let summary = {
         let mut outputs = Tee::new(&mut sink, extra_sinks);
+        let _progress = RunProgress::start(episode.steps(), episode.info().timestep);
         let result = episode.run(&mut [&mut outputs]);
         match result {
             Err(e) if outputs.other_failed() => bail!(
@@ -1471,6 +1552,17 @@ fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> 
                 .map_or("absent".into(), |v| format!("{v:.4}")),
             best.and_then(|e| e.baseline)
                 .map_or(String::new(), |b| format!(" (baseline {b:.4})")),
+        );
+    }
+    if let Some(e) = &report.chosen {
+        outln!(
+            "{} violation: index {} in evaluations.csv, {} = {}{} | {}",
+            if problem.worst { "most severe" } else { "first" },
+            e.index,
+            problem.objective,
+            e.objective.map_or("absent".into(), |v| format!("{v:.4}")),
+            e.baseline.map_or(String::new(), |b| format!(" (baseline {b:.4})")),
+            e.severity.describe()
         );
     }
     match &report.counterexample {

@@ -173,6 +173,7 @@ impl DelayProfile {
     /// the controller assumes; the actuators need not satisfy them.
     pub fn check_physical(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
         self.check_parameters(channel)?;
+        let step = sampling_step(horizon, step);
         let samples = if self.constant_delay().is_none() {
             (horizon / step).ceil() as usize
         } else {
@@ -200,10 +201,12 @@ impl DelayProfile {
     }
 
     /// Checks the parameters and Assumptions 1 and 2 of Ch. 2 ((2.4)–(2.7)) on [0, horizon]
-    /// (sampled every `step`), and that the delay never exceeds `history`. A constant delay
+    /// (sampled every `step`, at most [`MAX_PROFILE_SAMPLES`] times: a finer step samples
+    /// more coarsely), and that the delay never exceeds `history`. A constant delay
     /// may be 0 (the delay-free case); a time-varying one must stay > 0.
     pub fn check(&self, channel: &str, horizon: f64, step: f64, history: f64) -> Result<(), DelayError> {
         self.check_parameters(channel)?;
+        let step = sampling_step(horizon + history, step);
         let varying = self.constant_delay().is_none();
         if let DelayProfile::Varying(VaryingDelay::CosinePrediction { a, b, omega }) = self {
             // φ is defined through φ⁻¹, so (2.6) is (φ⁻¹)'(s) = 1 − b ω sin(ω s) > 0 for every
@@ -611,6 +614,16 @@ impl DelayQueue {
             self.pruned = true;
         }
     }
+}
+
+/// Most samples of a time-varying delay profile a check takes over a run (start-up stays
+/// bounded whatever the timestep).
+pub const MAX_PROFILE_SAMPLES: f64 = 1e6;
+
+/// The sampling step of a profile check over `horizon`: `step`, or coarser so that at most
+/// [`MAX_PROFILE_SAMPLES`] samples are taken.
+fn sampling_step(horizon: f64, step: f64) -> f64 {
+    step.max(horizon / MAX_PROFILE_SAMPLES)
 }
 
 #[cfg(test)]

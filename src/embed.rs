@@ -64,6 +64,7 @@ pub fn run_logged(loaded: &LoadedScenario, log: &Path, sinks: &mut [&mut dyn Sin
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     crate::log::mcap::check_target(log, &inputs)?;
     let mut episode = Episode::new(loaded)?;
+    episode.check_log_budget()?;
     let mut mcap = crate::log::mcap::McapSink::create(log, episode.info(), &inputs)?;
     let summary = {
         let mut all: Vec<&mut dyn Sink> = Vec::with_capacity(1 + sinks.len());

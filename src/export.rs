@@ -125,6 +125,13 @@ pub fn parse_topics(list: &[String]) -> Result<Vec<Topic>, ExportError> {
             topics.push(topic);
         }
     }
+    if topics.is_empty() {
+        let known: Vec<&str> = table_topics().iter().map(|t| t.name()).collect();
+        return Err(ExportError::Topics(format!(
+            "no topic named (expected comma-separated topics among {}; leave --topics out for every table)",
+            known.join(", ")
+        )));
+    }
     topics.sort();
     Ok(topics)
 }
@@ -468,8 +475,46 @@ enum Builder {
     S(StringBuilder),
 }
 
+/// At most 80 characters of `text` (an ellipsis marks the cut).
+fn clipped(text: &str) -> String {
+    match text.char_indices().nth(80) {
+        Some((at, _)) => format!("{}…", &text[..at]),
+        None => text.to_string(),
+    }
+}
+
+/// The first line of an existing regular file (at most 1 MiB of it), if there is one.
+fn existing_first_line(path: &Path) -> Option<String> {
+    use std::io::{BufRead, Read};
+    let meta = std::fs::symlink_metadata(path).ok()?;
+    if !meta.file_type().is_file() {
+        return None;
+    }
+    let file = File::open(path).ok()?;
+    let mut line = String::new();
+    std::io::BufReader::new(file.take(1 << 20)).read_line(&mut line).ok()?;
+    Some(line.trim_end_matches(['\n', '\r']).to_string())
+}
+
 impl Table {
     fn create(path: &Path, log: &Path, format: Format, columns: Vec<(String, Kind)>) -> Result<Table, ExportError> {
+        if format == Format::Csv {
+            // A CSV is replaced only if it is this table: its header line is the one this log
+            // gives the topic (a user's CSV that merely starts with `time,` is kept).
+            let header: Vec<String> = columns.iter().map(|(n, _)| csv_field(n)).collect();
+            if let Some(found) = existing_first_line(path) {
+                if found != header.join(",") {
+                    return Err(ExportError::Write {
+                        file: path.display().to_string(),
+                        message: format!(
+                            "it exists and is not this log's table (its header `{}` is not `{}`); remove it or choose another --out",
+                            clipped(&found),
+                            clipped(&header.join(","))
+                        ),
+                    });
+                }
+            }
+        }
         let output = OutputFile::create(path, format.what(), Replace::IfStartsWith(format.magic()), &[log])?;
         let file = output.try_clone_file()?;
         let write_error = |message: String| ExportError::Write {

@@ -1,10 +1,12 @@
 //! Falsification: search a scenario's parameter box for a run that violates safety, instead of
 //! sampling it. An optimiser (CMA-ES from the `cmaes` crate) minimises an analysis metric (the
 //! robustness: `min_h` by default) over the `--range` keys; a candidate whose metric falls
-//! below the threshold is a violation. With a baseline (the same candidate under other
-//! overrides, e.g. without delays), a candidate counts only where the baseline stays safe, and
-//! the optimiser minimises the robustness of "candidate unsafe and baseline safe",
-//! max(m − T, T − m_baseline) (negative exactly for such counterexamples).
+//! below the threshold T is a violation. With a baseline (the same candidate under other
+//! overrides, e.g. without delays), a candidate counts (is *qualified*) only where the baseline
+//! is safe by its own threshold T_b (`--baseline-threshold`, default 0): m_baseline ≥ T_b,
+//! independent of T. The optimiser minimises m − T for qualified candidates (so after the
+//! first violation it keeps pushing severity), and max(m − T, 0) + (T_b − m_baseline) > 0 for
+//! the others (never a violation, ordered toward qualification and toward m < T).
 //!
 //! Determinism: a candidate's result depends only on its parameters (each run is seeded by the
 //! scenario), CMA-ES samples from its own seeded generator, and a generation's evaluations are
@@ -68,6 +70,8 @@ pub struct Problem {
     pub objective: String,
     /// A candidate violates when its metric is below this.
     pub threshold: f64,
+    /// The baseline is safe (the candidate qualified) when its metric is at least this.
+    pub baseline_threshold: f64,
     /// Overrides of the reference configuration (applied after the candidate's); empty: none.
     pub baseline: Vec<String>,
     /// Most evaluations (rounded up to whole CMA-ES generations).
@@ -109,11 +113,52 @@ pub struct Evaluation {
     pub objective: Option<f64>,
     /// The same metric of the baseline configuration (with a baseline).
     pub baseline: Option<f64>,
-    /// What the optimiser minimised: negative exactly for a counterexample.
+    /// What the optimiser minimised: m − T for a qualified candidate (negative exactly for a
+    /// counterexample), a positive penalty for one whose baseline is unsafe.
     pub score: f64,
+    /// Whether the candidate counts: its baseline is safe (always, without a baseline).
+    pub qualified: bool,
+    /// Qualified and objective below the threshold.
     pub violation: bool,
+    /// How severe the candidate's run is, whatever the objective.
+    pub severity: Severity,
     /// Why the objective is absent (run failed, metric not in the log, …).
     pub error: Option<String>,
+}
+
+/// The severity of a run: its lowest barrier value and its first collision, if any.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Severity {
+    /// min h over the run (the barrier's unit).
+    pub min_h: Option<f64>,
+    /// Time of the first collision (s), absent without one.
+    pub collision_time: Option<f64>,
+    /// Deepest penetration of the first collision (m), absent without one.
+    pub collision_depth: Option<f64>,
+}
+
+impl Severity {
+    fn of(metrics: &FlatMetrics) -> Severity {
+        Severity {
+            min_h: metrics.min_h,
+            collision_time: metrics.collision_time,
+            collision_depth: metrics.collision_depth,
+        }
+    }
+
+    /// "min h −0.54, collision at 5.12 s, 0.031 m deep" (or "no collision").
+    pub fn describe(&self) -> String {
+        let min_h = self
+            .min_h
+            .map_or("min h absent".to_string(), |v| format!("min h {v:.4}"));
+        match (self.collision_time, self.collision_depth) {
+            (Some(t), depth) => format!(
+                "{min_h}, collision at {t:.3} s, {} deep",
+                depth.map_or("depth absent".to_string(), |d| format!("{d:.4} m"))
+            ),
+            (None, _) => format!("{min_h}, no collision"),
+        }
+    }
 }
 
 /// A finished (or interrupted) search.
@@ -136,12 +181,13 @@ impl Search {
         self.first_violation().map(|e| e.index + 1)
     }
 
-    /// The violation with the lowest score (the worst counterexample found).
+    /// The most severe violation: the lowest objective among the qualified candidates below
+    /// the threshold (the worst counterexample evaluated).
     pub fn worst_violation(&self) -> Option<&Evaluation> {
-        self.evaluations
-            .iter()
-            .filter(|e| e.violation)
-            .min_by(|a, b| a.score.total_cmp(&b.score))
+        self.evaluations.iter().filter(|e| e.violation).min_by(|a, b| {
+            let objective = |e: &Evaluation| e.objective.unwrap_or(f64::INFINITY);
+            objective(a).total_cmp(&objective(b))
+        })
     }
 
     /// The candidate with the lowest score among those with an objective.
@@ -221,8 +267,9 @@ impl Evaluator<'_> {
             .collect()
     }
 
-    /// The metric of one run of the scenario with `overrides`, or why there is none.
-    fn metric(&self, overrides: Vec<String>) -> Result<f64, String> {
+    /// The metric of one run of the scenario with `overrides` and the run's severity, or why
+    /// there is no metric.
+    fn metric(&self, overrides: Vec<String>) -> Result<(f64, Severity), String> {
         let index = self.next_run.fetch_add(1, Ordering::Relaxed);
         let run = Run {
             index,
@@ -235,12 +282,13 @@ impl Evaluator<'_> {
             return Err(e);
         }
         let metrics = row.metrics.ok_or("the run gave no metrics")?;
-        objective_value(&metrics, &self.problem.objective).ok_or_else(|| {
+        let value = objective_value(&metrics, &self.problem.objective).ok_or_else(|| {
             format!(
                 "the run has no {} (a candidate is analysed without a log: `mjsafe run` the scenario with its overrides and `mjsafe analyze --json` that log to see its metrics)",
                 self.problem.objective
             )
-        })
+        })?;
+        Ok((value, Severity::of(&metrics)))
     }
 
     /// Runs the candidate at `unit` (and its baseline) and scores it.
@@ -261,11 +309,16 @@ impl Evaluator<'_> {
             objective: None,
             baseline: None,
             score: ABSENT_SCORE,
+            qualified: false,
             violation: false,
+            severity: Severity::default(),
             error: None,
         };
         let objective = match self.metric(candidate.clone()) {
-            Ok(v) => v,
+            Ok((v, severity)) => {
+                evaluation.severity = severity;
+                v
+            }
             Err(e) => {
                 evaluation.error = Some(e);
                 return evaluation;
@@ -273,24 +326,30 @@ impl Evaluator<'_> {
         };
         evaluation.objective = Some(objective);
         evaluation.score = objective - threshold;
+        evaluation.qualified = true;
         if !self.problem.baseline.is_empty() {
             let overrides = candidate
                 .into_iter()
                 .chain(self.problem.baseline.iter().cloned())
                 .collect();
             match self.metric(overrides) {
-                Ok(b) => {
+                Ok((b, _)) => {
                     evaluation.baseline = Some(b);
-                    evaluation.score = (objective - threshold).max(threshold - b);
+                    let unsafe_by = self.problem.baseline_threshold - b;
+                    evaluation.qualified = unsafe_by <= 0.0;
+                    if !evaluation.qualified {
+                        evaluation.score = (objective - threshold).max(0.0) + unsafe_by;
+                    }
                 }
                 Err(e) => {
                     evaluation.error = Some(format!("baseline: {e}"));
                     evaluation.score = ABSENT_SCORE;
+                    evaluation.qualified = false;
                     return evaluation;
                 }
             }
         }
-        evaluation.violation = evaluation.score < 0.0;
+        evaluation.violation = evaluation.qualified && objective < threshold;
         evaluation
     }
 }
@@ -503,6 +562,7 @@ pub fn counterexample_text(
             .baseline
             .map_or(String::new(), |b| format!(" (baseline {b})")),
     ));
+    text.push_str(&format!("# severity: {}\n", evaluation.severity.describe()));
     text.push_str(&format!("# search: {search_line}\n"));
     for (k, v) in &evaluation.parameters {
         text.push_str(&format!("# {k} = {v}\n"));
@@ -523,9 +583,19 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
         .map(|s| s.to_string())
         .chain(problem.ranges.iter().map(|r| r.key.clone()))
         .chain(
-            [problem.objective.as_str(), "baseline", "score", "violation", "error"]
-                .iter()
-                .map(|s| s.to_string()),
+            [
+                problem.objective.as_str(),
+                "baseline",
+                "score",
+                "qualified",
+                "violation",
+                "candidate_min_h",
+                "candidate_collision_time",
+                "candidate_collision_depth",
+                "error",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
         )
         .collect::<Vec<_>>()];
     for search in searches {
@@ -547,7 +617,11 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                     } else {
                         format!("{}", e.score)
                     },
+                    e.qualified.to_string(),
                     e.violation.to_string(),
+                    number(e.severity.min_h),
+                    number(e.severity.collision_time),
+                    number(e.severity.collision_depth),
                     e.error.clone().unwrap_or_default(),
                 ])
                 .collect(),
@@ -634,6 +708,9 @@ pub struct Report {
     pub searches: Vec<Search>,
     /// The counterexample scenario and its log, when a violation was found.
     pub counterexample: Option<(PathBuf, PathBuf)>,
+    /// The evaluation the counterexample is (the first violation, or with `worst` the most
+    /// severe one).
+    pub chosen: Option<Evaluation>,
     /// The objective of the counterexample's own run (from the written file).
     pub reproduced: Option<f64>,
     /// Ctrl-C came during the counterexample's run: its log is incomplete.
@@ -694,6 +771,7 @@ struct EvaluationsFile<'a> {
     ranges: &'a [Range],
     objective: &'a str,
     threshold: f64,
+    baseline_threshold: f64,
     baseline: &'a [String],
     budget: usize,
     seed: u64,
@@ -730,6 +808,12 @@ pub fn falsify(
         path: dir.display().to_string(),
         reason,
     })?;
+    crate::files::check_writable_dir(dir).map_err(|reason| {
+        FalsifyError::Output(format!(
+            "--out {}: cannot write the search's outputs there: {reason}",
+            dir.display()
+        ))
+    })?;
     // Every output is checked before the first run: the search is never lost to a file in
     // the way.
     let outputs = Outputs::in_dir(dir);
@@ -755,6 +839,7 @@ pub fn falsify(
         ranges: &problem.ranges,
         objective: &problem.objective,
         threshold: problem.threshold,
+        baseline_threshold: problem.baseline_threshold,
         baseline: &problem.baseline,
         budget: problem.budget,
         seed: problem.seed,
@@ -785,7 +870,10 @@ pub fn falsify(
         let score = if problem.baseline.is_empty() {
             format!("{} − threshold", problem.objective)
         } else {
-            format!("max(m − T, T − m_baseline), m = {}", problem.objective)
+            format!(
+                "m − T if the baseline is safe, else max(m − T, 0) + T_b − m_b; m = {}",
+                problem.objective
+            )
         };
         convergence_png(&png, &refs, &problem.objective, &score)?;
         Some(png)
@@ -854,9 +942,11 @@ pub fn falsify(
         }
         counterexample = Some((outputs.scenario.clone(), outputs.log.clone()));
     }
+    let chosen = chosen.cloned();
     Ok(Report {
         searches,
         counterexample,
+        chosen,
         reproduced,
         rerun_interrupted,
         evaluations_csv,

@@ -270,6 +270,14 @@ pub fn starts_with(path: &Path, magic: &[u8]) -> bool {
         .is_ok_and(|()| head == magic)
 }
 
+/// Whether files can be created in directory `dir`: a probe file is created (exclusively) and
+/// removed, so an output directory that cannot take the outputs is found before any work.
+pub fn check_writable_dir(dir: &Path) -> Result<(), std::io::Error> {
+    let probe = dir.join(format!(".mjsafe-write-probe-{}", std::process::id()));
+    std::fs::OpenOptions::new().write(true).create_new(true).open(&probe)?;
+    std::fs::remove_file(&probe)
+}
+
 /// Checks that `target` may be written as an output: it is not an input of the same run, and
 /// it does not exist or is a regular file `replace` allows replacing. Nothing is created.
 pub fn check_output(target: &Path, what: &'static str, replace: Replace, inputs: &[&Path]) -> Result<(), FileError> {

@@ -100,8 +100,12 @@ struct Step {
 /// stage time, u).
 type StageInput<'a> = dyn FnMut(&[f64], Step, f64, &mut [f64]) -> Result<(), DelayError> + 'a;
 
-/// u ← κ(t, x): the control law used for commands not yet issued (recursive predictor only).
-pub type ControlLaw<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
+/// κ(s, z, free, u): the control law used for commands not yet issued (recursive predictor
+/// only). z is the predicted x(s); `free` the channels whose command reaching the plant at s is
+/// not yet issued (in increasing delay, ties in channel order); `u[j]` ← κ_j for j in `free`.
+/// On entry `u` holds every other channel's command applied at s (issued before the tick),
+/// and for those in `free` the value the recursion held for them since their last command.
+pub type ControlLaw<'a> = dyn FnMut(f64, &[f64], &[usize], &mut [f64]) + 'a;
 
 /// RK4 buffers: the integrated state, the stage state, the four slopes and the stage input.
 #[derive(Debug, Clone)]
@@ -801,15 +805,27 @@ impl PredictorContext<'_> {
             // κ_j ticks when the command reaching the plant now was issued at a tick:
             // (s − D_j) on the control-period grid.
             if step.first_stage {
-                let mut law_evaluated = false;
-                for &j in order.iter().filter(|&&j| delays[j] < d_i) {
-                    let ticks = (step.start - t - delays[j]) / self.control_period;
-                    if (ticks - ticks.round()).abs() < GRID_TOLERANCE || held[j].is_none() {
-                        if !law_evaluated {
-                            law(step.start, step_state, law_input);
-                            law_evaluated = true;
+                let free = &order[..order.partition_point(|&j| delays[j] < d_i)];
+                let period = self.control_period;
+                let due = |j: usize, held: &[Option<f64>]| {
+                    let ticks = (step.start - t - delays[j]) / period;
+                    (ticks - ticks.round()).abs() < GRID_TOLERANCE || held[j].is_none()
+                };
+                if free.iter().any(|&j| due(j, held)) {
+                    // ω for the law: what every channel applies at s — the issued history, or
+                    // for a free channel the command the recursion holds for it (before its
+                    // first in the window: the history, as the filter's queue reads it).
+                    for (j, u_j) in law_input.iter_mut().enumerate().take(r) {
+                        *u_j = match held[j] {
+                            Some(v) if delays[j] < d_i => v,
+                            _ => self.history_input(j, &mut cursors[j], step.start, step.end, step.start)?,
+                        };
+                    }
+                    law(step.start, step_state, free, law_input);
+                    for &j in free {
+                        if due(j, held) {
+                            held[j] = Some(law_input[j]);
                         }
-                        held[j] = Some(law_input[j]);
                     }
                 }
             }
@@ -1088,7 +1104,7 @@ mod tests {
         let x = DVector::from_element(1, 0.7);
         let queues = [queue];
         let context = on_grid(&model, &queues, h);
-        let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.fill(0.0);
+        let mut law = |_: f64, _: &[f64], _: &[usize], u: &mut [f64]| u.fill(0.0);
         let numerical = context.predict(&Structure::Shared, t, &x, &mut law).unwrap();
         assert!((numerical[0].target_time - profile.prediction_time(t)).abs() < 1e-12);
         let issued = |s: f64| {
@@ -1140,7 +1156,7 @@ mod tests {
         let context = on_grid(&model, &queues, h);
         // κ_1 = −1 (a known constant law): p_2 velocity = 0 + 2·0.3 (channel 2 history), position
         // = 0.1·1 (history) + 0.2·(−1) (law) + ∫ velocity.
-        let mut law = |_: f64, _: &[f64], u: &mut [f64]| u.copy_from_slice(&[-1.0, 99.0]);
+        let mut law = |_: f64, _: &[f64], _: &[usize], u: &mut [f64]| u.copy_from_slice(&[-1.0, 99.0]);
         let t = 1.0;
         let p = context.predict(&s, t, &DVector::zeros(2), &mut law).unwrap();
         assert!((p[0].target_time - 1.1).abs() < 1e-12 && (p[1].target_time - 1.3).abs() < 1e-12);
@@ -1175,7 +1191,7 @@ mod tests {
         let mut x = DVector::from_vec(vec![1.0, 1.0, 1.0]);
         let (mut reused, mut worst, mut worst_mismatch) = (0, 0.0_f64, 0.0_f64);
         let (mut partial_steps, mut worst_partial) = (0, 0.0_f64);
-        let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
+        let mut never = |_: f64, _: &[f64], _: &[usize], _: &mut [f64]| unreachable!("no control law in (2.19)");
         for k in 0..400 {
             let t = k as f64 * h;
             let context = on_grid(&model, &queues, h);
@@ -1254,7 +1270,7 @@ mod tests {
             .map(|&(name, d)| DelayQueue::new(name, d, 0.0, h).unwrap())
             .collect();
         let structure = structure(&queues, h).unwrap();
-        let kappa = |_: f64, z: &[f64], u: &mut [f64]| {
+        let kappa = |_: f64, z: &[f64], _: &[usize], u: &mut [f64]| {
             u[0] = -0.1 * z[1] - 0.3 * z[2];
             u[1] = 3.0 - z[3];
         };
@@ -1283,7 +1299,7 @@ mod tests {
             }
             let mut u = [0.0; 2];
             for (j, queue) in queues.iter_mut().enumerate() {
-                kappa(t, p_full[j].state.as_slice(), &mut u);
+                kappa(t, p_full[j].state.as_slice(), &[], &mut u);
                 queue.push(t, u[j] + 0.05 * (7.0 * t).sin()).unwrap();
             }
             let context = on_grid(&model, &queues, h);
@@ -1336,7 +1352,7 @@ mod tests {
             let (mut reusing, mut full, mut p_reused, mut p_full) = twin(4, 2, 1e-4);
             let mut x = DVector::from_vec(vec![-20.0, 1.0, 0.1, 2.0]);
             let (mut reused, mut worst) = (0, 0.0_f64);
-            let mut never = |_: f64, _: &[f64], _: &mut [f64]| unreachable!("no control law in (2.19)");
+            let mut never = |_: f64, _: &[f64], _: &[usize], _: &mut [f64]| unreachable!("no control law in (2.19)");
             for k in 0..100 {
                 let t = k as f64 * h;
                 let context = on_grid(&model, &queues, h);
@@ -1376,7 +1392,7 @@ mod tests {
             DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]),
             DMatrix::from_row_slice(2, 3, &[0.3, 0.0, 0.0, 1.0, 1.0, 1.0]),
         );
-        let kappa = |_: f64, z: &[f64], u: &mut [f64]| {
+        let kappa = |_: f64, z: &[f64], _: &[usize], u: &mut [f64]| {
             u[0] = -z[0] - z[1];
             u[1] = 0.5 * z[0].sin() - 0.2;
             u[2] = -0.2 * z[1] + 0.1;
@@ -1414,7 +1430,7 @@ mod tests {
             }
             let mut u = [0.0; 3];
             for (j, queue) in queues.iter_mut().enumerate() {
-                kappa(t, p_full[j].state.as_slice(), &mut u);
+                kappa(t, p_full[j].state.as_slice(), &[], &mut u);
                 let off_law = if k == off_law_tick && j == 1 { 0.5 } else { 0.0 };
                 queue.push(t, u[j] + off_law).unwrap();
             }

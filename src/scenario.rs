@@ -448,7 +448,10 @@ pub fn plain_serde_message(message: &str) -> String {
         .replace("type: map", "type: table")
         .replace("type: sequence", "type: array")
         .replace("expected f64", "expected a number")
-        .replace("expected f32", "expected a number");
+        .replace("expected f32", "expected a number")
+        // serde names the wide type an out-of-range integer was read as ("`…` as i128").
+        .replace("` as i128", "`")
+        .replace("` as u128", "`");
     for int in ["u8", "u16", "u32", "u64", "usize"] {
         out = out.replace(&format!("expected {int}"), "expected a whole number >= 0");
     }
@@ -480,6 +483,10 @@ pub fn canonical_key(key: &str) -> String {
 
 /// The largest |coordinate| and radius of an obstacle, metres.
 const OBSTACLE_EXTENT: f64 = 1e9;
+
+/// The largest |component| of an initial state, its perturbation bound, and a sensor's bias
+/// or noise (state units).
+const STATE_EXTENT: f64 = 1e9;
 
 /// Checks the form of one `a.b.c=VALUE` override (a dotted key, `=`, a TOML value) without a
 /// scenario to apply it to: what `--set` rejects whatever the scenario.
@@ -583,6 +590,12 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if sc.vehicle.initial_state.iter().any(|v| !v.is_finite()) {
         return Err(s.field_error("vehicle.initial_state", "expected finite numbers"));
     }
+    if let Some(v) = sc.vehicle.initial_state.iter().find(|v| v.abs() > STATE_EXTENT) {
+        return Err(s.field_error(
+            "vehicle.initial_state",
+            format!("expected components within ±{STATE_EXTENT:e} (the models and barriers lose their precision or overflow beyond), found {v:e}"),
+        ));
+    }
     for (section, channel, profile) in sc
         .delays
         .iter()
@@ -617,6 +630,19 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             return Err(s.field_error(
                 &format!("{key}.extra_latency"),
                 "expected max >= 0 seconds (and for truncated_normal a finite mean and std > 0)",
+            ));
+        }
+        let bound = match a.extra_latency {
+            Some(ExtraLatencySpec::Uniform { max }) | Some(ExtraLatencySpec::TruncatedNormal { max, .. }) => max,
+            None => 0.0,
+        };
+        if bound > sc.duration {
+            return Err(s.field_error(
+                &format!("{key}.extra_latency.max"),
+                format!(
+                    "expected at most the run's duration {} s (a command that late never arrives), found {bound}",
+                    sc.duration
+                ),
             ));
         }
     }
@@ -666,13 +692,19 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
                     ),
                 ));
             }
-            if values.iter().any(|v| !v.is_finite() || (non_negative && *v < 0.0)) {
+            if values
+                .iter()
+                .any(|v| !v.is_finite() || (non_negative && *v < 0.0) || v.abs() > STATE_EXTENT)
+            {
                 let expected = if non_negative {
                     "finite numbers >= 0"
                 } else {
                     "finite numbers"
                 };
-                return Err(s.field_error(&format!("sensing.{name}"), format!("expected {expected}")));
+                return Err(s.field_error(
+                    &format!("sensing.{name}"),
+                    format!("expected {expected} within ±{STATE_EXTENT:e}"),
+                ));
             }
         }
     }
@@ -731,10 +763,12 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
         _ => {}
     }
     if let Some(p) = &sc.vehicle.initial_perturbation {
-        if p.len() != sc.vehicle.initial_state.len() || p.iter().any(|v| !v.is_finite() || *v < 0.0) {
+        if p.len() != sc.vehicle.initial_state.len()
+            || p.iter().any(|v| !v.is_finite() || *v < 0.0 || *v > STATE_EXTENT)
+        {
             return Err(s.field_error(
                 "vehicle.initial_perturbation",
-                "expected one bound >= 0 per initial_state component",
+                format!("expected one bound >= 0 per initial_state component, each at most {STATE_EXTENT:e}"),
             ));
         }
     }
@@ -789,6 +823,15 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             return Err(s.field_error(
                 &format!("obstacles.{i}.appear_jitter"),
                 format!("expected a jitter >= 0, found {}", o.appear_jitter),
+            ));
+        }
+        if o.appear_jitter > sc.duration {
+            return Err(s.field_error(
+                &format!("obstacles.{i}.appear_jitter"),
+                format!(
+                    "expected at most the run's duration {} s (a later appearance never happens), found {}",
+                    sc.duration, o.appear_jitter
+                ),
             ));
         }
         if !o.appear_at.is_finite() || o.appear_at < 0.0 {
@@ -873,6 +916,10 @@ input = [1.0]
         assert_eq!(
             plain_serde_message("invalid type: string \"x\", expected a sequence"),
             "invalid type: string \"x\", expected an array"
+        );
+        assert_eq!(
+            plain_serde_message("invalid value: integer `18446744073709551616` as i128, expected usize"),
+            "invalid value: integer `18446744073709551616`, expected a whole number >= 0"
         );
         let err = parse(MINIMAL, "t.toml", &["vehicle=3".into()]).unwrap_err().to_string();
         assert!(

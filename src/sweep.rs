@@ -276,9 +276,23 @@ fn check_range(r: &Range) -> Result<(), String> {
     if !(r.lo.is_finite() && r.hi.is_finite() && r.lo <= r.hi) {
         return Err(format!("expected finite LO <= HI, found {}..{}", r.lo, r.hi));
     }
+    let width = r.hi - r.lo;
+    if !width.is_finite() {
+        return Err(format!(
+            "the width HI − LO of {}..{} overflows (expected a range narrower than {:e})",
+            r.lo,
+            r.hi,
+            f64::MAX
+        ));
+    }
     if let Some(step) = r.step {
         if !(step.is_finite() && step > 0.0) {
             return Err(format!("expected STEP > 0, found {step}"));
+        }
+        if step > width {
+            return Err(format!(
+                "STEP {step} exceeds the width HI − LO = {width} (every value would be LO; expected STEP <= HI − LO)"
+            ));
         }
     }
     Ok(())
@@ -661,6 +675,7 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
         let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
         mcap::check_target(&log_path, &inputs).map_err(|e| e.to_string())?;
         let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
+        episode.check_log_budget().map_err(|e| e.to_string())?;
         let mut sink = McapSink::create(&log_path, episode.info(), &inputs).map_err(|e| e.to_string())?;
         let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
         let summary = episode.run(&mut sinks).map_err(|e| e.to_string())?;

@@ -209,8 +209,12 @@ fn a_baseline_keeps_only_candidates_the_reference_survives_and_random_search_is_
             let (Some(m), Some(b)) = (e["objective"].as_f64(), e["baseline"].as_f64()) else {
                 continue;
             };
+            // Qualified (the baseline safe: b >= 0): the score is m − T; else a positive
+            // penalty max(m − T, 0) + (T_b − b).
+            assert_eq!(e["qualified"].as_bool().unwrap(), b >= 0.0, "{e}");
             assert_eq!(e["violation"].as_bool().unwrap(), m < 0.0 && b >= 0.0, "{e}");
-            assert_eq!(e["score"].as_f64().unwrap(), m.max(-b));
+            let expected = if b >= 0.0 { m } else { m.max(0.0) - b };
+            assert_eq!(e["score"].as_f64().unwrap(), expected, "{e}");
         }
     }
     // Candidates that collide with the baseline too are not counterexamples.
@@ -231,6 +235,15 @@ fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
             "unknown field `initial_state[0]`",
         ),
         (vec!["--range", "delays.steering=0.3..0.1"], "LO <= HI"),
+        (
+            vec!["--range", "delays.steering=0.1..0.3:0.5"],
+            "STEP 0.5 exceeds the width",
+        ),
+        (vec!["--range", "obstacles.0.centre.1=-1e308..1e308"], "overflows"),
+        (
+            vec!["--range", "delays.steering=0..0.3", "--baseline-threshold", "nan"],
+            "--baseline-threshold",
+        ),
         (
             vec!["--range", "delays.steering=0..0.3", "--objective", "min_hh"],
             "--objective min_hh",
@@ -388,4 +401,91 @@ fn ctrl_c_during_the_counterexample_run_is_not_a_reproduction() {
     assert!(out.join("evaluations.json").exists() && out.join("counterexample.toml").exists());
     let m = analyze_json(&out.join("counterexample.mcap"));
     assert_eq!(m["complete"], false, "{m}");
+}
+
+/// The counterexample's objective, from the header of counterexample.toml.
+fn reported_objective(out: &Path) -> f64 {
+    let text = std::fs::read_to_string(out.join("counterexample.toml")).unwrap();
+    let header = text.lines().next().unwrap();
+    let value = header.split("min_h = ").nth(1).unwrap();
+    value.split([' ', '(']).next().unwrap().parse().unwrap()
+}
+
+/// The rows of evaluations.csv as maps of column → cell.
+fn evaluation_rows(out: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let text = std::fs::read_to_string(out.join("evaluations.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines.next().unwrap().split(',').map(str::to_string).collect();
+    lines
+        .map(|l| header.iter().cloned().zip(l.split(',').map(str::to_string)).collect())
+        .collect()
+}
+
+/// `--worst` reports the most severe qualified violation evaluated: the lowest min h among the
+/// rows of evaluations.csv whose baseline is safe by its own threshold (0), for --threshold 0
+/// and −0.5; the header and the report give its severity.
+#[test]
+fn worst_is_the_lowest_qualified_row_of_the_evaluations_for_any_threshold() {
+    let dir = tempfile::tempdir().unwrap();
+    for threshold in ["0", "-0.5"] {
+        let out = dir.path().join(format!("worst{threshold}"));
+        let mut args = GAMMA_M_BOX.to_vec();
+        args.extend_from_slice(&[
+            "--baseline",
+            "delays.steering=0.0",
+            "--baseline",
+            "delays.acceleration=0.0",
+            "--baseline",
+            "filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}",
+            "--worst",
+            "--budget",
+            "48",
+            "--seed",
+            "7",
+            "--threshold",
+            threshold,
+        ]);
+        let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+        assert!(o.status.success(), "{}", text(&o));
+        let t: f64 = threshold.parse().unwrap();
+        let rows = evaluation_rows(&out);
+        let number = |r: &std::collections::HashMap<String, String>, k: &str| r[k].parse::<f64>().ok();
+        // Independently of the search's own flags: qualified = baseline >= 0, violation = m < T.
+        let worst = rows
+            .iter()
+            .filter(|r| number(r, "baseline").is_some_and(|b| b >= 0.0))
+            .filter_map(|r| number(r, "min_h"))
+            .filter(|&m| m < t)
+            .fold(f64::INFINITY, f64::min);
+        // A baseline that collides never qualifies, whatever --threshold is.
+        for r in &rows {
+            if number(r, "baseline").is_some_and(|b| b < 0.0) {
+                assert_eq!(r["qualified"], "false", "{r:?}");
+                assert_eq!(r["violation"], "false", "{r:?}");
+            }
+        }
+        if worst.is_finite() {
+            let reported = reported_objective(&out);
+            assert_eq!(
+                reported, worst,
+                "threshold {threshold}: reported {reported}, evaluated {worst}"
+            );
+            let header = std::fs::read_to_string(out.join("counterexample.toml")).unwrap();
+            assert!(header.contains("# severity: min h"), "{header}");
+            assert!(stdout(&o).contains("most severe violation"), "{}", stdout(&o));
+        } else {
+            assert!(!out.join("counterexample.toml").exists());
+        }
+    }
+}
+
+/// An --out directory that exists but cannot take files is refused before the first run.
+#[test]
+fn an_unwritable_out_directory_is_refused_before_the_search() {
+    // sysfs refuses new files even to root.
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &GAMMA_M_BOX, Path::new("/sys/kernel"));
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let err = stderr(&o);
+    assert!(err.contains("--out /sys/kernel: cannot write"), "{err}");
+    assert!(!err.contains("runs |"), "no run before the refusal: {err}");
 }

@@ -27,7 +27,7 @@ fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
     items[rng.below(items.len())]
 }
 
-const NUMBERS: [&str; 16] = [
+const NUMBERS: [&str; 21] = [
     "nan",
     "inf",
     "-inf",
@@ -44,6 +44,24 @@ const NUMBERS: [&str; 16] = [
     "3",
     "-3.5",
     "18446744073709551616",
+    // Large but in-range integers: sizes that drive allocations and loops.
+    "4294967296",
+    "2147483647",
+    "100000",
+    "1000000",
+    "65536",
+];
+/// Tables appended to a scenario (`{}`: a number from [`NUMBERS`]): the newer tables
+/// (sensing, actuation, actuator dynamics), φ's grid and an obstacle's extent and jitter.
+const TABLES: [&str; 8] = [
+    "[sensing]\nlatency = {}",
+    "[sensing]\nnoise_std = [{}, 0.0, 0.0, 0.0]\nbias = [0.0, {}, 0.0, 0.0]",
+    "[actuation.steering]\ndrop_probability = 0.1\nextra_latency = { distribution = 'uniform', max = {} }",
+    "[actuation.acceleration]\nextra_latency = { distribution = 'truncated_normal', mean = {}, std = 0.1, max = 0.2 }",
+    "[actuator_dynamics.steering]\ntime_constant = {}\nrate_limit = {}\nmax = {}",
+    "[actuator_dynamics.u1]\nmin = -1.0\nmax = {}",
+    "[filter.phi_box]\nlower = [-1.0, -1.0]\nupper = [1.0, 1.0]\npoints = {}",
+    "[[obstacles]]\ncentre = [{}, 0.0]\nradius = 1.0\nappear_at = 1.0\nappear_jitter = {}",
 ];
 const VALUES: [&str; 17] = [
     "'text'",
@@ -74,7 +92,7 @@ fn mutate(text: &str, rng: &mut Rng) -> String {
             lines.push(String::new());
         }
         let i = rng.below(lines.len());
-        match rng.below(9) {
+        match rng.below(10) {
             0 => {
                 lines.remove(i);
             }
@@ -112,6 +130,14 @@ fn mutate(text: &str, rng: &mut Rng) -> String {
                         .map_or(line.len(), |n| start + n);
                     lines[i] = format!("{}{}{}", &line[..start], pick(rng, &NUMBERS), &line[end..]);
                 }
+            }
+            // A table appended, its numbers drawn from NUMBERS.
+            8 => {
+                let mut table = pick(rng, &TABLES).to_string();
+                while let Some(at) = table.find("{}") {
+                    table.replace_range(at..at + 2, pick(rng, &NUMBERS));
+                }
+                lines.push(table);
             }
             // Truncated somewhere.
             7 => {
@@ -168,7 +194,9 @@ fn check_message(case: &str, message: &str, file: &str, text: &str) {
         shown.contains(file),
         "{case}: error does not name the file {file}: {shown}"
     );
-    for rust in ["struct ", "enum ", "Option<", "Vec<", "f64", "usize", "u64", "panicked"] {
+    for rust in [
+        "struct ", "enum ", "Option<", "Vec<", "f64", "usize", "u64", "i128", "u128", "panicked",
+    ] {
         assert!(
             !shown.contains(rust),
             "{case}: error names a Rust type ({rust}): {shown}"

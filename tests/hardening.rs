@@ -356,3 +356,142 @@ fn physics_changing_mujoco_warnings_are_reported() {
     let events = read_topic::<mjsafe::log::proto::Event>(&log, "/event");
     assert!(events.iter().all(|e| e.kind != "mujoco_warning"), "{events:?}");
 }
+
+/// Issue 34, part 3: sizes that drive an allocation or a loop are bounded before use, with the
+/// key and the limit in one error line (each was an abort, a panic, GBs or hours before).
+#[test]
+fn sizes_that_drive_allocations_or_loops_are_bounded_before_use() {
+    let gamma_m = scenario_arg("bicycle_obstacle_gamma_m.toml");
+    let example1 = scenario_arg("nonlinear_example1.toml");
+    let scalar = scenario_arg("scalar_tv_delay.toml");
+    let cases: [(Vec<&str>, Vec<&str>); 8] = [
+        // A sensor ring of 10¹¹ states (an abort: "memory allocation … failed").
+        (
+            vec!["run", &gamma_m, "--set", "sensing={latency=1e9}"],
+            vec!["sensing.latency", "duration"],
+        ),
+        (
+            vec![
+                "run",
+                &gamma_m,
+                "--set",
+                "duration=1e6",
+                "--set",
+                "sensing={latency=2e5}",
+                "--max-steps",
+                "1000000000",
+            ],
+            vec!["sensing.latency", "limit"],
+        ),
+        // φ's grid: 4294967296^4 points (an overflow panic), 100000^2 (40 minutes).
+        (
+            vec![
+                "run",
+                &example1,
+                "--set",
+                "filter.phi_box={lower=[-1.0,-1.0], upper=[1.0,1.0], points=4294967296}",
+            ],
+            vec!["filter.phi_box.points", "1000000"],
+        ),
+        (
+            vec![
+                "run",
+                &example1,
+                "--set",
+                "filter.phi_box={lower=[-1.0,-1.0], upper=[1.0,1.0], points=100000}",
+            ],
+            vec!["filter.phi_box.points"],
+        ),
+        // 10⁸ steps of a 1.5 s prediction window each (40 s of silence, 2.7 GB, hours).
+        (
+            vec!["run", &scalar, "--set", "vehicle.timestep=1e-7"],
+            vec!["vehicle.timestep", "steps", "limit"],
+        ),
+        // Extreme finite values that silently made nothing happen.
+        (
+            vec![
+                "run",
+                &gamma_m,
+                "--set",
+                "actuation={steering={extra_latency={distribution='uniform', max=1e300}}}",
+            ],
+            vec!["actuation.steering.extra_latency.max"],
+        ),
+        (
+            vec!["run", &gamma_m, "--set", "obstacles.0.appear_jitter=1e300"],
+            vec!["obstacles.0.appear_jitter"],
+        ),
+        (
+            vec!["run", &gamma_m, "--set", "vehicle.initial_state=[1e300, 0.0, 0.0, 3.0]"],
+            vec!["vehicle.initial_state", "1e9"],
+        ),
+    ];
+    for (args, needles) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        expect_clean_failure(dir.path(), &args, &needles, &[]);
+    }
+}
+
+/// A log estimated over the log budget, or work over the work budget, is refused before the
+/// run; the flags raise the budgets.
+#[test]
+fn runs_over_the_work_or_log_budget_are_refused_before_they_start() {
+    let scalar = scenario_arg("scalar_tv_delay.toml");
+    let dir = tempfile::tempdir().unwrap();
+    expect_clean_failure(
+        dir.path(),
+        &["run", &scalar, "--max-log-size", "100000"],
+        &["duration", "log", "--max-log-size"],
+        &[],
+    );
+    expect_clean_failure(
+        dir.path(),
+        &["run", &scalar, "--max-work", "1000"],
+        &["duration", "integration steps", "--max-work"],
+        &[],
+    );
+    let o = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args(["run", &scalar, "--max-log-size", "100000000", "--out", "run.mcap"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+/// An MJCF whose sizes would make MuJoCo allocate gigabytes is refused before MuJoCo compiles
+/// it, naming the element and the attribute.
+#[test]
+fn mjcf_sizes_are_bounded_before_mujoco_compiles_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let bicycle = std::fs::read_to_string(root().join("models/bicycle.xml")).unwrap();
+    for (size, needle) in [
+        (r#"<size nkey="100000000"/>"#, r#"<size nkey="100000000">"#),
+        (r#"<size nstack="1e12"/>"#, "nstack"),
+        (r#"<size nuser_geom="2000000"/>"#, "nuser_geom"),
+        (
+            r#"<asset><texture name="t" builtin="checker" width="100000" height="100000"/></asset>"#,
+            "texels",
+        ),
+    ] {
+        // Inside <mujoco>, first.
+        let start = bicycle.find("<mujoco").unwrap();
+        let at = start + bicycle[start..].find('>').unwrap() + 1;
+        let model = format!("{}{size}{}", &bicycle[..at], &bicycle[at..]);
+        let path = write(dir.path(), "big.xml", &model);
+        let model_arg = format!("vehicle.model='{}'", path.display());
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(&out).unwrap();
+        let err = expect_clean_failure(
+            &out,
+            &[
+                "run",
+                &scenario_arg("bicycle_obstacle_gamma_m.toml"),
+                "--set",
+                &model_arg,
+            ],
+            &["big.xml", needle],
+            &[],
+        );
+        assert!(!err.contains("foreign exception"), "{err}");
+    }
+}

@@ -25,6 +25,13 @@ use crate::sensing::Sensor;
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
+/// Most values the sensor's ring of past true states may hold ((latency/h + 1) × state size):
+/// 10⁷ doubles, 80 MB.
+pub const MAX_SENSOR_HISTORY: usize = 10_000_000;
+
+/// Most samples of a time-varying delay over the run for its largest value (`max_delay`).
+const MAX_DELAY_SAMPLES: usize = 1_000_000;
+
 /// A kind's parameter error as the scenario's field error.
 fn param_error(loaded: &LoadedScenario, e: ParamError) -> EpisodeError {
     loaded.field_error(&e.key, e.message).into()
@@ -535,6 +542,32 @@ pub(super) fn configure_control(
                 .into());
         }
         let n = control.model().state_dim();
+        // The sensor keeps a ring of latency/h + 1 past true states: bounded before it is made.
+        if sensing.latency > sc.duration {
+            return Err(loaded
+                .field_error(
+                    "sensing.latency",
+                    format!(
+                        "expected at most the run's duration {} s (a reading older than the run is x(0) throughout), found {}",
+                        sc.duration, sensing.latency
+                    ),
+                )
+                .into());
+        }
+        if (steps + 1.0) * n as f64 > MAX_SENSOR_HISTORY as f64 {
+            return Err(loaded
+                .field_error(
+                    "sensing.latency",
+                    format!(
+                        "{} s is {} steps of {timestep} s: the sensor's ring of past states would hold {:e} values, more than the limit of {MAX_SENSOR_HISTORY:e} (expected a latency of at most {} steps)",
+                        sensing.latency,
+                        steps.round(),
+                        (steps.round() + 1.0) * n as f64,
+                        MAX_SENSOR_HISTORY / n.max(1) - 1
+                    ),
+                )
+                .into());
+        }
         let or_zeros = |v: &Option<Vec<f64>>| v.clone().unwrap_or_else(|| vec![0.0; n]);
         control.set_sensor(Sensor::new(
             n,
@@ -577,24 +610,105 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
         mujoco_version: mujoco::version_string(),
         timestep,
         control_period: period,
+        // A stochastic actuator adds up to its extra-latency bound.
         max_delay: control
             .actuators()
             .iter()
-            .flat_map(|q| {
-                // Sampled over the run for a time-varying delay; a constant one is itself.
-                let samples = match q.constant_delay() {
-                    Some(_) => 0,
-                    None => (sc.duration / timestep).ceil() as usize,
-                };
-                // A stochastic actuator adds up to its extra-latency bound.
-                let extra = q.extra_latency_bound();
-                (0..=samples).map(move |k| q.profile().delay((k as f64 * timestep).min(sc.duration)) + extra)
-            })
+            .map(|q| largest_delay(q, sc.duration, timestep) + q.extra_latency_bound())
             .fold(0.0, f64::max),
         prescribed_time: control.filter().prescribed_time(),
         planar_position: control.model().planar_position(),
         heading_index: control.model().heading_index(),
+        predicts: control.predicts(),
     }
+}
+
+/// The largest delay of a queue over [0, duration]: a constant one itself, a time-varying one
+/// sampled every step (at most MAX_DELAY_SAMPLES + 1 samples, evenly spaced).
+fn largest_delay(q: &DelayQueue, duration: f64, timestep: f64) -> f64 {
+    if let Some(d) = q.constant_delay() {
+        return d;
+    }
+    let samples = ((duration / timestep).ceil() as usize).clamp(1, MAX_DELAY_SAMPLES);
+    let spacing = duration / samples as f64;
+    (0..=samples)
+        .map(|k| q.profile().delay((k as f64 * spacing).min(duration)))
+        .fold(0.0, f64::max)
+}
+
+/// The run's estimated cost ([`super::cost`]): a prediction window of more than
+/// [`super::cost::MAX_PREDICTION_STEPS`] steps, or more work than `--max-work`, is refused
+/// here; a log over `--max-log-size` is returned as the error its writer raises.
+pub(super) fn check_cost(
+    loaded: &LoadedScenario,
+    control: &ControlLoop,
+    steps: u64,
+    barriers: usize,
+) -> Result<(super::cost::Cost, Option<ScenarioError>), EpisodeError> {
+    use super::cost::{self, Cost, RunShape, MAX_PREDICTION_STEPS};
+    let sc = &loaded.scenario;
+    let timestep = control.timestep();
+    let window = control
+        .queues()
+        .iter()
+        .map(|q| largest_delay(q, sc.duration, timestep))
+        .fold(0.0, f64::max);
+    let shape = RunShape {
+        steps,
+        steps_per_tick: control.steps_per_tick(),
+        timestep,
+        states: control.model().state_dim(),
+        channels: control.queues().len(),
+        barriers,
+        prediction: control.predicts().then_some((window, control.predictor_step())),
+        sensor: control.has_sensor(),
+    };
+    let estimate = Cost::of(&shape);
+    let step_key = if sc.control.predictor_step.is_some() {
+        "control.predictor_step"
+    } else if sc.vehicle.timestep.is_some() {
+        "vehicle.timestep"
+    } else {
+        "vehicle.model"
+    };
+    if estimate.prediction_steps > MAX_PREDICTION_STEPS {
+        return Err(loaded
+            .field_error(
+                step_key,
+                format!(
+                    "each prediction integrates the longest delay, {window} s, in steps of {} s: {:e} steps, more than the limit of {MAX_PREDICTION_STEPS:e} (expected a predictor step of at least {:e} s)",
+                    control.predictor_step(),
+                    estimate.prediction_steps,
+                    window / MAX_PREDICTION_STEPS
+                ),
+            )
+            .into());
+    }
+    let budget = cost::max_work();
+    if estimate.work() > budget as f64 {
+        return Err(loaded
+            .field_error(
+                "duration",
+                format!(
+                    "the run is about {:.3e} integration steps ({steps} plant steps, {:.3e} predictor steps), more than the budget of {budget} (raise it with --max-work)",
+                    estimate.work(),
+                    estimate.predictor_steps
+                ),
+            )
+            .into());
+    }
+    let log_budget = cost::max_log_bytes();
+    let log_error = (estimate.log_bytes > log_budget as f64).then(|| {
+        loaded.field_error(
+            "duration",
+            format!(
+                "its log would be about {} ({steps} steps), more than the log budget of {} (raise it with --max-log-size, or shorten the run)",
+                crate::files::human_bytes(estimate.log_bytes as u64),
+                crate::files::human_bytes(log_budget)
+            ),
+        )
+    });
+    Ok((estimate, log_error))
 }
 
 /// Steps of an episode of the scenario's duration.

@@ -2,7 +2,7 @@
 //! MuJoCo's control callback for the MuJoCo plant).
 //!
 //! One control tick (call 0 of every `steps_per_tick`-th step, at the real state x(t)):
-//! predictions p_i(t) → per channel i: nominal u0 and delay-free filter at the channel's
+//! predictions p_i(t) → per channel i: nominal u0 and the safety filter at the channel's
 //! evaluation state (x(t) uncompensated (2.16), p_i(t) compensated (2.26)/(4.34)) → issued
 //! u_i → delay queue i. Every call: sample the queues at the call's time → applied input.
 
@@ -15,7 +15,7 @@ use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
-use crate::filter::{ChannelInput, ChannelOutcome, DelayFreeInput, FilterError, SafetyFilter, TICK_TOLERANCE};
+use crate::filter::{ChannelInput, ChannelOutcome, FilterError, LawInput, SafetyFilter, TICK_TOLERANCE};
 use crate::nominal::NominalController;
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
@@ -77,22 +77,19 @@ struct LawWorkspace {
 }
 
 impl LawWorkspace {
-    /// nominal ← u0 at (`time`, `nominal_state`) and constraints ← the constraint data of
-    /// every known barrier at z in the filter's form. Returns the number of constraints (0
-    /// for a filter without a barrier form).
+    /// constraints ← the constraint data of every known barrier at z in the filter's form.
+    /// Returns the number of constraints (0 for a filter without a barrier form).
     #[inline(always)]
-    fn nominal_and_constraints(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
-        laws.nominal
-            .input_into(time, nominal_state, self.nominal.as_mut_slice());
+    fn constraints_at(&mut self, laws: &Laws<'_>, z: &[f64]) -> usize {
         let Some(form) = laws.form else {
             return 0;
         };
         self.constraints_into(laws, form, z)
     }
 
-    /// [`LawWorkspace::nominal_and_constraints`] with the constraints out of line: for the
-    /// per-channel loop of a tick (the κ closure, called at every predictor step, keeps them
-    /// inline).
+    /// nominal ← u0 at (`time`, `nominal_state`), and [`LawWorkspace::constraints_at`] out of
+    /// line: for the per-channel loop of a tick (the κ closure, called at every predictor
+    /// step, keeps them inline).
     #[inline(always)]
     fn channel_laws(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
         laws.nominal
@@ -290,6 +287,12 @@ impl ControlLoop {
         &self.model
     }
 
+    /// Whether a predictor runs at the ticks (the filter or the nominal uses predictions, and
+    /// some channel is delayed).
+    pub fn predicts(&self) -> bool {
+        (self.filter.uses_prediction() || self.nominal.uses_prediction()) && self.structure != Structure::None
+    }
+
     /// The safety filter.
     pub fn filter(&self) -> &dyn SafetyFilter {
         self.filter.as_ref()
@@ -434,19 +437,38 @@ impl ControlLoop {
                 timestep: *predictor_step,
                 control_period: *control_period,
             };
-            // κ_j for commands not yet issued inside a recursive predictor's window: the
-            // delay-free law (4.29) (exact for (4.30); for (4.44) and (4.67) the commands equal
-            // it once predictions are consistent, Lemma 4.7).
-            let mut kappa = |time: f64, z: &[f64], u: &mut [f64]| {
-                let count = law.nominal_and_constraints(&laws, time, z, z);
-                let input = DelayFreeInput {
-                    time,
-                    state: z,
-                    nominal: &law.nominal,
-                    constraints: &law.constraints[..count],
-                };
-                filter.delay_free(&input, &mut law.input);
-                crate::barrier::copy_small(u, law.input.as_slice());
+            // κ_j for commands not yet issued inside a recursive predictor's window: the law
+            // the filter issues ((4.25) needs it), at the predicted z = x(s), per group of one
+            // delay D from the longest (each group's ω holds the later groups' commands), with
+            // u0 at the tick s − D that issues it (or at s for a nominal on predictions).
+            let mut law_error = None;
+            let mut kappa = |s: f64, z: &[f64], free: &[usize], u: &mut [f64]| {
+                let count = law.constraints_at(&laws, z);
+                let delay = |j: usize| queues[j].constant_delay().unwrap_or(0.0);
+                let mut end = free.len();
+                while end > 0 {
+                    let d = delay(free[end - 1]);
+                    let start = free[..end].partition_point(|&j| delay(j) < d);
+                    let group = &free[start..end];
+                    let nominal_time = if nominal_predicts { s } else { s - d };
+                    laws.nominal.input_into(nominal_time, z, law.nominal.as_mut_slice());
+                    law.input.as_mut_slice().copy_from_slice(u);
+                    let input = LawInput {
+                        time: s - d,
+                        prediction_time: s,
+                        state: z,
+                        nominal: &law.nominal,
+                        constraints: &law.constraints[..count],
+                        free: group,
+                    };
+                    if let Err(e) = filter.issued_law(&input, &mut law.input) {
+                        law_error.get_or_insert(e);
+                    }
+                    for &j in group {
+                        u[j] = law.input[j];
+                    }
+                    end = start;
+                }
             };
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
             if let Some(audit) = chain_audit {
@@ -463,6 +485,9 @@ impl ControlLoop {
                         audit.max_difference = audit.max_difference.max(difference);
                     }
                 }
+            }
+            if let Some(e) = law_error {
+                return Err(e);
             }
         }
 

@@ -4,6 +4,7 @@
 
 mod build;
 mod control;
+pub mod cost;
 mod records;
 
 use std::path::PathBuf;
@@ -107,6 +108,10 @@ pub struct Episode {
     xdot: Vec<f64>,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
     records: RecordBuffers,
+    /// The run's estimated cost, and the error of a log over the log budget (taken by
+    /// [`Episode::check_log_budget`]).
+    cost: cost::Cost,
+    log_budget: Option<ScenarioError>,
 }
 
 impl Episode {
@@ -158,6 +163,8 @@ impl Episode {
         }
         build::configure_control(loaded, &mut control, &barriers)?;
         let info = build::run_info(loaded, &control, period);
+        let (cost, log_budget) =
+            build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         Ok(Episode {
             plant,
             control,
@@ -178,7 +185,21 @@ impl Episode {
                 model.channel_names(),
                 records::frame_steps(steps_per_tick, timestep),
             ),
+            cost,
+            log_budget,
         })
+    }
+
+    /// The run's estimated cost (integration steps, log bytes), checked against the work
+    /// budget when the episode was built.
+    pub fn cost(&self) -> cost::Cost {
+        self.cost
+    }
+
+    /// Refuses a log the estimate puts over the log-size budget (`--max-log-size`): call it
+    /// before opening the log (an episode analysed in memory writes none).
+    pub fn check_log_budget(&mut self) -> Result<(), EpisodeError> {
+        self.log_budget.take().map_or(Ok(()), |e| Err(e.into()))
     }
 
     pub fn info(&self) -> &RunInfo {
@@ -286,8 +307,10 @@ impl Episode {
         let mut x = DVector::zeros(self.control.model().state_dim());
         let mut applied = DVector::zeros(channels.len());
 
+        PROGRESS.store(0, std::sync::atomic::Ordering::Relaxed);
         for k in 0..=self.steps {
             let time = k as f64 * h;
+            PROGRESS.store(k, std::sync::atomic::Ordering::Relaxed);
             for i in self.reveal_obstacles(time) {
                 let o = &self.obstacles[i];
                 let message = format!("{} becomes known to the controller", o.barrier.name);
@@ -587,6 +610,14 @@ pub fn request_stop() {
 /// Whether a stop was requested.
 pub fn stop_requested() -> bool {
     STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// The step the episode stepping last reached (what `mjsafe run` shows as its progress).
+static PROGRESS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// The step the episode stepping last (in this process) has reached.
+pub fn progress() -> u64 {
+    PROGRESS.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// The message of an episode stopped by [`request_stop`].

@@ -38,13 +38,23 @@ pub trait SafetyFilter: Send {
     /// barrier yet): the nominal input is issued and no decision is logged.
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError>;
 
-    /// u ← the delay-free safe law κ^DF (4.29) at z, for all channels: the commands the
-    /// recursive predictors (4.23) assume for inputs not yet issued inside their window.
-    /// Default: the delay-free CBF-QP (4.9) over every known barrier (allocation-free for at
-    /// most one barrier; with several, override it with a [`QpWorkspace`] kept in the filter).
-    /// The predictors call it at every step of their window: keep it cheap.
-    fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
+    /// The law this filter issues, as the recursive predictors (4.23) assume it for the
+    /// commands not yet issued inside their window: `u[j]` ← κ_j at the predicted state z for
+    /// every channel j in `input.free`. On entry `u` holds, for every other channel, the
+    /// command it applies at the time z is predicted for (issued before the prediction's tick,
+    /// or assumed by the recursion for a later tick): the ω (4.45)/(4.62) this law reads.
+    /// Entries outside `free` may be overwritten; only those in `free` are read back.
+    ///
+    /// By (4.25) a prediction is the state that follows only if this is the law
+    /// [`SafetyFilter::filter_channel`] really issues at z. Default: the delay-free CBF-QP
+    /// (4.29)/(4.9) over every known barrier — what a filter issuing component i of κ^DF at
+    /// p_i(t) ((4.30)/(4.34)) issues; override it for any other law ((4.44) and (4.67) do).
+    /// Allocation-free for at most one barrier; with several, override it with a
+    /// [`QpWorkspace`] kept in the filter. The predictors call it at every step of their
+    /// window: keep it cheap.
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         delay_free_qp(input.constraints, input.nominal, None, None, u);
+        Ok(())
     }
 
     /// The prescribed time T of the run's prescribed-time metrics (Ch. 5), if the filter has one.
@@ -85,16 +95,22 @@ impl ChannelInput<'_> {
     }
 }
 
-/// What [`SafetyFilter::delay_free`] receives.
-pub struct DelayFreeInput<'a> {
-    /// The time of the (predicted) state.
+/// What [`SafetyFilter::issued_law`] receives: one predicted state z = p_j(τ) = x(τ + D_j),
+/// shared by the channels in `free` (equal delays D_j, so one issue time τ).
+pub struct LawInput<'a> {
+    /// τ, the tick at which the channels in `free` issue the command that reaches the plant at
+    /// `prediction_time` (s).
     pub time: f64,
-    /// z, the (predicted) state.
+    /// τ + D_j, the time z is predicted for (s).
+    pub prediction_time: f64,
+    /// z, the predicted state.
     pub state: &'a [f64],
-    /// u0 at z.
+    /// u0 (every channel) at z, at the time the filter evaluates it at that tick.
     pub nominal: &'a DVector<f64>,
-    /// One per known barrier at z.
+    /// One per known barrier at z, in the form of [`SafetyFilter::barrier_form`].
     pub constraints: &'a [Constraint],
+    /// The channels whose commands the law gives (in channel order, one delay).
+    pub free: &'a [usize],
 }
 
 /// u ← the delay-free CBF-QP over all channels from u0 and the constraints: u0 without

@@ -10,7 +10,7 @@ use crate::barrier::BarrierForm;
 use crate::filter::qp::QpWorkspace;
 use crate::filter::Params;
 use crate::filter::{
-    barrier_form, delay_free_qp, ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError,
+    barrier_form, delay_free_qp, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError,
     SafetyFilter,
 };
 
@@ -121,8 +121,10 @@ impl SafetyFilter for CbfQp {
             mu,
         }))
     }
-    fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
+    /// What `filter_channel` issues: component j of the same QP (with its limits) at z.
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
         delay_free_qp(input.constraints, input.nominal, limits, Some(&mut self.qp), u);
+        Ok(())
     }
 }

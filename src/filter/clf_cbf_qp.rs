@@ -9,9 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::barrier::{BarrierForm, Shape};
 use crate::filter::linear_delays::{self, ConstrainedStabilizer, KappaLbWorkspace, QpCase};
 use crate::filter::Params;
-use crate::filter::{
-    ChannelInput, ChannelOutcome, DelayFreeInput, FilterContext, FilterError, ParamError, SafetyFilter,
-};
+use crate::filter::{ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -164,9 +162,11 @@ impl SafetyFilter for ClfCbfQp {
             mu: f64::NAN,
         }))
     }
-    fn delay_free(&mut self, input: &DelayFreeInput<'_>, u: &mut DVector<f64>) {
+    /// What `filter_channel` issues: component j of QP-LB (3.33) at z.
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         self.state.copy_from_slice(input.state);
         self.stabilizer.kappa_lb_into(&self.state, &mut self.kappa);
         u.copy_from(&self.kappa.input);
+        Ok(())
     }
 }

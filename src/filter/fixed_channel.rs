@@ -8,7 +8,7 @@ use crate::barrier::{self, BarrierForm};
 use crate::filter::Params;
 use crate::filter::{
     barrier_form, box_grid, fixed_channel, minimal_channels, ChannelInput, ChannelOutcome, FilterContext, FilterError,
-    ParamError, SafetyFilter,
+    LawInput, ParamError, SafetyFilter,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -38,6 +38,9 @@ pub struct StateBox {
     #[serde(default = "default_box_points")]
     pub points: usize,
 }
+
+/// Most grid points of `phi_box` (points^n): each evaluates the barrier's input row.
+pub const MAX_PHI_BOX_POINTS: usize = 1_000_000;
 
 fn default_box_points() -> usize {
     9
@@ -69,6 +72,21 @@ impl Params for FixedChannelParams {
                 return Err(ParamError::new(
                     "filter.phi_box",
                     "expected lower <= upper of equal lengths, finite, and points >= 2",
+                ));
+            }
+            let total = u32::try_from(b.lower.len())
+                .ok()
+                .and_then(|n| b.points.checked_pow(n))
+                .filter(|&total| total <= MAX_PHI_BOX_POINTS);
+            if total.is_none() {
+                return Err(ParamError::new(
+                    "filter.phi_box.points",
+                    format!(
+                        "{} points per axis over {} axes is more than {MAX_PHI_BOX_POINTS} grid points (expected points^{} <= {MAX_PHI_BOX_POINTS})",
+                        b.points,
+                        b.lower.len(),
+                        b.lower.len()
+                    ),
                 ));
             }
         }
@@ -155,5 +173,22 @@ impl SafetyFilter for FixedChannel {
         let s = self.phi.max(input.channel + 1);
         input.later_commands(s, &mut self.omega)?;
         Ok(Some(fixed_channel(c, input.nominal, &self.omega, input.channel, s)))
+    }
+
+    /// (4.44) itself at z: u_j = u0_j + ū_j (4.46) with s = max{φ, j} (4.43) and ω (4.45) the
+    /// later channels' commands in `u`.
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
+        let [c, ..] = input.constraints else {
+            for &j in input.free {
+                u[j] = input.nominal[j];
+            }
+            return Ok(());
+        };
+        self.omega.copy_from(u);
+        for &j in input.free {
+            let s = self.phi.max(j + 1);
+            u[j] = fixed_channel(c, input.nominal, &self.omega, j, s).input;
+        }
+        Ok(())
     }
 }

@@ -8,7 +8,7 @@ use crate::barrier::BarrierForm;
 use crate::filter::fixed_channel::single_barrier;
 use crate::filter::Params;
 use crate::filter::{
-    barrier_form, gamma_m, ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter,
+    barrier_form, gamma_m, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -55,6 +55,18 @@ pub struct GammaM {
     gamma: f64,
     /// ω (4.62), scratch space.
     omega: DVector<f64>,
+    /// D_j per channel (constant, non-decreasing).
+    delays: Vec<f64>,
+}
+
+impl GammaM {
+    /// k (4.68): the last channel with the same delay as channel i.
+    fn last_of_equal_delay(&self, i: usize) -> usize {
+        (i..self.delays.len())
+            .take_while(|&j| self.delays[j] == self.delays[i])
+            .last()
+            .unwrap_or(i)
+    }
 }
 
 /// The filter of a `kind = "gamma_m"` table: constant delays in channel order, one barrier.
@@ -67,6 +79,11 @@ pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilt
         m: p.m,
         gamma: p.gamma.unwrap_or((p.m + 1.0) / p.m),
         omega: DVector::zeros(ctx.queues.len()),
+        delays: ctx
+            .queues
+            .iter()
+            .map(|q| q.constant_delay().unwrap_or(f64::NAN))
+            .collect(),
     }))
 }
 
@@ -82,13 +99,26 @@ impl SafetyFilter for GammaM {
             return Ok(None);
         };
         // k (4.68): the last channel with the same delay as i.
-        let (i, queues) = (input.channel, input.queues);
-        let delay_i = queues[i].constant_delay();
-        let k = (i..queues.len())
-            .take_while(|&j| queues[j].constant_delay() == delay_i)
-            .last()
-            .unwrap_or(i);
+        let i = input.channel;
+        let k = self.last_of_equal_delay(i);
         input.later_commands(k + 1, &mut self.omega)?;
         Ok(Some(gamma_m(c, input.nominal, &self.omega, i, k, self.m, self.gamma)))
+    }
+
+    /// (4.67) itself at z: u_j = u0_j + ū_j of QP_k (4.62) with ω (4.64) the later channels'
+    /// commands in `u` (k (4.68): the channels in `free` share one delay, so one k).
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
+        let [c, ..] = input.constraints else {
+            for &j in input.free {
+                u[j] = input.nominal[j];
+            }
+            return Ok(());
+        };
+        self.omega.copy_from(u);
+        for &j in input.free {
+            let k = self.last_of_equal_delay(j);
+            u[j] = gamma_m(c, input.nominal, &self.omega, j, k, self.m, self.gamma).input;
+        }
+        Ok(())
     }
 }

@@ -21,8 +21,8 @@ pub mod prescribed_time;
 pub mod qp;
 
 pub use api::{
-    barrier_form, delay_free_qp, ChannelInput, DelayFreeInput, FilterContext, FilterError, ParamError, Params,
-    SafetyFilter, TICK_TOLERANCE,
+    barrier_form, delay_free_qp, ChannelInput, FilterContext, FilterError, LawInput, ParamError, Params, SafetyFilter,
+    TICK_TOLERANCE,
 };
 use nalgebra::DVector;
 
@@ -160,7 +160,11 @@ pub fn minimal_channels(
 /// The grid of `points` per axis in the box [lower, upper].
 pub fn box_grid<'a>(lower: &'a [f64], upper: &'a [f64], points: usize) -> impl Iterator<Item = DVector<f64>> + 'a {
     let n = lower.len();
-    let total = points.pow(n as u32);
+    // Saturating: callers bound points^n first (`filter.phi_box.points`).
+    let total = u32::try_from(n)
+        .ok()
+        .and_then(|n| points.checked_pow(n))
+        .unwrap_or(usize::MAX);
     (0..total).map(move |mut index| {
         let mut x = DVector::zeros(n);
         for d in 0..n {

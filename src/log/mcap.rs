@@ -191,6 +191,7 @@ mod tests {
             max_delay: 0.0,
             planar_position: None,
             heading_index: None,
+            predicts: false,
         }
     }
 

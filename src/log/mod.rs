@@ -309,6 +309,9 @@ pub struct RunInfo {
     /// them (`Dynamics::planar_position`, `heading_index`); None for non-planar systems.
     pub planar_position: Option<[usize; 2]>,
     pub heading_index: Option<usize>,
+    /// Whether the controller predicts (a predictor runs at its ticks): without, the log's
+    /// `/prediction` topic is empty, and a copy that drops the empty channel lost nothing.
+    pub predicts: bool,
 }
 
 impl RunInfo {
@@ -329,6 +332,7 @@ impl RunInfo {
             ("timestep".to_string(), format!("{}", self.timestep)),
             ("control_period".to_string(), format!("{}", self.control_period)),
             ("max_delay".to_string(), format!("{}", self.max_delay)),
+            ("predicts".to_string(), self.predicts.to_string()),
             (
                 "planar_position".to_string(),
                 self.planar_position.map_or(String::new(), |p| indices(&p)),

@@ -8,6 +8,7 @@
 #[cfg(test)]
 pub(crate) mod counting_alloc;
 mod ffi;
+mod sizes;
 
 use std::cell::RefCell;
 use std::ffi::{CStr, CString};
@@ -126,6 +127,17 @@ pub struct Model {
 // SAFETY: an mjModel is plain heap data; mjsafe never shares one mutably across threads.
 unsafe impl Send for Model {}
 
+unsafe extern "C" {
+    /// `mj_loadXML` inside a C++ `try`/`catch` (src/mujoco/load_xml.cpp): an exception of
+    /// MuJoCo's compiler becomes a null model with its message in `error`.
+    fn mjsafe_load_xml(
+        filename: *const std::os::raw::c_char,
+        vfs: *const ffi::mjVFS,
+        error: *mut std::os::raw::c_char,
+        error_sz: std::os::raw::c_int,
+    ) -> *mut ffi::mjModel;
+}
+
 /// Size of MuJoCo's error buffer for `mj_loadXML`.
 const ERROR_BUFFER: usize = 1000;
 
@@ -206,6 +218,10 @@ impl Model {
                 origin: origin.to_string(),
             });
         }
+        sizes::check_model_sizes(xml, origin).map_err(|message| MjError::Load {
+            origin: origin.to_string(),
+            message,
+        })?;
         let cacheable = !names_other_files(xml);
         if cacheable {
             let cached = COMPILED.with(|cell| match &*cell.borrow() {
@@ -291,7 +307,7 @@ impl Model {
                 let slot = ffi::mj_findFileVFS(&**vfs, vfs_name.as_ptr());
                 let dest = vfs.filedata[slot as usize] as *mut u8;
                 std::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, bytes.len());
-                let model = ffi::mj_loadXML(vfs_name.as_ptr(), &**vfs, error.as_mut_ptr(), ERROR_BUFFER as i32);
+                let model = mjsafe_load_xml(vfs_name.as_ptr(), &**vfs, error.as_mut_ptr(), ERROR_BUFFER as i32);
                 ffi::mj_deleteFileVFS(&mut **vfs, vfs_name.as_ptr());
                 Ok(model)
             }
