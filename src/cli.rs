@@ -1049,7 +1049,7 @@ fn run_scenario(
         outln!("{value}");
     } else {
         outln!(
-            "{}: {}{} | min h = {} | {} steps, {:.2} s simulated, {:.0}x real time | log: {}",
+            "{}: {}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
             metrics
                 .collision
@@ -1074,7 +1074,11 @@ fn run_scenario(
             metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
             summary.steps,
             summary.simulated_time,
-            summary.real_time_factor(),
+            // Two significant digits below 10x (a slow run is not "0x").
+            match summary.real_time_factor() {
+                f if f < 10.0 => format!("{f:.2}"),
+                f => format!("{f:.0}"),
+            },
             log_path.display()
         );
     }

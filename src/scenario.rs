@@ -371,7 +371,17 @@ pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<Load
 pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, ScenarioError> {
     let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| ScenarioError::Syntax {
         file: file.to_string(),
-        message: e.to_string().trim().replace('\n', " "),
+        message: e
+            .to_string()
+            .trim()
+            .replace('\n', " ")
+            // toml reads an integer beyond 64 bits as serde's i128 and names that type.
+            .replace("invalid type: integer ", "invalid value: integer ")
+            .replace(
+                "` as i128, expected any valid TOML value",
+                "`, beyond TOML's 64-bit integers (expected a float such as 1e20, or a smaller integer)",
+            )
+            .replace("` as i128", "`"),
     })?;
     for spec in overrides {
         apply_override(&mut table, spec)?;

@@ -410,3 +410,55 @@ fn mutated_sweep_files_never_panic_hang_or_give_unclear_errors() {
     );
     assert!(built > 0 && rejected > 0);
 }
+
+/// MJCF size attributes (`{}`: a number from [`NUMBERS`]), put inside the bicycle's `<mujoco>`.
+const MJCF_SIZES: [&str; 9] = [
+    "<size nkey=\"{}\"/>",
+    "<size nuserdata=\"{}\" nstack=\"{}\"/>",
+    "<size njmax=\"{}\" nconmax=\"{}\"/>",
+    "<size nuser_geom=\"{}\" nuser_body=\"{}\"/>",
+    "<custom><numeric name=\"n\" size=\"{}\"/></custom>",
+    "<asset><texture name=\"t\" builtin=\"checker\" width=\"{}\" height=\"{}\"/></asset>",
+    "<asset><hfield name=\"h\" nrow=\"{}\" ncol=\"{}\" size=\"1 1 1 1\"/></asset>",
+    "<size nkey=\"{}\"/><size nkey=\"{}\"/>",
+    "<size nstack=\"{}\"/>",
+];
+
+#[test]
+fn mjcf_size_attributes_are_bounded_and_never_panic_or_hang() {
+    let started = Instant::now();
+    let cases = cases_per_file() / 4;
+    let dir = tempfile::tempdir().unwrap();
+    let bicycle = std::fs::read_to_string(repo().join("models/bicycle.xml")).unwrap();
+    let scenario_path = repo().join("scenarios/bicycle_obstacle_gamma_m.toml");
+    let scenario = std::fs::read_to_string(&scenario_path).unwrap();
+    let start = bicycle.find("<mujoco").unwrap();
+    let at = start + bicycle[start..].find('>').unwrap() + 1;
+    let mut rng = Rng(seed() ^ 0x4d4a_4346);
+    let mut counts = Counts::default();
+    for case in 0..cases {
+        let mut size = pick(&mut rng, &MJCF_SIZES).to_string();
+        while let Some(i) = size.find("{}") {
+            size.replace_range(i..i + 2, pick(&mut rng, &NUMBERS));
+        }
+        let model = dir.path().join(format!("model-{case}.xml"));
+        std::fs::write(&model, format!("{}{size}{}", &bicycle[..at], &bicycle[at..])).unwrap();
+        let text = scenario.replace("../models/bicycle.xml", &model.display().to_string());
+        let what = format!("MJCF case {case} (seed {}): {size}", seed());
+        let path = scenario_path.clone();
+        counts = guarded(what.clone(), move || {
+            let mut counts = counts;
+            scenario_case(&path, text, &mut counts, &what);
+            counts
+        });
+    }
+    eprintln!(
+        "fuzz MJCF sizes: {} cases in {:.1} s: {} refused, {} ran",
+        counts.cases,
+        started.elapsed().as_secs_f64(),
+        counts.rejected + counts.not_built,
+        counts.ran
+    );
+    assert_eq!(counts.cases, cases);
+    assert!(counts.ran > 0 && counts.not_built > 0, "{counts:?}");
+}

@@ -88,7 +88,7 @@ fn sigterm_finishes_the_log_as_incomplete_and_exits_130() {
             "run",
             "scenarios/bicycle_obstacle_nodelay.toml",
             "--set",
-            "duration=100000.0",
+            "duration=5000.0",
             "--out",
         ])
         .arg(&log)
@@ -147,7 +147,7 @@ fn sigterm_during_a_sweep_finishes_the_running_logs_and_says_which_runs_did_not_
             "sweep",
             "scenarios/bicycle_obstacle_nodelay.toml",
             "--set",
-            "duration=100000.0",
+            "duration=5000.0",
             "--grid",
             "delays.steering=0.0,0.2",
             "--threads",

@@ -559,7 +559,7 @@ pub(super) fn configure_control(
                 .field_error(
                     "sensing.latency",
                     format!(
-                        "{} s is {} steps of {timestep} s: the sensor's ring of past states would hold {:e} values, more than the limit of {MAX_SENSOR_HISTORY:e} (expected a latency of at most {} steps)",
+                        "{} s is {} steps of {timestep} s: the sensor's ring of past states would hold {:.4e} values, more than the limit of {MAX_SENSOR_HISTORY:e} (expected a latency of at most {} steps)",
                         sensing.latency,
                         steps.round(),
                         (steps.round() + 1.0) * n as f64,
@@ -676,7 +676,7 @@ pub(super) fn check_cost(
             .field_error(
                 step_key,
                 format!(
-                    "each prediction integrates the longest delay, {window} s, in steps of {} s: {:e} steps, more than the limit of {MAX_PREDICTION_STEPS:e} (expected a predictor step of at least {:e} s)",
+                    "each prediction integrates the longest delay, {window:.4} s, in steps of {} s: {:.4e} steps, more than the limit of {MAX_PREDICTION_STEPS:e} (expected a predictor step of at least {:.4e} s)",
                     control.predictor_step(),
                     estimate.prediction_steps,
                     window / MAX_PREDICTION_STEPS

@@ -112,6 +112,8 @@ pub struct Episode {
     /// [`Episode::check_log_budget`]).
     cost: cost::Cost,
     log_budget: Option<ScenarioError>,
+    /// Predictions realised at a time inside the current step, logged after its records.
+    inside_step: Vec<control::Consistency>,
 }
 
 impl Episode {
@@ -187,6 +189,7 @@ impl Episode {
             ),
             cost,
             log_budget,
+            inside_step: Vec::new(),
         })
     }
 
@@ -347,6 +350,13 @@ impl Episode {
             match self.control.realize(time, &x, k == self.steps) {
                 Ok(done) => {
                     for c in done {
+                        // A target inside the step (off the grid: a time-varying delay) is
+                        // logged after the step's records of t_k, so the log stays in
+                        // log-time order (a reader streams it instead of sorting it).
+                        if c.prediction.target_time > time + TICK_TOLERANCE * h {
+                            self.inside_step.push(c);
+                            continue;
+                        }
                         Self::emit_ref(sinks, self.records.set_prediction(&c))?;
                         self.control.recycle(c);
                     }
@@ -411,6 +421,12 @@ impl Episode {
             }
             self.emit_barriers(sinks, time, &x, &applied)?;
             self.check_contacts(sinks, time)?;
+            let mut inside_step = std::mem::take(&mut self.inside_step);
+            for c in inside_step.drain(..) {
+                Self::emit_ref(sinks, self.records.set_prediction(&c))?;
+                self.control.recycle(c);
+            }
+            self.inside_step = inside_step;
         }
         let end = self.steps as f64 * h;
         self.close_contacts(sinks, end)?;
