@@ -349,7 +349,11 @@ fn every_prediction_is_the_state_that_follows_on_the_exact_model() {
         let (_dir, log) = run(file, extra);
         let errors = prediction_errors_from(&log, from);
         let channels = if file.starts_with("scalar") { 1 } else { 2 };
-        assert_eq!(errors.len(), channels, "{label}: predictions of every channel: {errors:?}");
+        assert_eq!(
+            errors.len(),
+            channels,
+            "{label}: predictions of every channel: {errors:?}"
+        );
         for (channel, (max_error, count)) in errors {
             assert!(count > 100, "{label}: {channel}: {count} predictions");
             assert!(

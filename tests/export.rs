@@ -310,7 +310,31 @@ fn outputs_follow_the_file_rules() {
     assert!(stderr(&o).contains("run-state.csv"), "{}", stderr(&o));
     assert_eq!(std::fs::read_to_string(path("run-state.csv")).unwrap(), "my notes\n");
     assert_eq!(listing(dir.path()), ["run-state.csv", "run.mcap"]);
-    // An earlier export is replaced.
+    // A user's CSV that merely starts with `time,` is not this table: kept, and nothing written.
+    std::fs::write(path("run-state.csv"), "time,speed\n0.0,1.0\n").unwrap();
+    let o = mjsafe(&["export", log.to_str().unwrap(), "--topics", "/state,/barrier"]);
+    assert!(!o.status.success());
+    assert_eq!(stderr(&o).lines().count(), 1, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("run-state.csv") && stderr(&o).contains("not this log's table"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read_to_string(path("run-state.csv")).unwrap(),
+        "time,speed\n0.0,1.0\n"
+    );
+    assert_eq!(listing(dir.path()), ["run-state.csv", "run.mcap"]);
+    // No topic named: an error, not an exit 0 that writes nothing.
+    let o = mjsafe(&["export", log.to_str().unwrap(), "--topics", ""]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--topics: no topic named"), "{}", stderr(&o));
+    // An earlier export is replaced (CSV: its header is this log's table's).
+    std::fs::remove_file(path("run-state.csv")).unwrap();
+    for _ in 0..2 {
+        let o = mjsafe(&["export", log.to_str().unwrap(), "--topics", "/state"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
     std::fs::remove_file(path("run-state.csv")).unwrap();
     for _ in 0..2 {
         let o = mjsafe(&[

@@ -340,3 +340,23 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
         assert!(!rrd.exists());
     }
 }
+
+/// A copy that leaves out the empty `/prediction` channel (as a writer that registers a channel
+/// with its first message does) of a run that made no predictions lacks nothing: its metrics
+/// are the original's. A run that predicted still names the topic as missing.
+#[test]
+fn a_copy_without_the_empty_prediction_channel_of_a_run_without_predictions_lacks_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = original(dir.path(), "bicycle_obstacle", &["duration=1.0"]);
+    let copy = copy_path(&log, "no-prediction");
+    rewrite(&log, &copy, "zstd", "1048576", "first", "/prediction");
+    let m = metrics(&copy);
+    assert!(m["missing"].get("prediction").is_none(), "{m}");
+    assert_eq!(m, metrics(&log));
+
+    let predicted = original(dir.path(), "bicycle_obstacle_gamma_m", &["duration=1.0"]);
+    let copy = copy_path(&predicted, "no-prediction");
+    rewrite(&predicted, &copy, "zstd", "1048576", "first", "/prediction");
+    let m = metrics(&copy);
+    assert_eq!(m["missing"]["prediction"], "no /prediction topic in the log", "{m}");
+}
