@@ -161,6 +161,8 @@ pub fn run(
         let loaded = scenario::load(scenario_path, &overrides)?;
         // An untimed, audited run records the actuation the bare loop replays.
         let mut probe = Episode::new(&loaded)?;
+        // The logged repeats write a log each: over the log budget, refused before any run.
+        probe.check_log_budget()?;
         let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
         let chain_tolerance = loaded.scenario.control.chain_tolerance;
         let log_path = log_dir.join(format!(
