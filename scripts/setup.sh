@@ -11,7 +11,8 @@ want_test=0
 need_apt=()
 dpkg -s libmujoco-dev >/dev/null 2>&1 || need_apt+=(libmujoco-dev)
 command -v protoc >/dev/null 2>&1 || need_apt+=(protobuf-compiler)
-command -v cc >/dev/null 2>&1 || need_apt+=(build-essential)
+# C and C++ compilers: build.rs compiles src/mujoco/load_xml.cpp (mj_loadXML behind a C++ try/catch).
+{ command -v cc >/dev/null 2>&1 && command -v c++ >/dev/null 2>&1; } || need_apt+=(build-essential)
 command -v pkg-config >/dev/null 2>&1 || need_apt+=(pkg-config)
 if [ "$want_test" = 1 ]; then
   [ -x /usr/bin/time ] || need_apt+=(time)   # GNU time: peak-memory checks in the tests

@@ -495,3 +495,42 @@ fn mjcf_sizes_are_bounded_before_mujoco_compiles_the_model() {
         assert!(!err.contains("foreign exception"), "{err}");
     }
 }
+
+/// A run longer than two seconds shows its progress on a terminal (`script` gives it one), and
+/// nothing of it when stderr is not a terminal.
+#[test]
+fn a_long_run_shows_progress_on_a_terminal_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let command = format!(
+        "'{}' run '{}' --set vehicle.timestep=2e-5 --out '{}'",
+        env!("CARGO_BIN_EXE_mjsafe"),
+        scenario_arg("scalar_tv_delay.toml"),
+        dir.path().join("tty.mcap").display()
+    );
+    let typescript = dir.path().join("typescript");
+    let o = Command::new("script")
+        .args(["-qec", &command])
+        .arg(&typescript)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let shown = String::from_utf8_lossy(&std::fs::read(&typescript).unwrap()).into_owned();
+    assert!(
+        shown.contains("run: t = ") && shown.contains(" s of 10.00 s (") && shown.contains("x real time"),
+        "{shown}"
+    );
+    let o = Command::new(env!("CARGO_BIN_EXE_mjsafe"))
+        .args([
+            "run",
+            &scenario_arg("scalar_tv_delay.toml"),
+            "--set",
+            "vehicle.timestep=2e-5",
+        ])
+        .arg("--out")
+        .arg(dir.path().join("pipe.mcap"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!stderr(&o).contains("run: t = "), "{}", stderr(&o));
+}
