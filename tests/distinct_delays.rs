@@ -279,13 +279,14 @@ fn safety_intervention_and_comfort_metrics_tell_the_filters_apart() {
     assert!(num(&g, "max_lateral_jerk") > 0.0 && num(&g, "max_longitudinal_jerk") > 0.0);
 }
 
-/// Per channel: (largest |p_i − x(t + D_i)|, predictions) over the predictions issued at or
-/// after `from` (s).
-fn prediction_errors_from(log: &std::path::Path, from: f64) -> std::collections::BTreeMap<String, (f64, usize)> {
+/// Per channel: (largest |p_i − x(t + D_i)|, predictions, predictions from a reused chain)
+/// over the predictions issued at or after `from` (s).
+fn prediction_errors_from(log: &std::path::Path, from: f64) -> std::collections::BTreeMap<String, (f64, usize, usize)> {
     let mut out = std::collections::BTreeMap::new();
     for p in read_topic::<proto::Prediction>(log, "/prediction") {
         if p.issued_at >= from - 1e-9 {
-            let e = out.entry(p.channel.clone()).or_insert((0.0_f64, 0));
+            let e = out.entry(p.channel.clone()).or_insert((0.0_f64, 0, 0));
+            e.2 += usize::from(p.reused_chain);
             // The realised state, recomputed here from the logged vectors (not the logged error).
             let error = p
                 .predicted
@@ -354,8 +355,15 @@ fn every_prediction_is_the_state_that_follows_on_the_exact_model() {
             channels,
             "{label}: predictions of every channel: {errors:?}"
         );
-        for (channel, (max_error, count)) in errors {
+        for (channel, (max_error, count, reused)) in errors {
             assert!(count > 100, "{label}: {channel}: {count} predictions");
+            // The chain reuse is what is checked here too: most ticks continue the last chain.
+            if file.starts_with("bicycle") {
+                assert!(
+                    reused * 10 > count * 9,
+                    "{label}: {channel}: {reused} of {count} reused"
+                );
+            }
             assert!(
                 max_error <= 1e-4,
                 "{label}: {channel}: a prediction is {max_error:e} off the realised state"
