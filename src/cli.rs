@@ -164,7 +164,7 @@ pub enum Command {
     Run {
         /// Scenario file (TOML).
         scenario: PathBuf,
-        /// Override a field: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        /// Override a field: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
         /// Log file (default: logs/<name>-<UTC time>.mcap).
@@ -245,7 +245,7 @@ pub enum Command {
         /// Sweep file (TOML): scenario, set, [[grid]], [[range]], [random] (see docs/sweeps.md).
         #[arg(long = "sweep", value_name = "FILE")]
         sweep_file: Option<PathBuf>,
-        /// Override applied to every run: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        /// Override applied to every run: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
         /// Number of random draws of the --range keys (per grid point).
@@ -291,7 +291,7 @@ pub enum Command {
         /// (same keys as `sweep`; repeatable, at least one).
         #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]", required = true)]
         ranges: Vec<String>,
-        /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
         /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
@@ -387,7 +387,7 @@ pub enum Command {
         /// Scenario file (TOML).
         #[arg(default_value = "scenarios/bicycle_obstacle_gamma_m.toml")]
         scenario: PathBuf,
-        /// Override a field: KEY.PATH=VALUE in TOML value syntax (repeatable).
+        /// Override a field: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
         /// Predictor RK4 steps (seconds, multiples of the timestep, as `control.predictor_step`) to compare, one row

@@ -505,6 +505,34 @@ pub fn check_override(spec: &str) -> Result<(), ScenarioError> {
 }
 
 /// Applies one `a.b.c=VALUE` override; numeric segments index arrays (`obstacles.0.radius`).
+/// The value of `--set KEY=VALUE` (and of a `--grid` value): a TOML literal (`0.4`, `'text'`,
+/// `[1, 2]`, `{ kind = 'none' }`, `true`), or a bare word taken as a string (`gamma_m`, `ode`,
+/// `../models/car.xml`: a letter, `_`, `.` or `/` first, then letters, digits and `_-./:`), so
+/// a string needs no shell quotes around TOML quotes. The schema then checks its type as for
+/// any value.
+pub fn override_value(raw: &str) -> Result<toml::Value, String> {
+    let raw = raw.trim();
+    if let Ok(table) = format!("value = {raw}").parse::<toml::Table>() {
+        return Ok(table.get("value").cloned().expect("parsed above"));
+    }
+    let bare = raw.starts_with(|c: char| c.is_ascii_alphabetic() || "_./".contains(c))
+        && raw.chars().all(|c| c.is_ascii_alphanumeric() || "_-./:".contains(c));
+    if bare {
+        return Ok(toml::Value::String(raw.to_string()));
+    }
+    let digits = raw.strip_prefix(['-', '+']).unwrap_or(raw);
+    if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(format!(
+            "`{raw}` is outside TOML's integers (`{}` to `{}`); a float is written with a decimal point",
+            i64::MIN,
+            i64::MAX
+        ));
+    }
+    Err(format!(
+        "`{raw}` is not a TOML value or a bare word (numbers as 0.4, strings as gamma_m or quoted as '\"text\"', arrays as [1, 2])"
+    ))
+}
+
 fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioError> {
     let err = |message: String| ScenarioError::Override {
         spec: spec.to_string(),
@@ -514,21 +542,7 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
         .split_once('=')
         .ok_or_else(|| err("expected KEY=VALUE, e.g. delays.steering=0.4".into()))?;
     let key = key.trim();
-    let value: toml::Table = format!("value = {}", raw.trim()).parse().map_err(|_| {
-        let raw = raw.trim();
-        let digits = raw.strip_prefix(['-', '+']).unwrap_or(raw);
-        if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
-            return err(format!(
-                "`{raw}` is outside TOML's integers (`{}` to `{}`); a float is written with a decimal point",
-                i64::MIN,
-                i64::MAX
-            ));
-        }
-        err(format!(
-            "`{raw}` is not a TOML value (numbers as 0.4, strings quoted as '\"text\"', arrays as [1, 2])"
-        ))
-    })?;
-    let value = value.get("value").cloned().expect("parsed above");
+    let value = override_value(raw).map_err(err)?;
     let segments: Vec<&str> = key.split('.').collect();
     if segments.iter().any(|s| s.is_empty()) {
         return Err(err(format!("`{key}` is not a dotted key")));

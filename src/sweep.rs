@@ -200,14 +200,9 @@ pub fn split_values(text: &str) -> Result<Vec<String>, String> {
     Ok(values)
 }
 
-/// Checks that `value` is one TOML value (as `--set` needs it).
+/// Checks that `value` is one value as `--set` takes it (a TOML literal or a bare word).
 fn check_toml_value(value: &str) -> Result<(), String> {
-    format!("value = {value}")
-        .parse::<toml::Table>()
-        .map(|_| ())
-        .map_err(|_| {
-            format!("`{value}` is not a TOML value (numbers as 0.4, strings quoted as 'cbf_qp', arrays as [1, 2], tables as {{kind='none'}})")
-        })
+    crate::scenario::override_value(value).map(|_| ())
 }
 
 fn check_key(key: &str) -> Result<(), String> {
@@ -1047,9 +1042,14 @@ mod tests {
         let g = parse_grid("filter.kind='cbf_qp','gamma_m'").unwrap();
         assert_eq!(g.key, "filter.kind");
         assert_eq!(g.values, ["'cbf_qp'", "'gamma_m'"]);
-        let e = parse_grid("filter.kind=cbf_qp").unwrap_err().to_string();
+        // A bare word is a string; what is neither a TOML value nor a bare word is refused.
+        assert_eq!(
+            parse_grid("filter.kind=cbf_qp,gamma_m").unwrap().values,
+            ["cbf_qp", "gamma_m"]
+        );
+        let e = parse_grid("filter.kind=cbf qp").unwrap_err().to_string();
         assert!(
-            e.starts_with("--grid filter.kind=cbf_qp:") && e.contains("not a TOML value"),
+            e.starts_with("--grid filter.kind=cbf qp:") && e.contains("not a TOML value or a bare word"),
             "{e}"
         );
         assert!(parse_grid("delays.steering")

@@ -147,13 +147,59 @@ fn obstacle_inside_the_vehicle_at_the_start() {
 fn bad_override() {
     let dir = tempfile::tempdir().unwrap();
     let file = write(dir.path(), "case.toml", &base(&bicycle()));
-    let o = mjsafe(&["run", file.to_str().unwrap(), "--set", "duration=fast"]);
+    // Neither a TOML value nor a bare word: refused as such.
+    let o = mjsafe(&["run", file.to_str().unwrap(), "--set", "duration=very fast"]);
     assert!(!o.status.success());
     assert!(
-        stderr(&o).contains("--set duration=fast") && stderr(&o).contains("not a TOML value"),
+        stderr(&o).contains("--set duration=very fast") && stderr(&o).contains("not a TOML value or a bare word"),
         "{}",
         stderr(&o)
     );
+    // A bare word is a string: the schema refuses it where a number is expected, naming the key.
+    let o = mjsafe(&["run", file.to_str().unwrap(), "--set", "duration=fast"]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("duration") && err.contains("string \"fast\""), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}
+
+/// `--set KEY=WORD` takes a bare word as a string: no shell quotes around TOML quotes.
+#[test]
+fn a_bare_word_override_is_a_string() {
+    let dir = tempfile::tempdir().unwrap();
+    let quoted = dir.path().join("quoted.mcap");
+    let bare = dir.path().join("bare.mcap");
+    let gamma_m = "{kind='gamma_m', l0=4.0, l1=4.0, m=50.0}";
+    let scenario = scenario("bicycle_obstacle.toml");
+    run_ok(
+        &scenario,
+        &quoted,
+        &[
+            "--set",
+            "duration=1.0",
+            "--set",
+            "plant='ode'",
+            "--set",
+            &format!("filter={gamma_m}"),
+        ],
+    );
+    run_ok(
+        &scenario,
+        &bare,
+        &[
+            "--set",
+            "duration=1.0",
+            "--set",
+            "plant=ode",
+            "--set",
+            &format!("filter={gamma_m}"),
+            "--set",
+            "filter.kind=gamma_m",
+        ],
+    );
+    let (a, b) = (analyze_json(&quoted), analyze_json(&bare));
+    assert_eq!(a["min_h"], b["min_h"]);
+    assert_eq!(a["filter"], b["filter"]);
 }
 
 #[test]

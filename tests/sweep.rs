@@ -536,8 +536,8 @@ fn bad_sweep_arguments_name_the_argument() {
             "--grid delays.steering=0.1,[0.2: missing closing `]`",
         ),
         (
-            &["--grid", "filter.kind=cbf_qp"],
-            "--grid filter.kind=cbf_qp: `cbf_qp` is not a TOML value",
+            &["--grid", "filter.kind=cbf qp"],
+            "--grid filter.kind=cbf qp: `cbf qp` is not a TOML value or a bare word",
         ),
         (
             &["--grid", "delays.steering"],
