@@ -22,9 +22,11 @@ pub mod message;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod nominal;
+pub mod params;
 pub mod plant;
 pub mod plot;
 pub mod predictor;
+pub mod prescribed_time;
 pub mod random;
 pub mod registry;
 pub mod scenario;

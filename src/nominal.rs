@@ -6,9 +6,8 @@ use nalgebra::{DMatrix, DVector, Vector2};
 use serde::{Deserialize, Serialize};
 
 use crate::dynamics::Dynamics;
-use crate::filter::prescribed_time::{BlowUp, PtsNominal, RedLightNominal, StrictFeedbackSystem};
-use crate::filter::ParamError;
-use crate::filter::Params;
+use crate::params::{ParamError, Params};
+use crate::prescribed_time::{BlowUp, PtsNominal, RedLightNominal, StrictFeedbackSystem};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum NominalError {

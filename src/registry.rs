@@ -61,7 +61,7 @@ fn parse_params<P: Params>(section: &str, table: &toml::Table) -> Result<P, Para
         } else {
             format!("{section}.{inner}")
         };
-        ParamError::new(key, crate::scenario::plain_serde_message(&e.into_inner().to_string()))
+        ParamError::new(key, crate::message::plain_serde_message(&e.into_inner().to_string()))
     })
 }
 

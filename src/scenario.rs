@@ -402,7 +402,7 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
         }
     })?;
     // Each kind's parameters, checked and normalised (defaults filled in) by its own type.
-    let field = |e: crate::filter::ParamError| ScenarioError::Field {
+    let field = |e: crate::params::ParamError| ScenarioError::Field {
         file: file.to_string(),
         key: e.key,
         message: e.message,
@@ -417,65 +417,7 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
     Ok(scenario)
 }
 
-/// A serde message in the scenario's terms instead of Rust's: no type names
-/// ("untagged enum DelayProfile", "struct VehicleSpec"), TOML words for sequences and maps.
-pub fn plain_serde_message(message: &str) -> String {
-    let message = message.trim().replace('\n', " ");
-    let message = message.as_str();
-    if message.contains("untagged enum DelayProfile") {
-        return "expected a delay in seconds (a number >= 0) or a table { profile = \"cosine_prediction\" | \"rational\" | \"table\", … }".into();
-    }
-    let mut out = String::with_capacity(message.len());
-    let mut words = message.split(' ').peekable();
-    while let Some(word) = words.next() {
-        let next_is_type = words.peek().is_some_and(|w| {
-            w.starts_with(|c: char| c.is_ascii_uppercase()) && w.chars().all(|c| c.is_alphanumeric() || c == ',')
-        });
-        let replacement = match word {
-            "struct" | "map" if next_is_type => Some("a table"),
-            "enum" if next_is_type => Some("one of the documented names"),
-            "untagged" | "internally" | "tagged" if words.peek().is_some_and(|w| *w == "enum" || *w == "tagged") => {
-                continue;
-            }
-            _ => None,
-        };
-        if !out.is_empty() {
-            out.push(' ');
-        }
-        match replacement {
-            Some(text) => {
-                out.push_str(text);
-                // The type name, keeping trailing punctuation.
-                let name = words.next().unwrap_or_default();
-                out.extend(name.chars().filter(|c| !c.is_alphanumeric()));
-            }
-            None => out.push_str(word),
-        }
-    }
-    let mut out = out
-        .replace("a sequence", "an array")
-        .replace("a map", "a table")
-        .replace("type: map", "type: table")
-        .replace("type: sequence", "type: array")
-        .replace("expected f64", "expected a number")
-        .replace("expected f32", "expected a number")
-        // serde names the wide type an out-of-range integer was read as ("`…` as i128").
-        .replace("` as i128", "`")
-        .replace("` as u128", "`");
-    for int in ["u8", "u16", "u32", "u64", "usize"] {
-        out = out.replace(&format!("expected {int}"), "expected a whole number >= 0");
-    }
-    for int in ["i8", "i16", "i32", "i64", "isize"] {
-        out = out.replace(&format!("expected {int}"), "expected a whole number");
-    }
-    // toml repeats the key the message is already prefixed with.
-    if let Some(at) = out.rfind(" in `") {
-        if out.ends_with('`') {
-            out.truncate(at);
-        }
-    }
-    out
-}
+pub use crate::message::plain_serde_message;
 
 /// The field a dotted override key names, spelled one way: array indices as numbers
 /// (`obstacles.00.radius` and `obstacles.+0.radius` are `obstacles.0.radius`, as an override

@@ -10,12 +10,12 @@ use nalgebra::{DVector, Vector2};
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
-use crate::filter::prescribed_time::{
-    BlowUp, ChainForms, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem,
-};
 use crate::filter::Params;
 use crate::filter::{
     ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter, TICK_TOLERANCE,
+};
+use crate::prescribed_time::{
+    BlowUp, ChainForms, ContinuityRamp, EsfFilter, PrescribedTimeError, PtsfFilter, StrictFeedbackSystem,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

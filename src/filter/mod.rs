@@ -17,7 +17,8 @@ pub mod fixed_channel;
 pub mod gamma_m;
 pub mod linear_delays;
 pub mod none;
-pub mod prescribed_time;
+/// Ch. 5 maths, a top-level module of its own (the nominals use it too); kept here by name.
+pub use crate::prescribed_time;
 pub mod qp;
 
 pub use api::{

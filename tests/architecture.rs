@@ -1,0 +1,102 @@
+//! The dependency rules of docs/ARCHITECTURE.md, checked on the sources: no import cycle
+//! between top-level modules, pure maths never reaches the MuJoCo bindings or the log, the
+//! scenario schema and the analysis need no MuJoCo type, sinks never read through the analysis.
+//! A file's test module (`#[cfg(test)] mod tests`) is left out: it may use the counting
+//! allocator of `mujoco`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+/// Top-level module → the top-level modules its non-test code names (`crate::<module>`).
+fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut stack = vec![src.clone()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+                continue;
+            }
+            if path.extension().is_none_or(|e| e != "rs") {
+                continue;
+            }
+            let relative = path.strip_prefix(&src).unwrap();
+            let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
+            let module = first.trim_end_matches(".rs").to_string();
+            if module == "lib" || module == "main" {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            // The file's test module (its last item) is left out; other items stay.
+            let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap();
+            let deps = graph.entry(module.clone()).or_default();
+            for (at, _) in code.match_indices("crate::") {
+                let name: String = code[at + 7..]
+                    .chars()
+                    .take_while(|c| c.is_ascii_lowercase() || *c == '_')
+                    .collect();
+                if !name.is_empty() && name != module {
+                    deps.insert(name);
+                }
+            }
+        }
+    }
+    graph
+}
+
+fn reaches(graph: &BTreeMap<String, BTreeSet<String>>, from: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut todo = vec![from.to_string()];
+    while let Some(m) = todo.pop() {
+        for d in graph.get(&m).into_iter().flatten() {
+            if seen.insert(d.clone()) {
+                todo.push(d.clone());
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn no_import_cycle_between_top_level_modules() {
+    let graph = dependencies();
+    assert!(graph.len() > 20, "{graph:?}");
+    for module in graph.keys() {
+        let through: Vec<&String> = graph[module]
+            .iter()
+            .filter(|d| reaches(&graph, d).contains(module))
+            .collect();
+        assert!(through.is_empty(), "{module} depends on itself through {through:?}");
+    }
+}
+
+#[test]
+fn pure_maths_schema_and_analysis_keep_their_distance() {
+    let graph = dependencies();
+    for maths in [
+        "dynamics",
+        "barrier",
+        "predictor",
+        "prescribed_time",
+        "params",
+        "delay",
+        "nominal",
+        "filter",
+    ] {
+        let reached = reaches(&graph, maths);
+        for forbidden in ["mujoco", "log", "episode", "plant", "vehicle", "analyze"] {
+            assert!(!reached.contains(forbidden), "{maths} reaches {forbidden}: {reached:?}");
+        }
+    }
+    for schema_or_analysis in ["scenario", "analyze", "params", "message"] {
+        let reached = reaches(&graph, schema_or_analysis);
+        assert!(
+            !reached.contains("mujoco"),
+            "{schema_or_analysis} reaches mujoco: {reached:?}"
+        );
+    }
+    // Sinks only observe: the log never reads through the analysis.
+    assert!(!reaches(&graph, "log").contains("analyze"));
+}
