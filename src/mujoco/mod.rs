@@ -28,6 +28,8 @@ pub enum MjError {
     Io { path: String, reason: std::io::Error },
     #[error("MuJoCo rejected the MJCF model {origin}: {message}")]
     Load { origin: String, message: String },
+    #[error("the MJCF model {origin} is refused before MuJoCo compiles it: {message}")]
+    Sizes { origin: String, message: String },
     #[error("MJCF text for {origin} contains a NUL byte")]
     NulInXml { origin: String },
     #[error("the model has no {kind} named `{name}`")]
@@ -218,7 +220,7 @@ impl Model {
                 origin: origin.to_string(),
             });
         }
-        sizes::check_model_sizes(xml, origin).map_err(|message| MjError::Load {
+        sizes::check_model_sizes(xml, origin).map_err(|message| MjError::Sizes {
             origin: origin.to_string(),
             message,
         })?;

@@ -28,11 +28,15 @@ const SINGLE: [(&str, &str, f64); 14] = [
 ];
 
 /// (element, attributes whose product is bounded, most, what it counts).
-const PRODUCTS: [(&str, &[&str], f64, &str); 3] = [
-    ("texture", &["width", "height"], 16_777_216.0, "texels"),
+const PRODUCTS: [(&str, &[&str], f64, &str); 2] = [
     ("hfield", &["nrow", "ncol"], 16_777_216.0, "height samples"),
     ("composite", &["count"], 100_000.0, "generated elements"),
 ];
+
+/// Most texels a builtin texture may make MuJoCo allocate (3 bytes each). MuJoCo 2.2.2 makes
+/// a cube or skybox texture (the default type) of six faces of the larger side squared, and
+/// does not check the allocation: `width="65536" height="3"` crashed it.
+const MAX_BUILTIN_TEXELS: f64 = 1e8;
 
 /// Most nested `<include>` levels followed.
 const MAX_INCLUDE_DEPTH: usize = 16;
@@ -144,6 +148,23 @@ fn check_text(xml: &str, origin: &Path, depth: usize) -> Result<(), String> {
                 ));
             }
         }
+        if tag.name == "texture" && attribute("builtin").is_some_and(|b| b.trim() != "none") {
+            // Each side as MuJoCo reads an integer (at least 1 of a non-integer like 1e-9).
+            let side = |key: &str| {
+                attribute(key)
+                    .and_then(|v| v.trim().parse::<f64>().ok())
+                    .map_or(0.0, |v| v.abs().max(1.0))
+            };
+            let larger = side("width").max(side("height"));
+            let texels = 6.0 * larger * larger;
+            if texels.is_nan() || texels > MAX_BUILTIN_TEXELS {
+                return Err(format!(
+                    "{place}<texture builtin width=\"{}\" height=\"{}\">: {texels:e} texels (six faces of the larger side squared), expected at most {MAX_BUILTIN_TEXELS:e} (mjsafe bounds what the model makes MuJoCo allocate)",
+                    attribute("width").unwrap_or(""),
+                    attribute("height").unwrap_or("")
+                ));
+            }
+        }
         if tag.name == "include" {
             if let Some(file) = attribute("file") {
                 check_include(origin, file, depth)?;
@@ -189,6 +210,9 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("texels"), "{e}");
+        // MuJoCo's cube texture squares the larger side: 65536 × 3 is 2.6e10 texels.
+        let e = check_model_sizes(r#"<texture builtin="checker" width="65536" height="3"/>"#, "m.xml").unwrap_err();
+        assert!(e.contains("texels"), "{e}");
         let e = check_model_sizes(r#"<composite type="grid" count="1000 1000 1"/>"#, "m.xml").unwrap_err();
         assert!(e.contains("generated elements"), "{e}");
         assert!(check_model_sizes(r#"<size nkey="inf"/>"#, "m.xml").is_err());
@@ -198,7 +222,7 @@ mod tests {
     fn ordinary_models_comments_and_unparsed_values_pass() {
         let xml = r#"<?xml version="1.0"?>
             <!-- <size nkey="100000000"/> -->
-            <mujoco><size nkey="10" njmax="500"/><asset><texture builtin="checker" width="512" height="512"/>
+            <mujoco><size nkey="10" njmax="500"/><asset><texture builtin="checker" width="512" height="512"/><texture file="a.png"/>
             <hfield name="h" nrow="100" ncol="100" size="1 1 1 1"/></asset>
             <size nkey="many"/></mujoco>"#;
         check_model_sizes(xml, "m.xml").unwrap();
