@@ -788,40 +788,12 @@ struct SearchSummary<'a> {
     evaluations: &'a [Evaluation],
 }
 
-/// The search (and with `compare_random` random search with the same budget and seed), its
-/// outputs in `dir`: the counterexample as a scenario file plus its log (re-run from the file),
-/// every evaluation as CSV and JSON, and the convergence plot.
-pub fn falsify(
+/// Writes evaluations.csv and evaluations.json of the searches; returns their paths.
+fn write_evaluations(
     problem: &Problem,
-    dir: &Path,
-    search_line: &str,
-    compare_random: bool,
-    mut progress: impl FnMut(&Search),
-) -> Result<Report, FalsifyError> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(FalsifyError::Output(format!(
-            "--out {}: expected a directory for the search's outputs, found a file",
-            dir.display()
-        )));
-    }
-    std::fs::create_dir_all(dir).map_err(|reason| FalsifyError::Io {
-        path: dir.display().to_string(),
-        reason,
-    })?;
-    crate::files::check_writable_dir(dir).map_err(|reason| {
-        FalsifyError::Output(format!(
-            "--out {}: cannot write the search's outputs there: {reason}",
-            dir.display()
-        ))
-    })?;
-    // Every output is checked before the first run: the search is never lost to a file in
-    // the way.
-    let outputs = Outputs::in_dir(dir);
-    outputs.check(problem)?;
-    let mut searches = vec![search(problem, Method::Cmaes, &mut progress)?];
-    if compare_random && !searches[0].interrupted {
-        searches.push(search(problem, Method::Random, &mut progress)?);
-    }
+    searches: &[Search],
+    outputs: &Outputs,
+) -> Result<(PathBuf, PathBuf), FalsifyError> {
     let refs: Vec<&Search> = searches.iter().collect();
     let evaluations_csv = outputs.csv.clone();
     crate::files::write_atomically(
@@ -865,6 +837,45 @@ pub fn falsify(
         json.as_bytes(),
     )
     .map_err(|e| FalsifyError::Output(e.to_string()))?;
+    Ok((evaluations_csv, evaluations_json))
+}
+
+/// The search (and with `compare_random` random search with the same budget and seed), its
+/// outputs in `dir`: the counterexample as a scenario file plus its log (re-run from the file),
+/// every evaluation as CSV and JSON, and the convergence plot.
+pub fn falsify(
+    problem: &Problem,
+    dir: &Path,
+    search_line: &str,
+    compare_random: bool,
+    mut progress: impl FnMut(&Search),
+) -> Result<Report, FalsifyError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(FalsifyError::Output(format!(
+            "--out {}: expected a directory for the search's outputs, found a file",
+            dir.display()
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(|reason| FalsifyError::Io {
+        path: dir.display().to_string(),
+        reason,
+    })?;
+    crate::files::check_writable_dir(dir).map_err(|reason| {
+        FalsifyError::Output(format!(
+            "--out {}: cannot write the search's outputs there: {reason}",
+            dir.display()
+        ))
+    })?;
+    // Every output is checked before the first run: the search is never lost to a file in
+    // the way.
+    let outputs = Outputs::in_dir(dir);
+    outputs.check(problem)?;
+    let mut searches = vec![search(problem, Method::Cmaes, &mut progress)?];
+    if compare_random && !searches[0].interrupted {
+        searches.push(search(problem, Method::Random, &mut progress)?);
+    }
+    let refs: Vec<&Search> = searches.iter().collect();
+    let (evaluations_csv, evaluations_json) = write_evaluations(problem, &searches, &outputs)?;
     let png = outputs.png.clone();
     let convergence_png = if searches.iter().any(|s| s.best().is_some()) {
         let score = if problem.baseline.is_empty() {

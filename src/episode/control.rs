@@ -97,6 +97,47 @@ impl LawWorkspace {
         laws.form.map_or(0, |form| self.constraints_out_of_line(laws, form, z))
     }
 
+    /// u[j] ← κ_j for the channels in `free` at the predicted z = x(s) ([`SafetyFilter::issued_law`]),
+    /// per group of one delay D from the longest (each group's ω holds the later groups'
+    /// commands), with u0 at the tick s − D that issues it (or at s for a nominal on
+    /// predictions).
+    #[inline(always)]
+    fn issued_law(
+        &mut self,
+        laws: &Laws<'_>,
+        filter: &mut dyn SafetyFilter,
+        queues: &[DelayQueue],
+        nominal_predicts: bool,
+        (s, z, free): (f64, &[f64], &[usize]),
+        u: &mut [f64],
+    ) -> Result<(), FilterError> {
+        let count = self.constraints_at(laws, z);
+        let delay = |j: usize| queues[j].constant_delay().unwrap_or(0.0);
+        let mut end = free.len();
+        while end > 0 {
+            let d = delay(free[end - 1]);
+            let start = free[..end].partition_point(|&j| delay(j) < d);
+            let group = &free[start..end];
+            let nominal_time = if nominal_predicts { s } else { s - d };
+            laws.nominal.input_into(nominal_time, z, self.nominal.as_mut_slice());
+            self.input.as_mut_slice().copy_from_slice(u);
+            let input = LawInput {
+                time: s - d,
+                prediction_time: s,
+                state: z,
+                nominal: &self.nominal,
+                constraints: &self.constraints[..count],
+                free: group,
+            };
+            filter.issued_law(&input, &mut self.input)?;
+            for &j in group {
+                u[j] = self.input[j];
+            }
+            end = start;
+        }
+        Ok(())
+    }
+
     #[inline(never)]
     fn constraints_out_of_line(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64]) -> usize {
         self.constraints_into(laws, form, z)
@@ -443,31 +484,8 @@ impl ControlLoop {
             // u0 at the tick s − D that issues it (or at s for a nominal on predictions).
             let mut law_error = None;
             let mut kappa = |s: f64, z: &[f64], free: &[usize], u: &mut [f64]| {
-                let count = law.constraints_at(&laws, z);
-                let delay = |j: usize| queues[j].constant_delay().unwrap_or(0.0);
-                let mut end = free.len();
-                while end > 0 {
-                    let d = delay(free[end - 1]);
-                    let start = free[..end].partition_point(|&j| delay(j) < d);
-                    let group = &free[start..end];
-                    let nominal_time = if nominal_predicts { s } else { s - d };
-                    laws.nominal.input_into(nominal_time, z, law.nominal.as_mut_slice());
-                    law.input.as_mut_slice().copy_from_slice(u);
-                    let input = LawInput {
-                        time: s - d,
-                        prediction_time: s,
-                        state: z,
-                        nominal: &law.nominal,
-                        constraints: &law.constraints[..count],
-                        free: group,
-                    };
-                    if let Err(e) = filter.issued_law(&input, &mut law.input) {
-                        law_error.get_or_insert(e);
-                    }
-                    for &j in group {
-                        u[j] = law.input[j];
-                    }
-                    end = start;
+                if let Err(e) = law.issued_law(&laws, filter.as_mut(), queues, nominal_predicts, (s, z, free), u) {
+                    law_error.get_or_insert(e);
                 }
             };
             context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
