@@ -157,6 +157,56 @@ pub struct Cli {
     pub max_log_size: u64,
 }
 
+/// The arguments of `mjsafe falsify`.
+#[derive(Debug, clap::Args)]
+pub struct FalsifyArgs {
+    /// Scenario file (TOML).
+    pub scenario: PathBuf,
+    /// A searched parameter: KEY=LO..HI, or KEY=LO..HI:STEP for multiples of STEP from LO
+    /// (same keys as `sweep`; repeatable, at least one).
+    #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]", required = true)]
+    pub ranges: Vec<String>,
+    /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
+    /// min_time_to_collision, …
+    #[arg(long, default_value = "min_h")]
+    pub objective: String,
+    /// A candidate violates when the objective is below this.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub threshold: f64,
+    /// Most runs (rounded up to whole CMA-ES generations).
+    #[arg(long, value_name = "N", default_value_t = 200)]
+    pub budget: usize,
+    /// Seed of the search (the optimiser's sampling and restarts).
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub seed: u64,
+    /// Runs executed at once (default: all cores); the result does not depend on it.
+    #[arg(long, value_name = "K")]
+    pub threads: Option<usize>,
+    /// Keep searching after the first violation (pushing its severity) and report the worst
+    /// qualified one evaluated: the lowest objective among candidates whose baseline is safe.
+    #[arg(long)]
+    pub worst: bool,
+    /// The baseline is safe when its objective is at least this (default 0: the boundary of
+    /// min_h and min_clearance), whatever --threshold is.
+    #[arg(long, value_name = "TB", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub baseline_threshold: f64,
+    /// The reference configuration of each candidate, as overrides applied after the
+    /// candidate's (repeatable), e.g. --baseline delays.steering=0 --baseline
+    /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
+    #[arg(long = "baseline", value_name = "KEY=VALUE")]
+    pub baseline: Vec<String>,
+    /// Also run random search with the same budget and seed, and compare runs to the first
+    /// violation.
+    #[arg(long)]
+    pub compare_random: bool,
+    /// Output directory (default: logs/falsify-<scenario name>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Run one scenario headless; writes one MCAP log and prints a one-line summary.
@@ -284,53 +334,7 @@ pub enum Command {
     /// metric (default min_h) and stops at the first violation (metric < threshold). Writes
     /// the counterexample as a scenario file plus its log, every evaluation (CSV, JSON) and a
     /// convergence plot.
-    Falsify {
-        /// Scenario file (TOML).
-        scenario: PathBuf,
-        /// A searched parameter: KEY=LO..HI, or KEY=LO..HI:STEP for multiples of STEP from LO
-        /// (same keys as `sweep`; repeatable, at least one).
-        #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]", required = true)]
-        ranges: Vec<String>,
-        /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        overrides: Vec<String>,
-        /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
-        /// min_time_to_collision, …
-        #[arg(long, default_value = "min_h")]
-        objective: String,
-        /// A candidate violates when the objective is below this.
-        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-        threshold: f64,
-        /// Most runs (rounded up to whole CMA-ES generations).
-        #[arg(long, value_name = "N", default_value_t = 200)]
-        budget: usize,
-        /// Seed of the search (the optimiser's sampling and restarts).
-        #[arg(long, value_name = "S", default_value_t = 0)]
-        seed: u64,
-        /// Runs executed at once (default: all cores); the result does not depend on it.
-        #[arg(long, value_name = "K")]
-        threads: Option<usize>,
-        /// Keep searching after the first violation (pushing its severity) and report the worst
-        /// qualified one evaluated: the lowest objective among candidates whose baseline is safe.
-        #[arg(long)]
-        worst: bool,
-        /// The baseline is safe when its objective is at least this (default 0: the boundary of
-        /// min_h and min_clearance), whatever --threshold is.
-        #[arg(long, value_name = "TB", default_value_t = 0.0, allow_negative_numbers = true)]
-        baseline_threshold: f64,
-        /// The reference configuration of each candidate, as overrides applied after the
-        /// candidate's (repeatable), e.g. --baseline delays.steering=0 --baseline
-        /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
-        #[arg(long = "baseline", value_name = "KEY=VALUE")]
-        baseline: Vec<String>,
-        /// Also run random search with the same budget and seed, and compare runs to the first
-        /// violation.
-        #[arg(long)]
-        compare_random: bool,
-        /// Output directory (default: logs/falsify-<scenario name>).
-        #[arg(long, value_name = "DIR")]
-        out: Option<PathBuf>,
-    },
+    Falsify(FalsifyArgs),
     /// The time series of logs as tables: one wide, time-indexed CSV or Parquet file per topic
     /// (`<log stem>-<topic>.csv|parquet`: state names, per-channel commands, barriers per
     /// obstacle, predictions, events), streamed from the log (src/export.rs lists the columns).
@@ -563,57 +567,6 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             plot,
             recover,
         } => {
-            // A plot that cannot be drawn (a damaged log: no plot of part of a run) fails the
-            // command after the metrics are printed, not instead of them.
-            let mut plots_failed = false;
-            if let Some(dir) = &plot {
-                if dir.exists() && !dir.is_dir() {
-                    bail!(
-                        "--plot {}: expected a directory for the plots, found a file",
-                        dir.display()
-                    );
-                }
-                // Plots are named by the log's file name: two logs of one name, or a log named
-                // like the overlays, would overwrite each other's plots.
-                let stem = |file: &Path| PathBuf::from(file.file_stem().unwrap_or_default());
-                if let Some(file) = files
-                    .iter()
-                    .find(|f| stem(f) == Path::new("overlay") && files.len() > 1)
-                {
-                    bail!(
-                        "{}: its plots would be named like the overlays (overlay-*.png); rename the log",
-                        file.display()
-                    );
-                }
-                if let Some((a, b)) = same_output_names(&files, stem) {
-                    bail!(
-                        "{} and {}: both would write {}-*.png in {}; plot them into different --plot directories",
-                        a.display(),
-                        b.display(),
-                        stem(a).display(),
-                        dir.display()
-                    );
-                }
-                // Each written plot on stderr; an error line for a plot that failed.
-                let report = |result: Result<Vec<std::path::PathBuf>, crate::plot::PlotError>| match result {
-                    Ok(written) => {
-                        for w in written {
-                            eprintln!("plot: {}", w.display());
-                        }
-                        true
-                    }
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        false
-                    }
-                };
-                for file in &files {
-                    plots_failed |= !report(crate::plot::plot_log(file, dir));
-                }
-                if files.len() > 1 && !plots_failed {
-                    plots_failed |= !report(crate::plot::plot_overlay(&files, dir));
-                }
-            }
             let format = if brief {
                 Format::Brief
             } else if json {
@@ -623,14 +576,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             } else {
                 Format::Table
             };
-            let code = if compare {
-                compare_files(&files, format, recover)?
-            } else if merge {
-                merge_summaries(&files, format, out.as_deref())?
-            } else {
-                analyze_files(&files, format, recover)
+            let mode = match (compare, merge) {
+                (true, _) => AnalyzeMode::Compare,
+                (_, true) => AnalyzeMode::Merge(out),
+                _ => AnalyzeMode::Metrics,
             };
-            Ok(if plots_failed { ExitCode::FAILURE } else { code })
+            analyze_command(&files, format, mode, plot.as_deref(), recover)
         }
         Command::Sweep {
             scenario,
@@ -672,124 +623,14 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             };
             run_sweep(&args, &options)
         }
-        Command::Falsify {
-            scenario,
-            ranges,
-            overrides,
-            objective,
-            threshold,
-            budget,
-            seed,
-            threads,
-            worst,
-            baseline_threshold,
-            baseline,
-            compare_random,
-            out,
-        } => {
-            let ranges = ranges
-                .iter()
-                .map(|r| sweep::parse_range(r))
-                .collect::<Result<Vec<_>, _>>()?;
-            if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
-                bail!("--range {twice}: the key is given twice (each key takes one --range)");
-            }
-            falsify::check_objective(&objective)?;
-            if !threshold.is_finite() {
-                bail!("--threshold: expected a finite number, found {threshold}");
-            }
-            if !baseline_threshold.is_finite() {
-                bail!("--baseline-threshold: expected a finite number, found {baseline_threshold}");
-            }
-            let threads = match threads {
-                Some(0) => bail!("--threads: expected at least 1"),
-                Some(k) => k,
-                None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            };
-            // The scenario and every override are checked once before the search starts.
-            let base = scenario::load(&scenario, &overrides)?;
-            if let Some((group, _)) = objective.split_once('.') {
-                // A per-channel metric names a channel of the vehicle: told by one run of the
-                // scenario as given (when it runs), not by a whole budget of absent values.
-                let run = sweep::Run {
-                    index: 0,
-                    overrides: overrides.clone(),
-                    parameters: Vec::new(),
-                };
-                let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
-                if let Some(metrics) = &row.metrics {
-                    let columns = FlatMetrics::columns([metrics]);
-                    if !columns.contains(&objective) {
-                        let prefix = format!("{group}.");
-                        let known: Vec<&str> = columns
-                            .iter()
-                            .map(String::as_str)
-                            .filter(|c| c.starts_with(&prefix))
-                            .collect();
-                        bail!(
-                            "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
-                            if known.is_empty() { "none".to_string() } else { known.join(", ") }
-                        );
-                    }
-                }
-            }
-            let problem = falsify::Problem {
-                scenario,
-                set: overrides,
-                ranges,
-                objective,
-                threshold,
-                baseline_threshold,
-                baseline,
-                budget,
-                seed,
-                threads,
-                worst,
-            };
-            let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
-            run_falsify(&problem, &out, compare_random)
-        }
+        Command::Falsify(args) => falsify_command(args),
         Command::Export {
             files,
             format,
             topics,
             out,
         } => export(&files, format, &topics, out.as_deref()),
-        Command::PlotSweep { summary, x, y, out } => {
-            let dir = if summary.is_dir() {
-                summary.clone()
-            } else {
-                summary.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
-            };
-            let out = out.unwrap_or_else(|| dir.join(format!("{y}-vs-{x}.png")));
-            let file = if summary.is_dir() {
-                summary.join("summary.json")
-            } else {
-                summary.clone()
-            };
-            let read = Summary::read(&file)?;
-            // A run that failed or stopped early has no metrics of a whole run: not a point.
-            let (whole, left_out): (Vec<&Row>, Vec<&Row>) = read.runs.iter().partition(|r| r.error.is_none());
-            if !left_out.is_empty() {
-                let indices: Vec<usize> = left_out.iter().map(|r| r.index).collect();
-                eprintln!(
-                    "warning: {} of {} runs left out (failed or incomplete: their rows hold the error): {}",
-                    left_out.len(),
-                    read.runs.len(),
-                    abbreviate(&indices)
-                );
-            }
-            let points: Vec<crate::plot::SweepPoint<'_>> = whole
-                .iter()
-                .map(|r| crate::plot::SweepPoint {
-                    parameters: &r.parameters,
-                    metrics: r.metrics.as_ref(),
-                })
-                .collect();
-            let written = crate::plot::plot_sweep(&file, &read.sweep.name, &read.parameters, &points, &x, &y, &out)?;
-            eprintln!("plot: {}", written.display());
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::PlotSweep { summary, x, y, out } => plot_sweep_command(summary, &x, &y, out),
         Command::Info {
             file,
             resolved,
@@ -804,30 +645,14 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             repeat,
             log_dir,
             json,
-        } => {
-            let or_default = |values: Vec<f64>| -> Vec<Option<f64>> {
-                if values.is_empty() {
-                    vec![None]
-                } else {
-                    values.into_iter().map(Some).collect()
-                }
-            };
-            if let Some(bad) = predictor_steps.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
-                bail!("--predictor-step: expected positive numbers of seconds, found {bad}");
-            }
-            if let Some(bad) = chain_tolerances.iter().find(|t| !(t.is_finite() && **t >= 0.0)) {
-                bail!("--chain-tolerance: expected finite numbers >= 0, found {bad}");
-            }
-            let (steps, tolerances) = (or_default(predictor_steps), or_default(chain_tolerances));
-            let rows = crate::bench::run(&scenario, &overrides, &steps, &tolerances, repeat, &log_dir)
-                .with_context(|| format!("benchmarking {}", scenario.display()))?;
-            if json {
-                outln!("{}", serde_json::to_string_pretty(&rows)?);
-            } else {
-                outln!("{}", crate::bench::table(&rows));
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        } => bench_command(
+            &scenario,
+            &overrides,
+            (predictor_steps, chain_tolerances),
+            repeat,
+            &log_dir,
+            json,
+        ),
         Command::Completions { shell } => {
             let mut text = Vec::new();
             clap_complete::generate(
@@ -839,40 +664,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             out!("{}", String::from_utf8_lossy(&text));
             Ok(ExitCode::SUCCESS)
         }
-        Command::Man { dir } => {
-            // `mjsafe help CMD` is `mjsafe CMD --help`: no page of its own, so none listed.
-            let mut command = <Cli as clap::CommandFactory>::command();
-            command.build();
-            let command = command.mut_subcommand("help", |help| help.hide(true));
-            match dir {
-                Some(dir) => {
-                    if dir.exists() && !dir.is_dir() {
-                        bail!(
-                            "--dir {}: expected a directory for the man pages, found a file",
-                            dir.display()
-                        );
-                    }
-                    let pages = man_pages(command)?;
-                    // Every page checked before any is written (the files rules: never over a
-                    // file that is not a man page of mjsafe's, a link or a directory), each
-                    // written as `.partial` and renamed.
-                    use crate::files::{check_output, write_atomically, Replace};
-                    for (name, _) in &pages {
-                        check_output(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[])?;
-                    }
-                    for (name, text) in &pages {
-                        write_atomically(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[], text)?;
-                    }
-                    eprintln!("{} man pages written into {}", pages.len(), dir.display());
-                }
-                None => {
-                    let mut text = Vec::new();
-                    clap_mangen::Man::new(command).render(&mut text)?;
-                    out!("{}", String::from_utf8_lossy(&text));
-                }
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Man { dir } => man_command(dir),
     }
 }
 
@@ -1520,6 +1312,275 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
         return Ok(ExitCode::from(exit::COLLISION));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `mjsafe bench`: its checks, the runs and the table (or JSON).
+fn bench_command(
+    scenario: &Path,
+    overrides: &[String],
+    (predictor_steps, chain_tolerances): (Vec<f64>, Vec<f64>),
+    repeat: usize,
+    log_dir: &Path,
+    json: bool,
+) -> Result<ExitCode> {
+    let or_default = |values: Vec<f64>| -> Vec<Option<f64>> {
+        if values.is_empty() {
+            vec![None]
+        } else {
+            values.into_iter().map(Some).collect()
+        }
+    };
+    if let Some(bad) = predictor_steps.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
+        bail!("--predictor-step: expected positive numbers of seconds, found {bad}");
+    }
+    if let Some(bad) = chain_tolerances.iter().find(|t| !(t.is_finite() && **t >= 0.0)) {
+        bail!("--chain-tolerance: expected finite numbers >= 0, found {bad}");
+    }
+    let (steps, tolerances) = (or_default(predictor_steps), or_default(chain_tolerances));
+    let rows = crate::bench::run(scenario, overrides, &steps, &tolerances, repeat, log_dir)
+        .with_context(|| format!("benchmarking {}", scenario.display()))?;
+    if json {
+        outln!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        outln!("{}", crate::bench::table(&rows));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `mjsafe plot-sweep`: a sweep's metric `y` against the swept key `x`, one PNG.
+fn plot_sweep_command(summary: PathBuf, x: &str, y: &str, out: Option<PathBuf>) -> Result<ExitCode> {
+    let dir = if summary.is_dir() {
+        summary.clone()
+    } else {
+        summary.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+    };
+    let out = out.unwrap_or_else(|| dir.join(format!("{y}-vs-{x}.png")));
+    let file = if summary.is_dir() {
+        summary.join("summary.json")
+    } else {
+        summary.clone()
+    };
+    let read = Summary::read(&file)?;
+    // A run that failed or stopped early has no metrics of a whole run: not a point.
+    let (whole, left_out): (Vec<&Row>, Vec<&Row>) = read.runs.iter().partition(|r| r.error.is_none());
+    if !left_out.is_empty() {
+        let indices: Vec<usize> = left_out.iter().map(|r| r.index).collect();
+        eprintln!(
+            "warning: {} of {} runs left out (failed or incomplete: their rows hold the error): {}",
+            left_out.len(),
+            read.runs.len(),
+            abbreviate(&indices)
+        );
+    }
+    let points: Vec<crate::plot::SweepPoint<'_>> = whole
+        .iter()
+        .map(|r| crate::plot::SweepPoint {
+            parameters: &r.parameters,
+            metrics: r.metrics.as_ref(),
+        })
+        .collect();
+    let written = crate::plot::plot_sweep(&file, &read.sweep.name, &read.parameters, &points, x, y, &out)?;
+    eprintln!("plot: {}", written.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `mjsafe man`: the man pages, one per subcommand into `dir`, or the main page on stdout.
+fn man_command(dir: Option<PathBuf>) -> Result<ExitCode> {
+    // `mjsafe help CMD` is `mjsafe CMD --help`: no page of its own, so none listed.
+    let mut command = <Cli as clap::CommandFactory>::command();
+    command.build();
+    let command = command.mut_subcommand("help", |help| help.hide(true));
+    match dir {
+        Some(dir) => {
+            if dir.exists() && !dir.is_dir() {
+                bail!(
+                    "--dir {}: expected a directory for the man pages, found a file",
+                    dir.display()
+                );
+            }
+            let pages = man_pages(command)?;
+            // Every page checked before any is written (the files rules: never over a
+            // file that is not a man page of mjsafe's, a link or a directory), each
+            // written as `.partial` and renamed.
+            use crate::files::{check_output, write_atomically, Replace};
+            for (name, _) in &pages {
+                check_output(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[])?;
+            }
+            for (name, text) in &pages {
+                write_atomically(&dir.join(name), "man page", Replace::IfStartsWith(MAN_START), &[], text)?;
+            }
+            eprintln!("{} man pages written into {}", pages.len(), dir.display());
+        }
+        None => {
+            let mut text = Vec::new();
+            clap_mangen::Man::new(command).render(&mut text)?;
+            out!("{}", String::from_utf8_lossy(&text));
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// What `mjsafe analyze` does with its files.
+enum AnalyzeMode {
+    Metrics,
+    Compare,
+    Merge(Option<PathBuf>),
+}
+
+/// `mjsafe analyze`: the plots first (with `--plot`), then the metrics, the comparison or the
+/// merge. A plot that cannot be drawn (a damaged log: no plot of part of a run) fails the
+/// command after the metrics are printed, not instead of them.
+fn analyze_command(
+    files: &[PathBuf],
+    format: Format,
+    mode: AnalyzeMode,
+    plot: Option<&Path>,
+    recover: bool,
+) -> Result<ExitCode> {
+    let plots_failed = match plot {
+        Some(dir) => plot_logs(files, dir)?,
+        None => false,
+    };
+    let code = match mode {
+        AnalyzeMode::Compare => compare_files(files, format, recover)?,
+        AnalyzeMode::Merge(out) => merge_summaries(files, format, out.as_deref())?,
+        AnalyzeMode::Metrics => analyze_files(files, format, recover),
+    };
+    Ok(if plots_failed { ExitCode::FAILURE } else { code })
+}
+
+/// `analyze --plot DIR`: each log's plots and, for several logs, the overlays; each written
+/// plot on stderr. Ok(true) when a plot could not be drawn (an error line for it), after the
+/// others are written; Err for a directory or names that cannot take them.
+fn plot_logs(files: &[PathBuf], dir: &Path) -> Result<bool> {
+    let mut failed = false;
+    if dir.exists() && !dir.is_dir() {
+        bail!(
+            "--plot {}: expected a directory for the plots, found a file",
+            dir.display()
+        );
+    }
+    // Plots are named by the log's file name: two logs of one name, or a log named
+    // like the overlays, would overwrite each other's plots.
+    let stem = |file: &Path| PathBuf::from(file.file_stem().unwrap_or_default());
+    if let Some(file) = files
+        .iter()
+        .find(|f| stem(f) == Path::new("overlay") && files.len() > 1)
+    {
+        bail!(
+            "{}: its plots would be named like the overlays (overlay-*.png); rename the log",
+            file.display()
+        );
+    }
+    if let Some((a, b)) = same_output_names(files, stem) {
+        bail!(
+            "{} and {}: both would write {}-*.png in {}; plot them into different --plot directories",
+            a.display(),
+            b.display(),
+            stem(a).display(),
+            dir.display()
+        );
+    }
+    // Each written plot on stderr; an error line for a plot that failed.
+    let report = |result: Result<Vec<std::path::PathBuf>, crate::plot::PlotError>| match result {
+        Ok(written) => {
+            for w in written {
+                eprintln!("plot: {}", w.display());
+            }
+            true
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            false
+        }
+    };
+    for file in files {
+        failed |= !report(crate::plot::plot_log(file, dir));
+    }
+    if files.len() > 1 && !failed {
+        failed |= !report(crate::plot::plot_overlay(files, dir));
+    }
+    Ok(failed)
+}
+
+/// `mjsafe falsify`: its checks, the problem, the search and the report.
+fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
+    let FalsifyArgs {
+        scenario,
+        ranges,
+        overrides,
+        objective,
+        threshold,
+        budget,
+        seed,
+        threads,
+        worst,
+        baseline_threshold,
+        baseline,
+        compare_random,
+        out,
+    } = args;
+    let ranges = ranges
+        .iter()
+        .map(|r| sweep::parse_range(r))
+        .collect::<Result<Vec<_>, _>>()?;
+    if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
+        bail!("--range {twice}: the key is given twice (each key takes one --range)");
+    }
+    falsify::check_objective(&objective)?;
+    if !threshold.is_finite() {
+        bail!("--threshold: expected a finite number, found {threshold}");
+    }
+    if !baseline_threshold.is_finite() {
+        bail!("--baseline-threshold: expected a finite number, found {baseline_threshold}");
+    }
+    let threads = match threads {
+        Some(0) => bail!("--threads: expected at least 1"),
+        Some(k) => k,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    // The scenario and every override are checked once before the search starts.
+    let base = scenario::load(&scenario, &overrides)?;
+    if let Some((group, _)) = objective.split_once('.') {
+        // A per-channel metric names a channel of the vehicle: told by one run of the
+        // scenario as given (when it runs), not by a whole budget of absent values.
+        let run = sweep::Run {
+            index: 0,
+            overrides: overrides.clone(),
+            parameters: Vec::new(),
+        };
+        let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
+        if let Some(metrics) = &row.metrics {
+            let columns = FlatMetrics::columns([metrics]);
+            if !columns.contains(&objective) {
+                let prefix = format!("{group}.");
+                let known: Vec<&str> = columns
+                    .iter()
+                    .map(String::as_str)
+                    .filter(|c| c.starts_with(&prefix))
+                    .collect();
+                bail!(
+                    "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
+                    if known.is_empty() { "none".to_string() } else { known.join(", ") }
+                );
+            }
+        }
+    }
+    let problem = falsify::Problem {
+        scenario,
+        set: overrides,
+        ranges,
+        objective,
+        threshold,
+        baseline_threshold,
+        baseline,
+        budget,
+        seed,
+        threads,
+        worst,
+    };
+    let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
+    run_falsify(&problem, &out, compare_random)
 }
 
 fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> Result<ExitCode> {
