@@ -577,6 +577,14 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             }
         }
     }
+    validate_actuation_and_sensing(s)?;
+    validate_control_and_model(s)?;
+    validate_barriers_and_obstacles(s)
+}
+
+/// `actuation`, `actuator_dynamics` and `sensing`: ranges, and extents within the run.
+fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let sc = &s.scenario;
     for (channel, a) in &sc.actuation {
         let key = format!("actuation.{channel}");
         if !(a.drop_probability.is_finite() && (0.0..1.0).contains(&a.drop_probability)) {
@@ -674,6 +682,13 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             }
         }
     }
+    Ok(())
+}
+
+/// `control`, a linear vehicle's matrices, `initial_input`, `disturbance` and the initial
+/// perturbation.
+fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let sc = &s.scenario;
     if !positive_finite(sc.control.history) {
         return Err(s.field_error(
             "control.history",
@@ -738,6 +753,12 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
+    Ok(())
+}
+
+/// `barriers` and `obstacles`: shapes, extents, times, and one name each.
+fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let sc = &s.scenario;
     for (i, b) in sc.barriers.iter().enumerate() {
         let ok = match b {
             Shape::Ball {
