@@ -293,6 +293,29 @@ fn check_range(r: &Range) -> Result<(), String> {
     Ok(())
 }
 
+/// The random draws of a sweep: `--random N` with at least one `--range`, or none of either.
+fn random_of(random_count: Option<usize>, seed: Option<u64>, ranges: Vec<Range>) -> Result<Option<Random>, SweepError> {
+    Ok(match (random_count, ranges.is_empty()) {
+        (None, true) => None,
+        (None, false) => {
+            return Err(SweepError::Spec(
+                "--range needs --random N (how many draws) and --seed S".into(),
+            ))
+        }
+        (Some(_), true) => {
+            return Err(SweepError::Spec(
+                "--random needs at least one --range KEY=LO..HI".into(),
+            ))
+        }
+        (Some(0), false) => return Err(SweepError::Spec("--random: expected at least one draw".into())),
+        (Some(count), false) => Some(Random {
+            count,
+            seed: seed.unwrap_or(0),
+            ranges,
+        }),
+    })
+}
+
 /// Parses `i/N` (0-based: 0 <= i < N).
 pub fn parse_shard(arg: &str) -> Result<Shard, SweepError> {
     let err = |message: &str| SweepError::Shard {
@@ -434,25 +457,7 @@ impl SweepSpec {
                 "`{key}` is swept twice (each key takes one --grid or one --range)"
             )));
         }
-        let random = match (random_count, ranges.is_empty()) {
-            (None, true) => None,
-            (None, false) => {
-                return Err(SweepError::Spec(
-                    "--range needs --random N (how many draws) and --seed S".into(),
-                ))
-            }
-            (Some(_), true) => {
-                return Err(SweepError::Spec(
-                    "--random needs at least one --range KEY=LO..HI".into(),
-                ))
-            }
-            (Some(0), false) => return Err(SweepError::Spec("--random: expected at least one draw".into())),
-            (Some(count), false) => Some(Random {
-                count,
-                seed: seed.unwrap_or(0),
-                ranges,
-            }),
-        };
+        let random = random_of(random_count, seed, ranges)?;
         if grids.is_empty() && random.is_none() {
             return Err(SweepError::Spec(
                 "nothing to sweep: give --grid KEY=V1,V2,…, or --random N with --range KEY=LO..HI, or a sweep file"
