@@ -19,6 +19,16 @@ const GAMMA_M_BOX: [&str; 6] = [
     "delays.acceleration=0.5..2.0:0.1",
 ];
 
+/// The delay-free CBF-QP without delays as every candidate's baseline.
+const DELAY_FREE_BASELINE: [&str; 6] = [
+    "--baseline",
+    "delays.steering=0.0",
+    "--baseline",
+    "delays.acceleration=0.0",
+    "--baseline",
+    "filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}",
+];
+
 fn falsify(scenario: &str, extra: &[&str], out: &Path) -> std::process::Output {
     let path = format!("scenarios/{scenario}");
     let out = out.to_str().unwrap();
@@ -184,19 +194,8 @@ fn a_baseline_keeps_only_candidates_the_reference_survives_and_random_search_is_
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("f");
     let mut args = GAMMA_M_BOX.to_vec();
-    args.extend_from_slice(&[
-        "--baseline",
-        "delays.steering=0.0",
-        "--baseline",
-        "delays.acceleration=0.0",
-        "--baseline",
-        "filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}",
-        "--budget",
-        "48",
-        "--seed",
-        "2",
-        "--compare-random",
-    ]);
+    args.extend_from_slice(&DELAY_FREE_BASELINE);
+    args.extend_from_slice(&["--budget", "48", "--seed", "2", "--compare-random"]);
     let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
     assert!(o.status.success(), "{}", text(&o));
     println!("{}", stdout(&o));
@@ -430,21 +429,8 @@ fn worst_is_the_lowest_qualified_row_of_the_evaluations_for_any_threshold() {
     for threshold in ["0", "-0.5"] {
         let out = dir.path().join(format!("worst{threshold}"));
         let mut args = GAMMA_M_BOX.to_vec();
-        args.extend_from_slice(&[
-            "--baseline",
-            "delays.steering=0.0",
-            "--baseline",
-            "delays.acceleration=0.0",
-            "--baseline",
-            "filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}",
-            "--worst",
-            "--budget",
-            "48",
-            "--seed",
-            "7",
-            "--threshold",
-            threshold,
-        ]);
+        args.extend_from_slice(&DELAY_FREE_BASELINE);
+        args.extend_from_slice(&["--worst", "--budget", "48", "--seed", "7", "--threshold", threshold]);
         let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
         assert!(o.status.success(), "{}", text(&o));
         let t: f64 = threshold.parse().unwrap();

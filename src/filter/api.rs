@@ -114,6 +114,29 @@ pub struct LawInput<'a> {
     pub free: &'a [usize],
 }
 
+impl LawInput<'_> {
+    /// The law of a one-barrier filter: `u[j]` ← `command(c, ω, j)` for every j in `free`, with ω
+    /// a copy (into `omega`) of `u` on entry — the later channels' commands — or u0_j while no
+    /// barrier is known (the filter then issues the nominal).
+    pub fn per_free_channel(
+        &self,
+        u: &mut DVector<f64>,
+        omega: &mut DVector<f64>,
+        mut command: impl FnMut(&Constraint, &DVector<f64>, usize) -> f64,
+    ) {
+        let [c, ..] = self.constraints else {
+            for &j in self.free {
+                u[j] = self.nominal[j];
+            }
+            return;
+        };
+        omega.copy_from(u);
+        for &j in self.free {
+            u[j] = command(c, omega, j);
+        }
+    }
+}
+
 /// u ← the delay-free CBF-QP over all channels from u0 and the constraints: u0 without
 /// constraints (even with limits), the closed form (4.9) for one barrier without limits, else
 /// the numerical QP ([`crate::filter::qp`]) in `qp` (keep one per filter: no allocation once

@@ -178,17 +178,10 @@ impl SafetyFilter for FixedChannel {
     /// (4.44) itself at z: u_j = u0_j + ū_j (4.46) with s = max{φ, j} (4.43) and ω (4.45) the
     /// later channels' commands in `u`.
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
-        let [c, ..] = input.constraints else {
-            for &j in input.free {
-                u[j] = input.nominal[j];
-            }
-            return Ok(());
-        };
-        self.omega.copy_from(u);
-        for &j in input.free {
-            let s = self.phi.max(j + 1);
-            u[j] = fixed_channel(c, input.nominal, &self.omega, j, s).input;
-        }
+        let phi = self.phi;
+        input.per_free_channel(u, &mut self.omega, |c, omega, j| {
+            fixed_channel(c, input.nominal, omega, j, phi.max(j + 1)).input
+        });
         Ok(())
     }
 }

@@ -59,14 +59,12 @@ pub struct GammaM {
     delays: Vec<f64>,
 }
 
-impl GammaM {
-    /// k (4.68): the last channel with the same delay as channel i.
-    fn last_of_equal_delay(&self, i: usize) -> usize {
-        (i..self.delays.len())
-            .take_while(|&j| self.delays[j] == self.delays[i])
-            .last()
-            .unwrap_or(i)
-    }
+/// k (4.68): the last channel with the same delay as channel i.
+fn last_of_equal_delay(delays: &[f64], i: usize) -> usize {
+    (i..delays.len())
+        .take_while(|&j| delays[j] == delays[i])
+        .last()
+        .unwrap_or(i)
 }
 
 /// The filter of a `kind = "gamma_m"` table: constant delays in channel order, one barrier.
@@ -100,7 +98,7 @@ impl SafetyFilter for GammaM {
         };
         // k (4.68): the last channel with the same delay as i.
         let i = input.channel;
-        let k = self.last_of_equal_delay(i);
+        let k = last_of_equal_delay(&self.delays, i);
         input.later_commands(k + 1, &mut self.omega)?;
         Ok(Some(gamma_m(c, input.nominal, &self.omega, i, k, self.m, self.gamma)))
     }
@@ -108,17 +106,17 @@ impl SafetyFilter for GammaM {
     /// (4.67) itself at z: u_j = u0_j + ū_j of QP_k (4.62) with ω (4.64) the later channels'
     /// commands in `u` (k (4.68): the channels in `free` share one delay, so one k).
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
-        let [c, ..] = input.constraints else {
-            for &j in input.free {
-                u[j] = input.nominal[j];
-            }
-            return Ok(());
-        };
-        self.omega.copy_from(u);
-        for &j in input.free {
-            let k = self.last_of_equal_delay(j);
-            u[j] = gamma_m(c, input.nominal, &self.omega, j, k, self.m, self.gamma).input;
-        }
+        let GammaM {
+            m,
+            gamma,
+            omega,
+            delays,
+            ..
+        } = self;
+        input.per_free_channel(u, omega, |c, omega, j| {
+            let k = last_of_equal_delay(delays, j);
+            gamma_m(c, input.nominal, omega, j, k, *m, *gamma).input
+        });
         Ok(())
     }
 }
