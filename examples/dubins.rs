@@ -146,7 +146,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .collect();
         let loaded = embed::load_scenario(&scenario, &overrides)?;
         let outcome = embed::run_logged(&loaded, &out.join(format!("dubins{i}.mcap")), &mut [])?;
-        let m = &outcome.metrics;
+        let m = outcome.metrics.as_ref().expect("a logged run is analysed");
         println!(
             "{label} | {} | {:.2} | {:.3}",
             if m.collision.is_some() { "yes" } else { "no" },

@@ -124,7 +124,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
         let loaded = embed::load_scenario(&scenarios.join(file), &overrides)?;
         let outcome = embed::run_logged(&loaded, &out.join(format!("run{i}.mcap")), &mut [])?;
-        let m = &outcome.metrics;
+        let m = outcome.metrics.as_ref().expect("a logged run is analysed");
         println!(
             "{label} | {} | {:.2} | {:.3}",
             if m.collision.is_some() { "yes" } else { "no" },

@@ -21,8 +21,8 @@ use serde::Serialize;
 
 use crate::analyze;
 use crate::episode::{Episode, EpisodeError};
-use crate::log::mcap::McapSink;
-use crate::log::{LogError, Sink};
+use crate::log::LogError;
+use crate::run::{Keep, Outcome, RunError};
 use crate::scenario::{self, LoadedScenario, ScenarioError};
 
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +35,8 @@ pub enum BenchError {
     Log(#[from] LogError),
     #[error(transparent)]
     Analyze(#[from] analyze::AnalyzeError),
+    #[error(transparent)]
+    Run(#[from] RunError),
     #[error("the episode stopped early: {0}")]
     Stopped(String),
 }
@@ -123,15 +125,13 @@ fn timing(walls: &[f64], simulated_time: f64, steps: u64, bare: &[f64]) -> Timin
     }
 }
 
-/// Runs one episode of `loaded` with `sinks` and returns its wall time.
-fn timed_run(loaded: &LoadedScenario, sinks: &mut [&mut dyn Sink]) -> Result<f64, BenchError> {
-    let mut episode = Episode::new(loaded)?;
-    let started = Instant::now();
-    let summary = episode.run(sinks)?;
-    let wall = started.elapsed().as_secs_f64();
-    match summary.error {
+/// Runs `loaded` into `keep` (the run path of every command, [`crate::run`]); an episode
+/// that stops early is an error of the benchmark.
+fn timed_run(loaded: &LoadedScenario, keep: Keep<'_>) -> Result<Outcome, BenchError> {
+    let outcome = crate::run::run(loaded, keep, Vec::new())?;
+    match &outcome.summary.error {
         Some(e) => Err(BenchError::Stopped(e.to_string())),
-        None => Ok(wall),
+        None => Ok(outcome),
     }
 }
 
@@ -171,7 +171,7 @@ pub fn run(
         ));
         let input_files = loaded.inputs();
         let inputs: Vec<&Path> = input_files.iter().map(PathBuf::as_path).collect();
-        // Checked before any run (McapSink::create checks again and opens it exclusively).
+        // Checked before any run (the logged runs check again and open it exclusively).
         crate::log::mcap::check_target(&log_path, &inputs).map_err(LogError::from)?;
         let simulated_time = steps as f64 * probe.info().timestep;
         probe.record_actuation();
@@ -182,7 +182,6 @@ pub fn run(
         let (chain_reuse_error, reused_predictions) = probe.chain_audit().unwrap_or((0.0, 0));
         let actuation = probe.take_actuation();
         let recorded_final_state = probe.plant_state();
-        let info = probe.info().clone();
         drop(probe);
         let mut replay_deviation = 0.0;
 
@@ -190,6 +189,7 @@ pub fn run(
         let mut pipeline = Vec::new();
         let mut pipeline_mcap = Vec::new();
         let (mut startup, mut analysis, mut writer_thread) = (Vec::new(), Vec::new(), Vec::new());
+        let mut metrics = None;
         let mut analysed = Vec::new();
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
@@ -198,41 +198,29 @@ pub fn run(
             bare.push(started.elapsed().as_secs_f64());
             replay_deviation = (episode.plant_state() - &recorded_final_state).norm();
 
-            pipeline.push(timed_run(&loaded, &mut [])?);
+            pipeline.push(timed_run(&loaded, Keep::Nothing)?.timing.run_seconds);
 
             // As a sweep run: parse, assemble (MJCF compile), open the log; run; analyse.
             let started = Instant::now();
             let fresh = scenario::load(scenario_path, &overrides)?;
-            let mut episode = Episode::new(&fresh)?;
-            let mut sink = McapSink::create(&log_path, &info, &inputs)?;
-            startup.push(started.elapsed().as_secs_f64());
-            let started = Instant::now();
-            if let Some(e) = episode.run(&mut [&mut sink])?.error {
-                return Err(BenchError::Stopped(e.to_string()));
-            }
-            pipeline_mcap.push(started.elapsed().as_secs_f64());
-            writer_thread.push(sink.writer_busy().as_secs_f64());
-            let started = Instant::now();
-            analyze::analyze_file(&log_path)?;
-            analysis.push(started.elapsed().as_secs_f64());
+            let parse_seconds = started.elapsed().as_secs_f64();
+            let logged = timed_run(&fresh, Keep::Log(&log_path))?;
+            startup.push(parse_seconds + logged.timing.assemble_seconds);
+            pipeline_mcap.push(logged.timing.run_seconds);
+            writer_thread.push(logged.timing.writer_busy_seconds);
+            analysis.push(logged.timing.analysis_seconds);
+            metrics = logged.metrics;
 
             // As a falsification candidate: analysed as it runs, no log.
-            let mut episode = Episode::new(&loaded)?;
-            let mut sink = analyze::AnalysisSink::new(episode.info(), "the in-memory analysis");
-            let started = Instant::now();
-            let summary = episode.run(&mut [&mut sink])?;
-            sink.metrics()?;
-            analysed.push(started.elapsed().as_secs_f64());
-            if let Some(e) = summary.error {
-                return Err(BenchError::Stopped(e.to_string()));
-            }
+            let in_memory = timed_run(&loaded, Keep::Metrics("the in-memory analysis"))?.timing;
+            analysed.push(in_memory.run_seconds + in_memory.analysis_seconds);
         }
         let whole: Vec<f64> = (pipeline_mcap.iter().zip(&writer_thread).zip(&bare))
             .map(|((logged, writer), bare)| (logged + writer) / bare)
             .collect();
         let (startup, analysis, logged) = (median(&startup), median(&analysis), median(&pipeline_mcap));
         let writer_thread = median(&writer_thread);
-        let metrics = analyze::analyze_file(&log_path)?;
+        let metrics = metrics.expect("at least one logged repeat");
         rows.push(BenchRow {
             scenario: loaded.scenario.name.clone(),
             predictor_step,

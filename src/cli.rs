@@ -37,10 +37,9 @@ fn write_stdout(args: std::fmt::Arguments) {
 }
 
 use crate::analyze::{self, FlatMetrics, RunMetrics};
-use crate::episode::{self, Episode};
+use crate::episode;
 use crate::falsify;
-use crate::log::mcap::McapSink;
-use crate::log::{Sink, Tee};
+use crate::log::Sink;
 use crate::scenario;
 use crate::sweep::{self, Row, Summary, SweepArgs, SweepSpec};
 
@@ -794,32 +793,20 @@ fn run_scenario(
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
     // Every output is checked before the model is loaded, and opened before the simulation.
-    crate::log::mcap::check_target(&log_path, &inputs)?;
     rerun.check(&log_path, &inputs)?;
-    let mut episode = Episode::new(&loaded)?;
-    episode.check_log_budget()?;
-    let mut sink = McapSink::create(&log_path, episode.info(), &inputs)?;
-    let extra_sinks = match rerun.sinks(&log_path, episode.info(), &inputs) {
+    let prepared = crate::run::Prepared::new(&loaded, crate::run::Keep::Log(&log_path))?;
+    let further = match rerun.sinks(&log_path, prepared.info(), &inputs) {
         Ok(sinks) => sinks,
         Err(e) => {
-            sink.abandon();
+            prepared.abandon();
             return Err(e);
         }
     };
-    let summary = {
-        let mut outputs = Tee::new(&mut sink, extra_sinks);
-        let _progress = RunProgress::start(episode.steps(), episode.info().timestep);
-        let result = episode.run(&mut [&mut outputs]);
-        match result {
-            Err(e) if outputs.other_failed() => bail!(
-                "{e}; the run stopped and its log {} is marked incomplete",
-                log_path.display()
-            ),
-            result => result?,
-        }
-    };
-    let metrics = analyze::analyze_file(&log_path)
-        .with_context(|| format!("reading back the log just written, {}", log_path.display()))?;
+    let _progress = RunProgress::start(prepared.steps(), prepared.info().timestep);
+    let outcome = prepared.run(further)?;
+    drop(_progress);
+    let summary = outcome.summary;
+    let metrics = outcome.metrics.expect("a logged run is analysed");
     if report.json {
         let rtf = summary.real_time_factor();
         let value = serde_json::json!({

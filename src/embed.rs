@@ -16,7 +16,8 @@
 //!
 //! // 3. Run it into a log; the metrics are read back from the log (docs/metrics.md).
 //! let outcome = mjsafe::embed::run_logged(&loaded, Path::new("out.mcap"), &mut [])?;
-//! println!("min h = {:?}, collision: {}", outcome.metrics.min_h, outcome.metrics.collision.is_some());
+//! let metrics = outcome.metrics.expect("a logged run is analysed");
+//! println!("min h = {:?}, collision: {}", metrics.min_h, metrics.collision.is_some());
 //! # Ok::<(), mjsafe::embed::EmbedError>(())
 //! ```
 //!
@@ -25,7 +26,7 @@
 //! error event instead of unwinding into C. What a filter must not do there is in
 //! docs/writing-a-filter.md.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub use crate::analyze::RunMetrics;
 pub use crate::episode::{Episode, EpisodeSummary, StopReason};
@@ -33,51 +34,23 @@ pub use crate::log::Sink;
 pub use crate::registry::{register, registry, Params, Registry};
 pub use crate::scenario::{from_text as scenario_from_text, load as load_scenario, LoadedScenario};
 
-/// Anything that stops a run before it has a log to read.
+pub use crate::run::{Keep, Outcome, Prepared, RunError, RunTiming};
+
+/// Anything that stops a run before it has a log to read: the scenario ([`load_scenario`])
+/// or the run ([`RunError`]).
 #[derive(Debug, thiserror::Error)]
 pub enum EmbedError {
     #[error(transparent)]
     Scenario(#[from] crate::scenario::ScenarioError),
     #[error(transparent)]
-    Episode(#[from] crate::episode::EpisodeError),
-    #[error(transparent)]
-    Log(#[from] crate::log::LogError),
-    #[error(transparent)]
-    Output(#[from] crate::files::FileError),
-    #[error(transparent)]
-    Analyze(#[from] crate::analyze::AnalyzeError),
-}
-
-/// A finished run: how it ended, its log, and the metrics read from that log.
-#[derive(Debug, Clone)]
-pub struct Outcome {
-    pub summary: EpisodeSummary,
-    pub log: PathBuf,
-    pub metrics: RunMetrics,
+    Run(#[from] RunError),
 }
 
 /// Runs `loaded` into the MCAP log `log` (written as `log.partial`, renamed when complete;
 /// never over the scenario, its model or a foreign file) and into `sinks`, then analyses the
-/// log. A run stopped early (see [`Outcome::summary`]) still returns its metrics.
+/// log: the run path of `mjsafe run` ([`crate::run`]), with its policy for a failing sink. A
+/// run stopped early (see [`Outcome::summary`]) still returns its metrics.
 pub fn run_logged(loaded: &LoadedScenario, log: &Path, sinks: &mut [&mut dyn Sink]) -> Result<Outcome, EmbedError> {
-    let inputs = loaded.inputs();
-    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
-    crate::log::mcap::check_target(log, &inputs)?;
-    let mut episode = Episode::new(loaded)?;
-    episode.check_log_budget()?;
-    let mut mcap = crate::log::mcap::McapSink::create(log, episode.info(), &inputs)?;
-    let summary = {
-        let mut all: Vec<&mut dyn Sink> = Vec::with_capacity(1 + sinks.len());
-        all.push(&mut mcap);
-        for sink in sinks.iter_mut() {
-            all.push(&mut **sink);
-        }
-        episode.run(&mut all)?
-    };
-    let metrics = crate::analyze::analyze_file(log)?;
-    Ok(Outcome {
-        summary,
-        log: log.to_path_buf(),
-        metrics,
-    })
+    let further: Vec<Box<dyn Sink + '_>> = sinks.iter_mut().map(|s| Box::new(&mut **s) as Box<dyn Sink>).collect();
+    Ok(crate::run::run(loaded, Keep::Log(log), further)?)
 }

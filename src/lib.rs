@@ -29,6 +29,7 @@ pub mod predictor;
 pub mod prescribed_time;
 pub mod random;
 pub mod registry;
+pub mod run;
 pub mod scenario;
 pub mod sensing;
 pub mod sweep;

@@ -12,11 +12,9 @@ use std::sync::mpsc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::analyze::{self, csv_lines, Cell, FlatMetrics};
-use crate::episode::Episode;
+use crate::analyze::{csv_lines, Cell, FlatMetrics};
 use crate::files::{OutputFile, Replace};
-use crate::log::mcap::{self, McapSink};
-use crate::log::Sink;
+use crate::log::mcap;
 use crate::random::SplitMix64;
 use crate::scenario;
 
@@ -669,31 +667,31 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
     if mcap::check_target(&log_path, &[]).is_ok() {
         let _ = std::fs::remove_file(&log_path);
     }
-    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Option<String>, String> {
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
         let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
-        let inputs = loaded.inputs();
-        let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
-        mcap::check_target(&log_path, &inputs).map_err(|e| e.to_string())?;
-        let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
-        episode.check_log_budget().map_err(|e| e.to_string())?;
-        let mut sink = McapSink::create(&log_path, episode.info(), &inputs).map_err(|e| e.to_string())?;
-        let mut sinks: [&mut dyn Sink; 1] = [&mut sink];
-        let summary = episode.run(&mut sinks).map_err(|e| e.to_string())?;
-        Ok(summary.error.map(|e| e.to_string()))
+        crate::run::run(&loaded, crate::run::Keep::Log(&log_path), Vec::new()).map_err(|e| e.to_string())
     }));
+    if log_path.exists() {
+        row.log = Some(log_name);
+    }
+    settle_outcome(row, outcome, "the log is incomplete")
+}
+
+/// The row of a run that ended with `outcome` (its metrics, or why it has none).
+fn settle_outcome(
+    mut row: Row,
+    outcome: std::thread::Result<Result<crate::run::Outcome, String>>,
+    incomplete: &str,
+) -> Row {
     let error = match outcome {
-        Ok(Ok(in_run)) => in_run,
+        Ok(Ok(outcome)) => {
+            row.metrics = outcome.metrics.as_ref().map(FlatMetrics::from);
+            outcome.summary.error.map(|e| e.to_string())
+        }
         Ok(Err(e)) => Some(e),
         Err(payload) => Some(panicked(payload.as_ref())),
     };
-    if log_path.exists() {
-        row.log = Some(log_name);
-        match analyze::analyze_file(&log_path) {
-            Ok(m) => row.metrics = Some(FlatMetrics::from(&m)),
-            Err(e) => row.error = Some(e.to_string()),
-        }
-    }
-    settle(row, error, "the log is incomplete")
+    settle(row, error, incomplete)
 }
 
 /// One run of `scenario` with the run's overrides, analysed while it runs and not logged (what
@@ -701,27 +699,11 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
 /// without writing, compressing and reading the log. `name` stands for the log in the metrics
 /// and errors. Never fails: a failure is the row's `error`.
 pub fn execute_analysed(scenario_path: &Path, run: &Run, name: &str) -> Row {
-    let mut row = row_of(run);
-    type Analysed = (Option<String>, Result<analyze::RunMetrics, analyze::AnalyzeError>);
-    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<Analysed, String> {
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
         let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
-        let mut episode = Episode::new(&loaded).map_err(|e| e.to_string())?;
-        let mut sink = analyze::AnalysisSink::new(episode.info(), name);
-        let summary = episode.run(&mut [&mut sink]).map_err(|e| e.to_string())?;
-        Ok((summary.error.map(|e| e.to_string()), sink.metrics()))
+        crate::run::run(&loaded, crate::run::Keep::Metrics(name), Vec::new()).map_err(|e| e.to_string())
     }));
-    let error = match outcome {
-        Ok(Ok((in_run, metrics))) => {
-            match metrics {
-                Ok(m) => row.metrics = Some(FlatMetrics::from(&m)),
-                Err(e) => row.error = Some(e.to_string()),
-            }
-            in_run
-        }
-        Ok(Err(e)) => Some(e),
-        Err(payload) => Some(panicked(payload.as_ref())),
-    };
-    settle(row, error, "the run is incomplete")
+    settle_outcome(row_of(run), outcome, "the run is incomplete")
 }
 
 /// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared

@@ -369,6 +369,16 @@ pub trait Sink {
     fn finish(&mut self, complete: bool) -> Result<(), LogError>;
 }
 
+/// A borrowed sink is a sink (a caller's sinks joining a run, [`crate::run::Prepared::run`]).
+impl<S: Sink + ?Sized> Sink for &mut S {
+    fn record(&mut self, record: &Record) -> Result<(), LogError> {
+        (**self).record(record)
+    }
+    fn finish(&mut self, complete: bool) -> Result<(), LogError> {
+        (**self).finish(complete)
+    }
+}
+
 /// The outputs of a run: the log of record (the MCAP sink) and further sinks (rerun). A
 /// further sink that fails stops the run: the log gets an `/event` error naming the failure
 /// and is finished as incomplete. The further sinks are finished first, so a failure at their
@@ -376,14 +386,14 @@ pub trait Sink {
 /// is then deleted, see [`Sink`] implementations).
 pub struct Tee<'a> {
     log: &'a mut dyn Sink,
-    others: Vec<Box<dyn Sink>>,
+    others: Vec<Box<dyn Sink + 'a>>,
     /// Time of the last record (of the error event).
     time: f64,
     failed: bool,
 }
 
 impl<'a> Tee<'a> {
-    pub fn new(log: &'a mut dyn Sink, others: Vec<Box<dyn Sink>>) -> Tee<'a> {
+    pub fn new(log: &'a mut dyn Sink, others: Vec<Box<dyn Sink + 'a>>) -> Tee<'a> {
         Tee {
             log,
             others,
@@ -504,6 +514,7 @@ mod tests {
         tee.record(&state(0.0)).unwrap();
         tee.finish(true).unwrap();
         assert!(!tee.other_failed());
+        drop(tee);
         assert_eq!((log.records.len(), log.finished), (1, Some(true)));
     }
 
@@ -521,6 +532,7 @@ mod tests {
         assert!(e.to_string().contains("disk full"));
         tee.finish(false).unwrap();
         assert!(tee.other_failed());
+        drop(tee);
         assert_eq!(log.finished, Some(false));
         assert_eq!(error_events(&log.records), ["x.rrd: disk full; the run stopped"]);
         assert_eq!(log.records.last().unwrap().time(), 0.5);
@@ -534,6 +546,7 @@ mod tests {
         let mut tee = Tee::new(&mut log, vec![Box::new(other)]);
         tee.record(&state(0.0)).unwrap();
         assert!(tee.finish(true).unwrap_err().to_string().contains("cannot close"));
+        drop(tee);
         assert_eq!(log.finished, Some(false));
         assert_eq!(error_events(&log.records).len(), 1);
     }
