@@ -149,9 +149,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = outcome.metrics.as_ref().expect("a logged run is analysed");
         println!(
             "{label} | {} | {:.2} | {:.3}",
-            if m.collision.is_some() { "yes" } else { "no" },
-            m.min_h.unwrap_or(f64::NAN),
-            m.min_clearance.unwrap_or(f64::NAN),
+            if m.collision().is_some() { "yes" } else { "no" },
+            m.min_h().unwrap_or(f64::NAN),
+            m.min_clearance().unwrap_or(f64::NAN),
         );
     }
     Ok(())

@@ -102,7 +102,12 @@ impl SafetyFilter for RobustCbf {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "robust_cbf_logs".into()));
     std::fs::create_dir_all(&out)?;
-    embed::register(|r| r.add_filter("robust_cbf", build));
+    // Its label (legends, `analyze --brief`) and description go into every run's metadata.
+    embed::register(|r| {
+        r.add_filter("robust_cbf", build)
+            .label("robust CBF-QP (margin on h)")
+            .description("the CBF-QP at the current state with a constant margin subtracted from h");
+    });
 
     let scenarios = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
     let runs: [(&str, &str, &[&str]); 4] = [
@@ -127,9 +132,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = outcome.metrics.as_ref().expect("a logged run is analysed");
         println!(
             "{label} | {} | {:.2} | {:.3}",
-            if m.collision.is_some() { "yes" } else { "no" },
-            m.min_h.unwrap_or(f64::NAN),
-            m.min_clearance.unwrap_or(f64::NAN),
+            if m.collision().is_some() { "yes" } else { "no" },
+            m.min_h().unwrap_or(f64::NAN),
+            m.min_clearance().unwrap_or(f64::NAN),
         );
     }
     Ok(())

@@ -242,13 +242,13 @@ pub fn run(
             analysis_seconds: analysis,
             log_bytes: std::fs::metadata(&log_path).map(|m| m.len()).unwrap_or(0),
             max_prediction_error: metrics
-                .prediction
-                .iter()
+                .prediction()
+                .into_iter()
                 .flatten()
                 .map(|(channel, stats)| (channel.clone(), stats.max_error))
                 .collect(),
-            min_h: metrics.min_h,
-            collision: metrics.collision.is_some(),
+            min_h: metrics.min_h(),
+            collision: metrics.collision().is_some(),
         });
     }
     Ok(rows)
@@ -308,7 +308,7 @@ pub fn table(rows: &[BenchRow]) -> String {
             r.min_h.map_or("-".into(), |h| format!("{h:.4}")),
         ]);
     }
-    analyze::align_columns(&lines)
+    crate::table::align_columns(&lines)
 }
 
 #[cfg(test)]

@@ -422,6 +422,13 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// List every metric `analyze` computes: its JSON name, flat column, unit and meaning
+    /// (docs/metrics.md's table is this output with --markdown).
+    Metrics {
+        /// Print the Markdown table of docs/metrics.md instead of aligned text.
+        #[arg(long)]
+        markdown: bool,
+    },
     /// Print a shell completion script on stdout, e.g.
     /// `mjsafe completions bash > ~/.local/share/bash-completion/completions/mjsafe`.
     Completions {
@@ -664,6 +671,15 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Man { dir } => man_command(dir),
+        Command::Metrics { markdown } => {
+            let table = crate::metrics::reference_table();
+            if markdown {
+                out!("{table}");
+            } else {
+                outln!("{}", crate::metrics::report::markdown_as_text(&table));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 
@@ -811,8 +827,8 @@ fn run_scenario(
         let rtf = summary.real_time_factor();
         let value = serde_json::json!({
             "scenario": loaded.scenario.name,
-            "collision": metrics.collision,
-            "min_h": metrics.min_h,
+            "collision": metrics.collision(),
+            "min_h": metrics.min_h(),
             "steps": summary.steps,
             "simulated_time": summary.simulated_time,
             "real_time_factor": rtf.is_finite().then_some(rtf),
@@ -830,19 +846,16 @@ fn run_scenario(
         outln!(
             "{}: {}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
-            metrics
-                .collision
-                .as_ref()
-                .map_or("no collision".to_string(), |c| format!(
-                    "COLLISION at t = {:.3} s with {} ({})",
-                    c.time,
-                    c.with,
-                    if c.depth.is_nan() {
-                        "depth not in the log".to_string()
-                    } else {
-                        format!("depth {:.3} m", c.depth)
-                    }
-                )),
+            metrics.collision().map_or("no collision".to_string(), |c| format!(
+                "COLLISION at t = {:.3} s with {} ({})",
+                c.time,
+                c.with,
+                if c.depth.is_nan() {
+                    "depth not in the log".to_string()
+                } else {
+                    format!("depth {:.3} m", c.depth)
+                }
+            )),
             match metrics.warnings.len() {
                 0 => String::new(),
                 n => format!(
@@ -850,7 +863,7 @@ fn run_scenario(
                     if n > 1 { "S" } else { "" }
                 ),
             },
-            metrics.min_h.map_or("-".into(), |h| format!("{h:.3}")),
+            metrics.min_h().map_or("-".into(), |h| format!("{h:.3}")),
             summary.steps,
             summary.simulated_time,
             // Two significant digits below 10x (a slow run is not "0x").
@@ -874,7 +887,7 @@ fn run_scenario(
         });
     }
     if report.fail_on_collision {
-        if let Some(c) = &metrics.collision {
+        if let Some(c) = metrics.collision() {
             eprintln!(
                 "error: --fail-on-collision: the run collided with {} at t = {:.3} s",
                 c.with, c.time
@@ -962,9 +975,9 @@ fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
     }
     match format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&runs).expect("metrics serialise")),
-        Format::Csv if !runs.is_empty() => out!("{}", analyze::csv(&runs)),
-        Format::Table if !runs.is_empty() => outln!("{}", analyze::table(&runs)),
-        Format::Brief if !runs.is_empty() => outln!("{}", analyze::brief_table(&runs)),
+        Format::Csv if !runs.is_empty() => out!("{}", crate::metrics::report::csv(&runs)),
+        Format::Table if !runs.is_empty() => outln!("{}", crate::metrics::report::table(&runs)),
+        Format::Brief if !runs.is_empty() => outln!("{}", crate::metrics::report::brief_table(&runs)),
         _ => {}
     }
     if failed {
@@ -980,14 +993,14 @@ fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<Exi
     };
     let (ma, damage_a) = analyze_or_recover(a, recover)?;
     let (mb, damage_b) = analyze_or_recover(b, recover)?;
-    let rows = analyze::compare(&ma, &mb);
+    let rows = crate::metrics::report::compare(&ma, &mb);
     match format {
         Format::Json => {
             // Why a metric is absent on either side (as `analyze --json` names it).
             let mut value = serde_json::json!({
                 "a": a.display().to_string(),
                 "b": b.display().to_string(),
-                "metrics": analyze::comparison_json(&rows),
+                "metrics": crate::metrics::report::comparison_json(&rows),
             });
             for (key, m) in [("missing_a", &ma), ("missing_b", &mb)] {
                 if !m.missing.is_empty() {
@@ -999,10 +1012,10 @@ fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<Exi
                 serde_json::to_string_pretty(&value).expect("JSON values serialise")
             );
         }
-        Format::Csv => out!("{}", analyze::comparison_csv(&rows)),
+        Format::Csv => out!("{}", crate::metrics::report::comparison_csv(&rows)),
         Format::Table | Format::Brief => {
             outln!("A: {}\nB: {}\n", a.display(), b.display());
-            outln!("{}", analyze::comparison_table(&rows));
+            outln!("{}", crate::metrics::report::comparison_table(&rows));
         }
     }
     if format != Format::Json {
@@ -1169,18 +1182,23 @@ fn sweep_table(summary: &Summary) -> String {
                 .map(|k| r.parameters.get(k).cloned().unwrap_or_default()),
         );
         let m = r.metrics.as_ref();
-        line.push(m.map_or("-".into(), |m| match (m.collision_time, &m.collision_with) {
-            (Some(t), Some(with)) => format!("t={t:.3} {with}"),
-            _ => "none".into(),
+        line.push(m.map_or("-".into(), |m| {
+            match (m.number("collision_time"), m.cell("collision_with")) {
+                (Some(t), analyze::Cell::Text(Some(with))) => format!("t={t:.3} {with}"),
+                _ => "none".into(),
+            }
         }));
-        line.push(m.and_then(|m| m.min_h).map_or("-".into(), |h| format!("{h:.3}")));
+        line.push(
+            m.and_then(|m| m.number("min_h"))
+                .map_or("-".into(), |h| format!("{h:.3}")),
+        );
         line.push(match &r.error {
             Some(e) => format!("error: {e}"),
             None => "complete".into(),
         });
         rows.push(line);
     }
-    analyze::align_columns(&rows)
+    crate::table::align_columns(&rows)
 }
 
 struct SweepOptions {
@@ -1286,7 +1304,7 @@ fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     let collided: Vec<usize> = summary
         .runs
         .iter()
-        .filter(|r| r.metrics.as_ref().is_some_and(|m| m.collision_time.is_some()))
+        .filter(|r| r.metrics.as_ref().is_some_and(|m| m.number("collision_time").is_some()))
         .map(|r| r.index)
         .collect();
     if options.fail_on_collision && !collided.is_empty() {

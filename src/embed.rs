@@ -6,7 +6,9 @@
 //! use std::path::Path;
 //!
 //! // 1. Your kinds (see examples/robust_cbf.rs for a whole filter).
-//! // mjsafe::registry::register(|r| r.add_filter("my_filter", my_filter::build));
+//! // mjsafe::registry::register(|r| {
+//! //     r.add_filter("my_filter", my_filter::build).label("my filter (eq. 7)");
+//! // });
 //!
 //! // 2. A scenario file, with `--set`-style overrides that may name your kinds.
 //! let loaded = mjsafe::embed::load_scenario(

@@ -140,9 +140,9 @@ pub struct Severity {
 impl Severity {
     fn of(metrics: &FlatMetrics) -> Severity {
         Severity {
-            min_h: metrics.min_h,
-            collision_time: metrics.collision_time,
-            collision_depth: metrics.collision_depth,
+            min_h: metrics.number("min_h"),
+            collision_time: metrics.number("collision_time"),
+            collision_depth: metrics.number("collision_depth"),
         }
     }
 
@@ -628,7 +628,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
             );
         }
     }
-    crate::analyze::csv_lines(&rows)
+    crate::table::csv_lines(&rows)
 }
 
 /// Best score so far against evaluations, one line per search, with the zero line below which

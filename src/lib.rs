@@ -19,6 +19,7 @@ pub mod files;
 pub mod filter;
 pub mod log;
 pub mod message;
+pub mod metrics;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod nominal;
@@ -33,5 +34,6 @@ pub mod run;
 pub mod scenario;
 pub mod sensing;
 pub mod sweep;
+pub mod table;
 pub mod vehicle;
 pub mod vehicle_registry;

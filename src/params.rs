@@ -14,6 +14,12 @@ pub trait Params: Serialize + DeserializeOwned {
     fn validate(&self) -> Result<(), ParamError> {
         Ok(())
     }
+
+    /// The run's label, given the kind's registered label (e.g. `γm filter (4.67)` →
+    /// `γm filter (4.67), m = 50`): what plots, legends and `analyze --brief` name the run by.
+    fn label(&self, kind_label: &str) -> String {
+        kind_label.to_string()
+    }
 }
 
 /// A parameter or scenario field a filter or nominal cannot accept: the scenario key (e.g.

@@ -665,23 +665,6 @@ struct SweepRows<'a> {
     runs: &'a [SweepPoint<'a>],
 }
 
-/// The unit of a flat metric whose unit does not depend on the vehicle (docs/metrics.md):
-/// times in seconds, clearances and depths in metres.
-fn metric_unit(metric: &str) -> Option<&'static str> {
-    match metric {
-        "simulated_time"
-        | "collision_time"
-        | "time_h_negative"
-        | "first_override_time"
-        | "override_duration"
-        | "min_time_to_collision"
-        | "delay_attributed_violation_time"
-        | "prescribed_time" => Some("s"),
-        "min_clearance" | "collision_depth" => Some("m"),
-        _ => None,
-    }
-}
-
 /// The corner of the plot area (x and y ranges) with the fewest points within a third of the
 /// width and height of it: where the legend hides the least.
 fn emptiest_corner(
@@ -740,7 +723,7 @@ fn sweep_lines(parameters: &[String], runs: &[SweepPoint<'_>], key: &str, metric
         let line = lines
             .entry(values.join(", "))
             .or_insert_with(|| (names.join(", "), Vec::new()));
-        line.1.push((x, y, metrics.collision_time.is_some()));
+        line.1.push((x, y, metrics.number("collision_time").is_some()));
     }
     let mut named = BTreeMap::<String, usize>::new();
     for (name, _) in lines.values() {
@@ -758,7 +741,7 @@ fn sweep_lines(parameters: &[String], runs: &[SweepPoint<'_>], key: &str, metric
 /// A metric of a sweep's summary (`summary.json`, or a sweep directory holding one) against
 /// one swept key, into `out` (PNG): one line per combination of the other swept keys, runs that
 /// collided marked with a cross. The metric is a numeric field of the summary's metrics
-/// (`min_h`, `min_clearance`, `max_jerk`, … docs/metrics.md).
+/// (`min_h`, `min_clearance`, `max_input_rate.steering`, … docs/metrics.md).
 ///
 /// `file` names the summary in messages, `name` is the sweep's name; `swept` are its swept keys and `runs` its rows (the
 /// caller reads the summary: plotting never reaches the code that runs sweeps).
@@ -820,9 +803,10 @@ pub fn plot_sweep(
         key.to_string()
     };
     let legend_corner = emptiest_corner(groups.values().flatten().map(|p| (p.0, p.1)), (x0, x1), (y0, y1));
-    let y_desc = match metric_unit(metric) {
+    // The declared unit (docs/metrics.md); a count's unit is its name.
+    let y_desc = match crate::metrics::Metric::unit_of_column(metric) {
+        Some("" | "1" | "steps" | "ticks" | "predictions") | None => metric.to_string(),
         Some(unit) => format!("{metric}  [{unit}]"),
-        None => metric.to_string(),
     };
     let result = draw_png(out, &[file], |partial: &Path| -> DrawResult<()> {
         let root = BitMapBackend::new(partial, (1000, 560)).into_drawing_area();
@@ -905,10 +889,8 @@ mod tests {
                     ("delays.steering".to_string(), delay.to_string()),
                     ("filter".to_string(), filter.to_string()),
                 ]);
-                let metrics = FlatMetrics {
-                    min_h: Some(i as f64),
-                    ..FlatMetrics::default()
-                };
+                let mut metrics = FlatMetrics::default();
+                metrics.set("min_h", crate::analyze::Cell::Num(Some(i as f64)));
                 rows.push((parameters, metrics));
             }
         }

@@ -21,6 +21,9 @@
 //!     r.add_filter("my_filter", |p: &MyParams, ctx: &FilterContext| -> Result<Box<dyn SafetyFilter>, ParamError> {
 //!         Ok(Box::new(MyFilter))
 //!     })
+//!     // What legends, `analyze --brief` and the run metadata call it.
+//!     .label("my filter (eq. 7)")
+//!     .description("the CBF-QP with my margin");
 //! });
 //! ```
 
@@ -34,15 +37,52 @@ type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> +
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;
 type BuildNominal =
     Arc<dyn Fn(&toml::Table, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync>;
+type Label = Arc<dyn Fn(&toml::Table, &str) -> Result<String, ParamError> + Send + Sync>;
 
 pub(crate) struct Kind<B> {
     pub(crate) name: String,
+    /// Its label (with the equation number it implements) and one line on what it is.
+    pub(crate) label: String,
+    pub(crate) description: String,
     pub(crate) build: B,
 }
 
-/// A filter or nominal kind: its parameter check and its constructor.
+/// What a registered kind says of itself: its label (equation number) and one line on what it
+/// is (set with [`Describe`]; the kind's name and nothing until then). Both are written into
+/// the run metadata (`filter_label`, `filter_description`, …) and read from there by the
+/// analysis, plots and legends.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Description {
+    pub kind: String,
+    /// The run's label: the kind's, completed by its parameters ([`Params::label`]).
+    pub label: String,
+    pub description: String,
+}
+
+/// Sets the label and description of the kind just registered.
+pub struct Describe<'a> {
+    label: &'a mut String,
+    description: &'a mut String,
+}
+
+impl Describe<'_> {
+    /// The label plots, legends and `analyze --brief` show (e.g. `γm filter (4.67)`).
+    pub fn label(self, label: &str) -> Self {
+        *self.label = label.to_string();
+        self
+    }
+
+    /// One line on what the kind is.
+    pub fn description(self, description: &str) -> Self {
+        *self.description = description.to_string();
+        self
+    }
+}
+
+/// A filter or nominal kind: its parameter check, its label and its constructor.
 struct Checked<B> {
     check: Check,
+    label: Label,
     build: B,
 }
 
@@ -63,6 +103,10 @@ fn parse_params<P: Params>(section: &str, table: &toml::Table) -> Result<P, Para
         };
         ParamError::new(key, crate::message::plain_serde_message(&e.into_inner().to_string()))
     })
+}
+
+fn label_of<P: Params + 'static>(section: &'static str) -> Label {
+    Arc::new(move |table: &toml::Table, kind_label: &str| Ok(parse_params::<P>(section, table)?.label(kind_label)))
 }
 
 fn check_of<P: Params + 'static>() -> Check {
@@ -86,54 +130,94 @@ impl Registry {
             filters: Vec::new(),
             nominals: Vec::new(),
         };
-        r.add_filter("none", filter::none::build);
-        r.add_filter("cbf_qp", filter::cbf_qp::build);
-        r.add_filter("fixed_channel", filter::fixed_channel::build);
-        r.add_filter("gamma_m", filter::gamma_m::build);
-        r.add_filter("clf_cbf_qp", filter::clf_cbf_qp::build);
-        r.add_filter("ptsf", filter::chain::build_ptsf);
-        r.add_filter("esf", filter::chain::build_esf);
-        r.add_nominal("path_lqr", nominal::build_path_lqr);
-        r.add_nominal("constant", nominal::build_constant);
-        r.add_nominal("unicycle_stabilizer", nominal::build_unicycle_stabilizer);
-        r.add_nominal("quartic_clf", nominal::build_quartic_clf);
-        r.add_nominal("red_light", nominal::build_red_light);
-        r.add_nominal("pts", nominal::build_pts);
+        r.add_filter("none", filter::none::build)
+            .label("no filter (nominal only)")
+            .description("the nominal input, unfiltered");
+        r.add_filter("cbf_qp", filter::cbf_qp::build)
+            .label("delay-free CBF-QP (4.9)–(4.11)")
+            .description("min-norm CBF-QP at the current state; with compensation = 'predictor' at each channel's prediction (4.34)");
+        r.add_filter("fixed_channel", filter::fixed_channel::build)
+            .label("fixed-channel filter (4.44)")
+            .description("distinct delays: the filtered channel's CBF at its prediction, the other channels as issued (4.44)–(4.47)");
+        r.add_filter("gamma_m", filter::gamma_m::build)
+            .label("γm filter (4.67)")
+            .description("distinct delays: every channel at its own prediction with the γm robustness margin (4.60)–(4.68)");
+        r.add_filter("clf_cbf_qp", filter::clf_cbf_qp::build)
+            .label("γm CLF-CBF QP (3.27)–(3.33)")
+            .description("linear systems with input delays: CLF-CBF QP with the γm buffer η (3.25), Cases A–D");
+        r.add_filter("ptsf", filter::chain::build_ptsf)
+            .label("PTSf (Ch. 5)")
+            .description("prescribed-time safety filter for n-th order chains (Ch. 5)");
+        r.add_filter("esf", filter::chain::build_esf)
+            .label("ESf (Ch. 5)")
+            .description("exponential safety filter for n-th order chains, the PTSf's comparison (Ch. 5)");
+        r.add_nominal("path_lqr", nominal::build_path_lqr)
+            .label("LQR path tracking")
+            .description("LQR tracking of a reference path, linearised about it (Riccati by the matrix sign function)");
+        r.add_nominal("constant", nominal::build_constant)
+            .label("constant input")
+            .description("the same input at every tick");
+        r.add_nominal("unicycle_stabilizer", nominal::build_unicycle_stabilizer)
+            .label("unicycle stabiliser (2.40)–(2.46)")
+            .description("drives the unicycle to the origin (2.40)–(2.46)");
+        r.add_nominal("quartic_clf", nominal::build_quartic_clf)
+            .label("quartic CLF (4.58)")
+            .description("the quartic control Lyapunov function controller of Example 1 (4.58)");
+        r.add_nominal("red_light", nominal::build_red_light)
+            .label("red light (5.20)")
+            .description("approaches a red light at the stop line (5.20)");
+        r.add_nominal("pts", nominal::build_pts)
+            .label("PTS (5.87)")
+            .description("prescribed-time stabiliser of the strict-feedback system (5.87)");
         r
     }
 
-    /// Registers (or replaces) the filter `kind`, built from parameters P.
+    /// Registers (or replaces) the filter `kind`, built from parameters P; its label and
+    /// description follow ([`Describe`]).
     pub fn add_filter<P: Params + 'static>(
         &mut self,
         kind: &str,
         build: impl Fn(&P, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync + 'static,
-    ) {
+    ) -> Describe<'_> {
         let build: BuildFilter = Arc::new(move |table, ctx| build(&parse_params::<P>("filter", table)?, ctx));
         add(
             &mut self.filters,
             kind,
             Checked {
                 check: check_of::<P>(),
+                label: label_of::<P>("filter"),
                 build,
             },
-        );
+        )
     }
 
-    /// Registers (or replaces) the nominal controller `kind`, built from parameters P.
+    /// Registers (or replaces) the nominal controller `kind`, built from parameters P; its
+    /// label and description follow ([`Describe`]).
     pub fn add_nominal<P: Params + 'static>(
         &mut self,
         kind: &str,
         build: impl Fn(&P, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync + 'static,
-    ) {
+    ) -> Describe<'_> {
         let build: BuildNominal = Arc::new(move |table, ctx| build(&parse_params::<P>("nominal", table)?, ctx));
         add(
             &mut self.nominals,
             kind,
             Checked {
                 check: check_of::<P>(),
+                label: label_of::<P>("nominal"),
                 build,
             },
-        );
+        )
+    }
+
+    /// The label and description of a (checked) `filter` table's run.
+    pub fn describe_filter(&self, kind: &str, params: &toml::Table) -> Result<Description, ParamError> {
+        describe(find(&self.filters, "filter", kind)?, params)
+    }
+
+    /// The label and description of a (checked) `nominal` table's run.
+    pub fn describe_nominal(&self, kind: &str, params: &toml::Table) -> Result<Description, ParamError> {
+        describe(find(&self.nominals, "nominal", kind)?, params)
     }
 
     /// The filter kinds, in registration order.
@@ -177,14 +261,37 @@ impl Registry {
     }
 }
 
-pub(crate) fn add<B>(kinds: &mut Vec<Kind<B>>, name: &str, build: B) {
+/// The run's description of a kind with parameters `params`.
+fn describe<B>(kind: &Kind<Checked<B>>, params: &toml::Table) -> Result<Description, ParamError> {
+    Ok(Description {
+        kind: kind.name.clone(),
+        label: (kind.build.label)(params, &kind.label)?,
+        description: kind.description.clone(),
+    })
+}
+
+/// Adds (or replaces) the kind `name`, labelled by its name until [`Describe`] says otherwise.
+pub(crate) fn add<'a, B>(kinds: &'a mut Vec<Kind<B>>, name: &str, build: B) -> Describe<'a> {
     let kind = Kind {
         name: name.to_string(),
+        label: name.to_string(),
+        description: String::new(),
         build,
     };
-    match kinds.iter_mut().find(|k| k.name == name) {
-        Some(existing) => *existing = kind,
-        None => kinds.push(kind),
+    let index = match kinds.iter().position(|k| k.name == name) {
+        Some(i) => {
+            kinds[i] = kind;
+            i
+        }
+        None => {
+            kinds.push(kind);
+            kinds.len() - 1
+        }
+    };
+    let kind = &mut kinds[index];
+    Describe {
+        label: &mut kind.label,
+        description: &mut kind.description,
     }
 }
 

@@ -1,5 +1,5 @@
 //! The one run path: a loaded scenario → its episode → its sinks → its metrics. `mjsafe run`,
-//! the embedding API ([`crate::embed`]), sweeps, `falsify` and `bench` all run a scenario
+//! the embedding API (`embed`), sweeps, `falsify` and `bench` all run a scenario
 //! through [`Prepared`], so they check the same outputs, refuse the same budgets and treat a
 //! failing sink the same way:
 //!

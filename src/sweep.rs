@@ -12,11 +12,12 @@ use std::sync::mpsc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::analyze::{csv_lines, Cell, FlatMetrics};
+use crate::analyze::{Cell, FlatMetrics};
 use crate::files::{OutputFile, Replace};
 use crate::log::mcap;
 use crate::random::SplitMix64;
 use crate::scenario;
+use crate::table::csv_lines;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SweepError {
@@ -695,7 +696,7 @@ fn settle_outcome(
 }
 
 /// One run of `scenario` with the run's overrides, analysed while it runs and not logged (what
-/// a falsification candidate is): the metrics its log would give ([`analyze::AnalysisSink`]),
+/// a falsification candidate is): the metrics its log would give (`analyze::AnalysisSink`),
 /// without writing, compressing and reading the log. `name` stands for the log in the metrics
 /// and errors. Never fails: a failure is the row's `error`.
 pub fn execute_analysed(scenario_path: &Path, run: &Run, name: &str) -> Row {

@@ -39,11 +39,18 @@ fn metrics_without_the_data_they_need_are_null() {
     // No filter: never an override, so no pair of commands around one.
     let m = run(dir.path(), "none", &["filter={kind='none'}"]);
     assert!(m["first_override_time"].is_null(), "{m}");
-    assert!(m["max_jerk_overriding"].is_null(), "{m}");
-    assert!(m["max_jerk"].as_f64().unwrap() > 0.0, "{m}");
+    assert!(m["max_input_rate_overriding"].is_null(), "{m}");
+    let rates = m["max_input_rate"].as_object().unwrap();
+    assert!(
+        rates.len() == 2 && rates.values().any(|r| r.as_f64().unwrap() > 0.0),
+        "{m}"
+    );
     // One step: one command, no rate of change.
     let m = run(dir.path(), "one", &["duration=0.002"]);
-    assert!(m["max_jerk"].is_null() && m["max_jerk_overriding"].is_null(), "{m}");
+    assert!(
+        m["max_input_rate"].is_null() && m["max_input_rate_overriding"].is_null(),
+        "{m}"
+    );
     // No obstacle and no barrier: nothing to be outside of, nothing that appeared.
     let m = run(dir.path(), "free", &["obstacles=[]"]);
     for metric in [

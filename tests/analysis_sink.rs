@@ -51,8 +51,8 @@ fn every_scenario_analysed_in_memory_gives_the_metrics_of_its_log() {
             "{}",
             scenario.display()
         );
-        with_predictions += usize::from(in_memory.prediction.as_ref().is_some_and(|p| !p.is_empty()));
-        with_obstacles += usize::from(in_memory.min_clearance.is_some());
+        with_predictions += usize::from(in_memory.prediction().is_some_and(|p| !p.is_empty()));
+        with_obstacles += usize::from(in_memory.min_clearance().is_some());
     }
     // The comparison covers the metrics that need predictions and obstacles.
     assert!(

@@ -86,17 +86,18 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "filter",
     ] {
         let reached = reaches(&graph, maths);
-        for forbidden in ["mujoco", "log", "episode", "plant", "vehicle", "analyze"] {
+        for forbidden in ["mujoco", "log", "episode", "plant", "vehicle", "analyze", "metrics", "run"] {
             assert!(!reached.contains(forbidden), "{maths} reaches {forbidden}: {reached:?}");
         }
     }
-    for schema_or_analysis in ["scenario", "analyze", "params", "message"] {
+    for schema_or_analysis in ["scenario", "analyze", "metrics", "table", "params", "message"] {
         let reached = reaches(&graph, schema_or_analysis);
         assert!(
             !reached.contains("mujoco"),
             "{schema_or_analysis} reaches mujoco: {reached:?}"
         );
     }
-    // Sinks only observe: the log never reads through the analysis.
-    assert!(!reaches(&graph, "log").contains("analyze"));
+    // Sinks only observe: the log never reads through the analysis or the metrics.
+    let log = reaches(&graph, "log");
+    assert!(!log.contains("analyze") && !log.contains("metrics") && !log.contains("run"), "{log:?}");
 }

@@ -153,7 +153,7 @@ fn mutated_logs_are_errors_never_panics_or_wrong_metrics() {
     let records = records(&original);
     let chunks = records.iter().filter(|r| r.0 == 0x06).count();
     let expected = analyze::analyze_bytes(&original, "log").expect("the original analyses");
-    assert!(expected.complete && expected.collision.is_some(), "{expected:?}");
+    assert!(expected.complete && expected.collision().is_some(), "{expected:?}");
     assert!(chunks >= 3, "{chunks} chunks");
     let expected = format!("{expected:?}");
     let info = info::log_info(&dir.path().join("original.mcap")).expect("info of the original");

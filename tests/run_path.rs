@@ -57,12 +57,12 @@ fn a_failing_user_sink_stops_the_run_and_marks_its_log_incomplete() {
     // The log is there, under its final name, and says why it is incomplete.
     let metrics = mjsafe::analyze::analyze_file(&log).unwrap();
     assert!(!metrics.complete);
-    let reason = metrics.error.expect("the log names the failure");
+    let reason = metrics.error.clone().expect("the log names the failure");
     assert!(
         reason.contains("user sink: no space left") && reason.contains("the run stopped"),
         "{reason}"
     );
-    assert!(metrics.simulated_time > 0.0 && metrics.simulated_time < 1.0);
+    assert!(metrics.simulated_time() > 0.0 && metrics.simulated_time() < 1.0);
 
     // The same sink beside the in-memory analysis: the same error, and no log anywhere.
     let mut failing = Failing { seen: 0, fail_at: 500 };

@@ -199,8 +199,12 @@ fn a_metrics_only_sweep_gives_the_logged_sweeps_summary_without_logs() {
     let runs = with_logs["runs"].as_array_mut().unwrap();
     assert_eq!(runs.len(), 6);
     let predicted = |run: &Value| {
-        let counts = run["metrics"]["prediction_count"].as_object();
-        counts.is_some_and(|c| c.values().any(|n| n.as_u64() > Some(0)))
+        // Flat columns: `prediction_count.<channel>`.
+        let metrics = run["metrics"].as_object();
+        metrics.is_some_and(|m| {
+            m.iter()
+                .any(|(column, n)| column.starts_with("prediction_count.") && n.as_u64() > Some(0))
+        })
     };
     assert!(runs.iter().any(predicted), "some run predicts");
     for (i, run) in runs.iter_mut().enumerate() {

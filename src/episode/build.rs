@@ -14,7 +14,7 @@ use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
 use crate::dynamics::Dynamics;
 use crate::filter::linear_delays;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
-use crate::log::RunInfo;
+use crate::log::{KindInfo, RunInfo};
 use crate::mujoco::{self, Model, ObjKind, Simulation};
 use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
@@ -598,10 +598,25 @@ pub(super) fn configure_control(
 }
 
 /// What the log's run metadata says about the run.
-pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f64) -> RunInfo {
+pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f64) -> Result<RunInfo, EpisodeError> {
     let sc = &loaded.scenario;
     let timestep = control.timestep();
-    RunInfo {
+    let registry = crate::registry::registry();
+    let described = [
+        ("filter", registry.describe_filter(&sc.filter.kind, &sc.filter.params)),
+        ("nominal", registry.describe_nominal(&sc.nominal.kind, &sc.nominal.params)),
+    ];
+    let mut kinds = Vec::new();
+    for (role, description) in described {
+        let d = description.map_err(|e| param_error(loaded, e))?;
+        kinds.push(KindInfo {
+            role: role.to_string(),
+            kind: d.kind,
+            label: d.label,
+            description: d.description,
+        });
+    }
+    Ok(RunInfo {
         scenario_name: sc.name.clone(),
         scenario_path: loaded.path.display().to_string(),
         scenario_text: loaded.source_text.clone(),
@@ -620,7 +635,8 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
         planar_position: control.model().planar_position(),
         heading_index: control.model().heading_index(),
         predicts: control.predicts(),
-    }
+        kinds,
+    })
 }
 
 /// The largest delay of a queue over [0, duration]: a constant one itself, a time-varying one

@@ -164,7 +164,7 @@ impl Episode {
             control.set_actuators(actuators);
         }
         build::configure_control(loaded, &mut control, &barriers)?;
-        let info = build::run_info(loaded, &control, period);
+        let info = build::run_info(loaded, &control, period)?;
         let (cost, log_budget) =
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         Ok(Episode {

@@ -54,6 +54,14 @@ impl Params for CbfQpParams {
     fn validate(&self) -> Result<(), ParamError> {
         barrier_form(self.alpha, self.l0, self.l1).map(|_| ())
     }
+
+    /// At the predictions, the filter is (4.34).
+    fn label(&self, kind_label: &str) -> String {
+        match self.compensation {
+            Compensation::Predictor => "predictor CBF-QP (4.34)".to_string(),
+            Compensation::None => kind_label.to_string(),
+        }
+    }
 }
 
 /// The CBF-QP filter; `input` is the QP's solution for all channels and `qp` the numerical

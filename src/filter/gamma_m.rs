@@ -28,6 +28,10 @@ pub struct GammaMParams {
 }
 
 impl Params for GammaMParams {
+    fn label(&self, kind_label: &str) -> String {
+        format!("{kind_label}, m = {}", self.m)
+    }
+
     fn validate(&self) -> Result<(), ParamError> {
         barrier_form(self.alpha, self.l0, self.l1)?;
         if !(self.m.is_finite() && self.m >= 1.0) {

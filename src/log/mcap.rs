@@ -192,6 +192,7 @@ mod tests {
             planar_position: None,
             heading_index: None,
             predicts: false,
+            kinds: Vec::new(),
         }
     }
 

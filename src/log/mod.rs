@@ -312,6 +312,20 @@ pub struct RunInfo {
     /// Whether the controller predicts (a predictor runs at its ticks): without, the log's
     /// `/prediction` topic is empty, and a copy that drops the empty channel lost nothing.
     pub predicts: bool,
+    /// The kinds the run is made of (filter, nominal, vehicle) as their registrations describe
+    /// them: metadata `<role>_kind`, `<role>_label`, `<role>_description`.
+    pub kinds: Vec<KindInfo>,
+}
+
+/// A kind of the run as its registration describes it (`registry::Description`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct KindInfo {
+    /// `filter`, `nominal` or `vehicle`.
+    pub role: String,
+    pub kind: String,
+    /// The label legends and tables show, with its equation number.
+    pub label: String,
+    pub description: String,
 }
 
 impl RunInfo {
@@ -345,6 +359,11 @@ impl RunInfo {
         if let Some(t) = self.prescribed_time {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
         }
+        for k in &self.kinds {
+            metadata.insert(format!("{}_kind", k.role), k.kind.clone());
+            metadata.insert(format!("{}_label", k.role), k.label.clone());
+            metadata.insert(format!("{}_description", k.role), k.description.clone());
+        }
         metadata
     }
 }
@@ -369,7 +388,7 @@ pub trait Sink {
     fn finish(&mut self, complete: bool) -> Result<(), LogError>;
 }
 
-/// A borrowed sink is a sink (a caller's sinks joining a run, [`crate::run::Prepared::run`]).
+/// A borrowed sink is a sink (a caller's sinks joining a run: `Prepared::run` of the run path).
 impl<S: Sink + ?Sized> Sink for &mut S {
     fn record(&mut self, record: &Record) -> Result<(), LogError> {
         (**self).record(record)

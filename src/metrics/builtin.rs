@@ -1,0 +1,823 @@
+//! Every metric mjsafe computes, declared once each ([`METRICS`]), with its accumulator.
+//! Adding a metric: one entry here (and its accumulator beside it); its JSON, columns, table
+//! cell, unit and docs/metrics.md row follow (`tests/metrics.rs` checks each of them).
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+use super::{always, Accumulate, CellKind, Metric, Observed, Part, RunFacts, Shape};
+use super::{Collision, PredictionStats, PrescribedTimeMetrics, Value};
+use crate::log::{proto, read, Topic};
+
+const SECONDS: &str = "s";
+const METRES: &str = "m";
+/// The barrier's own unit (m² for an obstacle's (4.81)).
+const BARRIER: &str = "h-units";
+/// The input channel's own unit (steering: tan δ; acceleration: m/s²).
+const INPUT: &str = "u-units";
+const INPUT_RATE: &str = "u-units/s";
+/// The norm of a state error, over components of their own units (m, rad, m/s, …).
+const STATE: &str = "x-units";
+const FRACTION: &str = "1";
+const JERK: &str = "m/s³";
+
+/// A part of a composite metric that needs nothing beyond the metric.
+const fn part(
+    key: &'static str,
+    column: &'static str,
+    unit: &'static str,
+    cell: CellKind,
+    meaning: &'static str,
+) -> Part {
+    Part {
+        key,
+        column,
+        unit,
+        meaning,
+        cell,
+        reads: &[],
+        metadata: &[],
+    }
+}
+
+/// A metric that applies to every run and is not in the aligned table.
+const fn metric(
+    name: &'static str,
+    unit: &'static str,
+    shape: Shape,
+    reads: &'static [Topic],
+    accumulator: fn() -> Box<dyn Accumulate>,
+    meaning: &'static str,
+) -> Metric {
+    Metric {
+        name,
+        unit,
+        meaning,
+        shape,
+        parts: &[],
+        reads,
+        metadata: &[],
+        applies: always,
+        accumulator,
+        table: None,
+    }
+}
+
+fn new<A: Accumulate + Default + 'static>() -> Box<dyn Accumulate> {
+    Box::<A>::default()
+}
+
+/// The metrics, in the order of `analyze --json` and the flat columns.
+pub static METRICS: &[Metric] = &[
+    Metric {
+        table: Some("sim_time"),
+        ..metric("simulated_time", SECONDS, Shape::Number, &[Topic::State], new::<SimulatedTime>,
+            "the largest `time` of the `/state` messages (the last state: the end of the run or where it stopped)")
+    },
+    Metric {
+        table: Some("steps"),
+        ..metric("steps", "steps", Shape::Count, &[Topic::State], new::<Steps>,
+            "the largest `step` of the `/state` messages (physics steps taken)")
+    },
+    Metric {
+        parts: &[
+            part("time", "collision_time", SECONDS, CellKind::Num,
+                "`time` of the first `/event` of kind `collision_start`; absent without one"),
+            part("with", "collision_with", "", CellKind::Text,
+                "that event's first participant other than `vehicle` (the obstacle's name)"),
+            part("depth", "collision_depth", METRES, CellKind::Num,
+                "the largest `depth` over all `collision_start` and `collision_end` events (deepest penetration of any contact; MuJoCo contact distance, or the circle overlap on the ODE plant); a contact the log leaves open gives null, reason under `missing`"),
+        ],
+        table: Some("collision"),
+        ..metric("collision", SECONDS, Shape::Collision, &[Topic::Event], new::<FirstCollision>,
+            "the run's first collision")
+    },
+    Metric {
+        table: Some("min_h"),
+        ..metric("min_h", BARRIER, Shape::Number, &[Topic::Barrier], new::<MinH>,
+            "min over `/barrier` messages and their barriers of `h` (NaN ignored); h < 0: the state left the safe set; absent without barriers")
+    },
+    Metric {
+        metadata: &["timestep"],
+        table: Some("t_h<0"),
+        ..metric("time_h_negative", SECONDS, Shape::Number, &[Topic::Barrier], new::<TimeHNegative>,
+            "Δt × (`/barrier` messages whose minimum h is < 0): time outside the safe set, sampled at the start of each step; absent without barriers")
+    },
+    Metric {
+        table: Some("filter_active"),
+        ..metric("filter_active_fraction", FRACTION, Shape::Number, &[Topic::Filter], new::<ActiveFraction>,
+            "(ticks with `active`) / (ticks), 0 without ticks; `active`: the filter changed the nominal input")
+    },
+    Metric {
+        table: Some("qp_infeasible"),
+        ..metric("filter_infeasible_ticks", "ticks", Shape::Count, &[Topic::Filter], new::<InfeasibleTicks>,
+            "ticks with `infeasible` (no input met every constraint within the limits; the least-violation input was applied)")
+    },
+    Metric {
+        table: Some("max|u-u_nom|"),
+        ..metric("max_correction", INPUT, Shape::PerChannel, &[Topic::Filter], new::<MaxCorrection>,
+            "max over ticks of |u − u_nom| of the channel (`/filter` `correction`)")
+    },
+    Metric {
+        parts: &[
+            part("count", "prediction_count", "predictions", CellKind::Int,
+                "`/prediction` messages of the channel (predictions whose target time was reached)"),
+            part("max_error", "prediction_max_error", STATE, CellKind::Num,
+                "max of `error` = ‖p_i(t) − x(φ_i⁻¹(t))‖ (prediction consistency, Definition 4.3)"),
+            part("rms_error", "prediction_rms_error", STATE, CellKind::Num,
+                "√(mean of `error`²) over the channel's predictions"),
+            part("max_relative_error", "prediction_max_relative_error", FRACTION, CellKind::Num,
+                "max of `relative_error` = error / max(1, ‖x‖)"),
+            part("reused_chain", "", "predictions", CellKind::Int,
+                "predictions that continued the previous tick's trajectory instead of integrating the whole window (`control.chain_tolerance`)"),
+            part("max_chain_mismatch", "", STATE, CellKind::Num,
+                "max of `chain_mismatch` = ‖p_1(t) − previous chain at t + D_1‖_∞ (0 when never measured)"),
+        ],
+        applies: |run| run.predicts != Some(false),
+        table: Some("prediction_err_max/rms"),
+        ..metric("prediction", STATE, Shape::Prediction, &[Topic::Prediction], new::<Predictions>,
+            "prediction consistency per channel")
+    },
+    metric("first_override_time", SECONDS, Shape::Number, &[Topic::Filter], new::<FirstOverride>,
+        "`time` of the first tick with `active`; absent if the filter never acted"),
+    Metric {
+        metadata: &["control_period"],
+        ..metric("override_duration", SECONDS, Shape::Number, &[Topic::Filter], new::<OverrideDuration>,
+            "control period × (ticks with `active`)")
+    },
+    metric("max_input_rate", INPUT_RATE, Shape::PerChannel, &[Topic::Issued], new::<InputRate>,
+        "max over consecutive `/command/issued` (t₁, u₁), (t₂, u₂), t₂ > t₁, of |u₂ − u₁| / (t₂ − t₁) of the channel: the issued input's largest rate of change (the jerk for an acceleration channel); absent with fewer than two commands"),
+    metric("max_input_rate_overriding", INPUT_RATE, Shape::PerChannel, &[Topic::Issued, Topic::Filter], new::<InputRateOverriding>,
+        "the same over the pairs where the filter was active at t₁ or t₂ (the rate of change interventions cause); absent when the filter never acted"),
+    Metric {
+        table: Some("min_clearance"),
+        ..metric("min_clearance", METRES, Shape::Number, &[Topic::Barrier], new::<MinClearance>,
+            "min over `/barrier` obstacle entries of `clearance`: the gap between the hull and the obstacle (negative: overlap)")
+    },
+    metric("min_time_to_collision", SECONDS, Shape::Number, &[Topic::Barrier], new::<MinTimeToCollision>,
+        "min over `/barrier` entries of known obstacles of `time_to_collision` (contact if the velocity were kept; 0 while overlapping); absent if never finite"),
+    Metric {
+        metadata: &["timestep", "max_delay"],
+        ..metric("delay_attributed_violation_time", SECONDS, Shape::Number, &[Topic::Barrier, Topic::Event], new::<DelayAttributed>,
+            "Δt × (steps where an obstacle has h < 0 within [its appearance, appearance + metadata `max_delay`)): violations before the delay since it appeared could be compensated; absent without obstacles")
+    },
+    Metric {
+        metadata: &["control_period"],
+        ..metric("intervention_integral", "u-units·s", Shape::Number, &[Topic::Filter], new::<InterventionIntegral>,
+            "Σ over ticks of ‖u − u_nom‖ (`/filter` `correction`) × control period: ∫‖u − u_nom‖ dt")
+    },
+    metric("max_longitudinal_jerk", JERK, Shape::Number, &[Topic::State], new::<LongitudinalJerk>,
+        "planar vehicles: max |third difference of the positions at the control ticks| / T_c³ along the velocity (central difference); needs metadata `control_period`"),
+    metric("max_lateral_jerk", JERK, Shape::Number, &[Topic::State], new::<LateralJerk>,
+        "the same across the velocity"),
+    Metric {
+        parts: &[
+            part("time", "prescribed_time", SECONDS, CellKind::Num,
+                "T, metadata `prescribed_time` (prescribed-time filters, Ch. 5); absent for other runs"),
+            Part {
+                reads: &[Topic::Barrier],
+                metadata: &["timestep"],
+                ..part("barrier", "prescribed_time_barrier", BARRIER, CellKind::Num,
+                    "min over barriers of h in the `/barrier` message at T (within Δt/2); a run that ends at or before T has none (reason under `missing`)")
+            },
+            Part {
+                metadata: &["timestep"],
+                ..part("state_residuals", "prescribed_time_state_residual", STATE, CellKind::Num,
+                    "|x_i(T)| per state component, from the `/state` message at T")
+            },
+            Part {
+                reads: &[Topic::Issued],
+                metadata: &["timestep"],
+                ..part("input_residual", "prescribed_time_input_residual", INPUT, CellKind::Num,
+                    "max over channels of |u(T)| of the `/command/issued` message at T")
+            },
+        ],
+        applies: |run| run.prescribed_time.is_some(),
+        ..metric("at_prescribed_time", SECONDS, Shape::AtPrescribedTime, &[Topic::State], new::<AtPrescribedTime>,
+            "the values at the prescribed time T")
+    },
+];
+
+/// `Some(min(current, x))`.
+fn lower(current: Option<f64>, x: f64) -> Option<f64> {
+    Some(current.map_or(x, |c| c.min(x)))
+}
+
+/// `Some(max(current, x))`.
+fn raise(current: Option<f64>, x: f64) -> Option<f64> {
+    Some(current.map_or(x, |c| c.max(x)))
+}
+
+/// min over a `/barrier` message's barriers of h (NaN ignored; +∞ without any).
+fn step_min(m: &proto::Barrier) -> f64 {
+    m.barriers.iter().map(|b| b.h).fold(f64::INFINITY, f64::min)
+}
+
+#[derive(Default)]
+struct SimulatedTime(f64);
+
+impl Accumulate for SimulatedTime {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::State(m) = record {
+            self.0 = self.0.max(m.time);
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(Some(self.0))
+    }
+}
+
+#[derive(Default)]
+struct Steps(u64);
+
+impl Accumulate for Steps {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::State(m) = record {
+            self.0 = self.0.max(m.step);
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Count(Some(self.0))
+    }
+}
+
+#[derive(Default)]
+struct FirstCollision {
+    first: Option<Collision>,
+    /// Obstacles with a `collision_start` and no `collision_end` yet.
+    open: BTreeSet<String>,
+}
+
+impl Accumulate for FirstCollision {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        let Observed::Event(m) = record else { return };
+        let start = m.kind == "collision_start";
+        if !start && m.kind != "collision_end" {
+            return;
+        }
+        let with = m
+            .participants
+            .iter()
+            .find(|p| *p != "vehicle")
+            .cloned()
+            .unwrap_or_default();
+        if start {
+            self.open.insert(with.clone());
+        } else {
+            self.open.remove(&with);
+        }
+        match self.first.as_mut() {
+            Some(c) => c.depth = c.depth.max(m.depth),
+            None if start => {
+                self.first = Some(Collision {
+                    time: m.time,
+                    with,
+                    depth: m.depth,
+                })
+            }
+            None => {}
+        }
+    }
+
+    fn value(&mut self, _: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        // A contact the log never closes (cut short, or written before episodes closed their
+        // contacts at the end): its deepest penetration is not in the log.
+        if let (Some(c), Some(open)) = (self.first.as_mut(), self.open.first()) {
+            missing.insert(
+                "collision.depth".into(),
+                format!(
+                    "the contact with {open} is still going on where the log ends: only its depth at first contact ({:.4} m) is in the log",
+                    c.depth
+                ),
+            );
+            c.depth = f64::NAN;
+        }
+        Value::Collision(self.first.take())
+    }
+}
+
+#[derive(Default)]
+struct MinH(Option<f64>);
+
+impl Accumulate for MinH {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            let h = step_min(m);
+            if h.is_finite() {
+                self.0 = lower(self.0, h);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(self.0)
+    }
+}
+
+#[derive(Default)]
+struct TimeHNegative {
+    barriers: bool,
+    negative_steps: u64,
+}
+
+impl Accumulate for TimeHNegative {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            let h = step_min(m);
+            if h.is_finite() {
+                self.barriers = true;
+                self.negative_steps += u64::from(h < 0.0);
+            }
+        }
+    }
+    fn value(&mut self, run: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        // Only for a run with barriers (as min_h): 0 s would claim a safe set was kept.
+        let timestep = run.timestep.unwrap_or(0.0);
+        Value::Number(self.barriers.then_some(self.negative_steps as f64 * timestep))
+    }
+}
+
+#[derive(Default)]
+struct ActiveFraction {
+    ticks: u64,
+    active: u64,
+}
+
+impl Accumulate for ActiveFraction {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            self.ticks += 1;
+            self.active += u64::from(m.active);
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(Some(if self.ticks > 0 {
+            self.active as f64 / self.ticks as f64
+        } else {
+            0.0
+        }))
+    }
+}
+
+#[derive(Default)]
+struct InfeasibleTicks(u64);
+
+impl Accumulate for InfeasibleTicks {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            self.0 += u64::from(m.infeasible);
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Count(Some(self.0))
+    }
+}
+
+/// `map[channel] = max(map[channel], x)`; the channel's key is allocated at its first value.
+fn raise_channel(map: &mut BTreeMap<String, f64>, channel: &str, x: f64) {
+    match map.get_mut(channel) {
+        Some(entry) => *entry = entry.max(x),
+        None => {
+            map.insert(channel.to_string(), 0.0f64.max(x));
+        }
+    }
+}
+
+#[derive(Default)]
+struct MaxCorrection(BTreeMap<String, f64>);
+
+impl Accumulate for MaxCorrection {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            for (channel, c) in m.channels.iter().zip(&m.correction) {
+                raise_channel(&mut self.0, channel, c.abs());
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel(Some(std::mem::take(&mut self.0)))
+    }
+}
+
+#[derive(Default)]
+struct Predictions(BTreeMap<String, PredictionStats>);
+
+impl Accumulate for Predictions {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        let Observed::Prediction(m) = record else { return };
+        let add = |stats: &mut PredictionStats| {
+            stats.count += 1;
+            stats.max_error = stats.max_error.max(m.error);
+            stats.max_relative_error = stats.max_relative_error.max(m.relative_error);
+            stats.sum_squares += m.error * m.error;
+            stats.reused_chain += u64::from(m.reused_chain);
+            if m.chain_mismatch.is_finite() {
+                stats.max_chain_mismatch = stats.max_chain_mismatch.max(m.chain_mismatch);
+            }
+        };
+        // The channel's key is allocated once, at its first prediction.
+        match self.0.get_mut(&m.channel) {
+            Some(stats) => add(stats),
+            None => add(self.0.entry(m.channel.clone()).or_default()),
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        let mut stats = std::mem::take(&mut self.0);
+        for s in stats.values_mut() {
+            s.rms_error = (s.sum_squares / s.count.max(1) as f64).sqrt();
+        }
+        Value::Prediction(Some(stats))
+    }
+}
+
+#[derive(Default)]
+struct FirstOverride(Option<f64>);
+
+impl Accumulate for FirstOverride {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            if m.active {
+                self.0.get_or_insert(m.time);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(self.0)
+    }
+}
+
+#[derive(Default)]
+struct OverrideDuration(f64);
+
+impl Accumulate for OverrideDuration {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            if m.active {
+                self.0 += run.control_period.unwrap_or(0.0);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(Some(self.0))
+    }
+}
+
+/// |du/dt| per channel between consecutive issued commands; with `overriding`, only over the
+/// pairs where the filter was active at either tick.
+#[derive(Default)]
+struct InputRates {
+    /// Previous issued command (time, values).
+    previous: Option<(f64, Vec<f64>)>,
+    /// The rates between the last two commands, waiting for the `/filter` record of the later
+    /// tick (written right after it) to know whether the filter was overriding.
+    pending: Option<(f64, Vec<f64>)>,
+    /// The last /filter record (time, active), and whether the one before it was active. A
+    /// /filter written before its tick's /command/issued (a log rewritten with the ties of one
+    /// log time in another order) settles the rates when the command comes.
+    last_filter: Option<(f64, bool)>,
+    previous_overriding: bool,
+    channels: Vec<String>,
+    all: Option<BTreeMap<String, f64>>,
+    overriding: Option<BTreeMap<String, f64>>,
+}
+
+impl InputRates {
+    /// The rates of the tick at `time` count as overriding when the filter of that tick (the
+    /// last /filter, if it is that tick's) or of the tick before was active.
+    fn settle(&mut self, time: f64, rates: &[f64]) {
+        if let Some((filter_time, active)) = self.last_filter {
+            if (filter_time - time).abs() < 1e-9 && (active || self.previous_overriding) {
+                let map = self.overriding.get_or_insert_with(BTreeMap::new);
+                for (channel, rate) in self.channels.iter().zip(rates) {
+                    raise_channel(map, channel, *rate);
+                }
+            }
+        }
+    }
+
+    fn observe(&mut self, record: Observed<'_>) {
+        match record {
+            Observed::Filter(m) => {
+                self.previous_overriding = self.last_filter.is_some_and(|(_, active)| active);
+                self.last_filter = Some((m.time, m.active));
+                if let Some((time, rates)) = self.pending.take() {
+                    self.settle(time, &rates);
+                }
+            }
+            Observed::Issued(m) => {
+                if self.channels != m.channels {
+                    self.channels.clone_from(&m.channels);
+                }
+                if let Some((previous_time, previous)) = &self.previous {
+                    let dt = m.time - previous_time;
+                    if dt > 0.0 {
+                        let rates: Vec<f64> = m
+                            .filtered
+                            .iter()
+                            .zip(previous)
+                            .map(|(u, p)| ((u - p) / dt).abs())
+                            .collect();
+                        let all = self.all.get_or_insert_with(BTreeMap::new);
+                        for (channel, rate) in self.channels.iter().zip(&rates) {
+                            raise_channel(all, channel, *rate);
+                        }
+                        if self.last_filter.is_some_and(|(time, _)| (time - m.time).abs() < 1e-9) {
+                            self.settle(m.time, &rates);
+                        } else {
+                            self.pending = Some((m.time, rates));
+                        }
+                    }
+                }
+                match &mut self.previous {
+                    Some((time, previous)) => {
+                        *time = m.time;
+                        previous.clear();
+                        previous.extend_from_slice(&m.filtered);
+                    }
+                    None => self.previous = Some((m.time, m.filtered.clone())),
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+#[derive(Default)]
+struct InputRate(InputRates);
+
+impl Accumulate for InputRate {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        self.0.observe(record);
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel(self.0.all.take())
+    }
+}
+
+#[derive(Default)]
+struct InputRateOverriding(InputRates);
+
+impl Accumulate for InputRateOverriding {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        self.0.observe(record);
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel(self.0.overriding.take())
+    }
+}
+
+#[derive(Default)]
+struct MinClearance(Option<f64>);
+
+impl Accumulate for MinClearance {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            for b in m.barriers.iter().filter(|b| b.obstacle) {
+                self.0 = lower(self.0, b.clearance);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(self.0)
+    }
+}
+
+#[derive(Default)]
+struct MinTimeToCollision(Option<f64>);
+
+impl Accumulate for MinTimeToCollision {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            for b in m
+                .barriers
+                .iter()
+                .filter(|b| b.obstacle && b.known && !b.time_to_collision.is_nan())
+            {
+                self.0 = lower(self.0, b.time_to_collision);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(self.0)
+    }
+}
+
+#[derive(Default)]
+struct DelayAttributed {
+    /// Appearance time per obstacle name.
+    appeared: BTreeMap<String, f64>,
+    obstacles: bool,
+    steps: u64,
+}
+
+impl Accumulate for DelayAttributed {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        match record {
+            Observed::Event(m) if m.kind == "obstacle_appeared" => {
+                for name in &m.participants {
+                    self.appeared.entry(name.clone()).or_insert(m.time);
+                }
+            }
+            Observed::Barrier(m) => {
+                self.obstacles |= m.barriers.iter().any(|b| b.obstacle);
+                let max_delay = run.max_delay.unwrap_or(0.0);
+                let uncompensated = m.barriers.iter().any(|b| {
+                    b.h < 0.0
+                        && self
+                            .appeared
+                            .get(&b.name)
+                            .is_some_and(|t| m.time >= *t && m.time < t + max_delay)
+                });
+                self.steps += u64::from(uncompensated);
+            }
+            _ => {}
+        }
+    }
+    fn value(&mut self, run: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        // Only for a run with obstacles (whose appearance it measures from).
+        let timestep = run.timestep.unwrap_or(0.0);
+        Value::Number(self.obstacles.then_some(self.steps as f64 * timestep))
+    }
+}
+
+#[derive(Default)]
+struct InterventionIntegral(f64);
+
+impl Accumulate for InterventionIntegral {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            let correction = m.correction.iter().map(|c| c * c).sum::<f64>().sqrt();
+            self.0 += correction * run.control_period.unwrap_or(0.0);
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(Some(self.0))
+    }
+}
+
+/// The largest longitudinal and lateral jerk of a planar vehicle, from the third differences
+/// of its positions at the control ticks.
+#[derive(Default)]
+struct PlanarJerk {
+    /// The position indices (None until the first state; Some(None): not planar).
+    planar: Option<Option<[usize; 2]>>,
+    /// Last four planar positions (time, x, y).
+    recent: VecDeque<(f64, f64, f64)>,
+    longitudinal: Option<f64>,
+    lateral: Option<f64>,
+}
+
+impl PlanarJerk {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let Observed::State(m) = record else { return };
+        let planar = *self
+            .planar
+            .get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names));
+        let Some([i, j]) = planar else { return };
+        // Sample on the control-tick grid: the commanded acceleration is piecewise constant on
+        // it, so the jerk is resolved at the control period (not at the physics step).
+        if let Some(period) = run.control_period {
+            let ticks = m.time / period;
+            if (ticks - ticks.round()).abs() > 1e-6 {
+                return;
+            }
+        }
+        self.recent.push_back((m.time, m.values[i], m.values[j]));
+        if self.recent.len() > 4 {
+            self.recent.pop_front();
+        }
+        if self.recent.len() < 4 {
+            return;
+        }
+        let q = &self.recent;
+        let p = [q[0], q[1], q[2], q[3]];
+        let dt = (p[3].0 - p[0].0) / 3.0;
+        if dt <= 0.0 {
+            return;
+        }
+        // Third differences → jerk; the velocity direction (central difference) splits it.
+        let third = |f: fn(&(f64, f64, f64)) -> f64| f(&p[3]) - 3.0 * f(&p[2]) + 3.0 * f(&p[1]) - f(&p[0]);
+        let (jx, jy) = (third(|q| q.1) / dt.powi(3), third(|q| q.2) / dt.powi(3));
+        let (vx, vy) = (p[2].1 - p[1].1, p[2].2 - p[1].2);
+        let speed = vx.hypot(vy);
+        if speed <= 1e-12 {
+            return;
+        }
+        let (ux, uy) = (vx / speed, vy / speed);
+        self.longitudinal = raise(self.longitudinal, (jx * ux + jy * uy).abs());
+        self.lateral = raise(self.lateral, (-jx * uy + jy * ux).abs());
+    }
+
+    /// `value`, or absent (with the reason under `name`) for a planar vehicle whose log lacks
+    /// the control period the jerk is sampled at.
+    fn value(&self, value: Option<f64>, name: &str, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if self.planar.flatten().is_some() && run.control_period.is_none() {
+            missing.insert(name.into(), "no `control_period` in the run metadata".into());
+            return Value::Number(None);
+        }
+        Value::Number(value)
+    }
+}
+
+#[derive(Default)]
+struct LongitudinalJerk(PlanarJerk);
+
+impl Accumulate for LongitudinalJerk {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        self.0.value(self.0.longitudinal, "max_longitudinal_jerk", run, missing)
+    }
+}
+
+#[derive(Default)]
+struct LateralJerk(PlanarJerk);
+
+impl Accumulate for LateralJerk {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        self.0.value(self.0.lateral, "max_lateral_jerk", run, missing)
+    }
+}
+
+#[derive(Default)]
+struct AtPrescribedTime {
+    terminal: PrescribedTimeMetrics,
+    last_time: f64,
+}
+
+impl Accumulate for AtPrescribedTime {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        match record {
+            Observed::State(m) => {
+                self.last_time = self.last_time.max(m.time);
+                if run.is_prescribed_time(m.time) {
+                    self.terminal.state_residuals = m.values.iter().map(|v| v.abs()).collect();
+                }
+            }
+            Observed::Barrier(m) => {
+                let h = step_min(m);
+                if run.is_prescribed_time(m.time) && h.is_finite() {
+                    self.terminal.barrier = Some(h);
+                }
+            }
+            Observed::Issued(m) if run.is_prescribed_time(m.time) => {
+                self.terminal.input_residual = m.filtered.iter().map(|u| u.abs()).reduce(f64::max);
+            }
+            _ => {}
+        }
+    }
+
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        let Some(t) = run.prescribed_time else {
+            return Value::AtPrescribedTime(None);
+        };
+        // The values at T come from the messages logged at T: none when the run ended at or
+        // before T (the barriers and commands of a step are logged at its start, so the final
+        // state has none).
+        let end = self.last_time;
+        let half_step = 0.5 * run.timestep.unwrap_or(0.0);
+        let reason = |topic: &str| {
+            if end < t - half_step {
+                format!("no {topic} message at T = {t} s: the run ends before T, at t = {end} s")
+            } else if end < t + half_step && topic != "/state" {
+                format!("no {topic} message at T = {t} s: the run ends at T, and {topic} is logged at the start of each step, not at the final state")
+            } else {
+                format!("no {topic} message at T = {t} s")
+            }
+        };
+        let terminal = &self.terminal;
+        let absent_values = [
+            ("at_prescribed_time.barrier", terminal.barrier.is_none(), "/barrier"),
+            (
+                "at_prescribed_time.state_residuals",
+                terminal.state_residuals.is_empty(),
+                "/state",
+            ),
+            (
+                "at_prescribed_time.input_residual",
+                terminal.input_residual.is_none(),
+                "/command/issued",
+            ),
+        ];
+        for (part, absent, topic) in absent_values {
+            if absent && !missing.contains_key(part) {
+                missing.insert(part.to_string(), reason(topic));
+            }
+        }
+        let given = |part: &str| !missing.contains_key(part);
+        Value::AtPrescribedTime(Some(PrescribedTimeMetrics {
+            time: t,
+            barrier: terminal.barrier.filter(|_| given("at_prescribed_time.barrier")),
+            state_residuals: if given("at_prescribed_time.state_residuals") {
+                terminal.state_residuals.clone()
+            } else {
+                Vec::new()
+            },
+            input_residual: terminal
+                .input_residual
+                .filter(|_| given("at_prescribed_time.input_residual")),
+        }))
+    }
+}

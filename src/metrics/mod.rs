@@ -1,0 +1,471 @@
+//! The metrics of a run, each one declaration ([`Metric`] in [`builtin::METRICS`]): its name,
+//! unit, one-line meaning, the log topics and run metadata keys it needs, how it accumulates
+//! (an [`Accumulate`]) and the shape of its value ([`Shape`]), from which its JSON, its flat
+//! columns (CSV, `--compare`, sweep summaries, `falsify --objective`), its table cell and its
+//! row of docs/metrics.md all follow. The accumulators consume the typed records
+//! ([`Observed`]): decoded from a log by `analyze`, or handed over by a running episode
+//! (`analyze::AnalysisSink`).
+
+pub mod builtin;
+pub mod report;
+mod value;
+
+use std::collections::BTreeMap;
+
+use serde::ser::SerializeMap;
+use serde::Serialize;
+
+use crate::log::{proto, read, Topic};
+
+pub use value::{Cell, Collision, FlatMetrics, PredictionStats, PrescribedTimeMetrics, Value};
+
+/// A record a metric may read.
+#[derive(Debug, Clone, Copy)]
+pub enum Observed<'a> {
+    State(&'a proto::State),
+    Barrier(&'a proto::Barrier),
+    Filter(&'a proto::Filter),
+    Issued(&'a proto::IssuedCommand),
+    Prediction(&'a proto::Prediction),
+    Event(&'a proto::Event),
+}
+
+impl Observed<'_> {
+    /// The topic the record is logged on.
+    pub fn topic(&self) -> Topic {
+        match self {
+            Observed::State(_) => Topic::State,
+            Observed::Barrier(_) => Topic::Barrier,
+            Observed::Filter(_) => Topic::Filter,
+            Observed::Issued(_) => Topic::Issued,
+            Observed::Prediction(_) => Topic::Prediction,
+            Observed::Event(_) => Topic::Event,
+        }
+    }
+}
+
+/// What the run metadata says about the run, as the metrics need it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunFacts {
+    /// Physics timestep Δt (metadata `timestep`).
+    pub timestep: Option<f64>,
+    /// Control period (metadata `control_period`).
+    pub control_period: Option<f64>,
+    /// The longest actuator latency (metadata `max_delay`).
+    pub max_delay: Option<f64>,
+    /// T of a prescribed-time run (metadata `prescribed_time`).
+    pub prescribed_time: Option<f64>,
+    /// Whether the controller predicted (metadata `predicts`).
+    pub predicts: Option<bool>,
+    /// The planar position the vehicle declared (None: not declared; Some(None): none).
+    pub declared_planar: Option<Option<[usize; 2]>>,
+}
+
+impl RunFacts {
+    /// The facts of the run metadata record.
+    pub fn from_metadata(metadata: &BTreeMap<String, String>) -> RunFacts {
+        let number = |key: &str| metadata.get(key).and_then(|s| s.parse().ok());
+        RunFacts {
+            timestep: number("timestep"),
+            control_period: number("control_period"),
+            max_delay: number("max_delay"),
+            prescribed_time: number("prescribed_time"),
+            predicts: metadata.get("predicts").and_then(|s| s.parse().ok()),
+            declared_planar: read::declared_planar_position(metadata),
+        }
+    }
+
+    /// Whether the metadata key a metric needs is there.
+    fn has(&self, key: &str) -> bool {
+        match key {
+            "timestep" => self.timestep.is_some(),
+            "control_period" => self.control_period.is_some(),
+            "max_delay" => self.max_delay.is_some(),
+            "prescribed_time" => self.prescribed_time.is_some(),
+            _ => false,
+        }
+    }
+
+    /// Whether `time` is the prescribed time T (within half a timestep).
+    pub fn is_prescribed_time(&self, time: f64) -> bool {
+        match (self.prescribed_time, self.timestep) {
+            (Some(t), Some(h)) => (time - t).abs() < 0.5 * h,
+            _ => false,
+        }
+    }
+}
+
+/// How a metric accumulates over the records of a run.
+pub trait Accumulate: Send {
+    /// One record of a topic the metric reads ([`Metric::reads`]).
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts);
+    /// The value once every record is read. `missing` holds why parts of this and other
+    /// metrics are absent (the log lacks a topic or a key they need); a part named there must
+    /// be absent, and the metric may add reasons of its own (`<name>.<part>`).
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value;
+}
+
+/// A part of a composite metric (e.g. `collision.depth`): its JSON key and flat column.
+#[derive(Debug, Clone, Copy)]
+pub struct Part {
+    /// The key inside the metric's JSON object.
+    pub key: &'static str,
+    /// Its flat column (`<column>.<channel>` for a per-channel metric, `<column>.<i>` for a
+    /// list).
+    pub column: &'static str,
+    pub unit: &'static str,
+    pub meaning: &'static str,
+    /// What its cells hold.
+    pub cell: CellKind,
+    /// Topics and run metadata keys this part needs beyond the metric's own.
+    pub reads: &'static [Topic],
+    pub metadata: &'static [&'static str],
+}
+
+/// What the cells of a metric column hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CellKind {
+    Num,
+    Int,
+    Text,
+}
+
+/// The shape of a metric's value, which fixes its JSON, columns and cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    /// A number: one column, the metric's name.
+    Number,
+    /// A count: one column.
+    Count,
+    /// A number per input channel: `<name>.<channel>` columns.
+    PerChannel,
+    /// The first collision: time, obstacle, depth.
+    Collision,
+    /// Prediction statistics per channel.
+    Prediction,
+    /// The values at the prescribed time.
+    AtPrescribedTime,
+}
+
+/// One metric, declared once.
+pub struct Metric {
+    /// JSON key (and flat column of a number or count).
+    pub name: &'static str,
+    /// Unit of the value (of every part without one of its own).
+    pub unit: &'static str,
+    /// What it is, in one line (docs/metrics.md has the rest).
+    pub meaning: &'static str,
+    pub shape: Shape,
+    /// Parts of a composite metric, in JSON order.
+    pub parts: &'static [Part],
+    /// Log topics it reads (a log without one of them cannot give the metric).
+    pub reads: &'static [Topic],
+    /// Run metadata keys it needs.
+    pub metadata: &'static [&'static str],
+    /// Whether the run has the metric at all (a prescribed-time metric in another run does
+    /// not lack anything).
+    pub applies: fn(&RunFacts) -> bool,
+    /// A fresh accumulator.
+    pub accumulator: fn() -> Box<dyn Accumulate>,
+    /// Shown in the aligned table of `mjsafe analyze` under this header.
+    pub table: Option<&'static str>,
+}
+
+/// Always applies.
+pub fn always(_: &RunFacts) -> bool {
+    true
+}
+
+impl Metric {
+    /// The declared metric named `name`.
+    pub fn named(name: &str) -> Option<&'static Metric> {
+        builtin::METRICS.iter().find(|m| m.name == name)
+    }
+
+    /// The metric and part a flat column belongs to (`max_correction.steering` →
+    /// `max_correction`; `collision_time` → `collision`, part `time`).
+    pub fn of_column(column: &str) -> Option<(&'static Metric, Option<&'static Part>)> {
+        let base = column.split_once('.').map_or(column, |(base, _)| base);
+        builtin::METRICS.iter().find_map(|m| {
+            if m.parts.is_empty() {
+                (m.name == base).then_some((m, None))
+            } else {
+                m.parts.iter().find(|p| p.column == base).map(|p| (m, Some(p)))
+            }
+        })
+    }
+
+    /// The unit of a flat column (`None`: not a metric's column).
+    pub fn unit_of_column(column: &str) -> Option<&'static str> {
+        Metric::of_column(column).map(|(m, part)| part.map_or(m.unit, |p| p.unit))
+    }
+}
+
+/// The metrics of one run while its records are read: one accumulator per declared metric,
+/// each record handed only to those that read its topic.
+pub struct Accumulators {
+    accumulators: Vec<Box<dyn Accumulate>>,
+    /// Per topic (`Topic as usize`), the accumulators that read it.
+    readers: Vec<Vec<usize>>,
+    facts: RunFacts,
+}
+
+impl Default for Accumulators {
+    fn default() -> Self {
+        let mut readers = vec![Vec::new(); Topic::ALL.len()];
+        for (i, metric) in builtin::METRICS.iter().enumerate() {
+            for topic in metric.reads.iter().chain(metric.parts.iter().flat_map(|p| p.reads)) {
+                if !readers[*topic as usize].contains(&i) {
+                    readers[*topic as usize].push(i);
+                }
+            }
+        }
+        Accumulators {
+            accumulators: builtin::METRICS.iter().map(|m| (m.accumulator)()).collect(),
+            readers,
+            facts: RunFacts::default(),
+        }
+    }
+}
+
+impl Accumulators {
+    /// Whether some metric reads `topic` (the others' messages need not be decoded).
+    pub fn reads(&self, topic: Topic) -> bool {
+        !self.readers[topic as usize].is_empty()
+    }
+
+    /// The facts of the run metadata, for the records that follow.
+    pub fn set_facts(&mut self, facts: RunFacts) {
+        self.facts = facts;
+    }
+
+    pub fn facts(&self) -> &RunFacts {
+        &self.facts
+    }
+
+    /// Hands `record` to the metrics that read its topic.
+    pub fn observe(&mut self, record: Observed<'_>) {
+        for &i in &self.readers[record.topic() as usize] {
+            self.accumulators[i].observe(record, &self.facts);
+        }
+    }
+
+    /// Every metric's value; a metric (or part) whose topic (`missing_topics`) or metadata
+    /// key the log lacks is absent, with its reason in `missing`.
+    pub fn finish(mut self, missing_topics: &[Topic], missing: &mut BTreeMap<String, String>) -> Vec<Value> {
+        for metric in builtin::METRICS {
+            if !(metric.applies)(&self.facts) {
+                continue;
+            }
+            let lacks = |reads: &[Topic], keys: &[&str]| -> Vec<String> {
+                let topics = reads
+                    .iter()
+                    .filter(|t| missing_topics.contains(t))
+                    .map(|t| format!("no {t} topic in the log"));
+                let keys = keys
+                    .iter()
+                    .filter(|k| !self.facts.has(k))
+                    .map(|k| format!("no `{k}` in the run metadata"));
+                topics.chain(keys).collect()
+            };
+            let reasons = lacks(metric.reads, metric.metadata);
+            if !reasons.is_empty() {
+                missing.insert(metric.name.to_string(), reasons.join("; "));
+                continue;
+            }
+            for part in metric.parts {
+                let reasons = lacks(part.reads, part.metadata);
+                if !reasons.is_empty() {
+                    missing.insert(format!("{}.{}", metric.name, part.key), reasons.join("; "));
+                }
+            }
+        }
+        let facts = &self.facts;
+        builtin::METRICS
+            .iter()
+            .zip(&mut self.accumulators)
+            .map(|(metric, accumulator)| {
+                if missing.contains_key(metric.name) {
+                    Value::absent(metric.shape)
+                } else {
+                    accumulator.value(facts, missing)
+                }
+            })
+            .collect()
+    }
+}
+
+/// Per-run metrics (docs/metrics.md; the topics they come from: docs/log-format.md): what the
+/// run was, then the value of every declared metric.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunMetrics {
+    pub file: String,
+    pub scenario: String,
+    /// The safety filter by its label (equation number, e.g. `γm filter (4.67), m = 50`), from
+    /// the run metadata; absent in logs without it.
+    pub filter_label: Option<String>,
+    /// The value of each metric of [`builtin::METRICS`], in that order.
+    pub values: Vec<Value>,
+    /// Whether the run finished (false: stopped by an error or interrupted, or the log has no
+    /// `mjsafe_status` record).
+    pub complete: bool,
+    pub error: Option<String>,
+    /// The metrics the log cannot give, each with the reason (a log topic or a run metadata
+    /// key it lacks, e.g. in a topic-filtered copy; a contact the log never closes): their
+    /// values are absent (`null`), never computed from a default. Empty (and left out of the
+    /// JSON) for a whole log of this version.
+    pub missing: BTreeMap<String, String>,
+    /// MuJoCo warnings after which the simulated physics was not the model's (`mujoco_warning`
+    /// events): the metrics describe that other physics. Left out of the JSON when none.
+    pub warnings: Vec<String>,
+}
+
+impl RunMetrics {
+    /// The value of the metric `name`.
+    pub fn value(&self, name: &str) -> Option<&Value> {
+        builtin::METRICS
+            .iter()
+            .position(|m| m.name == name)
+            .and_then(|i| self.values.get(i))
+    }
+
+    /// The number `name` (a number or count metric), if the run has it.
+    pub fn number(&self, name: &str) -> Option<f64> {
+        match self.value(name)? {
+            Value::Number(v) => *v,
+            Value::Count(v) => v.map(|v| v as f64),
+            _ => None,
+        }
+    }
+
+    /// Time of the last `/state` record, s.
+    pub fn simulated_time(&self) -> f64 {
+        self.number("simulated_time").unwrap_or(0.0)
+    }
+
+    /// Physics steps taken.
+    pub fn steps(&self) -> u64 {
+        match self.value("steps") {
+            Some(Value::Count(Some(n))) => *n,
+            _ => 0,
+        }
+    }
+
+    /// The first collision, if the run had one.
+    pub fn collision(&self) -> Option<&Collision> {
+        match self.value("collision")? {
+            Value::Collision(c) => c.as_ref(),
+            _ => None,
+        }
+    }
+
+    /// min h over all barriers and steps.
+    pub fn min_h(&self) -> Option<f64> {
+        self.number("min_h")
+    }
+
+    /// Smallest clearance to any obstacle, m.
+    pub fn min_clearance(&self) -> Option<f64> {
+        self.number("min_clearance")
+    }
+
+    /// Prediction consistency per channel.
+    pub fn prediction(&self) -> Option<&BTreeMap<String, PredictionStats>> {
+        match self.value("prediction")? {
+            Value::Prediction(p) => p.as_ref(),
+            _ => None,
+        }
+    }
+
+    /// The values at the prescribed time.
+    pub fn at_prescribed_time(&self) -> Option<&PrescribedTimeMetrics> {
+        match self.value("at_prescribed_time")? {
+            Value::AtPrescribedTime(p) => p.as_ref(),
+            _ => None,
+        }
+    }
+
+    /// Unit of every metric (and part) by its JSON path.
+    pub fn units() -> BTreeMap<String, &'static str> {
+        let mut units = BTreeMap::new();
+        for m in builtin::METRICS {
+            if m.parts.is_empty() {
+                units.insert(m.name.to_string(), m.unit);
+            }
+            for p in m.parts {
+                units.insert(format!("{}.{}", m.name, p.key), p.unit);
+            }
+        }
+        units
+    }
+}
+
+/// `analyze --json`: what the run was, every metric under its name (declaration order), the
+/// units by JSON path, then `complete`, `error`, `missing` and `warnings` (the last two only
+/// when not empty).
+impl Serialize for RunMetrics {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(None)?;
+        map.serialize_entry("file", &self.file)?;
+        map.serialize_entry("scenario", &self.scenario)?;
+        map.serialize_entry("filter_label", &self.filter_label)?;
+        for (metric, value) in builtin::METRICS.iter().zip(&self.values) {
+            map.serialize_entry(metric.name, &value.json(metric))?;
+        }
+        map.serialize_entry("complete", &self.complete)?;
+        map.serialize_entry("error", &self.error)?;
+        if !self.missing.is_empty() {
+            map.serialize_entry("missing", &self.missing)?;
+        }
+        if !self.warnings.is_empty() {
+            map.serialize_entry("warnings", &self.warnings)?;
+        }
+        map.serialize_entry("units", &RunMetrics::units())?;
+        map.end()
+    }
+}
+
+/// The reference table of docs/metrics.md, generated from the declarations: one row per
+/// metric (or part) with its JSON path, flat column, unit and meaning.
+pub fn reference_table() -> String {
+    let mut text = String::from("| JSON (`analyze --json`) | flat column | unit | meaning |\n|---|---|---|---|\n");
+    let code = |s: String| {
+        if s.is_empty() {
+            "—".to_string()
+        } else {
+            format!("`{s}`")
+        }
+    };
+    for m in builtin::METRICS {
+        let keyed = |column: &str, key: &str| match m.shape {
+            _ if column.is_empty() => String::new(),
+            Shape::PerChannel | Shape::Prediction => format!("{column}.<channel>"),
+            Shape::AtPrescribedTime if key == "state_residuals" => format!("{column}.<i>"),
+            _ => column.to_string(),
+        };
+        let rows: Vec<(String, String, &str, &str)> = if m.parts.is_empty() {
+            vec![(keyed(m.name, m.name), keyed(m.name, m.name), m.unit, m.meaning)]
+        } else {
+            m.parts
+                .iter()
+                .map(|p| {
+                    let json = match m.shape {
+                        Shape::Prediction => format!("{}.<channel>.{}", m.name, p.key),
+                        _ => format!("{}.{}", m.name, p.key),
+                    };
+                    (json, keyed(p.column, p.key), p.unit, p.meaning)
+                })
+                .collect()
+        };
+        for (json, column, unit, meaning) in rows {
+            let unit = if unit.is_empty() { "—" } else { unit };
+            text += &format!(
+                "| {} | {} | {unit} | {} |\n",
+                code(json),
+                code(column),
+                meaning.replace('|', "\\|")
+            );
+        }
+    }
+    text
+}

@@ -1,0 +1,189 @@
+//! Every declared metric (`mjsafe::metrics::builtin::METRICS`) reaches every output: the JSON
+//! of `analyze` with its unit, the CSV columns, `--compare` with its unit, the aligned table
+//! (those declared for it, header with the unit), and docs/metrics.md, whose table is the
+//! generated one. A metric added to the declarations and missing from any of them fails here.
+
+mod common;
+
+use common::{mjsafe, root, run_ok, stdout};
+use mjsafe::metrics::builtin::METRICS;
+use mjsafe::metrics::Shape;
+
+/// Logs that between them have every metric: predictions, obstacles and a planar vehicle
+/// ((4.67) on the bicycle), a prescribed time (the red light, Ch. 5), a collision ((4.9)
+/// with delays).
+fn logs(dir: &std::path::Path) -> [String; 3] {
+    ["bicycle_obstacle_gamma_m", "red_light", "bicycle_obstacle"].map(|name| {
+        let log = dir.join(format!("{name}.mcap"));
+        run_ok(&root().join(format!("scenarios/{name}.toml")), &log, &[]);
+        log.to_str().unwrap().to_string()
+    })
+}
+
+/// The flat columns a metric declares (a per-channel or per-index group as `<base>.`).
+fn declared_columns() -> Vec<(String, &'static str)> {
+    let mut columns = Vec::new();
+    for m in METRICS {
+        let keyed = matches!(m.shape, Shape::PerChannel | Shape::Prediction);
+        if m.parts.is_empty() {
+            columns.push((
+                if keyed {
+                    format!("{}.", m.name)
+                } else {
+                    m.name.to_string()
+                },
+                m.unit,
+            ));
+        }
+        for p in m.parts.iter().filter(|p| !p.column.is_empty()) {
+            let keyed = keyed || p.key == "state_residuals";
+            columns.push((
+                if keyed {
+                    format!("{}.", p.column)
+                } else {
+                    p.column.to_string()
+                },
+                p.unit,
+            ));
+        }
+    }
+    columns
+}
+
+#[test]
+fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
+    let dir = tempfile::tempdir().unwrap();
+    let [a, b, c] = logs(dir.path());
+
+    // JSON: every metric under its name, every part's unit under its path.
+    for log in [&a, &b, &c] {
+        let m = common::analyze_json(std::path::Path::new(log));
+        for metric in METRICS {
+            assert!(
+                m.get(metric.name).is_some(),
+                "{} missing from the JSON of {log}",
+                metric.name
+            );
+            let paths: Vec<String> = if metric.parts.is_empty() {
+                vec![metric.name.to_string()]
+            } else {
+                metric
+                    .parts
+                    .iter()
+                    .map(|p| format!("{}.{}", metric.name, p.key))
+                    .collect()
+            };
+            for path in paths {
+                assert!(m["units"][&path].is_string(), "no unit for {path}: {}", m["units"]);
+            }
+        }
+    }
+    // The runs have values for every metric between them (none is always null).
+    let runs = [&a, &b, &c].map(|log| common::analyze_json(std::path::Path::new(log)));
+    for metric in METRICS {
+        assert!(
+            runs.iter().any(|m| !m[metric.name].is_null()),
+            "{} is null in every run",
+            metric.name
+        );
+    }
+
+    // CSV: a column (or a group of channel columns) per metric and part.
+    let o = mjsafe(&["analyze", "--csv", &a, &b, &c]);
+    assert!(o.status.success());
+    let csv = stdout(&o);
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let covered = |column: &str, names: &[&str]| {
+        names
+            .iter()
+            .any(|h| *h == column || (column.ends_with('.') && h.starts_with(column)))
+    };
+    for (column, _) in declared_columns() {
+        assert!(
+            covered(&column, &header),
+            "column {column} missing from analyze --csv: {header:?}"
+        );
+    }
+
+    // --compare: every column with its declared unit.
+    let o = mjsafe(&["analyze", "--compare", "--json", &a, &b]);
+    assert!(o.status.success());
+    let compare: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let rows = compare["metrics"].as_array().unwrap();
+    for (column, unit) in declared_columns() {
+        let row = rows
+            .iter()
+            .find(|r| {
+                let name = r["metric"].as_str().unwrap();
+                name == column || (column.ends_with('.') && name.starts_with(&column))
+            })
+            .unwrap_or_else(|| panic!("{column} missing from --compare"));
+        assert_eq!(row["unit"], unit, "{column}");
+    }
+
+    // The aligned table: the metrics declared for it, each header with its unit.
+    let o = mjsafe(&["analyze", &a, &b]);
+    let table = stdout(&o);
+    let header = table.lines().next().unwrap();
+    for metric in METRICS {
+        if let Some(name) = metric.table {
+            let with_unit = format!("{name} [{}]", metric.unit);
+            assert!(
+                header.contains(&with_unit) || header.contains(name),
+                "{name} missing: {header}"
+            );
+            if !matches!(metric.unit, "steps" | "ticks") {
+                assert!(header.contains(&with_unit), "{with_unit} missing: {header}");
+            }
+        }
+    }
+
+    // docs/metrics.md holds the generated table, and so a row per metric.
+    let docs = std::fs::read_to_string(root().join("docs/metrics.md")).unwrap();
+    let o = mjsafe(&["metrics", "--markdown"]);
+    assert!(o.status.success());
+    let generated = stdout(&o);
+    assert!(
+        docs.contains(&generated),
+        "docs/metrics.md is stale: regenerate its table with `mjsafe metrics --markdown`"
+    );
+    for metric in METRICS {
+        assert!(
+            generated.contains(&format!("`{}", metric.name)),
+            "{} not in the table",
+            metric.name
+        );
+    }
+}
+
+#[test]
+fn max_input_rate_is_per_channel_and_agrees_with_the_issued_commands() {
+    // An independent computation from the log: the largest |Δu|/Δt of each channel.
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("run.mcap");
+    run_ok(&root().join("scenarios/bicycle_obstacle_gamma_m.toml"), &log, &[]);
+    let issued = common::read_topic::<mjsafe::log::proto::IssuedCommand>(&log, "/command/issued");
+    let mut expected = std::collections::BTreeMap::<String, f64>::new();
+    for pair in issued.windows(2) {
+        let dt = pair[1].time - pair[0].time;
+        if dt <= 0.0 {
+            continue;
+        }
+        for (i, channel) in pair[1].channels.iter().enumerate() {
+            let rate = ((pair[1].filtered[i] - pair[0].filtered[i]) / dt).abs();
+            let entry = expected.entry(channel.clone()).or_insert(0.0);
+            *entry = entry.max(rate);
+        }
+    }
+    let m = common::analyze_json(&log);
+    assert_eq!(m["units"]["max_input_rate"], "u-units/s");
+    let rates = m["max_input_rate"].as_object().unwrap();
+    assert_eq!(rates.len(), 2);
+    for (channel, value) in &expected {
+        let got = rates[channel].as_f64().unwrap();
+        assert!(
+            (got - value).abs() <= 1e-12 * value.max(1.0),
+            "{channel}: {got} vs {value}"
+        );
+    }
+}
