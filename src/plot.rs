@@ -498,96 +498,7 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
     // Trajectories, obstacles and the barrier radius around them.
     if runs.iter().any(|r| !r.series.path.is_empty()) {
         let path = dir.join("overlay-trajectory.png");
-        // Every run's obstacles with that run's hull (runs may move or resize an obstacle of
-        // one name, or drive vehicles of other hulls): each distinct ring drawn once.
-        let mut rings: Vec<((f64, f64), f64, f64)> = Vec::new();
-        for r in runs.iter().filter(|r| !r.series.path.is_empty()) {
-            let hull = r.series.hull_radius.unwrap_or(0.0);
-            for &(centre, radius) in r.series.obstacles.values() {
-                if !rings.contains(&(centre, radius, hull)) {
-                    rings.push((centre, radius, hull));
-                }
-            }
-        }
-        let same_ring = rings.windows(2).all(|w| (w[0].1, w[0].2) == (w[1].1, w[1].2));
-        let extent = rings
-            .iter()
-            .flat_map(|&((x, y), r, hull)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
-        let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
-        let ((x0, x1), (y0, y1)) = bounds(points);
-        let aspect = plot_aspect((1200, 600), 14, 44, 60, 24);
-        let (cx, cy, half) = (
-            (x0 + x1) / 2.0,
-            (y0 + y1) / 2.0,
-            ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
-        );
-        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
-            root.fill(&WHITE)?;
-            let mut chart = ChartBuilder::on(&root)
-                .caption("trajectories", ("sans-serif", 24))
-                .margin(14)
-                .x_label_area_size(44)
-                .y_label_area_size(60)
-                .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
-            chart
-                .configure_mesh()
-                .x_desc("x [m]")
-                .y_desc("y [m]")
-                .label_style(("sans-serif", 16))
-                .draw()?;
-            let obstacle_color = RGBColor(120, 120, 120);
-            for (k, &((x, y), r, hull)) in rings.iter().enumerate() {
-                let drawn = chart.draw_series(std::iter::once(Polygon::new(
-                    circle((x, y), r).collect::<Vec<_>>(),
-                    obstacle_color.mix(0.35).filled(),
-                )))?;
-                if k == 0 {
-                    drawn.label("obstacle").legend(move |(x, y)| {
-                        Rectangle::new([(x, y - 5), (x + 18, y + 5)], obstacle_color.mix(0.35).filled())
-                    });
-                }
-                if hull > 0.0 {
-                    let drawn = chart.draw_series(DashedLineSeries::new(
-                        circle((x, y), r + hull),
-                        8,
-                        6,
-                        BLACK.stroke_width(2),
-                    ))?;
-                    if k == 0 {
-                        let label = if same_ring {
-                            format!(
-                                "barrier radius r = obstacle {r:.2} m + hull {hull:.2} m = {:.2} m",
-                                r + hull
-                            )
-                        } else {
-                            "barrier radius r = obstacle + the run's hull radius".to_string()
-                        };
-                        drawn
-                            .label(label)
-                            .legend(|(x, y)| PathElement::new([(x, y), (x + 8, y), (x + 12, y), (x + 18, y)], BLACK));
-                    }
-                }
-            }
-            // Runs that do not move in a plane have no path: not in this plot's legend.
-            for (i, run) in runs.iter().enumerate().filter(|(_, r)| !r.series.path.is_empty()) {
-                let style = color(i).stroke_width(3);
-                chart
-                    .draw_series(LineSeries::new(run.series.path.iter().copied(), style))?
-                    .label(run.label.clone())
-                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
-            }
-            chart
-                .configure_series_labels()
-                .label_font(("sans-serif", 16))
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()?;
-            root.present()?;
-            Ok(())
-        });
-        result.map_err(|e| draw_error(&path, e))?;
+        overlay_trajectories(&runs, &path, &inputs)?;
         written.push(path);
     }
 
@@ -651,6 +562,102 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
         written.push(path);
     }
     Ok(written)
+}
+
+/// The runs' trajectories over their obstacles, each ring of barrier radius r (obstacle plus
+/// the run's hull) drawn once, into `path`.
+fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(), PlotError> {
+    let color = |i: usize| PALETTE[i % PALETTE.len()];
+    // Every run's obstacles with that run's hull (runs may move or resize an obstacle of
+    // one name, or drive vehicles of other hulls): each distinct ring drawn once.
+    let mut rings: Vec<((f64, f64), f64, f64)> = Vec::new();
+    for r in runs.iter().filter(|r| !r.series.path.is_empty()) {
+        let hull = r.series.hull_radius.unwrap_or(0.0);
+        for &(centre, radius) in r.series.obstacles.values() {
+            if !rings.contains(&(centre, radius, hull)) {
+                rings.push((centre, radius, hull));
+            }
+        }
+    }
+    let same_ring = rings.windows(2).all(|w| (w[0].1, w[0].2) == (w[1].1, w[1].2));
+    let extent = rings
+        .iter()
+        .flat_map(|&((x, y), r, hull)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
+    let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
+    let ((x0, x1), (y0, y1)) = bounds(points);
+    let aspect = plot_aspect((1200, 600), 14, 44, 60, 24);
+    let (cx, cy, half) = (
+        (x0 + x1) / 2.0,
+        (y0 + y1) / 2.0,
+        ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
+    );
+    let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
+        let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption("trajectories", ("sans-serif", 24))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(60)
+            .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
+        chart
+            .configure_mesh()
+            .x_desc("x [m]")
+            .y_desc("y [m]")
+            .label_style(("sans-serif", 16))
+            .draw()?;
+        let obstacle_color = RGBColor(120, 120, 120);
+        for (k, &((x, y), r, hull)) in rings.iter().enumerate() {
+            let drawn = chart.draw_series(std::iter::once(Polygon::new(
+                circle((x, y), r).collect::<Vec<_>>(),
+                obstacle_color.mix(0.35).filled(),
+            )))?;
+            if k == 0 {
+                drawn.label("obstacle").legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 18, y + 5)], obstacle_color.mix(0.35).filled())
+                });
+            }
+            if hull > 0.0 {
+                let drawn = chart.draw_series(DashedLineSeries::new(
+                    circle((x, y), r + hull),
+                    8,
+                    6,
+                    BLACK.stroke_width(2),
+                ))?;
+                if k == 0 {
+                    let label = if same_ring {
+                        format!(
+                            "barrier radius r = obstacle {r:.2} m + hull {hull:.2} m = {:.2} m",
+                            r + hull
+                        )
+                    } else {
+                        "barrier radius r = obstacle + the run's hull radius".to_string()
+                    };
+                    drawn
+                        .label(label)
+                        .legend(|(x, y)| PathElement::new([(x, y), (x + 8, y), (x + 12, y), (x + 18, y)], BLACK));
+                }
+            }
+        }
+        // Runs that do not move in a plane have no path: not in this plot's legend.
+        for (i, run) in runs.iter().enumerate().filter(|(_, r)| !r.series.path.is_empty()) {
+            let style = color(i).stroke_width(3);
+            chart
+                .draw_series(LineSeries::new(run.series.path.iter().copied(), style))?
+                .label(run.label.clone())
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+        }
+        chart
+            .configure_series_labels()
+            .label_font(("sans-serif", 16))
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        Ok(())
+    });
+    result.map_err(|e| draw_error(path, e))
 }
 
 /// One run of a sweep as the sweep plot reads it: its swept values and its metrics.

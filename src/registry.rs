@@ -141,7 +141,9 @@ impl Registry {
             .description("distinct delays: the filtered channel's CBF at its prediction, the other channels as issued (4.44)–(4.47)");
         r.add_filter("gamma_m", filter::gamma_m::build)
             .label("γm filter (4.67)")
-            .description("distinct delays: every channel at its own prediction with the γm robustness margin (4.60)–(4.68)");
+            .description(
+                "distinct delays: every channel at its own prediction with the γm robustness margin (4.60)–(4.68)",
+            );
         r.add_filter("clf_cbf_qp", filter::clf_cbf_qp::build)
             .label("γm CLF-CBF QP (3.27)–(3.33)")
             .description("linear systems with input delays: CLF-CBF QP with the γm buffer η (3.25), Cases A–D");

@@ -86,7 +86,9 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "filter",
     ] {
         let reached = reaches(&graph, maths);
-        for forbidden in ["mujoco", "log", "episode", "plant", "vehicle", "analyze", "metrics", "run"] {
+        for forbidden in [
+            "mujoco", "log", "episode", "plant", "vehicle", "analyze", "metrics", "run",
+        ] {
             assert!(!reached.contains(forbidden), "{maths} reaches {forbidden}: {reached:?}");
         }
     }
@@ -99,5 +101,8 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
     }
     // Sinks only observe: the log never reads through the analysis or the metrics.
     let log = reaches(&graph, "log");
-    assert!(!log.contains("analyze") && !log.contains("metrics") && !log.contains("run"), "{log:?}");
+    assert!(
+        !log.contains("analyze") && !log.contains("metrics") && !log.contains("run"),
+        "{log:?}"
+    );
 }

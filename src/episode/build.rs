@@ -604,7 +604,10 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
     let registry = crate::registry::registry();
     let described = [
         ("filter", registry.describe_filter(&sc.filter.kind, &sc.filter.params)),
-        ("nominal", registry.describe_nominal(&sc.nominal.kind, &sc.nominal.params)),
+        (
+            "nominal",
+            registry.describe_nominal(&sc.nominal.kind, &sc.nominal.params),
+        ),
     ];
     let mut kinds = Vec::new();
     for (role, description) in described {

@@ -1,0 +1,293 @@
+//! `mjsafe falsify`: the search, its outputs and its progress line.
+
+use super::*;
+
+/// The arguments of `mjsafe falsify`.
+#[derive(Debug, clap::Args)]
+pub struct FalsifyArgs {
+    /// Scenario file (TOML).
+    pub scenario: PathBuf,
+    /// A searched parameter: KEY=LO..HI, or KEY=LO..HI:STEP for multiples of STEP from LO
+    /// (same keys as `sweep`; repeatable, at least one).
+    #[arg(long = "range", value_name = "KEY=LO..HI[:STEP]", required = true)]
+    pub ranges: Vec<String>,
+    /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
+    /// min_time_to_collision, …
+    #[arg(long, default_value = "min_h")]
+    pub objective: String,
+    /// A candidate violates when the objective is below this.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub threshold: f64,
+    /// Most runs (rounded up to whole CMA-ES generations).
+    #[arg(long, value_name = "N", default_value_t = 200)]
+    pub budget: usize,
+    /// Seed of the search (the optimiser's sampling and restarts).
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub seed: u64,
+    /// Runs executed at once (default: all cores); the result does not depend on it.
+    #[arg(long, value_name = "K")]
+    pub threads: Option<usize>,
+    /// Keep searching after the first violation (pushing its severity) and report the worst
+    /// qualified one evaluated: the lowest objective among candidates whose baseline is safe.
+    #[arg(long)]
+    pub worst: bool,
+    /// The baseline is safe when its objective is at least this (default 0: the boundary of
+    /// min_h and min_clearance), whatever --threshold is.
+    #[arg(long, value_name = "TB", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub baseline_threshold: f64,
+    /// The reference configuration of each candidate, as overrides applied after the
+    /// candidate's (repeatable), e.g. --baseline delays.steering=0 --baseline
+    /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
+    #[arg(long = "baseline", value_name = "KEY=VALUE")]
+    pub baseline: Vec<String>,
+    /// Also run random search with the same budget and seed, and compare runs to the first
+    /// violation.
+    #[arg(long)]
+    pub compare_random: bool,
+    /// Output directory (default: logs/falsify-<scenario name>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
+/// `arg` as a shell reads it back, on one line: as is when it holds only safe characters, in
+/// single quotes (a quote inside written `'\''`) when it holds no control character, else
+/// ANSI-C quoted (`$'…\n…'`: bash, zsh).
+pub(super) fn shell_quoted(arg: &str) -> String {
+    let safe = |c: char| c.is_ascii_alphanumeric() || "_-./=:,+@%".contains(c);
+    if !arg.is_empty() && arg.chars().all(safe) {
+        arg.to_string()
+    } else if !arg.chars().any(char::is_control) {
+        format!("'{}'", arg.replace('\'', "'\\''"))
+    } else {
+        // On one line: ANSI-C quoting (bash, zsh) spells the control characters out.
+        let escaped: String = arg
+            .chars()
+            .map(|c| match c {
+                '\\' => "\\\\".to_string(),
+                '\'' => "\\'".to_string(),
+                '\n' => "\\n".to_string(),
+                '\t' => "\\t".to_string(),
+                c if c.is_control() => format!("\\x{:02x}", u32::from(c)),
+                c => c.to_string(),
+            })
+            .collect();
+        format!("$'{escaped}'")
+    }
+}
+
+/// `mjsafe falsify`: its checks, the problem, the search and the report.
+impl FalsifyArgs {
+    /// Runs the command; its exit code.
+    pub fn execute(self) -> Result<ExitCode> {
+        falsify_command(self)
+    }
+}
+
+fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
+    let FalsifyArgs {
+        scenario,
+        ranges,
+        overrides,
+        objective,
+        threshold,
+        budget,
+        seed,
+        threads,
+        worst,
+        baseline_threshold,
+        baseline,
+        compare_random,
+        out,
+    } = args;
+    let ranges = ranges
+        .iter()
+        .map(|r| sweep::parse_range(r))
+        .collect::<Result<Vec<_>, _>>()?;
+    if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
+        bail!("--range {twice}: the key is given twice (each key takes one --range)");
+    }
+    falsify::check_objective(&objective)?;
+    if !threshold.is_finite() {
+        bail!("--threshold: expected a finite number, found {threshold}");
+    }
+    if !baseline_threshold.is_finite() {
+        bail!("--baseline-threshold: expected a finite number, found {baseline_threshold}");
+    }
+    let threads = match threads {
+        Some(0) => bail!("--threads: expected at least 1"),
+        Some(k) => k,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    // The scenario and every override are checked once before the search starts.
+    let base = scenario::load(&scenario, &overrides)?;
+    if let Some((group, _)) = objective.split_once('.') {
+        // A per-channel metric names a channel of the vehicle: told by one run of the
+        // scenario as given (when it runs), not by a whole budget of absent values.
+        let run = sweep::Run {
+            index: 0,
+            overrides: overrides.clone(),
+            parameters: Vec::new(),
+        };
+        let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
+        if let Some(metrics) = &row.metrics {
+            let columns = FlatMetrics::columns([metrics]);
+            if !columns.contains(&objective) {
+                let prefix = format!("{group}.");
+                let known: Vec<&str> = columns
+                    .iter()
+                    .map(String::as_str)
+                    .filter(|c| c.starts_with(&prefix))
+                    .collect();
+                bail!(
+                    "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
+                    if known.is_empty() { "none".to_string() } else { known.join(", ") }
+                );
+            }
+        }
+    }
+    let problem = falsify::Problem {
+        scenario,
+        set: overrides,
+        ranges,
+        objective,
+        threshold,
+        baseline_threshold,
+        baseline,
+        budget,
+        seed,
+        threads,
+        worst,
+    };
+    let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
+    run_falsify(&problem, &out, compare_random)
+}
+
+pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random: bool) -> Result<ExitCode> {
+    let _graceful = episode::GracefulStop::begin();
+    // The command line as a shell takes it back (quoted where needed).
+    let search_line = std::iter::once("mjsafe".to_string())
+        .chain(std::env::args().skip(1).map(|a| shell_quoted(&a)))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let started = Instant::now();
+    let report = falsify::falsify(problem, out, &search_line, compare_random, |s| {
+        let best = s.best().map_or("none yet".to_string(), |e| format!("{:.4}", e.score));
+        let found = s
+            .runs_to_first_violation()
+            .map_or(String::new(), |n| format!(" | first violation at run {n}"));
+        eprintln!(
+            "{}: {} runs | best score {best}{found} | {:.1} s",
+            s.method.name(),
+            s.evaluations.len(),
+            started.elapsed().as_secs_f64()
+        );
+    })
+    .context("falsify")?;
+    for s in &report.searches {
+        let best = s.best();
+        outln!(
+            "{}: {} runs, {}; best {} = {}{}",
+            s.method.name(),
+            s.evaluations.len(),
+            s.runs_to_first_violation()
+                .map_or("no violation".to_string(), |n| format!("first violation at run {n}")),
+            problem.objective,
+            best.and_then(|e| e.objective)
+                .map_or("absent".into(), |v| format!("{v:.4}")),
+            best.and_then(|e| e.baseline)
+                .map_or(String::new(), |b| format!(" (baseline {b:.4})")),
+        );
+    }
+    if let Some(e) = &report.chosen {
+        outln!(
+            "{} violation: index {} in evaluations.csv, {} = {}{} | {}",
+            if problem.worst { "most severe" } else { "first" },
+            e.index,
+            problem.objective,
+            e.objective.map_or("absent".into(), |v| format!("{v:.4}")),
+            e.baseline.map_or(String::new(), |b| format!(" (baseline {b:.4})")),
+            e.severity.describe()
+        );
+    }
+    match &report.counterexample {
+        Some((scenario, log)) => outln!(
+            "counterexample: {} ({}) | evaluations: {}, {}{}",
+            scenario.display(),
+            match report.reproduced {
+                Some(v) => format!("its run: {}, {} = {v:.4}", log.display(), problem.objective),
+                None if report.rerun_interrupted => format!("its run was interrupted: {} is incomplete", log.display()),
+                None => "not re-run: the search was interrupted".into(),
+            },
+            report.evaluations_csv.display(),
+            report.evaluations_json.display(),
+            report
+                .convergence_png
+                .as_ref()
+                .map_or(String::new(), |p| format!(" | plot: {}", p.display()))
+        ),
+        None => outln!(
+            "no counterexample within {} runs | evaluations: {}, {}",
+            report.searches[0].evaluations.len(),
+            report.evaluations_csv.display(),
+            report.evaluations_json.display()
+        ),
+    }
+    if report.searches.iter().any(|s| s.interrupted) {
+        eprintln!("error: the search was interrupted; what it found so far is written");
+        return Ok(ExitCode::from(130));
+    }
+    if report.rerun_interrupted {
+        eprintln!("error: interrupted while re-running the counterexample; the search's outputs are written, its log is incomplete");
+        return Ok(ExitCode::from(130));
+    }
+    // A search whose every candidate failed learned nothing about safety: not a result.
+    let evaluations: Vec<_> = report.searches.iter().flat_map(|s| &s.evaluations).collect();
+    let errors: Vec<&str> = evaluations.iter().filter_map(|e| e.error.as_deref()).collect();
+    if let Some(first) = errors.first() {
+        let (failed, total) = (errors.len(), evaluations.len());
+        if failed == total {
+            eprintln!("error: every candidate failed ({total} runs); the first: {first}");
+            return Ok(ExitCode::from(3));
+        }
+        eprintln!("warning: {failed} of {total} candidates failed (their rows hold the error); the first: {first}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell_quoted;
+
+    #[test]
+    fn arguments_are_quoted_as_a_shell_reads_them_back() {
+        assert_eq!(shell_quoted("--range"), "--range");
+        assert_eq!(shell_quoted("obstacles.0.centre.1=-3..3"), "obstacles.0.centre.1=-3..3");
+        assert_eq!(
+            shell_quoted("filter={kind='gamma_m', m=40.0}"),
+            "'filter={kind='\\''gamma_m'\\'', m=40.0}'"
+        );
+        assert_eq!(shell_quoted(""), "''");
+        // A shell gives back the argument.
+        let quoted = shell_quoted("filter={kind='gamma_m', m=40.0} $HOME");
+        let o = std::process::Command::new("sh")
+            .args(["-c", &format!("printf %s {quoted}")])
+            .output()
+            .unwrap();
+        assert_eq!(
+            String::from_utf8(o.stdout).unwrap(),
+            "filter={kind='gamma_m', m=40.0} $HOME"
+        );
+        // A newline stays on the line (the counterexample's `# search:` comment).
+        let multiline = "description=\"\"\"a\nb's\\\"\"\"";
+        let quoted = shell_quoted(multiline);
+        assert!(!quoted.contains('\n'), "{quoted}");
+        let o = std::process::Command::new("bash")
+            .args(["-c", &format!("printf %s {quoted}")])
+            .output()
+            .unwrap();
+        assert_eq!(String::from_utf8(o.stdout).unwrap(), multiline);
+    }
+}
