@@ -591,7 +591,7 @@ fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(
         (y0 + y1) / 2.0,
         ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
     );
-    let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
+    let result = draw_png(path, inputs, |partial: &Path| -> DrawResult<()> {
         let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)

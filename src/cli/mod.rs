@@ -153,7 +153,6 @@ use sweep_command::*;
     about = "MuJoCo vehicle safety testbed: delayed actuators, safety filters, MCAP logs",
     after_help = concat!(top_examples!(), "\n\n", exit_codes!()),
 )]
-
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
