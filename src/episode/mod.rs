@@ -679,7 +679,7 @@ fn utc_stamp(secs: u64) -> String {
 }
 
 #[cfg(test)]
-mod alloc_tests;
+mod conformance;
 
 #[cfg(test)]
 mod tests {
