@@ -987,6 +987,32 @@ input = [1.0]
     }
 
     #[test]
+    fn vehicle_keys_are_every_vehicles_or_the_kinds() {
+        // The common keys are read (and their errors named) here; the others are the kind's,
+        // kept for its parameter type and written back in their place.
+        let s = parse(MINIMAL, "t.toml", &["vehicle.a=[[1.0]]".into()]).unwrap();
+        assert_eq!(s.vehicle.params.keys().collect::<Vec<_>>(), ["a"]);
+        let text = toml::to_string(&s).unwrap();
+        let at = |key: &str| text.find(key).unwrap();
+        assert!(at("kind = \"double_integrator_1d\"") < at("a = [[1.0]]"), "{text}");
+        assert!(at("a = [[1.0]]") < at("initial_state"), "{text}");
+        let err = parse(MINIMAL, "t.toml", &["vehicle.initial_state='x'".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("key `vehicle.initial_state`") && err.contains("expected an array"),
+            "{err}"
+        );
+        let err = parse(MINIMAL, "t.toml", &["vehicle.kind=3".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("key `vehicle.kind`") && err.contains("expected a string"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn overrides_reach_nested_and_array_fields() {
         let s = parse(
             MINIMAL,

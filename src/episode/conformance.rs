@@ -270,7 +270,9 @@ fn same_bytes_twice(base: &Base, filter: &str, dir: &Path, index: usize) -> bool
     let logs: Vec<Vec<u8>> = (0..2)
         .map(|run| {
             let log = dir.join(format!("pair{index}-{run}.mcap"));
-            crate::embed::run_logged(&loaded, &log, &mut []).unwrap();
+            let mut episode = Episode::new(&loaded).unwrap();
+            let mut sink = crate::log::mcap::McapSink::create(&log, episode.info(), &[]).unwrap();
+            episode.run(&mut [&mut sink]).unwrap();
             std::fs::read(&log).unwrap()
         })
         .collect();
