@@ -996,20 +996,17 @@ input = [1.0]
         let at = |key: &str| text.find(key).unwrap();
         assert!(at("kind = \"double_integrator_1d\"") < at("a = [[1.0]]"), "{text}");
         assert!(at("a = [[1.0]]") < at("initial_state"), "{text}");
-        let err = parse(MINIMAL, "t.toml", &["vehicle.initial_state='x'".into()])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("key `vehicle.initial_state`") && err.contains("expected an array"),
-            "{err}"
-        );
-        let err = parse(MINIMAL, "t.toml", &["vehicle.kind=3".into()])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("key `vehicle.kind`") && err.contains("expected a string"),
-            "{err}"
-        );
+        for (set, key, expected) in [
+            (
+                "vehicle.initial_state='x'",
+                "key `vehicle.initial_state`",
+                "expected an array",
+            ),
+            ("vehicle.kind=3", "key `vehicle.kind`", "expected a string"),
+        ] {
+            let err = parse(MINIMAL, "t.toml", &[set.into()]).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains(expected), "{err}");
+        }
     }
 
     #[test]
