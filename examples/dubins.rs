@@ -127,7 +127,12 @@ impl MujocoVehicle for MujocoDubins {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "dubins_logs".into()));
     std::fs::create_dir_all(&out)?;
-    mjsafe::vehicle_registry::register(|r| r.add_mjcf_vehicle("dubins", bind));
+    // Its label and description go into every run's metadata (`vehicle_label`, …).
+    mjsafe::vehicle_registry::register(|r| {
+        r.add_mjcf_vehicle("dubins", bind)
+            .label("Dubins car")
+            .description("constant speed, steered by its turn rate");
+    });
 
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dubins/dubins_obstacle.toml");
     let runs: [(&str, &[&str]); 3] = [

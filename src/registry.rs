@@ -33,7 +33,9 @@ pub use crate::filter::Params;
 use crate::filter::{self, FilterContext, ParamError, SafetyFilter};
 use crate::nominal::{self, NominalContext, NominalController};
 
-type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
+/// A kind's parameter check: its table (keys without `kind`) under a section (`filter`,
+/// `vehicle`, …) in, the table normalised (defaults filled in) out.
+pub(crate) type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, ParamError> + Send + Sync>;
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;
 type BuildNominal =
     Arc<dyn Fn(&toml::Table, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync>;
@@ -79,11 +81,11 @@ impl Describe<'_> {
     }
 }
 
-/// A filter or nominal kind: its parameter check, its label and its constructor.
-struct Checked<B> {
-    check: Check,
-    label: Label,
-    build: B,
+/// A kind (filter, nominal, vehicle): its parameter check, its label and its constructor.
+pub(crate) struct Checked<B> {
+    pub(crate) check: Check,
+    pub(crate) label: Label,
+    pub(crate) build: B,
 }
 
 /// Every filter and nominal kind a scenario may name (vehicle kinds: `mjsafe::vehicle_registry`).
@@ -93,7 +95,7 @@ pub struct Registry {
 }
 
 /// P from a kind's table (its keys without `kind`), with serde's error at the inner key.
-fn parse_params<P: Params>(section: &str, table: &toml::Table) -> Result<P, ParamError> {
+pub(crate) fn parse_params<P: Params>(section: &str, table: &toml::Table) -> Result<P, ParamError> {
     serde_path_to_error::deserialize::<_, P>(toml::Value::Table(table.clone())).map_err(|e| {
         let inner = e.path().to_string();
         let key = if inner == "." {
@@ -105,11 +107,13 @@ fn parse_params<P: Params>(section: &str, table: &toml::Table) -> Result<P, Para
     })
 }
 
-fn label_of<P: Params + 'static>(section: &'static str) -> Label {
+/// The run's label of parameters P, given the kind's ([`Params::label`]).
+pub(crate) fn label_of<P: Params + 'static>(section: &'static str) -> Label {
     Arc::new(move |table: &toml::Table, kind_label: &str| Ok(parse_params::<P>(section, table)?.label(kind_label)))
 }
 
-fn check_of<P: Params + 'static>() -> Check {
+/// The check of parameters P: parsed ([`parse_params`]), validated, serialized back.
+pub(crate) fn check_of<P: Params + 'static>() -> Check {
     Arc::new(|section: &str, table: &toml::Table| {
         let params: P = parse_params(section, table)?;
         params.validate()?;
@@ -264,7 +268,7 @@ impl Registry {
 }
 
 /// The run's description of a kind with parameters `params`.
-fn describe<B>(kind: &Kind<Checked<B>>, params: &toml::Table) -> Result<Description, ParamError> {
+pub(crate) fn describe<B>(kind: &Kind<Checked<B>>, params: &toml::Table) -> Result<Description, ParamError> {
     Ok(Description {
         kind: kind.name.clone(),
         label: (kind.build.label)(params, &kind.label)?,

@@ -92,30 +92,113 @@ pub enum DisturbanceSpec {
     RandomState { bound: f64, hold: f64 },
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The `[vehicle]` table: what every vehicle has, and the keys of the kind's own (e.g. `a`, `b`
+/// of `linear`), which the kind's registered parameter type checks when the episode is built
+/// (`mjsafe::vehicle_registry`).
+#[derive(Debug, Clone, PartialEq)]
 pub struct VehicleSpec {
-    /// A registered vehicle kind (`mjsafe::registry`): `bicycle`, `unicycle`, … or a user's.
+    /// A registered vehicle kind (`mjsafe::vehicle_registry`): `bicycle`, `unicycle`, … or a
+    /// user's.
     pub kind: String,
-    /// MJCF file, relative to the scenario file (all kinds but `linear`).
-    #[serde(default)]
+    /// MJCF file, relative to the scenario file (the kinds with an MJCF model).
     pub model: Option<PathBuf>,
-    /// A and B of ẋ = A x + B u (kind `linear`), as arrays of rows.
-    #[serde(default)]
-    pub a: Option<Vec<Vec<f64>>>,
-    #[serde(default)]
-    pub b: Option<Vec<Vec<f64>>>,
+    /// The kind's own keys (the table's keys other than [`VehicleSpec::KEYS`]), e.g. `a`, `b`
+    /// (A and B of ẋ = A x + B u, arrays of rows) of `linear`; the kind's builder parses them
+    /// into its parameter type.
+    pub params: toml::Table,
     /// Initial state x(0), in the vehicle's state order.
     pub initial_state: Vec<f64>,
     /// Uniform random perturbation of x(0): component i moves by up to ± this (seeded).
-    #[serde(default)]
     pub initial_perturbation: Option<Vec<f64>>,
-    /// Overrides the model's `<option timestep>` (seconds); required for `linear`.
-    #[serde(default)]
+    /// Overrides the model's `<option timestep>` (seconds); required without a model.
     pub timestep: Option<f64>,
     /// Overrides the model's `<option integrator>`: "euler", "rk4" or "implicit".
-    #[serde(default)]
     pub integrator: Option<Integrator>,
+}
+
+/// The keys every vehicle has, as [`VehicleSpec`] reads them (its other keys are the kind's).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CommonVehicleKeys {
+    kind: String,
+    #[serde(default)]
+    model: Option<PathBuf>,
+    initial_state: Vec<f64>,
+    #[serde(default)]
+    initial_perturbation: Option<Vec<f64>>,
+    #[serde(default)]
+    timestep: Option<f64>,
+    #[serde(default)]
+    integrator: Option<Integrator>,
+}
+
+impl VehicleSpec {
+    /// The keys every vehicle has; any other key of `[vehicle]` belongs to the kind.
+    pub const KEYS: [&'static str; 6] = [
+        "kind",
+        "model",
+        "initial_state",
+        "initial_perturbation",
+        "timestep",
+        "integrator",
+    ];
+}
+
+impl<'de> Deserialize<'de> for VehicleSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let mut params = toml::Table::deserialize(deserializer)?;
+        let common: toml::Table = VehicleSpec::KEYS
+            .iter()
+            .filter_map(|key| params.remove(*key).map(|value| (key.to_string(), value)))
+            .collect();
+        // An error inside names its key (`key `initial_state`: …`), which `parse` appends to
+        // `vehicle`.
+        let keys: CommonVehicleKeys = serde_path_to_error::deserialize(toml::Value::Table(common)).map_err(|e| {
+            let inner = e.path().to_string();
+            let message = e.into_inner().to_string();
+            match inner.as_str() {
+                "." => D::Error::custom(message),
+                _ => D::Error::custom(format!("key `{inner}`: {message}")),
+            }
+        })?;
+        Ok(VehicleSpec {
+            kind: keys.kind,
+            model: keys.model,
+            params,
+            initial_state: keys.initial_state,
+            initial_perturbation: keys.initial_perturbation,
+            timestep: keys.timestep,
+            integrator: keys.integrator,
+        })
+    }
+}
+
+impl Serialize for VehicleSpec {
+    /// In the order of the keys as they always were: kind, model, the kind's own keys,
+    /// initial_state, initial_perturbation, timestep, integrator (absent ones left out).
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(None)?;
+        map.serialize_entry("kind", &self.kind)?;
+        if let Some(model) = &self.model {
+            map.serialize_entry("model", model)?;
+        }
+        for (key, value) in &self.params {
+            map.serialize_entry(key, value)?;
+        }
+        map.serialize_entry("initial_state", &self.initial_state)?;
+        if let Some(perturbation) = &self.initial_perturbation {
+            map.serialize_entry("initial_perturbation", perturbation)?;
+        }
+        if let Some(timestep) = &self.timestep {
+            map.serialize_entry("timestep", timestep)?;
+        }
+        if let Some(integrator) = &self.integrator {
+            map.serialize_entry("integrator", integrator)?;
+        }
+        map.end()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -685,8 +768,7 @@ fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioErro
     Ok(())
 }
 
-/// `control`, a linear vehicle's matrices, `initial_input`, `disturbance` and the initial
-/// perturbation.
+/// `control`, `initial_input`, `disturbance` and the initial perturbation.
 fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
     if !positive_finite(sc.control.history) {
@@ -694,24 +776,6 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
             "control.history",
             format!("expected a positive number of seconds, found {}", sc.control.history),
         ));
-    }
-    if sc.vehicle.kind == "linear" {
-        let (Some(a), Some(b)) = (&sc.vehicle.a, &sc.vehicle.b) else {
-            return Err(s.field_error(
-                "vehicle.a",
-                "kind = \"linear\" needs both vehicle.a and vehicle.b (arrays of rows)",
-            ));
-        };
-        let n = a.len();
-        if n == 0 || a.iter().any(|row| row.len() != n) {
-            return Err(s.field_error("vehicle.a", "expected a square matrix (array of equal-length rows)"));
-        }
-        if b.len() != n || b.iter().any(|row| row.len() != b[0].len()) || b[0].is_empty() {
-            return Err(s.field_error("vehicle.b", format!("expected {n} rows of equal, non-zero length")));
-        }
-        if a.iter().chain(b).flatten().any(|v| !v.is_finite()) {
-            return Err(s.field_error("vehicle.a", "matrix entries must be finite"));
-        }
     }
     for (channel, value) in &sc.initial_input {
         if !value.is_finite() {
@@ -920,6 +984,29 @@ input = [1.0]
             !err.contains("DelayProfile") && err.contains("delays.acceleration"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn vehicle_keys_are_every_vehicles_or_the_kinds() {
+        // The common keys are read (and their errors named) here; the others are the kind's,
+        // kept for its parameter type and written back in their place.
+        let s = parse(MINIMAL, "t.toml", &["vehicle.a=[[1.0]]".into()]).unwrap();
+        assert_eq!(s.vehicle.params.keys().collect::<Vec<_>>(), ["a"]);
+        let text = toml::to_string(&s).unwrap();
+        let at = |key: &str| text.find(key).unwrap();
+        assert!(at("kind = \"double_integrator_1d\"") < at("a = [[1.0]]"), "{text}");
+        assert!(at("a = [[1.0]]") < at("initial_state"), "{text}");
+        for (set, key, expected) in [
+            (
+                "vehicle.initial_state='x'",
+                "key `vehicle.initial_state`",
+                "expected an array",
+            ),
+            ("vehicle.kind=3", "key `vehicle.kind`", "expected a string"),
+        ] {
+            let err = parse(MINIMAL, "t.toml", &[set.into()]).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains(expected), "{err}");
+        }
     }
 
     #[test]

@@ -1,48 +1,13 @@
 //! Vehicles bound to MuJoCo ([`MujocoVehicle`]): where each built-in vehicle's state and inputs
-//! live in `mjData`, and the analytic model ([`crate::dynamics`]) read from its MJCF.
+//! live in `mjData`, and the analytic model ([`crate::dynamics`]) read from its MJCF. Each is
+//! registered as a `vehicle.kind` by one closure in `vehicle_registry`, as a user's is.
 
 use std::sync::Arc;
 
 use nalgebra::DVector;
-use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{BicycleModel, DoubleIntegratorModel, Dynamics, UnicycleModel};
 use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
-
-/// The systems mjsafe knows (scenario key `vehicle.kind`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum VehicleKind {
-    /// Kinematic bicycle (4.78): x = (x1, x2, heading, speed), u = (tan δ, acceleration).
-    Bicycle,
-    /// A four-wheeled car on tyre contacts (`models/car.xml`, docs/car.md) with (4.78) as its
-    /// analytic model: same state and inputs as `Bicycle`.
-    Car,
-    /// Nonholonomic unicycle (2.36): x = (x, y, θ), u = (v, ω).
-    Unicycle,
-    /// ẍ = u on a line: x = (position, velocity).
-    #[serde(rename = "double_integrator_1d")]
-    DoubleIntegrator1d,
-    /// ẍ = u in the plane: x = (x, y, vx, vy).
-    #[serde(rename = "double_integrator_2d")]
-    DoubleIntegrator2d,
-    /// ẋ = A x + B u with A, B from the scenario (ODE plant only), e.g. (2.30), (3.34).
-    Linear,
-    /// Example 1 of Ch. 4 (4.52): ẋ1 = −x1 − x2 + u1, ẋ2 = x1³ + x2 u2 (ODE plant only).
-    NonlinearExample1,
-    /// The strict-feedback system (5.82): ẋ1 = x1² + x2, ẋ2 = u (ODE plant only).
-    StrictFeedback,
-}
-
-impl VehicleKind {
-    /// Whether the kind has an MJCF model (and so can run on the MuJoCo plant).
-    pub fn has_mjcf(self) -> bool {
-        !matches!(
-            self,
-            VehicleKind::Linear | VehicleKind::NonlinearExample1 | VehicleKind::StrictFeedback
-        )
-    }
-}
 
 /// A vehicle bound to a MuJoCo model: how its state and inputs live in `mjData`.
 pub trait MujocoVehicle: Send {
@@ -65,23 +30,6 @@ pub trait MujocoVehicle: Send {
     /// Maps the applied input u (one value per channel) to MuJoCo's `ctrl`, given the data at
     /// the current (possibly RK4 trial) state. Writes only ctrl.
     fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]);
-}
-
-/// Builds the vehicle of `kind` on `model`, resolving joints and actuators by name.
-pub fn bind(kind: VehicleKind, model: &Model) -> Result<Box<dyn MujocoVehicle>, MjError> {
-    Ok(match kind {
-        VehicleKind::Bicycle => Box::new(MujocoBicycle::bind(model)?),
-        VehicleKind::Car => Box::new(MujocoCar::bind(model)?),
-        VehicleKind::Unicycle => Box::new(MujocoUnicycle::bind(model)?),
-        VehicleKind::DoubleIntegrator1d => Box::new(MujocoDoubleIntegrator::bind(model, 1)?),
-        VehicleKind::DoubleIntegrator2d => Box::new(MujocoDoubleIntegrator::bind(model, 2)?),
-        VehicleKind::Linear | VehicleKind::NonlinearExample1 | VehicleKind::StrictFeedback => {
-            return Err(MjError::MissingName {
-                kind: "MJCF binding for vehicle kind",
-                name: format!("{kind:?}"),
-            })
-        }
-    })
 }
 
 fn hull(model: &Model) -> Result<(usize, f64), MjError> {

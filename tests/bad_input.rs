@@ -87,6 +87,62 @@ fn wrong_type() {
     );
 }
 
+/// The keys of a vehicle kind's own (`[vehicle]` beyond those every vehicle has) are its
+/// parameter type's: an unknown one or a wrong type is one line naming `vehicle.<key>`.
+#[test]
+fn a_vehicle_kinds_own_keys_are_typed() {
+    let linear = r#"
+name = "bad"
+duration = 1.0
+plant = "ode"
+[vehicle]
+kind = "linear"
+a = [[-1.0, 0.5], [-0.5, -1.0]]
+b = [[1.0, 0.0], [0.0, 1.0]]
+timestep = 0.01
+initial_state = [1.0, 0.0]
+[nominal]
+kind = "constant"
+input = [0.0, 0.0]
+"#;
+    let bicycle = base(&bicycle());
+    let cases: [(String, &[&str]); 6] = [
+        (
+            bicycle.replace("kind = \"bicycle\"", "kind = \"bicycle\"\nfoo = 1"),
+            &[
+                "key `vehicle.foo`",
+                "unknown field `foo`",
+                "`initial_state`",
+                "no keys of its own",
+            ],
+        ),
+        (
+            bicycle.replace("kind = \"bicycle\"", "kind = \"bicycle\"\na = \"x\""),
+            &["key `vehicle.a`", "unknown field `a`"],
+        ),
+        (
+            linear.replace("a = [[-1.0, 0.5], [-0.5, -1.0]]", "a = \"x\""),
+            &["key `vehicle.a`", "expected an array"],
+        ),
+        (
+            linear.replace("timestep = 0.01", "timestep = 0.01\nc = 1"),
+            &["key `vehicle.c`", "unknown field `c`", "kind `linear`'s own `a`, `b`"],
+        ),
+        (
+            linear.replace("[-0.5, -1.0]]", "[-0.5]]"),
+            &["key `vehicle.a`", "square matrix"],
+        ),
+        (
+            linear.replace("b = [[1.0, 0.0], [0.0, 1.0]]", ""),
+            &["key `vehicle`", "missing field `b`"],
+        ),
+    ];
+    for (text, needles) in cases {
+        let err = expect_error(&text, needles);
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    }
+}
+
 #[test]
 fn model_path_that_does_not_exist() {
     expect_error(

@@ -5,7 +5,8 @@ use std::path::Path;
 
 use mjsafe::mujoco::{CallbackContext, ControlHook, DataView, Model, Simulation};
 use mjsafe::plant;
-use mjsafe::vehicle::{self, MujocoVehicle, VehicleKind};
+use mjsafe::vehicle::MujocoVehicle;
+use mjsafe::vehicle_registry::{self, VehicleBinding};
 use nalgebra::DVector;
 
 /// Writes input k (held over step k) at every callback call of step k.
@@ -23,7 +24,7 @@ impl ControlHook for Replay<'_> {
 
 /// Max position error over the run between MuJoCo and the analytic ODE, and the final errors.
 fn compare(
-    kind: VehicleKind,
+    kind: &str,
     model_file: &str,
     x0: &[f64],
     duration: f64,
@@ -31,7 +32,10 @@ fn compare(
 ) -> (f64, DVector<f64>) {
     let model = Model::from_xml_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join(model_file)).unwrap();
     let h = model.timestep();
-    let vehicle = vehicle::bind(kind, &model).unwrap();
+    let VehicleBinding::Mjcf(bind) = vehicle_registry::registry().vehicle(kind).unwrap() else {
+        panic!("{kind} has no MJCF binding");
+    };
+    let vehicle = bind(&model).unwrap();
     let mut sim = Simulation::new(model).unwrap();
     let x0 = DVector::from_column_slice(x0);
     vehicle.write_state(&mut sim, &x0);
@@ -61,7 +65,7 @@ fn compare(
 #[test]
 fn double_integrator_1d_matches_the_ode_to_1e_9() {
     let (max_err, last) = compare(
-        VehicleKind::DoubleIntegrator1d,
+        "double_integrator_1d",
         "double_integrator_1d.xml",
         &[-4.0, 2.0],
         10.0,
@@ -75,7 +79,7 @@ fn double_integrator_1d_matches_the_ode_to_1e_9() {
 #[test]
 fn double_integrator_2d_matches_the_ode_to_1e_9() {
     let (max_err, last) = compare(
-        VehicleKind::DoubleIntegrator2d,
+        "double_integrator_2d",
         "double_integrator_2d.xml",
         &[1.0, -2.0, 0.5, 0.0],
         10.0,
@@ -89,7 +93,7 @@ fn double_integrator_2d_matches_the_ode_to_1e_9() {
 #[test]
 fn bicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
     // Speed 3, steering u1 = tan(delta) sweeping +-0.5, no acceleration.
-    let (max_err, last) = compare(VehicleKind::Bicycle, "bicycle.xml", &[0.0, 0.0, 0.0, 3.0], 10.0, |t| {
+    let (max_err, last) = compare("bicycle", "bicycle.xml", &[0.0, 0.0, 0.0, 3.0], 10.0, |t| {
         vec![0.5 * (2.0 * std::f64::consts::PI * t / 5.0).sin(), 0.0]
     });
     println!(
@@ -101,13 +105,9 @@ fn bicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
 
 #[test]
 fn bicycle_follows_the_kinematic_model_while_accelerating() {
-    let (max_err, last) = compare(
-        VehicleKind::Bicycle,
-        "bicycle.xml",
-        &[-20.0, 0.0, 0.0, 3.0],
-        10.0,
-        |t| vec![0.3 * (0.9 * t).sin(), if t < 5.0 { 0.4 } else { -0.6 }],
-    );
+    let (max_err, last) = compare("bicycle", "bicycle.xml", &[-20.0, 0.0, 0.0, 3.0], 10.0, |t| {
+        vec![0.3 * (0.9 * t).sin(), if t < 5.0 { 0.4 } else { -0.6 }]
+    });
     println!(
         "fidelity bicycle accelerating/braking: max position error = {max_err:.4} m, final error = {:?}",
         last.as_slice()
@@ -117,7 +117,7 @@ fn bicycle_follows_the_kinematic_model_while_accelerating() {
 
 #[test]
 fn unicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
-    let (max_err, last) = compare(VehicleKind::Unicycle, "unicycle.xml", &[1.0, 1.0, 1.0], 10.0, |t| {
+    let (max_err, last) = compare("unicycle", "unicycle.xml", &[1.0, 1.0, 1.0], 10.0, |t| {
         vec![1.0 + 0.5 * (0.8 * t).sin(), 0.8 * (1.3 * t).cos()]
     });
     println!("fidelity unicycle (implicit, h = 0.002, 10 s, v = 1 + 0.5 sin 0.8t, w = 0.8 cos 1.3t): max position error = {max_err:.4} m, final error = {:?}", last.as_slice());

@@ -433,3 +433,26 @@ fn the_scene_draws_every_tick_but_at_most_every_10_ms() {
         assert_eq!(count("/command/issued"), ticks, "{file}: {}", d["counts"]);
     }
 }
+
+/// The resolved scenario in the run metadata writes `[vehicle]` in one order whatever the
+/// file's (kind, model, the kind's own keys, initial_state, …), with the kind's own keys as its
+/// parameter type reads them (integers as floats).
+#[test]
+fn the_resolved_vehicle_table_keeps_its_order_and_types() {
+    let text = std::fs::read_to_string(scenario("linear_distinct_delays.toml"))
+        .unwrap()
+        .replace(
+            "a = [[-1.0, 0.5], [-0.5, -1.0]]\nb = [[1.0, 0.0], [0.0, 1.0]]\ntimestep = 0.005\ninitial_state = [16.0, 6.0]",
+            "initial_state = [16.0, 6.0]\ntimestep = 0.005\nb = [[1, 0], [0, 1]]\na = [[-1.0, 0.5], [-0.5, -1.0]]",
+        );
+    assert!(text.contains("b = [[1, 0]"), "the replacement applies");
+    let loaded = mjsafe::scenario::from_text(&scenario("linear_distinct_delays.toml"), text, &[]).unwrap();
+    let episode = mjsafe::episode::Episode::new(&loaded).unwrap();
+    let resolved = &episode.info().scenario_resolved;
+    let vehicle = &resolved[resolved.find("[vehicle]").unwrap()..];
+    let vehicle = &vehicle[..vehicle.find("\n\n").unwrap_or(vehicle.len())];
+    assert_eq!(
+        vehicle,
+        "[vehicle]\nkind = \"linear\"\na = [[-1.0, 0.5], [-0.5, -1.0]]\nb = [[1.0, 0.0], [0.0, 1.0]]\ninitial_state = [16.0, 6.0]\ntimestep = 0.005"
+    );
+}

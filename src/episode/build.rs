@@ -44,6 +44,9 @@ pub(super) struct PlantParts {
     pub dynamics: Arc<dyn Dynamics>,
     pub hull_radius: f64,
     pub timestep: f64,
+    /// The vehicle kind's own keys, checked and normalised by its parameter type (what the
+    /// log's resolved scenario holds).
+    pub vehicle_params: toml::Table,
 }
 
 /// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
@@ -83,14 +86,17 @@ pub(super) fn obstacle_geom_name(index: usize) -> String {
     format!("obstacle_{index}")
 }
 
-/// The vehicle of the registered `vehicle.kind`: its MJCF (with the obstacles' geoms)
-/// compiled and bound, or the analytic model of a kind without MJCF.
+/// The vehicle of the registered `vehicle.kind`: its own keys checked, its MJCF (with the
+/// obstacles' geoms) compiled and bound, or the analytic model of a kind without MJCF.
 pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, EpisodeError> {
     let sc = &loaded.scenario;
     let file = loaded.path.display().to_string();
-    let binding = crate::vehicle_registry::registry()
+    let vehicles = crate::vehicle_registry::registry();
+    let (binding, vehicle_params) = vehicles
         .vehicle(&sc.vehicle.kind)
+        .and_then(|binding| Ok((binding, vehicles.check_vehicle(&sc.vehicle.kind, &sc.vehicle.params)?)))
         .map_err(|e| param_error(loaded, e))?;
+    drop(vehicles);
     if let VehicleBinding::Analytic(_) = binding {
         let kind = &sc.vehicle.kind;
         if sc.plant != PlantKind::Ode {
@@ -138,14 +144,16 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
                 timestep: model.timestep(),
                 model: Some(model),
                 vehicle: Some(bound),
+                vehicle_params,
             })
         }
         (VehicleBinding::Analytic(build), None) => Ok(PlantParts {
             model: None,
             vehicle: None,
-            dynamics: build(&sc.vehicle).map_err(|e| param_error(loaded, e))?,
+            dynamics: build(&vehicle_params).map_err(|e| param_error(loaded, e))?,
             hull_radius: 0.0,
             timestep: sc.vehicle.timestep.expect("validated"),
+            vehicle_params,
         }),
         // The scenario's validation pairs MJCF kinds with a model file and the others without.
         (VehicleBinding::Mjcf(_), None) => Err(loaded
@@ -597,16 +605,29 @@ pub(super) fn configure_control(
     Ok(())
 }
 
-/// What the log's run metadata says about the run.
-pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f64) -> Result<RunInfo, EpisodeError> {
+/// What the log's run metadata says about the run; the resolved scenario holds the vehicle
+/// kind's own keys as its parameter type normalised them (`vehicle_params`), and the kinds
+/// their registrations' labels and descriptions.
+pub(super) fn run_info(
+    loaded: &LoadedScenario,
+    vehicle_params: toml::Table,
+    control: &ControlLoop,
+    period: f64,
+) -> Result<RunInfo, EpisodeError> {
     let sc = &loaded.scenario;
     let timestep = control.timestep();
+    let mut resolved = loaded.clone();
+    resolved.scenario.vehicle.params = vehicle_params;
     let registry = crate::registry::registry();
     let described = [
         ("filter", registry.describe_filter(&sc.filter.kind, &sc.filter.params)),
         (
             "nominal",
             registry.describe_nominal(&sc.nominal.kind, &sc.nominal.params),
+        ),
+        (
+            "vehicle",
+            crate::vehicle_registry::registry().describe_vehicle(&sc.vehicle.kind, &resolved.scenario.vehicle.params),
         ),
     ];
     let mut kinds = Vec::new();
@@ -623,7 +644,7 @@ pub(super) fn run_info(loaded: &LoadedScenario, control: &ControlLoop, period: f
         scenario_name: sc.name.clone(),
         scenario_path: loaded.path.display().to_string(),
         scenario_text: loaded.source_text.clone(),
-        scenario_resolved: loaded.resolved_toml(),
+        scenario_resolved: resolved.resolved_toml(),
         overrides: loaded.overrides.clone(),
         mujoco_version: mujoco::version_string(),
         timestep,

@@ -534,6 +534,15 @@ impl ControlLoop {
             tick.nominal[i] = law.nominal[i];
             tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
             tick.outcomes[i] = outcome;
+            // A non-finite command (from a state at NaN or ±1e300) never reaches a queue.
+            if !tick.issued[i].is_finite() {
+                return Err(FilterError::Other(format!(
+                    "the command of channel `{}` at t = {t} s is not finite ({}), at the state {:?}",
+                    model.channel_names()[i],
+                    tick.issued[i],
+                    eval_state.as_slice()
+                )));
+            }
         }
         // Every command goes to the controller's queue and, if the actuators have their own, to it.
         for queues in std::iter::once(queues).chain(actuators.as_mut()) {

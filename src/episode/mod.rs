@@ -122,7 +122,7 @@ impl Episode {
     /// each kind's own checks): the blocks of the control diagram, assembled in `build`.
     pub fn new(loaded: &LoadedScenario) -> Result<Episode, EpisodeError> {
         mujoco::check_version()?;
-        let parts = build::plant_parts(loaded)?;
+        let mut parts = build::plant_parts(loaded)?;
         let model = parts.dynamics.clone();
         let timestep = parts.timestep;
         check_step_budget(loaded, timestep)?;
@@ -150,6 +150,7 @@ impl Episode {
             .reference_path()
             .map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
         let hull_radius = parts.hull_radius;
+        let vehicle_params = std::mem::take(&mut parts.vehicle_params);
         let plant = build::plant(loaded, parts, obstacles.len(), &x0)?;
         let mut control = ControlLoop::new(
             model.clone(),
@@ -164,7 +165,7 @@ impl Episode {
             control.set_actuators(actuators);
         }
         build::configure_control(loaded, &mut control, &barriers)?;
-        let info = build::run_info(loaded, &control, period)?;
+        let info = build::run_info(loaded, vehicle_params, &control, period)?;
         let (cost, log_budget) =
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         Ok(Episode {
@@ -678,7 +679,7 @@ fn utc_stamp(secs: u64) -> String {
 }
 
 #[cfg(test)]
-mod alloc_tests;
+mod conformance;
 
 #[cfg(test)]
 mod tests {

@@ -146,6 +146,12 @@ impl QpWorkspace {
     ) -> (bool, bool, f64) {
         let mu = constraints.iter().map(|c| c.value(u0)).fold(f64::INFINITY, f64::min);
         u.copy_from(u0);
+        // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
+        // for: u0 is returned, flagged infeasible.
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !(finite(u0.as_slice()) && constraints.iter().all(|c| c.a.is_finite() && finite(c.b.as_slice()))) {
+            return (false, true, mu);
+        }
         let within_limits =
             limits.is_none_or(|(lo, hi)| u0.iter().enumerate().all(|(i, v)| *v >= lo[i] && *v <= hi[i]));
         if mu >= 0.0 && within_limits {
