@@ -83,3 +83,52 @@ fn a_run_that_stops_inside_the_episode_still_has_an_outcome_with_metrics() {
     assert!(!metrics.complete);
     assert_eq!(metrics.error.as_deref(), Some(stopped.to_string().as_str()));
 }
+
+#[test]
+fn a_users_filter_carries_its_own_label_into_the_log_and_the_analysis() {
+    #[derive(serde::Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Passthrough {}
+    impl mjsafe::registry::Params for Passthrough {}
+    embed::register(|r| {
+        r.add_filter(
+            "passthrough_labelled",
+            |_: &Passthrough, ctx: &mjsafe::filter::FilterContext| {
+                mjsafe::filter::none::build(&Default::default(), ctx)
+            },
+        )
+        .label("my passthrough (eq. 7)")
+        .description("the nominal input, as a user's kind");
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("labelled.mcap");
+    let loaded = embed::load_scenario(
+        &root().join("scenarios/bicycle_obstacle.toml"),
+        &[
+            "duration=0.5".to_string(),
+            "filter={kind='passthrough_labelled'}".to_string(),
+        ],
+    )
+    .unwrap();
+    let metrics = embed::run_logged(&loaded, &log, &mut []).unwrap().metrics.unwrap();
+    // From the log's metadata: its label, with no suffix (the run has delays).
+    assert_eq!(metrics.filter_label.as_deref(), Some("my passthrough (eq. 7)"));
+    let o = common::mjsafe(&["info", "--json", log.to_str().unwrap()]);
+    let info: serde_json::Value = serde_json::from_str(&common::stdout(&o)).unwrap();
+    let text = info.to_string();
+    for expected in [
+        "the nominal input, as a user's kind",
+        "passthrough_labelled",
+        "kinematic bicycle (4.78)",
+        "LQR path tracking",
+    ] {
+        assert!(text.contains(expected), "{expected} not in the run metadata: {text}");
+    }
+    // The brief comparison names the run by it.
+    let o = common::mjsafe(&["analyze", "--brief", log.to_str().unwrap()]);
+    assert!(
+        common::stdout(&o).contains("my passthrough (eq. 7)"),
+        "{}",
+        common::stdout(&o)
+    );
+}
