@@ -699,6 +699,17 @@ fn emptiest_corner(
     corners[best].clone()
 }
 
+/// The label a swept `filter` table's kind registers (with its equation number, completed by
+/// its parameters), if the value is such a table of a registered kind.
+fn swept_filter_label(value: &str) -> Option<String> {
+    let document: toml::Table = format!("filter = {value}").parse().ok()?;
+    let mut params = document.get("filter")?.as_table()?.clone();
+    let kind = params.remove("kind")?.as_str()?.to_string();
+    let registry = crate::registry::registry();
+    let params = registry.check_filter(&kind, &params).ok()?;
+    registry.describe_filter(&kind, &params).ok().map(|d| d.label)
+}
+
 /// (x, y, collided) of one line of a sweep plot.
 type SweepLine = Vec<(f64, f64, bool)>;
 
@@ -720,8 +731,7 @@ fn sweep_lines(parameters: &[String], runs: &[SweepPoint<'_>], key: &str, metric
         let (mut values, mut names) = (Vec::new(), Vec::new());
         for p in parameters.iter().filter(|p| *p != key) {
             let value = run.parameters.get(p).map_or("", String::as_str);
-            let entries = BTreeMap::from([("scenario_resolved".to_string(), format!("{p} = {value}"))]);
-            names.push(match crate::analyze::filter_label(&entries) {
+            names.push(match swept_filter_label(value) {
                 Some(label) if p == "filter" => label,
                 _ => format!("{p} = {value}"),
             });
