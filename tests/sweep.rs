@@ -709,7 +709,11 @@ fn analyze_csv_and_compare() {
         .find(|l| l.starts_with("min_h "))
         .unwrap_or_else(|| panic!("{table}"));
     // metric, unit, A, B, B − A.
-    assert_eq!(row.split_whitespace().collect::<Vec<_>>()[..2], ["min_h", "h-units"], "{row}");
+    assert_eq!(
+        row.split_whitespace().collect::<Vec<_>>()[..2],
+        ["min_h", "h-units"],
+        "{row}"
+    );
     assert_eq!(row.split_whitespace().count(), 5, "{row}");
     assert!(
         table.lines().any(|l| l.starts_with("metric") && l.contains("B-A")),

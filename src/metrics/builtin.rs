@@ -466,9 +466,11 @@ impl Accumulate for OverrideDuration {
 struct InputRates {
     /// Previous issued command (time, values).
     previous: Option<(f64, Vec<f64>)>,
-    /// The rates between the last two commands, waiting for the `/filter` record of the later
-    /// tick (written right after it) to know whether the filter was overriding.
-    pending: Option<(f64, Vec<f64>)>,
+    /// The rates between the last two commands (reused), and the time of the later one while
+    /// they wait for the `/filter` record of its tick (written right after it) to know whether
+    /// the filter was overriding.
+    rates: Vec<f64>,
+    pending: Option<f64>,
     /// The last /filter record (time, active), and whether the one before it was active. A
     /// /filter written before its tick's /command/issued (a log rewritten with the ties of one
     /// log time in another order) settles the rates when the command comes.
@@ -482,11 +484,11 @@ struct InputRates {
 impl InputRates {
     /// The rates of the tick at `time` count as overriding when the filter of that tick (the
     /// last /filter, if it is that tick's) or of the tick before was active.
-    fn settle(&mut self, time: f64, rates: &[f64]) {
+    fn settle(&mut self, time: f64) {
         if let Some((filter_time, active)) = self.last_filter {
             if (filter_time - time).abs() < 1e-9 && (active || self.previous_overriding) {
                 let map = self.overriding.get_or_insert_with(BTreeMap::new);
-                for (channel, rate) in self.channels.iter().zip(rates) {
+                for (channel, rate) in self.channels.iter().zip(&self.rates) {
                     raise_channel(map, channel, *rate);
                 }
             }
@@ -498,8 +500,8 @@ impl InputRates {
             Observed::Filter(m) => {
                 self.previous_overriding = self.last_filter.is_some_and(|(_, active)| active);
                 self.last_filter = Some((m.time, m.active));
-                if let Some((time, rates)) = self.pending.take() {
-                    self.settle(time, &rates);
+                if let Some(time) = self.pending.take() {
+                    self.settle(time);
                 }
             }
             Observed::Issued(m) => {
@@ -509,20 +511,17 @@ impl InputRates {
                 if let Some((previous_time, previous)) = &self.previous {
                     let dt = m.time - previous_time;
                     if dt > 0.0 {
-                        let rates: Vec<f64> = m
-                            .filtered
-                            .iter()
-                            .zip(previous)
-                            .map(|(u, p)| ((u - p) / dt).abs())
-                            .collect();
+                        self.rates.clear();
+                        let rates = m.filtered.iter().zip(previous).map(|(u, p)| ((u - p) / dt).abs());
+                        self.rates.extend(rates);
                         let all = self.all.get_or_insert_with(BTreeMap::new);
-                        for (channel, rate) in self.channels.iter().zip(&rates) {
+                        for (channel, rate) in self.channels.iter().zip(&self.rates) {
                             raise_channel(all, channel, *rate);
                         }
                         if self.last_filter.is_some_and(|(time, _)| (time - m.time).abs() < 1e-9) {
-                            self.settle(m.time, &rates);
+                            self.settle(m.time);
                         } else {
-                            self.pending = Some((m.time, rates));
+                            self.pending = Some(m.time);
                         }
                     }
                 }
