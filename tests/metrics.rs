@@ -11,9 +11,15 @@ use mjsafe::metrics::Shape;
 
 /// Logs that between them have every metric: predictions, obstacles and a planar vehicle
 /// ((4.67) on the bicycle), a prescribed time (the red light, Ch. 5), a collision ((4.9)
-/// with delays).
-fn logs(dir: &std::path::Path) -> [String; 3] {
-    ["bicycle_obstacle_gamma_m", "red_light", "bicycle_obstacle"].map(|name| {
+/// with delays), a stall ((4.9) without delays).
+fn logs(dir: &std::path::Path) -> [String; 4] {
+    [
+        "bicycle_obstacle_gamma_m",
+        "red_light",
+        "bicycle_obstacle",
+        "bicycle_obstacle_nodelay",
+    ]
+    .map(|name| {
         let log = dir.join(format!("{name}.mcap"));
         run_ok(&root().join(format!("scenarios/{name}.toml")), &log, &[]);
         log.to_str().unwrap().to_string()
@@ -53,10 +59,10 @@ fn declared_columns() -> Vec<(String, &'static str)> {
 #[test]
 fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
     let dir = tempfile::tempdir().unwrap();
-    let [a, b, c] = logs(dir.path());
+    let [a, b, c, d] = logs(dir.path());
 
     // JSON: every metric under its name, every part's unit under its path.
-    for log in [&a, &b, &c] {
+    for log in [&a, &b, &c, &d] {
         let m = common::analyze_json(std::path::Path::new(log));
         for metric in METRICS {
             assert!(
@@ -79,7 +85,7 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
         }
     }
     // The runs have values for every metric between them (none is always null).
-    let runs = [&a, &b, &c].map(|log| common::analyze_json(std::path::Path::new(log)));
+    let runs = [&a, &b, &c, &d].map(|log| common::analyze_json(std::path::Path::new(log)));
     for metric in METRICS {
         assert!(
             runs.iter().any(|m| !m[metric.name].is_null()),
@@ -186,4 +192,38 @@ fn max_input_rate_is_per_channel_and_agrees_with_the_issued_commands() {
             "{channel}: {got} vs {value}"
         );
     }
+}
+
+#[test]
+fn a_run_held_still_by_its_filter_is_a_stall_and_one_that_passes_is_not() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    // Without delays the CBF-QP stops head-on in front of the obstacle; (4.67) passes it.
+    let stalled = dir.path().join("nodelay.mcap");
+    run_ok(&root().join("scenarios/bicycle_obstacle_nodelay.toml"), &stalled, &[]);
+    let passing = dir.path().join("gamma_m.mcap");
+    run_ok(&root().join("scenarios/bicycle_obstacle_gamma_m.toml"), &passing, &[]);
+
+    let m = common::analyze_json(&stalled);
+    assert!(m["collision"].is_null(), "safe: {m}");
+    let t = m["stall_time"].as_f64().expect("a stall");
+    assert_eq!(m["units"]["stall_time"], "s");
+    // Independently: the bicycle's own speed state (x4) stays below 0.05 m/s over the next
+    // second, the filter overrides the nominal throughout, and the car never passes x1 = 0
+    // (the obstacle's centre).
+    let states = common::read_topic::<proto::State>(&stalled, "/state");
+    let window: Vec<&proto::State> = states.iter().filter(|s| s.time >= t && s.time <= t + 1.0).collect();
+    assert!(window.len() > 100);
+    assert!(window.iter().all(|s| s.values[3].abs() < 0.05), "stopped from {t} s");
+    let filters = common::read_topic::<proto::Filter>(&stalled, "/filter");
+    assert!(filters
+        .iter()
+        .filter(|f| f.time >= t && f.time < t + 1.0)
+        .all(|f| f.active));
+    assert!(states.iter().all(|s| s.values[0] < 0.0), "never passes the obstacle");
+
+    let m = common::analyze_json(&passing);
+    assert!(m["stall_time"].is_null(), "{m}");
+    let last = common::read_topic::<proto::State>(&passing, "/state").pop().unwrap();
+    assert!(last.values[0] > 5.0, "passes the obstacle: x1 = {}", last.values[0]);
 }

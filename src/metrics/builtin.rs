@@ -165,6 +165,13 @@ pub static METRICS: &[Metric] = &[
         ..metric("intervention_integral", "u-units·s", Shape::Number, &[Topic::Filter], new::<InterventionIntegral>,
             "Σ over ticks of ‖u − u_nom‖ (`/filter` `correction`) × control period: ∫‖u − u_nom‖ dt")
     },
+    Metric {
+        metadata: &["control_period"],
+        applies: |run| run.declared_planar != Some(None),
+        table: Some("stall"),
+        ..metric("stall_time", SECONDS, Shape::Number, &[Topic::State, Topic::Filter], new::<Stall>,
+            "planar vehicles: start of the first interval of at least STALL_DURATION = 1 s in which the vehicle moved slower than STALL_SPEED = 0.05 m/s (positions at the control ticks) while the filter overrode the nominal input (`/filter` `active`): a run held still by its filter (the CBF-QP deadlock in front of an obstacle), safe only by not moving; absent without one")
+    },
     metric("max_longitudinal_jerk", JERK, Shape::Number, &[Topic::State], new::<LongitudinalJerk>,
         "planar vehicles: max |third difference of the positions at the control ticks| / T_c³ along the velocity (central difference); needs metadata `control_period`"),
     metric("max_lateral_jerk", JERK, Shape::Number, &[Topic::State], new::<LateralJerk>,
@@ -713,6 +720,66 @@ impl PlanarJerk {
             return Value::Number(None);
         }
         Value::Number(value)
+    }
+}
+
+/// Speed below which a planar vehicle counts as stopped (m/s), and how long it must stay so
+/// while its filter overrides the nominal input to count as stalled (s): `stall_time`.
+pub const STALL_SPEED: f64 = 0.05;
+pub const STALL_DURATION: f64 = 1.0;
+
+#[derive(Default)]
+struct Stall {
+    /// The position indices (None until the first state; Some(None): not planar).
+    planar: Option<Option<[usize; 2]>>,
+    /// The position at the last control tick (time, x, y).
+    last: Option<(f64, f64, f64)>,
+    /// Whether the last /filter record overrode the nominal.
+    overriding: bool,
+    /// Start of the current interval stopped while overridden.
+    since: Option<f64>,
+    first: Option<f64>,
+}
+
+impl Accumulate for Stall {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let m = match record {
+            Observed::Filter(f) => {
+                self.overriding = f.active;
+                return;
+            }
+            Observed::State(m) => m,
+            _ => return,
+        };
+        let planar = *self
+            .planar
+            .get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names));
+        let (Some([i, j]), Some(period)) = (planar, run.control_period) else {
+            return;
+        };
+        let ticks = m.time / period;
+        if (ticks - ticks.round()).abs() > 1e-6 {
+            return;
+        }
+        let here = (m.time, m.values[i], m.values[j]);
+        if let Some((t, x, y)) = self.last.replace(here) {
+            let dt = here.0 - t;
+            if dt <= 0.0 {
+                return;
+            }
+            let speed = (here.1 - x).hypot(here.2 - y) / dt;
+            if speed < STALL_SPEED && self.overriding {
+                let since = *self.since.get_or_insert(t);
+                if self.first.is_none() && here.0 - since >= STALL_DURATION - 1e-9 {
+                    self.first = Some(since);
+                }
+            } else {
+                self.since = None;
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Number(self.first)
     }
 }
 
