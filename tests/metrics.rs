@@ -30,7 +30,7 @@ fn logs(dir: &std::path::Path) -> [String; 4] {
 fn declared_columns() -> Vec<(String, &'static str)> {
     let mut columns = Vec::new();
     for m in METRICS {
-        let keyed = matches!(m.shape, Shape::PerChannel | Shape::Prediction);
+        let keyed = matches!(m.shape, Shape::PerChannel | Shape::PerBarrier | Shape::Prediction);
         if m.parts.is_empty() {
             columns.push((
                 if keyed {
@@ -226,4 +226,36 @@ fn a_run_held_still_by_its_filter_is_a_stall_and_one_that_passes_is_not() {
     assert!(m["stall_time"].is_null(), "{m}");
     let last = common::read_topic::<proto::State>(&passing, "/state").pop().unwrap();
     assert!(last.values[0] > 5.0, "passes the obstacle: x1 = {}", last.values[0]);
+}
+
+#[test]
+fn barrier_minima_are_per_barrier_and_agree_with_the_log() {
+    use mjsafe::log::proto;
+    // Two obstacles: the minima of each, from `/barrier` read directly.
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("two.mcap");
+    run_ok(&root().join("scenarios/bicycle_two_obstacles.toml"), &log, &[]);
+    let mut h = std::collections::BTreeMap::<String, f64>::new();
+    let mut clearance = std::collections::BTreeMap::<String, f64>::new();
+    for m in common::read_topic::<proto::Barrier>(&log, "/barrier") {
+        for b in m.barriers {
+            let e = h.entry(b.name.clone()).or_insert(f64::INFINITY);
+            *e = e.min(b.h);
+            if b.obstacle {
+                let e = clearance.entry(b.name).or_insert(f64::INFINITY);
+                *e = e.min(b.clearance);
+            }
+        }
+    }
+    assert_eq!(h.len(), 2);
+    let m = common::analyze_json(&log);
+    for (name, value) in &h {
+        assert_eq!(m["min_h_by_barrier"][name].as_f64(), Some(*value), "{name}");
+    }
+    for (name, value) in &clearance {
+        assert_eq!(m["min_clearance_by_obstacle"][name].as_f64(), Some(*value), "{name}");
+    }
+    assert_eq!(m["units"]["min_clearance_by_obstacle"], "m");
+    // min_h is the smallest of them.
+    assert_eq!(m["min_h"].as_f64(), h.values().copied().reduce(f64::min));
 }

@@ -96,6 +96,8 @@ pub static METRICS: &[Metric] = &[
         ..metric("min_h", BARRIER, Shape::Number, &[Topic::Barrier], new::<MinH>,
             "min over `/barrier` messages and their barriers of `h` (NaN ignored); h < 0: the state left the safe set; absent without barriers")
     },
+    metric("min_h_by_barrier", BARRIER, Shape::PerBarrier, &[Topic::Barrier], new::<MinHByBarrier>,
+        "min over `/barrier` messages of each barrier's `h`, in that barrier's own unit (m² for an obstacle (4.81), m for a half-space (2.47)); absent without barriers"),
     Metric {
         metadata: &["timestep"],
         table: Some("t_h<0"),
@@ -153,6 +155,8 @@ pub static METRICS: &[Metric] = &[
         ..metric("min_clearance", METRES, Shape::Number, &[Topic::Barrier], new::<MinClearance>,
             "min over `/barrier` obstacle entries of `clearance`: the gap between the hull and the obstacle (negative: overlap)")
     },
+    metric("min_clearance_by_obstacle", METRES, Shape::PerBarrier, &[Topic::Barrier], new::<MinClearanceByObstacle>,
+        "min over `/barrier` messages of each obstacle's `clearance` (negative: overlap); absent without obstacles"),
     metric("min_time_to_collision", SECONDS, Shape::Number, &[Topic::Barrier], new::<MinTimeToCollision>,
         "min over `/barrier` entries of known obstacles of `time_to_collision` (contact if the velocity were kept; 0 while overlapping); absent if never finite"),
     Metric {
@@ -583,6 +587,48 @@ impl Accumulate for MinClearance {
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
         Value::Number(self.0)
+    }
+}
+
+/// `map[key] = min(map[key], x)`; the key is allocated at its first value.
+fn lower_keyed(map: &mut BTreeMap<String, f64>, key: &str, x: f64) {
+    match map.get_mut(key) {
+        Some(entry) => *entry = entry.min(x),
+        None => {
+            map.insert(key.to_string(), x);
+        }
+    }
+}
+
+#[derive(Default)]
+struct MinHByBarrier(BTreeMap<String, f64>);
+
+impl Accumulate for MinHByBarrier {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            for b in m.barriers.iter().filter(|b| b.h.is_finite()) {
+                lower_keyed(&mut self.0, &b.name, b.h);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+    }
+}
+
+#[derive(Default)]
+struct MinClearanceByObstacle(BTreeMap<String, f64>);
+
+impl Accumulate for MinClearanceByObstacle {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            for b in m.barriers.iter().filter(|b| b.obstacle) {
+                lower_keyed(&mut self.0, &b.name, b.clearance);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
     }
 }
 

@@ -139,6 +139,8 @@ pub enum Shape {
     Count,
     /// A number per input channel: `<name>.<channel>` columns.
     PerChannel,
+    /// A number per barrier (obstacle or constraint, by name): `<name>.<barrier>` columns.
+    PerBarrier,
     /// The first collision: time, obstacle, depth.
     Collision,
     /// Prediction statistics per channel.
@@ -440,6 +442,7 @@ pub fn reference_table() -> String {
         let keyed = |column: &str, key: &str| match m.shape {
             _ if column.is_empty() => String::new(),
             Shape::PerChannel | Shape::Prediction => format!("{column}.<channel>"),
+            Shape::PerBarrier => format!("{column}.<barrier>"),
             Shape::AtPrescribedTime if key == "state_residuals" => format!("{column}.<i>"),
             _ => column.to_string(),
         };

@@ -52,6 +52,7 @@ pub struct PrescribedTimeMetrics {
 pub enum Value {
     Number(Option<f64>),
     Count(Option<u64>),
+    /// A number per input channel or per barrier ([`Shape::PerChannel`], [`Shape::PerBarrier`]).
     PerChannel(Option<BTreeMap<String, f64>>),
     Collision(Option<Collision>),
     Prediction(Option<BTreeMap<String, PredictionStats>>),
@@ -69,7 +70,7 @@ impl Value {
         match shape {
             Shape::Number => Value::Number(None),
             Shape::Count => Value::Count(None),
-            Shape::PerChannel => Value::PerChannel(None),
+            Shape::PerChannel | Shape::PerBarrier => Value::PerChannel(None),
             Shape::Collision => Value::Collision(None),
             Shape::Prediction => Value::Prediction(None),
             Shape::AtPrescribedTime => Value::AtPrescribedTime(None),
@@ -325,7 +326,7 @@ impl FlatMetrics {
                     .collect()
             };
             for base in bases {
-                let keyed = matches!(metric.shape, Shape::PerChannel | Shape::Prediction)
+                let keyed = matches!(metric.shape, Shape::PerChannel | Shape::PerBarrier | Shape::Prediction)
                     || (metric.shape == Shape::AtPrescribedTime && base.ends_with("state_residual"));
                 if !keyed {
                     names.push(base.to_string());
