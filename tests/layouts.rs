@@ -247,8 +247,10 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
             "/barrier",
             &[
                 "min_h",
+                "min_h_by_barrier",
                 "time_h_negative",
                 "min_clearance",
+                "min_clearance_by_obstacle",
                 "min_time_to_collision",
                 "delay_attributed_violation_time",
             ][..],
@@ -263,6 +265,7 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
                 "override_duration",
                 "intervention_integral",
                 "max_input_rate_overriding",
+                "stall_time",
             ][..],
         ),
         ("/command/issued", &["max_input_rate", "max_input_rate_overriding"][..]),
