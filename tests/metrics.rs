@@ -222,6 +222,14 @@ fn a_run_held_still_by_its_filter_is_a_stall_and_one_that_passes_is_not() {
         .all(|f| f.active));
     assert!(states.iter().all(|s| s.values[0] < 0.0), "never passes the obstacle");
 
+    // `mjsafe run` says so next to "no collision".
+    let line = run_ok(
+        &root().join("scenarios/bicycle_obstacle_nodelay.toml"),
+        &dir.path().join("again.mcap"),
+        &[],
+    );
+    assert!(line.contains("no collision, but STALLED from t = "), "{line}");
+
     let m = common::analyze_json(&passing);
     assert!(m["stall_time"].is_null(), "{m}");
     let last = common::read_topic::<proto::State>(&passing, "/state").pop().unwrap();

@@ -183,14 +183,18 @@ pub(super) fn run_scenario(
             "error": summary.error.as_ref().map(ToString::to_string),
         });
         let mut value = value;
-        // Only with warnings, so the object of a clean run keeps its keys.
+        // Only for a run that stalled, or with warnings, so the object of a clean run keeps
+        // its keys.
+        if let Some(t) = metrics.number("stall_time") {
+            value["stall_time"] = serde_json::json!(t);
+        }
         if !metrics.warnings.is_empty() {
             value["warnings"] = serde_json::json!(metrics.warnings);
         }
         outln!("{value}");
     } else {
         outln!(
-            "{}: {}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
+            "{}: {}{}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
             metrics.collision().map_or("no collision".to_string(), |c| format!(
                 "COLLISION at t = {:.3} s with {} ({})",
@@ -201,6 +205,10 @@ pub(super) fn run_scenario(
                 } else {
                     format!("depth {:.3} m", c.depth)
                 }
+            )),
+            // Safe by not moving is said next to "no collision".
+            metrics.number("stall_time").map_or(String::new(), |t| format!(
+                ", but STALLED from t = {t:.2} s (held still by the filter)"
             )),
             match metrics.warnings.len() {
                 0 => String::new(),
