@@ -146,13 +146,34 @@ struct Analysis {
     saw_mjsafe_metadata: bool,
     scenario: String,
     filter_label: Option<String>,
-    /// `/state` messages read (a log without any is not a run's).
-    states: u64,
     /// From the status record (None: the log has none).
     complete: Option<bool>,
+    noted: Noted,
+}
+
+/// What the analysis itself reads of the records, besides the metrics.
+#[derive(Default)]
+struct Noted {
+    /// `/state` messages read (a log without any is not a run's).
+    states: u64,
     /// The first `error` or `interrupted` event.
     error: Option<String>,
+    /// The MuJoCo warnings after which the physics was not the model's.
     warnings: Vec<String>,
+}
+
+impl Noted {
+    fn note(&mut self, record: Observed<'_>) {
+        match record {
+            Observed::State(_) => self.states += 1,
+            Observed::Event(m) => match m.kind.as_str() {
+                "error" | "interrupted" if self.error.is_none() => self.error = Some(m.message.clone()),
+                crate::log::MUJOCO_WARNING => self.warnings.push(m.message.clone()),
+                _ => {}
+            },
+            _ => {}
+        }
+    }
 }
 
 /// The run's safety filter by the label its registration gives it (metadata `filter_label`:
@@ -207,33 +228,11 @@ impl RunVisitor for Analysis {
             }
             _ => return Ok(()),
         };
-        // The decoder's buffers are borrowed by `observed`: the run facts are read apart.
-        observe(
-            &mut self.metrics,
-            (&mut self.states, &mut self.error, &mut self.warnings),
-            observed,
-        );
+        // `observed` borrows the decoder's buffers.
+        self.noted.note(observed);
+        self.metrics.observe(observed);
         Ok(())
     }
-}
-
-/// Hands `record` to the metrics, and notes what the analysis itself reads of it: the states
-/// (a log without any is not a run's), the first error and the MuJoCo warnings.
-fn observe(
-    metrics: &mut Accumulators,
-    (states, error, warnings): (&mut u64, &mut Option<String>, &mut Vec<String>),
-    record: Observed<'_>,
-) {
-    match record {
-        Observed::State(_) => *states += 1,
-        Observed::Event(m) => match m.kind.as_str() {
-            "error" | "interrupted" if error.is_none() => *error = Some(m.message.clone()),
-            crate::log::MUJOCO_WARNING => warnings.push(m.message.clone()),
-            _ => {}
-        },
-        _ => {}
-    }
-    metrics.observe(record);
 }
 
 impl Analysis {
@@ -245,20 +244,15 @@ impl Analysis {
             saw_mjsafe_metadata: false,
             scenario: String::new(),
             filter_label: None,
-            states: 0,
             complete: None,
-            error: None,
-            warnings: Vec::new(),
+            noted: Noted::default(),
         }
     }
 
     /// A typed record of a running episode.
     fn observe(&mut self, record: Observed<'_>) {
-        observe(
-            &mut self.metrics,
-            (&mut self.states, &mut self.error, &mut self.warnings),
-            record,
-        );
+        self.noted.note(record);
+        self.metrics.observe(record);
     }
 
     /// The metrics, or the error, once the records have been read.
@@ -270,7 +264,7 @@ impl Analysis {
                 messages,
                 message,
             }) => {
-                let partial = (self.saw_mjsafe_metadata && self.states > 0).then(|| {
+                let partial = (self.saw_mjsafe_metadata && self.noted.states > 0).then(|| {
                     let mut m = self.finish(&[]);
                     m.complete = false;
                     m.error = Some(format!("truncated or corrupt after {messages} messages: {message}"));
@@ -285,7 +279,7 @@ impl Analysis {
             }
             Err(e) => return Err(e.into()),
         };
-        if self.states == 0 {
+        if self.noted.states == 0 {
             return Err(ReadError::Foreign {
                 file: self.file,
                 message: "no mjsafe metadata record or no /state messages".into(),
@@ -311,8 +305,8 @@ impl Analysis {
             );
         }
         let values = self.metrics.finish(missing_topics, &mut missing);
-        let complete = self.complete.unwrap_or(false) && self.error.is_none();
-        let error = self.error.filter(|_| !missing.contains_key("error"));
+        let complete = self.complete.unwrap_or(false) && self.noted.error.is_none();
+        let error = self.noted.error.filter(|_| !missing.contains_key("error"));
         RunMetrics {
             file: self.file,
             scenario: self.scenario,
@@ -321,7 +315,7 @@ impl Analysis {
             complete,
             error,
             missing,
-            warnings: self.warnings,
+            warnings: self.noted.warnings,
         }
     }
 }

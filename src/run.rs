@@ -107,31 +107,23 @@ impl Prepared {
     /// (`--max-log-size`) is refused before it starts.
     pub fn new(loaded: &LoadedScenario, keep: Keep<'_>) -> Result<Prepared, RunError> {
         let started = Instant::now();
+        let inputs = loaded.inputs();
+        let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+        // The log's target is checked before the model is loaded.
+        if let Keep::Log(path) = keep {
+            mcap::check_target(path, &inputs)?;
+        }
+        let mut episode = Episode::new(loaded)?;
         let record = match keep {
             Keep::Log(path) => {
-                let inputs = loaded.inputs();
-                let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
-                mcap::check_target(path, &inputs)?;
-                let mut episode = Episode::new(loaded)?;
                 episode.check_log_budget()?;
-                let sink = Box::new(McapSink::create(path, episode.info(), &inputs)?);
-                let record = LogOfRecord::Log {
-                    sink,
+                LogOfRecord::Log {
+                    sink: Box::new(McapSink::create(path, episode.info(), &inputs)?),
                     path: path.to_path_buf(),
-                };
-                return Ok(Prepared {
-                    episode,
-                    record,
-                    assemble_seconds: started.elapsed().as_secs_f64(),
-                });
+                }
             }
-            Keep::Metrics(name) => name,
-            Keep::Nothing => "",
-        };
-        let episode = Episode::new(loaded)?;
-        let record = match keep {
-            Keep::Metrics(_) => LogOfRecord::Metrics(Box::new(AnalysisSink::new(episode.info(), record))),
-            _ => LogOfRecord::Nothing(Discard),
+            Keep::Metrics(name) => LogOfRecord::Metrics(Box::new(AnalysisSink::new(episode.info(), name))),
+            Keep::Nothing => LogOfRecord::Nothing(Discard),
         };
         Ok(Prepared {
             episode,
@@ -148,11 +140,6 @@ impl Prepared {
     /// Steps the episode will take.
     pub fn steps(&self) -> u64 {
         self.episode.steps()
-    }
-
-    /// The episode, for an instrument that needs more than the run (e.g. `bench`'s audit).
-    pub fn episode_mut(&mut self) -> &mut Episode {
-        &mut self.episode
     }
 
     /// Gives up before running: a log opened is deleted, nothing is left under its name.

@@ -705,11 +705,30 @@ impl Accumulate for InterventionIntegral {
     }
 }
 
+/// The planar position (time, x, y) of a `/state` message at a control tick, for the metrics
+/// that sample the vehicle's motion there (the commanded input is piecewise constant on that
+/// grid, so motion is resolved at the control period, not the physics step). `planar` caches
+/// the position indices (None until the first state; Some(None): not a planar vehicle).
+fn planar_at_tick(
+    planar: &mut Option<Option<[usize; 2]>>,
+    m: &proto::State,
+    run: &RunFacts,
+) -> Option<(f64, f64, f64)> {
+    let [i, j] = (*planar.get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names)))?;
+    if let Some(period) = run.control_period {
+        let ticks = m.time / period;
+        if (ticks - ticks.round()).abs() > 1e-6 {
+            return None;
+        }
+    }
+    Some((m.time, m.values[i], m.values[j]))
+}
+
 /// The largest longitudinal and lateral jerk of a planar vehicle, from the third differences
 /// of its positions at the control ticks.
 #[derive(Default)]
 struct PlanarJerk {
-    /// The position indices (None until the first state; Some(None): not planar).
+    /// The position indices ([`planar_at_tick`]).
     planar: Option<Option<[usize; 2]>>,
     /// Last four planar positions (time, x, y).
     recent: VecDeque<(f64, f64, f64)>,
@@ -720,19 +739,10 @@ struct PlanarJerk {
 impl PlanarJerk {
     fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
         let Observed::State(m) = record else { return };
-        let planar = *self
-            .planar
-            .get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names));
-        let Some([i, j]) = planar else { return };
-        // Sample on the control-tick grid: the commanded acceleration is piecewise constant on
-        // it, so the jerk is resolved at the control period (not at the physics step).
-        if let Some(period) = run.control_period {
-            let ticks = m.time / period;
-            if (ticks - ticks.round()).abs() > 1e-6 {
-                return;
-            }
-        }
-        self.recent.push_back((m.time, m.values[i], m.values[j]));
+        let Some(here) = planar_at_tick(&mut self.planar, m, run) else {
+            return;
+        };
+        self.recent.push_back(here);
         if self.recent.len() > 4 {
             self.recent.pop_front();
         }
@@ -776,7 +786,7 @@ pub const STALL_DURATION: f64 = 1.0;
 
 #[derive(Default)]
 struct Stall {
-    /// The position indices (None until the first state; Some(None): not planar).
+    /// The position indices ([`planar_at_tick`]).
     planar: Option<Option<[usize; 2]>>,
     /// The position at the last control tick (time, x, y).
     last: Option<(f64, f64, f64)>,
@@ -797,17 +807,13 @@ impl Accumulate for Stall {
             Observed::State(m) => m,
             _ => return,
         };
-        let planar = *self
-            .planar
-            .get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names));
-        let (Some([i, j]), Some(period)) = (planar, run.control_period) else {
-            return;
-        };
-        let ticks = m.time / period;
-        if (ticks - ticks.round()).abs() > 1e-6 {
+        // Without the control period the metric is absent (its declared metadata).
+        if run.control_period.is_none() {
             return;
         }
-        let here = (m.time, m.values[i], m.values[j]);
+        let Some(here) = planar_at_tick(&mut self.planar, m, run) else {
+            return;
+        };
         if let Some((t, x, y)) = self.last.replace(here) {
             let dt = here.0 - t;
             if dt <= 0.0 {

@@ -241,10 +241,6 @@ impl Accumulators {
         self.facts = facts;
     }
 
-    pub fn facts(&self) -> &RunFacts {
-        &self.facts
-    }
-
     /// Hands `record` to the metrics that read its topic.
     pub fn observe(&mut self, record: Observed<'_>) {
         for &i in &self.readers[record.topic() as usize] {
@@ -412,7 +408,7 @@ impl Serialize for RunMetrics {
         map.serialize_entry("scenario", &self.scenario)?;
         map.serialize_entry("filter_label", &self.filter_label)?;
         for (metric, value) in builtin::METRICS.iter().zip(&self.values) {
-            map.serialize_entry(metric.name, &value.json(metric))?;
+            map.serialize_entry(metric.name, &value.json())?;
         }
         map.serialize_entry("complete", &self.complete)?;
         map.serialize_entry("error", &self.error)?;

@@ -78,7 +78,7 @@ impl Value {
     }
 
     /// The value in `analyze --json` (a float that is not finite is `null`).
-    pub fn json(&self, _metric: &Metric) -> serde_json::Value {
+    pub fn json(&self) -> serde_json::Value {
         let json = |v: serde_json::Result<serde_json::Value>| v.unwrap_or(serde_json::Value::Null);
         match self {
             Value::Number(v) => json(serde_json::to_value(v)),
