@@ -61,6 +61,7 @@ fn step_records(k: u64, tick: bool) -> Vec<Record> {
             correction: vec![-0.01, 0.02],
             infeasible: false,
             mu: h - 20.0,
+            ..Default::default()
         }));
         for (channel, delay) in [("steering", 0.2), ("acceleration", 1.5)] {
             let predicted: Vec<f64> = state.iter().map(|v| v + 0.01 * delay).collect();

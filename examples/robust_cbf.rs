@@ -90,12 +90,12 @@ impl SafetyFilter for RobustCbf {
             Some(&mut self.qp),
             &mut self.input,
         );
-        Ok(Some(ChannelOutcome {
-            input: self.input[input.channel],
+        Ok(Some(ChannelOutcome::new(
+            self.input[input.channel],
             active,
             infeasible,
             mu,
-        }))
+        )))
     }
 }
 

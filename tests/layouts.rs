@@ -260,6 +260,8 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
             &[
                 "filter_active_fraction",
                 "filter_infeasible_ticks",
+                "filter_unmet_ticks",
+                "max_shortfall_by_barrier",
                 "max_correction",
                 "first_override_time",
                 "override_duration",

@@ -234,7 +234,7 @@ fn hostile_states(base: &Base, filter: &str) -> Vec<String> {
                 if episode.control.take_error().is_some() {
                     return Ok("error");
                 }
-                let Some(tick) = episode.control.take_tick() else {
+                let Some((tick, _)) = episode.control.take_tick() else {
                     return Ok("error");
                 };
                 let mut verdict = "finite";

@@ -423,8 +423,8 @@ impl ControlLoop {
     }
 
     /// The last tick's record, once (after the step in which it ran).
-    pub fn take_tick(&mut self) -> Option<&Tick> {
-        std::mem::take(&mut self.tick_ready).then_some(&self.tick)
+    pub fn take_tick(&mut self) -> Option<(&Tick, &[Barrier])> {
+        std::mem::take(&mut self.tick_ready).then_some((&self.tick, &self.known_barriers))
     }
 
     /// One control tick at time t from the state in `work.state`: predictions (if the filter

@@ -392,8 +392,8 @@ impl Episode {
 
             // What happened during step k: tick, applied input, barriers, contacts.
             let sensor = self.control.has_sensor();
-            if let Some(tick) = self.control.take_tick() {
-                Self::emit_tick(sinks, tick, k, sensor, &mut self.records)?;
+            if let Some((tick, barriers)) = self.control.take_tick() {
+                Self::emit_tick(sinks, tick, barriers, k, sensor, &mut self.records)?;
             }
             let applied_now = self.control.applied();
             debug_assert_eq!(applied_now.len(), applied.len(), "one applied input per channel");

@@ -6,6 +6,7 @@ use nalgebra::DVector;
 
 use super::control::{Consistency, Tick};
 use super::{Episode, Obstacle};
+use crate::barrier::Barrier;
 use crate::log::{proto, scene, LogError, Record, Sink};
 
 /// The records written at every step or tick, kept between steps so logging allocates
@@ -296,10 +297,12 @@ impl Episode {
     }
 
     /// The tick's issued commands and filter decision, and with a sensor what it measured
-    /// (`step`: the tick's plant step).
+    /// (`step`: the tick's plant step; `barriers`: the known barriers, whose indices the
+    /// decisions' `unmet` are).
     pub(super) fn emit_tick(
         sinks: &mut [&mut dyn Sink],
         tick: &Tick,
+        barriers: &[Barrier],
         step: u64,
         sensor: bool,
         records: &mut RecordBuffers,
@@ -325,7 +328,29 @@ impl Episode {
             m.time = tick.time;
             m.active = solved.clone().any(|o| o.active);
             m.infeasible = solved.clone().any(|o| o.infeasible);
-            m.mu = solved.map(|o| o.mu).fold(f64::NAN, f64::min);
+            m.mu = solved.clone().map(|o| o.mu).fold(f64::NAN, f64::min);
+            // Per barrier left unmet by some channel's decision: its largest shortfall.
+            let mut unmet = 0;
+            for (k, barrier) in barriers.iter().enumerate() {
+                let worst = solved
+                    .clone()
+                    .filter(|o| o.unmet == Some(k))
+                    .map(|o| o.shortfall)
+                    .fold(None, |w: Option<f64>, s| Some(w.map_or(s, |w| w.max(s))));
+                if let Some(shortfall) = worst {
+                    if let Some(name) = m.unmet.get_mut(unmet) {
+                        name.clear();
+                        name.push_str(&barrier.name);
+                    } else {
+                        m.unmet.push(barrier.name.clone());
+                    }
+                    m.shortfall.truncate(unmet);
+                    m.shortfall.push(shortfall);
+                    unmet += 1;
+                }
+            }
+            m.unmet.truncate(unmet);
+            m.shortfall.truncate(unmet);
             m.correction.clear();
             let (issued, nominal) = (tick.issued.as_slice(), tick.nominal.as_slice());
             m.correction.extend(issued.iter().zip(nominal).map(|(u, u0)| u - u0));

@@ -115,24 +115,25 @@ pub struct LawInput<'a> {
 }
 
 impl LawInput<'_> {
-    /// The law of a one-barrier filter: `u[j]` ← `command(c, ω, j)` for every j in `free`, with ω
-    /// a copy (into `omega`) of `u` on entry — the later channels' commands — or u0_j while no
-    /// barrier is known (the filter then issues the nominal).
+    /// The law of a per-channel filter: `u[j]` ← `command(constraints, ω, j)` for every j in
+    /// `free` (`constraints` non-empty), with ω a copy (into `omega`) of `u` on entry — the
+    /// later channels' commands — or u0_j while no barrier is known (the filter then issues
+    /// the nominal).
     pub fn per_free_channel(
         &self,
         u: &mut DVector<f64>,
         omega: &mut DVector<f64>,
-        mut command: impl FnMut(&Constraint, &DVector<f64>, usize) -> f64,
+        mut command: impl FnMut(&[Constraint], &DVector<f64>, usize) -> f64,
     ) {
-        let [c, ..] = self.constraints else {
+        if self.constraints.is_empty() {
             for &j in self.free {
                 u[j] = self.nominal[j];
             }
             return;
-        };
+        }
         omega.copy_from(u);
         for &j in self.free {
-            u[j] = command(c, omega, j);
+            u[j] = command(self.constraints, omega, j);
         }
     }
 }

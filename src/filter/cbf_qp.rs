@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
 use crate::filter::qp::QpWorkspace;
+use crate::filter::several::worst_shortfall;
 use crate::filter::Params;
 use crate::filter::{
     barrier_form, delay_free_qp, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError,
@@ -122,12 +123,11 @@ impl SafetyFilter for CbfQp {
             Some(&mut self.qp),
             &mut self.input,
         );
-        Ok(Some(ChannelOutcome {
-            input: self.input[input.channel],
-            active,
-            infeasible,
-            mu,
-        }))
+        let mut outcome = ChannelOutcome::new(self.input[input.channel], active, infeasible, mu);
+        if infeasible {
+            (outcome.unmet, outcome.shortfall) = worst_shortfall(input.constraints, &self.input);
+        }
+        Ok(Some(outcome))
     }
     /// What `filter_channel` issues: component j of the same QP (with its limits) at z.
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {

@@ -271,12 +271,12 @@ impl SafetyFilter for ChainFilter {
             }
             ChainLaw::Esf(esf) => esf.control(z, v_nom).map_err(prescribed)?,
         };
-        Ok(Some(ChannelOutcome {
-            input: self.transform.plant_input(x, decision.input),
-            active: decision.overriding,
-            infeasible: false,
-            mu: f64::NAN,
-        }))
+        Ok(Some(ChannelOutcome::new(
+            self.transform.plant_input(x, decision.input),
+            decision.overriding,
+            false,
+            f64::NAN,
+        )))
     }
     fn prescribed_time(&self) -> Option<f64> {
         self.prescribed_time

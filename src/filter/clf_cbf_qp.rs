@@ -155,12 +155,12 @@ impl SafetyFilter for ClfCbfQp {
         // (3.33): channel i takes component i of QP-LB solved at p_i(t).
         self.state.copy_from_slice(input.state);
         let (case, _, infeasible) = self.stabilizer.kappa_lb_into(&self.state, &mut self.kappa);
-        Ok(Some(ChannelOutcome {
-            input: self.kappa.input[input.channel],
-            active: case != QpCase::A,
+        Ok(Some(ChannelOutcome::new(
+            self.kappa.input[input.channel],
+            case != QpCase::A,
             infeasible,
-            mu: f64::NAN,
-        }))
+            f64::NAN,
+        )))
     }
     /// What `filter_channel` issues: component j of QP-LB (3.33) at z.
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {

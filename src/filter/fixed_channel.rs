@@ -1,14 +1,16 @@
 //! `kind = "fixed_channel"`: the fixed-channel robust filter (4.39)–(4.47) at each channel's
-//! prediction; the first φ channels (4.41) suffice everywhere.
+//! prediction; the first φ channels (4.41) suffice everywhere. Several barriers: (4.42) with
+//! one constraint per barrier ([`ChannelQp`], docs/several-barriers.md).
 
 use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::{self, BarrierForm};
+use crate::filter::several::ChannelQp;
 use crate::filter::Params;
 use crate::filter::{
-    barrier_form, box_grid, fixed_channel, minimal_channels, ChannelInput, ChannelOutcome, FilterContext, FilterError,
-    LawInput, ParamError, SafetyFilter,
+    barrier_form, box_grid, minimal_channels, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput,
+    ParamError, SafetyFilter,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -100,30 +102,21 @@ pub struct FixedChannel {
     phi: usize,
     /// ω (4.45), scratch space.
     omega: DVector<f64>,
-}
-
-/// The distinct-delay filters act on one barrier.
-pub(crate) fn single_barrier(ctx: &FilterContext) -> Result<(), ParamError> {
-    if ctx.barriers.len() > 1 {
-        return Err(ParamError::new(
-            "obstacles",
-            "the distinct-delay filters (4.44) and (4.67) take one barrier; for several, use kind = \"cbf_qp\" (solved as a QP)",
-        ));
-    }
-    Ok(())
+    /// (4.42) with every barrier.
+    qp: ChannelQp,
 }
 
 /// The filter of a `kind = "fixed_channel"` table: φ declared or found on `phi_box`
-/// (verified there if both), constant delays in channel order, one barrier.
+/// (verified there if both; with several barriers, the largest φ of any of them), constant
+/// delays in channel order.
 pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let form = barrier_form(p.alpha, p.l0, p.l1)?;
     ctx.ordered_constant_delays()?;
     let r = ctx.queues.len();
     let model = ctx.model.as_ref();
-    let barrier = ctx
-        .barriers
-        .first()
-        .ok_or_else(|| ParamError::new("filter", "a filter needs a barrier or an obstacle"))?;
+    if ctx.barriers.is_empty() {
+        return Err(ParamError::new("filter", "a filter needs a barrier or an obstacle"));
+    }
     let phi = match (&p.phi_box, p.phi) {
         (Some(b), declared) => {
             if b.lower.len() != model.state_dim() {
@@ -132,8 +125,15 @@ pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn Safe
                     format!("expected {} bounds per side", model.state_dim()),
                 ));
             }
-            let b_at = |x: &DVector<f64>| barrier::constraint(barrier, form, model, x).b;
-            let found = minimal_channels(box_grid(&b.lower, &b.upper, b.points), b_at);
+            let found = ctx
+                .barriers
+                .iter()
+                .map(|barrier| {
+                    let b_at = |x: &DVector<f64>| barrier::constraint(barrier, form, model, x).b;
+                    minimal_channels(box_grid(&b.lower, &b.upper, b.points), b_at)
+                })
+                .max()
+                .unwrap_or(r);
             match declared {
                 Some(phi) if phi < found => {
                     return Err(ParamError::new("filter.phi", format!("phi = {phi} is too small: on phi_box the first {phi} channels cannot act on the barrier everywhere (the box needs {found})")));
@@ -151,11 +151,11 @@ pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn Safe
             format!("expected at most {r} channels, found {phi}"),
         ));
     }
-    single_barrier(ctx)?;
     Ok(Box::new(FixedChannel {
         form,
         phi,
         omega: DVector::zeros(r),
+        qp: ChannelQp::fixed_channel(r, ctx.barriers.len()),
     }))
 }
 
@@ -167,20 +167,27 @@ impl SafetyFilter for FixedChannel {
         true
     }
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
-        let [c, ..] = input.constraints else {
+        if input.constraints.is_empty() {
             return Ok(None);
-        };
+        }
         let s = self.phi.max(input.channel + 1);
         input.later_commands(s, &mut self.omega)?;
-        Ok(Some(fixed_channel(c, input.nominal, &self.omega, input.channel, s)))
+        Ok(Some(self.qp.fixed_channel_decision(
+            input.constraints,
+            input.nominal,
+            &self.omega,
+            input.channel,
+            s,
+        )))
     }
 
     /// (4.44) itself at z: u_j = u0_j + ū_j (4.46) with s = max{φ, j} (4.43) and ω (4.45) the
     /// later channels' commands in `u`.
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
-        let phi = self.phi;
-        input.per_free_channel(u, &mut self.omega, |c, omega, j| {
-            fixed_channel(c, input.nominal, omega, j, phi.max(j + 1)).input
+        let FixedChannel { phi, omega, qp, .. } = self;
+        input.per_free_channel(u, omega, |constraints, omega, j| {
+            qp.fixed_channel_decision(constraints, input.nominal, omega, j, (*phi).max(j + 1))
+                .input
         });
         Ok(())
     }

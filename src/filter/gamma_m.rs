@@ -1,14 +1,15 @@
 //! `kind = "gamma_m"`: the variable-channel γm filter (4.60)–(4.68) at each channel's
-//! prediction.
+//! prediction. Several barriers: QP_k (4.60) with one constraint per barrier ([`ChannelQp`],
+//! docs/several-barriers.md).
 
 use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::BarrierForm;
-use crate::filter::fixed_channel::single_barrier;
+use crate::filter::several::ChannelQp;
 use crate::filter::Params;
 use crate::filter::{
-    barrier_form, gamma_m, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter,
+    barrier_form, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -61,6 +62,8 @@ pub struct GammaM {
     omega: DVector<f64>,
     /// D_j per channel (constant, non-decreasing).
     delays: Vec<f64>,
+    /// QP_k (4.60) with every barrier.
+    qp: ChannelQp,
 }
 
 /// k (4.68): the last channel with the same delay as channel i.
@@ -71,11 +74,10 @@ fn last_of_equal_delay(delays: &[f64], i: usize) -> usize {
         .unwrap_or(i)
 }
 
-/// The filter of a `kind = "gamma_m"` table: constant delays in channel order, one barrier.
+/// The filter of a `kind = "gamma_m"` table: constant delays in channel order.
 pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let form = barrier_form(p.alpha, p.l0, p.l1)?;
     ctx.ordered_constant_delays()?;
-    single_barrier(ctx)?;
     Ok(Box::new(GammaM {
         form,
         m: p.m,
@@ -86,6 +88,7 @@ pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilt
             .iter()
             .map(|q| q.constant_delay().unwrap_or(f64::NAN))
             .collect(),
+        qp: ChannelQp::gamma_m(ctx.queues.len(), ctx.barriers.len()),
     }))
 }
 
@@ -97,14 +100,22 @@ impl SafetyFilter for GammaM {
         true
     }
     fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
-        let [c, ..] = input.constraints else {
+        if input.constraints.is_empty() {
             return Ok(None);
-        };
+        }
         // k (4.68): the last channel with the same delay as i.
         let i = input.channel;
         let k = last_of_equal_delay(&self.delays, i);
         input.later_commands(k + 1, &mut self.omega)?;
-        Ok(Some(gamma_m(c, input.nominal, &self.omega, i, k, self.m, self.gamma)))
+        Ok(Some(self.qp.gamma_m_decision(
+            input.constraints,
+            input.nominal,
+            &self.omega,
+            i,
+            k,
+            self.m,
+            self.gamma,
+        )))
     }
 
     /// (4.67) itself at z: u_j = u0_j + ū_j of QP_k (4.62) with ω (4.64) the later channels'
@@ -115,11 +126,13 @@ impl SafetyFilter for GammaM {
             gamma,
             omega,
             delays,
+            qp,
             ..
         } = self;
-        input.per_free_channel(u, omega, |c, omega, j| {
+        input.per_free_channel(u, omega, |constraints, omega, j| {
             let k = last_of_equal_delay(delays, j);
-            gamma_m(c, input.nominal, omega, j, k, *m, *gamma).input
+            qp.gamma_m_decision(constraints, input.nominal, omega, j, k, *m, *gamma)
+                .input
         });
         Ok(())
     }

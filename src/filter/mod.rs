@@ -20,6 +20,7 @@ pub mod none;
 /// Ch. 5 maths, a top-level module of its own (the nominals use it too); kept here by name.
 pub use crate::prescribed_time;
 pub mod qp;
+pub mod several;
 
 pub use api::{
     barrier_form, delay_free_qp, ChannelInput, FilterContext, FilterError, LawInput, ParamError, Params, SafetyFilter,
@@ -100,8 +101,32 @@ pub struct ChannelOutcome {
     pub active: bool,
     /// The constraint was violated but no channel of the QP can act on it.
     pub infeasible: bool,
-    /// The constraint value the decision was based on (μ_s (4.47) or ζ_i (4.64)).
+    /// The constraint value the decision was based on (μ_s (4.47) or ζ_i (4.64)); the
+    /// smallest over the barriers when there are several.
     pub mu: f64,
+    /// The barrier (index into the constraints) whose condition a + b·u ≥ 0 the decision
+    /// leaves furthest from met with the real inputs it plans — an infeasible QP's
+    /// least-violation fallback, or a γm constraint met only by its fictitious inputs σ (4.60)
+    /// — if any.
+    pub unmet: Option<usize>,
+    /// By how much (≥ 0, in that barrier's constraint units: those of ḣ + α(h), or of
+    /// ḧ + l1 ḣ + l0 h); 0 when every condition is met.
+    pub shortfall: f64,
+}
+
+impl ChannelOutcome {
+    /// A decision that meets every barrier condition it plans for (or a filter that does not
+    /// say): `unmet` None, `shortfall` 0.
+    pub fn new(input: f64, active: bool, infeasible: bool, mu: f64) -> ChannelOutcome {
+        ChannelOutcome {
+            input,
+            active,
+            infeasible,
+            mu,
+            unmet: None,
+            shortfall: 0.0,
+        }
+    }
 }
 
 /// Fixed-channel robust filter (4.44)–(4.47) for channel `i`: the first `s` = max{φ, i+1}
@@ -113,28 +138,13 @@ pub fn fixed_channel(c: &Constraint, u0: &DVector<f64>, omega: &DVector<f64>, i:
     let mu = c.a + (0..s).map(|j| c.b[j] * u0[j]).sum::<f64>() + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
     let b_used: f64 = (0..s).map(|j| c.b[j] * c.b[j]).sum();
     if mu >= 0.0 {
-        return ChannelOutcome {
-            input: u0[i],
-            active: false,
-            infeasible: false,
-            mu,
-        };
+        return ChannelOutcome::new(u0[i], false, false, mu);
     }
     if b_used < DEGENERATE_B {
-        return ChannelOutcome {
-            input: u0[i],
-            active: false,
-            infeasible: true,
-            mu,
-        };
+        return ChannelOutcome::new(u0[i], false, true, mu);
     }
     // ū_i (4.46).
-    ChannelOutcome {
-        input: u0[i] - mu * c.b[i] / b_used,
-        active: true,
-        infeasible: false,
-        mu,
-    }
+    ChannelOutcome::new(u0[i] - mu * c.b[i] / b_used, true, false, mu)
 }
 
 /// The smallest i such that ‖b_{1:i}(x)‖ > 0 at every sample x (the set Φ and φ of (4.40)/
@@ -205,28 +215,13 @@ pub fn gamma_m(
     let zeta = gamma_f(gamma, z) + (used..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
     let xi = (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m;
     if zeta >= 0.0 {
-        return ChannelOutcome {
-            input: u0[i],
-            active: false,
-            infeasible: false,
-            mu: zeta,
-        };
+        return ChannelOutcome::new(u0[i], false, false, zeta);
     }
     if xi < DEGENERATE_B {
-        return ChannelOutcome {
-            input: u0[i],
-            active: false,
-            infeasible: true,
-            mu: zeta,
-        };
+        return ChannelOutcome::new(u0[i], false, true, zeta);
     }
     // ū_i of QP_k (4.62), applied as (4.67).
-    ChannelOutcome {
-        input: u0[i] - zeta / xi * c.b[i],
-        active: true,
-        infeasible: false,
-        mu: zeta,
-    }
+    ChannelOutcome::new(u0[i] - zeta / xi * c.b[i], true, false, zeta)
 }
 
 #[cfg(test)]

@@ -187,6 +187,8 @@ pub(crate) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
     m.correction.clear();
     m.infeasible = false;
     m.mu = 0.0;
+    let mut unmet = 0;
+    m.shortfall.clear();
     while !r.done() {
         match r.key()? {
             (1, FIXED64) => m.time = r.f64()?,
@@ -198,10 +200,16 @@ pub(crate) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
             (4, wire) => r.repeated_f64(wire, &mut m.correction)?,
             (5, VARINT) => m.infeasible = r.varint()? != 0,
             (6, FIXED64) => m.mu = r.f64()?,
+            (7, LEN) => {
+                set_string(&mut m.unmet, unmet, r.bytes()?)?;
+                unmet += 1;
+            }
+            (8, wire) => r.repeated_f64(wire, &mut m.shortfall)?,
             _ => return None,
         }
     }
     m.channels.truncate(channels);
+    m.unmet.truncate(unmet);
     Some(())
 }
 
@@ -637,13 +645,17 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
         correction,
         infeasible,
         mu,
+        unmet,
+        shortfall,
     } = m;
     let size = f64_len(*time)
         + bool_len(*active)
         + strings_len(channels)
         + packed_f64_len(correction)
         + bool_len(*infeasible)
-        + f64_len(*mu);
+        + f64_len(*mu)
+        + strings_len(unmet)
+        + packed_f64_len(shortfall);
     let mut room = Room::new(out, size);
     room.f64(1, *time);
     room.bool(2, *active);
@@ -651,6 +663,8 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
     room.packed_f64(4, correction);
     room.bool(5, *infeasible);
     room.f64(6, *mu);
+    room.strings(7, unmet);
+    room.packed_f64(8, shortfall);
     room.done();
 }
 
@@ -1071,6 +1085,8 @@ mod tests {
                 correction: vec![0.5, -1.5],
                 infeasible: true,
                 mu: -0.25,
+                unmet: vec!["road_edge_0".to_string(), "obstacle_0".to_string()],
+                shortfall: vec![0.75, 2.5],
             },
             proto::Filter::default(),
         ];
@@ -1239,6 +1255,8 @@ mod tests {
                     correction: list.clone(),
                     infeasible,
                     mu: v(4),
+                    unmet: names(k),
+                    shortfall: list.clone(),
                 };
                 buffer.clear();
                 encode_filter(&filter, &mut buffer);

@@ -14,6 +14,8 @@ const METRES: &str = "m";
 const BARRIER: &str = "h-units";
 /// The input channel's own unit (steering: tan δ; acceleration: m/s²).
 const INPUT: &str = "u-units";
+/// The units of a barrier condition a + b·u: those of ḣ + α(h) or of ḧ + l1 ḣ + l0 h.
+const CONDITION: &str = "h-units/s^ρ";
 const INPUT_RATE: &str = "u-units/s";
 /// The norm of a state error, over components of their own units (m, rad, m/s, …).
 const STATE: &str = "x-units";
@@ -114,6 +116,10 @@ pub static METRICS: &[Metric] = &[
         ..metric("filter_infeasible_ticks", "ticks", Shape::Count, &[Topic::Filter], new::<InfeasibleTicks>,
             "ticks with `infeasible` (no input met every constraint within the limits; the least-violation input was applied)")
     },
+    metric("filter_unmet_ticks", "ticks", Shape::Count, &[Topic::Filter], new::<UnmetTicks>,
+        "ticks whose `/filter` `unmet` is not empty: some channel's decision leaves a barrier condition unmet with the real inputs it plans (an infeasible QP, or a γm constraint (4.60) met only by the fictitious inputs σ)"),
+    metric("max_shortfall_by_barrier", CONDITION, Shape::PerBarrier, &[Topic::Filter], new::<MaxShortfallByBarrier>,
+        "max over `/filter` messages of each barrier's `shortfall`: how far below 0 a decision leaves a + b·u, in that barrier's constraint units (those of ḣ + α(h), or of ḧ + l1 ḣ + l0 h); absent if no condition was ever left unmet"),
     Metric {
         table: Some("max|u-u_nom|"),
         ..metric("max_correction", INPUT, Shape::PerChannel, &[Topic::Filter], new::<MaxCorrection>,
@@ -608,6 +614,36 @@ impl Accumulate for MinHByBarrier {
         if let Observed::Barrier(m) = record {
             for b in m.barriers.iter().filter(|b| b.h.is_finite()) {
                 lower_keyed(&mut self.0, &b.name, b.h);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+    }
+}
+
+#[derive(Default)]
+struct UnmetTicks(u64);
+
+impl Accumulate for UnmetTicks {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            self.0 += u64::from(!m.unmet.is_empty());
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Count(Some(self.0))
+    }
+}
+
+#[derive(Default)]
+struct MaxShortfallByBarrier(BTreeMap<String, f64>);
+
+impl Accumulate for MaxShortfallByBarrier {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Filter(m) = record {
+            for (name, shortfall) in m.unmet.iter().zip(&m.shortfall) {
+                raise_channel(&mut self.0, name, *shortfall);
             }
         }
     }

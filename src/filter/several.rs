@@ -1,0 +1,315 @@
+//! Several barriers in the distinct-delay filters (docs/several-barriers.md): the
+//! fixed-channel QP (4.42) and the γm QP_k (4.60) with one constraint per known barrier,
+//! solved by the active-set QP of [`crate::filter::qp`]. With one barrier they are the closed
+//! forms (4.46) and (4.62) themselves, so one-barrier runs are unchanged.
+//!
+//! Both report, per decision, how far the barrier conditions fall short with the *real*
+//! inputs the decision plans (u0 + ū on the channels it moves, ω on the later ones): the
+//! least-violation fallback of an infeasible QP, and the part of a γm constraint met only by
+//! the fictitious inputs σ (4.60) or the exaggeration γ_f (4.61), are never hidden.
+
+use nalgebra::DVector;
+
+use crate::barrier::Constraint;
+use crate::filter::qp::QpWorkspace;
+use crate::filter::{fixed_channel, gamma_f, gamma_m, ChannelOutcome};
+
+/// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
+const SHORTFALL_TOLERANCE: f64 = 1e-9;
+
+/// The scratch space of one per-channel filter: sized when the filter is built, so that a
+/// decision allocates nothing (the γm QP has 2r variables: v and σ/√m).
+#[derive(Debug, Clone)]
+pub struct ChannelQp {
+    qp: QpWorkspace,
+    /// The channel's QP in the form a_k + b_k·(w0 + w) ≥ 0, one per barrier.
+    reduced: Vec<Constraint>,
+    /// w0 (u0, or 0 for the γm QP's variables) and the solution w0 + w.
+    origin: DVector<f64>,
+    solution: DVector<f64>,
+    /// u0 + ū on the moved channels, ω on the later ones: the inputs the decision plans.
+    planned: DVector<f64>,
+}
+
+impl ChannelQp {
+    /// Scratch space for r channels, `variables` QP variables (r for (4.42), 2r for (4.60)) and
+    /// up to `barriers` barriers (more only allocate when they first appear).
+    fn new(r: usize, variables: usize, barriers: usize) -> ChannelQp {
+        ChannelQp {
+            qp: QpWorkspace::with_capacity(variables, barriers),
+            reduced: (0..barriers).map(|_| Constraint::zeros(variables)).collect(),
+            origin: DVector::zeros(variables),
+            solution: DVector::zeros(variables),
+            planned: DVector::zeros(r),
+        }
+    }
+
+    /// For the fixed-channel filter (4.44) on r channels.
+    pub fn fixed_channel(r: usize, barriers: usize) -> ChannelQp {
+        ChannelQp::new(r, r, barriers)
+    }
+
+    /// For the γm filter (4.67) on r channels.
+    pub fn gamma_m(r: usize, barriers: usize) -> ChannelQp {
+        ChannelQp::new(r, 2 * r, barriers)
+    }
+
+    /// The reduced constraints for `count` barriers (growing only when a barrier is first seen).
+    fn reduced(&mut self, count: usize) -> &mut [Constraint] {
+        let variables = self.origin.len();
+        while self.reduced.len() < count {
+            self.reduced.push(Constraint::zeros(variables));
+        }
+        &mut self.reduced[..count]
+    }
+
+    /// (4.42) for channel `i` with every barrier k: min ‖v‖², v ∈ R^s, s.t.
+    /// a_k + Σ_{j<s} b_kj (u0_j + v_j) + Σ_{j≥s} b_kj ω_j ≥ 0; u_i = u0_i + v_i (4.44).
+    /// One barrier: (4.46) itself.
+    pub fn fixed_channel_decision(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        i: usize,
+        s: usize,
+    ) -> ChannelOutcome {
+        if let [c] = constraints {
+            let mut out = fixed_channel(c, u0, omega, i, s);
+            // Active: the constraint is met with equality by construction; infeasible: v = 0.
+            if out.infeasible {
+                (out.unmet, out.shortfall) = (Some(0), -out.mu);
+            }
+            return out;
+        }
+        let r = u0.len();
+        for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
+            reduced.a = c.a + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+            for j in 0..r {
+                reduced.b[j] = if j < s { c.b[j] } else { 0.0 };
+            }
+        }
+        let reduced = &self.reduced[..constraints.len()];
+        let (active, infeasible, mu) = self.qp.solve(reduced, u0, None, &mut self.solution);
+        for j in 0..r {
+            self.planned[j] = if j < s { self.solution[j] } else { omega[j] };
+        }
+        let (unmet, shortfall) = worst_shortfall(constraints, &self.planned);
+        ChannelOutcome {
+            input: self.solution[i],
+            active,
+            infeasible,
+            mu,
+            unmet,
+            shortfall,
+        }
+    }
+
+    /// QP_k (4.60) for channel `i` (k (4.68): the last channel with i's delay) with every
+    /// barrier: min ‖v‖² + m‖σ‖², v ∈ R^k, σ ∈ R^r, s.t. for every barrier
+    /// γ_f(z_k) + Σ_{j≤k} b_j (v_j + σ_j) + Σ_{j>k} b_j (ω_j + σ_j) ≥ 0 (z (4.66) per barrier);
+    /// u_i = u0_i + v_i (4.67). In w = (v, √m σ) it is min ‖w‖² s.t. ζ + (b_{1:k}, b/√m)·w ≥ 0
+    /// (ζ (4.64)), whose one-barrier solution is (4.62)–(4.65). One barrier: (4.62) itself.
+    #[allow(clippy::too_many_arguments)]
+    pub fn gamma_m_decision(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        i: usize,
+        k: usize,
+        m: f64,
+        gamma: f64,
+    ) -> ChannelOutcome {
+        let r = u0.len();
+        let used = k + 1;
+        if let [c] = constraints {
+            let mut out = gamma_m(c, u0, omega, i, k, m, gamma);
+            if out.active || out.infeasible {
+                // ū_j = −ζ/ξ b_j (4.62) on the channels ≤ k (0 if infeasible).
+                let scale = if out.active { -out.mu / (xi(c, used, m)) } else { 0.0 };
+                for j in 0..r {
+                    self.planned[j] = if j < used { u0[j] + scale * c.b[j] } else { omega[j] };
+                }
+                (out.unmet, out.shortfall) = worst_shortfall(constraints, &self.planned);
+            }
+            return out;
+        }
+        let root_m = m.sqrt();
+        for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
+            // ζ (4.64) with z (4.66) of this barrier.
+            let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
+            reduced.a = gamma_f(gamma, z) + (used..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+            for j in 0..r {
+                reduced.b[j] = if j < used { c.b[j] } else { 0.0 };
+                reduced.b[r + j] = c.b[j] / root_m;
+            }
+        }
+        let reduced = &self.reduced[..constraints.len()];
+        self.origin.fill(0.0);
+        let (active, infeasible, mu) = self.qp.solve(reduced, &self.origin, None, &mut self.solution);
+        for j in 0..r {
+            self.planned[j] = if j < used { u0[j] + self.solution[j] } else { omega[j] };
+        }
+        let (unmet, shortfall) = worst_shortfall(constraints, &self.planned);
+        ChannelOutcome {
+            input: u0[i] + self.solution[i],
+            active,
+            infeasible,
+            mu,
+            unmet,
+            shortfall,
+        }
+    }
+}
+
+/// ξ (4.65): ‖b_{1:k}‖² + ‖b‖²/m.
+fn xi(c: &Constraint, used: usize, m: f64) -> f64 {
+    (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m
+}
+
+/// The barrier whose condition a_k + b_k·u falls furthest below 0 with the planned inputs,
+/// and by how much (in its own constraint units); (None, 0) if every condition is met.
+pub(crate) fn worst_shortfall(constraints: &[Constraint], planned: &DVector<f64>) -> (Option<usize>, f64) {
+    let mut worst = (None, 0.0);
+    for (k, c) in constraints.iter().enumerate() {
+        let terms = c.a.abs() + c.b.iter().zip(planned.iter()).map(|(b, u)| (b * u).abs()).sum::<f64>();
+        let shortfall = -c.value(planned);
+        if shortfall > SHORTFALL_TOLERANCE * terms && shortfall > worst.1 {
+            worst = (Some(k), shortfall);
+        }
+    }
+    worst
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn constraint(a: f64, b: &[f64]) -> Constraint {
+        Constraint {
+            h: 1.0,
+            a,
+            b: DVector::from_column_slice(b),
+        }
+    }
+
+    fn v(x: &[f64]) -> DVector<f64> {
+        DVector::from_column_slice(x)
+    }
+
+    /// A second barrier that is far from active leaves the one-barrier decision as it was
+    /// (the QP's solution equals the closed form up to rounding).
+    #[test]
+    fn an_inactive_second_barrier_changes_nothing() {
+        let c = constraint(-3.0, &[1.0, 2.0, 0.5]);
+        let far = constraint(100.0, &[0.3, -1.0, 2.0]);
+        let (u0, omega) = (v(&[0.1, -0.2, 0.4]), v(&[0.0, 0.7, -0.3]));
+        let mut qp = ChannelQp::fixed_channel(3, 2);
+        for (i, s) in [(0, 1), (0, 2), (1, 2), (2, 3)] {
+            let one = qp.fixed_channel_decision(std::slice::from_ref(&c), &u0, &omega, i, s);
+            let two = qp.fixed_channel_decision(&[c.clone(), far.clone()], &u0, &omega, i, s);
+            assert!((one.input - two.input).abs() < 1e-12, "i {i} s {s}: {one:?} vs {two:?}");
+            assert_eq!(
+                (one.active, one.infeasible, one.unmet),
+                (two.active, two.infeasible, two.unmet)
+            );
+        }
+        let mut qp = ChannelQp::gamma_m(3, 2);
+        for (i, k) in [(0, 0), (1, 1), (2, 2), (0, 1)] {
+            let one = qp.gamma_m_decision(std::slice::from_ref(&c), &u0, &omega, i, k, 50.0, 51.0 / 50.0);
+            let two = qp.gamma_m_decision(&[c.clone(), far.clone()], &u0, &omega, i, k, 50.0, 51.0 / 50.0);
+            assert!((one.input - two.input).abs() < 1e-12, "i {i} k {k}: {one:?} vs {two:?}");
+            assert!((one.shortfall - two.shortfall).abs() < 1e-9, "{one:?} vs {two:?}");
+        }
+    }
+
+    /// Two active barriers: the (4.42) solution, found by brute force on a fine grid of v,
+    /// meets both and has the least ‖v‖.
+    #[test]
+    fn fixed_channel_with_two_barriers_meets_both_with_the_least_correction() {
+        // a1 + v0 ≥ 0 and a2 + v0 + v1 ≥ 0 with u0 = 0: v = (1, 1) for a = (−1, −2).
+        let cs = [constraint(-1.0, &[1.0, 0.0]), constraint(-2.0, &[1.0, 1.0])];
+        let (u0, omega) = (v(&[0.0, 0.0]), v(&[0.0, 0.0]));
+        let mut qp = ChannelQp::fixed_channel(2, 2);
+        let d0 = qp.fixed_channel_decision(&cs, &u0, &omega, 0, 2);
+        let d1 = qp.fixed_channel_decision(&cs, &u0, &omega, 1, 2);
+        // Independent: minimise ‖v‖² on a grid of step 1e-3 subject to both constraints.
+        let mut best = (f64::INFINITY, 0.0, 0.0);
+        for a in 0..=3000 {
+            for b in -1000..=3000 {
+                let (x, y) = (a as f64 * 1e-3, b as f64 * 1e-3);
+                if -1.0 + x >= 0.0 && -2.0 + x + y >= 0.0 && x * x + y * y < best.0 {
+                    best = (x * x + y * y, x, y);
+                }
+            }
+        }
+        assert!((d0.input - best.1).abs() < 2e-3 && (d1.input - best.2).abs() < 2e-3);
+        assert!(d0.active && !d0.infeasible && d0.unmet.is_none());
+    }
+
+    /// Only channel 0 may move (s = 1) and the two barriers want it in opposite directions:
+    /// infeasible, and the barrier left unmet is named with its shortfall.
+    #[test]
+    fn opposing_barriers_on_one_channel_are_reported_with_the_unmet_one() {
+        let cs = [constraint(-1.0, &[1.0, 5.0]), constraint(-3.0, &[-1.0, 1.0])];
+        let (u0, omega) = (v(&[0.0, 0.0]), v(&[0.0, 0.0]));
+        let mut qp = ChannelQp::fixed_channel(2, 2);
+        let d = qp.fixed_channel_decision(&cs, &u0, &omega, 0, 1);
+        assert!(d.infeasible);
+        let planned = v(&[d.input, 0.0]);
+        let g: Vec<f64> = cs.iter().map(|c| c.value(&planned)).collect();
+        let worst = if g[0] < g[1] { 0 } else { 1 };
+        assert_eq!(d.unmet, Some(worst));
+        assert!((d.shortfall + g[worst]).abs() < 1e-9, "{d:?} {g:?}");
+    }
+
+    /// The γm QP with two barriers, checked against its KKT conditions in w = (v, √m σ):
+    /// w = Σ λ_k c_k with λ ≥ 0, each constraint met, complementary slackness.
+    #[test]
+    fn gamma_m_with_two_barriers_satisfies_the_kkt_conditions() {
+        let cs = [constraint(-2.0, &[1.0, 0.5]), constraint(-1.0, &[-0.2, 1.0])];
+        let (u0, omega) = (v(&[0.3, -0.1]), v(&[0.0, 0.2]));
+        let (m, gamma) = (50.0, 51.0 / 50.0);
+        let mut qp = ChannelQp::gamma_m(2, 2);
+        // Channel 0 with k = 0: v ∈ R^1, σ ∈ R^2.
+        let d = qp.gamma_m_decision(&cs, &u0, &omega, 0, 0, m, gamma);
+        let w: Vec<f64> = qp.solution.iter().copied().collect();
+        let rows: Vec<(f64, [f64; 4])> = cs
+            .iter()
+            .map(|c| {
+                let zeta = gamma_f(gamma, c.a + c.b[0] * u0[0]) + c.b[1] * omega[1];
+                (zeta, [c.b[0], 0.0, c.b[0] / m.sqrt(), c.b[1] / m.sqrt()])
+            })
+            .collect();
+        let g: Vec<f64> = rows
+            .iter()
+            .map(|(z, row)| z + row.iter().zip(&w).map(|(a, b)| a * b).sum::<f64>())
+            .collect();
+        assert!(g.iter().all(|g| *g > -1e-9), "{g:?}");
+        // Least squares for λ over the active rows.
+        let active: Vec<usize> = (0..2).filter(|&k| g[k].abs() < 1e-9).collect();
+        assert!(!active.is_empty());
+        let (r0, r1) = (&rows[0].1, &rows[1].1);
+        let lambda = if active.len() == 2 {
+            let dot = |a: &[f64; 4], b: &[f64; 4]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+            let (g00, g01, g11) = (dot(r0, r0), dot(r0, r1), dot(r1, r1));
+            let rw0 = r0.iter().zip(&w).map(|(a, b)| a * b).sum::<f64>();
+            let rw1 = r1.iter().zip(&w).map(|(a, b)| a * b).sum::<f64>();
+            let det = g00 * g11 - g01 * g01;
+            [(g11 * rw0 - g01 * rw1) / det, (g00 * rw1 - g01 * rw0) / det]
+        } else {
+            let row = &rows[active[0]].1;
+            let n = row.iter().map(|x| x * x).sum::<f64>();
+            let mut l = [0.0; 2];
+            l[active[0]] = row.iter().zip(&w).map(|(a, b)| a * b).sum::<f64>() / n;
+            l
+        };
+        assert!(lambda.iter().all(|l| *l >= -1e-9), "{lambda:?}");
+        for (j, wj) in w.iter().enumerate() {
+            let rebuilt = lambda[0] * r0[j] + lambda[1] * r1[j];
+            assert!((wj - rebuilt).abs() < 1e-9, "w {w:?} λ {lambda:?}");
+        }
+        assert!((d.input - (u0[0] + w[0])).abs() < 1e-15);
+    }
+}
