@@ -115,3 +115,34 @@ fn a_second_barrier_that_never_binds_changes_no_command() {
         assert!(worst < 1e-9, "{filter}: commands differ by {worst}");
     }
 }
+
+/// An obstacle (h in m² (4.81)) and a half-space (h in m (2.47)): no single min h across them;
+/// each barrier's own minimum instead.
+#[test]
+fn min_h_is_absent_across_barriers_of_different_units() {
+    let dir = tempfile::tempdir().unwrap();
+    let edge = "[[barriers]]\nkind = \"half_space\"\ncoefficients = [0.0, 1.0, 0.0, 0.0]\noffset = 9.0\n";
+    let log = run(dir.path(), "edge", &scenario_text(edge), &[]);
+    let m = analyze_json(&log);
+    assert!(m["min_h"].is_null(), "{}", m["min_h"]);
+    let why = m["missing"]["min_h"].as_str().unwrap();
+    assert!(why.contains("not in one unit") && why.contains("barrier_0"), "{why}");
+    // Each barrier's own minimum, recomputed from the logged states.
+    let states = read_topic::<proto::State>(&log, "/state");
+    let edge_min = states.iter().map(|s| s.values[1] + 9.0).fold(f64::INFINITY, f64::min);
+    let by = &m["min_h_by_barrier"];
+    assert!(
+        (by["barrier_0"].as_f64().unwrap() - edge_min).abs() < 1e-9,
+        "{by} vs {edge_min}"
+    );
+    assert!(by["obstacle_0"].as_f64().unwrap() >= 0.0, "{by}");
+    // Two obstacles share m²: min h is their minimum.
+    let both = run(dir.path(), "both", &scenario_text(SECOND), &[]);
+    let m = analyze_json(&both);
+    let by = &m["min_h_by_barrier"];
+    let least = by["obstacle_0"]
+        .as_f64()
+        .unwrap()
+        .min(by["obstacle_1"].as_f64().unwrap());
+    assert_eq!(m["min_h"].as_f64().unwrap(), least);
+}

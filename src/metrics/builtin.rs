@@ -96,7 +96,7 @@ pub static METRICS: &[Metric] = &[
     Metric {
         table: Some("min_h"),
         ..metric("min_h", BARRIER, Shape::Number, &[Topic::Barrier], new::<MinH>,
-            "min over `/barrier` messages and their barriers of `h` (NaN ignored); h < 0: the state left the safe set; absent without barriers")
+            "min over `/barrier` messages and their barriers of `h` (NaN ignored); h < 0: the state left the safe set; absent without barriers, and where the barriers are not in one unit (several barriers, not all obstacles: see min_h_by_barrier)")
     },
     metric("min_h_by_barrier", BARRIER, Shape::PerBarrier, &[Topic::Barrier], new::<MinHByBarrier>,
         "min over `/barrier` messages of each barrier's `h`, in that barrier's own unit (m² for an obstacle (4.81), m for a half-space (2.47)); absent without barriers"),
@@ -313,19 +313,44 @@ impl Accumulate for FirstCollision {
 }
 
 #[derive(Default)]
-struct MinH(Option<f64>);
+struct MinH {
+    min: Option<f64>,
+    /// The first barrier that is not an obstacle, and whether the log has any other barrier:
+    /// h of obstacles is in m² (4.81), of another barrier in its own unit.
+    not_obstacle: Option<String>,
+    names: BTreeSet<String>,
+}
 
 impl Accumulate for MinH {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Barrier(m) = record {
             let h = step_min(m);
             if h.is_finite() {
-                self.0 = lower(self.0, h);
+                self.min = lower(self.min, h);
+            }
+            for b in &m.barriers {
+                if !self.names.contains(&b.name) {
+                    self.names.insert(b.name.clone());
+                }
+                if !b.obstacle && self.not_obstacle.is_none() {
+                    self.not_obstacle = Some(b.name.clone());
+                }
             }
         }
     }
-    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        Value::Number(self.0)
+    fn value(&mut self, _: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        // One minimum over barriers only where they share a unit: all obstacles, or one barrier.
+        if let (Some(other), true) = (&self.not_obstacle, self.names.len() > 1) {
+            missing.insert(
+                "min_h".into(),
+                format!(
+                    "the run's {} barriers are not all obstacles, so their h are not in one unit ({other} is in its own): see min_h_by_barrier and min_clearance",
+                    self.names.len()
+                ),
+            );
+            return Value::Number(None);
+        }
+        Value::Number(self.min)
     }
 }
 
