@@ -30,6 +30,7 @@ pub mod predictor;
 pub mod prescribed_time;
 pub mod random;
 pub mod registry;
+pub mod road;
 pub mod run;
 pub mod scenario;
 pub mod sensing;

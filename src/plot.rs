@@ -1,7 +1,8 @@
 //! PNG plots of a run, from its MCAP log alone (`mjsafe analyze --plot DIR`):
 //! - `<name>-barriers.png`: h(t) of every barrier, with the zero line;
 //! - `<name>-inputs.png`: issued vs applied input per channel;
-//! - `<name>-trajectory.png`: the planar path with the obstacles and the reference path.
+//! - `<name>-trajectory.png`: the planar path with the obstacles, the road (edges solid, lane
+//!   markings dashed), the half-space barriers on the plane (where h = 0) and the reference path.
 //!
 //! With several logs, also overlays of the runs (`overlay-trajectory.png`, `overlay-barriers.png`,
 //! `overlay-inputs.png`: one line per run, named by its filter's equation number), and
@@ -48,6 +49,53 @@ pub fn register_embedded_font() -> Result<(), PlotError> {
     }
 }
 
+/// A static line of the scene: its points, and whether they are dashes (pairs of points).
+#[derive(Clone, PartialEq)]
+struct SceneLines {
+    points: Vec<(f64, f64)>,
+    dashed: bool,
+}
+
+impl SceneLines {
+    /// The segments to draw: the polyline, or each dash.
+    fn segments(&self) -> Vec<Vec<(f64, f64)>> {
+        if self.dashed {
+            self.points.chunks_exact(2).map(<[_]>::to_vec).collect()
+        } else {
+            vec![self.points.clone()]
+        }
+    }
+
+    /// Its colour and width in a trajectory plot: road edges dark grey, lane markings and
+    /// half-space barriers lighter.
+    fn style(id: &str) -> ShapeStyle {
+        if id.starts_with("barrier/") {
+            PALETTE[3].stroke_width(2)
+        } else if id.starts_with("road/lane/") {
+            RGBColor(150, 150, 150).stroke_width(2)
+        } else {
+            RGBColor(60, 60, 60).stroke_width(3)
+        }
+    }
+}
+
+/// Draws the scene's static lines on a trajectory chart.
+fn draw_scene_lines<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        '_,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    lines: &BTreeMap<String, SceneLines>,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    for (id, line) in lines {
+        for segment in line.segments() {
+            chart.draw_series(LineSeries::new(segment, SceneLines::style(id)))?;
+        }
+    }
+    Ok(())
+}
+
 /// What the plots need from a log.
 #[derive(Default)]
 struct Series {
@@ -58,6 +106,10 @@ struct Series {
     /// (name, centre, radius) of the obstacles, from `/scene`.
     obstacles: BTreeMap<String, ((f64, f64), f64)>,
     reference: Option<[(f64, f64); 2]>,
+    /// The static lines of `/scene` by entity id: road edges (`road/<edge>`), lane markings
+    /// (`road/lane/<marking>`, dashed: their points in pairs) and half-space barriers
+    /// (`barrier/<name>`, where h = 0).
+    lines: BTreeMap<String, SceneLines>,
     /// The planar position the vehicle declared in the run metadata (None: not declared).
     declared_planar: Option<Option<[usize; 2]>>,
     /// The filter by its equation number (run metadata).
@@ -111,6 +163,12 @@ impl RunVisitor for Series {
                                 let (a, b) = (&line.points[0], &line.points[line.points.len() - 1]);
                                 self.reference = Some([(a.x, a.y), (b.x, b.y)]);
                             }
+                        }
+                    } else if e.id.starts_with("road/") || e.id.starts_with("barrier/") {
+                        for line in &e.lines {
+                            let dashed = line.r#type == foxglove::messages::line_primitive::Type::LineList as i32;
+                            let points = line.points.iter().map(|p| (p.x, p.y)).collect();
+                            self.lines.insert(e.id.clone(), SceneLines { points, dashed });
                         }
                     } else if e.id == "vehicle" {
                         if let Some(c) = e.cylinders.first() {
@@ -389,7 +447,8 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .obstacles
             .values()
             .flat_map(|((x, y), r)| [(x - r, y - r), (x + r, y + r)]);
-        let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles));
+        let lines = series.lines.values().flat_map(|l| l.points.iter().copied());
+        let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles).chain(lines));
         // Equal axis scales: widen the shorter span to the plotting area's shape.
         let aspect = plot_aspect((1000, 500), 12, 36, 50, 22);
         let (cx, cy, half) = (
@@ -401,12 +460,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
             root.fill(&WHITE)?;
             let mut chart = ChartBuilder::on(&root)
-                .caption("trajectory, obstacles and reference path", ("sans-serif", 22))
+                .caption("trajectory, obstacles, road and reference path", ("sans-serif", 22))
                 .margin(12)
                 .x_label_area_size(36)
                 .y_label_area_size(50)
                 .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
             chart.configure_mesh().x_desc("x [m]").y_desc("y [m]").draw()?;
+            draw_scene_lines(&mut chart, &series.lines)?;
             if let Some(reference) = series.reference {
                 chart.draw_series(LineSeries::new(reference, PALETTE[2].stroke_width(2)))?;
             }
@@ -583,7 +643,22 @@ fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(
     let extent = rings
         .iter()
         .flat_map(|&((x, y), r, hull)| [(x - r - hull, y - r - hull), (x + r + hull, y + r + hull)]);
-    let points = runs.iter().flat_map(|r| r.series.path.iter().copied()).chain(extent);
+    // Every run's road and half-space lines, each distinct one drawn once.
+    let mut lines: BTreeMap<String, SceneLines> = BTreeMap::new();
+    for (k, r) in runs.iter().enumerate().filter(|(_, r)| !r.series.path.is_empty()) {
+        for (id, line) in &r.series.lines {
+            if lines.get(id).is_some_and(|l| l != line) {
+                lines.insert(format!("{id} ({k})"), line.clone());
+            } else {
+                lines.insert(id.clone(), line.clone());
+            }
+        }
+    }
+    let points = runs
+        .iter()
+        .flat_map(|r| r.series.path.iter().copied())
+        .chain(extent)
+        .chain(lines.values().flat_map(|l| l.points.iter().copied()));
     let ((x0, x1), (y0, y1)) = bounds(points);
     let aspect = plot_aspect((1200, 600), 14, 44, 60, 24);
     let (cx, cy, half) = (
@@ -606,6 +681,7 @@ fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(
             .y_desc("y [m]")
             .label_style(("sans-serif", 16))
             .draw()?;
+        draw_scene_lines(&mut chart, &lines)?;
         let obstacle_color = RGBColor(120, 120, 120);
         for (k, &((x, y), r, hull)) in rings.iter().enumerate() {
             let drawn = chart.draw_series(std::iter::once(Polygon::new(

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::Shape;
 use crate::delay::DelayProfile;
+use crate::road::{Edge, Marking, RoadSpec, MAX_ROAD_ITEMS};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -74,6 +75,9 @@ pub struct Scenario {
     /// State constraints h(x) >= 0 that are not physical obstacles.
     #[serde(default)]
     pub barriers: Vec<Shape>,
+    /// Road edges (each a barrier with the vehicle's hull) and lane markings (drawn only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub road: Option<RoadSpec>,
     /// An additive disturbance B_ω ω(t) on the ODE plant ((3.24), (4.12)).
     #[serde(default)]
     pub disturbance: Option<DisturbanceSpec>,
@@ -662,7 +666,8 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     }
     validate_actuation_and_sensing(s)?;
     validate_control_and_model(s)?;
-    validate_barriers_and_obstacles(s)
+    validate_barriers_and_obstacles(s)?;
+    validate_road(s)
 }
 
 /// `actuation`, `actuator_dynamics` and `sensing`: ranges, and extents within the run.
@@ -907,6 +912,71 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             return Err(s.field_error(
                 &key,
                 format!("`{name}` is already the name of {other}; names must be unique (they key the logged barriers and table columns)"),
+            ));
+        }
+    }
+    // Road edges are barriers too (`road_edge_<index>` unless named).
+    let edges = sc.road.as_ref().map_or(&[][..], |r| &r.edges[..]);
+    for (i, edge) in edges.iter().enumerate() {
+        let key = format!("road.edges.{i}.name");
+        let name = edge.name(i);
+        if name.trim().is_empty() {
+            return Err(s.field_error(&key, "expected a name that is not empty"));
+        }
+        if let Some(other) = names.insert(name.clone(), format!("road.edges.{i}")) {
+            return Err(s.field_error(
+                &key,
+                format!("`{name}` is already the name of {other}; names must be unique (they key the logged barriers and table columns)"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// `road`: at most [`MAX_ROAD_ITEMS`] edges and lane markings, each a line with a non-zero
+/// direction or a circle with a positive radius, within ±[`OBSTACLE_EXTENT`] m; lane markings'
+/// names unique. (The vehicle starting on the road is checked with its hull, when the episode
+/// is built.)
+fn validate_road(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let Some(road) = &s.scenario.road else {
+        return Ok(());
+    };
+    for (section, count) in [("road.edges", road.edges.len()), ("road.lanes", road.lanes.len())] {
+        if count > MAX_ROAD_ITEMS {
+            return Err(s.field_error(
+                section,
+                format!("expected at most {MAX_ROAD_ITEMS} entries, found {count}"),
+            ));
+        }
+    }
+    let edges = road.edges.iter().map(|e| match e {
+        Edge::Line { point, direction, .. } => (Some((*point, *direction)), None),
+        Edge::Arc { centre, radius, .. } => (None, Some((*centre, *radius))),
+    });
+    let lanes = road.lanes.iter().map(|m| match m {
+        Marking::Line { point, direction, .. } => (Some((*point, *direction)), None),
+        Marking::Arc { centre, radius, .. } => (None, Some((*centre, *radius))),
+    });
+    let keyed = edges
+        .enumerate()
+        .map(|(i, g)| (format!("road.edges.{i}"), g))
+        .chain(lanes.enumerate().map(|(i, g)| (format!("road.lanes.{i}"), g)));
+    for (key, (line, circle)) in keyed {
+        if let Some((field, message)) = crate::road::curve_problem(line, circle, OBSTACLE_EXTENT) {
+            return Err(s.field_error(&format!("{key}.{field}"), message));
+        }
+    }
+    let mut lanes = std::collections::BTreeMap::new();
+    for (i, marking) in road.lanes.iter().enumerate() {
+        let name = marking.name(i);
+        let key = format!("road.lanes.{i}.name");
+        if name.trim().is_empty() {
+            return Err(s.field_error(&key, "expected a name that is not empty"));
+        }
+        if let Some(other) = lanes.insert(name.clone(), i) {
+            return Err(s.field_error(
+                &key,
+                format!("`{name}` is already the name of road.lanes.{other}; names must be unique (they key the drawn entities)"),
             ));
         }
     }

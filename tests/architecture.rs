@@ -78,6 +78,7 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
     for maths in [
         "dynamics",
         "barrier",
+        "road",
         "predictor",
         "prescribed_time",
         "params",

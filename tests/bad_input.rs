@@ -471,3 +471,56 @@ fn obstacle_names_are_unique_and_not_empty() {
         &["key `obstacles.0`", "within ±1e9 m"],
     );
 }
+
+#[test]
+fn road_errors_are_one_line_naming_the_field() {
+    let edge = |body: &str| format!("{}\n[[road.edges]]\n{body}\n", base(&bicycle()));
+    for (text, needles) in [
+        (
+            edge("kind = \"line\"\npoint = [0.0, -10.0]\ndirection = [0.0, 0.0]\nroad = \"left\""),
+            &["key `road.edges.0.direction`", "non-zero vector"][..],
+        ),
+        (
+            edge("kind = \"arc\"\ncentre = [0.0, 0.0]\nradius = -5.0\nroad = \"outside\""),
+            &["key `road.edges.0.radius`", "expected a radius > 0"],
+        ),
+        (
+            edge("kind = \"line\"\npoint = [0.0, -10.0]\ndirection = [1.0, 0.0]\nroad = \"up\""),
+            &[
+                "key `road.edges[0]`",
+                "unknown variant `up`, expected `left` or `right`",
+            ],
+        ),
+        // The hull (radius 3) at x2 = 0 crosses x2 = -2: 1 m beyond the edge.
+        (
+            edge("kind = \"line\"\npoint = [0.0, -2.0]\ndirection = [1.0, 0.0]\nroad = \"left\""),
+            &["key `road.edges.0`", "starts off the road", "1.000 m beyond this edge"],
+        ),
+        // Inside a circle of 50 m about (0, 0), the start (-20, 0) is on the road; outside it, not.
+        (
+            edge("kind = \"arc\"\ncentre = [0.0, 0.0]\nradius = 50.0\nroad = \"outside\""),
+            &["key `road.edges.0`", "starts off the road"],
+        ),
+        (
+            edge("kind = \"arc\"\ncentre = [-20.0, 0.0]\nradius = 2.0\nroad = \"inside\""),
+            &["key `road.edges.0.radius`", "no room for the vehicle's hull"],
+        ),
+        (
+            format!(
+                "{}\n[[road.lanes]]\nkind = \"line\"\npoint = [0.0, 1e300]\ndirection = [1.0, 0.0]\n",
+                base(&bicycle())
+            ),
+            &["key `road.lanes.0.point`", "within ±1e9 m"],
+        ),
+        (
+            edge(
+                "name = \"barrier_0\"\nkind = \"line\"\npoint = [0.0, -10.0]\ndirection = [1.0, 0.0]\nroad = \"left\"",
+            ) + "[[barriers]]\nkind = \"half_space\"\ncoefficients = [0.0, 1.0]\noffset = 20.0\n",
+            &["key `road.edges.0.name`", "already the name of barriers.0"],
+        ),
+    ] {
+        let err = expect_error(&text, needles);
+        assert_eq!(err.trim().lines().count(), 1, "one line:\n{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}

@@ -416,6 +416,58 @@ fn the_scene_shows_predicted_positions_and_one_dimensional_vehicles() {
 }
 
 #[test]
+fn the_road_and_planar_half_spaces_are_drawn_and_are_barriers_with_the_hull() {
+    // Read back by the independent Python reader. (The multi-barrier QP until the distinct-
+    // delay filters take several barriers.)
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("road.mcap");
+    run_ok(
+        &scenario("bicycle_road_gamma_m.toml"),
+        &log,
+        &[
+            "--set",
+            "duration=1.0",
+            "--set",
+            "filter={kind='cbf_qp', l0=4.0, l1=4.0}",
+            "--set",
+            "barriers=[{kind='half_space', coefficients=[0.0, 1.0], offset=20.0}]",
+        ],
+    );
+    let d = python_digest(&log);
+    let lines = &d["scene_lines"];
+    // Edges as line strips (Foxglove LINE_STRIP = 0) along x2 = 5 and x2 = -15, the lane
+    // marking as dashes (LINE_LIST = 2) along x2 = -5, the half-space x2 + 20 >= 0 at x2 = -20.
+    for (id, kind, y) in [
+        ("road/left_edge", 0, 5.0),
+        ("road/right_edge", 0, -15.0),
+        ("road/lane/centre", 2, -5.0),
+        ("barrier/barrier_0", 0, -20.0),
+    ] {
+        let line = &lines[id][0];
+        assert_eq!(line["type"], kind, "{id}: {line}");
+        let points = line["points"].as_array().unwrap();
+        assert!(points.len() >= 2, "{id}");
+        for p in points {
+            assert!((p[1].as_f64().unwrap() - y).abs() < 1e-9, "{id}: {p}");
+        }
+        // Drawn over the stretch the run covers: from behind the start (x1 = -20).
+        assert!(points.iter().any(|p| p[0].as_f64().unwrap() < -20.0), "{id}");
+    }
+    // h in metres at x(0) = (-20, 0): 5 - 0 - 3 (hull) and 0 + 15 - 3; after the obstacle and
+    // the scenario's half-space (x2 + 20).
+    let h0 = &d["barrier"][0]["h"];
+    assert_eq!(h0.as_array().unwrap().len(), 4, "{h0}");
+    assert_eq!(
+        (&h0[1], &h0[2], &h0[3]),
+        (
+            &serde_json::json!(20.0),
+            &serde_json::json!(2.0),
+            &serde_json::json!(12.0)
+        )
+    );
+}
+
+#[test]
 fn the_scene_draws_every_tick_but_at_most_every_10_ms() {
     // /tf is published with every scene frame. The bicycle ticks every 10 ms: a frame per
     // tick; the unicycle ticks every 2 ms step: a frame every fifth tick, while the data

@@ -15,7 +15,7 @@ def main(path):
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         counts, schemas, encodings = {}, {}, {}
         first, last, events, applied, issued, barrier = {}, {}, [], [], [], []
-        scene_ids, logs = set(), []
+        scene_ids, logs, scene_lines = set(), [], {}
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             topic = channel.topic
             counts[topic] = counts.get(topic, 0) + 1
@@ -28,6 +28,9 @@ def main(path):
                         raise SystemExit(f"{topic}: log_time {message.log_time} != timestamp {stamp}")
                 if topic == "/scene":
                     scene_ids.update(e.id for e in decoded.entities)
+                    for e in decoded.entities:
+                        if e.id.startswith(("road/", "barrier/")):
+                            scene_lines[e.id] = [{"type": l.type, "points": [[p.x, p.y] for p in l.points]} for l in e.lines]
                 if topic == "/log":
                     logs.append({"time": message.log_time / 1e9, "level": decoded.level, "message": decoded.message, "name": decoded.name})
                 continue
@@ -58,6 +61,7 @@ def main(path):
         "issued": issued,
         "barrier": barrier,
         "scene_ids": sorted(scene_ids),
+        "scene_lines": scene_lines,
         "logs": logs,
     }))
 

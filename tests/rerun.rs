@@ -99,6 +99,37 @@ fn live_recording_equals_the_replay_of_its_log() {
 }
 
 #[test]
+fn the_road_is_drawn_in_the_recording() {
+    // Edges and the dashed lane marking go through /scene to line strips under /world/road.
+    // (The multi-barrier QP until the distinct-delay filters take several barriers.)
+    let dir = tempfile::tempdir().unwrap();
+    let (log, rrd) = (dir.path().join("road.mcap"), dir.path().join("road.rrd"));
+    run_ok(
+        &scenario("bicycle_road_gamma_m.toml"),
+        &log,
+        &[
+            "--set",
+            "duration=0.5",
+            "--set",
+            "filter={kind='cbf_qp', l0=4.0, l1=4.0}",
+            "--rrd",
+            rrd.to_str().unwrap(),
+        ],
+    );
+    let o = rerun(&["rrd", "print", "--verbose", rrd.to_str().unwrap()]);
+    assert!(o.status.success(), "rerun rrd print: {}", text(&o));
+    let printed = text(&o);
+    for entity in [
+        "/world/road/left_edge",
+        "/world/road/right_edge",
+        "/world/road/lane/centre",
+        "/plots/barrier/left_edge",
+    ] {
+        assert!(printed.contains(entity), "{entity} missing from the recording");
+    }
+}
+
+#[test]
 fn compare_tells_different_runs_apart() {
     // The check above can fail: the replay of another run (another initial state) differs.
     let dir = tempfile::tempdir().unwrap();

@@ -405,6 +405,100 @@ pub(super) fn barriers(loaded: &LoadedScenario, n: usize) -> Result<Vec<Barrier>
     Ok(barriers)
 }
 
+/// The road's edges as barriers with the hull (`crate::road`), each with the vehicle on its
+/// road side at the start, after the scenario's own barriers.
+pub(super) fn road_edges(
+    loaded: &LoadedScenario,
+    model: &dyn Dynamics,
+    hull_radius: f64,
+    x0: &DVector<f64>,
+) -> Result<Vec<Barrier>, EpisodeError> {
+    let Some(road) = &loaded.scenario.road else {
+        return Ok(Vec::new());
+    };
+    let mut barriers = Vec::with_capacity(road.edges.len());
+    for (i, edge) in road.edges.iter().enumerate() {
+        let Some(position) = model.planar_position() else {
+            return Err(loaded
+                .field_error("road.edges", "this vehicle does not move in a plane")
+                .into());
+        };
+        if let crate::road::Edge::Arc {
+            radius,
+            road: crate::road::ArcSide::Inside,
+            ..
+        } = edge
+        {
+            if *radius <= hull_radius {
+                return Err(loaded
+                    .field_error(
+                        &format!("road.edges.{i}.radius"),
+                        format!("a road inside a circle of radius {radius} m has no room for the vehicle's hull of radius {hull_radius} m: expected a radius > {hull_radius}"),
+                    )
+                    .into());
+            }
+        }
+        let barrier = edge.barrier(&edge.name(i), position, hull_radius);
+        if barrier.h(x0) < 0.0 {
+            return Err(loaded
+                .field_error(
+                    &format!("road.edges.{i}"),
+                    format!(
+                        "the vehicle starts off the road: its hull (radius {hull_radius} m) at ({}, {}) is {:.3} m beyond this edge",
+                        x0[position[0]],
+                        x0[position[1]],
+                        -barrier.clearance(x0)
+                    ),
+                )
+                .into());
+        }
+        barriers.push(barrier);
+    }
+    Ok(barriers)
+}
+
+/// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, and
+/// `barrier/<name>` for a half-space barrier on the planar position, drawn where h = 0),
+/// lines drawn over the stretch near the points `around` (start, path, obstacles).
+pub(super) fn scene_lines(
+    loaded: &LoadedScenario,
+    planar: Option<[usize; 2]>,
+    barriers: &[Barrier],
+    around: &[[f64; 2]],
+) -> Vec<super::records::SceneLine> {
+    use super::records::SceneLine;
+    let Some(position) = planar else {
+        return Vec::new();
+    };
+    let mut lines = Vec::new();
+    if let Some(road) = &loaded.scenario.road {
+        for (i, edge) in road.edges.iter().enumerate() {
+            lines.push(SceneLine {
+                id: format!("road/{}", edge.name(i)),
+                points: edge.curve().polyline(around),
+                dashed: false,
+            });
+        }
+        for (i, marking) in road.lanes.iter().enumerate() {
+            lines.push(SceneLine {
+                id: format!("road/lane/{}", marking.name(i)),
+                points: marking.curve().dashes(around),
+                dashed: true,
+            });
+        }
+    }
+    for b in barriers {
+        if let Some(curve) = crate::road::planar_half_space(&b.shape, position) {
+            lines.push(SceneLine {
+                id: format!("barrier/{}", b.name),
+                points: curve.polyline(around),
+                dashed: false,
+            });
+        }
+    }
+    lines
+}
+
 /// The obstacles: circular barriers (4.81) with r = hull + obstacle radius, clear of x(0),
 /// with their seeded appearance times.
 pub(super) fn obstacles(

@@ -131,8 +131,11 @@ impl Episode {
         let queues = build::queues(loaded, model.channel_names(), timestep, period)?;
         let nominal = build::nominal(loaded, &model)?;
         let x0 = build::initial_state(loaded);
-        let barriers = build::barriers(loaded, model.state_dim())?;
+        let mut barriers = build::barriers(loaded, model.state_dim())?;
         let obstacles = build::obstacles(loaded, model.as_ref(), parts.hull_radius, &x0)?;
+        // The road's edges are barriers known from the start, after the scenario's own.
+        let own_barriers = barriers.len();
+        barriers.extend(build::road_edges(loaded, model.as_ref(), parts.hull_radius, &x0)?);
         let every_barrier: Vec<Barrier> = barriers
             .iter()
             .chain(obstacles.iter().map(|o| &o.barrier))
@@ -150,6 +153,20 @@ impl Episode {
             .reference_path()
             .map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
         let hull_radius = parts.hull_radius;
+        // The 3D view's static lines, drawn near the start, the reference path's far end and
+        // the obstacles: the road, and the scenario's own half-spaces on the plane.
+        let start = model.planar_position().map(|[i, j]| [x0[i], x0[j]]);
+        let far_end = path.zip(start).map(|((point, heading, reach), p)| {
+            let (s, c) = heading.sin_cos();
+            let along = (p[0] - point[0]) * c + (p[1] - point[1]) * s + reach;
+            [point[0] + along * c, point[1] + along * s]
+        });
+        let around: Vec<[f64; 2]> = start
+            .into_iter()
+            .chain(far_end)
+            .chain(loaded.scenario.obstacles.iter().map(|o| o.centre))
+            .collect();
+        let scene_lines = build::scene_lines(loaded, model.planar_position(), &barriers[..own_barriers], &around);
         let vehicle_params = std::mem::take(&mut parts.vehicle_params);
         let plant = build::plant(loaded, parts, obstacles.len(), &x0)?;
         let mut control = ControlLoop::new(
@@ -185,6 +202,7 @@ impl Episode {
             scene: SceneState::new(
                 hull_radius,
                 path,
+                scene_lines,
                 model.channel_names(),
                 records::frame_steps(steps_per_tick, timestep),
             ),

@@ -128,6 +128,14 @@ fn nalgebra_norm(n: usize, v: impl Fn(usize) -> f64) -> f64 {
     (0.0 + sum).sqrt()
 }
 
+/// A static line of the 3D view: a road edge, a lane marking (dashed: point pairs), a planar
+/// half-space barrier's h = 0.
+pub(super) struct SceneLine {
+    pub(super) id: String,
+    pub(super) points: Vec<[f64; 2]>,
+    pub(super) dashed: bool,
+}
+
 /// What the Foxglove 3D view needs beyond the state.
 pub(super) struct SceneState {
     pub(super) hull_radius: f64,
@@ -135,6 +143,8 @@ pub(super) struct SceneState {
     /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
     /// fitting their view to the scene show the episode, not a 400 m line).
     pub(super) path: Option<([f64; 2], f64, f64)>,
+    /// The road and the planar half-space barriers, drawn once at the start.
+    pub(super) lines: Vec<SceneLine>,
     /// Positions at every fifth scene frame since the last published trail segment (which
     /// starts with the previous segment's last point, so the segments join up).
     pub(super) trail: Vec<[f64; 2]>,
@@ -155,6 +165,7 @@ impl SceneState {
     pub(super) fn new(
         hull_radius: f64,
         path: Option<([f64; 2], f64, f64)>,
+        lines: Vec<SceneLine>,
         channels: &[String],
         frame_steps: u64,
     ) -> SceneState {
@@ -162,6 +173,7 @@ impl SceneState {
         SceneState {
             hull_radius,
             path,
+            lines,
             trail: Vec::new(),
             trail_segments: 0,
             frame_steps,
@@ -253,6 +265,17 @@ impl Episode {
             }
             for o in &self.obstacles {
                 Self::emit(sinks, obstacle_scene(time, o))?;
+            }
+            for line in &self.scene.lines {
+                let (color, thickness) = if line.id.starts_with("barrier/") {
+                    (scene::BARRIER, 0.15)
+                } else if line.dashed {
+                    (scene::LANE, 0.15)
+                } else {
+                    (scene::ROAD_EDGE, 0.3)
+                };
+                let update = scene::lines(time, &line.id, &line.points, color, thickness, line.dashed);
+                Self::emit(sinks, Record::Scene(time, update))?;
             }
         }
         let frame = k / frame_steps;

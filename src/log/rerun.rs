@@ -6,8 +6,8 @@
 //! Layout (entity paths):
 //! - `world/<scene entity id>`: the Foxglove `/scene` entities drawn in 2D in the world frame:
 //!   cylinders as circles, cubes as rectangles turning with their yaw (the vehicle footprint),
-//!   lines as line strips (trail, reference path), each in its Foxglove colour (obstacles grey
-//!   until known, red after).
+//!   lines as line strips (trail, reference path, road edges, a lane marking's dashes), each in
+//!   its Foxglove colour (obstacles grey until known, red after).
 //! - `world/prediction/<channel>`: the predicted position p_i(t) of each `/prediction`, at its
 //!   issue time t.
 //! - `world/collisions`: the vehicle position at every `collision_start` event.

@@ -1,5 +1,6 @@
 //! The Foxglove 3D view of an episode: `/scene` (foxglove.SceneUpdate) with the vehicle, its
-//! trail, the obstacles (grey until known, red once known) and the reference path, and `/tf`
+//! trail, the obstacles (grey until known, red once known), the reference path, the road
+//! (edges grey, lane markings dashed yellow) and the half-space barriers on the plane, and `/tf`
 //! (foxglove.FrameTransform, world → vehicle), so opening a log in Foxglove's 3D panel shows
 //! the episode without any set-up. Messages use Foxglove's own protobuf schemas.
 
@@ -105,9 +106,16 @@ pub fn vehicle_into(update: &mut SceneUpdate, time: f64, position: [f64; 2], hea
 
 /// A polyline in the world frame (trail, reference path).
 pub fn polyline(time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: f64) -> SceneUpdate {
+    lines(time, id, points, color, thickness, false)
+}
+
+/// Lines in the world frame: a polyline, or with `dashed` separate segments between the
+/// points taken in pairs (a line list: a lane marking's dashes).
+pub fn lines(time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: f64, dashed: bool) -> SceneUpdate {
+    use foxglove::messages::line_primitive::Type;
     let mut e = entity(time, id);
     e.lines.push(LinePrimitive {
-        r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+        r#type: if dashed { Type::LineList } else { Type::LineStrip } as i32,
         pose: Some(pose(0.0, 0.0, 0.02, 0.0)),
         thickness,
         scale_invariant: false,
@@ -252,6 +260,27 @@ pub fn transform_into(transform: &mut FrameTransform, time: f64, position: [f64;
 /// Trail colour.
 pub const TRAIL: Color = Color {
     r: 0.1,
+    g: 0.3,
+    b: 0.8,
+    a: 0.9,
+};
+/// Road edge colour.
+pub const ROAD_EDGE: Color = Color {
+    r: 0.55,
+    g: 0.55,
+    b: 0.55,
+    a: 1.0,
+};
+/// Lane marking colour.
+pub const LANE: Color = Color {
+    r: 0.95,
+    g: 0.8,
+    b: 0.2,
+    a: 0.9,
+};
+/// Colour of a half-space barrier's h = 0 line.
+pub const BARRIER: Color = Color {
+    r: 0.6,
     g: 0.3,
     b: 0.8,
     a: 0.9,
