@@ -121,6 +121,7 @@ fn run_json_is_the_summary_as_one_object() {
     assert_eq!(v["scenario"], "bicycle_obstacle");
     assert_eq!(v["log"], log.to_str().unwrap());
     assert_eq!(v["min_h"], m["min_h"]);
+    assert_eq!(v["min_h_by_barrier"], m["min_h_by_barrier"]);
     assert_eq!(v["collision"], m["collision"]);
     assert!(v["collision"]["time"].as_f64().unwrap() > 3.0, "{v}");
     assert_eq!(v["steps"], m["steps"]);

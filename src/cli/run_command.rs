@@ -175,6 +175,7 @@ pub(super) fn run_scenario(
             "scenario": loaded.scenario.name,
             "collision": metrics.collision(),
             "min_h": metrics.min_h(),
+            "min_h_by_barrier": metrics.min_h_by_barrier(),
             "steps": summary.steps,
             "simulated_time": summary.simulated_time,
             "real_time_factor": rtf.is_finite().then_some(rtf),
@@ -217,7 +218,16 @@ pub(super) fn run_scenario(
                     if n > 1 { "S" } else { "" }
                 ),
             },
-            metrics.min_h().map_or("-".into(), |h| format!("{h:.3}")),
+            // Barriers of different units have no one min h: each its own.
+            match (metrics.min_h(), metrics.min_h_by_barrier()) {
+                (Some(h), _) => format!("{h:.3}"),
+                (None, Some(by)) => by
+                    .iter()
+                    .map(|(name, h)| format!("{h:.3} ({name})"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                (None, None) => "-".into(),
+            },
             summary.steps,
             summary.simulated_time,
             // Two significant digits below 10x (a slow run is not "0x").

@@ -362,6 +362,14 @@ impl RunMetrics {
         self.number("min_h")
     }
 
+    /// min h per barrier, each in its own unit.
+    pub fn min_h_by_barrier(&self) -> Option<&BTreeMap<String, f64>> {
+        match self.value("min_h_by_barrier")? {
+            Value::PerChannel(v) => v.as_ref(),
+            _ => None,
+        }
+    }
+
     /// Smallest clearance to any obstacle, m.
     pub fn min_clearance(&self) -> Option<f64> {
         self.number("min_clearance")
