@@ -187,9 +187,9 @@ pub static METRICS: &[Metric] = &[
             "`time` of the first `/state` message with ‖p − g‖ ≤ r (whether before `by` or not); absent when the vehicle never enters the disc, the closest approach under `missing`")
     },
     Metric {
-        applies: |run| run.reference_path.is_some(),
+        applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
         ..metric("progress_along_path", METRES, Shape::Number, &[Topic::State], new::<ProgressAlongPath>,
-            "(p_last − p_first) · (cos ψ, sin ψ): the displacement of the planar position from the first to the last `/state` message along the nominal's straight reference path of heading ψ (metadata `reference_path`: `path_lqr`); negative: it went backwards; absent for nominals without a path")
+            "planar vehicles: (p_last − p_first) · (cos ψ, sin ψ): the displacement of the planar position from the first to the last `/state` message along the nominal's straight reference path of heading ψ (metadata `reference_path`: `path_lqr`); negative: it went backwards; absent for nominals without a path")
     },
     metric("max_longitudinal_jerk", JERK, Shape::Number, &[Topic::State], new::<LongitudinalJerk>,
         "planar vehicles: max |third difference of the positions at the control ticks| / T_c³ along the velocity (central difference); needs metadata `control_period`"),
@@ -779,8 +779,12 @@ impl GoalApproach {
         }
     }
 
-    /// Absent (with the reason under `name`) without a planar position.
-    fn planar(&self, name: &str, missing: &mut BTreeMap<String, String>) -> bool {
+    /// Whether the run has the metric: a goal and a planar position (absent without one, with
+    /// the reason under `name`; `value` is called whether the metric applies or not).
+    fn planar(&self, name: &str, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> bool {
+        if run.goal.is_none() {
+            return false;
+        }
         if self.planar == Some(None) {
             missing.insert(name.into(), NOT_PLANAR.into());
             return false;
@@ -797,7 +801,7 @@ impl Accumulate for DistanceToGoal {
         self.0.observe(record, run);
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if !self.0.planar("distance_to_goal", missing) {
+        if !self.0.planar("distance_to_goal", run, missing) {
             return Value::Number(None);
         }
         let radius = run.goal.map_or(0.0, |g| g.radius);
@@ -813,7 +817,7 @@ impl Accumulate for TimeToGoal {
         self.0.observe(record, run);
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if !self.0.planar("time_to_goal", missing) {
+        if !self.0.planar("time_to_goal", run, missing) {
             return Value::Number(None);
         }
         if let (None, Some(goal), Some((d, t))) = (self.0.reached, run.goal, self.0.closest) {
@@ -852,6 +856,9 @@ impl Accumulate for ProgressAlongPath {
         }
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if run.reference_path.is_none() {
+            return Value::Number(None);
+        }
         if self.planar == Some(None) {
             missing.insert("progress_along_path".into(), NOT_PLANAR.into());
             return Value::Number(None);
