@@ -7,6 +7,8 @@
 //! independent of T. The optimiser minimises m − T for qualified candidates (so after the
 //! first violation it keeps pushing severity), and max(m − T, 0) + (T_b − m_baseline) > 0 for
 //! the others (never a violation, ordered toward qualification and toward m < T).
+//! The baseline can also be required to make progress ([`BaselineProgress`]): a baseline that
+//! stays safe by stalling (or never reaches the goal) disqualifies the candidate too.
 //!
 //! Determinism: a candidate's result depends only on its parameters (each run is seeded by the
 //! scenario), CMA-ES samples from its own seeded generator, and a generation's evaluations are
@@ -80,6 +82,49 @@ pub struct Problem {
     pub threads: usize,
     /// Keep searching after the first violation for the worst one.
     pub worst: bool,
+    /// What the baseline must do besides staying safe.
+    pub baseline_progress: BaselineProgress,
+}
+
+/// Progress the baseline must make for a candidate to count (a delay-free filter can stay
+/// "safe" only by stalling in front of the obstacle).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct BaselineProgress {
+    /// Its run has no `stall_time` (`--baseline-no-stall`).
+    pub no_stall: bool,
+    /// Its `distance_to_goal` is 0: it entered the goal disc, by the goal's `by`
+    /// (`--baseline-reaches-goal`; the scenario needs a `[goal]`).
+    pub reach_goal: bool,
+}
+
+impl BaselineProgress {
+    /// Why the baseline's run (its flat metrics) fails the requirement, and the penalty it adds
+    /// to the score (1 for a stall; the distance to the goal in m, at least 1e-3, for a missed
+    /// goal); None when it meets it.
+    pub fn failure(&self, baseline: &FlatMetrics) -> Option<(String, f64)> {
+        let mut reasons = Vec::new();
+        let mut penalty = 0.0;
+        if self.no_stall {
+            if let Some(t) = baseline.number("stall_time") {
+                reasons.push(format!("the baseline stalled from t = {t} s"));
+                penalty += 1.0;
+            }
+        }
+        if self.reach_goal {
+            match baseline.number("distance_to_goal") {
+                Some(d) if d <= 0.0 => {}
+                Some(d) => {
+                    reasons.push(format!("the baseline stayed {d:.3} m from the goal"));
+                    penalty += d.max(1e-3);
+                }
+                None => {
+                    reasons.push("the baseline's run has no distance_to_goal".into());
+                    penalty += 1.0;
+                }
+            }
+        }
+        (!reasons.is_empty()).then(|| (reasons.join("; "), penalty))
+    }
 }
 
 /// The metrics `--objective` accepts: the numeric columns of the flat metrics.
@@ -116,8 +161,11 @@ pub struct Evaluation {
     /// What the optimiser minimised: m − T for a qualified candidate (negative exactly for a
     /// counterexample), a positive penalty for one whose baseline is unsafe.
     pub score: f64,
-    /// Whether the candidate counts: its baseline is safe (always, without a baseline).
+    /// Whether the candidate counts: its baseline is safe and makes the progress required
+    /// (always, without a baseline).
     pub qualified: bool,
+    /// Why the baseline failed the progress required of it ([`BaselineProgress`]), if it did.
+    pub baseline_progress: Option<String>,
     /// Qualified and objective below the threshold.
     pub violation: bool,
     /// How severe the candidate's run is, whatever the objective.
@@ -269,7 +317,7 @@ impl Evaluator<'_> {
 
     /// The metric of one run of the scenario with `overrides` and the run's severity, or why
     /// there is no metric.
-    fn metric(&self, overrides: Vec<String>) -> Result<(f64, Severity), String> {
+    fn metric(&self, overrides: Vec<String>) -> Result<(f64, Severity, FlatMetrics), String> {
         let index = self.next_run.fetch_add(1, Ordering::Relaxed);
         let run = Run {
             index,
@@ -288,7 +336,7 @@ impl Evaluator<'_> {
                 self.problem.objective
             )
         })?;
-        Ok((value, Severity::of(&metrics)))
+        Ok((value, Severity::of(&metrics), metrics))
     }
 
     /// Runs the candidate at `unit` (and its baseline) and scores it.
@@ -310,12 +358,13 @@ impl Evaluator<'_> {
             baseline: None,
             score: ABSENT_SCORE,
             qualified: false,
+            baseline_progress: None,
             violation: false,
             severity: Severity::default(),
             error: None,
         };
         let objective = match self.metric(candidate.clone()) {
-            Ok((v, severity)) => {
+            Ok((v, severity, _)) => {
                 evaluation.severity = severity;
                 v
             }
@@ -333,13 +382,16 @@ impl Evaluator<'_> {
                 .chain(self.problem.baseline.iter().cloned())
                 .collect();
             match self.metric(overrides) {
-                Ok((b, _)) => {
+                Ok((b, _, metrics)) => {
                     evaluation.baseline = Some(b);
                     let unsafe_by = self.problem.baseline_threshold - b;
-                    evaluation.qualified = unsafe_by <= 0.0;
+                    let stuck = self.problem.baseline_progress.failure(&metrics);
+                    evaluation.qualified = unsafe_by <= 0.0 && stuck.is_none();
                     if !evaluation.qualified {
-                        evaluation.score = (objective - threshold).max(0.0) + unsafe_by;
+                        let penalty = stuck.as_ref().map_or(0.0, |(_, p)| *p);
+                        evaluation.score = (objective - threshold).max(0.0) + unsafe_by.max(0.0) + penalty;
                     }
+                    evaluation.baseline_progress = stuck.map(|(why, _)| why);
                 }
                 Err(e) => {
                     evaluation.error = Some(format!("baseline: {e}"));
@@ -589,6 +641,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                 "score",
                 "qualified",
                 "violation",
+                "baseline_progress",
                 "candidate_min_h",
                 "candidate_collision_time",
                 "candidate_collision_depth",
@@ -619,6 +672,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                     },
                     e.qualified.to_string(),
                     e.violation.to_string(),
+                    e.baseline_progress.clone().unwrap_or_default(),
                     number(e.severity.min_h),
                     number(e.severity.collision_time),
                     number(e.severity.collision_depth),
@@ -773,6 +827,7 @@ struct EvaluationsFile<'a> {
     threshold: f64,
     baseline_threshold: f64,
     baseline: &'a [String],
+    baseline_progress: BaselineProgress,
     budget: usize,
     seed: u64,
     searches: Vec<SearchSummary<'a>>,
@@ -813,6 +868,7 @@ fn write_evaluations(
         threshold: problem.threshold,
         baseline_threshold: problem.baseline_threshold,
         baseline: &problem.baseline,
+        baseline_progress: problem.baseline_progress,
         budget: problem.budget,
         seed: problem.seed,
         searches: searches

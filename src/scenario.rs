@@ -81,6 +81,22 @@ pub struct Scenario {
     /// An additive disturbance B_ω ω(t) on the ODE plant ((3.24), (4.12)).
     #[serde(default)]
     pub disturbance: Option<DisturbanceSpec>,
+    /// A place a planar vehicle should reach (the progress metrics measure against it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub goal: Option<GoalSpec>,
+}
+
+/// The `[goal]` table: a disc the planar position should enter, optionally by a deadline.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoalSpec {
+    /// Centre of the disc (planar position, m).
+    pub position: [f64; 2],
+    /// Radius of the disc (m, > 0).
+    pub radius: f64,
+    /// Deadline (s, > 0): `distance_to_goal` counts only the states up to it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub by: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -667,7 +683,37 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     validate_actuation_and_sensing(s)?;
     validate_control_and_model(s)?;
     validate_barriers_and_obstacles(s)?;
-    validate_road(s)
+    validate_road(s)?;
+    validate_goal(s)
+}
+
+/// `goal`: a finite centre, a positive radius and deadline (planarity is checked with the model).
+fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let Some(goal) = &s.scenario.goal else {
+        return Ok(());
+    };
+    if goal
+        .position
+        .iter()
+        .any(|v| !v.is_finite() || v.abs() > OBSTACLE_EXTENT)
+    {
+        return Err(s.field_error(
+            "goal.position",
+            format!("expected two finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
+        ));
+    }
+    if !positive_finite(goal.radius) || goal.radius > OBSTACLE_EXTENT {
+        return Err(s.field_error(
+            "goal.radius",
+            format!("expected a positive radius (m), found {}", goal.radius),
+        ));
+    }
+    if let Some(by) = goal.by {
+        if !positive_finite(by) {
+            return Err(s.field_error("goal.by", format!("expected a positive time (s), found {by}")));
+        }
+    }
+    Ok(())
 }
 
 /// `actuation`, `actuator_dynamics` and `sensing`: ranges, and extents within the run.

@@ -43,6 +43,14 @@ pub struct FalsifyArgs {
     /// delays.acceleration=0: only a candidate whose baseline stays safe is a counterexample.
     #[arg(long = "baseline", value_name = "KEY=VALUE")]
     pub baseline: Vec<String>,
+    /// A candidate counts only where the baseline also does not stall (no `stall_time`: it is
+    /// not held still by its filter; safe by not moving is not safe enough).
+    #[arg(long)]
+    pub baseline_no_stall: bool,
+    /// A candidate counts only where the baseline also reaches the scenario's `[goal]`
+    /// (`distance_to_goal` = 0).
+    #[arg(long)]
+    pub baseline_reaches_goal: bool,
     /// Also run random search with the same budget and seed, and compare runs to the first
     /// violation.
     #[arg(long)]
@@ -99,6 +107,8 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         worst,
         baseline_threshold,
         baseline,
+        baseline_no_stall,
+        baseline_reaches_goal,
         compare_random,
         out,
     } = args;
@@ -123,6 +133,20 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
     };
     // The scenario and every override are checked once before the search starts.
     let base = scenario::load(&scenario, &overrides)?;
+    for (given, flag) in [
+        (baseline_no_stall, "--baseline-no-stall"),
+        (baseline_reaches_goal, "--baseline-reaches-goal"),
+    ] {
+        if given && baseline.is_empty() {
+            bail!("{flag}: a requirement of the baseline; give the baseline with --baseline KEY=VALUE");
+        }
+    }
+    if baseline_reaches_goal && base.scenario.goal.is_none() {
+        bail!(
+            "--baseline-reaches-goal: {} has no [goal] (add one, or --set \"goal={{position=[x, y], radius=r}}\")",
+            scenario.display()
+        );
+    }
     if let Some((group, _)) = objective.split_once('.') {
         // A per-channel metric names a channel of the vehicle: told by one run of the
         // scenario as given (when it runs), not by a whole budget of absent values.
@@ -160,6 +184,10 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         seed,
         threads,
         worst,
+        baseline_progress: falsify::BaselineProgress {
+            no_stall: baseline_no_stall,
+            reach_goal: baseline_reaches_goal,
+        },
     };
     let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
     run_falsify(&problem, &out, compare_random)

@@ -209,6 +209,17 @@ pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dyna
             }
         }
     }
+    if sc.goal.is_some() && model.planar_position().is_none() {
+        return Err(loaded
+            .field_error(
+                "goal",
+                format!(
+                    "a goal is a place in the plane: expected a planar vehicle, but this one's state ({}) has no planar position",
+                    model.state_names().join(", ")
+                ),
+            )
+            .into());
+    }
     Ok(())
 }
 
@@ -754,6 +765,9 @@ pub(super) fn run_info(
         heading_index: control.model().heading_index(),
         predicts: control.predicts(),
         kinds,
+        goal: sc.goal,
+        // Set by the episode, which holds the nominal.
+        reference_path: None,
     })
 }
 

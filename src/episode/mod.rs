@@ -13,7 +13,9 @@ use std::time::Instant;
 use nalgebra::DVector;
 
 use crate::barrier::{self, Barrier};
-use crate::log::{LogError, Record, RunInfo, Sink};
+use crate::log::{LogError, Record, RunInfo, Sink, STALL_EVENT};
+use crate::metrics::builtin::{StallDetector, STALL_SPEED};
+use crate::metrics::{Observed, RunFacts};
 use crate::mujoco::{self, MjError};
 use crate::plant::Plant;
 use crate::scenario::{LoadedScenario, ScenarioError};
@@ -114,6 +116,9 @@ pub struct Episode {
     log_budget: Option<ScenarioError>,
     /// Predictions realised at a time inside the current step, logged after its records.
     inside_step: Vec<control::Consistency>,
+    /// The `stall_time` definition applied to the records as they are logged, for the `stall`
+    /// event (it reads the records and only adds an event: nothing feeds back into control).
+    stall: (StallDetector, RunFacts),
 }
 
 impl Episode {
@@ -149,9 +154,8 @@ impl Episode {
             nominal.as_ref(),
             timestep,
         )?;
-        let path = nominal
-            .reference_path()
-            .map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
+        let reference_path = nominal.reference_path();
+        let path = reference_path.map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
         let hull_radius = parts.hull_radius;
         // The 3D view's static lines, drawn near the start, the reference path's far end and
         // the obstacles: the road, and the scenario's own half-spaces on the plane.
@@ -182,7 +186,8 @@ impl Episode {
             control.set_actuators(actuators);
         }
         build::configure_control(loaded, &mut control, &barriers)?;
-        let info = build::run_info(loaded, vehicle_params, &control, period)?;
+        let mut info = build::run_info(loaded, vehicle_params, &control, period)?;
+        info.reference_path = reference_path.map(|p| (p.point, p.heading));
         let (cost, log_budget) =
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         Ok(Episode {
@@ -192,7 +197,6 @@ impl Episode {
             obstacles,
             barriers,
             steps: build::steps(loaded, timestep),
-            info,
             actuation: None,
             lie: barrier::LieWorkspace::new(model.as_ref()),
             constraint: barrier::Constraint::zeros(model.input_dim()),
@@ -209,6 +213,8 @@ impl Episode {
             cost,
             log_budget,
             inside_step: Vec::new(),
+            stall: (StallDetector::default(), RunFacts::from_metadata(&info.metadata())),
+            info,
         })
     }
 
@@ -351,6 +357,7 @@ impl Episode {
                 m.values.extend_from_slice(x.as_slice());
             }
             Self::emit_ref(sinks, &self.records.state)?;
+            self.check_stall(sinks, time)?;
             // Checked after the state is logged, so even a run stopped before its first step
             // leaves a log with its initial state.
             if stop_requested() {
@@ -412,6 +419,9 @@ impl Episode {
             let sensor = self.control.has_sensor();
             if let Some((tick, barriers)) = self.control.take_tick() {
                 Self::emit_tick(sinks, tick, barriers, k, sensor, &mut self.records)?;
+                if let Record::Filter(m) = &self.records.filter {
+                    self.stall.0.observe(Observed::Filter(m), &self.stall.1);
+                }
             }
             let applied_now = self.control.applied();
             debug_assert_eq!(applied_now.len(), applied.len(), "one applied input per channel");
@@ -460,6 +470,26 @@ impl Episode {
             ),
         )?;
         Ok((self.steps, None))
+    }
+
+    /// A `stall` event when the state just logged completes the run's first stall
+    /// ([`StallDetector`], the `stall_time` metric's definition): logged at `time`, the moment
+    /// the definition is met (STALL_DURATION after the stall's start, which the message names:
+    /// the log stays in log-time order).
+    fn check_stall(&mut self, sinks: &mut [&mut dyn Sink], time: f64) -> Result<(), LogError> {
+        let Record::State(m) = &self.records.state else {
+            return Ok(());
+        };
+        let Some(since) = self.stall.0.observe(Observed::State(m), &self.stall.1) else {
+            return Ok(());
+        };
+        let message = format!(
+            "the vehicle has moved slower than {STALL_SPEED} m/s since t = {since} s while the filter overrides the nominal input (stall_time = {since})"
+        );
+        Self::emit(
+            sinks,
+            Self::event(time, STALL_EVENT, message, vec!["vehicle".into()], 0.0),
+        )
     }
 
     /// Collision start/end events from the plant's penetrations of the obstacles.

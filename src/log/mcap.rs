@@ -193,6 +193,8 @@ mod tests {
             heading_index: None,
             predicts: false,
             kinds: Vec::new(),
+            goal: None,
+            reference_path: None,
         }
     }
 

@@ -257,14 +257,18 @@ impl Record {
 /// goes on; its metrics list the warning).
 pub const MUJOCO_WARNING: &str = "mujoco_warning";
 
+/// The `/event` kind of the run's first stall (the `stall_time` metric's definition), logged
+/// when the stall has lasted STALL_DURATION; its message names the start.
+pub const STALL_EVENT: &str = "stall";
+
 /// The Foxglove log line of an `/event` (`/log`): level ERROR for `error`, WARNING for
-/// `collision_start`, `interrupted` and `mujoco_warning`, INFO otherwise; the message is `kind: message` (with
+/// `collision_start`, `interrupted`, `mujoco_warning` and `stall`, INFO otherwise; the message is `kind: message` (with
 /// the participants and, for collisions, the depth), `name` = "mjsafe".
 pub fn event_log(event: &proto::Event) -> foxglove::messages::Log {
     use foxglove::messages::log::Level;
     let level = match event.kind.as_str() {
         "error" => Level::Error,
-        "collision_start" | "interrupted" | MUJOCO_WARNING => Level::Warning,
+        "collision_start" | "interrupted" | MUJOCO_WARNING | STALL_EVENT => Level::Warning,
         _ => Level::Info,
     };
     let mut message = format!("{}: {}", event.kind, event.message);
@@ -315,6 +319,11 @@ pub struct RunInfo {
     /// The kinds the run is made of (filter, nominal, vehicle) as their registrations describe
     /// them: metadata `<role>_kind`, `<role>_label`, `<role>_description`.
     pub kinds: Vec<KindInfo>,
+    /// The scenario's `[goal]`: metadata `goal_position` ("x y"), `goal_radius`, `goal_by`.
+    pub goal: Option<crate::scenario::GoalSpec>,
+    /// The nominal's straight reference path (point, heading): metadata `reference_path`
+    /// ("x y heading").
+    pub reference_path: Option<([f64; 2], f64)>,
 }
 
 /// A kind of the run as its registration describes it (`registry::Description`).
@@ -358,6 +367,17 @@ impl RunInfo {
         ]);
         if let Some(t) = self.prescribed_time {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
+        }
+        if let Some(goal) = &self.goal {
+            let [x, y] = goal.position;
+            metadata.insert("goal_position".to_string(), format!("{x} {y}"));
+            metadata.insert("goal_radius".to_string(), format!("{}", goal.radius));
+            if let Some(by) = goal.by {
+                metadata.insert("goal_by".to_string(), format!("{by}"));
+            }
+        }
+        if let Some(([x, y], heading)) = self.reference_path {
+            metadata.insert("reference_path".to_string(), format!("{x} {y} {heading}"));
         }
         for k in &self.kinds {
             metadata.insert(format!("{}_kind", k.role), k.kind.clone());

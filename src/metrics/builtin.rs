@@ -182,6 +182,21 @@ pub static METRICS: &[Metric] = &[
         ..metric("stall_time", SECONDS, Shape::Number, &[Topic::State, Topic::Filter], new::<Stall>,
             "planar vehicles: start of the first interval of at least STALL_DURATION = 1 s in which the vehicle moved slower than STALL_SPEED = 0.05 m/s (positions at the control ticks) while the filter overrode the nominal input (`/filter` `active`): a run held still by its filter (the CBF-QP deadlock in front of an obstacle), safe only by not moving; absent without one")
     },
+    Metric {
+        applies: |run| run.goal.is_some(),
+        ..metric("distance_to_goal", METRES, Shape::Number, &[Topic::State], new::<DistanceToGoal>,
+            "runs with a `[goal]` (metadata `goal_position` g, `goal_radius` r, `goal_by`): min over the `/state` messages up to `by` (all without it) of max(0, ‖p − g‖ − r), p the planar position: how far the vehicle stayed from the goal disc; 0: it entered the disc (by `by`)")
+    },
+    Metric {
+        applies: |run| run.goal.is_some(),
+        ..metric("time_to_goal", SECONDS, Shape::Number, &[Topic::State], new::<TimeToGoal>,
+            "`time` of the first `/state` message with ‖p − g‖ ≤ r (whether before `by` or not); absent when the vehicle never enters the disc, the closest approach under `missing`")
+    },
+    Metric {
+        applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
+        ..metric("progress_along_path", METRES, Shape::Number, &[Topic::State], new::<ProgressAlongPath>,
+            "planar vehicles: (p_last − p_first) · (cos ψ, sin ψ): the displacement of the planar position from the first to the last `/state` message along the nominal's straight reference path of heading ψ (metadata `reference_path`: `path_lqr`); negative: it went backwards; absent for nominals without a path")
+    },
     metric("max_longitudinal_jerk", JERK, Shape::Number, &[Topic::State], new::<LongitudinalJerk>,
         "planar vehicles: max |third difference of the positions at the control ticks| / T_c³ along the velocity (central difference); needs metadata `control_period`"),
     metric("max_lateral_jerk", JERK, Shape::Number, &[Topic::State], new::<LateralJerk>,
@@ -775,14 +790,149 @@ fn planar_at_tick(
     m: &proto::State,
     run: &RunFacts,
 ) -> Option<(f64, f64, f64)> {
-    let [i, j] = (*planar.get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names)))?;
     if let Some(period) = run.control_period {
         let ticks = m.time / period;
         if (ticks - ticks.round()).abs() > 1e-6 {
             return None;
         }
     }
-    Some((m.time, m.values[i], m.values[j]))
+    planar_of(planar, m, run)
+}
+
+/// The planar position (time, x, y) of any `/state` message (`planar` as for
+/// [`planar_at_tick`]).
+fn planar_of(planar: &mut Option<Option<[usize; 2]>>, m: &proto::State, run: &RunFacts) -> Option<(f64, f64, f64)> {
+    let [i, j] = (*planar.get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names)))?;
+    Some((m.time, *m.values.get(i)?, *m.values.get(j)?))
+}
+
+/// Why a progress metric of a vehicle without a planar position is absent.
+const NOT_PLANAR: &str = "the log's /state has no planar position (x, y) to measure it on";
+
+/// How close a run's planar position came to the goal's centre: (distance, time), over the
+/// whole run and over the states up to the goal's `by`; and when it first entered the disc.
+#[derive(Default)]
+struct GoalApproach {
+    planar: Option<Option<[usize; 2]>>,
+    closest: Option<(f64, f64)>,
+    closest_by: Option<(f64, f64)>,
+    reached: Option<f64>,
+}
+
+impl GoalApproach {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let (Observed::State(m), Some(goal)) = (record, run.goal) else {
+            return;
+        };
+        let Some((t, x, y)) = planar_of(&mut self.planar, m, run) else {
+            return;
+        };
+        let d = (x - goal.position[0]).hypot(y - goal.position[1]);
+        if d <= goal.radius && self.reached.is_none() {
+            self.reached = Some(t);
+        }
+        let closer = |c: Option<(f64, f64)>| c.is_none_or(|(closest, _)| d < closest);
+        if closer(self.closest) {
+            self.closest = Some((d, t));
+        }
+        if goal.by.is_none_or(|by| t <= by + 1e-9) && closer(self.closest_by) {
+            self.closest_by = Some((d, t));
+        }
+    }
+
+    /// Whether the run has the metric: a goal and a planar position (absent without one, with
+    /// the reason under `name`; `value` is called whether the metric applies or not).
+    fn planar(&self, name: &str, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> bool {
+        if run.goal.is_none() {
+            return false;
+        }
+        if self.planar == Some(None) {
+            missing.insert(name.into(), NOT_PLANAR.into());
+            return false;
+        }
+        true
+    }
+}
+
+#[derive(Default)]
+struct DistanceToGoal(GoalApproach);
+
+impl Accumulate for DistanceToGoal {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if !self.0.planar("distance_to_goal", run, missing) {
+            return Value::Number(None);
+        }
+        let radius = run.goal.map_or(0.0, |g| g.radius);
+        Value::Number(self.0.closest_by.map(|(d, _)| (d - radius).max(0.0)))
+    }
+}
+
+#[derive(Default)]
+struct TimeToGoal(GoalApproach);
+
+impl Accumulate for TimeToGoal {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if !self.0.planar("time_to_goal", run, missing) {
+            return Value::Number(None);
+        }
+        if let (None, Some(goal), Some((d, t))) = (self.0.reached, run.goal, self.0.closest) {
+            let [x, y] = goal.position;
+            missing.insert(
+                "time_to_goal".into(),
+                format!(
+                    "the vehicle never reached the goal (within {} m of ({x}, {y})): closest {d:.3} m from its centre, at t = {t:.3} s",
+                    goal.radius
+                ),
+            );
+        }
+        Value::Number(self.0.reached)
+    }
+}
+
+#[derive(Default)]
+struct ProgressAlongPath {
+    planar: Option<Option<[usize; 2]>>,
+    /// The planar positions of the earliest and the latest state (time, x, y).
+    first: Option<(f64, f64, f64)>,
+    last: Option<(f64, f64, f64)>,
+}
+
+impl Accumulate for ProgressAlongPath {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let Observed::State(m) = record else { return };
+        let Some(here) = planar_of(&mut self.planar, m, run) else {
+            return;
+        };
+        if self.first.is_none_or(|f| here.0 < f.0) {
+            self.first = Some(here);
+        }
+        if self.last.is_none_or(|l| here.0 >= l.0) {
+            self.last = Some(here);
+        }
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if run.reference_path.is_none() {
+            return Value::Number(None);
+        }
+        if self.planar == Some(None) {
+            missing.insert("progress_along_path".into(), NOT_PLANAR.into());
+            return Value::Number(None);
+        }
+        let progress = match (run.reference_path, self.first, self.last) {
+            (Some((_, heading)), Some(first), Some(last)) => {
+                let (sin, cos) = heading.sin_cos();
+                Some((last.1 - first.1) * cos + (last.2 - first.2) * sin)
+            }
+            _ => None,
+        };
+        Value::Number(progress)
+    }
 }
 
 /// The largest longitudinal and lateral jerk of a planar vehicle, from the third differences
@@ -845,8 +995,10 @@ impl PlanarJerk {
 pub const STALL_SPEED: f64 = 0.05;
 pub const STALL_DURATION: f64 = 1.0;
 
+/// The `stall_time` definition, fed the `/state` and `/filter` records in log order: by the
+/// metric after the run, and by the episode during it (its `stall` event).
 #[derive(Default)]
-struct Stall {
+pub struct StallDetector {
     /// The position indices ([`planar_at_tick`]).
     planar: Option<Option<[usize; 2]>>,
     /// The position at the last control tick (time, x, y).
@@ -858,41 +1010,54 @@ struct Stall {
     first: Option<f64>,
 }
 
-impl Accumulate for Stall {
-    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+impl StallDetector {
+    /// Reads one record; returns the start of the first stall at the record that completes it
+    /// (a `/state` message STALL_DURATION after the start), None otherwise.
+    pub fn observe(&mut self, record: Observed<'_>, run: &RunFacts) -> Option<f64> {
         let m = match record {
             Observed::Filter(f) => {
                 self.overriding = f.active;
-                return;
+                return None;
             }
             Observed::State(m) => m,
-            _ => return,
+            _ => return None,
         };
         // Without the control period the metric is absent (its declared metadata).
-        if run.control_period.is_none() {
-            return;
+        run.control_period?;
+        let here = planar_at_tick(&mut self.planar, m, run)?;
+        let (t, x, y) = self.last.replace(here)?;
+        let dt = here.0 - t;
+        if dt <= 0.0 {
+            return None;
         }
-        let Some(here) = planar_at_tick(&mut self.planar, m, run) else {
-            return;
-        };
-        if let Some((t, x, y)) = self.last.replace(here) {
-            let dt = here.0 - t;
-            if dt <= 0.0 {
-                return;
+        let speed = (here.1 - x).hypot(here.2 - y) / dt;
+        if speed < STALL_SPEED && self.overriding {
+            let since = *self.since.get_or_insert(t);
+            if self.first.is_none() && here.0 - since >= STALL_DURATION - 1e-9 {
+                self.first = Some(since);
+                return self.first;
             }
-            let speed = (here.1 - x).hypot(here.2 - y) / dt;
-            if speed < STALL_SPEED && self.overriding {
-                let since = *self.since.get_or_insert(t);
-                if self.first.is_none() && here.0 - since >= STALL_DURATION - 1e-9 {
-                    self.first = Some(since);
-                }
-            } else {
-                self.since = None;
-            }
+        } else {
+            self.since = None;
         }
+        None
+    }
+
+    /// The start of the first stall so far.
+    pub fn first(&self) -> Option<f64> {
+        self.first
+    }
+}
+
+#[derive(Default)]
+struct Stall(StallDetector);
+
+impl Accumulate for Stall {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        Value::Number(self.first)
+        Value::Number(self.0.first())
     }
 }
 

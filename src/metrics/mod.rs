@@ -59,6 +59,26 @@ pub struct RunFacts {
     pub predicts: Option<bool>,
     /// The planar position the vehicle declared (None: not declared; Some(None): none).
     pub declared_planar: Option<Option<[usize; 2]>>,
+    /// The scenario's goal (metadata `goal_position`, `goal_radius`, `goal_by`).
+    pub goal: Option<Goal>,
+    /// The nominal's straight reference path: a point and the heading ψ (metadata
+    /// `reference_path`).
+    pub reference_path: Option<([f64; 2], f64)>,
+}
+
+/// A goal as the run metadata records it: the disc of centre `position` and `radius` (m),
+/// to be entered by `by` (s), if given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Goal {
+    pub position: [f64; 2],
+    pub radius: f64,
+    pub by: Option<f64>,
+}
+
+/// Whitespace-separated numbers, exactly `N` of them.
+fn numbers<const N: usize>(text: &str) -> Option<[f64; N]> {
+    let values: Vec<f64> = text.split_whitespace().map(|v| v.parse().ok()).collect::<Option<_>>()?;
+    values.try_into().ok()
 }
 
 impl RunFacts {
@@ -72,6 +92,19 @@ impl RunFacts {
             prescribed_time: number("prescribed_time"),
             predicts: metadata.get("predicts").and_then(|s| s.parse().ok()),
             declared_planar: read::declared_planar_position(metadata),
+            goal: metadata
+                .get("goal_position")
+                .and_then(|p| numbers::<2>(p))
+                .zip(number("goal_radius"))
+                .map(|(position, radius)| Goal {
+                    position,
+                    radius,
+                    by: number("goal_by"),
+                }),
+            reference_path: metadata
+                .get("reference_path")
+                .and_then(|p| numbers::<3>(p))
+                .map(|[x, y, heading]| ([x, y], heading)),
         }
     }
 
