@@ -128,16 +128,17 @@ impl BaselineProgress {
 }
 
 /// The metrics `--objective` accepts: the numeric columns of the flat metrics.
-pub fn check_objective(name: &str) -> Result<(), FalsifyError> {
+pub fn check_objective(objective: &str) -> Result<(), FalsifyError> {
+    let (name, _) = metric_and_sign(objective);
     let probe = FlatMetrics::columns(std::iter::empty());
     let numeric = FlatMetrics::is_numeric_column;
     let known = probe.iter().any(|c| c == name) || name.contains('.');
     if !known || !numeric(name) {
         let names: Vec<&str> = probe.iter().map(String::as_str).filter(|c| numeric(c)).collect();
         return Err(FalsifyError::Objective {
-            name: name.into(),
+            name: objective.into(),
             message: format!(
-                "expected a numeric metric of `mjsafe analyze`: {} (or a per-channel one such as max_correction.<channel>)",
+                "expected a numeric metric of `mjsafe analyze`, or -<metric> to search for large values: {} (or a per-channel one such as max_correction.<channel>)",
                 names.join(", ")
             ),
         });
@@ -289,11 +290,21 @@ pub fn range_value(range: &Range, u: f64) -> String {
 }
 
 /// The numeric value of metric `name` (a column of `analyze --csv`), if the run has one.
-fn objective_value(metrics: &FlatMetrics, name: &str) -> Option<f64> {
+fn objective_value(metrics: &FlatMetrics, objective: &str) -> Option<f64> {
+    let (name, sign) = metric_and_sign(objective);
     match metrics.cell(name) {
-        Cell::Num(v) => v,
-        Cell::Int(v) => v.map(|v| v as f64),
+        Cell::Num(v) => v.map(|v| sign * v),
+        Cell::Int(v) => v.map(|v| sign * v as f64),
         _ => None,
+    }
+}
+
+/// An objective names a metric, minimised, or `-<metric>`: its negation, minimised (a search
+/// for large values, e.g. `-distance_to_goal` or `-stall_time`).
+pub fn metric_and_sign(objective: &str) -> (&str, f64) {
+    match objective.strip_prefix('-') {
+        Some(name) => (name, -1.0),
+        None => (objective, 1.0),
     }
 }
 

@@ -256,3 +256,55 @@ fn a_baseline_that_stalls_disqualifies_its_candidate() {
         stderr(&o)
     );
 }
+
+/// `--objective=-distance_to_goal` searches for runs that end far from their goal: on the road
+/// too narrow to pass, every candidate stalls short of it; the objective of each evaluation is
+/// minus its run's own distance_to_goal.
+#[test]
+fn a_negated_objective_finds_runs_that_miss_their_goal() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("far");
+    let o = mjsafe(&[
+        "falsify",
+        "scenarios/bicycle_narrow_road.toml",
+        "--range",
+        "obstacles.0.centre.1=0.3..0.7",
+        "--objective=-distance_to_goal",
+        "--threshold=-5",
+        "--budget",
+        "8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("evaluations.json")).unwrap()).unwrap();
+    let evaluations = json["searches"][0]["evaluations"].as_array().unwrap();
+    let first = evaluations
+        .iter()
+        .find(|e| e["violation"] == true)
+        .expect("a violation");
+    let objective = first["objective"].as_f64().unwrap();
+    assert!(objective < -5.0, "{first}");
+    // The candidate's own run, analysed from its log.
+    let offset = first["parameters"][0][1].as_str().unwrap();
+    let log = dir.path().join("candidate.mcap");
+    run_ok(
+        &scenario("bicycle_narrow_road.toml"),
+        &log,
+        &["--set", &format!("obstacles.0.centre.1={offset}")],
+    );
+    let m = analyze_json(&log);
+    assert_eq!(-m["distance_to_goal"].as_f64().unwrap(), objective, "{m}");
+    // A bad negated name is one error line.
+    let o = mjsafe(&[
+        "falsify",
+        "scenarios/bicycle_narrow_road.toml",
+        "--range",
+        "obstacles.0.centre.1=0.3..0.7",
+        "--objective=-no_such_metric",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("-no_such_metric") && err.lines().count() == 1, "{err}");
+}

@@ -146,3 +146,53 @@ fn min_h_is_absent_across_barriers_of_different_units() {
         .min(by["obstacle_1"].as_f64().unwrap());
     assert_eq!(m["min_h"].as_f64().unwrap(), least);
 }
+
+/// The road scenarios and the road study's extremes (docs/studies.md): the two-lane road is
+/// passed and the goal reached; a road too narrow stalls with every h ≥ 0; the same narrow road
+/// with the acceleration delay under-estimated by 40 % hits the obstacle and leaves the road.
+#[test]
+fn road_outcomes_pass_stall_and_fail_as_the_study_says() {
+    let dir = tempfile::tempdir().unwrap();
+    let road = dir.path().join("road.mcap");
+    run_ok(&scenario("bicycle_road_gamma_m.toml"), &road, &[]);
+    let m = analyze_json(&road);
+    assert!(m["collision"].is_null() && m["stall_time"].is_null(), "{m}");
+    assert!(m["time_to_goal"].as_f64().unwrap() < 12.0, "{m}");
+    for (name, h) in m["min_h_by_barrier"].as_object().unwrap() {
+        assert!(h.as_f64().unwrap() >= 0.0, "{name}: {h}");
+    }
+
+    let narrow = dir.path().join("narrow.mcap");
+    let line = run_ok(&scenario("bicycle_narrow_road.toml"), &narrow, &[]);
+    let m = analyze_json(&narrow);
+    assert!(m["collision"].is_null(), "{m}");
+    assert!(m["stall_time"].as_f64().unwrap() > 3.0, "{m}");
+    assert!(
+        m["time_to_goal"].is_null() && m["missing"]["time_to_goal"].is_string(),
+        "{m}"
+    );
+    for (name, h) in m["min_h_by_barrier"].as_object().unwrap() {
+        assert!(h.as_f64().unwrap() >= 0.0, "{name}: {h}");
+    }
+    // No one min h across m² and m: the summary line gives each barrier's.
+    assert!(m["min_h"].is_null());
+    assert!(
+        line.contains("STALLED") && line.contains("(left_edge)") && line.contains("(obstacle_0)"),
+        "{line}"
+    );
+
+    let mismatched = dir.path().join("mismatched.mcap");
+    run_ok(
+        &scenario("bicycle_road_gamma_m.toml"),
+        &mismatched,
+        &[
+            "--set",
+            "road.edges.1.point=[0.0, -8.0]",
+            "--set",
+            "assumed_delays.acceleration=0.9",
+        ],
+    );
+    let m = analyze_json(&mismatched);
+    assert_eq!(m["collision"]["with"], "obstacle_0", "{m}");
+    assert!(m["min_h_by_barrier"]["right_edge"].as_f64().unwrap() < 0.0, "{m}");
+}

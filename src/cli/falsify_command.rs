@@ -15,8 +15,10 @@ pub struct FalsifyArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
     /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
-    /// min_time_to_collision, …
-    #[arg(long, default_value = "min_h")]
+    /// min_time_to_collision, progress_along_path, …; `-<metric>` minimises its negation, a
+    /// search for large values: `--objective=-distance_to_goal --threshold=-5` looks for runs
+    /// that end more than 5 m from the goal.
+    #[arg(long, default_value = "min_h", allow_hyphen_values = true)]
     pub objective: String,
     /// A candidate violates when the objective is below this.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -147,7 +149,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
             scenario.display()
         );
     }
-    if let Some((group, _)) = objective.split_once('.') {
+    if let Some((group, _)) = falsify::metric_and_sign(&objective).0.split_once('.') {
         // A per-channel metric names a channel of the vehicle: told by one run of the
         // scenario as given (when it runs), not by a whole budget of absent values.
         let run = sweep::Run {
@@ -158,7 +160,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
         if let Some(metrics) = &row.metrics {
             let columns = FlatMetrics::columns([metrics]);
-            if !columns.contains(&objective) {
+            if !columns.iter().any(|c| c == falsify::metric_and_sign(&objective).0) {
                 let prefix = format!("{group}.");
                 let known: Vec<&str> = columns
                     .iter()
