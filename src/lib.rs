@@ -4,6 +4,7 @@
 // `unsafe` only in `mujoco` (the FFI and the test binary's counting allocator).
 #![deny(unsafe_code)]
 
+pub mod actor;
 pub mod actuator;
 pub mod analyze;
 pub mod barrier;

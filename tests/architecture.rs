@@ -79,6 +79,7 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "dynamics",
         "barrier",
         "road",
+        "actor",
         "predictor",
         "prescribed_time",
         "params",
