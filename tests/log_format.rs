@@ -113,7 +113,7 @@ fn python_mcap_reads_and_decodes_the_log() {
         .map(|v| v.as_str().unwrap())
         .collect();
     let (trail, others): (Vec<&str>, Vec<&str>) = ids.iter().partition(|id| id.starts_with("trail/"));
-    assert_eq!(others, ["obstacle_0", "reference_path", "vehicle"]);
+    assert_eq!(others, ["goal", "obstacle_0", "reference_path", "vehicle"]);
     // 1201 ticks, a point every 5th: 241 points, 10 intervals per segment.
     assert_eq!(trail.len(), 24, "{trail:?}");
 
@@ -417,8 +417,7 @@ fn the_scene_shows_predicted_positions_and_one_dimensional_vehicles() {
 
 #[test]
 fn the_road_and_planar_half_spaces_are_drawn_and_are_barriers_with_the_hull() {
-    // Read back by the independent Python reader. (The multi-barrier QP until the distinct-
-    // delay filters take several barriers.)
+    // Read back by the independent Python reader.
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("road.mcap");
     run_ok(
@@ -427,8 +426,6 @@ fn the_road_and_planar_half_spaces_are_drawn_and_are_barriers_with_the_hull() {
         &[
             "--set",
             "duration=1.0",
-            "--set",
-            "filter={kind='cbf_qp', l0=4.0, l1=4.0}",
             "--set",
             "barriers=[{kind='half_space', coefficients=[0.0, 1.0], offset=20.0}]",
         ],
@@ -452,6 +449,15 @@ fn the_road_and_planar_half_spaces_are_drawn_and_are_barriers_with_the_hull() {
         }
         // Drawn over the stretch the run covers: from behind the start (x1 = -20).
         assert!(points.iter().any(|p| p[0].as_f64().unwrap() < -20.0), "{id}");
+    }
+    // The goal's rim (radius 2 about (10, 0)) as dashes.
+    let goal = &lines["goal"][0];
+    assert_eq!(goal["type"], 2, "{goal}");
+    let points = goal["points"].as_array().unwrap();
+    assert!(points.len() >= 24, "{goal}");
+    for p in points {
+        let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+        assert!(((x - 10.0).hypot(y) - 2.0).abs() < 1e-9, "{p}");
     }
     // h in metres at x(0) = (-20, 0): 5 - 0 - 3 (hull) and 0 + 15 - 3; after the obstacle and
     // the scenario's half-space (x2 + 20).

@@ -29,7 +29,7 @@ def main(path):
                 if topic == "/scene":
                     scene_ids.update(e.id for e in decoded.entities)
                     for e in decoded.entities:
-                        if e.id.startswith(("road/", "barrier/")):
+                        if e.id.startswith(("road/", "barrier/", "goal")):
                             scene_lines[e.id] = [{"type": l.type, "points": [[p.x, p.y] for p in l.points]} for l in e.lines]
                 if topic == "/log":
                     logs.append({"time": message.log_time / 1e9, "level": decoded.level, "message": decoded.message, "name": decoded.name})

@@ -468,8 +468,9 @@ pub(super) fn road_edges(
     Ok(barriers)
 }
 
-/// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, and
-/// `barrier/<name>` for a half-space barrier on the planar position, drawn where h = 0),
+/// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, the goal disc's
+/// rim dashed (`goal`), and `barrier/<name>` for a half-space barrier on the planar position,
+/// drawn where h = 0),
 /// lines drawn over the stretch near the points `around` (start, path, obstacles).
 pub(super) fn scene_lines(
     loaded: &LoadedScenario,
@@ -498,6 +499,13 @@ pub(super) fn scene_lines(
             });
         }
     }
+    if let Some(goal) = &loaded.scenario.goal {
+        lines.push(SceneLine {
+            id: "goal".into(),
+            points: dashed_circle(goal.position, goal.radius),
+            dashed: true,
+        });
+    }
     for b in barriers {
         if let Some(curve) = crate::road::planar_half_space(&b.shape, position) {
             lines.push(SceneLine {
@@ -508,6 +516,18 @@ pub(super) fn scene_lines(
         }
     }
     lines
+}
+
+/// A circle as 24 dashes (point pairs of a line list), half of each arc drawn.
+fn dashed_circle(centre: [f64; 2], radius: f64) -> Vec<[f64; 2]> {
+    const DASHES: usize = 24;
+    let at = |angle: f64| [centre[0] + radius * angle.cos(), centre[1] + radius * angle.sin()];
+    (0..DASHES)
+        .flat_map(|k| {
+            let start = std::f64::consts::TAU * k as f64 / DASHES as f64;
+            [at(start), at(start + std::f64::consts::PI / DASHES as f64)]
+        })
+        .collect()
 }
 
 /// The obstacles: circular barriers (4.81) with r = hull + obstacle radius, clear of x(0),

@@ -94,6 +94,8 @@ pub struct QpWorkspace {
     correction: Vec<f64>,
     /// Problems the active set could not solve (handed to Clarabel).
     fallbacks: u64,
+    /// The constraints scaled to ‖b_k‖ = 1 (see [`QpWorkspace::solve`]).
+    scaled: Vec<Constraint>,
 }
 
 fn finite_limit(bound: f64) -> bool {
@@ -126,6 +128,7 @@ impl QpWorkspace {
         }
         workspace.c.reserve_exact(k);
         workspace.soft.reserve_exact(k);
+        workspace.scaled = (0..k).map(|_| Constraint::zeros(r)).collect();
         workspace.working.reserve_exact(r);
         workspace
     }
@@ -137,6 +140,12 @@ impl QpWorkspace {
 
     /// u ← the CBF-QP's solution around u0 (see the module docs); returns (active, infeasible,
     /// μ) as in [`QpOutcome`].
+    ///
+    /// Each constraint is scaled to ‖b_k‖ = 1 first (a_k + b_k·u ≥ 0 is the same set), so the
+    /// slack penalty compares violations as distances in input space: in the constraint's own
+    /// units it would exceed the multipliers only for some scalings (a barrier in metres whose
+    /// b is 3e-3 per newton needed multipliers near 1e6, and was reported infeasible where it
+    /// was not).
     pub fn solve(
         &mut self,
         constraints: &[Constraint],
@@ -146,6 +155,39 @@ impl QpWorkspace {
     ) -> (bool, bool, f64) {
         let mu = constraints.iter().map(|c| c.value(u0)).fold(f64::INFINITY, f64::min);
         u.copy_from(u0);
+        let mut scaled = std::mem::take(&mut self.scaled);
+        while scaled.len() < constraints.len() {
+            scaled.push(Constraint::zeros(u0.len()));
+        }
+        for (c, s) in constraints.iter().zip(scaled.iter_mut()) {
+            let norm = c.b.norm();
+            let scale = if norm > 0.0 && norm.is_finite() {
+                1.0 / norm
+            } else {
+                1.0
+            };
+            if s.b.len() != c.b.len() {
+                s.b = DVector::zeros(c.b.len());
+            }
+            (s.h, s.a) = (c.h, c.a * scale);
+            for (sb, cb) in s.b.iter_mut().zip(c.b.iter()) {
+                *sb = cb * scale;
+            }
+        }
+        let outcome = self.solve_scaled(&scaled[..constraints.len()], u0, limits, u, mu);
+        self.scaled = scaled;
+        outcome
+    }
+
+    /// [`QpWorkspace::solve`] on constraints already scaled; `mu` is the unscaled μ.
+    fn solve_scaled(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        limits: Option<(&[f64], &[f64])>,
+        u: &mut DVector<f64>,
+        mu: f64,
+    ) -> (bool, bool, f64) {
         // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
         // for: u0 is returned, flagged infeasible.
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
@@ -537,6 +579,31 @@ mod tests {
         }
     }
 
+    /// The same constraints in other units (each row scaled by a positive factor) are the same
+    /// set: the solution and its feasibility do not change. Ames et al.'s headway barrier in
+    /// metres has b ≈ 3e-3 per newton; a correction of 1e4 N then needs multipliers near 7e6,
+    /// above the slack penalty, unless the rows are normalised.
+    #[test]
+    fn the_solution_does_not_depend_on_the_units_of_a_constraint() {
+        let u0 = DVector::from_column_slice(&[0.0]);
+        let base = [constraint(-30.0, &[3e-3]), constraint(5.0, &[1.0])];
+        let reference = cbf_qp_multi(&base, &u0, None);
+        assert!(!reference.infeasible, "{reference:?}");
+        assert!((reference.input[0] - 1e4).abs() < 1e-6, "{reference:?}");
+        for scale in [1e-6, 1e-3, 1e3, 1e6] {
+            let scaled = [
+                constraint(-30.0 * scale, &[3e-3 * scale]),
+                constraint(5.0 / scale, &[1.0 / scale]),
+            ];
+            let out = cbf_qp_multi(&scaled, &u0, None);
+            assert!(!out.infeasible, "scale {scale}: {out:?}");
+            assert!(
+                (out.input[0] - reference.input[0]).abs() < 1e-6,
+                "scale {scale}: {out:?}"
+            );
+        }
+    }
+
     #[test]
     fn one_constraint_without_limits_matches_the_closed_form() {
         let c = constraint(-3.0, &[1.0, 2.0]);
@@ -615,12 +682,26 @@ mod tests {
         let mut worst_excess = (f64::NEG_INFINITY, f64::NEG_INFINITY);
         for trial in 0..20_000 {
             let (r, k, limited) = (1 + trial % 4, 1 + (trial / 4) % 4, trial % 3 != 0);
-            let (constraints, u0, limits) = random_problem(&mut rng, r, k, limited);
+            let (raw, u0, limits) = random_problem(&mut rng, r, k, limited);
             let limits = limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
             u.resize_vertically_mut(r, 0.0);
-            let (active, infeasible, mu) = workspace.solve(&constraints, &u0, limits, &mut u);
+            let (active, infeasible, mu) = workspace.solve(&raw, &u0, limits, &mut u);
+            // The problem `solve` defines: each row scaled to ‖b_k‖ = 1 (the slack penalty on
+            // distances in input space), solved by Clarabel independently.
+            let constraints: Vec<Constraint> = raw
+                .iter()
+                .map(|c| {
+                    let norm = c.b.norm();
+                    let scale = if norm > 0.0 { 1.0 / norm } else { 1.0 };
+                    Constraint {
+                        h: c.h,
+                        a: c.a * scale,
+                        b: &c.b * scale,
+                    }
+                })
+                .collect();
             let reference = clarabel_outcome(&constraints, &u0, limits);
-            assert_eq!(mu, reference.mu);
+            assert_eq!(mu, raw.iter().map(|c| c.value(&u0)).fold(f64::INFINITY, f64::min));
             let clamped = DVector::from_iterator(
                 r,
                 (0..r).map(|i| limits.map_or(reference.input[i], |(lo, hi)| reference.input[i].clamp(lo[i], hi[i]))),
@@ -676,7 +757,10 @@ mod tests {
             active_count += usize::from(active);
             infeasible_count += usize::from(infeasible);
             // Slacks near the tolerance may fall either side, and Clarabel leaves |v| ~ 1e-10
-            // where the exact v is 0.
+            // where the exact v is 0. With rows of unit norm, opposing violated constraints
+            // often make the penalty flat along a segment: the active set returns its point of
+            // least ‖v‖ (often v = 0, "not active"), Clarabel an interior point of it with the
+            // same objective (checked above): 422 of 20 000 flags differ, all such ties.
             if (active, infeasible) != (reference.active, reference.infeasible) {
                 flags_differ += 1;
             }
@@ -690,7 +774,7 @@ mod tests {
         assert_eq!(workspace.fallbacks(), 0);
         assert!(largest_feasible < 1e-3, "{largest_feasible}");
         assert!(
-            active_count > 10_000 && infeasible_count > 1000 && flags_differ <= 200,
+            active_count > 10_000 && infeasible_count > 1000 && flags_differ <= 600,
             "{flags_differ}"
         );
     }
