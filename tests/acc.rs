@@ -61,7 +61,7 @@ fn acc_bad_vehicle_parameters_are_one_line_naming_the_key() {
         ("vehicle.f2=-0.25", &["key `vehicle.f2`", ">= 0"]),
         (
             "vehicle.lead_speed=\"fast\"",
-            &["key `vehicle.lead_speed`", "expected f64"],
+            &["key `vehicle.lead_speed`", "expected a number"],
         ),
         (
             "vehicle.drag=1.0",
