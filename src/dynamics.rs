@@ -1,6 +1,7 @@
 //! The analytic control-affine models ẋ = f(x) + G(x) u that filters and predictors use
 //! ([`Dynamics`]): bicycle (4.78), unicycle (2.36), double integrators, linear systems,
-//! Example 1 of Ch. 4 (4.52), the strict-feedback system (5.82). Pure maths: no MuJoCo.
+//! Example 1 of Ch. 4 (4.52), the strict-feedback system (5.82), the longitudinal car of
+//! Ames et al.'s adaptive cruise control (CDC 2014). Pure maths: no MuJoCo.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -556,6 +557,70 @@ impl Dynamics for StrictFeedbackModel {
     }
 }
 
+/// A car on a straight road behind a lead car at constant speed: Ames, Xu, Grizzle, Tabuada,
+/// "Control barrier function based quadratic programs with application to adaptive cruise
+/// control", CDC 2014, Table 1 (as in ChoiJangho/CBF-CLF-Helper 981e409d, `AccBuiltIn`).
+/// x = (p, v, z): ṗ = v, v̇ = (u − F_r(v))/m, ż = v_L − v, with the rolling and air
+/// resistance F_r(v) = f0 + f1 v + f2 v² and u the wheel force (N); z is the gap to the lead.
+#[derive(Debug, Clone)]
+pub struct LongitudinalModel {
+    /// Mass m (kg).
+    pub mass: f64,
+    /// Resistance coefficients (f0 N, f1 N s/m, f2 N s²/m²).
+    pub resistance: [f64; 3],
+    /// The lead's constant speed v_L (m/s).
+    pub lead_speed: f64,
+    state_names: Vec<String>,
+    channel_names: Vec<String>,
+}
+
+impl LongitudinalModel {
+    /// The model with mass m, resistance (f0, f1, f2) and lead speed v_L.
+    pub fn new(mass: f64, resistance: [f64; 3], lead_speed: f64) -> LongitudinalModel {
+        LongitudinalModel {
+            mass,
+            resistance,
+            lead_speed,
+            state_names: names(&["position", "speed", "gap"]),
+            channel_names: names(&["force"]),
+        }
+    }
+
+    /// F_r(v) = f0 + f1 v + f2 v².
+    pub fn resistance_force(&self, v: f64) -> f64 {
+        let [f0, f1, f2] = self.resistance;
+        f0 + f1 * v + f2 * v * v
+    }
+}
+
+impl Dynamics for LongitudinalModel {
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+    fn channel_names(&self) -> &[String] {
+        &self.channel_names
+    }
+    fn drift_into(&self, x: &[f64], f: &mut [f64]) {
+        f.copy_from_slice(&[x[1], -self.resistance_force(x[1]) / self.mass, self.lead_speed - x[1]]);
+    }
+    fn add_input_term(&self, _x: &[f64], u: &[f64], xdot: &mut [f64]) {
+        xdot[1] += u[0] / self.mass;
+    }
+    // ∂f/∂v = (1, −(f1 + 2 f2 v)/m, −1); f depends on nothing else.
+    fn drift_jacobian_into(&self, x: &[f64], j: &mut DMatrix<f64>) {
+        let [_, f1, f2] = self.resistance;
+        j[(0, 1)] = 1.0;
+        j[(1, 1)] = -(f1 + 2.0 * f2 * x[1]) / self.mass;
+        j[(2, 1)] = -1.0;
+    }
+    fn input_matrix_into(&self, _x: &[f64], g: &mut DMatrix<f64>) {
+        g[(1, 0)] = 1.0 / self.mass;
+    }
+    fn line_position(&self) -> Option<usize> {
+        Some(0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
 
@@ -660,6 +725,91 @@ mod tests {
                 "{z}: {:e}",
                 sinc(z) - direct
             );
+        }
+    }
+    /// Table 1 of Ames et al. (CDC 2014).
+    fn acc_table1() -> LongitudinalModel {
+        LongitudinalModel::new(1650.0, [0.1, 5.0, 0.25], 14.0)
+    }
+
+    #[test]
+    fn acc_speed_is_affine_in_time_without_speed_dependent_resistance() {
+        // f1 = f2 = 0, u held: v̇ = (u − f0)/m = a, so v = v0 + a t, p = p0 + v0 t + a t²/2,
+        // z = z0 + (v_L − v0) t − a t²/2.
+        let model = LongitudinalModel::new(1650.0, [0.1, 0.0, 0.0], 14.0);
+        let (x0, u, t) = ([3.0, 20.0, 100.0], [-2000.0], 4.0);
+        let a = (u[0] - 0.1) / 1650.0;
+        let exact = [
+            3.0 + 20.0 * t + 0.5 * a * t * t,
+            20.0 + a * t,
+            100.0 + (14.0 - 20.0) * t - 0.5 * a * t * t,
+        ];
+        let integrated = fine_rk4(&model, &x0, &u, t, 400);
+        for (e, i) in exact.iter().zip(&integrated) {
+            assert!((e - i).abs() < 1e-10, "{exact:?} vs {integrated:?}");
+        }
+    }
+
+    #[test]
+    fn acc_speed_under_air_resistance_matches_the_closed_form() {
+        // f0 = f1 = 0, u = 0: m v̇ = −f2 v², so v = v0 / (1 + f2 v0 t / m).
+        let model = LongitudinalModel::new(1650.0, [0.0, 0.0, 0.25], 14.0);
+        let t = 10.0;
+        let v = fine_rk4(&model, &[0.0, 20.0, 100.0], &[0.0], t, 1000)[1];
+        let exact = 20.0 / (1.0 + 0.25 * 20.0 * t / 1650.0);
+        assert!((v - exact).abs() < 1e-10, "{v} vs {exact}");
+    }
+
+    #[test]
+    fn acc_drift_jacobian_matches_finite_differences() {
+        let model = acc_table1();
+        let x = [5.0, 21.3, 60.0];
+        let j = model.drift_jacobian(&DVector::from_column_slice(&x));
+        for k in 0..3 {
+            let (mut up, mut down) = (x, x);
+            up[k] += 1e-5;
+            down[k] -= 1e-5;
+            let column = (model.drift(&DVector::from_column_slice(&up))
+                - model.drift(&DVector::from_column_slice(&down)))
+                / 2e-5;
+            assert!((column - j.column(k)).norm() < 1e-8, "column {k}");
+        }
+    }
+
+    #[test]
+    fn acc_headway_barrier_lie_derivatives_match_hand_and_finite_differences() {
+        use crate::barrier::{lie_derivatives, Barrier, Shape};
+        // h = z − T v − (v_L − v)²/(2 c_d g) as xᵀQx + cᵀx + d.
+        let (t_h, brake, lead, m) = (1.8, 0.3 * 9.81, 14.0, 1650.0);
+        let barrier = Barrier {
+            name: "headway".into(),
+            shape: Shape::Quadratic {
+                q: vec![vec![0.0; 3], vec![0.0, -0.5 / brake, 0.0], vec![0.0; 3]],
+                c: vec![0.0, -t_h + lead / brake, 1.0],
+                d: -lead * lead / (2.0 * brake),
+            },
+        };
+        let h = |x: &[f64]| x[2] - t_h * x[1] - (lead - x[1]).powi(2) / (2.0 * brake);
+        let model = acc_table1();
+        for x in [[0.0, 20.0, 100.0], [50.0, 14.0, 25.2], [10.0, 9.0, 30.0]] {
+            let lie = lie_derivatives(&barrier, &model, &DVector::from_column_slice(&x));
+            assert!((lie.h - h(&x)).abs() < 1e-12);
+            // By hand: ∂h/∂v = −T + (v_L − v)/(c_d g), ∂h/∂z = 1.
+            let dh_dv = -t_h + (lead - x[1]) / brake;
+            let resistance = 0.1 + 5.0 * x[1] + 0.25 * x[1] * x[1];
+            let lf = dh_dv * (-resistance / m) + (lead - x[1]);
+            assert!((lie.lf_h - lf).abs() < 1e-12, "{} vs {lf}", lie.lf_h);
+            assert!((lie.lg_h[0] - dh_dv / m).abs() < 1e-15);
+            // Central differences of h along f and along g (exact up to rounding for a
+            // quadratic h, so with a step of unit length in x).
+            let along = |d: &DVector<f64>| {
+                let step = 1.0 / d.norm();
+                let shifted = |s: f64| h(&[x[0] + s * d[0], x[1] + s * d[1], x[2] + s * d[2]]);
+                (shifted(step) - shifted(-step)) / (2.0 * step)
+            };
+            let xv = DVector::from_column_slice(&x);
+            assert!((along(&model.drift(&xv)) - lie.lf_h).abs() < 1e-9);
+            assert!((along(&model.input_matrix(&xv).column(0).into_owned()) - lie.lg_h[0]).abs() < 1e-14);
         }
     }
 }

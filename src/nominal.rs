@@ -506,6 +506,82 @@ impl NominalController for PtsNominal {
     }
 }
 
+/// Largest state a [`SpeedTracking`] nominal evaluates f and G for on the stack.
+const SPEED_TRACKING_MAX_STATES: usize = 8;
+
+/// `kind = "speed_tracking"`: drives the state named `speed` to `target_speed` as the first-order
+/// lag v̇ = gain (v_d − v), by feedback linearisation of the model's speed row,
+/// u0 = (gain (v_d − v) − f_v(x)) / g_v(x), for a single-input model. For the longitudinal car
+/// this is u0 = m · gain (v_d − v) + F_r(v), the speed-tracking law (without its CLF) of Ames et
+/// al., CDC 2014.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpeedTrackingParams {
+    /// The speed to track, v_d (m/s, finite).
+    pub target_speed: f64,
+    /// The rate of the speed error's decay (1/s, > 0).
+    pub gain: f64,
+}
+
+impl Params for SpeedTrackingParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        if !self.target_speed.is_finite() {
+            return Err(ParamError::new("nominal.target_speed", "expected a finite speed (m/s)"));
+        }
+        if !positive_finite(self.gain) {
+            return Err(ParamError::new("nominal.gain", "expected a finite rate > 0 (1/s)"));
+        }
+        Ok(())
+    }
+}
+
+/// The nominal of [`SpeedTrackingParams`].
+pub struct SpeedTracking {
+    model: Arc<dyn Dynamics>,
+    speed: usize,
+    target_speed: f64,
+    gain: f64,
+}
+
+pub fn build_speed_tracking(
+    p: &SpeedTrackingParams,
+    ctx: &NominalContext,
+) -> Result<Box<dyn NominalController>, ParamError> {
+    let model = ctx.model;
+    let speed = model.state_names().iter().position(|n| n == "speed");
+    match speed {
+        Some(speed) if model.input_dim() == 1 && model.state_dim() <= SPEED_TRACKING_MAX_STATES => {
+            Ok(Box::new(SpeedTracking {
+                model: model.clone(),
+                speed,
+                target_speed: p.target_speed,
+                gain: p.gain,
+            }))
+        }
+        _ => Err(ParamError::new(
+            "nominal.kind",
+            format!(
+                "speed_tracking needs a single-input vehicle with a state named `speed` and at most {SPEED_TRACKING_MAX_STATES} states (state {}; inputs {}), e.g. vehicle.kind = \"longitudinal\"",
+                model.state_names().join(", "),
+                model.channel_names().join(", ")
+            ),
+        )),
+    }
+}
+
+impl NominalController for SpeedTracking {
+    fn input_into(&self, _: f64, x: &[f64], u: &mut [f64]) {
+        // f(x) and the column g(x) = G(x)·1 on the stack (no allocation in the callback).
+        let n = x.len().min(SPEED_TRACKING_MAX_STATES);
+        let (mut f, mut g) = ([0.0; SPEED_TRACKING_MAX_STATES], [0.0; SPEED_TRACKING_MAX_STATES]);
+        self.model.drift_into(&x[..n], &mut f[..n]);
+        self.model.add_input_term(&x[..n], &[1.0], &mut g[..n]);
+        let v = x[self.speed];
+        // g_v = 0 gives a non-finite input, which stops the episode with an error.
+        u[0] = (self.gain * (self.target_speed - v) - f[self.speed]) / g[self.speed];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -575,5 +651,28 @@ mod tests {
     fn wrap_angle_stays_in_range() {
         assert!((wrap_angle(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
         assert!((wrap_angle(-0.5) + 0.5).abs() < 1e-12);
+    }
+    #[test]
+    fn acc_speed_tracking_is_mass_times_gain_times_error_plus_resistance() {
+        let model: Arc<dyn Dynamics> =
+            Arc::new(crate::dynamics::LongitudinalModel::new(1650.0, [0.1, 5.0, 0.25], 14.0));
+        let channels = model.channel_names().to_vec();
+        let ctx = NominalContext {
+            model: &model,
+            vehicle_kind: "longitudinal",
+            channels: &channels,
+        };
+        let nominal = build_speed_tracking(
+            &SpeedTrackingParams {
+                target_speed: 24.0,
+                gain: 0.5,
+            },
+            &ctx,
+        )
+        .unwrap();
+        let mut u = [0.0];
+        nominal.input_into(0.0, &[0.0, 20.0, 100.0], &mut u);
+        // m k (v_d − v) + f0 + f1 v + f2 v² = 1650·0.5·4 + 0.1 + 100 + 100.
+        assert!((u[0] - 3500.1).abs() < 1e-9, "{}", u[0]);
     }
 }

@@ -172,6 +172,9 @@ impl Registry {
         r.add_nominal("red_light", nominal::build_red_light)
             .label("red light (5.20)")
             .description("approaches a red light at the stop line (5.20)");
+        r.add_nominal("speed_tracking", nominal::build_speed_tracking)
+            .label("speed tracking")
+            .description("v̇ = gain (v_d − v) by feedback linearisation of a single-input model's `speed` row");
         r.add_nominal("pts", nominal::build_pts)
             .label("PTS (5.87)")
             .description("prescribed-time stabiliser of the strict-feedback system (5.87)");

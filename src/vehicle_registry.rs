@@ -113,6 +113,86 @@ fn linear_model(p: &LinearParams) -> Result<Arc<dyn Dynamics>, ParamError> {
     Ok(Arc::new(dynamics::LinearModel::new(matrix(&p.a), matrix(&p.b))))
 }
 
+/// `vehicle.kind = "longitudinal"`: [`dynamics::LongitudinalModel`], the car of Ames et al.'s
+/// adaptive cruise control (CDC 2014, Table 1), whose values are the defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LongitudinalParams {
+    /// Mass m (kg, > 0).
+    #[serde(default = "default_mass")]
+    pub mass: f64,
+    /// Constant rolling resistance f0 (N, >= 0).
+    #[serde(default = "default_f0")]
+    pub f0: f64,
+    /// Linear resistance coefficient f1 (N s/m, >= 0).
+    #[serde(default = "default_f1")]
+    pub f1: f64,
+    /// Air resistance coefficient f2 (N s²/m², >= 0).
+    #[serde(default = "default_f2")]
+    pub f2: f64,
+    /// The lead's constant speed v_L (m/s, finite).
+    #[serde(default = "default_lead_speed")]
+    pub lead_speed: f64,
+}
+
+fn default_mass() -> f64 {
+    1650.0
+}
+fn default_f0() -> f64 {
+    0.1
+}
+fn default_f1() -> f64 {
+    5.0
+}
+fn default_f2() -> f64 {
+    0.25
+}
+fn default_lead_speed() -> f64 {
+    14.0
+}
+
+impl Default for LongitudinalParams {
+    fn default() -> Self {
+        LongitudinalParams {
+            mass: default_mass(),
+            f0: default_f0(),
+            f1: default_f1(),
+            f2: default_f2(),
+            lead_speed: default_lead_speed(),
+        }
+    }
+}
+
+impl Params for LongitudinalParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        if !(self.mass.is_finite() && self.mass > 0.0) {
+            return Err(ParamError::new(
+                "vehicle.mass",
+                format!("expected a finite mass > 0 (kg), found {}", self.mass),
+            ));
+        }
+        for (key, value) in [
+            ("vehicle.f0", self.f0),
+            ("vehicle.f1", self.f1),
+            ("vehicle.f2", self.f2),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(ParamError::new(
+                    key,
+                    format!("expected a finite resistance coefficient >= 0, found {value}"),
+                ));
+            }
+        }
+        if !self.lead_speed.is_finite() {
+            return Err(ParamError::new(
+                "vehicle.lead_speed",
+                format!("expected a finite speed (m/s), found {}", self.lead_speed),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Every vehicle kind a scenario may name.
 pub struct VehicleRegistry {
     vehicles: Vec<Kind<Checked<VehicleBinding>>>,
@@ -154,6 +234,17 @@ impl VehicleRegistry {
         })
         .label("strict-feedback system (5.82)")
         .description("ẋ1 = x1² + x2, ẋ2 = u, ODE plant only");
+        r.add_analytic_vehicle("longitudinal", |p: &LongitudinalParams| {
+            Ok(Arc::new(dynamics::LongitudinalModel::new(
+                p.mass,
+                [p.f0, p.f1, p.f2],
+                p.lead_speed,
+            )))
+        })
+        .label("longitudinal car behind a lead (Ames et al. 2014)")
+        .description(
+            "x = (position, speed, gap), u = force; ṗ = v, v̇ = (u − f0 − f1 v − f2 v²)/m, ż = v_L − v; ODE plant only",
+        );
         r
     }
 
