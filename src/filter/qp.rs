@@ -1,7 +1,10 @@
 //! The CBF-QP when it has no closed form: several barrier constraints (one per obstacle) and
 //! actuator limits.
 //!
-//! min ‖v‖² + ρ Σ s_k   s.t.  a_k + b_k (u0 + v) + s_k ≥ 0,  s_k ≥ 0,  lower ≤ u0 + v ≤ upper.
+//! min ‖v‖² + ρ Σ s_k   s.t.  a_k + b_k (u0 + v) + s_k ≥ 0,  s_k ≥ 0,  lower ≤ u0 + v ≤ upper,
+//!
+//! with each row scaled to ‖b_k‖ = 1 first (the same set, any units): s_k is a distance in
+//! input space, so ρ exceeds the multipliers whatever the barrier's units.
 //!
 //! The slacks s_k with a linear (exact) penalty ρ make the problem always feasible: when the
 //! barrier constraints can all be met, the solution is the hard-constrained QP's (ρ exceeds
