@@ -352,28 +352,32 @@ impl Episode {
             m.active = solved.clone().any(|o| o.active);
             m.infeasible = solved.clone().any(|o| o.infeasible);
             m.mu = solved.clone().map(|o| o.mu).fold(f64::NAN, f64::min);
-            // Per barrier left unmet by some channel's decision: its largest shortfall.
+            // Per barrier left unmet by some channel's decision: its largest shortfall (names
+            // written into the message's reused strings).
+            m.shortfall.clear();
             let mut unmet = 0;
-            for (k, barrier) in barriers.iter().enumerate() {
-                let worst = solved
-                    .clone()
-                    .filter(|o| o.unmet == Some(k))
-                    .map(|o| o.shortfall)
-                    .fold(None, |w: Option<f64>, s| Some(w.map_or(s, |w| w.max(s))));
-                if let Some(shortfall) = worst {
-                    if let Some(name) = m.unmet.get_mut(unmet) {
-                        name.clear();
-                        name.push_str(&barrier.name);
-                    } else {
-                        m.unmet.push(barrier.name.clone());
+            if solved.clone().any(|o| o.unmet.is_some()) {
+                for (k, barrier) in barriers.iter().enumerate() {
+                    let Some(shortfall) = solved
+                        .clone()
+                        .filter(|o| o.unmet == Some(k))
+                        .map(|o| o.shortfall)
+                        .reduce(f64::max)
+                    else {
+                        continue;
+                    };
+                    match m.unmet.get_mut(unmet) {
+                        Some(name) => {
+                            name.clear();
+                            name.push_str(&barrier.name);
+                        }
+                        None => m.unmet.push(barrier.name.clone()),
                     }
-                    m.shortfall.truncate(unmet);
                     m.shortfall.push(shortfall);
                     unmet += 1;
                 }
             }
             m.unmet.truncate(unmet);
-            m.shortfall.truncate(unmet);
             m.correction.clear();
             let (issued, nominal) = (tick.issued.as_slice(), tick.nominal.as_slice());
             m.correction.extend(issued.iter().zip(nominal).map(|(u, u0)| u - u0));

@@ -186,8 +186,7 @@ impl SafetyFilter for FixedChannel {
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let FixedChannel { phi, omega, qp, .. } = self;
         input.per_free_channel(u, omega, |constraints, omega, j| {
-            qp.fixed_channel_decision(constraints, input.nominal, omega, j, (*phi).max(j + 1))
-                .input
+            qp.fixed_channel_input(constraints, input.nominal, omega, j, (*phi).max(j + 1))
         });
         Ok(())
     }

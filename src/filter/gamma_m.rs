@@ -131,8 +131,7 @@ impl SafetyFilter for GammaM {
         } = self;
         input.per_free_channel(u, omega, |constraints, omega, j| {
             let k = last_of_equal_delay(delays, j);
-            qp.gamma_m_decision(constraints, input.nominal, omega, j, k, *m, *gamma)
-                .input
+            qp.gamma_m_input(constraints, input.nominal, omega, j, k, *m, *gamma)
         });
         Ok(())
     }

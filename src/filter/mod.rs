@@ -196,6 +196,17 @@ pub fn gamma_f(gamma: f64, s: f64) -> f64 {
     }
 }
 
+/// ζ (4.64) of QP_k with `used` = k + 1 channels: γ_f(z) + Σ_{j>k} b_j ω_j, z (4.66).
+pub(crate) fn gamma_m_zeta(c: &Constraint, u0: &DVector<f64>, omega: &DVector<f64>, used: usize, gamma: f64) -> f64 {
+    let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
+    gamma_f(gamma, z) + (used..u0.len()).map(|j| c.b[j] * omega[j]).sum::<f64>()
+}
+
+/// ξ (4.65) of QP_k with `used` = k + 1 channels: ‖b_{1:k}‖² + ‖b‖²/m.
+pub(crate) fn gamma_m_xi(c: &Constraint, used: usize, m: f64) -> f64 {
+    (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m
+}
+
 /// Variable-channel γm filter (4.60)–(4.68) for channel `i`: QP_k with k the last channel
 /// with the same delay as i (4.68); channels after k enter with their already-issued inputs
 /// ω (4.64); slack penalty m ≥ 1, γ ≥ 1 (γ = (m+1)/m by default, Remark 4.5).
@@ -208,12 +219,8 @@ pub fn gamma_m(
     m: f64,
     gamma: f64,
 ) -> ChannelOutcome {
-    let r = u0.len();
     let used = k + 1;
-    // z_k (4.66), ζ_k (4.64), ξ_k (4.65).
-    let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
-    let zeta = gamma_f(gamma, z) + (used..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
-    let xi = (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m;
+    let (zeta, xi) = (gamma_m_zeta(c, u0, omega, used, gamma), gamma_m_xi(c, used, m));
     if zeta >= 0.0 {
         return ChannelOutcome::new(u0[i], false, false, zeta);
     }

@@ -12,7 +12,7 @@ use nalgebra::DVector;
 
 use crate::barrier::Constraint;
 use crate::filter::qp::QpWorkspace;
-use crate::filter::{fixed_channel, gamma_f, gamma_m, ChannelOutcome};
+use crate::filter::{fixed_channel, gamma_m, gamma_m_xi, gamma_m_zeta, ChannelOutcome};
 
 /// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
 const SHORTFALL_TOLERANCE: f64 = 1e-9;
@@ -65,7 +65,7 @@ impl ChannelQp {
 
     /// (4.42) for channel `i` with every barrier k: min ‖v‖², v ∈ R^s, s.t.
     /// a_k + Σ_{j<s} b_kj (u0_j + v_j) + Σ_{j≥s} b_kj ω_j ≥ 0; u_i = u0_i + v_i (4.44).
-    /// One barrier: (4.46) itself.
+    /// One barrier: (4.46) itself. With the shortfall of the planned inputs.
     pub fn fixed_channel_decision(
         &mut self,
         constraints: &[Constraint],
@@ -73,6 +73,31 @@ impl ChannelQp {
         omega: &DVector<f64>,
         i: usize,
         s: usize,
+    ) -> ChannelOutcome {
+        self.fixed_channel_solve(constraints, u0, omega, i, s, true)
+    }
+
+    /// u_i of [`ChannelQp::fixed_channel_decision`] alone (the law the predictors assume: no
+    /// shortfall to report).
+    pub fn fixed_channel_input(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        i: usize,
+        s: usize,
+    ) -> f64 {
+        self.fixed_channel_solve(constraints, u0, omega, i, s, false).input
+    }
+
+    fn fixed_channel_solve(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        i: usize,
+        s: usize,
+        report: bool,
     ) -> ChannelOutcome {
         if let [c] = constraints {
             let mut out = fixed_channel(c, u0, omega, i, s);
@@ -91,18 +116,14 @@ impl ChannelQp {
         }
         let reduced = &self.reduced[..constraints.len()];
         let (active, infeasible, mu) = self.qp.solve(reduced, u0, None, &mut self.solution);
-        for j in 0..r {
-            self.planned[j] = if j < s { self.solution[j] } else { omega[j] };
+        let mut out = ChannelOutcome::new(self.solution[i], active, infeasible, mu);
+        if report {
+            for j in 0..r {
+                self.planned[j] = if j < s { self.solution[j] } else { omega[j] };
+            }
+            (out.unmet, out.shortfall) = worst_shortfall(constraints, &self.planned);
         }
-        let (unmet, shortfall) = worst_shortfall(constraints, &self.planned);
-        ChannelOutcome {
-            input: self.solution[i],
-            active,
-            infeasible,
-            mu,
-            unmet,
-            shortfall,
-        }
+        out
     }
 
     /// QP_k (4.60) for channel `i` (k (4.68): the last channel with i's delay) with every
@@ -110,6 +131,7 @@ impl ChannelQp {
     /// γ_f(z_k) + Σ_{j≤k} b_j (v_j + σ_j) + Σ_{j>k} b_j (ω_j + σ_j) ≥ 0 (z (4.66) per barrier);
     /// u_i = u0_i + v_i (4.67). In w = (v, √m σ) it is min ‖w‖² s.t. ζ + (b_{1:k}, b/√m)·w ≥ 0
     /// (ζ (4.64)), whose one-barrier solution is (4.62)–(4.65). One barrier: (4.62) itself.
+    /// With the shortfall of the planned inputs.
     #[allow(clippy::too_many_arguments)]
     pub fn gamma_m_decision(
         &mut self,
@@ -121,13 +143,48 @@ impl ChannelQp {
         m: f64,
         gamma: f64,
     ) -> ChannelOutcome {
+        self.gamma_m_solve(constraints, u0, omega, [i, k], m, gamma, true)
+    }
+
+    /// u_i of [`ChannelQp::gamma_m_decision`] alone (the law the predictors assume: no
+    /// shortfall to report).
+    #[allow(clippy::too_many_arguments)]
+    pub fn gamma_m_input(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        i: usize,
+        k: usize,
+        m: f64,
+        gamma: f64,
+    ) -> f64 {
+        self.gamma_m_solve(constraints, u0, omega, [i, k], m, gamma, false)
+            .input
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn gamma_m_solve(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        omega: &DVector<f64>,
+        [i, k]: [usize; 2],
+        m: f64,
+        gamma: f64,
+        report: bool,
+    ) -> ChannelOutcome {
         let r = u0.len();
         let used = k + 1;
         if let [c] = constraints {
             let mut out = gamma_m(c, u0, omega, i, k, m, gamma);
-            if out.active || out.infeasible {
+            if report && (out.active || out.infeasible) {
                 // ū_j = −ζ/ξ b_j (4.62) on the channels ≤ k (0 if infeasible).
-                let scale = if out.active { -out.mu / (xi(c, used, m)) } else { 0.0 };
+                let scale = if out.active {
+                    -out.mu / gamma_m_xi(c, used, m)
+                } else {
+                    0.0
+                };
                 for j in 0..r {
                     self.planned[j] = if j < used { u0[j] + scale * c.b[j] } else { omega[j] };
                 }
@@ -137,9 +194,7 @@ impl ChannelQp {
         }
         let root_m = m.sqrt();
         for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
-            // ζ (4.64) with z (4.66) of this barrier.
-            let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
-            reduced.a = gamma_f(gamma, z) + (used..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+            reduced.a = gamma_m_zeta(c, u0, omega, used, gamma);
             for j in 0..r {
                 reduced.b[j] = if j < used { c.b[j] } else { 0.0 };
                 reduced.b[r + j] = c.b[j] / root_m;
@@ -148,24 +203,15 @@ impl ChannelQp {
         let reduced = &self.reduced[..constraints.len()];
         self.origin.fill(0.0);
         let (active, infeasible, mu) = self.qp.solve(reduced, &self.origin, None, &mut self.solution);
-        for j in 0..r {
-            self.planned[j] = if j < used { u0[j] + self.solution[j] } else { omega[j] };
+        let mut out = ChannelOutcome::new(u0[i] + self.solution[i], active, infeasible, mu);
+        if report {
+            for j in 0..r {
+                self.planned[j] = if j < used { u0[j] + self.solution[j] } else { omega[j] };
+            }
+            (out.unmet, out.shortfall) = worst_shortfall(constraints, &self.planned);
         }
-        let (unmet, shortfall) = worst_shortfall(constraints, &self.planned);
-        ChannelOutcome {
-            input: u0[i] + self.solution[i],
-            active,
-            infeasible,
-            mu,
-            unmet,
-            shortfall,
-        }
+        out
     }
-}
-
-/// ξ (4.65): ‖b_{1:k}‖² + ‖b‖²/m.
-fn xi(c: &Constraint, used: usize, m: f64) -> f64 {
-    (0..used).map(|j| c.b[j] * c.b[j]).sum::<f64>() + c.b.norm_squared() / m
 }
 
 /// The barrier whose condition a_k + b_k·u falls furthest below 0 with the planned inputs,
@@ -278,7 +324,7 @@ mod tests {
         let rows: Vec<(f64, [f64; 4])> = cs
             .iter()
             .map(|c| {
-                let zeta = gamma_f(gamma, c.a + c.b[0] * u0[0]) + c.b[1] * omega[1];
+                let zeta = crate::filter::gamma_f(gamma, c.a + c.b[0] * u0[0]) + c.b[1] * omega[1];
                 (zeta, [c.b[0], 0.0, c.b[0] / m.sqrt(), c.b[1] / m.sqrt()])
             })
             .collect();
