@@ -257,7 +257,8 @@ pub fn curve_problem(
 const DRAW_MARGIN: f64 = 20.0;
 /// Segments of a drawn circle; most dashes of a drawn marking.
 const CIRCLE_SEGMENTS: usize = 128;
-const MAX_DASHES: usize = 400;
+/// At most this many dashes are drawn per marking.
+pub const MAX_DASHES: usize = 400;
 /// A marking's dash and gap, metres (at least: longer when [`MAX_DASHES`] would not cover it).
 const DASH: f64 = 3.0;
 
