@@ -233,6 +233,99 @@ impl Trajectory {
     }
 }
 
+/// An actor's true motion over a run: its [`Trajectory`], started at t = 0 or, with a trigger
+/// distance, when the vehicle first comes that close to the actor's centre (the profile's
+/// times then count from that moment; until it, the actor keeps its initial speed).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActorMotion {
+    trajectory: Trajectory,
+    trigger_distance: Option<f64>,
+    /// When the trigger fired (None: not yet, or no trigger).
+    triggered_at: Option<f64>,
+    /// Initial speed along the unit direction, for the state before the trigger.
+    speed: f64,
+}
+
+impl ActorMotion {
+    /// The motion of `motion`, started at once (`trigger_distance` None) or by the vehicle
+    /// coming within `trigger_distance` metres (> 0, finite) of the actor's centre.
+    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<ActorMotion, MotionError> {
+        if let Some(d) = trigger_distance {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(motion_error(
+                    "trigger_distance",
+                    format!("expected a distance > 0 (m), found {d}"),
+                ));
+            }
+        }
+        Ok(ActorMotion {
+            trajectory: Trajectory::new(motion)?,
+            trigger_distance,
+            triggered_at: None,
+            speed: motion.speed,
+        })
+    }
+
+    /// The actor's true state at time t, as far as the run has decided it (an actor waiting
+    /// for its trigger moves on at its initial speed).
+    pub fn state_at(&self, t: f64) -> ActorState {
+        match (self.trigger_distance, self.triggered_at) {
+            (None, _) => self.trajectory.state_at(t),
+            (Some(_), None) => self.cruising(t),
+            (Some(_), Some(at)) if t < at => self.cruising(t),
+            (Some(_), Some(at)) => {
+                let base = self.cruising(at).position;
+                let start = self.trajectory.start;
+                let mut state = self.trajectory.state_at(t - at);
+                for (p, (b, s)) in state.position.iter_mut().zip(base.iter().zip(start)) {
+                    *p += b - s;
+                }
+                state
+            }
+        }
+    }
+
+    /// Before the trigger: the initial speed held from the start.
+    fn cruising(&self, t: f64) -> ActorState {
+        let [ux, uy] = self.trajectory.unit;
+        let (start, v) = (self.trajectory.start, self.speed);
+        ActorState {
+            position: [start[0] + v * t * ux, start[1] + v * t * uy],
+            velocity: [v * ux, v * uy],
+            acceleration: [0.0; 2],
+        }
+    }
+
+    /// Fires the trigger at time t if the vehicle at `vehicle` is within its distance of the
+    /// actor's centre and it has not fired yet; returns whether it fired now.
+    pub fn check_trigger(&mut self, t: f64, vehicle: [f64; 2]) -> bool {
+        let Some(distance) = self.trigger_distance else {
+            return false;
+        };
+        if self.triggered_at.is_some() {
+            return false;
+        }
+        let o = self.cruising(t).position;
+        if (vehicle[0] - o[0]).hypot(vehicle[1] - o[1]) <= distance {
+            self.triggered_at = Some(t);
+            return true;
+        }
+        false
+    }
+
+    /// When the trigger fired, if it has.
+    pub fn triggered_at(&self) -> Option<f64> {
+        self.triggered_at
+    }
+
+    /// Marks the trigger fired at `t` (a copy of the motion following the run's own).
+    pub fn set_triggered_at(&mut self, t: f64) {
+        if self.trigger_distance.is_some() {
+            self.triggered_at = Some(t);
+        }
+    }
+}
+
 /// The first time ≥ piece.t at which the piece's speed falls to `v_min` while decreasing; +∞ if
 /// never.
 fn first_time_at_speed(p: &Piece, v_min: f64) -> f64 {

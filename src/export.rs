@@ -379,6 +379,21 @@ impl RunVisitor for Export<'_> {
                     c.push(Cell::B(b.obstacle));
                 }
             }
+            Record::Actors(m) => {
+                for a in &m.actors {
+                    for (field, v) in [
+                        ("x", a.x),
+                        ("y", a.y),
+                        ("vx", a.vx),
+                        ("vy", a.vy),
+                        ("ax", a.ax),
+                        ("ay", a.ay),
+                    ] {
+                        columns.push(col(format!("{}.{field}", a.name), Kind::F64));
+                        c.push(Cell::F(v));
+                    }
+                }
+            }
             Record::Filter(m) => {
                 columns.extend([
                     col("active", Kind::Bool),

@@ -16,6 +16,8 @@ pub enum Stream {
     ActuationDrop = 6,
     /// Sensor noise on the state the controller reads.
     SensorNoise = 7,
+    /// The moving obstacles' motion parameters (component: which parameter).
+    ActorMotion = 8,
 }
 
 /// SplitMix64 (Steele, Lea, Flood 2014): the generator of every seeded draw

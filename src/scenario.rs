@@ -84,6 +84,9 @@ pub struct Scenario {
     /// A place a planar vehicle should reach (the progress metrics measure against it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub goal: Option<GoalSpec>,
+    /// What the controller assumes of moving obstacles (`[actor_knowledge]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actor_knowledge: Option<ActorKnowledgeSpec>,
 }
 
 /// The `[goal]` table: a disc the planar position should enter, optionally by a deadline.
@@ -332,6 +335,80 @@ pub struct ObstacleSpec {
     /// Uniform random jitter of `appear_at` (± seconds, seeded; the result is kept >= 0).
     #[serde(default)]
     pub appear_jitter: f64,
+    /// How the obstacle moves (`[obstacles.motion]`; none: it stands at `centre`). `centre` is
+    /// then its position at t = 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion: Option<MotionSpec>,
+}
+
+/// A moving obstacle's motion (`[obstacles.motion]`, docs/actors.md): a straight line from its
+/// `centre` along `direction`, with a piecewise-linear acceleration profile.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionSpec {
+    /// Direction of travel (any non-zero vector; only its direction is used).
+    pub direction: [f64; 2],
+    /// Initial speed (m/s, ≥ `min_speed`).
+    #[serde(default)]
+    pub speed: f64,
+    /// Breakpoints [time (s), acceleration (m/s²)] of the acceleration along the direction:
+    /// linear between them, 0 before the first, the last value after the last (equal times make
+    /// a step; e.g. braking at 6 m/s² from t = 1 s: `[[1.0, 0.0], [1.0, -6.0]]`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub acceleration: Vec<[f64; 2]>,
+    /// The speed braking stops at (m/s): the actor never goes slower or backwards.
+    #[serde(default)]
+    pub min_speed: f64,
+    /// The profile starts when the vehicle first comes within this distance (m) of the actor's
+    /// centre, its times counted from then (until then the actor keeps its initial speed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trigger_distance: Option<f64>,
+    /// Seeded uniform variations (± each amplitude) of the motion's parameters.
+    #[serde(default, skip_serializing_if = "MotionJitter::is_none")]
+    pub jitter: MotionJitter,
+}
+
+/// ± amplitudes of a motion's seeded uniform variations (`[obstacles.motion.jitter]`), drawn
+/// from the scenario's `seed`, one draw per obstacle and parameter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionJitter {
+    /// Initial speed (m/s; the result is kept ≥ `min_speed`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub speed: Option<f64>,
+    /// Every breakpoint time of the acceleration profile, shifted together (s; kept ≥ 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time: Option<f64>,
+    /// Every acceleration of the profile, scaled together by 1 ± this fraction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub acceleration: Option<f64>,
+    /// The trigger distance (m; kept > 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trigger_distance: Option<f64>,
+    /// The start position, along the direction of travel (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub along: Option<f64>,
+}
+
+impl MotionJitter {
+    /// No variation at all.
+    pub fn is_none(&self) -> bool {
+        *self == MotionJitter::default()
+    }
+}
+
+/// What the controller assumes of the moving obstacles over each channel's delay
+/// (`[actor_knowledge]`, next to `assumed_delays`; docs/actors.md).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActorKnowledgeSpec {
+    /// `static`, `constant_velocity` (default), `constant_acceleration` or `oracle`.
+    #[serde(default)]
+    pub kind: crate::actor::ActorKnowledge,
+    /// A bound on the prediction error of an actor's position (m), added to its radius in the
+    /// controller's barriers (a robustness margin; the logged h keeps the true radius).
+    #[serde(default)]
+    pub margin: f64,
 }
 
 /// Which plant a scenario runs on (scenario key `plant`).
@@ -871,6 +948,85 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
     Ok(())
 }
 
+/// One obstacle's `motion`: the trajectory it defines must be usable (the checks of
+/// [`crate::actor::Trajectory::new`], at the key they name) and every jitter ≥ 0 and finite.
+fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpec) -> Result<(), ScenarioError> {
+    let jitters = [
+        ("speed", m.jitter.speed),
+        ("time", m.jitter.time),
+        ("acceleration", m.jitter.acceleration),
+        ("trigger_distance", m.jitter.trigger_distance),
+        ("along", m.jitter.along),
+    ];
+    for (key, value) in jitters {
+        if let Some(v) = value {
+            if !(v.is_finite() && (0.0..=OBSTACLE_EXTENT).contains(&v)) {
+                return Err(s.field_error(
+                    &format!("obstacles.{i}.motion.jitter.{key}"),
+                    format!("expected an amplitude >= 0, found {v}"),
+                ));
+            }
+        }
+    }
+    if m.jitter.trigger_distance.is_some() && m.trigger_distance.is_none() {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.motion.jitter.trigger_distance"),
+            "expected a `trigger_distance` to vary",
+        ));
+    }
+    if let Some(v) = m.speed.is_finite().then_some(m.speed).filter(|v| v.abs() > 1e6) {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.motion.speed"),
+            format!("expected a speed within 1e6 m/s, found {v}"),
+        ));
+    }
+    crate::actor::ActorMotion::new(&m.straight(o.centre), m.trigger_distance)
+        .map(|_| ())
+        .map_err(|e| s.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))
+}
+
+impl MotionSpec {
+    /// The motion of obstacle `index` from `start` with its seeded variations drawn from
+    /// `seed`, and its trigger distance.
+    pub fn realised(&self, start: [f64; 2], seed: u64, index: usize) -> (crate::actor::StraightMotion, Option<f64>) {
+        use crate::random::{symmetric_unit, Stream};
+        let draw = |amplitude: Option<f64>, component: u64| {
+            amplitude.map_or(0.0, |a| {
+                a * symmetric_unit(seed, Stream::ActorMotion, index as u64, component)
+            })
+        };
+        let mut motion = self.straight(start);
+        motion.speed = (motion.speed + draw(self.jitter.speed, 0)).max(motion.min_speed);
+        let shift = draw(self.jitter.time, 1);
+        let scale = 1.0 + draw(self.jitter.acceleration, 2);
+        for [t, a] in &mut motion.acceleration {
+            *t = (*t + shift).max(0.0);
+            *a *= scale;
+        }
+        let along = draw(self.jitter.along, 3);
+        let norm = self.direction[0].hypot(self.direction[1]);
+        if along != 0.0 && norm > 0.0 {
+            motion.start[0] += along * self.direction[0] / norm;
+            motion.start[1] += along * self.direction[1] / norm;
+        }
+        let trigger = self
+            .trigger_distance
+            .map(|d| (d + draw(self.jitter.trigger_distance, 4)).max(1e-3));
+        (motion, trigger)
+    }
+
+    /// The straight-line motion from `start` (without the jitter).
+    pub fn straight(&self, start: [f64; 2]) -> crate::actor::StraightMotion {
+        crate::actor::StraightMotion {
+            start,
+            direction: self.direction,
+            speed: self.speed,
+            acceleration: self.acceleration.clone(),
+            min_speed: self.min_speed,
+        }
+    }
+}
+
 /// `barriers` and `obstacles`: shapes, extents, times, and one name each.
 fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
@@ -940,6 +1096,17 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             return Err(s.field_error(
                 &format!("obstacles.{i}.appear_at"),
                 format!("expected a time >= 0, found {}", o.appear_at),
+            ));
+        }
+        if let Some(m) = &o.motion {
+            validate_motion(s, i, o, m)?;
+        }
+    }
+    if let Some(k) = &sc.actor_knowledge {
+        if !(k.margin.is_finite() && k.margin >= 0.0 && k.margin <= OBSTACLE_EXTENT) {
+            return Err(s.field_error(
+                "actor_knowledge.margin",
+                format!("expected a distance >= 0 (m), found {}", k.margin),
             ));
         }
     }

@@ -547,7 +547,25 @@ pub(super) fn obstacles(
                 .into());
         };
         let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
-        let barrier = Barrier::circular_obstacle(&name, position, o.centre, hull_radius + o.radius);
+        let motion = match &o.motion {
+            Some(_) if sc.plant == crate::scenario::PlantKind::Mujoco => {
+                return Err(loaded
+                    .field_error(
+                        &format!("obstacles.{i}.motion"),
+                        "moving obstacles run on `plant = \"ode\"` only (MuJoCo's obstacles are static geoms)",
+                    )
+                    .into());
+            }
+            Some(m) => {
+                let (motion, trigger) = m.realised(o.centre, sc.seed, i);
+                let motion = crate::actor::ActorMotion::new(&motion, trigger)
+                    .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
+                Some(motion)
+            }
+            None => None,
+        };
+        let centre = motion.as_ref().map_or(o.centre, |m| m.state_at(0.0).position);
+        let barrier = Barrier::circular_obstacle(&name, position, centre, hull_radius + o.radius);
         if barrier.h(x0) < 0.0 {
             return Err(loaded
                 .field_error(
@@ -568,6 +586,7 @@ pub(super) fn obstacles(
             known: false,
             in_contact: false,
             contact_depth: 0.0,
+            motion,
         });
     }
     Ok(obstacles)

@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
+use crate::actor::{add_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
@@ -41,14 +42,19 @@ pub struct Tick {
 pub struct Consistency {
     pub prediction: Prediction,
     pub realized: DVector<f64>,
+    /// Per moving actor known when the prediction was made (in the order of
+    /// [`ControlLoop::moving_actors`]), the position the controller assumed at the target time
+    /// (x, y pairs); empty without moving actors.
+    pub actors_predicted: Vec<f64>,
 }
 
 /// A prediction waiting for its target time, with where the predictor's final partial step
-/// to it started (time, predicted state), when it took one.
+/// to it started (time, predicted state), when it took one, and the actors' assumed positions.
 #[derive(Debug, Clone)]
 struct Pending {
     prediction: Prediction,
     partial_step: Option<(f64, DVector<f64>)>,
+    actors: Vec<f64>,
 }
 
 /// Scratch space of one control tick, sized when the loop is built (and when a barrier becomes
@@ -63,6 +69,8 @@ struct TickWorkspace {
     spare_states: Vec<DVector<f64>>,
     /// Advances the state to a prediction's target time between steps.
     realize: PredictorWorkspace,
+    /// Storage of realised predictions' actor positions, reused.
+    spare_actor_positions: Vec<Vec<f64>>,
 }
 
 /// Scratch space of the delay-free law and the per-channel filters.
@@ -74,27 +82,34 @@ struct LawWorkspace {
     nominal: DVector<f64>,
     /// The filtered input u.
     input: DVector<f64>,
+    /// Per known barrier, for a moving actor's: the barrier with its centre moved to where
+    /// the controller assumes the actor at the evaluation time.
+    moving: Vec<Option<Barrier>>,
+    /// ẋ at zero input (the position's drift ṗ of the relative-degree-2 motion terms).
+    drift: Vec<f64>,
+    zero_input: Vec<f64>,
 }
 
 impl LawWorkspace {
     /// constraints ← the constraint data of every known barrier at z in the filter's form.
     /// Returns the number of constraints (0 for a filter without a barrier form).
     #[inline(always)]
-    fn constraints_at(&mut self, laws: &Laws<'_>, z: &[f64]) -> usize {
+    fn constraints_at(&mut self, laws: &Laws<'_>, z: &[f64], at: f64) -> usize {
         let Some(form) = laws.form else {
             return 0;
         };
-        self.constraints_into(laws, form, z)
+        self.constraints_into(laws, form, z, at)
     }
 
     /// nominal ← u0 at (`time`, `nominal_state`), and [`LawWorkspace::constraints_at`] out of
     /// line: for the per-channel loop of a tick (the κ closure, called at every predictor
     /// step, keeps them inline).
     #[inline(always)]
-    fn channel_laws(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], z: &[f64]) -> usize {
+    fn channel_laws(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], (z, at): (&[f64], f64)) -> usize {
         laws.nominal
             .input_into(time, nominal_state, self.nominal.as_mut_slice());
-        laws.form.map_or(0, |form| self.constraints_out_of_line(laws, form, z))
+        laws.form
+            .map_or(0, |form| self.constraints_out_of_line(laws, form, z, at))
     }
 
     /// u[j] ← κ_j for the channels in `free` at the predicted z = x(s) ([`SafetyFilter::issued_law`]),
@@ -111,7 +126,7 @@ impl LawWorkspace {
         (s, z, free): (f64, &[f64], &[usize]),
         u: &mut [f64],
     ) -> Result<(), FilterError> {
-        let count = self.constraints_at(laws, z);
+        let count = self.constraints_at(laws, z, s);
         let delay = |j: usize| queues[j].constant_delay().unwrap_or(0.0);
         let mut end = free.len();
         while end > 0 {
@@ -139,18 +154,80 @@ impl LawWorkspace {
     }
 
     #[inline(never)]
-    fn constraints_out_of_line(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64]) -> usize {
-        self.constraints_into(laws, form, z)
+    fn constraints_out_of_line(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
+        self.constraints_into(laws, form, z, at)
     }
 
-    /// constraints ← the constraint data of every known barrier at z in `form`; returns their
-    /// number.
+    /// constraints ← the constraint data of every known barrier at z, the state at time `at`,
+    /// in `form`; returns their number. A moving actor's barrier is evaluated with the actor
+    /// where the controller assumes it at `at` (from what it observed at the tick), with the
+    /// terms of its motion ([`add_motion_terms`]).
     #[inline(always)]
-    fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64]) -> usize {
-        for (b, c) in laws.barriers.iter().zip(self.constraints.iter_mut()) {
-            self.lie.constraint_into(b, form, laws.model, z, c);
+    fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
+        for (k, (b, c)) in laws.barriers.iter().zip(self.constraints.iter_mut()).enumerate() {
+            match (&laws.actors.motions[k], &mut self.moving[k]) {
+                (Some(motion), Some(moved)) => {
+                    let actor = laws.actors.assumed(motion, k, at);
+                    let position = set_centre(moved, actor.position);
+                    self.lie.constraint_into(moved, form, laws.model, z, c);
+                    let p = [z[position[0]], z[position[1]]];
+                    let p_dot = match form {
+                        BarrierForm::RelativeDegree2 { .. } => {
+                            laws.model.dynamics_into(z, &self.zero_input, &mut self.drift);
+                            [self.drift[position[0]], self.drift[position[1]]]
+                        }
+                        BarrierForm::RelativeDegree1 { .. } => [0.0; 2],
+                    };
+                    add_motion_terms(c, form, p, p_dot, &actor);
+                }
+                _ => self.lie.constraint_into(b, form, laws.model, z, c),
+            }
         }
         laws.barriers.len()
+    }
+}
+
+/// Moves a ball barrier's centre to `centre`; returns its planar position indices.
+#[inline]
+fn set_centre(barrier: &mut Barrier, centre: [f64; 2]) -> [usize; 2] {
+    match &mut barrier.shape {
+        crate::barrier::Shape::Ball { indices, centre: c, .. } => {
+            c[0] = centre[0];
+            c[1] = centre[1];
+            [indices[0], indices[1]]
+        }
+        _ => unreachable!("a moving actor's barrier is a planar ball"),
+    }
+}
+
+/// The moving actors the controller knows, per known barrier, and what it assumes of them.
+struct KnownActors {
+    /// Per known barrier: the actor's true motion (its truth is what the controller observes
+    /// at a tick, and the oracle's future), or None for a barrier that does not move.
+    motions: Vec<Option<ActorMotion>>,
+    knowledge: ActorKnowledge,
+    /// The tick time t and, per known barrier, the actor state observed then.
+    now: f64,
+    observed: Vec<ActorState>,
+}
+
+impl KnownActors {
+    /// Where the controller assumes actor k at time `at`, from its state observed at the tick.
+    #[inline]
+    fn assumed(&self, motion: &ActorMotion, k: usize, at: f64) -> ActorState {
+        let at = at.max(self.now);
+        self.knowledge
+            .predict(&self.observed[k], self.now, at, |t| motion.state_at(t))
+    }
+
+    /// observed ← every actor's state at the tick time t.
+    fn observe(&mut self, t: f64) {
+        self.now = t;
+        for (o, m) in self.observed.iter_mut().zip(&self.motions) {
+            if let Some(m) = m {
+                *o = m.state_at(t);
+            }
+        }
     }
 }
 
@@ -160,6 +237,7 @@ struct Laws<'a> {
     nominal: &'a dyn NominalController,
     form: Option<BarrierForm>,
     barriers: &'a [Barrier],
+    actors: &'a KnownActors,
 }
 
 /// The controller: predictors, nominal, safety filter and delay queues, ticking at the
@@ -172,6 +250,8 @@ pub struct ControlLoop {
     structure: Structure,
     /// Barriers currently known to the controller (add with [`ControlLoop::add_barrier`]).
     known_barriers: Vec<Barrier>,
+    /// The moving actors among them.
+    actors: KnownActors,
     timestep: f64,
     control_period: f64,
     steps_per_tick: u64,
@@ -249,9 +329,13 @@ impl ControlLoop {
                 constraints: Vec::new(),
                 nominal: DVector::zeros(r),
                 input: DVector::zeros(r),
+                moving: Vec::new(),
+                drift: vec![0.0; n],
+                zero_input: vec![0.0; r],
             },
             spare_states: Vec::new(),
             realize: PredictorWorkspace::new(n, r),
+            spare_actor_positions: Vec::new(),
         };
         ControlLoop {
             predictor_step,
@@ -261,6 +345,12 @@ impl ControlLoop {
             queues,
             structure,
             known_barriers: Vec::new(),
+            actors: KnownActors {
+                motions: Vec::new(),
+                knowledge: ActorKnowledge::default(),
+                now: 0.0,
+                observed: Vec::new(),
+            },
             timestep,
             control_period,
             steps_per_tick,
@@ -376,10 +466,52 @@ impl ControlLoop {
 
     /// Makes a barrier known to the controller (outside the callback: sizes the scratch space).
     pub fn add_barrier(&mut self, barrier: Barrier) {
+        self.add_known(barrier, None);
+    }
+
+    /// Makes a moving actor's barrier known (a planar ball around the actor, its centre where
+    /// the actor is at t = 0; outside the callback): the filters evaluate it with the actor
+    /// where the controller assumes it at each channel's prediction time.
+    pub fn add_moving_barrier(&mut self, barrier: Barrier, motion: ActorMotion) {
+        assert!(
+            matches!(&barrier.shape, crate::barrier::Shape::Ball { indices, .. } if indices.len() == 2),
+            "a moving actor's barrier is a planar ball"
+        );
+        self.add_known(barrier, Some(motion));
+    }
+
+    fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>) {
+        self.work.law.moving.push(motion.as_ref().map(|_| barrier.clone()));
+        self.actors.motions.push(motion);
+        self.actors.observed.push(ActorState::default());
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
         // κ_j changed: the recursive chain computed with the old law no longer holds.
         self.work.predictor.invalidate_chain();
+    }
+
+    /// What the controller assumes of moving actors over the delays.
+    pub fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
+        self.actors.knowledge = knowledge;
+    }
+
+    /// An actor's trigger fired at `time`: the controller's copy of its motion follows (from
+    /// the next tick on, the actor is observed braking, walking, …).
+    pub fn actor_triggered(&mut self, name: &str, time: f64) {
+        for (b, m) in self.known_barriers.iter().zip(&mut self.actors.motions) {
+            if let (true, Some(m)) = (b.name == name, m) {
+                m.set_triggered_at(time);
+            }
+        }
+    }
+
+    /// The known moving actors: (barrier name, true motion), in the order of
+    /// [`Consistency::actors_predicted`].
+    pub fn moving_actors(&self) -> impl Iterator<Item = (&str, &ActorMotion)> {
+        self.known_barriers
+            .iter()
+            .zip(&self.actors.motions)
+            .filter_map(|(b, m)| m.as_ref().map(|m| (b.name.as_str(), m)))
     }
 
     pub fn known_barriers(&self) -> &[Barrier] {
@@ -438,6 +570,7 @@ impl ControlLoop {
             queues,
             structure,
             known_barriers,
+            actors,
             timestep,
             control_period,
             predictor_step,
@@ -455,13 +588,16 @@ impl ControlLoop {
             predictor,
             law,
             spare_states,
+            spare_actor_positions,
             ..
         } = work;
+        actors.observe(t);
         let laws = Laws {
             model: model.as_ref(),
             nominal: nominal.as_ref(),
             form: filter.barrier_form(),
             barriers: known_barriers,
+            actors,
         };
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
@@ -511,7 +647,11 @@ impl ControlLoop {
 
         let mut count = 0;
         for (i, p) in predictions.iter().enumerate() {
-            let eval_state = if filter_predicts { &p.state } else { &*state };
+            let (eval_state, eval_time) = if filter_predicts {
+                (&p.state, p.target_time)
+            } else {
+                (&*state, t)
+            };
             let (nominal_time, nominal_state) = if nominal_predicts {
                 (p.target_time, &p.state)
             } else {
@@ -520,7 +660,12 @@ impl ControlLoop {
             // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
             let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
             if !shared {
-                count = law.channel_laws(&laws, nominal_time, nominal_state.as_slice(), eval_state.as_slice());
+                count = law.channel_laws(
+                    &laws,
+                    nominal_time,
+                    nominal_state.as_slice(),
+                    (eval_state.as_slice(), eval_time),
+                );
             }
             let outcome = filter.filter_channel(&ChannelInput {
                 time: t,
@@ -559,7 +704,16 @@ impl ControlLoop {
                     state
                 };
                 let partial_step = predictor.partial_step().map(|(start, state)| (start, copy(state)));
+                // Where the controller assumes each moving actor at the target time.
+                let mut assumed = spare_actor_positions.pop().unwrap_or_default();
+                assumed.clear();
+                for (k, m) in laws.actors.motions.iter().enumerate() {
+                    if let Some(m) = m {
+                        assumed.extend_from_slice(&laws.actors.assumed(m, k, p.target_time).position);
+                    }
+                }
                 pending[p.channel].push_back(Pending {
+                    actors: assumed,
                     prediction: Prediction {
                         channel: p.channel,
                         issued_at: p.issued_at,
@@ -609,6 +763,7 @@ impl ControlLoop {
                 let Pending {
                     prediction: p,
                     partial_step,
+                    actors,
                 } = self.pending[channel].pop_front().expect("front exists");
                 let mut realized = self.work.spare_states.pop().unwrap_or_else(|| x_k.clone());
                 let context = PredictorContext {
@@ -649,6 +804,7 @@ impl ControlLoop {
                 out.push(Consistency {
                     prediction: p,
                     realized,
+                    actors_predicted: actors,
                 });
             }
         }
@@ -659,6 +815,7 @@ impl ControlLoop {
     pub fn recycle(&mut self, consistency: Consistency) {
         self.work.spare_states.push(consistency.prediction.state);
         self.work.spare_states.push(consistency.realized);
+        self.work.spare_actor_positions.push(consistency.actors_predicted);
     }
 }
 

@@ -47,6 +47,8 @@ struct Obstacle {
     in_contact: bool,
     /// Deepest penetration of the current contact episode.
     contact_depth: f64,
+    /// A moving obstacle's true motion (its barrier's centre follows it at every step).
+    motion: Option<crate::actor::ActorMotion>,
 }
 
 /// Result of a finished (or stopped) episode.
@@ -116,6 +118,8 @@ pub struct Episode {
     log_budget: Option<ScenarioError>,
     /// Predictions realised at a time inside the current step, logged after its records.
     inside_step: Vec<control::Consistency>,
+    /// The margin added to a moving obstacle's radius in the controller's barrier (m).
+    actor_margin: f64,
     /// The `stall_time` definition applied to the records as they are logged, for the `stall`
     /// event (it reads the records and only adds an event: nothing feeds back into control).
     stall: (StallDetector, RunFacts),
@@ -190,6 +194,13 @@ impl Episode {
         info.reference_path = reference_path.map(|p| (p.point, p.heading));
         let (cost, log_budget) =
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
+        let moving_names: Vec<String> = (obstacles.iter())
+            .filter(|o| o.motion.is_some())
+            .map(|o| o.barrier.name.clone())
+            .collect();
+        if let Some(k) = loaded.scenario.actor_knowledge {
+            control.set_actor_knowledge(k.kind);
+        }
         Ok(Episode {
             plant,
             control,
@@ -202,7 +213,8 @@ impl Episode {
             constraint: barrier::Constraint::zeros(model.input_dim()),
             depths: Vec::new(),
             xdot: vec![0.0; model.state_dim()],
-            records: RecordBuffers::new(model.state_names(), model.channel_names()),
+            records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
+            actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(
                 hull_radius,
                 path,
@@ -319,11 +331,71 @@ impl Episode {
         for (i, o) in self.obstacles.iter_mut().enumerate() {
             if !o.known && o.appear_at <= time + tolerance {
                 o.known = true;
-                self.control.add_barrier(o.barrier.clone());
+                match &o.motion {
+                    Some(motion) => {
+                        // The controller's barrier is widened by the margin on the actor's
+                        // predicted position (`actor_knowledge.margin`).
+                        let mut barrier = o.barrier.clone();
+                        if let crate::barrier::Shape::Ball { radius, .. } = &mut barrier.shape {
+                            *radius += self.actor_margin;
+                        }
+                        self.control.add_moving_barrier(barrier, motion.clone());
+                    }
+                    None => self.control.add_barrier(o.barrier.clone()),
+                }
                 revealed.push(i);
             }
         }
         revealed
+    }
+
+    /// The moving obstacles at `time`: triggers fired by the vehicle's position in `x` (an
+    /// `actor_triggered` event; the controller's copy follows), each barrier's centre moved to
+    /// the actor's true position, and their true states as an `/actors` record.
+    fn move_actors(&mut self, sinks: &mut [&mut dyn Sink], time: f64, x: &DVector<f64>) -> Result<(), LogError> {
+        let Some(record) = &mut self.records.actors else {
+            return Ok(());
+        };
+        let Record::Actors(m) = record else {
+            unreachable!("records.actors holds an actors record")
+        };
+        let position = self.control.model().planar_position();
+        m.time = time;
+        let mut entries = m.actors.iter_mut();
+        for (o, barrier) in self.obstacles.iter_mut().zip(&mut self.obstacle_barriers) {
+            let Some(motion) = &mut o.motion else {
+                continue;
+            };
+            if let Some([i, j]) = position {
+                if motion.check_trigger(time, [x[i], x[j]]) {
+                    self.control.actor_triggered(&o.barrier.name, time);
+                    let message = format!(
+                        "{} starts its motion profile (the vehicle came within its trigger distance)",
+                        o.barrier.name
+                    );
+                    let event = Self::event(time, "actor_triggered", message, vec![o.barrier.name.clone()], 0.0);
+                    for sink in sinks.iter_mut() {
+                        sink.record(&event)?;
+                    }
+                }
+            }
+            let state = motion.state_at(time);
+            for b in [&mut o.barrier, barrier] {
+                if let crate::barrier::Shape::Ball { centre, .. } = &mut b.shape {
+                    centre[0] = state.position[0];
+                    centre[1] = state.position[1];
+                }
+            }
+            if let Some(entry) = entries.next() {
+                (entry.x, entry.y) = (state.position[0], state.position[1]);
+                (entry.vx, entry.vy) = (state.velocity[0], state.velocity[1]);
+                (entry.ax, entry.ay) = (state.acceleration[0], state.acceleration[1]);
+            }
+        }
+        for sink in sinks.iter_mut() {
+            sink.record(record)?;
+        }
+        Ok(())
     }
 
     /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
@@ -339,6 +411,8 @@ impl Episode {
         for k in 0..=self.steps {
             let time = k as f64 * h;
             PROGRESS.store(k, std::sync::atomic::Ordering::Relaxed);
+            self.plant.state_into(&mut x);
+            self.move_actors(sinks, time, &x)?;
             for i in self.reveal_obstacles(time) {
                 let o = &self.obstacles[i];
                 let message = format!("{} becomes known to the controller", o.barrier.name);
@@ -349,7 +423,6 @@ impl Episode {
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
 
-            self.plant.state_into(&mut x);
             self.emit_scene(sinks, k, time, &x)?;
             if let Record::State(m) = &mut self.records.state {
                 (m.time, m.step) = (time, k);

@@ -19,13 +19,26 @@ pub(super) struct RecordBuffers {
     pub(super) filter: Record,
     pub(super) measured: Record,
     pub(super) actuated: Record,
+    /// The moving obstacles' states (None without moving obstacles: no `/actors` topic).
+    pub(super) actors: Option<Record>,
     /// One prediction record per channel (each names its channel once).
     predictions: Vec<Record>,
 }
 
 impl RecordBuffers {
-    pub(super) fn new(state_names: &[String], channels: &[String]) -> RecordBuffers {
+    pub(super) fn new(
+        state_names: &[String],
+        channels: &[String],
+        moving: impl Iterator<Item = String>,
+    ) -> RecordBuffers {
+        let actors: Vec<proto::ActorValue> = moving
+            .map(|name| proto::ActorValue {
+                name,
+                ..Default::default()
+            })
+            .collect();
         RecordBuffers {
+            actors: (!actors.is_empty()).then(|| Record::Actors(proto::Actors { time: 0.0, actors })),
             state: Record::State(proto::State {
                 names: state_names.to_vec(),
                 ..Default::default()
@@ -285,6 +298,12 @@ impl Episode {
             scene::vehicle_into(update, time, position, heading, hull_radius);
         }
         Self::emit_ref(sinks, &self.scene.vehicle)?;
+        // Moving obstacles where they are now (step 0 drew them with the static entities).
+        if k > 0 {
+            for o in self.obstacles.iter().filter(|o| o.motion.is_some()) {
+                Self::emit(sinks, obstacle_scene(time, o))?;
+            }
+        }
         // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
         // channel, made at the previous tick), with a line from where it is now.
         if let Some([i, j]) = planar {
@@ -399,8 +418,8 @@ impl Episode {
         let entries = self
             .obstacles
             .iter()
-            .map(|o| (&o.barrier, o.known, true))
-            .chain(self.barriers.iter().map(|b| (b, true, false)));
+            .map(|o| (&o.barrier, o.known, true, o.motion.as_ref().map(|m| m.state_at(time))))
+            .chain(self.barriers.iter().map(|b| (b, true, false, None)));
         // World velocity of the planar position (for time-to-collision): ṗ from the model.
         let velocity = model.planar_position().map(|[i, j]| {
             model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
@@ -421,12 +440,23 @@ impl Episode {
                 .collect();
         }
         let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
-        for ((b, known, obstacle), value) in entries.zip(record.barriers.iter_mut()) {
+        for ((b, known, obstacle, actor), value) in entries.zip(record.barriers.iter_mut()) {
             let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
                 lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
+                // A moving actor: h(x, t) gains the terms of its true motion.
+                // (ṗ: at relative degree 2 no input reaches the position, so the velocity
+                // with the applied input is the drift.)
+                if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
+                    crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor);
+                }
                 (constraint_data.value(applied), form.relative_degree())
             });
-            let time_to_collision = match (obstacle, velocity, &b.shape) {
+            // Relative to a moving actor's velocity.
+            let relative_velocity = match (velocity, &actor) {
+                (Some(v), Some(a)) => Some([v[0] - a.velocity[0], v[1] - a.velocity[1]]),
+                (v, _) => v,
+            };
+            let time_to_collision = match (obstacle, relative_velocity, &b.shape) {
                 (
                     true,
                     Some(v),

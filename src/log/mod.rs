@@ -44,13 +44,15 @@ pub enum Record {
     Measured(proto::State),
     /// What the plant received over a step, when actuator dynamics follow the delayed command.
     Actuated(proto::AppliedCommand),
+    /// The moving obstacles' true states at a step (scenarios with moving obstacles).
+    Actors(proto::Actors),
 }
 
 /// The topic table of the log format (docs/log-format.md): topic, protobuf full name of the
 /// message type, in the order of [`Topic`]. Writers, readers and decoders all use it. The
-/// last two are optional: a log has them only when the scenario has a sensor or actuator
-/// dynamics (their channels are added with the first message).
-pub const TOPICS: [(&str, &str); 12] = [
+/// last three are optional: a log has them only when the scenario has a sensor, actuator
+/// dynamics or moving obstacles (their channels are added with the first message).
+pub const TOPICS: [(&str, &str); 13] = [
     ("/state", "mjsafe.State"),
     ("/command/issued", "mjsafe.IssuedCommand"),
     ("/command/applied", "mjsafe.AppliedCommand"),
@@ -63,6 +65,7 @@ pub const TOPICS: [(&str, &str); 12] = [
     ("/log", "foxglove.Log"),
     ("/state/measured", "mjsafe.State"),
     ("/command/actuated", "mjsafe.AppliedCommand"),
+    ("/actors", "mjsafe.Actors"),
 ];
 
 /// A topic of the log format, one per [`Record`] kind (its index in [`TOPICS`]).
@@ -80,11 +83,12 @@ pub enum Topic {
     Log,
     Measured,
     Actuated,
+    Actors,
 }
 
 impl Topic {
     /// Every topic, in the order of [`TOPICS`].
-    pub const ALL: [Topic; 12] = [
+    pub const ALL: [Topic; 13] = [
         Topic::State,
         Topic::Issued,
         Topic::Applied,
@@ -97,12 +101,13 @@ impl Topic {
         Topic::Log,
         Topic::Measured,
         Topic::Actuated,
+        Topic::Actors,
     ];
 
     /// Whether a log has the topic only for some scenarios (a sensor, actuator dynamics);
     /// every other topic has a channel in every log mjsafe writes.
     pub fn is_optional(self) -> bool {
-        matches!(self, Topic::Measured | Topic::Actuated)
+        matches!(self, Topic::Measured | Topic::Actuated | Topic::Actors)
     }
 
     /// The topics every log has a channel for (from its start, messages or not).
@@ -171,6 +176,7 @@ impl Record {
             Record::Log(..) => Topic::Log,
             Record::Measured(_) => Topic::Measured,
             Record::Actuated(_) => Topic::Actuated,
+            Record::Actors(_) => Topic::Actors,
         }
     }
 
@@ -201,6 +207,7 @@ impl Record {
             Topic::Log => Record::Log(time, foxglove::messages::Log::decode(data)?),
             Topic::Measured => Record::Measured(proto::State::decode(data)?),
             Topic::Actuated => Record::Actuated(proto::AppliedCommand::decode(data)?),
+            Topic::Actors => Record::Actors(proto::Actors::decode(data)?),
         })
     }
 
@@ -216,6 +223,7 @@ impl Record {
             Record::Prediction(m) => m.time,
             Record::Measured(m) => m.time,
             Record::Actuated(m) => m.time,
+            Record::Actors(m) => m.time,
             Record::Scene(t, _) | Record::Transform(t, _) | Record::Log(t, _) => *t,
         }
     }
@@ -248,6 +256,7 @@ impl Record {
             Record::Scene(_, m) => wire::encode_scene_update(m, buffer),
             Record::Transform(_, m) => wire::encode_frame_transform(m, buffer),
             Record::Event(m) => m.encode(buffer).expect(FITS),
+            Record::Actors(m) => m.encode(buffer).expect(FITS),
             Record::Log(_, m) => m.encode(buffer).expect(FITS),
         }
     }

@@ -413,6 +413,17 @@ impl RerunSink {
                     )?;
                 }
             }
+            Record::Actors(m) => {
+                for a in &m.actors {
+                    let speed = a.vx.hypot(a.vy);
+                    self.series(
+                        stream,
+                        path(&["plots", "actors", &a.name, "speed"]),
+                        &["speed"],
+                        &[speed],
+                    )?;
+                }
+            }
             Record::Measured(m) => {
                 for (name, v) in m.names.iter().zip(&m.values) {
                     self.series(stream, path(&["plots", "measured", name]), &["measured"], &[*v])?;
