@@ -9,6 +9,8 @@ use crate::barrier::{BarrierForm, Constraint};
 
 /// Most breakpoints of an acceleration profile.
 pub const MAX_BREAKPOINTS: usize = 64;
+/// Most waypoints of a path.
+pub const MAX_WAYPOINTS: usize = 64;
 
 /// An actor's planar state at one time: position o (m), velocity ȯ (m/s), acceleration ö (m/s²).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -18,16 +20,20 @@ pub struct ActorState {
     pub acceleration: [f64; 2],
 }
 
-/// Straight-line motion from `start` along `direction` at `speed`, accelerating along it by the
-/// profile a(t) through the breakpoints (t, a) (linear between them, 0 before the first, the
-/// last value after the last; equal times make a step), the speed held at `min_speed` where
-/// braking would take it below (no reversing).
+/// Motion from `start` along `direction` (or through `waypoints`) at `speed`, accelerating along
+/// the path by the profile a(t) through the breakpoints (t, a) (linear between them, 0 before
+/// the first, the last value after the last; equal times make a step), the speed held at
+/// `min_speed` where braking would take it below (no reversing).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StraightMotion {
     pub start: [f64; 2],
-    /// Any non-zero vector; only its direction is used.
+    /// Any non-zero vector; only its direction is used (ignored with `waypoints`).
     pub direction: [f64; 2],
+    /// A polyline path instead: the points the actor passes after `start`, in order (it goes on
+    /// along the last segment's direction after the last); at most [`MAX_WAYPOINTS`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub waypoints: Vec<[f64; 2]>,
     /// Initial speed ≥ 0 (m/s).
     #[serde(default)]
     pub speed: f64,
@@ -81,6 +87,9 @@ impl Piece {
 pub struct Trajectory {
     start: [f64; 2],
     unit: [f64; 2],
+    /// The path's segments after the first (from `start` along `unit`): (arc length where it
+    /// starts, its start point, its unit direction); the last extends to +∞.
+    bends: Vec<(f64, [f64; 2], [f64; 2])>,
     min_speed: f64,
     /// In time order; the last extends to +∞.
     pieces: Vec<Piece>,
@@ -95,9 +104,42 @@ impl Trajectory {
         if !finite(&motion.start) {
             return Err(motion_error("start", "expected two finite coordinates (m)"));
         }
-        let norm = motion.direction[0].hypot(motion.direction[1]);
+        if motion.waypoints.len() > MAX_WAYPOINTS {
+            return Err(motion_error(
+                "waypoints",
+                format!(
+                    "expected at most {MAX_WAYPOINTS} points, found {}",
+                    motion.waypoints.len()
+                ),
+            ));
+        }
+        // The path's segments: each from the previous point, non-zero and finite.
+        let mut segments = Vec::with_capacity(motion.waypoints.len());
+        let mut from = motion.start;
+        for (k, w) in motion.waypoints.iter().enumerate() {
+            let d = [w[0] - from[0], w[1] - from[1]];
+            let length = d[0].hypot(d[1]);
+            if !(finite(w) && length.is_finite() && length > 1e-9) {
+                return Err(motion_error(
+                    "waypoints",
+                    format!("expected finite points, each apart from the one before it (point {k} is not)"),
+                ));
+            }
+            segments.push((from, [d[0] / length, d[1] / length], length));
+            from = *w;
+        }
+        let (direction, norm) = match segments.first() {
+            Some((_, unit, _)) => (*unit, 1.0),
+            None => (motion.direction, motion.direction[0].hypot(motion.direction[1])),
+        };
         if !(norm.is_finite() && norm > 0.0) {
             return Err(motion_error("direction", "expected a finite, non-zero vector"));
+        }
+        let mut bends = Vec::with_capacity(segments.len().saturating_sub(1));
+        let mut arc = 0.0;
+        for pair in segments.windows(2) {
+            arc += pair[0].2;
+            bends.push((arc, pair[1].0, pair[1].1));
         }
         if !(motion.min_speed.is_finite() && motion.min_speed >= 0.0) {
             return Err(motion_error(
@@ -133,10 +175,11 @@ impl Trajectory {
             }
             previous = *t;
         }
-        let unit = [motion.direction[0] / norm, motion.direction[1] / norm];
+        let unit = [direction[0] / norm, direction[1] / norm];
         let mut trajectory = Trajectory {
             start: motion.start,
             unit,
+            bends,
             min_speed: motion.min_speed,
             pieces: Vec::with_capacity(3 * motion.acceleration.len() + 2),
         };
@@ -221,12 +264,27 @@ impl Trajectory {
 
     /// The actor's true state at time t ≥ 0 (before 0: at the start, moving as at 0).
     pub fn state_at(&self, t: f64) -> ActorState {
+        let (s, v, a) = self.profile_at(t);
+        self.at_arc(s, v, a)
+    }
+
+    /// Arc length, speed and acceleration along the path at time t.
+    fn profile_at(&self, t: f64) -> (f64, f64, f64) {
         let index = self.pieces.partition_point(|p| p.t <= t).saturating_sub(1);
-        let piece = self.pieces[index];
-        let (s, v, a) = piece.at(t);
-        let [ux, uy] = self.unit;
+        self.pieces[index].at(t)
+    }
+
+    /// The state at arc length s with speed v and acceleration a along the path (along a
+    /// polyline, the segment's tangent: the turn at a waypoint is instantaneous).
+    fn at_arc(&self, s: f64, v: f64, a: f64) -> ActorState {
+        let bend = self.bends.partition_point(|b| b.0 <= s);
+        let (s0, from, [ux, uy]) = match bend {
+            0 => (0.0, self.start, self.unit),
+            k => self.bends[k - 1],
+        };
+        let s = s - s0;
         ActorState {
-            position: [self.start[0] + s * ux, self.start[1] + s * uy],
+            position: [from[0] + s * ux, from[1] + s * uy],
             velocity: [v * ux, v * uy],
             acceleration: [a * ux, a * uy],
         }
@@ -274,26 +332,15 @@ impl ActorMotion {
             (Some(_), None) => self.cruising(t),
             (Some(_), Some(at)) if t < at => self.cruising(t),
             (Some(_), Some(at)) => {
-                let base = self.cruising(at).position;
-                let start = self.trajectory.start;
-                let mut state = self.trajectory.state_at(t - at);
-                for (p, (b, s)) in state.position.iter_mut().zip(base.iter().zip(start)) {
-                    *p += b - s;
-                }
-                state
+                let (s, v, a) = self.trajectory.profile_at(t - at);
+                self.trajectory.at_arc(self.speed * at + s, v, a)
             }
         }
     }
 
     /// Before the trigger: the initial speed held from the start.
     fn cruising(&self, t: f64) -> ActorState {
-        let [ux, uy] = self.trajectory.unit;
-        let (start, v) = (self.trajectory.start, self.speed);
-        ActorState {
-            position: [start[0] + v * t * ux, start[1] + v * t * uy],
-            velocity: [v * ux, v * uy],
-            acceleration: [0.0; 2],
-        }
+        self.trajectory.at_arc(self.speed * t, self.speed, 0.0)
     }
 
     /// Fires the trigger at time t if the vehicle at `vehicle` is within its distance of the
@@ -428,6 +475,7 @@ mod tests {
 
     fn motion(speed: f64, acceleration: &[[f64; 2]]) -> StraightMotion {
         StraightMotion {
+            waypoints: Vec::new(),
             start: [30.0, 1.0],
             direction: [3.0, 4.0],
             speed,
@@ -503,6 +551,58 @@ mod tests {
         assert!(((tr.state_at(20.0).position[0] - 30.0) / 0.6 - d).abs() < 1e-9);
     }
 
+    /// A polyline path: the arc length of the speed profile laid along the segments (by hand:
+    /// 1 m/s² from rest, s = t²/2; the corner at s = 3 m).
+    #[test]
+    fn a_path_is_followed_segment_by_segment() {
+        let tr = Trajectory::new(&StraightMotion {
+            start: [0.0, 0.0],
+            direction: [9.0, 9.0],
+            waypoints: vec![[3.0, 0.0], [3.0, 4.0]],
+            speed: 0.0,
+            acceleration: vec![[0.0, 1.0]],
+            min_speed: 0.0,
+        })
+        .unwrap();
+        let at = |t: f64| tr.state_at(t);
+        let s = |t: f64| 0.5 * t * t;
+        let t = 2.0; // s = 2: on the first segment
+        assert!((at(t).position[0] - s(t)).abs() < 1e-12 && at(t).position[1] == 0.0);
+        assert_eq!(at(t).velocity, [t, 0.0]);
+        let t = 3.0; // s = 4.5: 1.5 m up the second
+        assert!((at(t).position[0] - 3.0).abs() < 1e-12 && (at(t).position[1] - 1.5).abs() < 1e-12);
+        assert!((at(t).velocity[1] - t).abs() < 1e-12 && at(t).velocity[0].abs() < 1e-12);
+        let t = 4.0; // s = 8: past the last point, on along its direction
+        assert!((at(t).position[1] - 5.0).abs() < 1e-12, "{:?}", at(t));
+    }
+
+    /// A triggered profile starts where the vehicle comes within the distance; before, the
+    /// actor keeps its initial speed; the profile's times count from the trigger.
+    #[test]
+    fn a_trigger_starts_the_profile_when_the_vehicle_is_close() {
+        let m = StraightMotion {
+            waypoints: Vec::new(),
+            start: [10.0, 0.0],
+            direction: [0.0, 1.0],
+            speed: 1.0,
+            acceleration: vec![[0.5, -2.0]],
+            min_speed: 0.0,
+        };
+        let mut motion = ActorMotion::new(&m, Some(5.0)).unwrap();
+        assert_eq!(motion.state_at(3.0).position, [10.0, 3.0]);
+        assert!(!motion.check_trigger(1.0, [0.0, 0.0]), "10 m away");
+        assert!(motion.check_trigger(2.0, [10.0, -2.0]), "4 m away");
+        assert!(!motion.check_trigger(2.5, [10.0, 2.0]), "fires once");
+        assert_eq!(motion.triggered_at(), Some(2.0));
+        // Until 2.5 s at 1 m/s (y = 2.5), then braking at 2 m/s² to a stop after 0.5 s.
+        assert_eq!(motion.state_at(1.0).position, [10.0, 1.0]);
+        assert!((motion.state_at(2.5).position[1] - 2.5).abs() < 1e-12);
+        let stopped = motion.state_at(10.0);
+        assert!((stopped.position[1] - 2.75).abs() < 1e-12, "{stopped:?}");
+        assert_eq!(stopped.velocity, [0.0, 0.0]);
+        assert!(ActorMotion::new(&m, Some(0.0)).is_err() && ActorMotion::new(&m, Some(f64::NAN)).is_err());
+    }
+
     #[test]
     fn hostile_motions_are_refused_with_the_key() {
         let bad = [
@@ -518,6 +618,27 @@ mod tests {
             (motion(1.0, &[[2.0, 0.0], [1.0, -1.0]]), "acceleration"),
             (motion(1.0, &[[-1.0, 0.0]]), "acceleration"),
             (motion(1.0, &vec![[0.0, 0.0]; MAX_BREAKPOINTS + 1]), "acceleration"),
+            (
+                StraightMotion {
+                    waypoints: vec![[30.0, 1.0]],
+                    ..motion(1.0, &[])
+                },
+                "waypoints",
+            ),
+            (
+                StraightMotion {
+                    waypoints: vec![[31.0, 1.0], [f64::NAN, 0.0]],
+                    ..motion(1.0, &[])
+                },
+                "waypoints",
+            ),
+            (
+                StraightMotion {
+                    waypoints: vec![[31.0, 1.0]; MAX_WAYPOINTS + 1],
+                    ..motion(1.0, &[])
+                },
+                "waypoints",
+            ),
         ];
         for (m, key) in bad {
             assert_eq!(Trajectory::new(&m).unwrap_err().key, key, "{m:?}");
@@ -583,6 +704,7 @@ mod tests {
     #[test]
     fn motion_terms_match_finite_differences() {
         let tr = Trajectory::new(&StraightMotion {
+            waypoints: Vec::new(),
             start: [6.0, 3.0],
             direction: [-1.0, 0.2],
             speed: 2.0,

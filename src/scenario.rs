@@ -346,8 +346,14 @@ pub struct ObstacleSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MotionSpec {
-    /// Direction of travel (any non-zero vector; only its direction is used).
-    pub direction: [f64; 2],
+    /// Direction of travel (any non-zero vector; only its direction is used). Either this or
+    /// `waypoints`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub direction: Option<[f64; 2]>,
+    /// A polyline path: the points the actor passes after its `centre`, in order (it goes on
+    /// along the last segment after the last point; at most 64).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub waypoints: Vec<[f64; 2]>,
     /// Initial speed (m/s, ≥ `min_speed`).
     #[serde(default)]
     pub speed: f64,
@@ -968,6 +974,12 @@ fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpe
             }
         }
     }
+    if m.direction.is_some() == !m.waypoints.is_empty() {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.motion"),
+            "expected either a `direction` or `waypoints` (a path of at least one point after the centre), not both",
+        ));
+    }
     if m.jitter.trigger_distance.is_some() && m.trigger_distance.is_none() {
         return Err(s.field_error(
             &format!("obstacles.{i}.motion.jitter.trigger_distance"),
@@ -1004,10 +1016,20 @@ impl MotionSpec {
             *a *= scale;
         }
         let along = draw(self.jitter.along, 3);
-        let norm = self.direction[0].hypot(self.direction[1]);
-        if along != 0.0 && norm > 0.0 {
-            motion.start[0] += along * self.direction[0] / norm;
-            motion.start[1] += along * self.direction[1] / norm;
+        if along != 0.0 {
+            // Along the first segment's direction (the path's points move with the start).
+            let d = self
+                .waypoints
+                .first()
+                .map_or(motion.direction, |w| [w[0] - start[0], w[1] - start[1]]);
+            let norm = d[0].hypot(d[1]);
+            if norm > 0.0 {
+                let shift = [along * d[0] / norm, along * d[1] / norm];
+                motion.start = [start[0] + shift[0], start[1] + shift[1]];
+                for w in &mut motion.waypoints {
+                    *w = [w[0] + shift[0], w[1] + shift[1]];
+                }
+            }
         }
         let trigger = self
             .trigger_distance
@@ -1019,7 +1041,8 @@ impl MotionSpec {
     pub fn straight(&self, start: [f64; 2]) -> crate::actor::StraightMotion {
         crate::actor::StraightMotion {
             start,
-            direction: self.direction,
+            direction: self.direction.unwrap_or([0.0; 2]),
+            waypoints: self.waypoints.clone(),
             speed: self.speed,
             acceleration: self.acceleration.clone(),
             min_speed: self.min_speed,

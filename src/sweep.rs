@@ -49,6 +49,17 @@ pub const MAX_RUNS: usize = 1_000_000;
 pub struct Grid {
     pub key: String,
     pub values: Vec<String>,
+    /// Further keys that move with it (a sweep file's `with`: e.g. a vehicle's initial speed
+    /// and its nominal's reference speed), each with one value per value of `values`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub with: Vec<Companion>,
+}
+
+/// A key that moves with a grid axis: its value at each of the axis's values (TOML text).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Companion {
+    pub key: String,
+    pub values: Vec<String>,
 }
 
 /// A range drawn uniformly: in [lo, hi), or with `step` from {lo, lo + step, …} ≤ hi.
@@ -127,6 +138,16 @@ struct SweepFile {
 struct GridEntry {
     key: String,
     values: Vec<toml::Value>,
+    #[serde(default)]
+    with: Vec<CompanionEntry>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CompanionEntry {
+    key: String,
+    /// One per value of the grid; absent: the grid's own values.
+    values: Option<Vec<toml::Value>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -233,6 +254,7 @@ pub fn parse_grid(arg: &str) -> Result<Grid, SweepError> {
     Ok(Grid {
         key: key.to_string(),
         values,
+        with: Vec::new(),
     })
 }
 
@@ -413,9 +435,26 @@ impl SweepSpec {
                 if g.values.is_empty() {
                     return Err(err(format!("key `grid[{i}].values`: expected at least one value")));
                 }
+                let mut with = Vec::with_capacity(g.with.len());
+                for (j, c) in g.with.into_iter().enumerate() {
+                    check_key(&c.key).map_err(|m| err(format!("key `grid[{i}].with[{j}].key`: {m}")))?;
+                    let values = c.values.unwrap_or_else(|| g.values.clone());
+                    if values.len() != g.values.len() {
+                        return Err(err(format!(
+                            "key `grid[{i}].with[{j}].values`: expected one value per value of the grid ({}), found {}",
+                            g.values.len(),
+                            values.len()
+                        )));
+                    }
+                    with.push(Companion {
+                        key: c.key,
+                        values: values.iter().map(|v| v.to_string()).collect(),
+                    });
+                }
                 grids.push(Grid {
                     key: g.key,
                     values: g.values.iter().map(|v| v.to_string()).collect(),
+                    with,
                 });
             }
             for (i, r) in parsed.range.into_iter().enumerate() {
@@ -449,7 +488,7 @@ impl SweepSpec {
 
         let keys = grids
             .iter()
-            .map(|g| g.key.as_str())
+            .flat_map(|g| std::iter::once(g.key.as_str()).chain(g.with.iter().map(|c| c.key.as_str())))
             .chain(ranges.iter().map(|r| r.key.as_str()));
         if let Some(key) = swept_twice(keys) {
             return Err(SweepError::Spec(format!(
@@ -531,8 +570,11 @@ impl SweepSpec {
         let draws = self.random.as_ref().map_or(1, |r| r.count);
         let mut point = index / draws;
         let mut grid_values = vec![String::new(); self.grids.len()];
+        let mut companions = Vec::new();
         for (i, g) in self.grids.iter().enumerate().rev() {
-            grid_values[i] = g.values[point % g.values.len()].clone();
+            let at = point % g.values.len();
+            grid_values[i] = g.values[at].clone();
+            companions.extend(g.with.iter().map(|c| format!("{}={}", c.key, c.values[at])));
             point /= g.values.len();
         }
         let mut parameters: Vec<(String, String)> = self.grids.iter().map(|g| g.key.clone()).zip(grid_values).collect();
@@ -542,11 +584,13 @@ impl SweepSpec {
                 parameters.push((r.key.clone(), range_value(r, g.next_f64())));
             }
         }
+        // The keys moving with a grid axis (not columns of their own).
         let overrides = self
             .set
             .iter()
             .cloned()
             .chain(parameters.iter().map(|(k, v)| format!("{k}={v}")))
+            .chain(companions)
             .collect();
         Run {
             index,

@@ -727,3 +727,72 @@ fn analyze_csv_and_compare() {
         stderr(&o)
     );
 }
+
+#[test]
+fn keys_that_move_with_a_grid_axis_take_their_value_in_each_run() {
+    // ncap_cpna.sweep.toml: the initial speed, the nominal's reference speed and the start x
+    // move together; each run's resolved scenario (the log's) has all three, and its speed
+    // stays at the reference (path_lqr holds it until the filter acts).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cpna");
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        "scenarios/ncap_cpna.sweep.toml",
+        "--set",
+        "duration=0.5",
+        "--set",
+        "filter={kind=\"none\"}",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = json(&out.join("summary.json"));
+    let runs = s["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 22);
+    // Columns: only the grid keys.
+    let keys: Vec<&String> = runs[0]["parameters"].as_object().unwrap().keys().collect();
+    assert_eq!(keys, ["actor_knowledge.kind", "vehicle.initial_state.3"]);
+    assert_eq!(s["sweep"]["grids"][0]["with"][0]["key"], "nominal.reference_speed");
+    for (index, speed, x0) in [
+        (0, 2.778, 54.6 - 2.6 - 4.68 * 2.778),
+        (21, 16.667, 54.6 - 2.6 - 4.68 * 16.667),
+    ] {
+        let log = out.join(runs[index]["log"].as_str().unwrap());
+        let states = read_topic::<mjsafe::log::proto::State>(&log, "/state");
+        assert!(
+            (states[0].values[0] - x0).abs() < 1e-3,
+            "run {index}: x0 {}",
+            states[0].values[0]
+        );
+        assert_eq!(states[0].values[3], speed, "run {index}");
+        let last = states.last().unwrap();
+        assert!(
+            (last.values[3] - speed).abs() < 1e-6,
+            "run {index}: the reference speed is {speed}"
+        );
+    }
+    // A companion with the wrong number of values is refused, naming it.
+    let bad = dir.path().join("bad.sweep.toml");
+    std::fs::write(
+        &bad,
+        format!(
+            "scenario = \"{}\"\n[[grid]]\nkey = \"vehicle.initial_state.3\"\nvalues = [1.0, 2.0]\nwith = [{{ key = \"nominal.reference_speed\", values = [1.0] }}]\n",
+            root().join("scenarios/ncap_cpna.toml").display()
+        ),
+    )
+    .unwrap();
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        bad.to_str().unwrap(),
+        "--out",
+        out.join("x").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("grid[0].with[0].values`: expected one value per value of the grid (2), found 1"),
+        "{}",
+        stderr(&o)
+    );
+}

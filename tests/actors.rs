@@ -1,0 +1,241 @@
+//! Moving road users (issue 37): the controller predicts each actor over each channel's delay
+//! as `[actor_knowledge]` says, and the outcome follows what it assumes; the logged actor states
+//! are the motion's closed form; triggers fire where the vehicle comes within their distance;
+//! runs are deterministic; hostile actor inputs are refused with one line.
+
+mod common;
+
+use std::path::Path;
+
+use common::*;
+use mjsafe::log::proto;
+
+fn outcome(name: &str, log: &Path, sets: &[&str]) -> serde_json::Value {
+    let mut extra = Vec::new();
+    for s in sets {
+        extra.extend(["--set", s]);
+    }
+    run_ok(&scenario(name), log, &extra);
+    analyze_json(log)
+}
+
+fn collided(m: &serde_json::Value) -> bool {
+    !m["collision"].is_null()
+}
+
+/// The filtered command of every tick, per channel.
+fn commands(log: &Path) -> Vec<Vec<f64>> {
+    read_topic::<proto::IssuedCommand>(log, "/command/issued")
+        .into_iter()
+        .map(|m| m.filtered)
+        .collect()
+}
+
+fn max_difference(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .flat_map(|(x, y)| x.iter().zip(y).map(|(p, q)| (p - q).abs()))
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn a_constant_velocity_prediction_of_a_constant_velocity_actor_is_the_oracle() {
+    // CCRm: the target drives at a constant 20 km/h, so extrapolating its velocity over each
+    // channel's delay is its true future: the filter issues the oracle's commands (to rounding).
+    // For the braking target of CCRb the two differ.
+    let dir = tempfile::tempdir().unwrap();
+    let runs = |name: &str| {
+        let [cv, oracle] = ["constant_velocity", "oracle"].map(|k| {
+            let log = dir.path().join(format!("{name}-{k}.mcap"));
+            outcome(name, &log, &[&format!("actor_knowledge.kind=\"{k}\"")]);
+            commands(&log)
+        });
+        max_difference(&cv, &oracle)
+    };
+    let exact = runs("ncap_ccrm.toml");
+    assert!(exact < 1e-6, "CCRm: constant velocity vs oracle differ by {exact}");
+    let braking = runs("ncap_ccrb.toml");
+    assert!(
+        braking > 1.0,
+        "CCRb: constant velocity vs oracle differ by only {braking}"
+    );
+}
+
+#[test]
+fn what_the_controller_assumes_of_the_actor_decides_the_outcome() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = |n: &str| dir.path().join(n);
+    // CPFA: taking the pedestrian as standing where it is now hits them; predicting their
+    // motion over the delays does not. The nominal alone hits them.
+    let m = outcome(
+        "ncap_cpfa.toml",
+        &log("cpfa-static.mcap"),
+        &["actor_knowledge.kind=\"static\""],
+    );
+    assert!(collided(&m), "{m}");
+    assert_eq!(m["collision"]["with"], "pedestrian");
+    let m = outcome("ncap_cpfa.toml", &log("cpfa.mcap"), &[]);
+    assert!(!collided(&m) && m["min_h"].as_f64().unwrap() > 0.0, "{m}");
+    let m = outcome("ncap_cpfa.toml", &log("cpfa-none.mcap"), &["filter={kind=\"none\"}"]);
+    assert!(collided(&m), "{m}");
+    // CCRb: a target braking at 6 m/s² is hit when its velocity is extrapolated (the braking
+    // enters ḧ through ö, which constant velocity takes as 0), missed when its acceleration is
+    // extrapolated or known.
+    let m = outcome("ncap_ccrb.toml", &log("ccrb.mcap"), &[]);
+    assert!(collided(&m), "{m}");
+    for k in ["constant_acceleration", "oracle"] {
+        let m = outcome(
+            "ncap_ccrb.toml",
+            &log(&format!("ccrb-{k}.mcap")),
+            &[&format!("actor_knowledge.kind=\"{k}\"")],
+        );
+        assert!(!collided(&m) && m["min_h"].as_f64().unwrap() > 0.0, "{k}: {m}");
+    }
+}
+
+#[test]
+fn the_logged_actor_states_are_the_closed_form_motion_and_h_uses_them() {
+    // CCRb's target: 13.889 m/s from x = 15.86, braking at 6 m/s² from t = 1 s to a stop at
+    // t = 1 + 13.889/6; computed here by hand.
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("ccrb.mcap");
+    outcome("ncap_ccrb.toml", &log, &["filter={kind=\"none\"}"]);
+    let actors = read_topic::<proto::Actors>(&log, "/actors");
+    let states = read_topic::<proto::State>(&log, "/state");
+    let barriers = read_topic::<proto::Barrier>(&log, "/barrier");
+    assert_eq!(actors.len(), states.len());
+    let (v0, a, t0) = (13.889, 6.0, 1.0);
+    let stop = t0 + v0 / a;
+    for (m, s) in actors.iter().zip(&states) {
+        let t = m.time;
+        let x = if t <= t0 {
+            15.86 + v0 * t
+        } else {
+            let d = (t - t0).min(stop - t0);
+            15.86 + v0 * t0 + v0 * d - 0.5 * a * d * d
+        };
+        let v = if t <= t0 { v0 } else { (v0 - a * (t - t0)).max(0.0) };
+        let target = &m.actors[0];
+        assert_eq!(target.name, "target");
+        assert!(
+            (target.x - x).abs() < 1e-9 && target.y == 0.0,
+            "t = {t}: x {} vs {x}",
+            target.x
+        );
+        assert!((target.vx - v).abs() < 1e-9, "t = {t}: v {} vs {v}", target.vx);
+        // /barrier's h at the same time: ‖p − o‖² − (3 + 0.86)².
+        if let Some(b) = barriers.iter().find(|b| b.time == t) {
+            let (dx, dy) = (s.values[0] - x, s.values[1]);
+            let h = dx * dx + dy * dy - 3.86f64.powi(2);
+            assert!((b.barriers[0].h - h).abs() < 1e-6 * (1.0 + h.abs()), "t = {t}");
+        }
+    }
+}
+
+#[test]
+fn a_trigger_fires_when_the_vehicle_comes_within_its_distance() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("trigger.mcap");
+    // CPNA's pedestrian waits until the vehicle is within 40 m, then starts its profile.
+    outcome(
+        "ncap_cpna.toml",
+        &log,
+        &["obstacles.0.motion.trigger_distance=40.0", "filter={kind=\"none\"}"],
+    );
+    let events = read_topic::<proto::Event>(&log, "/event");
+    let fired: Vec<_> = events.iter().filter(|e| e.kind == "actor_triggered").collect();
+    assert_eq!(fired.len(), 1, "{events:?}");
+    let t = fired[0].time;
+    let states = read_topic::<proto::State>(&log, "/state");
+    let distance = |s: &proto::State| (s.values[0] - 54.6).hypot(s.values[1] + 7.0);
+    let at = states.iter().position(|s| s.time == t).unwrap();
+    assert!(
+        distance(&states[at]) <= 40.0 && distance(&states[at - 1]) > 40.0,
+        "t = {t}"
+    );
+    // Standing still before, walking after (1.44 s at 0.965 m/s² then 1.389 m/s).
+    let actors = read_topic::<proto::Actors>(&log, "/actors");
+    for m in &actors {
+        let p = &m.actors[0];
+        let expected = if m.time <= t {
+            -7.0
+        } else {
+            let d = (m.time - t).min(1.44);
+            -7.0 + 0.5 * 0.965 * d * d + 0.965 * 1.44 * (m.time - t - d)
+        };
+        assert!((p.y - expected).abs() < 1e-9, "t = {}: {} vs {expected}", m.time, p.y);
+    }
+}
+
+#[test]
+fn actor_runs_are_deterministic_and_jitter_is_seeded() {
+    let dir = tempfile::tempdir().unwrap();
+    let jitter = "obstacles.0.motion.jitter={speed=1.0, time=0.3, acceleration=0.2}";
+    let run = |name: &str, seed: u64| {
+        let log = dir.path().join(name);
+        outcome("ncap_ccrb.toml", &log, &[jitter, &format!("seed={seed}")]);
+        log
+    };
+    let (a, b, c) = (run("a.mcap", 1), run("b.mcap", 1), run("c.mcap", 2));
+    assert_eq!(
+        std::fs::read(&a).unwrap(),
+        std::fs::read(&b).unwrap(),
+        "same seed, same bytes"
+    );
+    let first = |log: &Path| read_topic::<proto::Actors>(log, "/actors")[0].actors[0].vx;
+    assert_eq!(first(&a), first(&b));
+    assert_ne!(first(&a), first(&c), "another seed, another draw");
+    assert!((first(&a) - 13.889).abs() <= 1.0 && (first(&c) - 13.889).abs() <= 1.0);
+}
+
+#[test]
+fn hostile_actor_inputs_are_refused_with_one_line() {
+    let cases: [(&str, &[&str]); 10] = [
+        (
+            "obstacles.0.motion.waypoints=[[60.0, 0.0]]",
+            &["obstacles.0.motion", "either a `direction` or `waypoints`"],
+        ),
+        (
+            "obstacles.0.motion={waypoints=[[15.86, 0.0]]}",
+            &["obstacles.0.motion.waypoints", "apart from the one before it"],
+        ),
+        (
+            "obstacles.0.motion.speed=-1.0",
+            &["obstacles.0.motion.speed", "expected a speed >= min_speed"],
+        ),
+        (
+            "obstacles.0.motion.speed=nan",
+            &["obstacles.0.motion.speed", "found NaN"],
+        ),
+        (
+            "obstacles.0.motion.direction=[0.0, 0.0]",
+            &["obstacles.0.motion.direction", "non-zero"],
+        ),
+        (
+            "obstacles.0.motion.acceleration=[[-1.0, 2.0]]",
+            &["obstacles.0.motion.acceleration", "times >= 0"],
+        ),
+        (
+            "obstacles.0.motion.acceleration=[[2.0, 0.0], [1.0, -6.0]]",
+            &["obstacles.0.motion.acceleration", "non-decreasing"],
+        ),
+        (
+            "obstacles.0.motion.trigger_distance=-1.0",
+            &["obstacles.0.motion.trigger_distance", "> 0"],
+        ),
+        (
+            "obstacles.0.motion.jitter={speed=-1.0}",
+            &["obstacles.0.motion.jitter.speed", ">= 0"],
+        ),
+        ("actor_knowledge.kind=\"psychic\"", &["actor_knowledge", "psychic"]),
+    ];
+    for (set, needles) in cases {
+        let line = run_expecting_failure("ncap_ccrb.toml", &[set], needles);
+        assert_eq!(line.trim().lines().count(), 1, "{set}: {line}");
+    }
+    // One breakpoint too many.
+    let profile: Vec<String> = (0..65).map(|k| format!("[{k}.0, 0.0]")).collect();
+    let set = format!("obstacles.0.motion.acceleration=[{}]", profile.join(", "));
+    run_expecting_failure("ncap_ccrb.toml", &[&set], &["at most 64 breakpoints"]);
+}
