@@ -974,7 +974,7 @@ fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpe
             }
         }
     }
-    if m.direction.is_some() == !m.waypoints.is_empty() {
+    if m.direction.is_some() != m.waypoints.is_empty() {
         return Err(s.field_error(
             &format!("obstacles.{i}.motion"),
             "expected either a `direction` or `waypoints` (a path of at least one point after the centre), not both",
