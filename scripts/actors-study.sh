@@ -33,7 +33,7 @@ for c in "${configs[@]}"; do
     "$mjsafe" run "scenarios/$s.toml" "${args[@]}" --out "$log" >/dev/null 2>&1 || true
     "$mjsafe" analyze --json "$log" 2>/dev/null | python3 -c '
 import json, sys
-m = json.load(sys.stdin)
+m = json.load(sys.stdin)[0]
 c = m.get("collision")
 if c:
     print(" hit at {:.2f} s ({:.2f} m deep) |".format(c["time"], c["depth"]), end="")

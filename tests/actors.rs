@@ -239,3 +239,28 @@ fn hostile_actor_inputs_are_refused_with_one_line() {
     let set = format!("obstacles.0.motion.acceleration=[{}]", profile.join(", "));
     run_expecting_failure("ncap_ccrb.toml", &[&set], &["at most 64 breakpoints"]);
 }
+
+#[test]
+fn the_ncap_outcomes_of_the_readme_table() {
+    // The nominal alone hits every target; (4.67) with the default constant-velocity
+    // prediction clears every one but the braking CCRb target; the delay-free CBF-QP (2.16)
+    // with the delays uncompensated hits the moving CCRm target.
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["ncap_ccrs", "ncap_ccrm", "ncap_ccrb", "ncap_cpna", "ncap_cpfa"] {
+        let file = format!("{name}.toml");
+        let m = outcome(
+            &file,
+            &dir.path().join(format!("{name}-none.mcap")),
+            &["filter={kind=\"none\"}"],
+        );
+        assert!(collided(&m), "{name}, nominal alone: {m}");
+        let m = outcome(&file, &dir.path().join(format!("{name}.mcap")), &[]);
+        assert_eq!(collided(&m), name == "ncap_ccrb", "{name}, (4.67): {m}");
+    }
+    let m = outcome(
+        "ncap_ccrm.toml",
+        &dir.path().join("ccrm-qp.mcap"),
+        &["filter={kind=\"cbf_qp\", l0=4.0, l1=4.0}"],
+    );
+    assert!(collided(&m), "{m}");
+}
