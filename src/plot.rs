@@ -495,6 +495,12 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             }
             chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
             draw_actor_paths(&mut chart, &series)?;
+            if !series.actors.is_empty() {
+                (chart.configure_series_labels())
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .draw()?;
+            }
             root.present()?;
             Ok(())
         });
@@ -542,13 +548,6 @@ fn draw_actor_paths<DB: DrawingBackend>(
             chart.draw_series(LineSeries::new(dash.iter().copied(), style))?;
         }
         chart.draw_series([Cross::new(vehicle, 5, style)])?;
-    }
-    if !series.actors.is_empty() {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
     }
     Ok(())
 }
