@@ -184,7 +184,10 @@ impl RunVisitor for Series {
                         if let Some(c) = e.cylinders.first() {
                             self.hull_radius = Some(c.size.unwrap_or_default().x / 2.0);
                         }
-                    } else if !e.id.starts_with("trail") && !e.id.starts_with("prediction") && !e.id.starts_with("actor_") {
+                    } else if !e.id.starts_with("trail")
+                        && !e.id.starts_with("prediction")
+                        && !e.id.starts_with("actor_")
+                    {
                         if let Some(c) = e.cylinders.first() {
                             let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
                             let p = pose.position.unwrap_or_default();

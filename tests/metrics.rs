@@ -290,7 +290,13 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
         let events = common::read_topic::<proto::Event>(&log, "/event");
         let predictions = common::read_topic::<proto::Prediction>(&log, "/prediction");
         assert_eq!(actors.len(), states.len(), "one /actors per step");
-        let walker = |a: &proto::Actors| a.actors.iter().find(|v| v.name == "walker").map(|v| (v.x, v.y)).unwrap();
+        let walker = |a: &proto::Actors| {
+            a.actors
+                .iter()
+                .find(|v| v.name == "walker")
+                .map(|v| (v.x, v.y))
+                .unwrap()
+        };
         // Forward differences of the logged positions.
         let velocity = |k: usize| {
             let dt = states[k + 1].time - states[k].time;
@@ -302,11 +308,18 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
         assert_eq!(collision.is_some(), collides, "{name}: {collision:?}");
         let k_c = collision.map(|t| states.iter().position(|s| (s.time - t).abs() < 1e-9).unwrap());
         let before = k_c.unwrap_or(states.len() - 1);
-        let min_speed = (0..before).map(speed).chain(k_c.map(speed)).fold(f64::INFINITY, f64::min);
+        let min_speed = (0..before)
+            .map(speed)
+            .chain(k_c.map(speed))
+            .fold(f64::INFINITY, f64::min);
         let reduction = speed(0) - k_c.map_or(min_speed, speed);
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
         assert!(close(m["speed_reduction"].as_f64().unwrap(), reduction), "{name}: {m}");
-        assert_eq!(m["vehicle_stopped"].as_u64(), Some(u64::from(min_speed < 0.05)), "{name}");
+        assert_eq!(
+            m["vehicle_stopped"].as_u64(),
+            Some(u64::from(min_speed < 0.05)),
+            "{name}"
+        );
         match k_c {
             Some(k) => {
                 let (o0, o1) = (walker(&actors[k]), walker(&actors[k + 1]));

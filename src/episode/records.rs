@@ -117,7 +117,9 @@ impl RecordBuffers {
             let truth = motion.state_at(c.prediction.target_time).position;
             let assumed = (control.moving_actors().take(known))
                 .position(|(name, _)| name == o.barrier.name)
-                .map_or([f64::NAN; 2], |k| [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]);
+                .map_or([f64::NAN; 2], |k| {
+                    [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
+                });
             actor_predicted.extend_from_slice(&assumed);
             actor_realized.extend_from_slice(&truth);
             actor_error.push((assumed[0] - truth[0]).hypot(assumed[1] - truth[1]));

@@ -1209,7 +1209,12 @@ mod tests {
                     m.relative_error,
                     m.chain_mismatch,
                 ];
-                (scalars.map(f64::to_bits), m.channel.clone(), m.reused_chain, m.actors.clone())
+                (
+                    scalars.map(f64::to_bits),
+                    m.channel.clone(),
+                    m.reused_chain,
+                    m.actors.clone(),
+                )
             };
             assert_eq!(bits(&reused), bits(&expected));
             assert!(
