@@ -76,6 +76,7 @@ fn step_records(k: u64, tick: bool) -> Vec<Record> {
                 relative_error: 0.02 * delay / 20.0,
                 reused_chain: true,
                 chain_mismatch: 1e-6,
+                ..Default::default()
             }));
         }
     }

@@ -117,6 +117,7 @@ impl crate::log::Sink for AnalysisSink {
             Record::Issued(m) => Observed::Issued(m),
             Record::Prediction(m) => Observed::Prediction(m),
             Record::Event(m) => Observed::Event(m),
+            Record::Actors(m) => Observed::Actors(m),
             _ => return Ok(()),
         };
         analysis.observe(observed);
@@ -215,7 +216,7 @@ impl RunVisitor for Analysis {
         if !self.metrics.reads(m.topic) {
             return Ok(());
         }
-        let event;
+        let (event, actors);
         let observed = match m.topic {
             Topic::State => Observed::State(self.decoder.state(m)?),
             Topic::Barrier => Observed::Barrier(self.decoder.barrier(m)?),
@@ -225,6 +226,10 @@ impl RunVisitor for Analysis {
             Topic::Event => {
                 event = m.decode()?;
                 Observed::Event(&event)
+            }
+            Topic::Actors => {
+                actors = m.decode()?;
+                Observed::Actors(&actors)
             }
             _ => return Ok(()),
         };

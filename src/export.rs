@@ -439,6 +439,20 @@ impl RunVisitor for Export<'_> {
                     Cell::B(m.reused_chain),
                     Cell::F(m.chain_mismatch),
                 ]);
+                // Per moving obstacle: assumed and true position at the target time, distance.
+                let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(f64::NAN);
+                for (k, a) in m.actors.iter().enumerate() {
+                    for (field, v) in [
+                        ("predicted_x", at(&m.actor_predicted, 2 * k)),
+                        ("predicted_y", at(&m.actor_predicted, 2 * k + 1)),
+                        ("realized_x", at(&m.actor_realized, 2 * k)),
+                        ("realized_y", at(&m.actor_realized, 2 * k + 1)),
+                        ("error", at(&m.actor_error, k)),
+                    ] {
+                        columns.push(col(format!("{a}.{field}"), Kind::F64));
+                        c.push(Cell::F(v));
+                    }
+                }
             }
             Record::Event(m) => {
                 columns.extend([

@@ -103,7 +103,11 @@ struct Series {
     issued: BTreeMap<String, Vec<(f64, f64)>>,
     applied: BTreeMap<String, Vec<(f64, f64)>>,
     path: Vec<(f64, f64)>,
-    /// (name, centre, radius) of the obstacles, from `/scene`.
+    /// The time of each point of `path`.
+    path_times: Vec<f64>,
+    /// Per moving obstacle, its (t, x, y) from `/actors`.
+    actors: BTreeMap<String, Vec<(f64, f64, f64)>>,
+    /// (name, centre, radius) of the obstacles, from `/scene` (a moving one where it was last).
     obstacles: BTreeMap<String, ((f64, f64), f64)>,
     reference: Option<[(f64, f64); 2]>,
     /// The static lines of `/scene` by entity id: road edges (`road/<edge>`), lane markings
@@ -135,6 +139,12 @@ impl RunVisitor for Series {
             Record::State(m) => {
                 if let Some([i, j]) = planar_position_of(self.declared_planar, &m.names) {
                     self.path.push((m.values[i], m.values[j]));
+                    self.path_times.push(m.time);
+                }
+            }
+            Record::Actors(m) => {
+                for a in m.actors {
+                    self.actors.entry(a.name).or_default().push((m.time, a.x, a.y));
                 }
             }
             Record::Barrier(m) => {
@@ -174,7 +184,10 @@ impl RunVisitor for Series {
                         if let Some(c) = e.cylinders.first() {
                             self.hull_radius = Some(c.size.unwrap_or_default().x / 2.0);
                         }
-                    } else if !e.id.starts_with("trail") && !e.id.starts_with("prediction") {
+                    } else if !e.id.starts_with("trail")
+                        && !e.id.starts_with("prediction")
+                        && !e.id.starts_with("actor_")
+                    {
                         if let Some(c) = e.cylinders.first() {
                             let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
                             let p = pose.position.unwrap_or_default();
@@ -448,7 +461,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .values()
             .flat_map(|((x, y), r)| [(x - r, y - r), (x + r, y + r)]);
         let lines = series.lines.values().flat_map(|l| l.points.iter().copied());
-        let ((x0, x1), (y0, y1)) = bounds(series.path.iter().copied().chain(circles).chain(lines));
+        let actor_paths = series.actors.values().flatten().map(|&(_, x, y)| (x, y));
+        let ((x0, x1), (y0, y1)) = bounds(
+            (series.path.iter().copied())
+                .chain(circles)
+                .chain(lines)
+                .chain(actor_paths),
+        );
         // Equal axis scales: widen the shorter span to the plotting area's shape.
         let aspect = plot_aspect((1000, 500), 12, 36, 50, 22);
         let (cx, cy, half) = (
@@ -478,6 +497,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
             }
             chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
+            draw_actor_paths(&mut chart, &series)?;
+            if !series.actors.is_empty() {
+                (chart.configure_series_labels())
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .draw()?;
+            }
             root.present()?;
             Ok(())
         });
@@ -485,6 +511,48 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         written.push(path);
     }
     Ok(written)
+}
+
+/// Each moving obstacle's path from `/actors` (a line named in the legend) and the actor at
+/// the vehicle's closest approach to it (its outline, dashed, and the vehicle's position then).
+fn draw_actor_paths<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        '_,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    series: &Series,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    for (k, (name, samples)) in series.actors.iter().enumerate() {
+        let style = PALETTE[(3 + k) % PALETTE.len()].stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(samples.iter().map(|&(_, x, y)| (x, y)), style))?
+            .label(format!("{name} (moving obstacle)"))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+        // The closest approach: the vehicle's state at the actor's sample time.
+        let closest = (samples.iter())
+            .filter_map(|&(t, x, y)| {
+                let i = series.path_times.partition_point(|&s| s < t - 1e-9);
+                let &(px, py) = series.path.get(i).filter(|_| (series.path_times[i] - t).abs() < 1e-9)?;
+                Some(((px - x).hypot(py - y), (x, y), (px, py)))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        let (Some((_, (x, y), vehicle)), Some((_, r))) = (closest, series.obstacles.get(name)) else {
+            continue;
+        };
+        let r = *r;
+        let outline: Vec<(f64, f64)> = (0..=72)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 72.0;
+                (x + r * a.cos(), y + r * a.sin())
+            })
+            .collect();
+        for dash in outline.chunks(4).step_by(2) {
+            chart.draw_series(LineSeries::new(dash.iter().copied(), style))?;
+        }
+        chart.draw_series([Cross::new(vehicle, 5, style)])?;
+    }
+    Ok(())
 }
 
 /// The y axis of h(t): obstacle barriers (4.81) are in m².

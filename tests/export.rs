@@ -287,6 +287,27 @@ fn topics_select_tables_and_the_optional_topics_are_exported() {
     // 1 s at 2 ms: 500 steps, one row each.
     assert_eq!(actuated.lines().count(), 1 + 500);
 
+    // Moving obstacles: the /actors table and the actor columns of /prediction.
+    let walker = dir.path().join("walker.mcap");
+    run_ok(
+        &root().join("tests/data/crossing_walker.toml"),
+        &walker,
+        &["--set", "duration=2.0"],
+    );
+    let o = mjsafe(&["export", walker.to_str().unwrap(), "--topics", "/actors,/prediction"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let actors = std::fs::read_to_string(dir.path().join("walker-actors.csv")).unwrap();
+    assert!(
+        actors.starts_with("time,walker.x,walker.y,walker.vx,walker.vy,walker.ax,walker.ay\n"),
+        "{actors}"
+    );
+    let predictions = std::fs::read_to_string(dir.path().join("walker-prediction.csv")).unwrap();
+    let header = predictions.lines().next().unwrap();
+    assert!(
+        header.ends_with(",walker.predicted_x,walker.predicted_y,walker.realized_x,walker.realized_y,walker.error"),
+        "{header}"
+    );
+
     let e = mjsafe(&["export", log.to_str().unwrap(), "--topics", "/scene"]);
     assert!(!e.status.success());
     assert!(

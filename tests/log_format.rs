@@ -413,6 +413,28 @@ fn the_scene_shows_predicted_positions_and_one_dimensional_vehicles() {
         .map(|v| v.as_str().unwrap())
         .collect();
     assert!(ids.contains(&"vehicle"), "{ids:?}");
+    // A moving obstacle: drawn every frame, its trail, where each channel's prediction assumes it.
+    let log = dir.path().join("walker.mcap");
+    run_ok(
+        &root().join("tests/data/crossing_walker.toml"),
+        &log,
+        &["--set", "duration=3.0"],
+    );
+    let d = python_digest(&log);
+    let ids: Vec<&str> = d["scene_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    for id in [
+        "walker",
+        "actor_trail/walker/0",
+        "actor_prediction/walker/steering",
+        "actor_prediction/walker/acceleration",
+    ] {
+        assert!(ids.contains(&id), "{id} not in {ids:?}");
+    }
 }
 
 #[test]

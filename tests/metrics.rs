@@ -11,20 +11,25 @@ use mjsafe::metrics::Shape;
 
 /// Logs that between them have every metric: predictions, obstacles and a planar vehicle
 /// ((4.67) on the bicycle), a prescribed time (the red light, Ch. 5), a collision ((4.9)
-/// with delays), a stall ((4.9) without delays).
-fn logs(dir: &std::path::Path) -> [String; 4] {
-    [
-        "bicycle_obstacle_gamma_m",
-        "red_light",
-        "bicycle_obstacle",
-        "bicycle_obstacle_nodelay",
-    ]
-    .map(|name| {
+/// with delays), a stall ((4.9) without delays), a collision with a moving obstacle (a walker
+/// the controller assumes static).
+fn logs(dir: &std::path::Path) -> [String; 5] {
+    let runs: [(&str, &str, &[&str]); 5] = [
+        ("scenarios", "bicycle_obstacle_gamma_m", &[]),
+        ("scenarios", "red_light", &[]),
+        ("scenarios", "bicycle_obstacle", &[]),
+        ("scenarios", "bicycle_obstacle_nodelay", &[]),
+        ("tests/data", "crossing_walker", STATIC_WALKER),
+    ];
+    runs.map(|(folder, name, args)| {
         let log = dir.join(format!("{name}.mcap"));
-        run_ok(&root().join(format!("scenarios/{name}.toml")), &log, &[]);
+        run_ok(&root().join(format!("{folder}/{name}.toml")), &log, args);
         log.to_str().unwrap().to_string()
     })
 }
+
+/// The crossing walker assumed static over the delays: the vehicle hits it.
+const STATIC_WALKER: &[&str] = &["--set", "actor_knowledge.kind=\"static\""];
 
 /// The flat columns a metric declares (a per-channel or per-index group as `<base>.`).
 fn declared_columns() -> Vec<(String, &'static str)> {
@@ -59,10 +64,10 @@ fn declared_columns() -> Vec<(String, &'static str)> {
 #[test]
 fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
     let dir = tempfile::tempdir().unwrap();
-    let [a, b, c, d] = logs(dir.path());
+    let [a, b, c, d, e] = logs(dir.path());
 
     // JSON: every metric under its name, every part's unit under its path.
-    for log in [&a, &b, &c, &d] {
+    for log in [&a, &b, &c, &d, &e] {
         let m = common::analyze_json(std::path::Path::new(log));
         for metric in METRICS {
             assert!(
@@ -85,7 +90,7 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
         }
     }
     // The runs have values for every metric between them (none is always null).
-    let runs = [&a, &b, &c, &d].map(|log| common::analyze_json(std::path::Path::new(log)));
+    let runs = [&a, &b, &c, &d, &e].map(|log| common::analyze_json(std::path::Path::new(log)));
     for metric in METRICS {
         assert!(
             runs.iter().any(|m| !m[metric.name].is_null()),
@@ -95,7 +100,7 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
     }
 
     // CSV: a column (or a group of channel columns) per metric and part.
-    let o = mjsafe(&["analyze", "--csv", &a, &b, &c]);
+    let o = mjsafe(&["analyze", "--csv", &a, &b, &c, &e]);
     assert!(o.status.success());
     let csv = stdout(&o);
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
@@ -112,10 +117,14 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
     }
 
     // --compare: every column with its declared unit.
-    let o = mjsafe(&["analyze", "--compare", "--json", &a, &b]);
-    assert!(o.status.success());
-    let compare: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
-    let rows = compare["metrics"].as_array().unwrap();
+    // (Two logs per comparison: the prescribed-time run, then the moving obstacle's.)
+    let mut rows = Vec::new();
+    for other in [&b, &e] {
+        let o = mjsafe(&["analyze", "--compare", "--json", &a, other]);
+        assert!(o.status.success());
+        let compare: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+        rows.extend(compare["metrics"].as_array().unwrap().iter().cloned());
+    }
     for (column, unit) in declared_columns() {
         let row = rows
             .iter()
@@ -266,4 +275,105 @@ fn barrier_minima_are_per_barrier_and_agree_with_the_log() {
     assert_eq!(m["units"]["min_clearance_by_obstacle"], "m");
     // min_h is the smallest of them.
     assert_eq!(m["min_h"].as_f64(), h.values().copied().reduce(f64::min));
+}
+
+/// The per-actor metrics, computed here from the raw `/state`, `/actors`, `/event` and
+/// `/prediction` messages: a walker the controller assumes static (a collision) and one it
+/// assumes at constant velocity (none).
+#[test]
+fn per_actor_metrics_agree_with_the_raw_messages() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = root().join("tests/data/crossing_walker.toml");
+    for (name, args, collides) in [("static", STATIC_WALKER, true), ("cv", &[][..], false)] {
+        let log = dir.path().join(format!("{name}.mcap"));
+        run_ok(&scenario, &log, args);
+        let m = common::analyze_json(&log);
+        let states = common::read_topic::<proto::State>(&log, "/state");
+        let actors = common::read_topic::<proto::Actors>(&log, "/actors");
+        let events = common::read_topic::<proto::Event>(&log, "/event");
+        let predictions = common::read_topic::<proto::Prediction>(&log, "/prediction");
+        assert_eq!(actors.len(), states.len(), "one /actors per step");
+        let walker = |a: &proto::Actors| {
+            a.actors
+                .iter()
+                .find(|v| v.name == "walker")
+                .map(|v| (v.x, v.y))
+                .unwrap()
+        };
+        // Forward differences of the logged positions.
+        let velocity = |k: usize| {
+            let dt = states[k + 1].time - states[k].time;
+            let (p, q) = (&states[k].values, &states[k + 1].values);
+            ((q[0] - p[0]) / dt, (q[1] - p[1]) / dt)
+        };
+        let speed = |k: usize| velocity(k).0.hypot(velocity(k).1);
+        let collision = events.iter().find(|e| e.kind == "collision_start").map(|e| e.time);
+        assert_eq!(collision.is_some(), collides, "{name}: {collision:?}");
+        let k_c = collision.map(|t| states.iter().position(|s| (s.time - t).abs() < 1e-9).unwrap());
+        let before = k_c.unwrap_or(states.len() - 1);
+        let min_speed = (0..before)
+            .map(speed)
+            .chain(k_c.map(speed))
+            .fold(f64::INFINITY, f64::min);
+        let reduction = speed(0) - k_c.map_or(min_speed, speed);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
+        assert!(close(m["speed_reduction"].as_f64().unwrap(), reduction), "{name}: {m}");
+        assert_eq!(
+            m["vehicle_stopped"].as_u64(),
+            Some(u64::from(min_speed < 0.05)),
+            "{name}"
+        );
+        match k_c {
+            Some(k) => {
+                let (o0, o1) = (walker(&actors[k]), walker(&actors[k + 1]));
+                let dt = actors[k + 1].time - actors[k].time;
+                let (vx, vy) = velocity(k);
+                let relative = (vx - (o1.0 - o0.0) / dt).hypot(vy - (o1.1 - o0.1) / dt);
+                let logged = m["impact_speed_by_actor"]["walker"].as_f64().unwrap();
+                assert!(close(logged, relative), "{name}: {logged} vs {relative}");
+                assert!(relative > 0.5, "a real impact: {relative} m/s");
+            }
+            None => {
+                assert!(m["impact_speed_by_actor"].is_null(), "{m}");
+                assert_eq!(m["missing"]["impact_speed_by_actor"], "no collision");
+            }
+        }
+        // Actor predictions: the assumed and true positions, their distance, the truth as /actors.
+        let mut max_error = f64::NEG_INFINITY;
+        for p in &predictions {
+            assert_eq!(p.actors, ["walker"]);
+            let (a, r) = (&p.actor_predicted, &p.actor_realized);
+            let error = (a[0] - r[0]).hypot(a[1] - r[1]);
+            assert!(close(p.actor_error[0], error) || (error.is_nan() && p.actor_error[0].is_nan()));
+            if let Some(at) = actors.iter().find(|s| s.time == p.time) {
+                let (x, y) = walker(at);
+                assert!(close(r[0], x) && close(r[1], y), "truth at {}", p.time);
+            }
+            if !error.is_nan() {
+                max_error = max_error.max(error);
+            }
+        }
+        let logged = m["max_actor_prediction_error"].as_f64().unwrap();
+        assert!(close(logged, max_error), "{name}: {logged} vs {max_error}");
+        // Static: assumed where it was at the tick, 1.4 m/s × up to 1.5 s behind the truth.
+        if collides {
+            assert!(max_error > 1.4 * 1.5 - 0.05, "{max_error}");
+        } else {
+            assert!(max_error < 1e-6, "constant velocity is exact for a walker: {max_error}");
+        }
+        // min_ttc_by_barrier: the smallest time_to_collision of the known walker.
+        let ttc = common::read_topic::<proto::Barrier>(&log, "/barrier")
+            .iter()
+            .flat_map(|b| b.barriers.iter().filter(|v| v.known && !v.time_to_collision.is_nan()))
+            .map(|v| v.time_to_collision)
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(m["min_ttc_by_barrier"]["walker"].as_f64(), Some(ttc), "{name}");
+    }
+    // Scenarios without moving obstacles: no per-actor values, nothing reported missing for them.
+    let log = dir.path().join("gamma.mcap");
+    run_ok(&root().join("scenarios/bicycle_obstacle_gamma_m.toml"), &log, &[]);
+    let m = common::analyze_json(&log);
+    assert!(m["impact_speed_by_actor"].is_null() && m["max_actor_prediction_error"].is_null());
+    assert!(m["missing"].is_null(), "{m}");
 }

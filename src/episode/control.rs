@@ -737,6 +737,13 @@ impl ControlLoop {
         self.pending.iter().filter_map(|q| q.back().map(|p| &p.prediction))
     }
 
+    /// Per channel, the actors' assumed positions at the target time of its latest pending
+    /// prediction (x, y pairs in the order of [`ControlLoop::moving_actors`], for the actors
+    /// known at its tick): what the Foxglove scene draws.
+    pub fn latest_actor_predictions(&self) -> impl Iterator<Item = (usize, &[f64])> {
+        (self.pending.iter()).filter_map(|q| q.back().map(|p| (p.prediction.channel, p.actors.as_slice())))
+    }
+
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:
     /// x(t_k) itself, or x(t_k) advanced to an off-grid target with the applied inputs (for a
     /// model invariant under planar motions, the predictor's own final partial step from t_k

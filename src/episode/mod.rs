@@ -456,7 +456,7 @@ impl Episode {
                             self.inside_step.push(c);
                             continue;
                         }
-                        Self::emit_ref(sinks, self.records.set_prediction(&c))?;
+                        Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
                         self.control.recycle(c);
                     }
                 }
@@ -525,7 +525,7 @@ impl Episode {
             self.check_contacts(sinks, time)?;
             let mut inside_step = std::mem::take(&mut self.inside_step);
             for c in inside_step.drain(..) {
-                Self::emit_ref(sinks, self.records.set_prediction(&c))?;
+                Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
                 self.control.recycle(c);
             }
             self.inside_step = inside_step;

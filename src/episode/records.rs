@@ -4,7 +4,7 @@
 
 use nalgebra::DVector;
 
-use super::control::{Consistency, Tick};
+use super::control::{Consistency, ControlLoop, Tick};
 use super::{Episode, Obstacle};
 use crate::barrier::Barrier;
 use crate::log::{proto, scene, LogError, Record, Sink};
@@ -31,9 +31,10 @@ impl RecordBuffers {
         channels: &[String],
         moving: impl Iterator<Item = String>,
     ) -> RecordBuffers {
-        let actors: Vec<proto::ActorValue> = moving
+        let names: Vec<String> = moving.collect();
+        let actors: Vec<proto::ActorValue> = (names.iter())
             .map(|name| proto::ActorValue {
-                name,
+                name: name.clone(),
                 ..Default::default()
             })
             .collect();
@@ -69,6 +70,7 @@ impl RecordBuffers {
                 .map(|channel| {
                     Record::Prediction(proto::Prediction {
                         channel: channel.clone(),
+                        actors: names.clone(),
                         ..Default::default()
                     })
                 })
@@ -77,8 +79,10 @@ impl RecordBuffers {
     }
 
     /// The record of a prediction against the realised state (Definition 4.3), updated in
-    /// place: the prediction's channel's record.
-    pub(super) fn set_prediction(&mut self, c: &Consistency) -> &Record {
+    /// place: the prediction's channel's record. Per moving obstacle (`obstacles`, in the
+    /// order of the record's `actors`): where the controller assumed it at the target time
+    /// (`c.actors_predicted`, in the order of `control`'s moving actors) and where it was.
+    pub(super) fn set_prediction(&mut self, c: &Consistency, control: &ControlLoop, obstacles: &[Obstacle]) -> &Record {
         let record = &mut self.predictions[c.prediction.channel];
         let Record::Prediction(m) = record else {
             unreachable!("the prediction buffers are prediction records");
@@ -99,7 +103,27 @@ impl RecordBuffers {
             relative_error,
             reused_chain,
             chain_mismatch,
+            actors: _,
+            actor_predicted,
+            actor_realized,
+            actor_error,
         } = m;
+        actor_predicted.clear();
+        actor_realized.clear();
+        actor_error.clear();
+        let known = c.actors_predicted.len() / 2;
+        for o in obstacles {
+            let Some(motion) = &o.motion else { continue };
+            let truth = motion.state_at(c.prediction.target_time).position;
+            let assumed = (control.moving_actors().take(known))
+                .position(|(name, _)| name == o.barrier.name)
+                .map_or([f64::NAN; 2], |k| {
+                    [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
+                });
+            actor_predicted.extend_from_slice(&assumed);
+            actor_realized.extend_from_slice(&truth);
+            actor_error.push((assumed[0] - truth[0]).hypot(assumed[1] - truth[1]));
+        }
         *time = c.prediction.target_time;
         *issued_at = c.prediction.issued_at;
         *horizon = c.prediction.target_time - c.prediction.issued_at;
@@ -172,6 +196,19 @@ pub(super) struct SceneState {
     predictions: Vec<(String, Record)>,
     /// Plant steps per scene frame (see [`frame_steps`]).
     frame_steps: u64,
+    /// The moving obstacles' per-frame views (made at the first frame).
+    actors: Vec<ActorView>,
+}
+
+/// A moving obstacle's view, updated in place: its cylinder, its trail (as the vehicle's,
+/// entities `actor_trail/<name>/<n>`) and per channel where the controller assumes it at the
+/// channel's prediction time (entity `actor_prediction/<name>/<channel>`).
+pub(super) struct ActorView {
+    obstacle: usize,
+    record: Record,
+    trail: Vec<[f64; 2]>,
+    trail_segments: u64,
+    predictions: Vec<(String, Record)>,
 }
 
 impl SceneState {
@@ -190,6 +227,7 @@ impl SceneState {
             trail: Vec::new(),
             trail_segments: 0,
             frame_steps,
+            actors: Vec::new(),
             vehicle: scene(),
             transform: Record::Transform(0.0, Default::default()),
             predictions: channels
@@ -298,12 +336,7 @@ impl Episode {
             scene::vehicle_into(update, time, position, heading, hull_radius);
         }
         Self::emit_ref(sinks, &self.scene.vehicle)?;
-        // Moving obstacles where they are now (step 0 drew them with the static entities).
-        if k > 0 {
-            for o in self.obstacles.iter().filter(|o| o.motion.is_some()) {
-                Self::emit(sinks, obstacle_scene(time, o))?;
-            }
-        }
+        self.emit_actors(sinks, k, time)?;
         // Where the controller predicts the vehicle at t + D_i (the latest prediction of each
         // channel, made at the previous tick), with a line from where it is now.
         if let Some([i, j]) = planar {
@@ -333,6 +366,73 @@ impl Episode {
                 Self::emit(sinks, Record::Scene(time, trail))?;
                 self.scene.trail_segments += 1;
                 self.scene.trail.drain(..points - 1);
+            }
+        }
+        Ok(())
+    }
+
+    /// The moving obstacles in a scene frame: each where it is now (step 0 drew them with the
+    /// static entities), where the controller assumes it at each channel's prediction time
+    /// (the latest pending prediction; a ring of its radius with a line from it), and its trail.
+    fn emit_actors(&mut self, sinks: &mut [&mut dyn Sink], k: u64, time: f64) -> Result<(), LogError> {
+        if k == 0 && self.scene.actors.is_empty() {
+            let channels = self.control.model().channel_names();
+            let moving = self.obstacles.iter().enumerate().filter(|(_, o)| o.motion.is_some());
+            self.scene.actors = moving
+                .map(|(i, o)| ActorView {
+                    obstacle: i,
+                    record: Record::Scene(time, Default::default()),
+                    trail: Vec::new(),
+                    trail_segments: 0,
+                    predictions: (channels.iter())
+                        .map(|c| {
+                            let id = format!("actor_prediction/{}/{c}", o.barrier.name);
+                            (id, Record::Scene(time, Default::default()))
+                        })
+                        .collect(),
+                })
+                .collect();
+        }
+        let frame = k / self.scene.frame_steps;
+        let last_frame = k + self.scene.frame_steps > self.steps;
+        for view in &mut self.scene.actors {
+            let o = &self.obstacles[view.obstacle];
+            let centre = match &o.barrier.shape {
+                crate::barrier::Shape::Ball { centre, .. } => [centre[0], centre[1]],
+                _ => continue,
+            };
+            if k > 0 {
+                if let Record::Scene(t, update) = &mut view.record {
+                    *t = time;
+                    scene::obstacle_into(update, time, &o.barrier.name, centre, o.radius, o.known);
+                }
+                Self::emit_ref(sinks, &view.record)?;
+            }
+            for (channel, assumed) in self.control.latest_actor_predictions() {
+                let mut known = self.control.moving_actors().take(assumed.len() / 2);
+                let Some(a) = known.position(|(name, _)| name == o.barrier.name) else {
+                    continue;
+                };
+                let Some((id, record)) = view.predictions.get_mut(channel) else {
+                    continue;
+                };
+                if let Record::Scene(t, update) = record {
+                    *t = time;
+                    let to = [assumed[2 * a], assumed[2 * a + 1]];
+                    scene::prediction_into(update, time, id, centre, to, o.radius);
+                }
+                Self::emit_ref(sinks, record)?;
+            }
+            if frame.is_multiple_of(TRAIL_EVERY_FRAMES) {
+                view.trail.push(centre);
+                let points = view.trail.len();
+                if points > TRAIL_PUBLISH_EVERY_POINTS || (last_frame && points >= 2) {
+                    let id = format!("actor_trail/{}/{}", o.barrier.name, view.trail_segments);
+                    let trail = scene::polyline(time, &id, &view.trail, scene::TRAIL, 0.1);
+                    Self::emit(sinks, Record::Scene(time, trail))?;
+                    view.trail_segments += 1;
+                    view.trail.drain(..points - 1);
+                }
             }
         }
         Ok(())

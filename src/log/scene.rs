@@ -140,21 +140,7 @@ pub fn lines(time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: 
 /// A circular obstacle: grey while unknown to the controller, red once known.
 pub fn obstacle(time: f64, name: &str, centre: [f64; 2], radius: f64, known: bool) -> SceneUpdate {
     let mut e = entity(time, name);
-    let color = if known {
-        Color {
-            r: 0.9,
-            g: 0.2,
-            b: 0.2,
-            a: 0.8,
-        }
-    } else {
-        Color {
-            r: 0.6,
-            g: 0.6,
-            b: 0.6,
-            a: 0.5,
-        }
-    };
+    let color = obstacle_color(known);
     e.cylinders.push(CylinderPrimitive {
         pose: Some(pose(centre[0], centre[1], 0.5, 0.0)),
         size: Some(Vector3 {
@@ -169,6 +155,39 @@ pub fn obstacle(time: f64, name: &str, centre: [f64; 2], radius: f64, known: boo
     SceneUpdate {
         deletions: vec![],
         entities: vec![e],
+    }
+}
+
+/// `update` ← [`obstacle`], reusing its buffers when it already holds entity `name` (a moving
+/// obstacle redrawn every frame).
+pub fn obstacle_into(update: &mut SceneUpdate, time: f64, name: &str, centre: [f64; 2], radius: f64, known: bool) {
+    let shaped = matches!(update.entities.as_slice(), [e] if e.id == name && e.cylinders.len() == 1);
+    if !shaped {
+        *update = obstacle(time, name, centre, radius, known);
+        return;
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
+    e.cylinders[0].pose = Some(pose(centre[0], centre[1], 0.5, 0.0));
+    e.cylinders[0].color = Some(obstacle_color(known));
+}
+
+/// An obstacle's colour: grey while unknown to the controller, red once known.
+fn obstacle_color(known: bool) -> Color {
+    if known {
+        Color {
+            r: 0.9,
+            g: 0.2,
+            b: 0.2,
+            a: 0.8,
+        }
+    } else {
+        Color {
+            r: 0.6,
+            g: 0.6,
+            b: 0.6,
+            a: 0.5,
+        }
     }
 }
 

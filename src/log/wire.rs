@@ -274,6 +274,10 @@ pub(crate) fn merge_prediction(buf: &[u8], m: &mut proto::Prediction) -> Option<
     m.relative_error = 0.0;
     m.reused_chain = false;
     m.chain_mismatch = 0.0;
+    m.actor_predicted.clear();
+    m.actor_realized.clear();
+    m.actor_error.clear();
+    let mut actors = 0;
     while !r.done() {
         match r.key()? {
             (1, FIXED64) => m.time = r.f64()?,
@@ -286,9 +290,17 @@ pub(crate) fn merge_prediction(buf: &[u8], m: &mut proto::Prediction) -> Option<
             (8, FIXED64) => m.relative_error = r.f64()?,
             (9, VARINT) => m.reused_chain = r.varint()? != 0,
             (10, FIXED64) => m.chain_mismatch = r.f64()?,
+            (11, LEN) => {
+                set_string(&mut m.actors, actors, r.bytes()?)?;
+                actors += 1;
+            }
+            (12, wire) => r.repeated_f64(wire, &mut m.actor_predicted)?,
+            (13, wire) => r.repeated_f64(wire, &mut m.actor_realized)?,
+            (14, wire) => r.repeated_f64(wire, &mut m.actor_error)?,
             _ => return None,
         }
     }
+    m.actors.truncate(actors);
     set_str(&mut m.channel, channel.unwrap_or(b""))?;
     Some(())
 }
@@ -741,6 +753,10 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
         relative_error,
         reused_chain,
         chain_mismatch,
+        actors,
+        actor_predicted,
+        actor_realized,
+        actor_error,
     } = m;
     let size = f64_len(*time)
         + str_len(channel)
@@ -751,7 +767,11 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
         + f64_len(*error)
         + f64_len(*relative_error)
         + bool_len(*reused_chain)
-        + f64_len(*chain_mismatch);
+        + f64_len(*chain_mismatch)
+        + strings_len(actors)
+        + packed_f64_len(actor_predicted)
+        + packed_f64_len(actor_realized)
+        + packed_f64_len(actor_error);
     let mut room = Room::new(out, size);
     room.f64(1, *time);
     room.str(2, channel);
@@ -763,6 +783,10 @@ pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
     room.f64(8, *relative_error);
     room.bool(9, *reused_chain);
     room.f64(10, *chain_mismatch);
+    room.strings(11, actors);
+    room.packed_f64(12, actor_predicted);
+    room.packed_f64(13, actor_realized);
+    room.packed_f64(14, actor_error);
     room.done();
 }
 
@@ -1147,8 +1171,17 @@ mod tests {
                 relative_error: 1e-300,
                 reused_chain: true,
                 chain_mismatch: f64::NAN,
+                actors: vec!["walker".into(), "".into()],
+                actor_predicted: vec![0.5, -12.0, f64::NAN, f64::NAN],
+                actor_realized: vec![0.5, -11.0, 3.0, -0.0],
+                actor_error: vec![1.0, f64::NAN],
             },
             proto::Prediction::default(),
+            proto::Prediction {
+                actors: vec!["a".repeat(200)],
+                actor_error: vec![2.5],
+                ..Default::default()
+            },
             proto::Prediction {
                 time: 1.51,
                 channel: "steering".into(),
@@ -1176,11 +1209,21 @@ mod tests {
                     m.relative_error,
                     m.chain_mismatch,
                 ];
-                (scalars.map(f64::to_bits), m.channel.clone(), m.reused_chain)
+                (
+                    scalars.map(f64::to_bits),
+                    m.channel.clone(),
+                    m.reused_chain,
+                    m.actors.clone(),
+                )
             };
             assert_eq!(bits(&reused), bits(&expected));
             assert!(
                 same_bits(&reused.predicted, &expected.predicted) && same_bits(&reused.realized, &expected.realized)
+            );
+            assert!(
+                same_bits(&reused.actor_predicted, &expected.actor_predicted)
+                    && same_bits(&reused.actor_realized, &expected.actor_realized)
+                    && same_bits(&reused.actor_error, &expected.actor_error)
             );
         }
         // A channel given twice (prost keeps the last): left to prost.
@@ -1351,6 +1394,10 @@ mod tests {
                 relative_error: v(k + 4),
                 reused_chain: k % 2 == 1,
                 chain_mismatch: v(k + 5),
+                actors: (0..k % 3).map(|i| text(k + i, "walker")).collect(),
+                actor_predicted: (0..2 * (k % 3)).map(|i| v(k + 2 * i)).collect(),
+                actor_realized: (0..2 * ((k + 1) % 3)).map(|i| v(k + i + 1)).collect(),
+                actor_error: (0..k % 3).map(|i| v(k + i + 6)).collect(),
             })
             .chain([proto::Prediction::default()])
             .collect()

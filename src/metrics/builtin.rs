@@ -21,6 +21,7 @@ const INPUT_RATE: &str = "u-units/s";
 const STATE: &str = "x-units";
 const FRACTION: &str = "1";
 const JERK: &str = "m/s³";
+const SPEED: &str = "m/s";
 
 /// A part of a composite metric that needs nothing beyond the metric.
 const fn part(
@@ -165,6 +166,16 @@ pub static METRICS: &[Metric] = &[
         "min over `/barrier` messages of each obstacle's `clearance` (negative: overlap); absent without obstacles"),
     metric("min_time_to_collision", SECONDS, Shape::Number, &[Topic::Barrier], new::<MinTimeToCollision>,
         "min over `/barrier` entries of known obstacles of `time_to_collision` (contact if the velocity were kept; 0 while overlapping); absent if never finite"),
+    metric("min_ttc_by_barrier", SECONDS, Shape::PerBarrier, &[Topic::Barrier], new::<MinTtcByBarrier>,
+        "min over `/barrier` messages of each known obstacle's `time_to_collision` (relative to a moving obstacle's velocity; NaN ignored, ∞: never closing in); absent without obstacles"),
+    metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
+        "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions"),
+    metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
+        "per moving obstacle (`/actors`), at its first `collision_start` at time t: ‖Δ(p − o)‖ / Δt, the relative speed of the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages; absent without a collision with a moving obstacle (reason `no collision` when the log has moving obstacles)"),
+    metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
+        "planar vehicles: v(0) − v(t_c), t_c the first `collision_start`, or v(0) − min v over the run without a collision; v at a `/state` message = distance to the next `/state` position / the time between them (forward difference); absent for vehicles without a planar position"),
+    metric("vehicle_stopped", FRACTION, Shape::Count, &[Topic::State, Topic::Event], new::<VehicleStopped>,
+        "planar vehicles: 1 if the speed v (as for speed_reduction) fell below STALL_SPEED = 0.05 m/s at some `/state` message before the first `collision_start` (or the end without one), else 0"),
     Metric {
         metadata: &["timestep", "max_delay"],
         ..metric("delay_attributed_violation_time", SECONDS, Shape::Number, &[Topic::Barrier, Topic::Event], new::<DelayAttributed>,
@@ -1163,5 +1174,212 @@ impl Accumulate for AtPrescribedTime {
                 .input_residual
                 .filter(|_| given("at_prescribed_time.input_residual")),
         }))
+    }
+}
+
+#[derive(Default)]
+struct MinTtcByBarrier(BTreeMap<String, f64>);
+
+impl Accumulate for MinTtcByBarrier {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Barrier(m) = record {
+            for b in (m.barriers.iter()).filter(|b| b.obstacle && b.known && !b.time_to_collision.is_nan()) {
+                lower_keyed(&mut self.0, &b.name, b.time_to_collision);
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+    }
+}
+
+#[derive(Default)]
+struct MaxActorPredictionError {
+    max: Option<f64>,
+    /// Whether the log has moving obstacles (an `/actors` message).
+    actors: bool,
+}
+
+impl Accumulate for MaxActorPredictionError {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        match record {
+            Observed::Prediction(m) => {
+                for e in m.actor_error.iter().filter(|e| !e.is_nan()) {
+                    self.max = raise(self.max, *e);
+                }
+            }
+            Observed::Actors(_) => self.actors = true,
+            _ => {}
+        }
+    }
+    fn value(&mut self, _: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if self.max.is_none() && self.actors {
+            missing.insert(
+                "max_actor_prediction_error".into(),
+                "no actor predictions in the log (the controller does not predict, or no prediction reached its target time while a moving obstacle was known)".into(),
+            );
+        }
+        Value::Number(self.max)
+    }
+}
+
+/// The vehicle's planar velocity at each `/state` message: the forward difference to the
+/// next one (the mean over the step that starts there), known when that next state arrives.
+#[derive(Default)]
+struct ForwardVelocity {
+    planar: Option<Option<[usize; 2]>>,
+    last: Option<(f64, f64, f64)>,
+}
+
+impl ForwardVelocity {
+    /// Reads a `/state` message; returns (t, vx, vy) for the previous state's time t.
+    fn observe(&mut self, m: &proto::State, run: &RunFacts) -> Option<(f64, f64, f64)> {
+        let here = planar_of(&mut self.planar, m, run)?;
+        let (t, x, y) = self.last.replace(here)?;
+        let dt = here.0 - t;
+        (dt > 0.0).then(|| (t, (here.1 - x) / dt, (here.2 - y) / dt))
+    }
+}
+
+/// Whether two log times are the same step's.
+fn same_time(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * a.abs().max(1.0)
+}
+
+/// The first collision and the vehicle's speed before it, for speed_reduction and
+/// vehicle_stopped.
+#[derive(Default)]
+struct SpeedBeforeCollision {
+    velocity: ForwardVelocity,
+    initial: Option<f64>,
+    collision: Option<f64>,
+    at_collision: Option<f64>,
+    /// The least speed before the first collision (the whole run without one).
+    min: Option<f64>,
+}
+
+impl SpeedBeforeCollision {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        match record {
+            Observed::Event(m) if m.kind == "collision_start" && self.collision.is_none() => {
+                self.collision = Some(m.time);
+            }
+            Observed::State(m) => {
+                let Some((t, vx, vy)) = self.velocity.observe(m, run) else {
+                    return;
+                };
+                let v = vx.hypot(vy);
+                self.initial.get_or_insert(v);
+                match self.collision {
+                    Some(c) if same_time(t, c) => self.at_collision = Some(v),
+                    Some(c) if t > c => return,
+                    _ => {}
+                }
+                self.min = lower(self.min, v);
+            }
+            _ => {}
+        }
+    }
+}
+
+#[derive(Default)]
+struct SpeedReduction(SpeedBeforeCollision);
+
+impl Accumulate for SpeedReduction {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        let s = &self.0;
+        let end = if s.collision.is_some() { s.at_collision } else { s.min };
+        Value::Number(s.initial.zip(end).map(|(v0, v)| v0 - v))
+    }
+}
+
+#[derive(Default)]
+struct VehicleStopped(SpeedBeforeCollision);
+
+impl Accumulate for VehicleStopped {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::Count(self.0.min.map(|v| u64::from(v < STALL_SPEED)))
+    }
+}
+
+/// A first collision with a moving obstacle, waiting for the positions that give its
+/// relative speed.
+struct Impact {
+    actor: String,
+    time: f64,
+    /// The obstacle's position at the collision, then its velocity over the next step.
+    actor_at: (f64, f64),
+    actor_velocity: Option<(f64, f64)>,
+    vehicle_velocity: Option<(f64, f64)>,
+}
+
+#[derive(Default)]
+struct ImpactSpeedByActor {
+    velocity: ForwardVelocity,
+    /// Each moving obstacle's latest logged position (t, x, y).
+    latest: BTreeMap<String, (f64, f64, f64)>,
+    impacts: Vec<Impact>,
+}
+
+impl Accumulate for ImpactSpeedByActor {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        match record {
+            Observed::Actors(m) => {
+                for a in &m.actors {
+                    for i in self.impacts.iter_mut().filter(|i| i.actor == a.name) {
+                        let dt = m.time - i.time;
+                        if i.actor_velocity.is_none() && dt > 0.0 {
+                            i.actor_velocity = Some(((a.x - i.actor_at.0) / dt, (a.y - i.actor_at.1) / dt));
+                        }
+                    }
+                    match self.latest.get_mut(&a.name) {
+                        Some(p) => *p = (m.time, a.x, a.y),
+                        None => {
+                            self.latest.insert(a.name.clone(), (m.time, a.x, a.y));
+                        }
+                    }
+                }
+            }
+            Observed::Event(m) if m.kind == "collision_start" => {
+                for p in m.participants.iter().filter(|p| *p != "vehicle") {
+                    let Some(&(t, x, y)) = self.latest.get(p) else { continue };
+                    if same_time(t, m.time) && !self.impacts.iter().any(|i| &i.actor == p) {
+                        self.impacts.push(Impact {
+                            actor: p.clone(),
+                            time: m.time,
+                            actor_at: (x, y),
+                            actor_velocity: None,
+                            vehicle_velocity: None,
+                        });
+                    }
+                }
+            }
+            Observed::State(m) => {
+                if let Some((t, vx, vy)) = self.velocity.observe(m, run) {
+                    for i in self.impacts.iter_mut().filter(|i| same_time(i.time, t)) {
+                        i.vehicle_velocity = Some((vx, vy));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    fn value(&mut self, _: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        let speeds: BTreeMap<String, f64> = (self.impacts.iter())
+            .filter_map(|i| {
+                let ((vx, vy), (ox, oy)) = i.vehicle_velocity.zip(i.actor_velocity)?;
+                Some((i.actor.clone(), (vx - ox).hypot(vy - oy)))
+            })
+            .collect();
+        if speeds.is_empty() && !self.latest.is_empty() {
+            missing.insert("impact_speed_by_actor".into(), "no collision".into());
+        }
+        Value::PerChannel((!speeds.is_empty()).then_some(speeds))
     }
 }

@@ -28,6 +28,7 @@ pub enum Observed<'a> {
     Issued(&'a proto::IssuedCommand),
     Prediction(&'a proto::Prediction),
     Event(&'a proto::Event),
+    Actors(&'a proto::Actors),
 }
 
 impl Observed<'_> {
@@ -40,6 +41,7 @@ impl Observed<'_> {
             Observed::Issued(_) => Topic::Issued,
             Observed::Prediction(_) => Topic::Prediction,
             Observed::Event(_) => Topic::Event,
+            Observed::Actors(_) => Topic::Actors,
         }
     }
 }
