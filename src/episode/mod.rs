@@ -363,8 +363,9 @@ impl Episode {
     }
 
     /// The moving obstacles at `time`: triggers fired by the vehicle's position in `x` (an
-    /// `actor_triggered` event; the controller's copy follows), each barrier's centre moved to
-    /// the actor's true position, and their true states as an `/actors` record.
+    /// `actor_triggered` event; the controller's copy follows), each barrier's centre and the
+    /// plant's obstacle (`Plant::move_obstacle`) moved to the actor's true position, and their
+    /// true states as an `/actors` record.
     fn move_actors(&mut self, sinks: &mut [&mut dyn Sink], time: f64, x: &DVector<f64>) -> Result<(), LogError> {
         let Some(record) = &mut self.records.actors else {
             return Ok(());
