@@ -72,15 +72,16 @@ fn model_with_obstacles(
     };
     let mut geoms = String::new();
     for (i, o) in obstacles.iter().enumerate() {
-        let attributes = format!(
-            "type=\"sphere\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"",
+        let rest = format!(
+            "size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"",
             o.radius
         );
         let (name, [x, y]) = (obstacle_geom_name(i), o.centre);
+        // A static obstacle's text is as it always was (logs of static scenes unchanged).
         geoms.push_str(&match o.motion {
-            None => format!("    <geom name=\"{name}\" pos=\"{x} {y} 0\" {attributes}/>\n"),
+            None => format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" {rest}/>\n"),
             Some(_) => format!(
-                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {attributes}/></body>\n",
+                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" {rest}/></body>\n",
                 obstacle_body_name(i)
             ),
         });
