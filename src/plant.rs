@@ -38,6 +38,9 @@ pub trait Plant: Send {
     /// a run's actuation is the bare physics loop of the benchmarks (same model, same steps,
     /// same contacts).
     fn step_with_actuation(&mut self, actuation: &[f64]);
+    /// Places moving obstacle `index` (its index among all obstacles) at `position` for the
+    /// next step. The ODE plant reads the barriers it is given instead: nothing to do.
+    fn move_obstacle(&mut self, index: usize, position: [f64; 2]);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>);
     /// A warning of the physics engine, raised since the last call, after which the physics
@@ -47,25 +50,31 @@ pub trait Plant: Send {
     }
 }
 
-/// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model.
+/// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model, a
+/// moving one's in a mocap body.
 pub struct MujocoPlant {
     sim: Simulation,
     vehicle: Box<dyn MujocoVehicle>,
     obstacle_geoms: Vec<usize>,
+    /// Per obstacle: the mocap index of its body (moving obstacles), or None (static).
+    obstacle_mocaps: Vec<Option<usize>>,
     input_buffer: Vec<f64>,
 }
 
 impl MujocoPlant {
+    /// `obstacle_mocaps[i]`: the mocap index of obstacle i's body if it moves.
     pub fn new(
         sim: Simulation,
         vehicle: Box<dyn MujocoVehicle>,
         obstacle_geoms: Vec<usize>,
+        obstacle_mocaps: Vec<Option<usize>>,
         x0: &DVector<f64>,
     ) -> MujocoPlant {
         let mut plant = MujocoPlant {
             sim,
             vehicle,
             obstacle_geoms,
+            obstacle_mocaps,
             input_buffer: Vec::new(),
         };
         plant.vehicle.write_state(&mut plant.sim, x0);
@@ -125,6 +134,12 @@ impl Plant for MujocoPlant {
     fn step_with_actuation(&mut self, actuation: &[f64]) {
         self.sim.set_ctrl(actuation);
         self.sim.step_without_hook();
+    }
+    /// Sets the obstacle's mocap body (at z = 0): the next `mj_step`'s collision sees it there.
+    fn move_obstacle(&mut self, index: usize, position: [f64; 2]) {
+        if let Some(&Some(mocap)) = self.obstacle_mocaps.get(index) {
+            self.sim.set_mocap_pos(mocap, [position[0], position[1], 0.0]);
+        }
     }
     /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
     /// `mj_step` are those of the step's first collision phase (the state at its start).
@@ -234,6 +249,7 @@ impl Plant for OdePlant {
         self.step_start = std::mem::replace(&mut self.x, next);
         self.step += 1;
     }
+    fn move_obstacle(&mut self, _index: usize, _position: [f64; 2]) {}
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle, at the state
     /// the last step started from (the state the episode logs with this step's barriers).
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {

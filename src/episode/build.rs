@@ -49,8 +49,9 @@ pub(super) struct PlantParts {
     pub vehicle_params: toml::Table,
 }
 
-/// MJCF of the model with each obstacle added as a static sphere geom `obstacle_<i>`
-/// (contype 0, conaffinity 1: it collides with the vehicle hull and nothing else).
+/// MJCF of the model with each obstacle added as a sphere geom `obstacle_<i>` (contype 0,
+/// conaffinity 1: it collides with the vehicle hull and nothing else): static in the world
+/// body, or, when it moves, in a mocap body `obstacle_<i>_body` the plant moves every step.
 fn model_with_obstacles(
     xml: &str,
     model_path: &std::path::Path,
@@ -71,19 +72,30 @@ fn model_with_obstacles(
     };
     let mut geoms = String::new();
     for (i, o) in obstacles.iter().enumerate() {
-        geoms.push_str(&format!(
-            "    <geom name=\"{}\" type=\"sphere\" pos=\"{} {} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n",
-            obstacle_geom_name(i),
-            o.centre[0],
-            o.centre[1],
+        let rest = format!(
+            "size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"",
             o.radius
-        ));
+        );
+        let (name, [x, y]) = (obstacle_geom_name(i), o.centre);
+        // A static obstacle's text is as it always was (logs of static scenes unchanged).
+        geoms.push_str(&match o.motion {
+            None => format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" {rest}/>\n"),
+            Some(_) => format!(
+                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" {rest}/></body>\n",
+                obstacle_body_name(i)
+            ),
+        });
     }
     Ok(format!("{}{}{}", &xml[..at], geoms, &xml[at..]))
 }
 
 pub(super) fn obstacle_geom_name(index: usize) -> String {
     format!("obstacle_{index}")
+}
+
+/// The mocap body of a moving obstacle's geom.
+fn obstacle_body_name(index: usize) -> String {
+    format!("obstacle_{index}_body")
 }
 
 /// The vehicle of the registered `vehicle.kind`: its own keys checked, its MJCF (with the
@@ -548,14 +560,6 @@ pub(super) fn obstacles(
         };
         let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
         let motion = match &o.motion {
-            Some(_) if sc.plant == crate::scenario::PlantKind::Mujoco => {
-                return Err(loaded
-                    .field_error(
-                        &format!("obstacles.{i}.motion"),
-                        "moving obstacles run on `plant = \"ode\"` only (MuJoCo's obstacles are static geoms)",
-                    )
-                    .into());
-            }
             Some(m) => {
                 let (motion, trigger) = m.realised(o.centre, sc.seed, i);
                 let motion = crate::actor::ActorMotion::new(&motion, trigger)
@@ -592,8 +596,8 @@ pub(super) fn obstacles(
     Ok(obstacles)
 }
 
-/// The plant: MuJoCo (the obstacles' geoms looked up for contacts) or the analytic ODE with
-/// the scenario's state disturbance.
+/// The plant: MuJoCo (the obstacles' geoms looked up for contacts, the moving ones' mocap
+/// bodies to move them) or the analytic ODE with the scenario's state disturbance.
 pub(super) fn plant(
     loaded: &LoadedScenario,
     parts: PlantParts,
@@ -612,11 +616,29 @@ pub(super) fn plant(
                     file: file.clone(),
                     reason: source,
                 })?;
+            let mocaps = (sc.obstacles.iter().take(obstacles).enumerate())
+                .map(|(i, o)| {
+                    if o.motion.is_none() {
+                        return Ok(None);
+                    }
+                    let name = obstacle_body_name(i);
+                    let body = model.require(ObjKind::Body, &name)?;
+                    model.body_mocap_id(body).map(Some).ok_or(mujoco::MjError::MissingName {
+                        kind: "mocap body",
+                        name,
+                    })
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|source| EpisodeError::Model {
+                    file: file.clone(),
+                    reason: source,
+                })?;
             let sim = Simulation::new(model)?;
             Box::new(MujocoPlant::new(
                 sim,
                 parts.vehicle.expect("bound with the model"),
                 geoms,
+                mocaps,
                 x0,
             ))
         }

@@ -293,7 +293,20 @@ impl Episode {
     /// bare physics loop over this episode's model, on the same trajectory (and contacts) as
     /// the recorded run (benchmarks compare the pipeline against it).
     pub fn replay_actuation(&mut self, actuation: &[Vec<f64>]) {
-        for a in actuation {
+        let h = self.control.timestep();
+        let position = self.control.model().planar_position();
+        let moving = self.obstacles.iter().any(|o| o.motion.is_some());
+        for (k, a) in actuation.iter().enumerate() {
+            // Moving obstacles go where the run put them (triggered by the same states).
+            if let (true, Some([i, j])) = (moving, position) {
+                let (time, x) = (k as f64 * h, self.plant.state());
+                for (index, o) in self.obstacles.iter_mut().enumerate() {
+                    if let Some(motion) = &mut o.motion {
+                        motion.check_trigger(time, [x[i], x[j]]);
+                        self.plant.move_obstacle(index, motion.state_at(time).position);
+                    }
+                }
+            }
             self.plant.step_with_actuation(a);
         }
     }
@@ -350,8 +363,9 @@ impl Episode {
     }
 
     /// The moving obstacles at `time`: triggers fired by the vehicle's position in `x` (an
-    /// `actor_triggered` event; the controller's copy follows), each barrier's centre moved to
-    /// the actor's true position, and their true states as an `/actors` record.
+    /// `actor_triggered` event; the controller's copy follows), each barrier's centre and the
+    /// plant's obstacle (`Plant::move_obstacle`) moved to the actor's true position, and their
+    /// true states as an `/actors` record.
     fn move_actors(&mut self, sinks: &mut [&mut dyn Sink], time: f64, x: &DVector<f64>) -> Result<(), LogError> {
         let Some(record) = &mut self.records.actors else {
             return Ok(());
@@ -362,7 +376,7 @@ impl Episode {
         let position = self.control.model().planar_position();
         m.time = time;
         let mut entries = m.actors.iter_mut();
-        for (o, barrier) in self.obstacles.iter_mut().zip(&mut self.obstacle_barriers) {
+        for (index, (o, barrier)) in self.obstacles.iter_mut().zip(&mut self.obstacle_barriers).enumerate() {
             let Some(motion) = &mut o.motion else {
                 continue;
             };
@@ -380,6 +394,7 @@ impl Episode {
                 }
             }
             let state = motion.state_at(time);
+            self.plant.move_obstacle(index, state.position);
             for b in [&mut o.barrier, barrier] {
                 if let crate::barrier::Shape::Ball { centre, .. } = &mut b.shape {
                     centre[0] = state.position[0];

@@ -463,6 +463,17 @@ impl Model {
         [all[3 * body], all[3 * body + 1], all[3 * body + 2]]
     }
 
+    /// Number of mocap bodies.
+    pub fn nmocap(&self) -> usize {
+        self.raw().nmocap as usize
+    }
+
+    /// The mocap index of a body (`body_mocapid`), if it is a mocap body.
+    pub fn body_mocap_id(&self, body: usize) -> Option<usize> {
+        let id = *self.int_array(self.raw().body_mocapid, self.raw().nbody).get(body)?;
+        (id >= 0).then_some(id as usize)
+    }
+
     /// Range of a joint, if it is limited.
     pub fn joint_range(&self, joint: usize) -> Option<[f64; 2]> {
         let m = self.raw();
@@ -1010,6 +1021,30 @@ impl Simulation {
         Some(PhysicsWarning { name, message })
     }
 
+    /// World position of a geom (`geom_xpos`) as the last kinematics computed it (after
+    /// `mj_step`: the state the step started from).
+    ///
+    /// # Panics
+    /// If `geom` is not a geom of the model.
+    pub fn geom_xpos(&self, geom: usize) -> [f64; 3] {
+        let n = self.model.ngeom();
+        assert!(geom < n, "geom {geom} of {n}");
+        let all = slice(self.data.raw().geom_xpos, 3 * n);
+        [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// Sets the position of mocap body `mocap` (`mocap_pos`): where the next step's
+    /// kinematics and collision place it.
+    ///
+    /// # Panics
+    /// If `mocap` is not below the model's `nmocap`.
+    pub fn set_mocap_pos(&mut self, mocap: usize, position: [f64; 3]) {
+        let n = self.model.nmocap();
+        assert!(mocap < n, "mocap body {mocap} of {n}");
+        let v = self.data.view();
+        slice_mut(v.d.mocap_pos, 3 * n)[3 * mocap..3 * mocap + 3].copy_from_slice(&position);
+    }
+
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
     pub fn set_ctrl(&mut self, ctrl: &[f64]) {
         let v = self.data.view();
@@ -1076,6 +1111,61 @@ mod tests {
         }
         assert!(!sim.data().contacts().is_empty(), "the ball rests on the floor");
         (sim.data().qpos().to_vec(), sim.data().qvel().to_vec())
+    }
+
+    /// A probe on a slider and a mocap sphere that only the probe's geom collides with.
+    const MOCAP: &str = r#"<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody>
+    <body name="probe">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <geom name="hull" type="sphere" size="1" mass="1" contype="1" conaffinity="0"/>
+    </body>
+    <body name="actor" mocap="true" pos="10 0 0">
+      <geom name="actor" type="sphere" size="1" contype="0" conaffinity="1"/>
+    </body>
+  </worldbody>
+</mujoco>"#;
+
+    #[test]
+    fn a_mocap_body_is_where_it_was_set_when_the_step_collides() {
+        let model = Model::from_xml_string(MOCAP, "mocap").unwrap();
+        let actor = model.require(ObjKind::Body, "actor").unwrap();
+        let probe = model.require(ObjKind::Body, "probe").unwrap();
+        assert_eq!((model.nmocap(), model.body_mocap_id(actor)), (1, Some(0)));
+        assert_eq!(model.body_mocap_id(probe), None);
+        assert_eq!(model.body_mocap_id(99), None);
+        let (hull, geom) = (
+            model.require(ObjKind::Geom, "hull").unwrap(),
+            model.require(ObjKind::Geom, "actor").unwrap(),
+        );
+        let mut sim = Simulation::new(model).unwrap();
+        sim.step_without_hook();
+        assert_eq!(sim.geom_xpos(geom), [10.0, 0.0, 0.0]);
+        assert!(sim.data().contacts().is_empty());
+        // Moved into the probe: that step's kinematics and contacts have it there.
+        sim.set_mocap_pos(0, [1.5, 0.25, 0.0]);
+        sim.step_without_hook();
+        assert_eq!(sim.geom_xpos(geom), [1.5, 0.25, 0.0]);
+        let contacts = sim.data().contacts();
+        let touch = contacts
+            .iter()
+            .find(|c| (c.geom1, c.geom2) == (hull, geom) || (c.geom1, c.geom2) == (geom, hull))
+            .expect("the probe touches the moved sphere");
+        let expected = 2.0 - 1.5f64.hypot(0.25);
+        assert!((-touch.dist - expected).abs() < 1e-9, "{touch:?}");
+        // And out again.
+        sim.set_mocap_pos(0, [-5.0, 0.0, 0.0]);
+        sim.step_without_hook();
+        assert_eq!(sim.geom_xpos(geom), [-5.0, 0.0, 0.0]);
+        assert!(sim.data().contacts().is_empty());
+    }
+
+    #[test]
+    #[should_panic(expected = "mocap body 1 of 1")]
+    fn a_mocap_index_out_of_range_is_refused() {
+        let mut sim = Simulation::new(Model::from_xml_string(MOCAP, "mocap").unwrap()).unwrap();
+        sim.set_mocap_pos(1, [0.0; 3]);
     }
 
     #[test]
