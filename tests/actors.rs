@@ -264,3 +264,38 @@ fn the_ncap_outcomes_of_the_readme_table() {
     );
     assert!(collided(&m), "{m}");
 }
+
+#[test]
+fn actor_keys_are_falsify_ranges() {
+    // Over the runner's speed and crossing point, taking them as static is falsified; the
+    // counterexample file (with the found actor values) reproduces its run.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("falsify");
+    let o = mjsafe(&[
+        "falsify",
+        "scenarios/ncap_cpfa.toml",
+        "--range",
+        "obstacles.0.motion.speed=0..2",
+        "--range",
+        "obstacles.0.centre.0=50..60",
+        "--set",
+        "actor_knowledge.kind=\"static\"",
+        "--budget",
+        "8",
+        "--seed",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let counterexample = out.join("counterexample.toml");
+    let text = std::fs::read_to_string(&counterexample).unwrap();
+    let scenario: toml::Value = toml::from_str(&text).unwrap();
+    let motion = &scenario["obstacles"][0]["motion"];
+    let speed = motion["speed"].as_float().unwrap();
+    assert!((0.0..=2.0).contains(&speed), "{text}");
+    let log = dir.path().join("again.mcap");
+    run_ok(&counterexample, &log, &[]);
+    let m = analyze_json(&log);
+    assert!(collided(&m) || m["min_h"].as_f64().unwrap() < 0.0, "{m}");
+}

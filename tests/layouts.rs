@@ -252,6 +252,7 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
                 "min_clearance",
                 "min_clearance_by_obstacle",
                 "min_time_to_collision",
+                "min_ttc_by_barrier",
                 "delay_attributed_violation_time",
             ][..],
         ),
@@ -271,8 +272,18 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
             ][..],
         ),
         ("/command/issued", &["max_input_rate", "max_input_rate_overriding"][..]),
-        ("/event", &["collision", "error", "delay_attributed_violation_time"][..]),
-        ("/prediction", &["prediction"][..]),
+        (
+            "/event",
+            &[
+                "collision",
+                "error",
+                "delay_attributed_violation_time",
+                "impact_speed_by_actor",
+                "speed_reduction",
+                "vehicle_stopped",
+            ][..],
+        ),
+        ("/prediction", &["max_actor_prediction_error", "prediction"][..]),
         ("/command/applied", &[][..]),
     ] {
         let copy = filtered(drop);

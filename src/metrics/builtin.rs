@@ -168,8 +168,12 @@ pub static METRICS: &[Metric] = &[
         "min over `/barrier` entries of known obstacles of `time_to_collision` (contact if the velocity were kept; 0 while overlapping); absent if never finite"),
     metric("min_ttc_by_barrier", SECONDS, Shape::PerBarrier, &[Topic::Barrier], new::<MinTtcByBarrier>,
         "min over `/barrier` messages of each known obstacle's `time_to_collision` (relative to a moving obstacle's velocity; NaN ignored, ∞: never closing in); absent without obstacles"),
-    metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
-        "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions"),
+    Metric {
+        // A run that made no predictions (metadata `predicts = false`) has no /prediction to lack.
+        applies: |run| run.predicts != Some(false),
+        ..metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
+        "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions")
+    },
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
         "per moving obstacle (`/actors`), at its first `collision_start` at time t: ‖Δ(p − o)‖ / Δt, the relative speed of the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages; absent without a collision with a moving obstacle (reason `no collision` when the log has moving obstacles)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
