@@ -48,6 +48,45 @@ fn acc_delay_free_cbf_qp_keeps_the_headway_and_settles_behind_the_lead() {
     assert!((last[2] - HEADWAY * LEAD).abs() < 0.1, "{last:?}");
 }
 
+/// Largest |MuJoCo − ODE| of the speed and of the gap, each relative to the largest magnitude of
+/// that trajectory (20 m/s, 100 m); measured 0 (bit for bit) to
+/// 1e-3: the bound is [`MUJOCO_AGREEMENT`].
+const MUJOCO_AGREEMENT: f64 = 1e-9;
+
+#[test]
+fn acc_on_mujoco_agrees_with_the_ode_run() {
+    let states = |file: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("acc.mcap");
+        run_ok(&scenario(file), &log, &[]);
+        let states = read_topic::<proto::State>(&log, "/state");
+        assert_eq!(states[0].names, ["position", "speed", "gap"]);
+        states.into_iter().map(|s| s.values).collect::<Vec<_>>()
+    };
+    let ode = states("acc_ames2014.toml");
+    let mujoco = states("acc_ames2014_mujoco.toml");
+    assert_eq!(mujoco.len(), ode.len());
+    let mut worst = [0.0f64; 2];
+    for (i, w) in [1, 2].into_iter().zip(&mut worst) {
+        let scale = ode.iter().map(|x| x[i].abs()).fold(0.0, f64::max);
+        *w = ode
+            .iter()
+            .zip(&mujoco)
+            .map(|(a, b)| (a[i] - b[i]).abs() / scale)
+            .fold(0.0, f64::max);
+    }
+    let min_h = mujoco.iter().map(|x| headway_h(x)).fold(f64::INFINITY, f64::min);
+    let last = mujoco.last().unwrap();
+    println!(
+        "acc_ames2014_mujoco: max relative difference to the ODE run: speed {:e}, gap {:e}; min h = {min_h:e} m, final {last:?}",
+        worst[0], worst[1]
+    );
+    assert!(worst[0] <= MUJOCO_AGREEMENT && worst[1] <= MUJOCO_AGREEMENT, "{worst:?}");
+    assert!(min_h >= -MUJOCO_AGREEMENT * 100.0, "{min_h}");
+    assert!((last[1] - LEAD).abs() < 0.05, "{last:?}");
+    assert!((last[2] - HEADWAY * LEAD).abs() < 0.1, "{last:?}");
+}
+
 #[test]
 fn acc_predictor_keeps_the_headway_under_a_half_second_delay_and_no_compensation_does_not() {
     let (min_h, last) = run_and_recompute("acc_ames2014_delay.toml", &[]);
