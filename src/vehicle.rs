@@ -470,7 +470,11 @@ impl MujocoLongitudinal {
                 expected: "a finite mass > 0 (kg)",
             });
         }
-        let coefficient = |name| numeric_value(model, name, "a finite resistance coefficient >= 0", |v| v.is_finite() && v >= 0.0);
+        let coefficient = |name| {
+            numeric_value(model, name, "a finite resistance coefficient >= 0", |v| {
+                v.is_finite() && v >= 0.0
+            })
+        };
         let resistance = [coefficient("f0")?, coefficient("f1")?, coefficient("f2")?];
         let lead_speed = numeric_value(model, "lead_speed", "a finite speed (m/s)", f64::is_finite)?;
         let (hull_geom, hull_radius) = hull(model)?;
