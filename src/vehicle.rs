@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::dynamics::{BicycleModel, DoubleIntegratorModel, Dynamics, UnicycleModel};
+use crate::dynamics::{BicycleModel, DoubleIntegratorModel, Dynamics, LongitudinalModel, UnicycleModel};
 use crate::mujoco::{DataView, MjError, Model, ObjKind, Simulation};
 
 /// A vehicle bound to a MuJoCo model: how its state and inputs live in `mjData`.
@@ -420,5 +420,103 @@ impl MujocoVehicle for MujocoDoubleIntegrator {
         for (&c, &u) in self.ctrl.iter().zip(applied_input) {
             ctrl[c] = u;
         }
+    }
+}
+
+/// The longitudinal car of Ames et al. (CDC 2014, Table 1) on `models/longitudinal.xml`: the car
+/// and the lead on slide joints `x` and `lead_x`, the `force` motor; m is the car body's mass,
+/// f0, f1, f2 and v_L the `<numeric>`s of those names (`lead_speed`).
+pub struct MujocoLongitudinal {
+    model: Arc<LongitudinalModel>,
+    /// qpos and dof addresses of the car's and the lead's slide joints.
+    qpos: [usize; 2],
+    dof: [usize; 2],
+    ctrl_force: usize,
+    hull_geom: usize,
+    hull_radius: f64,
+}
+
+/// The first value of the `<numeric>` `name`, checked by `valid`.
+fn numeric_value(
+    model: &Model,
+    name: &'static str,
+    expected: &'static str,
+    valid: impl Fn(f64) -> bool,
+) -> Result<f64, MjError> {
+    let value = model
+        .numeric(name)
+        .and_then(|v| v.first().copied())
+        .ok_or_else(|| MjError::MissingName {
+            kind: "custom numeric",
+            name: name.into(),
+        })?;
+    if valid(value) {
+        Ok(value)
+    } else {
+        Err(MjError::InvalidValue { name, value, expected })
+    }
+}
+
+impl MujocoLongitudinal {
+    pub fn bind(model: &Model) -> Result<MujocoLongitudinal, MjError> {
+        let car = model.require(ObjKind::Joint, "x")?;
+        let lead = model.require(ObjKind::Joint, "lead_x")?;
+        let body = model.require(ObjKind::Body, "vehicle")?;
+        let mass = model.body_mass(body);
+        if !(mass.is_finite() && mass > 0.0) {
+            return Err(MjError::InvalidValue {
+                name: "mass of body `vehicle`",
+                value: mass,
+                expected: "a finite mass > 0 (kg)",
+            });
+        }
+        let coefficient = |name| {
+            numeric_value(model, name, "a finite resistance coefficient >= 0", |v| {
+                v.is_finite() && v >= 0.0
+            })
+        };
+        let resistance = [coefficient("f0")?, coefficient("f1")?, coefficient("f2")?];
+        let lead_speed = numeric_value(model, "lead_speed", "a finite speed (m/s)", f64::is_finite)?;
+        let (hull_geom, hull_radius) = hull(model)?;
+        Ok(MujocoLongitudinal {
+            model: Arc::new(LongitudinalModel::new(mass, resistance, lead_speed)),
+            qpos: [car, lead].map(|j| model.joint_qpos_addr(j)),
+            dof: [car, lead].map(|j| model.joint_dof_addr(j)),
+            ctrl_force: model.require(ObjKind::Actuator, "force")?,
+            hull_geom,
+            hull_radius,
+        })
+    }
+}
+
+impl MujocoVehicle for MujocoLongitudinal {
+    fn dynamics(&self) -> Arc<dyn Dynamics> {
+        self.model.clone()
+    }
+    fn hull_radius(&self) -> f64 {
+        self.hull_radius
+    }
+    fn hull_geom(&self) -> usize {
+        self.hull_geom
+    }
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], _act: &[f64], x: &mut [f64]) {
+        let [car, lead] = self.qpos;
+        // x = (p, v, z), z = q_lead − q_car.
+        x.copy_from_slice(&[qpos[car], qvel[self.dof[0]], qpos[lead] - qpos[car]]);
+    }
+    fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
+        let model = sim.model();
+        let (mut qpos, mut qvel, act) = (vec![0.0; model.nq()], vec![0.0; model.nv()], vec![0.0; model.na()]);
+        qpos[self.qpos[0]] = x[0];
+        qpos[self.qpos[1]] = x[0] + x[2];
+        qvel[self.dof[0]] = x[1];
+        // No force acts on the lead: it keeps v_L.
+        qvel[self.dof[1]] = self.model.lead_speed;
+        sim.set_state(0.0, &qpos, &qvel, &act);
+    }
+    fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
+        // m v̇ = u − F_r(v) with v this (RK4 trial) state's speed: exact under RK4.
+        let resistance = self.model.resistance_force(data.qvel()[self.dof[0]]);
+        data.ctrl_mut()[self.ctrl_force] = applied_input[0] - resistance;
     }
 }

@@ -40,7 +40,9 @@ use crate::mujoco::{MjError, Model};
 pub use crate::params::{ParamError, Params};
 use crate::registry::{add, check_of, describe, find, label_of, parse_params, Checked, Describe, Description, Kind};
 use crate::scenario::VehicleSpec;
-use crate::vehicle::{MujocoBicycle, MujocoCar, MujocoDoubleIntegrator, MujocoUnicycle, MujocoVehicle};
+use crate::vehicle::{
+    MujocoBicycle, MujocoCar, MujocoDoubleIntegrator, MujocoLongitudinal, MujocoUnicycle, MujocoVehicle,
+};
 
 /// Binds a vehicle's MJCF model: joints, actuators and the `hull` geom by name.
 pub type BindMjcf = Arc<dyn Fn(&Model) -> Result<Box<dyn MujocoVehicle>, MjError> + Send + Sync>;
@@ -221,6 +223,13 @@ impl VehicleRegistry {
         })
         .label("planar double integrator ẍ = u")
         .description("x = (x, y, vx, vy)");
+        // The `longitudinal` car on MuJoCo: a kind of its own, since an MJCF kind's numbers come
+        // from its model (no `[vehicle]` keys), the analytic kind's from its keys.
+        r.add_mjcf_vehicle("longitudinal_mjcf", |model| Ok(Box::new(MujocoLongitudinal::bind(model)?)))
+            .label("longitudinal car behind a lead (Ames et al. 2014), MuJoCo")
+            .description(
+                "`longitudinal` on models/longitudinal.xml: the car and the lead on slide joints, ctrl = u − F_r(v) at every RK4 stage",
+            );
         r.add_analytic_vehicle("linear", linear_model)
             .label("linear system ẋ = Ax + Bu")
             .description("A, B from the scenario (e.g. (2.30), (3.34)), ODE plant only");

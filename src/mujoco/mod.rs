@@ -34,6 +34,12 @@ pub enum MjError {
     NulInXml { origin: String },
     #[error("the model has no {kind} named `{name}`")]
     MissingName { kind: &'static str, name: String },
+    #[error("the model's {name} is {value}: expected {expected}")]
+    InvalidValue {
+        name: &'static str,
+        value: f64,
+        expected: &'static str,
+    },
     #[error("MuJoCo could not allocate mjData for the model")]
     DataAllocation,
     #[error("MuJoCo could not allocate a copy of the model")]
@@ -1192,6 +1198,7 @@ mod tests {
             "unicycle",
             "double_integrator_1d",
             "double_integrator_2d",
+            "longitudinal",
         ] {
             let path = format!("{}/models/{model}.xml", env!("CARGO_MANIFEST_DIR"));
             assert!(!names_other_files(&std::fs::read_to_string(&path).unwrap()), "{path}");
