@@ -1051,6 +1051,8 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                     && q.iter().flatten().chain(c).all(|v| v.is_finite())
                     && d.is_finite()
             }
+            // Not a scenario key (`#[serde(skip)]`): built by the episode.
+            Shape::BodyCircle { .. } => false,
         };
         if !ok {
             return Err(s.field_error(
