@@ -70,13 +70,14 @@ fn model_with_obstacles(
         ));
     };
     let mut geoms = String::new();
-    for (i, o) in obstacles.iter().enumerate() {
+    // A box obstacle (ODE plant only) has no geom.
+    for (i, o) in obstacles.iter().enumerate().filter(|(_, o)| o.shape.is_none()) {
         geoms.push_str(&format!(
             "    <geom name=\"{}\" type=\"sphere\" pos=\"{} {} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n",
             obstacle_geom_name(i),
             o.centre[0],
             o.centre[1],
-            o.radius.unwrap_or(0.0)
+            o.radius.unwrap_or_default()
         ));
     }
     Ok(format!("{}{}{}", &xml[..at], geoms, &xml[at..]))
