@@ -139,7 +139,7 @@ fn a_box_further_in_is_hit_without_a_filter_and_the_rectangles_agree() {
     let start = events.iter().find(|e| e.kind == "collision_start").unwrap();
     assert_eq!(start.participants, ["vehicle", "box"]);
     // The first collision's state: the rectangles overlap there too (at most the circles'
-    // overreach, 0.33 + 0.23 m, earlier).
+    // overreach, 0.28 + 0.23 m, earlier).
     let states = read_topic::<proto::State>(&hit, "/state");
     let first_overlap = states
         .iter()
