@@ -159,7 +159,7 @@ mod tests {
             circles: None,
         };
         assert_eq!(car.circles().len(), 3);
-        assert!((car.circles()[0].radius - 1.18246).abs() < 1e-5);
+        assert!((car.circles()[0].radius - 1.182276).abs() < 1e-6);
     }
 
     #[test]
