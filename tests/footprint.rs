@@ -180,16 +180,9 @@ fn footprints_and_boxes_are_validated_with_the_key() {
     let dir = dir.path();
     let car = scenario_text(BESIDE, true);
     let mujoco = car.replacen("plant = \"ode\"", "plant = \"mujoco\"", 1);
-    fails(dir, &mujoco, &[], &["obstacles.0.shape", "plant = \"ode\""]);
-    fails(
-        dir,
-        &mujoco.replace(
-            &format!("shape = {{ kind = \"box\", length = {}, width = {} }}", BOX[0], BOX[1]),
-            "radius = 1.0",
-        ),
-        &[],
-        &["vehicle.footprint", "plant = \"ode\""],
-    );
+    fails(dir, &mujoco, &[], &["vehicle.footprint", "plant = \"ode\""]);
+    let hull = scenario_text(BESIDE, false).replacen("plant = \"ode\"", "plant = \"mujoco\"", 1);
+    fails(dir, &hull, &[], &["obstacles.0.shape", "plant = \"ode\""]);
     fails(
         dir,
         &car,
@@ -223,7 +216,7 @@ fn footprints_and_boxes_are_validated_with_the_key() {
         ],
         &["obstacles.0.shape.heading", "follows its motion"],
     );
-    fails(dir, &car, &["obstacles.0.shape.kind=\"ellipse\""], &["obstacles.0"]);
+    fails(dir, &car, &["obstacles.0.shape.kind=\"ellipse\""], &["shape.kind", "expected `box`"]);
     // Overlapping at the start: refused, as a circle obstacle is.
     fails(
         dir,
