@@ -410,10 +410,10 @@ pub fn add_motion_terms(c: &mut Constraint, form: BarrierForm, p: [f64; 2], p_do
 
 /// [`add_motion_terms`] for h = ‖q − o‖² − r² measured from a point q(x) that an input may
 /// move (a footprint's body circle, q = p + R(θ) c: docs/actors.md, "Footprints"), given
-/// (q, q_drift = ∂q/∂x f, q_input[j] = ∂q/∂x G_j; an empty `q_input`: no input reaches q):
+/// (q, q_drift = ∂q/∂x f, `q_input[j]` = ∂q/∂x G_j; an empty `q_input`: no input reaches q):
 /// - ∂h/∂t = −2 (q − o)·ȯ, added to a (relative degree 1, (4.7); ∂h/∂t has no input);
 /// - relative degree 2 ((4.85)/(4.86)), on ψ = L_f h + ∂h/∂t: a gains −4 q_drift·ȯ + 2‖ȯ‖²
-///   − 2 (q − o)·ö + l1 ∂h/∂t, and b_j gains L_{G_j}(∂h/∂t) = −2 ȯ·q_input[j].
+///   − 2 (q − o)·ö + l1 ∂h/∂t, and b_j gains L_{G_j}(∂h/∂t) = −2 ȯ·`q_input[j]`.
 pub fn add_point_motion_terms(
     c: &mut Constraint,
     form: BarrierForm,

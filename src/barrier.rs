@@ -26,7 +26,7 @@ pub enum Shape {
     Quadratic { q: Vec<Vec<f64>>, c: Vec<f64>, d: f64 },
     /// A circle fixed to the vehicle body at `offset` (along, across the heading) outside a
     /// circle about `centre`: h = ‖q − o‖² − r², q = p + R(θ) c ((4.81) for one covering circle
-    /// of a footprint, `crate::footprint`); p = (x[position[0]], x[position[1]]), θ = x[heading].
+    /// of a footprint, `crate::footprint`); p = (`x[position[0]]`, `x[position[1]]`), θ = `x[heading]`.
     /// Built by the episode, not a scenario key.
     #[serde(skip)]
     BodyCircle {
@@ -915,9 +915,9 @@ mod tests {
                 y[i] += d;
                 y
             };
-            for i in 0..4 {
+            for (i, g) in g.iter().enumerate() {
                 let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
-                worst = worst.max((fd - g[i]).abs() / (1.0 + g[i].abs()));
+                worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
             }
             let v = [0.3, -1.2, 0.8, 0.5];
             let mut hv = [0.0; 4];

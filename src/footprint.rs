@@ -138,7 +138,7 @@ mod tests {
                 circles: n,
             };
             let circles = r.circles();
-            assert_eq!(circles.len(), n.unwrap_or(((l / w) as f64).ceil() as usize));
+            assert_eq!(circles.len(), n.unwrap_or((l / w).ceil() as usize));
             // Every point of the rectangle on a fine grid is inside some circle.
             for i in 0..=200 {
                 for j in 0..=50 {

@@ -216,7 +216,12 @@ fn footprints_and_boxes_are_validated_with_the_key() {
         ],
         &["obstacles.0.shape.heading", "follows its motion"],
     );
-    fails(dir, &car, &["obstacles.0.shape.kind=\"ellipse\""], &["shape.kind", "expected `box`"]);
+    fails(
+        dir,
+        &car,
+        &["obstacles.0.shape.kind=\"ellipse\""],
+        &["shape.kind", "expected `box`"],
+    );
     // Overlapping at the start: refused, as a circle obstacle is.
     fails(
         dir,
