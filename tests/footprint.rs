@@ -57,22 +57,17 @@ fn rectangles_overlap(car: ([f64; 2], f64), boxed: [f64; 2]) -> bool {
         let (s, co) = h.sin_cos();
         let n = ((2.0 * (size[0] + size[1])) / 0.005) as usize;
         (0..n).map(move |k| {
-            // Walk the perimeter.
-            let mut t = k as f64 * 0.005;
-            let (u, v) = if t < size[0] {
-                (t - size[0] / 2.0, -size[1] / 2.0)
-            } else if {
-                t -= size[0];
-                t < size[1]
-            } {
-                (size[0] / 2.0, t - size[1] / 2.0)
-            } else if {
-                t -= size[1];
-                t < size[0]
-            } {
-                (size[0] / 2.0 - t, size[1] / 2.0)
+            // Walk the perimeter: bottom, right, top, left side.
+            let t = k as f64 * 0.005;
+            let (l, w) = (size[0], size[1]);
+            let (u, v) = if t < l {
+                (t - l / 2.0, -w / 2.0)
+            } else if t < l + w {
+                (l / 2.0, t - l - w / 2.0)
+            } else if t < 2.0 * l + w {
+                (l / 2.0 - (t - l - w), w / 2.0)
             } else {
-                (-size[0] / 2.0, size[1] / 2.0 - (t - size[0]))
+                (-l / 2.0, w / 2.0 - (t - 2.0 * l - w))
             };
             [c[0] + co * u - s * v, c[1] + s * u + co * v]
         })
@@ -255,16 +250,15 @@ fn a_moving_box_and_the_footprint_are_drawn_as_cubes() {
         scenes
             .iter()
             .flat_map(|s| &s.entities)
-            .filter(|e| e.id == id)
-            .last()
+            .rfind(|e| e.id == id)
             .cloned()
             .unwrap()
     };
     let vehicle = entity("vehicle");
-    let size = vehicle.cubes[0].size.clone().unwrap();
+    let size = vehicle.cubes[0].size.unwrap();
     assert_eq!([size.x, size.y], CAR);
     let boxed = entity("box");
-    let size = boxed.cubes[0].size.clone().unwrap();
+    let size = boxed.cubes[0].size.unwrap();
     assert_eq!([size.x, size.y], BOX);
     // Heading π/2 (along its motion): a yaw quaternion with z = w.
     let q = boxed.cubes[0].pose.clone().unwrap().orientation.unwrap();
