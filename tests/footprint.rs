@@ -261,9 +261,9 @@ fn a_moving_box_and_the_footprint_are_drawn_as_cubes() {
     let size = boxed.cubes[0].size.unwrap();
     assert_eq!([size.x, size.y], BOX);
     // Heading π/2 (along its motion): a yaw quaternion with z = w.
-    let q = boxed.cubes[0].pose.clone().unwrap().orientation.unwrap();
+    let q = boxed.cubes[0].pose.unwrap().orientation.unwrap();
     assert!((q.z - q.w).abs() < 1e-12, "{q:?}");
     // Its centre moves at 2 m/s from y = −12.
-    let p = boxed.cubes[0].pose.clone().unwrap().position.unwrap();
+    let p = boxed.cubes[0].pose.unwrap().position.unwrap();
     assert!((p.y - (-12.0 + 2.0 * 4.0)).abs() < 0.1, "{p:?}");
 }
