@@ -452,15 +452,33 @@ impl ActorKnowledge {
 ///
 /// b is unchanged: ∂h/∂t depends on the position alone.
 pub fn add_motion_terms(c: &mut Constraint, form: BarrierForm, p: [f64; 2], p_dot: [f64; 2], actor: &ActorState) {
+    add_point_motion_terms(c, form, (p, p_dot, &[]), actor);
+}
+
+/// [`add_motion_terms`] for h = ‖q − o‖² − r² measured from a point q(x) that an input may
+/// move (a footprint's body circle, q = p + R(θ) c: docs/actors.md, "Footprints"), given
+/// (q, q_drift = ∂q/∂x f, `q_input[j]` = ∂q/∂x G_j; an empty `q_input`: no input reaches q):
+/// - ∂h/∂t = −2 (q − o)·ȯ, added to a (relative degree 1, (4.7); ∂h/∂t has no input);
+/// - relative degree 2 ((4.85)/(4.86)), on ψ = L_f h + ∂h/∂t: a gains −4 q_drift·ȯ + 2‖ȯ‖²
+///   − 2 (q − o)·ö + l1 ∂h/∂t, and b_j gains L_{G_j}(∂h/∂t) = −2 ȯ·`q_input[j]`.
+pub fn add_point_motion_terms(
+    c: &mut Constraint,
+    form: BarrierForm,
+    (q, q_drift, q_input): ([f64; 2], [f64; 2], &[[f64; 2]]),
+    actor: &ActorState,
+) {
     let (o, ov, oa) = (actor.position, actor.velocity, actor.acceleration);
-    let rel = [p[0] - o[0], p[1] - o[1]];
+    let rel = [q[0] - o[0], q[1] - o[1]];
     let dh_dt = -2.0 * (rel[0] * ov[0] + rel[1] * ov[1]);
     match form {
         BarrierForm::RelativeDegree1 { .. } => c.a += dh_dt,
         BarrierForm::RelativeDegree2 { l1, .. } => {
-            let second = -4.0 * (p_dot[0] * ov[0] + p_dot[1] * ov[1]) + 2.0 * (ov[0] * ov[0] + ov[1] * ov[1])
+            let second = -4.0 * (q_drift[0] * ov[0] + q_drift[1] * ov[1]) + 2.0 * (ov[0] * ov[0] + ov[1] * ov[1])
                 - 2.0 * (rel[0] * oa[0] + rel[1] * oa[1]);
             c.a += second + l1 * dh_dt;
+            for (b, g) in c.b.iter_mut().zip(q_input) {
+                *b += -2.0 * (ov[0] * g[0] + ov[1] * g[1]);
+            }
         }
     }
 }
@@ -754,5 +772,110 @@ mod tests {
         // can fail.
         let frozen = barrier::constraint(&ball, form, &bicycle, &DVector::from_column_slice(&x));
         assert!((frozen.value(&DVector::from_column_slice(&u)) - expected).abs() > 1e-2);
+    }
+
+    /// f(x(t), t) along the closed loop with u held, t = t0 + k·step, k = −2…2.
+    fn series(
+        model: &dyn Dynamics,
+        x0: &[f64],
+        u: &[f64],
+        t0: f64,
+        step: f64,
+        f: impl Fn(&[f64], f64) -> f64,
+    ) -> [f64; 5] {
+        let mut out = [0.0; 5];
+        for (k, out) in out.iter_mut().enumerate() {
+            let offset = k as f64 - 2.0;
+            let mut x = x0.to_vec();
+            for _ in 0..200 {
+                x = rk4(model, &x, u, offset * step / 200.0);
+            }
+            *out = f(&x, t0 + offset * step);
+        }
+        out
+    }
+
+    /// A footprint's body circle q = p + R(θ) c around an accelerating actor, along the bicycle
+    /// (4.78): ḣ + α h is a + b·u exactly (relative degree 1); at relative degree 2,
+    /// ḧ + l1 ḣ + l0 h is a + b·u plus the steering's first-order terms l1 g + ġ, g = L_G h·u
+    /// (exactly a + b·u when the steering is 0).
+    #[test]
+    fn body_circle_motion_terms_match_finite_differences() {
+        let tr = Trajectory::new(&StraightMotion {
+            start: [6.0, 3.0],
+            direction: [-1.0, 0.2],
+            speed: 2.0,
+            acceleration: vec![[0.0, 1.5], [10.0, 1.5]],
+            min_speed: 0.0,
+        })
+        .unwrap();
+        let (t0, r, step, offset) = (0.8, 2.5, 1e-3, [1.6, 0.3]);
+        let actor = tr.state_at(t0);
+        let circle = |centre: [f64; 2]| Barrier::body_circle("actor/0-0", ([0, 1], 2), offset, centre, r);
+        let h_at = |x: &[f64], t: f64| circle(tr.state_at(t).position).h_at(x);
+        let bicycle = BicycleModel::new(6.0);
+        let x = [0.5, -0.4, 0.3, 2.5];
+        let b0 = circle(actor.position);
+        let point_terms = |c: &mut Constraint, form: BarrierForm, with_input: bool| {
+            let (mut f, mut g0, mut g1) = ([0.0; 4], [0.0; 4], [0.0; 4]);
+            bicycle.drift_into(&x, &mut f);
+            bicycle.add_input_term(&x, &[1.0, 0.0], &mut g0);
+            bicycle.add_input_term(&x, &[0.0, 1.0], &mut g1);
+            let (q, q_drift) = b0.point_and_velocity(&x, &f).unwrap();
+            let q_input = [
+                b0.point_and_velocity(&x, &g0).unwrap().1,
+                b0.point_and_velocity(&x, &g1).unwrap().1,
+            ];
+            let inputs: &[[f64; 2]] = if with_input { &q_input } else { &[] };
+            add_point_motion_terms(c, form, (q, q_drift, inputs), &actor);
+        };
+
+        let alpha = 0.7;
+        let form = BarrierForm::RelativeDegree1 { alpha };
+        let u = [0.1, -0.8];
+        let mut c = barrier::constraint(&b0, form, &bicycle, &DVector::from_column_slice(&x));
+        point_terms(&mut c, form, true);
+        let hs = series(&bicycle, &x, &u, t0, step, h_at);
+        let expected = (hs[3] - hs[1]) / (2.0 * step) + alpha * hs[2];
+        let got = c.value(&DVector::from_column_slice(&u));
+        assert!(
+            (got - expected).abs() < 1e-5 * (1.0 + expected.abs()),
+            "RD1: {got} vs {expected}"
+        );
+
+        let (l0, l1) = (4.0, 4.0);
+        let form = BarrierForm::RelativeDegree2 { l0, l1 };
+        // g(t) = ∇_x h(x(t), t)·G(x(t)) u.
+        let lg_h_u = |x: &[f64], t: f64| {
+            let mut grad = [0.0; 4];
+            circle(tr.state_at(t).position).gradient_into(x, &mut grad);
+            let mut gu = [0.0; 4];
+            bicycle.add_input_term(x, &u, &mut gu);
+            grad.iter().zip(gu).map(|(a, b)| a * b).sum::<f64>()
+        };
+        for (u, steering_terms) in [([0.0, -0.8], false), ([0.1, -0.8], true)] {
+            let hs = series(&bicycle, &x, &u, t0, step, h_at);
+            let dh = (hs[3] - hs[1]) / (2.0 * step);
+            let ddh = (hs[3] - 2.0 * hs[2] + hs[1]) / (step * step);
+            let mut expected = ddh + l1 * dh + l0 * hs[2];
+            if steering_terms {
+                let g = series(&bicycle, &x, &u, t0, step, lg_h_u);
+                expected -= l1 * g[2] + (g[3] - g[1]) / (2.0 * step);
+            }
+            let value = |with_input: bool| {
+                let mut c = barrier::constraint(&b0, form, &bicycle, &DVector::from_column_slice(&x));
+                point_terms(&mut c, form, with_input);
+                c.value(&DVector::from_column_slice(&u))
+            };
+            let got = value(true);
+            assert!(
+                (got - expected).abs() < 1e-4 * (1.0 + expected.abs()),
+                "RD2 {u:?}: {got} vs {expected}"
+            );
+            if steering_terms {
+                // L_G(∂h/∂t) matters: without it the constraint misses.
+                assert!((value(false) - expected).abs() > 1e-2, "{} vs {expected}", value(false));
+            }
+        }
     }
 }

@@ -24,6 +24,25 @@ pub enum Shape {
     HalfSpace { coefficients: Vec<f64>, offset: f64 },
     /// Quadratic h = xᵀQx + cᵀx + d ((4.53): h = x2² − x1 + 1), Q as an array of rows.
     Quadratic { q: Vec<Vec<f64>>, c: Vec<f64>, d: f64 },
+    /// A circle fixed to the vehicle body at `offset` (along, across the heading) outside a
+    /// circle about `centre`: h = ‖q − o‖² − r², q = p + R(θ) c ((4.81) for one covering circle
+    /// of a footprint, `crate::footprint`); p = (`x[position[0]]`, `x[position[1]]`), θ = `x[heading]`.
+    /// Built by the episode, not a scenario key.
+    #[serde(skip)]
+    BodyCircle {
+        position: [usize; 2],
+        heading: usize,
+        offset: [f64; 2],
+        centre: [f64; 2],
+        radius: f64,
+    },
+}
+
+/// The point q = p + R(θ) c of a body circle and w = ∂q/∂θ = R'(θ) c = (−(Rc)_y, (Rc)_x).
+#[inline]
+fn body_point(position: [usize; 2], heading: usize, offset: [f64; 2], x: &[f64]) -> ([f64; 2], [f64; 2]) {
+    let rc = crate::footprint::rotate(offset, x[heading]);
+    ([x[position[0]] + rc[0], x[position[1]] + rc[1]], [-rc[1], rc[0]])
 }
 
 /// A named barrier function.
@@ -47,12 +66,74 @@ impl Barrier {
         }
     }
 
+    /// The circle on the vehicle body at `offset` (m, along and across the heading) outside the
+    /// circle about `centre`, with r the sum of the radii (see [`Shape::BodyCircle`]).
+    pub fn body_circle(
+        name: &str,
+        (position, heading): ([usize; 2], usize),
+        offset: [f64; 2],
+        centre: [f64; 2],
+        radius_sum: f64,
+    ) -> Barrier {
+        Barrier {
+            name: name.to_string(),
+            shape: Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre,
+                radius: radius_sum,
+            },
+        }
+    }
+
+    /// The centre of a planar circle (a ball over two state components, or a body circle).
+    pub fn planar_centre_mut(&mut self) -> Option<&mut [f64]> {
+        match &mut self.shape {
+            Shape::Ball { centre, .. } if centre.len() == 2 => Some(centre),
+            Shape::BodyCircle { centre, .. } => Some(centre),
+            _ => None,
+        }
+    }
+
+    /// The radius r of a ball or a body circle.
+    pub fn radius_mut(&mut self) -> Option<&mut f64> {
+        match &mut self.shape {
+            Shape::Ball { radius, .. } | Shape::BodyCircle { radius, .. } => Some(radius),
+            _ => None,
+        }
+    }
+
+    /// For a planar circle barrier at x: the point q it measures from (the planar position, or
+    /// a body circle's q = p + R(θ) c) and q's velocity along `xdot`, q̇ = ṗ + θ̇ R'(θ) c.
+    pub fn point_and_velocity(&self, x: &[f64], xdot: &[f64]) -> Option<([f64; 2], [f64; 2])> {
+        match &self.shape {
+            Shape::Ball { indices, .. } if indices.len() == 2 => {
+                let [i, j] = [indices[0], indices[1]];
+                Some(([x[i], x[j]], [xdot[i], xdot[j]]))
+            }
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                ..
+            } => {
+                let (q, w) = body_point(position, heading, offset, x);
+                let [i, j] = position;
+                let th = xdot[heading];
+                Some((q, [xdot[i] + th * w[0], xdot[j] + th * w[1]]))
+            }
+            _ => None,
+        }
+    }
+
     /// Largest state index the barrier reads.
     pub fn max_index(&self) -> usize {
         match &self.shape {
             Shape::Ball { indices, .. } => indices.iter().copied().max().unwrap_or(0),
             Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
             Shape::Quadratic { q, c, .. } => q.len().max(c.len()).saturating_sub(1),
+            Shape::BodyCircle { position, heading, .. } => position[0].max(position[1]).max(*heading),
         }
     }
 
@@ -85,6 +166,16 @@ impl Barrier {
                     .sum();
                 quadratic + c.iter().zip(x.iter()).map(|(c, v)| c * v).sum::<f64>() + d
             }
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre,
+                radius,
+            } => {
+                let (q, _) = body_point(position, heading, offset, x);
+                (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) - radius * radius
+            }
         }
     }
 
@@ -115,6 +206,16 @@ impl Barrier {
             }
             // First-order distance estimate h / ‖∇h‖.
             Shape::Quadratic { .. } => self.h(x) / self.gradient(x).norm().max(f64::MIN_POSITIVE),
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre,
+                radius,
+            } => {
+                let (q, _) = body_point(position, heading, offset, x.as_slice());
+                (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius
+            }
         }
     }
 
@@ -157,11 +258,25 @@ impl Barrier {
                     g[i] += c;
                 }
             }
+            // ∂h/∂p = 2 d, ∂h/∂θ = 2 d·w with d = q − o, w = R'(θ) c.
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre,
+                ..
+            } => {
+                let (q, w) = body_point(position, heading, offset, x);
+                let d = [q[0] - centre[0], q[1] - centre[1]];
+                g[position[0]] = 2.0 * d[0];
+                g[position[1]] = 2.0 * d[1];
+                g[heading] += 2.0 * (d[0] * w[0] + d[1] * w[1]);
+            }
         }
     }
 
-    /// out ← out + ∇²h v (∇²h is constant for these shapes).
-    pub fn add_hessian_times(&self, v: &[f64], out: &mut [f64]) {
+    /// out ← out + ∇²h(x) v (constant but for a body circle's).
+    pub fn add_hessian_times(&self, x: &[f64], v: &[f64], out: &mut [f64]) {
         match &self.shape {
             Shape::Ball { indices, inside, .. } => {
                 let sign = if *inside { -2.0 } else { 2.0 };
@@ -179,6 +294,24 @@ impl Barrier {
                 }
             }
             Shape::HalfSpace { .. } => {}
+            // ∂²h/∂p² = 2I, ∂²h/∂p∂θ = 2w, ∂²h/∂θ² = 2(‖w‖² + d·R''c) = 2(‖c‖² − d·Rc).
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre,
+                ..
+            } => {
+                let (q, w) = body_point(position, heading, offset, x);
+                let d = [q[0] - centre[0], q[1] - centre[1]];
+                let rc = [w[1], -w[0]];
+                let c2 = offset[0] * offset[0] + offset[1] * offset[1];
+                let [i, j] = position;
+                let vt = v[heading];
+                out[i] += 2.0 * (v[i] + w[0] * vt);
+                out[j] += 2.0 * (v[j] + w[1] * vt);
+                out[heading] += 2.0 * (w[0] * v[i] + w[1] * v[j]) + 2.0 * (c2 - d[0] * rc[0] - d[1] * rc[1]) * vt;
+            }
         }
     }
 }
@@ -296,7 +429,7 @@ impl LieWorkspace {
         barrier.gradient_into(x, self.grad_h.as_mut_slice());
         // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
         transpose_times(&self.jacobian, self.grad_h.as_slice(), self.grad_lf_h.as_mut_slice());
-        barrier.add_hessian_times(self.f.as_slice(), self.grad_lf_h.as_mut_slice());
+        barrier.add_hessian_times(x, self.f.as_slice(), self.grad_lf_h.as_mut_slice());
         let lie = &mut self.lie;
         lie.h = barrier.h_at(x);
         lie.lf_h = dot(self.grad_h.as_slice(), self.f.as_slice());
@@ -756,6 +889,75 @@ mod tests {
                     assert_eq!(bits_of(&c), constraint_bits(&lie, form));
                 }
             }
+        }
+    }
+
+    /// A body circle's ∇h and ∇²h v against central differences of h, at states all round the
+    /// heading, with lateral offsets too.
+    #[test]
+    fn body_circle_gradient_and_hessian_match_finite_differences() {
+        let mut worst: f64 = 0.0;
+        for k in 0..60 {
+            let s = k as f64;
+            let b = Barrier::body_circle(
+                "o/0-1",
+                ([0, 1], 2),
+                [1.5 * (0.7 * s).cos(), 0.4 * (1.1 * s).sin()],
+                [2.0 * s.sin(), -1.0],
+                2.3,
+            );
+            let x = [3.0 * (0.3 * s).cos(), 2.0 * s.sin(), 0.41 * s - 9.0, 2.5];
+            let mut g = [0.0; 4];
+            b.gradient_into(&x, &mut g);
+            let e = 1e-5;
+            let shifted = |i: usize, d: f64| {
+                let mut y = x;
+                y[i] += d;
+                y
+            };
+            for (i, g) in g.iter().enumerate() {
+                let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
+                worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
+            }
+            let v = [0.3, -1.2, 0.8, 0.5];
+            let mut hv = [0.0; 4];
+            b.add_hessian_times(&x, &v, &mut hv);
+            for i in 0..4 {
+                // Row i of ∇²h from differences of the gradient, times v.
+                let fd_row: f64 = (0..4)
+                    .map(|j| {
+                        let (mut gp, mut gm) = ([0.0; 4], [0.0; 4]);
+                        b.gradient_into(&shifted(j, e), &mut gp);
+                        b.gradient_into(&shifted(j, -e), &mut gm);
+                        (gp[i] - gm[i]) / (2.0 * e) * v[j]
+                    })
+                    .sum();
+                worst = worst.max((fd_row - hv[i]).abs() / (1.0 + hv[i].abs()));
+            }
+            assert_eq!(b.max_index(), 2);
+            let d = b.clearance(&DVector::from_column_slice(&x));
+            assert!((((d + 2.3).powi(2) - 2.3 * 2.3) - b.h_at(&x)).abs() < 1e-9);
+        }
+        assert!(worst < 1e-7, "largest relative difference {worst:e}");
+    }
+
+    /// With a zero offset the body circle is the planar ball (4.81): the same Lie derivatives
+    /// along the bicycle (4.78) as its closed form (4.88)–(4.90).
+    #[test]
+    fn body_circle_at_the_reference_point_is_the_planar_ball() {
+        let model = BicycleModel::new(6.0);
+        let ball = Barrier::circular_obstacle("o", [0, 1], [-3.0, 0.5], 6.0);
+        let body = Barrier::body_circle("o", ([0, 1], 2), [0.0, 0.0], [-3.0, 0.5], 6.0);
+        let x = DVector::from_column_slice(&[-11.0, 0.7, 0.3, 2.5]);
+        let (a, b) = (lie_derivatives(&ball, &model, &x), lie_derivatives(&body, &model, &x));
+        for (p, q) in [
+            (a.h, b.h),
+            (a.lf_h, b.lf_h),
+            (a.lf2_h, b.lf2_h),
+            (a.lg_lf_h[0], b.lg_lf_h[0]),
+            (a.lg_lf_h[1], b.lg_lf_h[1]),
+        ] {
+            assert!((p - q).abs() < 1e-12 * (1.0 + p.abs()), "{p} vs {q}");
         }
     }
 

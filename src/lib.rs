@@ -18,6 +18,7 @@ pub mod export;
 pub mod falsify;
 pub mod files;
 pub mod filter;
+pub mod footprint;
 pub mod log;
 pub mod message;
 pub mod metrics;

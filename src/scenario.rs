@@ -137,6 +137,9 @@ pub struct VehicleSpec {
     pub timestep: Option<f64>,
     /// Overrides the model's `<option integrator>`: "euler", "rk4" or "implicit".
     pub integrator: Option<Integrator>,
+    /// The vehicle's footprint, a rectangle L × W about its planar position (covering circles,
+    /// docs/actors.md "Footprints"); absent: the hull circle.
+    pub footprint: Option<crate::footprint::Rectangle>,
 }
 
 /// The keys every vehicle has, as [`VehicleSpec`] reads them (its other keys are the kind's).
@@ -153,17 +156,20 @@ struct CommonVehicleKeys {
     timestep: Option<f64>,
     #[serde(default)]
     integrator: Option<Integrator>,
+    #[serde(default)]
+    footprint: Option<crate::footprint::Rectangle>,
 }
 
 impl VehicleSpec {
     /// The keys every vehicle has; any other key of `[vehicle]` belongs to the kind.
-    pub const KEYS: [&'static str; 6] = [
+    pub const KEYS: [&'static str; 7] = [
         "kind",
         "model",
         "initial_state",
         "initial_perturbation",
         "timestep",
         "integrator",
+        "footprint",
     ];
 }
 
@@ -193,6 +199,7 @@ impl<'de> Deserialize<'de> for VehicleSpec {
             initial_perturbation: keys.initial_perturbation,
             timestep: keys.timestep,
             integrator: keys.integrator,
+            footprint: keys.footprint,
         })
     }
 }
@@ -219,6 +226,9 @@ impl Serialize for VehicleSpec {
         }
         if let Some(integrator) = &self.integrator {
             map.serialize_entry("integrator", integrator)?;
+        }
+        if let Some(footprint) = &self.footprint {
+            map.serialize_entry("footprint", footprint)?;
         }
         map.end()
     }
@@ -328,7 +338,12 @@ pub struct ObstacleSpec {
     #[serde(default)]
     pub name: Option<String>,
     pub centre: [f64; 2],
-    pub radius: f64,
+    /// A circle's radius (m); a box obstacle (`shape`) has none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// A box instead of a circle (docs/actors.md, "Footprints").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<ObstacleShape>,
     /// When the obstacle becomes known to the controller (seconds).
     #[serde(default)]
     pub appear_at: f64,
@@ -339,6 +354,54 @@ pub struct ObstacleSpec {
     /// then its position at t = 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub motion: Option<MotionSpec>,
+}
+
+/// An obstacle's shape other than a circle (`shape = { kind = "box", … }`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ObstacleShape {
+    /// A rectangle `length` × `width` (m) centred at the obstacle's centre, its length along
+    /// `heading` (rad; a moving box's follows its motion direction), covered by `circles`
+    /// circles (default ⌈L/W⌉).
+    Box {
+        length: f64,
+        width: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        heading: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        circles: Option<usize>,
+    },
+}
+
+impl ObstacleSpec {
+    /// The obstacle's heading (a moving box's: its motion's direction) and covering circles as
+    /// (offset from its centre in the world frame, radius): one circle of `radius` at the
+    /// centre, or a box's covering circles.
+    pub fn circles(&self) -> (f64, Vec<([f64; 2], f64)>) {
+        match self.shape {
+            None => (0.0, vec![([0.0, 0.0], self.radius.unwrap_or(0.0))]),
+            Some(ObstacleShape::Box {
+                length,
+                width,
+                heading,
+                circles,
+            }) => {
+                let heading = match &self.motion {
+                    // (a box moves along a straight line only: validate_motion)
+                    Some(m) => m.direction.map_or(0.0, |d| d[1].atan2(d[0])),
+                    None => heading.unwrap_or(0.0),
+                };
+                let rectangle = crate::footprint::Rectangle { length, width, circles };
+                let circles = rectangle.circles().into_iter();
+                (
+                    heading,
+                    circles
+                        .map(|c| (crate::footprint::rotate(c.offset, heading), c.radius))
+                        .collect(),
+                )
+            }
+        }
+    }
 }
 
 /// A moving obstacle's motion (`[obstacles.motion]`, docs/actors.md): a straight line from its
@@ -956,6 +1019,62 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
 
 /// One obstacle's `motion`: the trajectory it defines must be usable (the checks of
 /// [`crate::actor::Trajectory::new`], at the key they name) and every jitter ≥ 0 and finite.
+/// An obstacle's `radius` (a circle) or `shape` (a box, ODE plant only), one of the two.
+fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Result<(), ScenarioError> {
+    let sc = &s.scenario;
+    let Some(ObstacleShape::Box {
+        length,
+        width,
+        heading,
+        circles,
+    }) = o.shape
+    else {
+        return match o.radius {
+            Some(radius) if !positive_finite(radius) => Err(s.field_error(
+                &format!("obstacles.{i}.radius"),
+                format!("expected a positive radius, found {radius}"),
+            )),
+            Some(_) => Ok(()),
+            None => Err(s.field_error(
+                &format!("obstacles.{i}"),
+                "expected a `radius` (a circle) or a `shape` (a box)",
+            )),
+        };
+    };
+    if o.radius.is_some() {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.radius"),
+            "a box obstacle has no radius (its covering circles follow from `shape`): expected `radius` or `shape`, not both",
+        ));
+    }
+    let rectangle = crate::footprint::Rectangle { length, width, circles };
+    rectangle
+        .check(OBSTACLE_EXTENT)
+        .map_err(|e| s.field_error(&format!("obstacles.{i}.shape.{}", e.key), e.message))?;
+    match heading {
+        Some(_) if o.motion.is_some() => {
+            return Err(s.field_error(
+                &format!("obstacles.{i}.shape.heading"),
+                "a moving box's heading follows its motion's direction: expected no `heading`",
+            ));
+        }
+        Some(h) if !h.is_finite() => {
+            return Err(s.field_error(
+                &format!("obstacles.{i}.shape.heading"),
+                format!("expected a finite angle (rad), found {h}"),
+            ));
+        }
+        _ => {}
+    }
+    if sc.plant == PlantKind::Mujoco {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.shape"),
+            "box obstacles run on `plant = \"ode\"` only for now (MuJoCo's obstacles are sphere geoms)",
+        ));
+    }
+    Ok(())
+}
+
 fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpec) -> Result<(), ScenarioError> {
     let jitters = [
         ("speed", m.jitter.speed),
@@ -978,6 +1097,12 @@ fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpe
         return Err(s.field_error(
             &format!("obstacles.{i}.motion"),
             "expected either a `direction` or `waypoints` (a path of at least one point after the centre), not both",
+        ));
+    }
+    if o.shape.is_some() && !m.waypoints.is_empty() {
+        return Err(s.field_error(
+            &format!("obstacles.{i}.motion.waypoints"),
+            "a box moves along a straight `direction` only (its covering circles keep the heading it starts with)",
         ));
     }
     if m.jitter.trigger_distance.is_some() && m.trigger_distance.is_none() {
@@ -1074,6 +1199,8 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                     && q.iter().flatten().chain(c).all(|v| v.is_finite())
                     && d.is_finite()
             }
+            // Not a scenario key (`#[serde(skip)]`): built by the episode.
+            Shape::BodyCircle { .. } => false,
         };
         if !ok {
             return Err(s.field_error(
@@ -1082,19 +1209,25 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             ));
         }
     }
-    for (i, o) in sc.obstacles.iter().enumerate() {
-        if !positive_finite(o.radius) {
+    if let Some(footprint) = &sc.vehicle.footprint {
+        footprint
+            .check(OBSTACLE_EXTENT)
+            .map_err(|e| s.field_error(&format!("vehicle.footprint.{}", e.key), e.message))?;
+        if sc.plant == PlantKind::Mujoco {
             return Err(s.field_error(
-                &format!("obstacles.{i}.radius"),
-                format!("expected a positive radius, found {}", o.radius),
+                "vehicle.footprint",
+                "footprints run on `plant = \"ode\"` only for now (MuJoCo's contacts are the hull geom's)",
             ));
         }
+    }
+    for (i, o) in sc.obstacles.iter().enumerate() {
+        validate_obstacle_shape(s, i, o)?;
         if o.centre.iter().any(|v| !v.is_finite()) {
             return Err(s.field_error(&format!("obstacles.{i}.centre"), "expected two finite coordinates"));
         }
         // h = ‖p − c‖² − r² keeps metre-scale precision only well below 1e9 m (and overflows
         // to inf past 1e154).
-        if o.centre.iter().chain([&o.radius]).any(|v| v.abs() > OBSTACLE_EXTENT) {
+        if o.centre.iter().chain(&o.radius).any(|v| v.abs() > OBSTACLE_EXTENT) {
             return Err(s.field_error(
                 &format!("obstacles.{i}"),
                 format!("expected a centre and radius within ±{OBSTACLE_EXTENT:e} m (h = d² − r² loses its precision beyond)"),

@@ -80,6 +80,7 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "barrier",
         "road",
         "actor",
+        "footprint",
         "predictor",
         "prescribed_time",
         "params",

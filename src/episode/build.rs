@@ -71,10 +71,11 @@ fn model_with_obstacles(
         ));
     };
     let mut geoms = String::new();
-    for (i, o) in obstacles.iter().enumerate() {
+    // A box obstacle (ODE plant only) has no geom.
+    for (i, o) in obstacles.iter().enumerate().filter(|(_, o)| o.shape.is_none()) {
         let rest = format!(
             "size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"",
-            o.radius
+            o.radius.unwrap_or_default()
         );
         let (name, [x, y]) = (obstacle_geom_name(i), o.centre);
         // A static obstacle's text is as it always was (logs of static scenes unchanged).
@@ -542,8 +543,18 @@ fn dashed_circle(centre: [f64; 2], radius: f64) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// The vehicle's circles: (offset in its body frame, radius): its hull circle about the
+/// planar position, or the covering circles of `vehicle.footprint` (`crate::footprint`).
+pub(super) fn vehicle_circles(loaded: &LoadedScenario, hull_radius: f64) -> Vec<([f64; 2], f64)> {
+    match &loaded.scenario.vehicle.footprint {
+        Some(rectangle) => rectangle.circles().iter().map(|c| (c.offset, c.radius)).collect(),
+        None => vec![([0.0, 0.0], hull_radius)],
+    }
+}
+
 /// The obstacles: circular barriers (4.81) with r = hull + obstacle radius, clear of x(0),
-/// with their seeded appearance times.
+/// or with a footprint or a box, one barrier per (vehicle circle i, obstacle circle j) pair,
+/// named `<obstacle>/<i>-<j>` (a body circle, [`Barrier::body_circle`], for a footprint).
 pub(super) fn obstacles(
     loaded: &LoadedScenario,
     model: &dyn Dynamics,
@@ -551,6 +562,23 @@ pub(super) fn obstacles(
     x0: &DVector<f64>,
 ) -> Result<Vec<Obstacle>, EpisodeError> {
     let sc = &loaded.scenario;
+    let vehicle = vehicle_circles(loaded, hull_radius);
+    let heading = match (&sc.vehicle.footprint, model.heading_index()) {
+        (Some(_), None) => {
+            return Err(loaded
+                .field_error(
+                    "vehicle.footprint",
+                    "this vehicle has no heading to turn a footprint with",
+                )
+                .into());
+        }
+        (Some(_), _) if model.input_dim() > 4 => {
+            return Err(loaded
+                .field_error("vehicle.footprint", "footprints need a vehicle with at most 4 inputs")
+                .into());
+        }
+        (_, heading) => heading,
+    };
     let mut obstacles = Vec::with_capacity(sc.obstacles.len());
     for (i, o) in sc.obstacles.iter().enumerate() {
         let Some(position) = model.planar_position() else {
@@ -569,21 +597,55 @@ pub(super) fn obstacles(
             None => None,
         };
         let centre = motion.as_ref().map_or(o.centre, |m| m.state_at(0.0).position);
-        let barrier = Barrier::circular_obstacle(&name, position, centre, hull_radius + o.radius);
-        if barrier.h(x0) < 0.0 {
-            return Err(loaded
-                .field_error(
-                    &format!("obstacles.{i}"),
-                    format!(
-                        "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
-                        barrier.clearance(x0)
-                    ),
-                )
-                .into());
+        let (box_heading, circles) = o.circles();
+        let single = sc.vehicle.footprint.is_none() && o.shape.is_none();
+        let mut barriers = Vec::with_capacity(vehicle.len() * circles.len());
+        let mut offsets = Vec::with_capacity(barriers.capacity());
+        for (vi, &(body_offset, body_radius)) in vehicle.iter().enumerate() {
+            for (oj, &(offset, radius)) in circles.iter().enumerate() {
+                let at = [centre[0] + offset[0], centre[1] + offset[1]];
+                let pair = if single {
+                    name.clone()
+                } else {
+                    format!("{name}/{vi}-{oj}")
+                };
+                let barrier = match (&sc.vehicle.footprint, heading) {
+                    (Some(_), Some(heading)) => {
+                        Barrier::body_circle(&pair, (position, heading), body_offset, at, body_radius + radius)
+                    }
+                    _ => Barrier::circular_obstacle(&pair, position, at, body_radius + radius),
+                };
+                if barrier.h(x0) < 0.0 {
+                    return Err(loaded
+                        .field_error(
+                            &format!("obstacles.{i}"),
+                            format!(
+                                "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
+                                barrier.clearance(x0)
+                            ),
+                        )
+                        .into());
+                }
+                barriers.push(barrier);
+                offsets.push(offset);
+            }
         }
+        let outline = match o.shape {
+            Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => super::Outline::Box {
+                length,
+                width,
+                heading: box_heading,
+            },
+            None => super::Outline::Circle {
+                radius: o.radius.unwrap_or(0.0),
+            },
+        };
         obstacles.push(Obstacle {
-            barrier,
-            radius: o.radius,
+            name,
+            barriers,
+            offsets,
+            centre,
+            outline,
             appear_at: (o.appear_at
                 + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
             .max(0.0),

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::actor::{add_motion_terms, ActorKnowledge, ActorMotion, ActorState};
+use crate::actor::{add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
@@ -85,9 +85,13 @@ struct LawWorkspace {
     /// Per known barrier, for a moving actor's: the barrier with its centre moved to where
     /// the controller assumes the actor at the evaluation time.
     moving: Vec<Option<Barrier>>,
-    /// ẋ at zero input (the position's drift ṗ of the relative-degree-2 motion terms).
+    /// ẋ at zero input (the drift of the point a moving actor's barrier measures from, for
+    /// the relative-degree-2 motion terms), a column G_j of G, and per channel ∂q/∂x G_j.
     drift: Vec<f64>,
     zero_input: Vec<f64>,
+    unit_input: Vec<f64>,
+    column: Vec<f64>,
+    point_input: Vec<[f64; 2]>,
 }
 
 impl LawWorkspace {
@@ -161,24 +165,44 @@ impl LawWorkspace {
     /// constraints ← the constraint data of every known barrier at z, the state at time `at`,
     /// in `form`; returns their number. A moving actor's barrier is evaluated with the actor
     /// where the controller assumes it at `at` (from what it observed at the tick), with the
-    /// terms of its motion ([`add_motion_terms`]).
+    /// terms of its motion ([`add_point_motion_terms`]).
     #[inline(always)]
     fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
         for (k, (b, c)) in laws.barriers.iter().zip(self.constraints.iter_mut()).enumerate() {
             match (&laws.actors.motions[k], &mut self.moving[k]) {
                 (Some(motion), Some(moved)) => {
                     let actor = laws.actors.assumed(motion, k, at);
-                    let position = set_centre(moved, actor.position);
+                    let offset = laws.actors.offsets[k];
+                    let centre = moved
+                        .planar_centre_mut()
+                        .expect("a moving actor's barrier is a planar circle");
+                    centre[0] = actor.position[0] + offset[0];
+                    centre[1] = actor.position[1] + offset[1];
                     self.lie.constraint_into(moved, form, laws.model, z, c);
-                    let p = [z[position[0]], z[position[1]]];
-                    let p_dot = match form {
-                        BarrierForm::RelativeDegree2 { .. } => {
-                            laws.model.dynamics_into(z, &self.zero_input, &mut self.drift);
-                            [self.drift[position[0]], self.drift[position[1]]]
+                    let body = matches!(moved.shape, crate::barrier::Shape::BodyCircle { .. });
+                    let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
+                    if rd2 {
+                        laws.model.dynamics_into(z, &self.zero_input, &mut self.drift);
+                    }
+                    // (At relative degree 1 the drift is stale and unused.)
+                    let (q, q_drift) = moved.point_and_velocity(z, &self.drift).expect("a planar circle");
+                    let q_drift = if rd2 { q_drift } else { [0.0; 2] };
+                    // ∂q/∂x G_j: an input turns a body circle's point (docs/actors.md, "Footprints").
+                    let inputs = match rd2 && body {
+                        true => {
+                            for j in 0..self.point_input.len() {
+                                self.unit_input.fill(0.0);
+                                self.unit_input[j] = 1.0;
+                                self.column.fill(0.0);
+                                laws.model.add_input_term(z, &self.unit_input, &mut self.column);
+                                self.point_input[j] =
+                                    moved.point_and_velocity(z, &self.column).expect("a planar circle").1;
+                            }
+                            &self.point_input[..]
                         }
-                        BarrierForm::RelativeDegree1 { .. } => [0.0; 2],
+                        false => &[],
                     };
-                    add_motion_terms(c, form, p, p_dot, &actor);
+                    add_point_motion_terms(c, form, (q, q_drift, inputs), &actor);
                 }
                 _ => self.lie.constraint_into(b, form, laws.model, z, c),
             }
@@ -187,24 +211,15 @@ impl LawWorkspace {
     }
 }
 
-/// Moves a ball barrier's centre to `centre`; returns its planar position indices.
-#[inline]
-fn set_centre(barrier: &mut Barrier, centre: [f64; 2]) -> [usize; 2] {
-    match &mut barrier.shape {
-        crate::barrier::Shape::Ball { indices, centre: c, .. } => {
-            c[0] = centre[0];
-            c[1] = centre[1];
-            [indices[0], indices[1]]
-        }
-        _ => unreachable!("a moving actor's barrier is a planar ball"),
-    }
-}
-
 /// The moving actors the controller knows, per known barrier, and what it assumes of them.
 struct KnownActors {
     /// Per known barrier: the actor's true motion (its truth is what the controller observes
     /// at a tick, and the oracle's future), or None for a barrier that does not move.
     motions: Vec<Option<ActorMotion>>,
+    /// Per known barrier: its circle's centre relative to the actor's (a box's covering
+    /// circles), and whether it is the actor's first barrier (the one that stands for it).
+    offsets: Vec<[f64; 2]>,
+    primary: Vec<bool>,
     knowledge: ActorKnowledge,
     /// The tick time t and, per known barrier, the actor state observed then.
     now: f64,
@@ -332,6 +347,9 @@ impl ControlLoop {
                 moving: Vec::new(),
                 drift: vec![0.0; n],
                 zero_input: vec![0.0; r],
+                unit_input: vec![0.0; r],
+                column: vec![0.0; n],
+                point_input: vec![[0.0; 2]; r],
             },
             spare_states: Vec::new(),
             realize: PredictorWorkspace::new(n, r),
@@ -347,6 +365,8 @@ impl ControlLoop {
             known_barriers: Vec::new(),
             actors: KnownActors {
                 motions: Vec::new(),
+                offsets: Vec::new(),
+                primary: Vec::new(),
                 knowledge: ActorKnowledge::default(),
                 now: 0.0,
                 observed: Vec::new(),
@@ -469,20 +489,25 @@ impl ControlLoop {
         self.add_known(barrier, None);
     }
 
-    /// Makes a moving actor's barrier known (a planar ball around the actor, its centre where
-    /// the actor is at t = 0; outside the callback): the filters evaluate it with the actor
-    /// where the controller assumes it at each channel's prediction time.
-    pub fn add_moving_barrier(&mut self, barrier: Barrier, motion: ActorMotion) {
+    /// Makes a moving actor's barrier known (a planar circle about the actor's centre plus
+    /// `offset`, where the actor is at t = 0; outside the callback): the filters evaluate it
+    /// with the actor where the controller assumes it at each channel's prediction time. An
+    /// actor with several barriers (a box's covering circles, a footprint's) has one `primary`.
+    pub fn add_moving_barrier(&mut self, mut barrier: Barrier, motion: ActorMotion, offset: [f64; 2], primary: bool) {
         assert!(
-            matches!(&barrier.shape, crate::barrier::Shape::Ball { indices, .. } if indices.len() == 2),
-            "a moving actor's barrier is a planar ball"
+            barrier.planar_centre_mut().is_some(),
+            "a moving actor's barrier is a planar circle"
         );
         self.add_known(barrier, Some(motion));
+        *self.actors.offsets.last_mut().expect("just added") = offset;
+        *self.actors.primary.last_mut().expect("just added") = primary;
     }
 
     fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>) {
         self.work.law.moving.push(motion.as_ref().map(|_| barrier.clone()));
         self.actors.motions.push(motion);
+        self.actors.offsets.push([0.0; 2]);
+        self.actors.primary.push(false);
         self.actors.observed.push(ActorState::default());
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
@@ -496,10 +521,12 @@ impl ControlLoop {
     }
 
     /// An actor's trigger fired at `time`: the controller's copy of its motion follows (from
-    /// the next tick on, the actor is observed braking, walking, …).
+    /// the next tick on, the actor is observed braking, walking, …). `name` is the obstacle's:
+    /// its barriers are named as it or `<name>/<i>-<j>`.
     pub fn actor_triggered(&mut self, name: &str, time: f64) {
         for (b, m) in self.known_barriers.iter().zip(&mut self.actors.motions) {
-            if let (true, Some(m)) = (b.name == name, m) {
+            let ours = b.name == name || b.name.strip_prefix(name).is_some_and(|rest| rest.starts_with('/'));
+            if let (true, Some(m)) = (ours, m) {
                 m.set_triggered_at(time);
             }
         }
@@ -508,10 +535,12 @@ impl ControlLoop {
     /// The known moving actors: (barrier name, true motion), in the order of
     /// [`Consistency::actors_predicted`].
     pub fn moving_actors(&self) -> impl Iterator<Item = (&str, &ActorMotion)> {
-        self.known_barriers
+        (self
+            .known_barriers
             .iter()
             .zip(&self.actors.motions)
-            .filter_map(|(b, m)| m.as_ref().map(|m| (b.name.as_str(), m)))
+            .zip(&self.actors.primary))
+        .filter_map(|((b, m), &primary)| m.as_ref().filter(|_| primary).map(|m| (b.name.as_str(), m)))
     }
 
     pub fn known_barriers(&self) -> &[Barrier] {
@@ -708,7 +737,7 @@ impl ControlLoop {
                 let mut assumed = spare_actor_positions.pop().unwrap_or_default();
                 assumed.clear();
                 for (k, m) in laws.actors.motions.iter().enumerate() {
-                    if let Some(m) = m {
+                    if let (Some(m), true) = (m, laws.actors.primary[k]) {
                         assumed.extend_from_slice(&laws.actors.assumed(m, k, p.target_time).position);
                     }
                 }

@@ -36,12 +36,18 @@ pub enum EpisodeError {
     Mujoco(#[from] MjError),
 }
 
-/// An obstacle of the episode: its barrier, whether the controller knows it, contact state.
+/// An obstacle of the episode: its barriers, whether the controller knows it, contact state.
 #[derive(Debug, Clone)]
 struct Obstacle {
-    barrier: Barrier,
-    /// The obstacle's own radius (the barrier's r also includes the hull).
-    radius: f64,
+    name: String,
+    /// One barrier (4.81) per (vehicle circle, obstacle circle) pair: a circle obstacle and
+    /// the hull have one, named as the obstacle (docs/actors.md, "Footprints").
+    barriers: Vec<Barrier>,
+    /// Per barrier, its obstacle circle's centre relative to the obstacle's (world frame).
+    offsets: Vec<[f64; 2]>,
+    /// The obstacle's true centre now.
+    centre: [f64; 2],
+    outline: Outline,
     appear_at: f64,
     known: bool,
     in_contact: bool,
@@ -49,6 +55,13 @@ struct Obstacle {
     contact_depth: f64,
     /// A moving obstacle's true motion (its barrier's centre follows it at every step).
     motion: Option<crate::actor::ActorMotion>,
+}
+
+/// An obstacle's own shape (its barriers' r also include the vehicle's circles).
+#[derive(Debug, Clone, Copy)]
+enum Outline {
+    Circle { radius: f64 },
+    Box { length: f64, width: f64, heading: f64 },
 }
 
 /// Result of a finished (or stopped) episode.
@@ -105,7 +118,7 @@ pub struct Episode {
     /// Scratch space of the logged barrier constraints (one evaluation per barrier and step).
     lie: barrier::LieWorkspace,
     constraint: barrier::Constraint,
-    /// The obstacles' barriers, for the plant's contact check.
+    /// The obstacles' barriers, for the plant's contact check (each obstacle's in a row).
     obstacle_barriers: Vec<Barrier>,
     /// Per-step scratch: penetration depth per obstacle, ẋ for the logged velocity.
     depths: Vec<Option<f64>>,
@@ -147,7 +160,7 @@ impl Episode {
         barriers.extend(build::road_edges(loaded, model.as_ref(), parts.hull_radius, &x0)?);
         let every_barrier: Vec<Barrier> = barriers
             .iter()
-            .chain(obstacles.iter().map(|o| &o.barrier))
+            .chain(obstacles.iter().flat_map(|o| &o.barriers))
             .cloned()
             .collect();
         let filter = build::filter(
@@ -196,7 +209,7 @@ impl Episode {
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         let moving_names: Vec<String> = (obstacles.iter())
             .filter(|o| o.motion.is_some())
-            .map(|o| o.barrier.name.clone())
+            .map(|o| o.name.clone())
             .collect();
         if let Some(k) = loaded.scenario.actor_knowledge {
             control.set_actor_knowledge(k.kind);
@@ -204,7 +217,7 @@ impl Episode {
         Ok(Episode {
             plant,
             control,
-            obstacle_barriers: obstacles.iter().map(|o| o.barrier.clone()).collect(),
+            obstacle_barriers: obstacles.iter().flat_map(|o| o.barriers.iter().cloned()).collect(),
             obstacles,
             barriers,
             steps: build::steps(loaded, timestep),
@@ -217,6 +230,7 @@ impl Episode {
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(
                 hull_radius,
+                loaded.scenario.vehicle.footprint.map(|r| [r.length, r.width]),
                 path,
                 scene_lines,
                 model.channel_names(),
@@ -344,17 +358,19 @@ impl Episode {
         for (i, o) in self.obstacles.iter_mut().enumerate() {
             if !o.known && o.appear_at <= time + tolerance {
                 o.known = true;
-                match &o.motion {
-                    Some(motion) => {
-                        // The controller's barrier is widened by the margin on the actor's
-                        // predicted position (`actor_knowledge.margin`).
-                        let mut barrier = o.barrier.clone();
-                        if let crate::barrier::Shape::Ball { radius, .. } = &mut barrier.shape {
-                            *radius += self.actor_margin;
+                for (k, (b, &offset)) in o.barriers.iter().zip(&o.offsets).enumerate() {
+                    match &o.motion {
+                        Some(motion) => {
+                            // The controller's barrier is widened by the margin on the actor's
+                            // predicted position (`actor_knowledge.margin`).
+                            let mut barrier = b.clone();
+                            if let Some(radius) = barrier.radius_mut() {
+                                *radius += self.actor_margin;
+                            }
+                            self.control.add_moving_barrier(barrier, motion.clone(), offset, k == 0);
                         }
-                        self.control.add_moving_barrier(barrier, motion.clone());
+                        None => self.control.add_barrier(b.clone()),
                     }
-                    None => self.control.add_barrier(o.barrier.clone()),
                 }
                 revealed.push(i);
             }
@@ -376,18 +392,21 @@ impl Episode {
         let position = self.control.model().planar_position();
         m.time = time;
         let mut entries = m.actors.iter_mut();
-        for (index, (o, barrier)) in self.obstacles.iter_mut().zip(&mut self.obstacle_barriers).enumerate() {
+        let mut first = 0;
+        for (index, o) in self.obstacles.iter_mut().enumerate() {
+            let pairs = first..first + o.barriers.len();
+            first = pairs.end;
             let Some(motion) = &mut o.motion else {
                 continue;
             };
             if let Some([i, j]) = position {
                 if motion.check_trigger(time, [x[i], x[j]]) {
-                    self.control.actor_triggered(&o.barrier.name, time);
+                    self.control.actor_triggered(&o.name, time);
                     let message = format!(
                         "{} starts its motion profile (the vehicle came within its trigger distance)",
-                        o.barrier.name
+                        o.name
                     );
-                    let event = Self::event(time, "actor_triggered", message, vec![o.barrier.name.clone()], 0.0);
+                    let event = Self::event(time, "actor_triggered", message, vec![o.name.clone()], 0.0);
                     for sink in sinks.iter_mut() {
                         sink.record(&event)?;
                     }
@@ -395,10 +414,14 @@ impl Episode {
             }
             let state = motion.state_at(time);
             self.plant.move_obstacle(index, state.position);
-            for b in [&mut o.barrier, barrier] {
-                if let crate::barrier::Shape::Ball { centre, .. } = &mut b.shape {
-                    centre[0] = state.position[0];
-                    centre[1] = state.position[1];
+            o.centre = state.position;
+            let copies = &mut self.obstacle_barriers[pairs];
+            for ((b, copy), offset) in o.barriers.iter_mut().zip(copies).zip(&o.offsets) {
+                for b in [&mut *b, copy] {
+                    if let Some(centre) = b.planar_centre_mut() {
+                        centre[0] = state.position[0] + offset[0];
+                        centre[1] = state.position[1] + offset[1];
+                    }
                 }
             }
             if let Some(entry) = entries.next() {
@@ -430,10 +453,10 @@ impl Episode {
             self.move_actors(sinks, time, &x)?;
             for i in self.reveal_obstacles(time) {
                 let o = &self.obstacles[i];
-                let message = format!("{} becomes known to the controller", o.barrier.name);
+                let message = format!("{} becomes known to the controller", o.name);
                 Self::emit(
                     sinks,
-                    Self::event(time, "obstacle_appeared", message, vec![o.barrier.name.clone()], 0.0),
+                    Self::event(time, "obstacle_appeared", message, vec![o.name.clone()], 0.0),
                 )?;
                 Self::emit(sinks, obstacle_scene(time, o))?;
             }
@@ -580,13 +603,17 @@ impl Episode {
         )
     }
 
-    /// Collision start/end events from the plant's penetrations of the obstacles.
+    /// Collision start/end events from the plant's penetrations of the obstacles (an
+    /// obstacle's: its pairs' deepest; a collision is any pair with negative clearance).
     fn check_contacts(&mut self, sinks: &mut [&mut dyn Sink], time: f64) -> Result<(), LogError> {
         if self.obstacles.is_empty() {
             return Ok(());
         }
         self.plant.penetrations(&self.obstacle_barriers, &mut self.depths);
-        for (o, &depth) in self.obstacles.iter_mut().zip(&self.depths) {
+        let mut pairs = self.depths.iter();
+        for o in self.obstacles.iter_mut() {
+            let depth = (pairs.by_ref().take(o.barriers.len()).flatten())
+                .fold(None, |deepest: Option<f64>, &d| Some(deepest.map_or(d, |m| m.max(d))));
             let touching = depth.is_some();
             if let Some(d) = depth {
                 o.contact_depth = o.contact_depth.max(d);
@@ -595,23 +622,20 @@ impl Episode {
                 continue;
             }
             o.in_contact = touching;
-            let participants = vec!["vehicle".to_string(), o.barrier.name.clone()];
+            let participants = vec!["vehicle".to_string(), o.name.clone()];
             // collision_start carries the depth at first contact, collision_end the deepest
             // penetration of the whole contact.
             let record = if touching {
                 Self::event(
                     time,
                     "collision_start",
-                    format!("vehicle hull touches {}", o.barrier.name),
+                    format!("vehicle hull touches {}", o.name),
                     participants,
                     o.contact_depth,
                 )
             } else {
                 let deepest = std::mem::take(&mut o.contact_depth);
-                let message = format!(
-                    "vehicle hull clear of {} (deepest penetration {deepest:.4} m)",
-                    o.barrier.name
-                );
+                let message = format!("vehicle hull clear of {} (deepest penetration {deepest:.4} m)", o.name);
                 Self::event(time, "collision_end", message, participants, deepest)
             };
             Self::emit(sinks, record)?;
@@ -628,9 +652,9 @@ impl Episode {
             let deepest = std::mem::take(&mut o.contact_depth);
             let message = format!(
                 "the episode ended with the vehicle hull still touching {} (deepest penetration {deepest:.4} m)",
-                o.barrier.name
+                o.name
             );
-            let participants = vec!["vehicle".to_string(), o.barrier.name.clone()];
+            let participants = vec!["vehicle".to_string(), o.name.clone()];
             Self::emit(
                 sinks,
                 Self::event(time, "collision_end", message, participants, deepest),

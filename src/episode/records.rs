@@ -5,7 +5,7 @@
 use nalgebra::DVector;
 
 use super::control::{Consistency, ControlLoop, Tick};
-use super::{Episode, Obstacle};
+use super::{Episode, Obstacle, Outline};
 use crate::barrier::Barrier;
 use crate::log::{proto, scene, LogError, Record, Sink};
 
@@ -116,7 +116,7 @@ impl RecordBuffers {
             let Some(motion) = &o.motion else { continue };
             let truth = motion.state_at(c.prediction.target_time).position;
             let assumed = (control.moving_actors().take(known))
-                .position(|(name, _)| name == o.barrier.name)
+                .position(|(name, _)| name == o.barriers[0].name)
                 .map_or([f64::NAN; 2], |k| {
                     [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
                 });
@@ -176,6 +176,8 @@ pub(super) struct SceneLine {
 /// What the Foxglove 3D view needs beyond the state.
 pub(super) struct SceneState {
     pub(super) hull_radius: f64,
+    /// The vehicle's footprint (length, width), drawn instead of the hull.
+    footprint: Option<[f64; 2]>,
     /// A straight reference path (point, heading, distance the reference speed covers in the
     /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
     /// fitting their view to the scene show the episode, not a 400 m line).
@@ -214,6 +216,7 @@ pub(super) struct ActorView {
 impl SceneState {
     pub(super) fn new(
         hull_radius: f64,
+        footprint: Option<[f64; 2]>,
         path: Option<([f64; 2], f64, f64)>,
         lines: Vec<SceneLine>,
         channels: &[String],
@@ -222,6 +225,7 @@ impl SceneState {
         let scene = || Record::Scene(0.0, Default::default());
         SceneState {
             hull_radius,
+            footprint,
             path,
             lines,
             trail: Vec::new(),
@@ -333,7 +337,10 @@ impl Episode {
         let hull_radius = self.scene.hull_radius;
         if let Record::Scene(t, update) = &mut self.scene.vehicle {
             *t = time;
-            scene::vehicle_into(update, time, position, heading, hull_radius);
+            match self.scene.footprint {
+                Some(size) => scene::footprint_vehicle_into(update, time, position, heading, size),
+                None => scene::vehicle_into(update, time, position, heading, hull_radius),
+            }
         }
         Self::emit_ref(sinks, &self.scene.vehicle)?;
         self.emit_actors(sinks, k, time)?;
@@ -386,7 +393,7 @@ impl Episode {
                     trail_segments: 0,
                     predictions: (channels.iter())
                         .map(|c| {
-                            let id = format!("actor_prediction/{}/{c}", o.barrier.name);
+                            let id = format!("actor_prediction/{}/{c}", o.name);
                             (id, Record::Scene(time, Default::default()))
                         })
                         .collect(),
@@ -397,20 +404,27 @@ impl Episode {
         let last_frame = k + self.scene.frame_steps > self.steps;
         for view in &mut self.scene.actors {
             let o = &self.obstacles[view.obstacle];
-            let centre = match &o.barrier.shape {
-                crate::barrier::Shape::Ball { centre, .. } => [centre[0], centre[1]],
-                _ => continue,
+            let centre = o.centre;
+            // A box's predicted position is drawn as the ring around it.
+            let radius = match o.outline {
+                Outline::Circle { radius } => radius,
+                Outline::Box { length, width, .. } => 0.5 * length.hypot(width),
             };
             if k > 0 {
-                if let Record::Scene(t, update) = &mut view.record {
-                    *t = time;
-                    scene::obstacle_into(update, time, &o.barrier.name, centre, o.radius, o.known);
+                match o.outline {
+                    Outline::Circle { radius } => {
+                        if let Record::Scene(t, update) = &mut view.record {
+                            *t = time;
+                            scene::obstacle_into(update, time, &o.name, centre, radius, o.known);
+                        }
+                    }
+                    Outline::Box { .. } => view.record = obstacle_scene(time, o),
                 }
                 Self::emit_ref(sinks, &view.record)?;
             }
             for (channel, assumed) in self.control.latest_actor_predictions() {
                 let mut known = self.control.moving_actors().take(assumed.len() / 2);
-                let Some(a) = known.position(|(name, _)| name == o.barrier.name) else {
+                let Some(a) = known.position(|(name, _)| name == o.barriers[0].name) else {
                     continue;
                 };
                 let Some((id, record)) = view.predictions.get_mut(channel) else {
@@ -419,7 +433,7 @@ impl Episode {
                 if let Record::Scene(t, update) = record {
                     *t = time;
                     let to = [assumed[2 * a], assumed[2 * a + 1]];
-                    scene::prediction_into(update, time, id, centre, to, o.radius);
+                    scene::prediction_into(update, time, id, centre, to, radius);
                 }
                 Self::emit_ref(sinks, record)?;
             }
@@ -427,7 +441,7 @@ impl Episode {
                 view.trail.push(centre);
                 let points = view.trail.len();
                 if points > TRAIL_PUBLISH_EVERY_POINTS || (last_frame && points >= 2) {
-                    let id = format!("actor_trail/{}/{}", o.barrier.name, view.trail_segments);
+                    let id = format!("actor_trail/{}/{}", o.name, view.trail_segments);
                     let trail = scene::polyline(time, &id, &view.trail, scene::TRAIL, 0.1);
                     Self::emit(sinks, Record::Scene(time, trail))?;
                     view.trail_segments += 1;
@@ -518,7 +532,10 @@ impl Episode {
         let entries = self
             .obstacles
             .iter()
-            .map(|o| (&o.barrier, o.known, true, o.motion.as_ref().map(|m| m.state_at(time))))
+            .flat_map(|o| {
+                let actor = o.motion.as_ref().map(|m| m.state_at(time));
+                o.barriers.iter().map(move |b| (b, o.known, true, actor))
+            })
             .chain(self.barriers.iter().map(|b| (b, true, false, None)));
         // World velocity of the planar position (for time-to-collision): ṗ from the model.
         let velocity = model.planar_position().map(|[i, j]| {
@@ -529,7 +546,7 @@ impl Episode {
             unreachable!("records.barrier holds a barrier record")
         };
         record.time = time;
-        let count = self.obstacles.len() + self.barriers.len();
+        let count = self.obstacle_barriers.len() + self.barriers.len();
         if record.barriers.len() != count {
             record.barriers = entries
                 .clone()
@@ -547,7 +564,18 @@ impl Episode {
                 // (ṗ: at relative degree 2 no input reaches the position, so the velocity
                 // with the applied input is the drift.)
                 if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
-                    crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor);
+                    match &b.shape {
+                        crate::barrier::Shape::BodyCircle { .. } => {
+                            let body = BodyTerms::new(model, b, x.as_slice(), &mut self.xdot);
+                            crate::actor::add_point_motion_terms(
+                                constraint_data,
+                                form,
+                                (body.q, body.q_drift, &body.q_input[..model.input_dim().min(4)]),
+                                actor,
+                            );
+                        }
+                        _ => crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor),
+                    }
                 }
                 (constraint_data.value(applied), form.relative_degree())
             });
@@ -567,6 +595,18 @@ impl Episode {
                         ..
                     },
                 ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
+                // A body circle's point q, moving at q̇ (with the applied input).
+                (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
+                    model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
+                    match b.point_and_velocity(x.as_slice(), &self.xdot) {
+                        Some((q, q_dot)) => {
+                            let relative =
+                                actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
+                            time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, *radius)
+                        }
+                        None => f64::NAN,
+                    }
+                }
                 _ => f64::NAN,
             };
             *value = proto::BarrierValue {
@@ -603,13 +643,41 @@ fn time_to_contact(d: [f64; 2], v: [f64; 2], r: f64) -> f64 {
     (-b - discriminant.sqrt()) / (2.0 * a)
 }
 
-/// An obstacle as a Foxglove entity (grey until known, red after).
+/// An obstacle as a Foxglove entity (grey until known, red after): a cylinder, or a box's cube.
 pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
-    let (centre, radius) = match &o.barrier.shape {
-        crate::barrier::Shape::Ball { centre, .. } => ([centre[0], centre[1]], o.radius),
-        _ => ([0.0, 0.0], o.radius),
+    let update = match o.outline {
+        Outline::Circle { radius } => scene::obstacle(time, &o.name, o.centre, radius, o.known),
+        Outline::Box { length, width, heading } => {
+            scene::box_obstacle(time, &o.name, o.centre, heading, [length, width], o.known)
+        }
     };
-    Record::Scene(time, scene::obstacle(time, &o.barrier.name, centre, radius, o.known))
+    Record::Scene(time, update)
+}
+
+/// A body circle's point q = p + R(θ) c, its drift ∂q/∂x f and ∂q/∂x G_j per channel (up to
+/// four), for the motion terms of a moving actor ([`crate::actor::add_point_motion_terms`]).
+struct BodyTerms {
+    q: [f64; 2],
+    q_drift: [f64; 2],
+    q_input: [[f64; 2]; 4],
+}
+
+impl BodyTerms {
+    fn new(model: &dyn crate::dynamics::Dynamics, b: &Barrier, x: &[f64], xdot: &mut [f64]) -> BodyTerms {
+        let r = model.input_dim();
+        let mut unit = [0.0; 4];
+        model.dynamics_into(x, &unit[..r.min(4)], xdot);
+        let (q, q_drift) = b.point_and_velocity(x, xdot).expect("a body circle");
+        let mut q_input = [[0.0; 2]; 4];
+        for (j, out) in q_input.iter_mut().enumerate().take(r) {
+            unit = [0.0; 4];
+            unit[j] = 1.0;
+            xdot.fill(0.0);
+            model.add_input_term(x, &unit[..r], xdot);
+            *out = b.point_and_velocity(x, xdot).expect("a body circle").1;
+        }
+        BodyTerms { q, q_drift, q_input }
+    }
 }
 
 #[cfg(test)]

@@ -104,6 +104,37 @@ pub fn vehicle_into(update: &mut SceneUpdate, time: f64, position: [f64; 2], hea
     });
 }
 
+/// `update` ← the vehicle as its footprint: a cube of `size` (length, width) centred at its
+/// planar position along its heading (reusing the buffers as [`vehicle_into`]).
+pub fn footprint_vehicle_into(update: &mut SceneUpdate, time: f64, position: [f64; 2], heading: f64, size: [f64; 2]) {
+    let shaped =
+        matches!(update.entities.as_slice(), [e] if e.id == "vehicle" && e.cylinders.is_empty() && e.cubes.len() == 1);
+    if !shaped {
+        let mut e = entity(time, "vehicle");
+        e.cubes.push(CubePrimitive {
+            pose: None,
+            size: Some(Vector3 {
+                x: size[0],
+                y: size[1],
+                z: 0.4,
+            }),
+            color: Some(Color {
+                r: 0.2,
+                g: 0.4,
+                b: 0.9,
+                a: 0.8,
+            }),
+        });
+        *update = SceneUpdate {
+            deletions: vec![],
+            entities: vec![e],
+        };
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
+    e.cubes[0].pose = Some(pose(position[0], position[1], 0.2, heading));
+}
+
 /// A polyline in the world frame (trail, reference path).
 pub fn polyline(time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: f64) -> SceneUpdate {
     lines(time, id, points, color, thickness, false)
@@ -189,6 +220,23 @@ fn obstacle_color(known: bool) -> Color {
             a: 0.5,
         }
     }
+}
+
+/// A box obstacle of `size` (length, width) along `heading`: grey while unknown, red once known.
+pub fn box_obstacle(time: f64, name: &str, centre: [f64; 2], heading: f64, size: [f64; 2], known: bool) -> SceneUpdate {
+    let mut update = obstacle(time, name, centre, 0.0, known);
+    let e = &mut update.entities[0];
+    let cylinder = e.cylinders.pop().expect("one cylinder");
+    e.cubes.push(CubePrimitive {
+        pose: Some(pose(centre[0], centre[1], 0.5, heading)),
+        size: Some(Vector3 {
+            x: size[0],
+            y: size[1],
+            z: 1.0,
+        }),
+        color: cylinder.color,
+    });
+    update
 }
 
 /// A predicted position p_i(t) of the vehicle: a flat ring of the hull radius (orange) and a

@@ -1,0 +1,212 @@
+//! Rectangular footprints as covering circles (pure geometry; docs/actors.md, "Footprints"):
+//! a body L × W (length along its heading) is covered by n circles of radius
+//! ρ = √((L/2n)² + (W/2)²) centred on its long axis at −L/2 + (2k − 1) L/2n, k = 1…n. Each
+//! circle of the vehicle against each circle of an obstacle is one barrier (4.81): smooth, its
+//! distance in closed form, conservative by at most ρ − W/2 beside the body (ellipses are
+//! tighter, but the distance between two has no closed form).
+
+use serde::{Deserialize, Serialize};
+
+/// Most covering circles of one body.
+pub const MAX_CIRCLES: usize = 8;
+
+/// A rectangle L × W (m), length along the body's heading.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rectangle {
+    pub length: f64,
+    pub width: f64,
+    /// Covering circles (default [`Rectangle::default_circles`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub circles: Option<usize>,
+}
+
+/// A footprint that cannot be used: the key and what was expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key}: {message}")]
+pub struct FootprintError {
+    pub key: &'static str,
+    pub message: String,
+}
+
+/// One covering circle: its centre in the body frame (along, across the heading) and radius.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Circle {
+    pub offset: [f64; 2],
+    pub radius: f64,
+}
+
+impl Rectangle {
+    /// The rule when `circles` is not given: n = ⌈L/W⌉ (at least 1, at most [`MAX_CIRCLES`]),
+    /// each circle covering a piece of length L/n ≤ W, so ρ ≤ W/√2.
+    pub fn default_circles(&self) -> usize {
+        ((self.length / self.width).ceil() as usize).clamp(1, MAX_CIRCLES)
+    }
+
+    /// Finite positive sides at most `extent`, and 1…[`MAX_CIRCLES`] circles.
+    pub fn check(&self, extent: f64) -> Result<(), FootprintError> {
+        for (key, v) in [("length", self.length), ("width", self.width)] {
+            if !(v.is_finite() && v > 0.0 && v <= extent) {
+                return Err(FootprintError {
+                    key,
+                    message: format!("expected a positive length (m) up to {extent:e}, found {v}"),
+                });
+            }
+        }
+        if let Some(n) = self.circles {
+            if !(1..=MAX_CIRCLES).contains(&n) {
+                return Err(FootprintError {
+                    key: "circles",
+                    message: format!("expected 1 to {MAX_CIRCLES} covering circles, found {n}"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The covering circles, rear to front.
+    pub fn circles(&self) -> Vec<Circle> {
+        let n = self.circles.unwrap_or_else(|| self.default_circles());
+        let piece = self.length / n as f64;
+        let radius = (0.25 * piece * piece + 0.25 * self.width * self.width).sqrt();
+        (1..=n)
+            .map(|k| Circle {
+                offset: [-0.5 * self.length + (k as f64 - 0.5) * piece, 0.0],
+                radius,
+            })
+            .collect()
+    }
+
+    /// How far the circles reach beyond the sides at most: ρ − W/2.
+    pub fn overreach(&self) -> f64 {
+        self.circles()[0].radius - 0.5 * self.width
+    }
+}
+
+/// R(θ) c: a body-frame offset in the world frame.
+#[inline]
+pub fn rotate(offset: [f64; 2], heading: f64) -> [f64; 2] {
+    let (s, c) = heading.sin_cos();
+    [c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]]
+}
+
+/// Whether two rectangles (centre, heading, length, width) overlap: the separating axis test
+/// over the four edge normals (exact; for checks of the covering circles).
+pub fn rectangles_overlap(a: ([f64; 2], f64, f64, f64), b: ([f64; 2], f64, f64, f64)) -> bool {
+    let corners = |(c, h, l, w): ([f64; 2], f64, f64, f64)| {
+        [[0.5, 0.5], [0.5, -0.5], [-0.5, -0.5], [-0.5, 0.5]].map(|[u, v]| {
+            let r = rotate([u * l, v * w], h);
+            [c[0] + r[0], c[1] + r[1]]
+        })
+    };
+    let (ca, cb) = (corners(a), corners(b));
+    for heading in [
+        a.1,
+        a.1 + std::f64::consts::FRAC_PI_2,
+        b.1,
+        b.1 + std::f64::consts::FRAC_PI_2,
+    ] {
+        let (s, c) = heading.sin_cos();
+        let span = |pts: &[[f64; 2]; 4]| {
+            pts.iter()
+                .map(|p| p[0] * c + p[1] * s)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+        };
+        let ((a0, a1), (b0, b1)) = (span(&ca), span(&cb));
+        if a1 < b0 || b1 < a0 {
+            return false;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn circles_cover_the_rectangle_and_reach_at_most_rho_minus_half_width_beyond() {
+        for (l, w, n) in [
+            (4.6, 1.8, None),
+            (4.02, 1.71, None),
+            (1.0, 2.0, None),
+            (4.6, 1.8, Some(5)),
+        ] {
+            let r = Rectangle {
+                length: l,
+                width: w,
+                circles: n,
+            };
+            let circles = r.circles();
+            assert_eq!(circles.len(), n.unwrap_or((l / w).ceil() as usize));
+            // Every point of the rectangle on a fine grid is inside some circle.
+            for i in 0..=200 {
+                for j in 0..=50 {
+                    let p = [-0.5 * l + l * i as f64 / 200.0, -0.5 * w + w * j as f64 / 50.0];
+                    let inside = circles
+                        .iter()
+                        .any(|c| (p[0] - c.offset[0]).hypot(p[1] - c.offset[1]) <= c.radius + 1e-12);
+                    assert!(inside, "{p:?} of {l} x {w}");
+                }
+            }
+            // The circles' lateral reach is exactly ρ = W/2 + overreach.
+            assert!((circles[0].radius - 0.5 * w - r.overreach()).abs() < 1e-15);
+        }
+        // 4.6 x 1.8: n = 3, ρ = √(0.767² + 0.9²) ≈ 1.182.
+        let car = Rectangle {
+            length: 4.6,
+            width: 1.8,
+            circles: None,
+        };
+        assert_eq!(car.circles().len(), 3);
+        assert!((car.circles()[0].radius - 1.182276).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_rectangles_are_refused_with_the_key() {
+        let ok = Rectangle {
+            length: 4.0,
+            width: 2.0,
+            circles: None,
+        };
+        assert!(ok.check(1e9).is_ok());
+        for (r, key) in [
+            (Rectangle { length: 0.0, ..ok }, "length"),
+            (Rectangle { width: f64::NAN, ..ok }, "width"),
+            (Rectangle { length: 2e9, ..ok }, "length"),
+            (Rectangle { circles: Some(0), ..ok }, "circles"),
+            (Rectangle { circles: Some(9), ..ok }, "circles"),
+        ] {
+            assert_eq!(r.check(1e9).unwrap_err().key, key);
+        }
+    }
+
+    #[test]
+    fn separating_axes_agree_with_sampled_points() {
+        let a = ([0.0, 0.0], 0.3, 4.6, 1.8);
+        let mut agree = 0;
+        for k in 0..400 {
+            let s = k as f64;
+            let b = ([4.0 * (0.37 * s).sin(), 3.0 * (0.53 * s).cos()], 0.7 * s, 4.02, 1.71);
+            // Independent: any sampled point of b inside a, or of a inside b.
+            let inside = |p: [f64; 2], (c, h, l, w): ([f64; 2], f64, f64, f64)| {
+                let q = rotate([p[0] - c[0], p[1] - c[1]], -h);
+                q[0].abs() <= 0.5 * l && q[1].abs() <= 0.5 * w
+            };
+            let sample = |r: ([f64; 2], f64, f64, f64), other| {
+                (0..=60).any(|i| {
+                    (0..=30).any(|j| {
+                        let o = rotate([r.2 * (i as f64 / 60.0 - 0.5), r.3 * (j as f64 / 30.0 - 0.5)], r.1);
+                        inside([r.0[0] + o[0], r.0[1] + o[1]], other)
+                    })
+                })
+            };
+            let sampled = sample(a, b) || sample(b, a);
+            let exact = rectangles_overlap(a, b);
+            // Sampling can miss a sliver of overlap, never invent one.
+            assert!(!sampled || exact, "{b:?}");
+            agree += usize::from(sampled == exact);
+        }
+        assert!(agree >= 390, "{agree}");
+    }
+}
