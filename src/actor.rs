@@ -802,6 +802,7 @@ mod tests {
     #[test]
     fn body_circle_motion_terms_match_finite_differences() {
         let tr = Trajectory::new(&StraightMotion {
+            waypoints: Vec::new(),
             start: [6.0, 3.0],
             direction: [-1.0, 0.2],
             speed: 2.0,
