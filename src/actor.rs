@@ -483,6 +483,18 @@ pub fn add_point_motion_terms(
     }
 }
 
+/// Adds to `c` — the constraint of a headway barrier h = (o_x − rear) − p − D_sf − T v with
+/// the lead frozen at o — the terms of the lead's motion along x: ∂h/∂t = ȯ_x (relative
+/// degree 1: a += ȯ_x); at relative degree 2, ḧ gains ∂²h/∂t² = ö_x (∂h/∂t does not depend on
+/// the state) and l1 ḣ gains l1 ȯ_x.
+pub fn add_headway_motion_terms(c: &mut Constraint, form: BarrierForm, actor: &ActorState) {
+    let (ov, oa) = (actor.velocity[0], actor.acceleration[0]);
+    match form {
+        BarrierForm::RelativeDegree1 { .. } => c.a += ov,
+        BarrierForm::RelativeDegree2 { l1, .. } => c.a += oa + l1 * ov,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use nalgebra::DVector;

@@ -36,6 +36,19 @@ pub enum Shape {
         centre: [f64; 2],
         radius: f64,
     },
+    /// Car following behind a lead on the line (Molnar et al., arXiv 2112.08445):
+    /// h = D − D_sf − T v with the gap D = `lead` − `rear` − p, p = `x[position]` (the
+    /// vehicle's front), v = `x[speed]`, `rear` the lead's rear from its centre `lead`.
+    /// Built by the episode from an obstacle's `following`, not a scenario key.
+    #[serde(skip)]
+    Headway {
+        position: usize,
+        speed: usize,
+        lead: f64,
+        rear: f64,
+        standstill: f64,
+        time_headway: f64,
+    },
 }
 
 /// The point q = p + R(θ) c of a body circle and w = ∂q/∂θ = R'(θ) c = (−(Rc)_y, (Rc)_x).
@@ -96,6 +109,23 @@ impl Barrier {
         }
     }
 
+    /// Moves the actor a barrier is about to `centre` (a circle's centre, or a headway
+    /// barrier's lead to `centre`'s x); false for a barrier about no actor.
+    pub fn move_actor(&mut self, centre: [f64; 2]) -> bool {
+        if let Shape::Headway { lead, .. } = &mut self.shape {
+            *lead = centre[0];
+            return true;
+        }
+        match self.planar_centre_mut() {
+            Some(c) => {
+                c[0] = centre[0];
+                c[1] = centre[1];
+                true
+            }
+            None => false,
+        }
+    }
+
     /// The radius r of a ball or a body circle.
     pub fn radius_mut(&mut self) -> Option<&mut f64> {
         match &mut self.shape {
@@ -134,6 +164,7 @@ impl Barrier {
             Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
             Shape::Quadratic { q, c, .. } => q.len().max(c.len()).saturating_sub(1),
             Shape::BodyCircle { position, heading, .. } => position[0].max(position[1]).max(*heading),
+            Shape::Headway { position, speed, .. } => (*position).max(*speed),
         }
     }
 
@@ -176,6 +207,14 @@ impl Barrier {
                 let (q, _) = body_point(position, heading, offset, x);
                 (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) - radius * radius
             }
+            &Shape::Headway {
+                position,
+                speed,
+                lead,
+                rear,
+                standstill,
+                time_headway,
+            } => lead - rear - x[position] - standstill - time_headway * x[speed],
         }
     }
 
@@ -216,6 +255,10 @@ impl Barrier {
                 let (q, _) = body_point(position, heading, offset, x.as_slice());
                 (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius
             }
+            // The gap D between the vehicle's front and the lead's rear.
+            &Shape::Headway {
+                position, lead, rear, ..
+            } => lead - rear - x[position],
         }
     }
 
@@ -272,6 +315,15 @@ impl Barrier {
                 g[position[1]] = 2.0 * d[1];
                 g[heading] += 2.0 * (d[0] * w[0] + d[1] * w[1]);
             }
+            &Shape::Headway {
+                position,
+                speed,
+                time_headway,
+                ..
+            } => {
+                g[position] = -1.0;
+                g[speed] -= time_headway;
+            }
         }
     }
 
@@ -293,7 +345,7 @@ impl Barrier {
                     }
                 }
             }
-            Shape::HalfSpace { .. } => {}
+            Shape::HalfSpace { .. } | Shape::Headway { .. } => {}
             // ∂²h/∂p² = 2I, ∂²h/∂p∂θ = 2w, ∂²h/∂θ² = 2(‖w‖² + d·R''c) = 2(‖c‖² − d·Rc).
             &Shape::BodyCircle {
                 position,

@@ -354,6 +354,22 @@ pub struct ObstacleSpec {
     /// then its position at t = 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub motion: Option<MotionSpec>,
+    /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
+    /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
+    /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
+    /// x less `radius`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub following: Option<FollowingSpec>,
+}
+
+/// The headway barrier of a lead (Molnar et al., arXiv 2112.08445: D_sf = 3 m, T = 2 s).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FollowingSpec {
+    /// D_sf, the gap kept at standstill (m).
+    pub standstill: f64,
+    /// T, the time headway (s).
+    pub time_headway: f64,
 }
 
 /// An obstacle's shape other than a circle (`shape = { kind = "box", … }`).
@@ -1200,7 +1216,7 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                     && d.is_finite()
             }
             // Not a scenario key (`#[serde(skip)]`): built by the episode.
-            Shape::BodyCircle { .. } => false,
+            Shape::BodyCircle { .. } | Shape::Headway { .. } => false,
         };
         if !ok {
             return Err(s.field_error(
@@ -1256,6 +1272,22 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
         }
         if let Some(m) = &o.motion {
             validate_motion(s, i, o, m)?;
+        }
+        if let Some(f) = &o.following {
+            for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {
+                if !(v.is_finite() && (0.0..=OBSTACLE_EXTENT).contains(&v)) {
+                    return Err(s.field_error(
+                        &format!("obstacles.{i}.following.{key}"),
+                        format!("expected a finite value >= 0, found {v}"),
+                    ));
+                }
+            }
+            if o.shape.is_some() {
+                return Err(s.field_error(
+                    &format!("obstacles.{i}.following"),
+                    "a lead is a `radius` (half its length), not a `shape`",
+                ));
+            }
         }
     }
     if let Some(k) = &sc.actor_knowledge {

@@ -299,3 +299,70 @@ fn actor_keys_are_falsify_ranges() {
     let m = analyze_json(&log);
     assert!(collided(&m) || m["min_h"].as_f64().unwrap() < 0.0, "{m}");
 }
+
+#[test]
+fn molnar_truck_keeps_its_headway_when_it_predicts_the_lead_as_it_brakes() {
+    // h = D − 3 − 2 v behind a lead braking at up to 10 m/s², input delay 0.5 s. The nominal
+    // alone drives into the lead; the predictor CBF-QP (2.26) keeps h ≥ 0 when it extrapolates
+    // the lead's acceleration or knows its future, and not when it extrapolates its velocity
+    // (the lead's braking over the delay is missed) or does not compensate the delay.
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, sets: &[&str]| outcome("molnar_truck.toml", &dir.path().join(name), sets);
+    let m = run("nominal.mcap", &["filter={kind=\"none\"}"]);
+    assert!(collided(&m), "{m}");
+    let min_h = |m: &serde_json::Value| m["min_h"].as_f64().unwrap();
+    for k in ["constant_acceleration", "oracle", "static"] {
+        let m = run(&format!("{k}.mcap"), &[&format!("actor_knowledge.kind=\"{k}\"")]);
+        assert!(!collided(&m) && min_h(&m) >= 0.0, "{k}: {m}");
+    }
+    let m = run("cv.mcap", &["actor_knowledge.kind=\"constant_velocity\""]);
+    assert!(min_h(&m) < -1.0, "{m}");
+    let m = run("uncompensated.mcap", &["filter.compensation=\"none\""]);
+    assert!(min_h(&m) < -1.0, "{m}");
+
+    // By hand, over the 0.5 s delay: taken as static the lead is v_L τ = 7.5 m off while it
+    // cruises at 15 m/s; extrapolating its velocity while it brakes at 10 m/s² misses
+    // ½ · 10 · τ² = 1.25 m; the oracle misses nothing.
+    for (k, expected) in [("static", 7.5), ("cv", 1.25), ("oracle", 0.0)] {
+        let m = analyze_json(&dir.path().join(format!("{k}.mcap")));
+        let error = m["max_actor_prediction_error"].as_f64().unwrap();
+        assert!((error - expected).abs() < 1e-9, "{k}: {error} vs {expected}");
+    }
+
+    // The logged h is the headway recomputed from /state and /actors: (x_L − 2) − p − 3 − 2 v.
+    let log = dir.path().join("oracle.mcap");
+    let states = read_topic::<proto::State>(&log, "/state");
+    let actors = read_topic::<proto::Actors>(&log, "/actors");
+    let barriers = read_topic::<proto::Barrier>(&log, "/barrier");
+    for b in &barriers {
+        let s = states.iter().find(|s| s.time == b.time).unwrap();
+        let a = actors.iter().find(|a| a.time == b.time).unwrap();
+        let h = a.actors[0].x - 2.0 - s.values[0] - 3.0 - 2.0 * s.values[1];
+        assert!(
+            (b.barriers[0].h - h).abs() < 1e-9,
+            "t = {}: {} vs {h}",
+            b.time,
+            b.barriers[0].h
+        );
+        assert!((b.barriers[0].clearance - (a.actors[0].x - 2.0 - s.values[0])).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn a_lead_needs_a_vehicle_on_a_line_and_the_ode_plant() {
+    run_expecting_failure(
+        "molnar_truck.toml",
+        &["plant=\"mujoco\""],
+        &["obstacles.0.following", "runs on `plant = \"ode\"` only"],
+    );
+    run_expecting_failure(
+        "molnar_truck.toml",
+        &["obstacles.0.following.time_headway=-1.0"],
+        &["obstacles.0.following.time_headway", "expected a finite value >= 0"],
+    );
+    run_expecting_failure(
+        "ncap_ccrb.toml",
+        &["obstacles.0.following={standstill=3.0, time_headway=2.0}"],
+        &["obstacles.0.following", "needs a vehicle that moves along a line"],
+    );
+}

@@ -581,6 +581,10 @@ pub(super) fn obstacles(
     };
     let mut obstacles = Vec::with_capacity(sc.obstacles.len());
     for (i, o) in sc.obstacles.iter().enumerate() {
+        if o.following.is_some() {
+            obstacles.push(lead(loaded, model, i, x0)?);
+            continue;
+        }
         let Some(position) = model.planar_position() else {
             return Err(loaded
                 .field_error("obstacles", "this vehicle does not move in a plane")
@@ -656,6 +660,90 @@ pub(super) fn obstacles(
         });
     }
     Ok(obstacles)
+}
+
+/// Obstacle `i`, a lead to follow on the line (`following`): its headway barrier
+/// h = D − D_sf − T v (Molnar et al.), with the vehicle's speed the state its position's
+/// derivative is (ṗ = x_s: the drift Jacobian's row of p at x(0) is the unit vector e_s).
+fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f64>) -> Result<Obstacle, EpisodeError> {
+    let sc = &loaded.scenario;
+    let o = &sc.obstacles[i];
+    let following = o.following.expect("a lead");
+    let key = format!("obstacles.{i}.following");
+    if sc.plant == crate::scenario::PlantKind::Mujoco {
+        return Err(loaded
+            .field_error(&key, "a lead to follow runs on `plant = \"ode\"` only")
+            .into());
+    }
+    let Some(position) = model.line_position() else {
+        return Err(loaded
+            .field_error(
+                &key,
+                "needs a vehicle that moves along a line (e.g. `double_integrator_1d`)",
+            )
+            .into());
+    };
+    let n = model.state_dim();
+    let mut jacobian = nalgebra::DMatrix::zeros(n, n);
+    model.drift_jacobian_into(x0.as_slice(), &mut jacobian);
+    let row: Vec<f64> = jacobian.row(position).iter().copied().collect();
+    let speed = (0..n).find(|&s| row[s] == 1.0 && row.iter().enumerate().all(|(j, v)| j == s || *v == 0.0));
+    let Some(speed) = speed else {
+        return Err(loaded
+            .field_error(
+                &key,
+                "needs a vehicle whose position's derivative is one of its states (its speed)",
+            )
+            .into());
+    };
+    let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
+    let motion = match &o.motion {
+        Some(m) => {
+            let (motion, trigger) = m.realised(o.centre, sc.seed, i);
+            let motion = crate::actor::ActorMotion::new(&motion, trigger)
+                .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
+            Some(motion)
+        }
+        None => None,
+    };
+    let centre = motion.as_ref().map_or(o.centre, |m| m.state_at(0.0).position);
+    let radius = o.radius.unwrap_or(0.0);
+    let barrier = Barrier {
+        name: name.clone(),
+        shape: crate::barrier::Shape::Headway {
+            position,
+            speed,
+            lead: centre[0],
+            rear: radius,
+            standstill: following.standstill,
+            time_headway: following.time_headway,
+        },
+    };
+    if barrier.clearance(x0) < 0.0 {
+        return Err(loaded
+            .field_error(
+                &format!("obstacles.{i}"),
+                format!(
+                    "the lead overlaps the vehicle at the start (gap {:.3} m)",
+                    barrier.clearance(x0)
+                ),
+            )
+            .into());
+    }
+    Ok(Obstacle {
+        name,
+        barriers: vec![barrier],
+        offsets: vec![[0.0; 2]],
+        centre,
+        outline: super::Outline::Circle { radius },
+        appear_at: (o.appear_at
+            + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
+        .max(0.0),
+        known: false,
+        in_contact: false,
+        contact_depth: 0.0,
+        motion,
+    })
 }
 
 /// The plant: MuJoCo (the obstacles' geoms looked up for contacts, the moving ones' mocap

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use crate::actor::{add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
+use crate::actor::{add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
@@ -173,12 +173,12 @@ impl LawWorkspace {
                 (Some(motion), Some(moved)) => {
                     let actor = laws.actors.assumed(motion, k, at);
                     let offset = laws.actors.offsets[k];
-                    let centre = moved
-                        .planar_centre_mut()
-                        .expect("a moving actor's barrier is a planar circle");
-                    centre[0] = actor.position[0] + offset[0];
-                    centre[1] = actor.position[1] + offset[1];
+                    moved.move_actor([actor.position[0] + offset[0], actor.position[1] + offset[1]]);
                     self.lie.constraint_into(moved, form, laws.model, z, c);
+                    if let crate::barrier::Shape::Headway { .. } = moved.shape {
+                        add_headway_motion_terms(c, form, &actor);
+                        continue;
+                    }
                     let body = matches!(moved.shape, crate::barrier::Shape::BodyCircle { .. });
                     let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
                     if rd2 {
@@ -493,10 +493,10 @@ impl ControlLoop {
     /// `offset`, where the actor is at t = 0; outside the callback): the filters evaluate it
     /// with the actor where the controller assumes it at each channel's prediction time. An
     /// actor with several barriers (a box's covering circles, a footprint's) has one `primary`.
-    pub fn add_moving_barrier(&mut self, mut barrier: Barrier, motion: ActorMotion, offset: [f64; 2], primary: bool) {
+    pub fn add_moving_barrier(&mut self, barrier: Barrier, motion: ActorMotion, offset: [f64; 2], primary: bool) {
         assert!(
-            barrier.planar_centre_mut().is_some(),
-            "a moving actor's barrier is a planar circle"
+            barrier.clone().move_actor([0.0; 2]),
+            "a moving actor's barrier is a planar circle or a headway"
         );
         self.add_known(barrier, Some(motion));
         *self.actors.offsets.last_mut().expect("just added") = offset;

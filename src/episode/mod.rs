@@ -367,6 +367,9 @@ impl Episode {
                             if let Some(radius) = barrier.radius_mut() {
                                 *radius += self.actor_margin;
                             }
+                            if let crate::barrier::Shape::Headway { rear, .. } = &mut barrier.shape {
+                                *rear += self.actor_margin;
+                            }
                             self.control.add_moving_barrier(barrier, motion.clone(), offset, k == 0);
                         }
                         None => self.control.add_barrier(b.clone()),
@@ -418,10 +421,7 @@ impl Episode {
             let copies = &mut self.obstacle_barriers[pairs];
             for ((b, copy), offset) in o.barriers.iter_mut().zip(copies).zip(&o.offsets) {
                 for b in [&mut *b, copy] {
-                    if let Some(centre) = b.planar_centre_mut() {
-                        centre[0] = state.position[0] + offset[0];
-                        centre[1] = state.position[1] + offset[1];
-                    }
+                    b.move_actor([state.position[0] + offset[0], state.position[1] + offset[1]]);
                 }
             }
             if let Some(entry) = entries.next() {

@@ -561,6 +561,9 @@ impl Episode {
             let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
                 lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
                 // A moving actor: h(x, t) gains the terms of its true motion.
+                if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
+                    crate::actor::add_headway_motion_terms(constraint_data, form, actor);
+                }
                 // (ṗ: at relative degree 2 no input reaches the position, so the velocity
                 // with the applied input is the drift.)
                 if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
@@ -605,6 +608,16 @@ impl Episode {
                             time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, *radius)
                         }
                         None => f64::NAN,
+                    }
+                }
+                // A lead: the gap over the closing speed v − v_L (the lead's velocity held).
+                (true, _, &crate::barrier::Shape::Headway { speed, .. }) => {
+                    let closing = x[speed] - actor.map_or(0.0, |a| a.velocity[0]);
+                    let gap = b.clearance(x);
+                    match (gap <= 0.0, closing > 0.0) {
+                        (true, _) => 0.0,
+                        (false, true) => gap / closing,
+                        (false, false) => f64::INFINITY,
                     }
                 }
                 _ => f64::NAN,
