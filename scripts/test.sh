@@ -11,6 +11,8 @@ cargo fmt --check
 cargo clippy --quiet --all-targets -- -D warnings
 # The public API's rustdoc (docs/writing-a-filter.md links into it) builds without a warning.
 RUSTDOCFLAGS="-D warnings" cargo doc --quiet --no-deps
+# The documentation's examples compile (`--all-targets` leaves doctests out).
+cargo test --quiet --doc
 # The examples as programs (tests/examples.rs runs them; `--all-targets` builds them only as tests).
 cargo build --quiet --examples
 cargo test --all-targets -- --nocapture 2>&1 | tee "${MJSAFE_TEST_LOG:-/dev/null}"

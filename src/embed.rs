@@ -19,7 +19,7 @@
 //! // 3. Run it into a log; the metrics are read back from the log (docs/metrics.md).
 //! let outcome = mjsafe::embed::run_logged(&loaded, Path::new("out.mcap"), &mut [])?;
 //! let metrics = outcome.metrics.expect("a logged run is analysed");
-//! println!("min h = {:?}, collision: {}", metrics.min_h, metrics.collision.is_some());
+//! println!("min h = {:?}, collision: {}", metrics.min_h(), metrics.collision().is_some());
 //! # Ok::<(), mjsafe::embed::EmbedError>(())
 //! ```
 //!
