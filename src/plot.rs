@@ -109,6 +109,8 @@ struct Series {
     actors: BTreeMap<String, Vec<(f64, f64, f64)>>,
     /// (name, centre, radius) of the obstacles, from `/scene` (a moving one where it was last).
     obstacles: BTreeMap<String, ((f64, f64), f64)>,
+    /// (name, centre, (length, width), heading) of the box obstacles (`/scene` cubes).
+    boxes: BTreeMap<String, ((f64, f64), (f64, f64), f64)>,
     reference: Option<[(f64, f64); 2]>,
     /// The static lines of `/scene` by entity id: road edges (`road/<edge>`), lane markings
     /// (`road/lane/<marking>`, dashed: their points in pairs) and half-space barriers
@@ -192,6 +194,12 @@ impl RunVisitor for Series {
                             let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
                             let p = pose.position.unwrap_or_default();
                             self.obstacles.insert(e.id.clone(), ((p.x, p.y), size.x / 2.0));
+                        } else if let Some(c) = e.cubes.first() {
+                            let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
+                            let (p, q) = (pose.position.unwrap_or_default(), pose.orientation.unwrap_or_default());
+                            // A yaw quaternion (0, 0, sin ψ/2, cos ψ/2).
+                            let heading = 2.0 * q.z.atan2(q.w);
+                            self.boxes.insert(e.id.clone(), ((p.x, p.y), (size.x, size.y), heading));
                         }
                     }
                 }
@@ -462,11 +470,13 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             .flat_map(|((x, y), r)| [(x - r, y - r), (x + r, y + r)]);
         let lines = series.lines.values().flat_map(|l| l.points.iter().copied());
         let actor_paths = series.actors.values().flatten().map(|&(_, x, y)| (x, y));
+        let boxes = series.boxes.values().flat_map(|b| box_corners(*b));
         let ((x0, x1), (y0, y1)) = bounds(
             (series.path.iter().copied())
                 .chain(circles)
                 .chain(lines)
-                .chain(actor_paths),
+                .chain(actor_paths)
+                .chain(boxes),
         );
         // Equal axis scales: widen the shorter span to the plotting area's shape.
         let aspect = plot_aspect((1000, 500), 12, 36, 50, 22);
@@ -496,6 +506,11 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 });
                 chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
             }
+            for b in series.boxes.values() {
+                let corners = box_corners(*b);
+                let closed = corners.iter().chain(corners.first()).copied();
+                chart.draw_series(LineSeries::new(closed, PALETTE[1].stroke_width(3)))?;
+            }
             chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
             draw_actor_paths(&mut chart, &series)?;
             if !series.actors.is_empty() {
@@ -511,6 +526,15 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         written.push(path);
     }
     Ok(written)
+}
+
+/// The corners of a box obstacle (centre, (length, width), heading), in order around it.
+fn box_corners(((x, y), (length, width), heading): ((f64, f64), (f64, f64), f64)) -> [(f64, f64); 4] {
+    let (s, c) = heading.sin_cos();
+    [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)].map(|(a, b)| {
+        let (u, v) = (a * length / 2.0, b * width / 2.0);
+        (x + u * c - v * s, y + u * s + v * c)
+    })
 }
 
 /// Each moving obstacle's path from `/actors` (a line named in the legend) and the actor at
@@ -1026,6 +1050,20 @@ pub fn plot_sweep(
 
 #[cfg(test)]
 mod tests {
+    /// A 4 × 2 box turned by 90° spans 2 in x and 4 in y about its centre.
+    #[test]
+    fn box_corners_turn_with_the_heading() {
+        let corners = super::box_corners(((10.0, 5.0), (4.0, 2.0), std::f64::consts::FRAC_PI_2));
+        let xs: Vec<f64> = corners.iter().map(|c| c.0).collect();
+        let ys: Vec<f64> = corners.iter().map(|c| c.1).collect();
+        let span = |v: &[f64]| v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(
+            (span(&xs) - 2.0).abs() < 1e-12 && (span(&ys) - 4.0).abs() < 1e-12,
+            "{corners:?}"
+        );
+        assert!((xs.iter().sum::<f64>() / 4.0 - 10.0).abs() < 1e-12);
+    }
+
     #[test]
     fn the_legend_goes_where_the_points_are_not() {
         use plotters::chart::SeriesLabelPosition as P;
