@@ -110,7 +110,7 @@ struct Series {
     /// (name, centre, radius) of the obstacles, from `/scene` (a moving one where it was last).
     obstacles: BTreeMap<String, ((f64, f64), f64)>,
     /// (name, centre, (length, width), heading) of the box obstacles (`/scene` cubes).
-    boxes: BTreeMap<String, ((f64, f64), (f64, f64), f64)>,
+    boxes: BTreeMap<String, BoxOutline>,
     reference: Option<[(f64, f64); 2]>,
     /// The static lines of `/scene` by entity id: road edges (`road/<edge>`), lane markings
     /// (`road/lane/<marking>`, dashed: their points in pairs) and half-space barriers
@@ -528,8 +528,11 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     Ok(written)
 }
 
-/// The corners of a box obstacle (centre, (length, width), heading), in order around it.
-fn box_corners(((x, y), (length, width), heading): ((f64, f64), (f64, f64), f64)) -> [(f64, f64); 4] {
+/// A box obstacle's outline: centre, (length, width), heading.
+type BoxOutline = ((f64, f64), (f64, f64), f64);
+
+/// The corners of a box obstacle, in order around it.
+fn box_corners(((x, y), (length, width), heading): BoxOutline) -> [(f64, f64); 4] {
     let (s, c) = heading.sin_cos();
     [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)].map(|(a, b)| {
         let (u, v) = (a * length / 2.0, b * width / 2.0);
