@@ -591,16 +591,7 @@ pub(super) fn obstacles(
                 .into());
         };
         let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
-        let motion = match &o.motion {
-            Some(m) => {
-                let (motion, trigger) = m.realised(o.centre, sc.seed, i);
-                let motion = crate::actor::ActorMotion::new(&motion, trigger)
-                    .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
-                Some(motion)
-            }
-            None => None,
-        };
-        let centre = motion.as_ref().map_or(o.centre, |m| m.state_at(0.0).position);
+        let (motion, centre) = obstacle_motion(loaded, i)?;
         let (box_heading, circles) = o.circles();
         let single = sc.vehicle.footprint.is_none() && o.shape.is_none();
         let mut barriers = Vec::with_capacity(vehicle.len() * circles.len());
@@ -657,9 +648,28 @@ pub(super) fn obstacles(
             in_contact: false,
             contact_depth: 0.0,
             motion,
+            state: Default::default(),
         });
     }
     Ok(obstacles)
+}
+
+/// Obstacle `i`'s true motion with its seeded variations (None for a static one), and where
+/// it is at t = 0.
+fn obstacle_motion(
+    loaded: &LoadedScenario,
+    i: usize,
+) -> Result<(Option<crate::actor::ActorMotion>, [f64; 2]), ScenarioError> {
+    let sc = &loaded.scenario;
+    let o = &sc.obstacles[i];
+    let Some(m) = &o.motion else {
+        return Ok((None, o.centre));
+    };
+    let (motion, trigger) = m.realised(o.centre, sc.seed, i);
+    let motion = crate::actor::ActorMotion::new(&motion, trigger)
+        .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
+    let centre = motion.state_at(0.0).position;
+    Ok((Some(motion), centre))
 }
 
 /// Obstacle `i`, a lead to follow on the line (`following`): its headway barrier
@@ -697,16 +707,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
             .into());
     };
     let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
-    let motion = match &o.motion {
-        Some(m) => {
-            let (motion, trigger) = m.realised(o.centre, sc.seed, i);
-            let motion = crate::actor::ActorMotion::new(&motion, trigger)
-                .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
-            Some(motion)
-        }
-        None => None,
-    };
-    let centre = motion.as_ref().map_or(o.centre, |m| m.state_at(0.0).position);
+    let (motion, centre) = obstacle_motion(loaded, i)?;
     let radius = o.radius.unwrap_or(0.0);
     let barrier = Barrier {
         name: name.clone(),
@@ -743,6 +744,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
         in_contact: false,
         contact_depth: 0.0,
         motion,
+        state: Default::default(),
     })
 }
 

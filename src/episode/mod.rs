@@ -55,6 +55,8 @@ struct Obstacle {
     contact_depth: f64,
     /// A moving obstacle's true motion (its barrier's centre follows it at every step).
     motion: Option<crate::actor::ActorMotion>,
+    /// Its true state at the current step (set by `move_actors`, read by the `/barrier` record).
+    state: crate::actor::ActorState,
 }
 
 /// An obstacle's own shape (its barriers' r also include the vehicle's circles).
@@ -416,6 +418,7 @@ impl Episode {
                 }
             }
             let state = motion.state_at(time);
+            o.state = state;
             self.plant.move_obstacle(index, state.position);
             o.centre = state.position;
             let copies = &mut self.obstacle_barriers[pairs];

@@ -533,7 +533,7 @@ impl Episode {
             .obstacles
             .iter()
             .flat_map(|o| {
-                let actor = o.motion.as_ref().map(|m| m.state_at(time));
+                let actor = o.motion.as_ref().map(|_| o.state);
                 o.barriers.iter().map(move |b| (b, o.known, true, actor))
             })
             .chain(self.barriers.iter().map(|b| (b, true, false, None)));
