@@ -20,6 +20,17 @@ pub struct ActorState {
     pub acceleration: [f64; 2],
 }
 
+impl ActorState {
+    /// The state of the point at `offset` from the actor's centre, carried along without
+    /// turning (a box's covering circle: a box keeps its heading).
+    pub fn shifted(&self, offset: [f64; 2]) -> ActorState {
+        ActorState {
+            position: [self.position[0] + offset[0], self.position[1] + offset[1]],
+            ..*self
+        }
+    }
+}
+
 /// Motion from `start` along `direction` (or through `waypoints`) at `speed`, accelerating along
 /// the path by the profile a(t) through the breakpoints (t, a) (linear between them, 0 before
 /// the first, the last value after the last; equal times make a step), the speed held at

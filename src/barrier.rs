@@ -157,6 +157,15 @@ impl Barrier {
         }
     }
 
+    /// Whether an input reaches h at first order while another reaches it only at second:
+    /// a body circle off the vehicle's reference point (its heading turns with the steering).
+    /// In the relative-degree-2 form such a barrier gets the mixed-relative-degree condition
+    /// (docs/actors.md, "Footprints"): [`LieWorkspace::constraint_into`] adds λ1 L_G h to b,
+    /// and [`LieWorkspace::first_order_part_into`] gives the companion row ḣ + λ1 h ≥ 0.
+    pub fn mixed_relative_degree(&self) -> bool {
+        matches!(&self.shape, Shape::BodyCircle { offset, .. } if *offset != [0.0, 0.0])
+    }
+
     /// Largest state index the barrier reads.
     pub fn max_index(&self) -> usize {
         match &self.shape {
@@ -389,6 +398,21 @@ pub enum BarrierForm {
 }
 
 impl BarrierForm {
+    /// (λ1, λ2) with s² + l1 s + l0 = (s + λ1)(s + λ2), λ1 ≥ λ2 > 0, for the relative-degree-2
+    /// form with real positive roots (l0 > 0, l1 > 0, l1² ≥ 4 l0); None otherwise. The
+    /// mixed-relative-degree condition of a body circle ([`Shape::mixed_relative_degree`]) is
+    /// built on this factorisation.
+    pub fn real_rates(&self) -> Option<(f64, f64)> {
+        let &BarrierForm::RelativeDegree2 { l0, l1 } = self else {
+            return None;
+        };
+        let discriminant = l1 * l1 - 4.0 * l0;
+        (l0 > 0.0 && l1 > 0.0 && discriminant >= 0.0).then(|| {
+            let root = discriminant.sqrt();
+            (0.5 * (l1 + root), 0.5 * (l1 - root))
+        })
+    }
+
     pub fn relative_degree(&self) -> u32 {
         match self {
             BarrierForm::RelativeDegree1 { .. } => 1,
@@ -657,8 +681,26 @@ impl LieWorkspace {
                 let lie = &self.lie;
                 (out.h, out.a) = (lie.h, lie.lf2_h + l1 * lie.lf_h + l0 * lie.h);
                 out.b.copy_from(&lie.lg_lf_h);
+                // Mixed relative degree: ψ̇ + λ2 ψ ≥ 0 for ψ = L_f h + λ1 h, whose b gains λ1 L_G h.
+                if let (true, Some((lambda1, _))) = (barrier.mixed_relative_degree(), form.real_rates()) {
+                    out.b.axpy(lambda1, &lie.lg_h, 1.0);
+                }
             }
         }
+    }
+
+    /// out ← the first-order row ḣ + λ1 h ≥ 0 of a mixed-relative-degree barrier
+    /// ([`Barrier::mixed_relative_degree`]): a = L_f h + λ1 h, b = L_G h, from the
+    /// derivatives the last [`LieWorkspace::constraint_into`] of that barrier in `form`
+    /// computed (so call it right after). False (out untouched) when `form` has no real rates.
+    pub fn first_order_part_into(&self, form: BarrierForm, out: &mut Constraint) -> bool {
+        let Some((lambda1, _)) = form.real_rates() else {
+            return false;
+        };
+        let lie = &self.lie;
+        (out.h, out.a) = (lie.h, lie.lf_h + lambda1 * lie.h);
+        out.b.copy_from(&lie.lg_h);
+        true
     }
 
     /// lie.h, lie.lf_h, lie.lg_h as [`LieWorkspace::evaluate`] forms them, from f and G alone
@@ -991,6 +1033,65 @@ mod tests {
             assert!((((d + 2.3).powi(2) - 2.3 * 2.3) - b.h_at(&x)).abs() < 1e-9);
         }
         assert!(worst < 1e-7, "largest relative difference {worst:e}");
+    }
+
+    /// The mixed-relative-degree rows of a body circle off the rear axle on the bicycle
+    /// (4.78), against differences along the flow with the input u held: the first-order row
+    /// a + b·u = ḣ + λ1 h, and the second-order row a + b·u = ψ̇ + λ2 ψ for ψ = L_f h + λ1 h
+    /// (ψ from central differences of h along the drift alone), with (λ1, λ2) the real roots of
+    /// s² + l1 s + l0. Real roots only: complex ones give no rates.
+    #[test]
+    fn mixed_relative_degree_rows_match_differences_along_the_flow() {
+        let model = BicycleModel::new(2.5);
+        let form = BarrierForm::RelativeDegree2 { l0: 3.0, l1: 4.0 };
+        assert_eq!(form.real_rates(), Some((3.0, 1.0)));
+        assert_eq!(BarrierForm::RelativeDegree2 { l0: 5.0, l1: 4.0 }.real_rates(), None);
+        assert_eq!(BarrierForm::RelativeDegree1 { alpha: 1.0 }.real_rates(), None);
+        let (lambda1, lambda2) = (3.0, 1.0);
+        let mut work = LieWorkspace::new(&model);
+        let (mut second, mut first) = (Constraint::zeros(2), Constraint::zeros(2));
+        let mut worst: f64 = 0.0;
+        for k in 0..40 {
+            let s = k as f64;
+            let b = Barrier::body_circle("o/2-0", ([0, 1], 2), [1.53, 0.3 * s.sin()], [6.0, 1.0], 2.27);
+            assert!(b.mixed_relative_degree());
+            let x = [0.5 * s.cos(), 0.2 * s, 0.13 * s - 2.0, 4.0 + 0.1 * s];
+            let u = [0.3 * (0.7 * s).sin(), -1.5 + 0.1 * s];
+            work.constraint_into(&b, form, &model, &x, &mut second);
+            assert!(work.first_order_part_into(form, &mut first));
+            // The state after `dt` from z with input v held (RK4 on (4.78): error O(dt⁵)).
+            let flow = |z: [f64; 4], v: [f64; 2], dt: f64| -> [f64; 4] {
+                let f = |y: &[f64; 4]| {
+                    let mut d = [0.0; 4];
+                    model.dynamics_into(y, &v, &mut d);
+                    d
+                };
+                let add = |y: &[f64; 4], d: &[f64; 4], c: f64| std::array::from_fn(|i| y[i] + c * d[i]);
+                let k1 = f(&z);
+                let k2 = f(&add(&z, &k1, 0.5 * dt));
+                let k3 = f(&add(&z, &k2, 0.5 * dt));
+                let k4 = f(&add(&z, &k3, dt));
+                std::array::from_fn(|i| z[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+            };
+            let e = 1e-4;
+            let h_dot = (b.h_at(&flow(x, u, e)) - b.h_at(&flow(x, u, -e))) / (2.0 * e);
+            let expected_first = h_dot + lambda1 * b.h_at(&x);
+            let psi = |z: [f64; 4]| {
+                let drift = (b.h_at(&flow(z, [0.0; 2], e)) - b.h_at(&flow(z, [0.0; 2], -e))) / (2.0 * e);
+                drift + lambda1 * b.h_at(&z)
+            };
+            let psi_dot = (psi(flow(x, u, e)) - psi(flow(x, u, -e))) / (2.0 * e);
+            let expected_second = psi_dot + lambda2 * psi(x);
+            let value = |c: &Constraint| c.a + c.b[0] * u[0] + c.b[1] * u[1];
+            worst = worst.max((value(&first) - expected_first).abs() / (1.0 + expected_first.abs()));
+            worst = worst.max((value(&second) - expected_second).abs() / (1.0 + expected_second.abs()));
+            // The steering reaches h at first order here (the case the rows exist for).
+            assert!(first.b[0].abs() > 1e-3 && first.b[1] == 0.0, "{:?}", first.b);
+        }
+        assert!(worst < 1e-5, "largest relative difference {worst:e}");
+        // At the reference point there is no first-order row.
+        let centre = Barrier::body_circle("o", ([0, 1], 2), [0.0, 0.0], [6.0, 1.0], 2.27);
+        assert!(!centre.mixed_relative_degree());
     }
 
     /// With a zero offset the body circle is the planar ball (4.81): the same Lie derivatives

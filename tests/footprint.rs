@@ -154,6 +154,57 @@ fn a_box_further_in_is_hit_without_a_filter_and_the_rectangles_agree() {
     );
 }
 
+/// The covering circles (offset along the body, radius) of a rectangle L × W, recomputed
+/// here from the rule in docs/actors.md: n = ⌈L/W⌉, ρ = √((L/2n)² + (W/2)²).
+fn covering_circles([length, width]: [f64; 2]) -> Vec<(f64, f64)> {
+    let n = (length / width).ceil() as usize;
+    let piece = length / n as f64;
+    let radius = ((piece / 2.0).powi(2) + (width / 2.0).powi(2)).sqrt();
+    (0..n)
+        .map(|k| (-length / 2.0 + (k as f64 + 0.5) * piece, radius))
+        .collect()
+}
+
+/// The smallest gap (m) between any car circle and any box circle over the logged states.
+fn min_circle_gap(log: &std::path::Path, y: f64) -> f64 {
+    let (car, boxed) = (covering_circles(CAR), covering_circles(BOX));
+    read_topic::<proto::State>(log, "/state")
+        .iter()
+        .flat_map(|s| {
+            let (p, heading) = ([s.values[0], s.values[1]], s.values[2]);
+            let (car, boxed) = (&car, &boxed);
+            car.iter().flat_map(move |&(along, rho)| {
+                let q = [p[0] + along * heading.cos(), p[1] + along * heading.sin()];
+                boxed
+                    .iter()
+                    .map(move |&(x, sigma)| (q[0] - x).hypot(q[1] - y) - rho - sigma)
+            })
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[test]
+fn the_mixed_relative_degree_condition_keeps_every_circle_clear() {
+    // The box reaches 0.5 m into the car's path: the filters must brake or steer round it,
+    // and the steering swings the front circle at first order (docs/actors.md, "Footprints").
+    // Without the first-order rows γm touched the box's circles (5.6 mm deep at 7.05 s).
+    let dir = tempfile::tempdir().unwrap();
+    let y = BESIDE - 2.0;
+    for (name, filter) in [
+        ("gamma_m", "filter={kind=\"gamma_m\",l0=4.0,l1=4.0,m=50.0}"),
+        ("cbf_qp", "filter={kind=\"cbf_qp\",l0=4.0,l1=4.0}"),
+    ] {
+        let log = run(dir.path(), name, &scenario_text(y, true), &["--set", filter]);
+        let m = analyze_json(&log);
+        assert!(m["collision"].is_null(), "{name}: {m}");
+        let gap = min_circle_gap(&log, y);
+        assert!(gap >= 0.0, "{name}: the covering circles overlap by {} m", -gap);
+        assert!(!ever_overlaps(&log, y), "{name}");
+        // The filter acted: the nominal alone hits the box (the test above).
+        assert!(gap < 0.5, "{name}: the car never came near the box ({gap} m)");
+    }
+}
+
 /// `mjsafe run` of `text` fails with every needle on stderr.
 fn fails(dir: &std::path::Path, text: &str, sets: &[&str], needles: &[&str]) {
     let file = write(dir, "bad.toml", text);

@@ -9,7 +9,7 @@ use nalgebra::DVector;
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
 use crate::actuator::{Actuator, ActuatorLimits};
-use crate::barrier::Barrier;
+use crate::barrier::{Barrier, BarrierForm};
 use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
 use crate::dynamics::Dynamics;
 use crate::filter::linear_delays;
@@ -541,6 +541,31 @@ fn dashed_circle(centre: [f64; 2], radius: f64) -> Vec<[f64; 2]> {
             [at(start), at(start + std::f64::consts::PI / DASHES as f64)]
         })
         .collect()
+}
+
+/// A footprint's body circles off the reference point have mixed relative degree; in the
+/// relative-degree-2 form their condition factors s² + l1 s + l0 into real rates
+/// ([`BarrierForm::real_rates`]), so complex roots are refused.
+pub(super) fn check_mixed_relative_degree(
+    loaded: &LoadedScenario,
+    form: Option<BarrierForm>,
+    barriers: &[Barrier],
+) -> Result<(), EpisodeError> {
+    match form {
+        Some(form @ BarrierForm::RelativeDegree2 { l0, l1 })
+            if form.real_rates().is_none() && barriers.iter().any(Barrier::mixed_relative_degree) =>
+        {
+            Err(loaded
+                .field_error(
+                    "filter.l1",
+                    format!(
+                        "a footprint's circles need real positive roots of s² + l1 s + l0 (l1² ≥ 4 l0, both > 0) for their mixed-relative-degree condition; found l0 = {l0}, l1 = {l1}"
+                    ),
+                )
+                .into())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// The vehicle's circles: (offset in its body frame, radius): its hull circle about the

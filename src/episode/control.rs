@@ -92,6 +92,9 @@ struct LawWorkspace {
     unit_input: Vec<f64>,
     column: Vec<f64>,
     point_input: Vec<[f64; 2]>,
+    /// Per first-order row of a mixed-relative-degree barrier (after the one row per
+    /// barrier in `constraints`), the barrier's index.
+    first_order_of: Vec<usize>,
 }
 
 impl LawWorkspace {
@@ -168,12 +171,18 @@ impl LawWorkspace {
     /// terms of its motion ([`add_point_motion_terms`]).
     #[inline(always)]
     fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
-        for (k, (b, c)) in laws.barriers.iter().zip(self.constraints.iter_mut()).enumerate() {
+        let count = laws.barriers.len();
+        // Rows 0..count: one per barrier; then the first-order rows of the mixed-relative-
+        // degree barriers, in barrier order ([`LawWorkspace::first_order_of`]).
+        let (rows, first_order_rows) = self.constraints.split_at_mut(count);
+        let mut first_order = 0;
+        for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
+            let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
             match (&laws.actors.motions[k], &mut self.moving[k]) {
                 (Some(motion), Some(moved)) => {
-                    let actor = laws.actors.assumed(motion, k, at);
-                    let offset = laws.actors.offsets[k];
-                    moved.move_actor([actor.position[0] + offset[0], actor.position[1] + offset[1]]);
+                    // The barrier's circle: the actor's centre plus its offset (a box's).
+                    let actor = laws.actors.assumed(motion, k, at).shifted(laws.actors.offsets[k]);
+                    moved.move_actor(actor.position);
                     self.lie.constraint_into(moved, form, laws.model, z, c);
                     if let crate::barrier::Shape::Headway { .. } = moved.shape {
                         add_headway_motion_terms(c, form, &actor);
@@ -203,11 +212,32 @@ impl LawWorkspace {
                         false => &[],
                     };
                     add_point_motion_terms(c, form, (q, q_drift, inputs), &actor);
+                    // ḣ + λ1 h with ḣ's ∂h/∂t = −2 (q − o)·ȯ (the relative-degree-1 motion term).
+                    if let (true, Some(row)) = (mixed, first_order_rows.get_mut(first_order)) {
+                        self.lie.first_order_part_into(form, row);
+                        let first = BarrierForm::RelativeDegree1 { alpha: 0.0 };
+                        add_point_motion_terms(row, first, (q, q_drift, &[]), &actor);
+                        first_order += 1;
+                    }
                 }
-                _ => self.lie.constraint_into(b, form, laws.model, z, c),
+                _ => {
+                    self.lie.constraint_into(b, form, laws.model, z, c);
+                    if let (true, Some(row)) = (mixed, first_order_rows.get_mut(first_order)) {
+                        self.lie.first_order_part_into(form, row);
+                        first_order += 1;
+                    }
+                }
             }
         }
-        laws.barriers.len()
+        count + first_order
+    }
+
+    /// The barrier a constraint row belongs to: row k < the barriers' count is barrier k's
+    /// condition, the later rows the first-order rows of the mixed-relative-degree barriers.
+    fn barrier_of_row(&self, row: usize, barriers: usize) -> usize {
+        row.checked_sub(barriers)
+            .and_then(|r| self.first_order_of.get(r).copied())
+            .unwrap_or(row)
     }
 }
 
@@ -350,6 +380,7 @@ impl ControlLoop {
                 unit_input: vec![0.0; r],
                 column: vec![0.0; n],
                 point_input: vec![[0.0; 2]; r],
+                first_order_of: Vec::new(),
             },
             spare_states: Vec::new(),
             realize: PredictorWorkspace::new(n, r),
@@ -509,6 +540,13 @@ impl ControlLoop {
         self.actors.offsets.push([0.0; 2]);
         self.actors.primary.push(false);
         self.actors.observed.push(ActorState::default());
+        // A mixed-relative-degree barrier has a second row, ḣ + λ1 h ≥ 0.
+        let form = self.filter.barrier_form();
+        if barrier.mixed_relative_degree() && form.is_some_and(|f| f.real_rates().is_some()) {
+            let law = &mut self.work.law;
+            law.first_order_of.push(self.known_barriers.len());
+            law.constraints.push(Constraint::zeros(self.queues.len()));
+        }
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
         // κ_j changed: the recursive chain computed with the old law no longer holds.
@@ -707,7 +745,10 @@ impl ControlLoop {
             })?;
             tick.nominal[i] = law.nominal[i];
             tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
-            tick.outcomes[i] = outcome;
+            tick.outcomes[i] = outcome.map(|mut o| {
+                o.unmet = o.unmet.map(|row| law.barrier_of_row(row, known_barriers.len()));
+                o
+            });
             // A non-finite command (from a state at NaN or ±1e300) never reaches a queue.
             if !tick.issued[i].is_finite() {
                 return Err(FilterError::Other(format!(

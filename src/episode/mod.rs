@@ -173,6 +173,7 @@ impl Episode {
             nominal.as_ref(),
             timestep,
         )?;
+        build::check_mixed_relative_degree(loaded, filter.barrier_form(), &every_barrier)?;
         let reference_path = nominal.reference_path();
         let path = reference_path.map(|p| (p.point, p.heading, p.speed.abs() * loaded.scenario.duration));
         let hull_radius = parts.hull_radius;

@@ -533,8 +533,10 @@ impl Episode {
             .obstacles
             .iter()
             .flat_map(|o| {
+                // Each barrier's circle moves with the actor at its offset (a box's circles).
                 let actor = o.motion.as_ref().map(|_| o.state);
-                o.barriers.iter().map(move |b| (b, o.known, true, actor))
+                (o.barriers.iter().zip(&o.offsets))
+                    .map(move |(b, &offset)| (b, o.known, true, actor.map(|a| a.shifted(offset))))
             })
             .chain(self.barriers.iter().map(|b| (b, true, false, None)));
         // World velocity of the planar position (for time-to-collision): ṗ from the model.
