@@ -66,18 +66,29 @@ fn a_constant_velocity_prediction_of_a_constant_velocity_actor_is_the_oracle() {
 fn what_the_controller_assumes_of_the_actor_decides_the_outcome() {
     let dir = tempfile::tempdir().unwrap();
     let log = |n: &str| dir.path().join(n);
-    // CPFA: taking the pedestrian as standing where it is now hits them; predicting their
-    // motion over the delays does not. The nominal alone hits them.
+    // CPFA at 20 km/h (the sweep's start: x1 = 44.3 - 2.3 - 3.78 v): taking the pedestrian as
+    // standing where they are now hits them; predicting their motion over the delays does not.
+    // The nominal alone hits them.
+    let slow = [
+        "vehicle.initial_state.3=5.556",
+        "nominal.reference_speed=5.556",
+        "vehicle.initial_state.0=20.998",
+    ];
+    let with = |extra: &'static str| -> Vec<&'static str> { slow.iter().copied().chain([extra]).collect() };
     let m = outcome(
         "ncap_cpfa.toml",
         &log("cpfa-static.mcap"),
-        &["actor_knowledge.kind=\"static\""],
+        &with("actor_knowledge.kind=\"static\""),
     );
     assert!(collided(&m), "{m}");
     assert_eq!(m["collision"]["with"], "pedestrian");
-    let m = outcome("ncap_cpfa.toml", &log("cpfa.mcap"), &[]);
+    let m = outcome("ncap_cpfa.toml", &log("cpfa.mcap"), &slow);
     assert!(!collided(&m) && m["min_h"].as_f64().unwrap() > 0.0, "{m}");
-    let m = outcome("ncap_cpfa.toml", &log("cpfa-none.mcap"), &["filter={kind=\"none\"}"]);
+    let m = outcome(
+        "ncap_cpfa.toml",
+        &log("cpfa-none.mcap"),
+        &with("filter={kind=\"none\"}"),
+    );
     assert!(collided(&m), "{m}");
     // CCRb: a target braking at 6 m/s² is hit when its velocity is extrapolated (the braking
     // enters ḧ through ö, which constant velocity takes as 0), missed when its acceleration is
@@ -96,7 +107,7 @@ fn what_the_controller_assumes_of_the_actor_decides_the_outcome() {
 
 #[test]
 fn the_logged_actor_states_are_the_closed_form_motion_and_h_uses_them() {
-    // CCRb's target: 13.889 m/s from x = 15.86, braking at 6 m/s² from t = 1 s to a stop at
+    // CCRb's target: 13.889 m/s from x = 16.31, braking at 6 m/s² from t = 1 s to a stop at
     // t = 1 + 13.889/6; computed here by hand.
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("ccrb.mcap");
@@ -110,10 +121,10 @@ fn the_logged_actor_states_are_the_closed_form_motion_and_h_uses_them() {
     for (m, s) in actors.iter().zip(&states) {
         let t = m.time;
         let x = if t <= t0 {
-            15.86 + v0 * t
+            16.31 + v0 * t
         } else {
             let d = (t - t0).min(stop - t0);
-            15.86 + v0 * t0 + v0 * d - 0.5 * a * d * d
+            16.31 + v0 * t0 + v0 * d - 0.5 * a * d * d
         };
         let v = if t <= t0 { v0 } else { (v0 - a * (t - t0)).max(0.0) };
         let target = &m.actors[0];
@@ -124,10 +135,19 @@ fn the_logged_actor_states_are_the_closed_form_motion_and_h_uses_them() {
             target.x
         );
         assert!((target.vx - v).abs() < 1e-9, "t = {t}: v {} vs {v}", target.vx);
-        // /barrier's h at the same time: ‖p − o‖² − (3 + 0.86)².
+        // /barrier's first pair (the car's rear circle, the target's rear circle) at the same
+        // time: ‖q − o‖² − (ρ + σ)², the circles by the covering rule of docs/actors.md (n = 3
+        // for both: ρ = √((4.6/6)² + 0.9²), σ = √((4.02/6)² + 0.855²), centres L/3 behind).
         if let Some(b) = barriers.iter().find(|b| b.time == t) {
-            let (dx, dy) = (s.values[0] - x, s.values[1]);
-            let h = dx * dx + dy * dy - 3.86f64.powi(2);
+            assert_eq!(b.barriers[0].name, "target/0-0");
+            let (rho, sigma) = ((4.6f64 / 6.0).hypot(0.9), (4.02f64 / 6.0).hypot(0.855));
+            let heading = s.values[2];
+            let q = [
+                s.values[0] - 4.6 / 3.0 * heading.cos(),
+                s.values[1] - 4.6 / 3.0 * heading.sin(),
+            ];
+            let (dx, dy) = (q[0] - (x - 4.02 / 3.0), q[1]);
+            let h = dx * dx + dy * dy - (rho + sigma).powi(2);
             assert!((b.barriers[0].h - h).abs() < 1e-6 * (1.0 + h.abs()), "t = {t}");
         }
     }
@@ -148,21 +168,23 @@ fn a_trigger_fires_when_the_vehicle_comes_within_its_distance() {
     assert_eq!(fired.len(), 1, "{events:?}");
     let t = fired[0].time;
     let states = read_topic::<proto::State>(&log, "/state");
-    let distance = |s: &proto::State| (s.values[0] - 54.6).hypot(s.values[1] + 7.0);
+    let distance = |s: &proto::State| (s.values[0] - 53.1).hypot(s.values[1] + 4.9);
     let at = states.iter().position(|s| s.time == t).unwrap();
     assert!(
         distance(&states[at]) <= 40.0 && distance(&states[at - 1]) > 40.0,
         "t = {t}"
     );
-    // Standing still before, walking after (1.44 s at 0.965 m/s² then 1.389 m/s).
+    // Standing still before and for the profile's first 0.648 s after, then walking (1.44 s
+    // at 0.965 m/s², then 1.389 m/s).
     let actors = read_topic::<proto::Actors>(&log, "/actors");
+    let start = t + 0.648;
     for m in &actors {
         let p = &m.actors[0];
-        let expected = if m.time <= t {
-            -7.0
+        let expected = if m.time <= start {
+            -4.9
         } else {
-            let d = (m.time - t).min(1.44);
-            -7.0 + 0.5 * 0.965 * d * d + 0.965 * 1.44 * (m.time - t - d)
+            let d = (m.time - start).min(1.44);
+            -4.9 + 0.5 * 0.965 * d * d + 0.965 * 1.44 * (m.time - start - d)
         };
         assert!((p.y - expected).abs() < 1e-9, "t = {}: {} vs {expected}", m.time, p.y);
     }
@@ -197,7 +219,7 @@ fn hostile_actor_inputs_are_refused_with_one_line() {
             &["obstacles.0.motion", "either a `direction` or `waypoints`"],
         ),
         (
-            "obstacles.0.motion={waypoints=[[15.86, 0.0]]}",
+            "obstacles.0.motion={waypoints=[[53.1, -4.9]]}",
             &["obstacles.0.motion.waypoints", "apart from the one before it"],
         ),
         (
@@ -231,13 +253,13 @@ fn hostile_actor_inputs_are_refused_with_one_line() {
         ("actor_knowledge.kind=\"psychic\"", &["actor_knowledge", "psychic"]),
     ];
     for (set, needles) in cases {
-        let line = run_expecting_failure("ncap_ccrb.toml", &[set], needles);
+        let line = run_expecting_failure("ncap_cpna.toml", &[set], needles);
         assert_eq!(line.trim().lines().count(), 1, "{set}: {line}");
     }
     // One breakpoint too many.
     let profile: Vec<String> = (0..65).map(|k| format!("[{k}.0, 0.0]")).collect();
     let set = format!("obstacles.0.motion.acceleration=[{}]", profile.join(", "));
-    run_expecting_failure("ncap_ccrb.toml", &[&set], &["at most 64 breakpoints"]);
+    run_expecting_failure("ncap_cpna.toml", &[&set], &["at most 64 breakpoints"]);
 }
 
 #[test]
@@ -277,7 +299,7 @@ fn actor_keys_are_falsify_ranges() {
         "--range",
         "obstacles.0.motion.speed=0..2",
         "--range",
-        "obstacles.0.centre.0=50..60",
+        "obstacles.0.centre.0=40..50",
         "--set",
         "actor_knowledge.kind=\"static\"",
         "--budget",
@@ -361,8 +383,41 @@ fn a_lead_needs_a_vehicle_on_a_line_and_the_ode_plant() {
         &["obstacles.0.following.time_headway", "expected a finite value >= 0"],
     );
     run_expecting_failure(
-        "ncap_ccrb.toml",
+        "ncap_cpna.toml",
         &["obstacles.0.following={standstill=3.0, time_headway=2.0}"],
         &["obstacles.0.following", "needs a vehicle that moves along a line"],
     );
+}
+
+#[test]
+fn a_moving_box_s_logged_condition_is_the_derivative_of_its_logged_h() {
+    // CCRm with the car footprint and the box target: for every (car circle, target circle)
+    // pair, the logged constraint ḧ + l1 ḣ + l0 h (l0 = l1 = 4, at the applied input) against
+    // central differences of the logged h. The car drives straight at 100 % overlap, so the
+    // steering's first-order term (L_G h = 0 on the axis) drops out and the two must agree.
+    // (A box's circles are off the target's centre: their motion terms once used the centre.)
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("ccrm.mcap");
+    let m = outcome("ncap_ccrm.toml", &log, &[]);
+    assert!(!collided(&m), "{m}");
+    let barriers = read_topic::<proto::Barrier>(&log, "/barrier");
+    let names: Vec<String> = barriers[0].barriers.iter().map(|b| b.name.clone()).collect();
+    assert_eq!(names.len(), 9, "{names:?}");
+    for (k, name) in names.iter().enumerate() {
+        let mut differences: Vec<f64> = barriers
+            .windows(3)
+            .filter(|w| (1.0..6.0).contains(&w[1].time))
+            .map(|w| {
+                let dt = w[2].time - w[1].time;
+                let h = |i: usize| w[i].barriers[k].h;
+                let (h_dot, h_ddot) = ((h(2) - h(0)) / (2.0 * dt), (h(2) - 2.0 * h(1) + h(0)) / (dt * dt));
+                let expected = h_ddot + 4.0 * h_dot + 4.0 * h(1);
+                (w[1].barriers[k].constraint - expected).abs()
+            })
+            .collect();
+        assert!(differences.len() > 1000);
+        differences.sort_by(f64::total_cmp);
+        let median = differences[differences.len() / 2];
+        assert!(median < 0.05, "{name}: median |logged − differences| = {median}");
+    }
 }

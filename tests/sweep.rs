@@ -749,14 +749,21 @@ fn keys_that_move_with_a_grid_axis_take_their_value_in_each_run() {
     assert!(o.status.success(), "{}", stderr(&o));
     let s = json(&out.join("summary.json"));
     let runs = s["runs"].as_array().unwrap();
-    assert_eq!(runs.len(), 22);
+    assert_eq!(runs.len(), 44);
     // Columns: only the grid keys.
     let keys: Vec<&String> = runs[0]["parameters"].as_object().unwrap().keys().collect();
-    assert_eq!(keys, ["actor_knowledge.kind", "vehicle.initial_state.3"]);
+    assert_eq!(
+        keys,
+        [
+            "actor_knowledge.kind",
+            "obstacles.0.motion.acceleration",
+            "vehicle.initial_state.3"
+        ]
+    );
     assert_eq!(s["sweep"]["grids"][0]["with"][0]["key"], "nominal.reference_speed");
     for (index, speed, x0) in [
-        (0, 2.778, 54.6 - 2.6 - 4.68 * 2.778),
-        (21, 16.667, 54.6 - 2.6 - 4.68 * 16.667),
+        (0, 2.778, 53.1 - 2.3 - 4.572 * 2.778),
+        (43, 16.667, 53.1 - 2.3 - 4.572 * 16.667),
     ] {
         let log = out.join(runs[index]["log"].as_str().unwrap());
         let states = read_topic::<mjsafe::log::proto::State>(&log, "/state");
