@@ -819,9 +819,10 @@ mod tests {
     }
 
     /// A footprint's body circle q = p + R(θ) c around an accelerating actor, along the bicycle
-    /// (4.78): ḣ + α h is a + b·u exactly (relative degree 1); at relative degree 2,
-    /// ḧ + l1 ḣ + l0 h is a + b·u plus the steering's first-order terms l1 g + ġ, g = L_G h·u
-    /// (exactly a + b·u when the steering is 0).
+    /// (4.78): ḣ + α h is a + b·u exactly (relative degree 1); at relative degree 2 the row of
+    /// the mixed-relative-degree condition, ψ̇ + λ2 ψ for ψ = L_f h + ∂h/∂t + λ1 h, is
+    /// ḧ + l1 ḣ + l0 h minus the steering's first-order terms λ2 g + ġ, g = L_G h·u (exactly
+    /// ḧ + l1 ḣ + l0 h when the steering is 0).
     #[test]
     fn body_circle_motion_terms_match_finite_differences() {
         let tr = Trajectory::new(&StraightMotion {
@@ -869,6 +870,7 @@ mod tests {
 
         let (l0, l1) = (4.0, 4.0);
         let form = BarrierForm::RelativeDegree2 { l0, l1 };
+        let (_, lambda2) = form.real_rates().unwrap();
         // g(t) = ∇_x h(x(t), t)·G(x(t)) u.
         let lg_h_u = |x: &[f64], t: f64| {
             let mut grad = [0.0; 4];
@@ -884,7 +886,7 @@ mod tests {
             let mut expected = ddh + l1 * dh + l0 * hs[2];
             if steering_terms {
                 let g = series(&bicycle, &x, &u, t0, step, lg_h_u);
-                expected -= l1 * g[2] + (g[3] - g[1]) / (2.0 * step);
+                expected -= lambda2 * g[2] + (g[3] - g[1]) / (2.0 * step);
             }
             let value = |with_input: bool| {
                 let mut c = barrier::constraint(&b0, form, &bicycle, &DVector::from_column_slice(&x));

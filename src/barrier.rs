@@ -27,7 +27,8 @@ pub enum Shape {
     /// A circle fixed to the vehicle body at `offset` (along, across the heading) outside a
     /// circle about `centre`: h = ‖q − o‖² − r², q = p + R(θ) c ((4.81) for one covering circle
     /// of a footprint, `crate::footprint`); p = (`x[position[0]]`, `x[position[1]]`), θ = `x[heading]`.
-    /// Built by the episode, not a scenario key.
+    /// Built by the episode, not a scenario key. `inside`: the circle stays inside the one
+    /// about `centre` instead, h = r² − ‖q − o‖² (a road inside an arc edge).
     #[serde(skip)]
     BodyCircle {
         position: [usize; 2],
@@ -35,6 +36,19 @@ pub enum Shape {
         offset: [f64; 2],
         centre: [f64; 2],
         radius: f64,
+        inside: bool,
+    },
+    /// A circle fixed to the vehicle body at `offset` on the side of a line that `normal`
+    /// (a unit vector) points to: h = n·q + d, q = p + R(θ) c as for [`Shape::BodyCircle`]
+    /// (a road's line edge for one covering circle of a footprint, d including its radius).
+    /// Built by the episode, not a scenario key.
+    #[serde(skip)]
+    BodyHalfSpace {
+        position: [usize; 2],
+        heading: usize,
+        offset: [f64; 2],
+        normal: [f64; 2],
+        distance: f64,
     },
     /// Car following behind a lead on the line (Molnar et al., arXiv 2112.08445):
     /// h = D − D_sf − T v with the gap D = `lead` − `rear` − p, p = `x[position]` (the
@@ -96,6 +110,7 @@ impl Barrier {
                 offset,
                 centre,
                 radius: radius_sum,
+                inside: false,
             },
         }
     }
@@ -163,7 +178,10 @@ impl Barrier {
     /// (docs/actors.md, "Footprints"): [`LieWorkspace::constraint_into`] adds λ1 L_G h to b,
     /// and [`LieWorkspace::first_order_part_into`] gives the companion row ḣ + λ1 h ≥ 0.
     pub fn mixed_relative_degree(&self) -> bool {
-        matches!(&self.shape, Shape::BodyCircle { offset, .. } if *offset != [0.0, 0.0])
+        match &self.shape {
+            Shape::BodyCircle { offset, .. } | Shape::BodyHalfSpace { offset, .. } => *offset != [0.0, 0.0],
+            _ => false,
+        }
     }
 
     /// Largest state index the barrier reads.
@@ -172,7 +190,9 @@ impl Barrier {
             Shape::Ball { indices, .. } => indices.iter().copied().max().unwrap_or(0),
             Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
             Shape::Quadratic { q, c, .. } => q.len().max(c.len()).saturating_sub(1),
-            Shape::BodyCircle { position, heading, .. } => position[0].max(position[1]).max(*heading),
+            Shape::BodyCircle { position, heading, .. } | Shape::BodyHalfSpace { position, heading, .. } => {
+                position[0].max(position[1]).max(*heading)
+            }
             Shape::Headway { position, speed, .. } => (*position).max(*speed),
         }
     }
@@ -212,9 +232,25 @@ impl Barrier {
                 offset,
                 centre,
                 radius,
+                inside,
             } => {
                 let (q, _) = body_point(position, heading, offset, x);
-                (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) - radius * radius
+                let h = (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) - radius * radius;
+                if inside {
+                    -h
+                } else {
+                    h
+                }
+            }
+            &Shape::BodyHalfSpace {
+                position,
+                heading,
+                offset,
+                normal,
+                distance,
+            } => {
+                let (q, _) = body_point(position, heading, offset, x);
+                normal[0] * q[0] + normal[1] * q[1] + distance
             }
             &Shape::Headway {
                 position,
@@ -260,10 +296,18 @@ impl Barrier {
                 offset,
                 centre,
                 radius,
+                inside,
             } => {
                 let (q, _) = body_point(position, heading, offset, x.as_slice());
-                (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius
+                let d = (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius;
+                if inside {
+                    -d
+                } else {
+                    d
+                }
             }
+            // n is a unit vector: h is the distance.
+            Shape::BodyHalfSpace { .. } => self.h(x),
             // The gap D between the vehicle's front and the lead's rear.
             &Shape::Headway {
                 position, lead, rear, ..
@@ -310,19 +354,34 @@ impl Barrier {
                     g[i] += c;
                 }
             }
-            // ∂h/∂p = 2 d, ∂h/∂θ = 2 d·w with d = q − o, w = R'(θ) c.
+            // ∂h/∂p = 2 d, ∂h/∂θ = 2 d·w with d = q − o, w = R'(θ) c (negated inside).
             &Shape::BodyCircle {
                 position,
                 heading,
                 offset,
                 centre,
+                inside,
                 ..
             } => {
                 let (q, w) = body_point(position, heading, offset, x);
+                let sign = if inside { -2.0 } else { 2.0 };
                 let d = [q[0] - centre[0], q[1] - centre[1]];
-                g[position[0]] = 2.0 * d[0];
-                g[position[1]] = 2.0 * d[1];
-                g[heading] += 2.0 * (d[0] * w[0] + d[1] * w[1]);
+                g[position[0]] = sign * d[0];
+                g[position[1]] = sign * d[1];
+                g[heading] += sign * (d[0] * w[0] + d[1] * w[1]);
+            }
+            // ∂h/∂p = n, ∂h/∂θ = n·w.
+            &Shape::BodyHalfSpace {
+                position,
+                heading,
+                offset,
+                normal,
+                ..
+            } => {
+                let (_, w) = body_point(position, heading, offset, x);
+                g[position[0]] = normal[0];
+                g[position[1]] = normal[1];
+                g[heading] += normal[0] * w[0] + normal[1] * w[1];
             }
             &Shape::Headway {
                 position,
@@ -355,23 +414,38 @@ impl Barrier {
                 }
             }
             Shape::HalfSpace { .. } | Shape::Headway { .. } => {}
-            // ∂²h/∂p² = 2I, ∂²h/∂p∂θ = 2w, ∂²h/∂θ² = 2(‖w‖² + d·R''c) = 2(‖c‖² − d·Rc).
+            // ∂²h/∂p² = 2I, ∂²h/∂p∂θ = 2w, ∂²h/∂θ² = 2(‖w‖² + d·R''c) = 2(‖c‖² − d·Rc)
+            // (negated inside).
             &Shape::BodyCircle {
                 position,
                 heading,
                 offset,
                 centre,
+                inside,
                 ..
             } => {
                 let (q, w) = body_point(position, heading, offset, x);
+                let sign = if inside { -2.0 } else { 2.0 };
                 let d = [q[0] - centre[0], q[1] - centre[1]];
                 let rc = [w[1], -w[0]];
                 let c2 = offset[0] * offset[0] + offset[1] * offset[1];
                 let [i, j] = position;
                 let vt = v[heading];
-                out[i] += 2.0 * (v[i] + w[0] * vt);
-                out[j] += 2.0 * (v[j] + w[1] * vt);
-                out[heading] += 2.0 * (w[0] * v[i] + w[1] * v[j]) + 2.0 * (c2 - d[0] * rc[0] - d[1] * rc[1]) * vt;
+                out[i] += sign * (v[i] + w[0] * vt);
+                out[j] += sign * (v[j] + w[1] * vt);
+                out[heading] += sign * (w[0] * v[i] + w[1] * v[j]) + sign * (c2 - d[0] * rc[0] - d[1] * rc[1]) * vt;
+            }
+            // Only ∂²h/∂θ² = n·R''c = −n·Rc.
+            &Shape::BodyHalfSpace {
+                position,
+                heading,
+                offset,
+                normal,
+                ..
+            } => {
+                let (_, w) = body_point(position, heading, offset, x);
+                let rc = [w[1], -w[0]];
+                out[heading] -= (normal[0] * rc[0] + normal[1] * rc[1]) * v[heading];
             }
         }
     }
@@ -1092,6 +1166,81 @@ mod tests {
         // At the reference point there is no first-order row.
         let centre = Barrier::body_circle("o", ([0, 1], 2), [0.0, 0.0], [6.0, 1.0], 2.27);
         assert!(!centre.mixed_relative_degree());
+    }
+
+    /// A body circle's road-edge barriers (a line edge, and inside an arc edge): ∇h and ∇²h v
+    /// against central differences of h, and h against the geometry (the distance from the
+    /// line, the radius minus the distance from the arc's centre).
+    #[test]
+    fn body_edge_barriers_match_finite_differences_and_geometry() {
+        let mut worst: f64 = 0.0;
+        for k in 0..40 {
+            let s = k as f64;
+            let offset = [1.5 * (0.7 * s).cos(), 0.4 * (1.1 * s).sin()];
+            let normal = [(0.3 * s).cos(), (0.3 * s).sin()];
+            let line = Barrier {
+                name: "edge/0".into(),
+                shape: Shape::BodyHalfSpace {
+                    position: [0, 1],
+                    heading: 2,
+                    offset,
+                    normal,
+                    distance: 4.0 - 1.2,
+                },
+            };
+            let arc = Barrier {
+                name: "arc/0".into(),
+                shape: Shape::BodyCircle {
+                    position: [0, 1],
+                    heading: 2,
+                    offset,
+                    centre: [1.0, -2.0],
+                    radius: 30.0 - 1.2,
+                    inside: true,
+                },
+            };
+            let x = [3.0 * (0.3 * s).cos(), 2.0 * s.sin(), 0.41 * s - 9.0, 2.5];
+            let (sn, cs) = x[2].sin_cos();
+            let q = [
+                x[0] + cs * offset[0] - sn * offset[1],
+                x[1] + sn * offset[0] + cs * offset[1],
+            ];
+            let line_h = normal[0] * q[0] + normal[1] * q[1] + 4.0 - 1.2;
+            let arc_h = (30.0f64 - 1.2).powi(2) - (q[0] - 1.0).powi(2) - (q[1] + 2.0).powi(2);
+            assert!((line.h_at(&x) - line_h).abs() < 1e-12 && (arc.h_at(&x) - arc_h).abs() < 1e-9);
+            let clearance = 30.0 - 1.2 - (q[0] - 1.0).hypot(q[1] + 2.0);
+            assert!((arc.clearance(&DVector::from_column_slice(&x)) - clearance).abs() < 1e-12);
+            assert!(line.mixed_relative_degree() && arc.mixed_relative_degree());
+            for b in [&line, &arc] {
+                let mut g = [0.0; 4];
+                b.gradient_into(&x, &mut g);
+                let e = 1e-5;
+                let shifted = |i: usize, d: f64| {
+                    let mut y = x;
+                    y[i] += d;
+                    y
+                };
+                for (i, g) in g.iter().enumerate() {
+                    let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
+                    worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
+                }
+                let v = [0.3, -1.2, 0.8, 0.5];
+                let mut hv = [0.0; 4];
+                b.add_hessian_times(&x, &v, &mut hv);
+                for i in 0..4 {
+                    let fd_row: f64 = (0..4)
+                        .map(|j| {
+                            let (mut gp, mut gm) = ([0.0; 4], [0.0; 4]);
+                            b.gradient_into(&shifted(j, e), &mut gp);
+                            b.gradient_into(&shifted(j, -e), &mut gm);
+                            (gp[i] - gm[i]) / (2.0 * e) * v[j]
+                        })
+                        .sum();
+                    worst = worst.max((fd_row - hv[i]).abs() / (1.0 + hv[i].abs()));
+                }
+            }
+        }
+        assert!(worst < 1e-7, "largest relative difference {worst:e}");
     }
 
     /// With a zero offset the body circle is the planar ball (4.81): the same Lie derivatives

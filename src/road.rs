@@ -170,6 +170,61 @@ impl Edge {
         }
     }
 
+    /// The barriers keeping each covering circle of a footprint (offset along and across the
+    /// heading, radius) on the road side of this edge, named `<name>/<i>` (docs/actors.md,
+    /// "Footprints"): a line edge h = n·q + d − ρ ([`Shape::BodyHalfSpace`]), an arc edge the
+    /// circle about its centre of radius R ∓ ρ, inside or outside ([`Shape::BodyCircle`]);
+    /// q = p + R(θ) c the circle's centre, p = (`x[position[0]]`, `x[position[1]]`),
+    /// θ = `x[heading]`.
+    pub fn body_barriers(
+        &self,
+        name: &str,
+        (position, heading): ([usize; 2], usize),
+        circles: &[([f64; 2], f64)],
+    ) -> Vec<Barrier> {
+        circles
+            .iter()
+            .enumerate()
+            .map(|(i, &(offset, rho))| {
+                let shape = match self {
+                    Edge::Line {
+                        point, direction, road, ..
+                    } => {
+                        let [dx, dy] = unit(*direction).unwrap_or([1.0, 0.0]);
+                        let normal = match road {
+                            LineSide::Left => [-dy, dx],
+                            LineSide::Right => [dy, -dx],
+                        };
+                        Shape::BodyHalfSpace {
+                            position,
+                            heading,
+                            offset,
+                            normal,
+                            distance: -(normal[0] * point[0] + normal[1] * point[1]) - rho,
+                        }
+                    }
+                    Edge::Arc {
+                        centre, radius, road, ..
+                    } => Shape::BodyCircle {
+                        position,
+                        heading,
+                        offset,
+                        centre: *centre,
+                        radius: match road {
+                            ArcSide::Inside => radius - rho,
+                            ArcSide::Outside => radius + rho,
+                        },
+                        inside: *road == ArcSide::Inside,
+                    },
+                };
+                Barrier {
+                    name: format!("{name}/{i}"),
+                    shape,
+                }
+            })
+            .collect()
+    }
+
     /// Signed distance from the planar point `p` to the edge, positive on the road side.
     pub fn distance(&self, p: [f64; 2]) -> f64 {
         match self {

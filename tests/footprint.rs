@@ -318,3 +318,78 @@ fn a_moving_box_and_the_footprint_are_drawn_as_cubes() {
     let p = boxed.cubes[0].pose.unwrap().position.unwrap();
     assert!((p.y - (-12.0 + 2.0 * 4.0)).abs() < 0.1, "{p:?}");
 }
+
+/// scenarios/bicycle_narrow_road.toml with the car's footprint, the box in place of its
+/// obstacle, and the road's edges at x2 = `left` and x2 = `right`.
+fn road_text(left: f64, right: f64, footprint: bool) -> String {
+    let base = std::fs::read_to_string(scenario("bicycle_narrow_road.toml")).unwrap();
+    let model = root().join("models/bicycle.xml");
+    let base = base.replace("\"../models/bicycle.xml\"", &format!("{:?}", model.to_str().unwrap()));
+    let base = base.replace("point = [0.0, 5.0]", &format!("point = [0.0, {left}]"));
+    let base = base.replace("point = [0.0, -7.0]", &format!("point = [0.0, {right}]"));
+    let base = base.replace(
+        "centre = [-3.0, 0.5]\nradius = 3.0",
+        &format!(
+            "centre = [-3.0, 1.5]\nshape = {{ kind = \"box\", length = {}, width = {} }}",
+            BOX[0], BOX[1]
+        ),
+    );
+    let vehicle = if footprint {
+        "plant = \"ode\"\n[vehicle]\nfootprint = { length = 4.6, width = 1.8 }"
+    } else {
+        "plant = \"ode\"\n[vehicle]"
+    };
+    base.replacen("[vehicle]", vehicle, 1)
+}
+
+#[test]
+fn the_footprint_keeps_to_the_road_between_edges_the_hull_cannot_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    // 5 m between the edges: the 6 m hull starts off the road and is refused, naming the edge.
+    fails(
+        dir.path(),
+        &road_text(2.5, -2.5, false),
+        &[],
+        &["road.edges.0", "starts off the road"],
+    );
+    // The footprint fits; γm passes the box (its near edge 0.645 m into the car's half of
+    // the road) and keeps every covering circle inside both edges.
+    let log = run(dir.path(), "road", &road_text(2.5, -2.5, true), &[]);
+    let m = analyze_json(&log);
+    assert!(m["collision"].is_null(), "{m}");
+    // (min_h is absent: the edges' h is in m, the obstacle's in m².)
+    for (name, h) in m["min_h_by_barrier"].as_object().unwrap() {
+        assert!(h.as_f64().unwrap() >= 0.0, "{name}: {m}");
+    }
+    let barriers = read_topic::<proto::Barrier>(&log, "/barrier");
+    let names: Vec<&str> = barriers[0].barriers.iter().map(|b| b.name.as_str()).collect();
+    for edge in ["left_edge", "right_edge"] {
+        for i in 0..3 {
+            assert!(names.contains(&format!("{edge}/{i}").as_str()), "{names:?}");
+        }
+    }
+    // Independently from /state: every covering circle and every corner of the car between
+    // x2 = -2.5 and 2.5.
+    let circles = covering_circles(CAR);
+    let mut lowest_margin = f64::INFINITY;
+    let states = read_topic::<proto::State>(&log, "/state");
+    for s in &states {
+        let (p, heading) = ([s.values[0], s.values[1]], s.values[2]);
+        for &(along, rho) in &circles {
+            let y = p[1] + along * heading.sin();
+            lowest_margin = lowest_margin.min(2.5 - (y + rho)).min((y - rho) + 2.5);
+        }
+        for (u, v) in [(2.3, 0.9), (2.3, -0.9), (-2.3, 0.9), (-2.3, -0.9)] {
+            let y = p[1] + u * heading.sin() + v * heading.cos();
+            assert!(y.abs() <= 2.5, "t = {}: a corner at x2 = {y}", s.time);
+        }
+    }
+    assert!(
+        lowest_margin >= 0.0,
+        "a covering circle crosses an edge by {}",
+        -lowest_margin
+    );
+    // It got past the box (the goal is 13 m beyond it).
+    let last = states.last().unwrap();
+    assert!(last.values[0] > 2.0, "stopped at x1 = {}", last.values[0]);
+}

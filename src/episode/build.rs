@@ -440,6 +440,19 @@ pub(super) fn road_edges(
     let Some(road) = &loaded.scenario.road else {
         return Ok(Vec::new());
     };
+    // With a footprint, one barrier per (edge, covering circle), named `<edge>/<i>`.
+    let footprint = match (&loaded.scenario.vehicle.footprint, model.heading_index()) {
+        (Some(_), Some(heading)) => Some((vehicle_circles(loaded, hull_radius), heading)),
+        _ => None,
+    };
+    let widest = footprint.as_ref().map_or(hull_radius, |(circles, _)| {
+        circles.iter().map(|c| c.1).fold(0.0, f64::max)
+    });
+    let what = if footprint.is_some() {
+        "footprint's covering circles"
+    } else {
+        "hull"
+    };
     let mut barriers = Vec::with_capacity(road.edges.len());
     for (i, edge) in road.edges.iter().enumerate() {
         let Some(position) = model.planar_position() else {
@@ -453,30 +466,36 @@ pub(super) fn road_edges(
             ..
         } = edge
         {
-            if *radius <= hull_radius {
+            if *radius <= widest {
                 return Err(loaded
                     .field_error(
                         &format!("road.edges.{i}.radius"),
-                        format!("a road inside a circle of radius {radius} m has no room for the vehicle's hull of radius {hull_radius} m: expected a radius > {hull_radius}"),
+                        format!("a road inside a circle of radius {radius} m has no room for the vehicle's {what} of radius {widest} m: expected a radius > {widest}"),
                     )
                     .into());
             }
         }
-        let barrier = edge.barrier(&edge.name(i), position, hull_radius);
-        if barrier.h(x0) < 0.0 {
-            return Err(loaded
-                .field_error(
-                    &format!("road.edges.{i}"),
-                    format!(
-                        "the vehicle starts off the road: its hull (radius {hull_radius} m) at ({}, {}) is {:.3} m beyond this edge",
-                        x0[position[0]],
-                        x0[position[1]],
-                        -barrier.clearance(x0)
-                    ),
-                )
-                .into());
+        let edge_barriers = match &footprint {
+            Some((circles, heading)) => edge.body_barriers(&edge.name(i), (position, *heading), circles),
+            None => vec![edge.barrier(&edge.name(i), position, hull_radius)],
+        };
+        for barrier in edge_barriers {
+            if barrier.h(x0) < 0.0 {
+                return Err(loaded
+                    .field_error(
+                        &format!("road.edges.{i}"),
+                        format!(
+                            "the vehicle starts off the road: its {what} (radius {widest} m) at ({}, {}) {} {:.3} m beyond this edge",
+                            x0[position[0]],
+                            x0[position[1]],
+                            if footprint.is_some() { format!("reach ({})", barrier.name) } else { "is".into() },
+                            -barrier.clearance(x0)
+                        ),
+                    )
+                    .into());
+            }
+            barriers.push(barrier);
         }
-        barriers.push(barrier);
     }
     Ok(barriers)
 }
