@@ -265,6 +265,11 @@ impl Barrier {
 
     /// Signed distance to the boundary for an outside ball (negative when overlapping).
     pub fn clearance(&self, x: &DVector<f64>) -> f64 {
+        self.clearance_at(x.as_slice())
+    }
+
+    /// [`Barrier::clearance`] for a state given as a slice (allocation-free but for a quadratic).
+    pub fn clearance_at(&self, x: &[f64]) -> f64 {
         match &self.shape {
             Shape::Ball {
                 indices,
@@ -272,7 +277,7 @@ impl Barrier {
                 radius,
                 inside,
             } => {
-                let d = squared_distance(indices, centre, x.as_slice()).sqrt();
+                let d = squared_distance(indices, centre, x).sqrt();
                 if *inside {
                     radius - d
                 } else {
@@ -280,7 +285,7 @@ impl Barrier {
                 }
             }
             Shape::HalfSpace { coefficients, .. } => {
-                self.h(x)
+                self.h_at(x)
                     / coefficients
                         .iter()
                         .map(|c| c * c)
@@ -289,7 +294,13 @@ impl Barrier {
                         .max(f64::MIN_POSITIVE)
             }
             // First-order distance estimate h / ‖∇h‖.
-            Shape::Quadratic { .. } => self.h(x) / self.gradient(x).norm().max(f64::MIN_POSITIVE),
+            Shape::Quadratic { .. } => {
+                self.h_at(x)
+                    / self
+                        .gradient(&DVector::from_column_slice(x))
+                        .norm()
+                        .max(f64::MIN_POSITIVE)
+            }
             &Shape::BodyCircle {
                 position,
                 heading,
@@ -298,7 +309,7 @@ impl Barrier {
                 radius,
                 inside,
             } => {
-                let (q, _) = body_point(position, heading, offset, x.as_slice());
+                let (q, _) = body_point(position, heading, offset, x);
                 let d = (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius;
                 if inside {
                     -d
@@ -307,7 +318,7 @@ impl Barrier {
                 }
             }
             // n is a unit vector: h is the distance.
-            Shape::BodyHalfSpace { .. } => self.h(x),
+            Shape::BodyHalfSpace { .. } => self.h_at(x),
             // The gap D between the vehicle's front and the lead's rear.
             &Shape::Headway {
                 position, lead, rear, ..

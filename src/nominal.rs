@@ -217,6 +217,20 @@ pub trait NominalController: Send {
     /// u ← u0 at time `time` and state x (one value per channel).
     fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]);
 
+    /// Whether u0 reads the moving road users the controller knows (a lead to follow):
+    /// then [`NominalController::input_with_actors_into`] is called instead of `input_into`.
+    fn reads_actors(&self) -> bool {
+        false
+    }
+
+    /// u ← u0 at time `time` and state x, with each moving road user the controller knows
+    /// where it assumes it at `time` (`[actor_knowledge]`), in the order of the scenario's
+    /// moving obstacles (docs/actors.md). Default: [`NominalController::input_into`].
+    fn input_with_actors_into(&self, time: f64, x: &[f64], actors: &[SeenActor], u: &mut [f64]) {
+        let _ = actors;
+        self.input_into(time, x, u)
+    }
+
     /// Whether the controller is itself a predictor-feedback law, evaluated at the prediction
     /// p(t) and its time φ⁻¹(t) even when the safety filter is not delay-compensated (§2.4.2).
     fn uses_prediction(&self) -> bool {
@@ -233,6 +247,17 @@ pub trait NominalController: Send {
     fn reference_path(&self) -> Option<ReferencePath> {
         None
     }
+}
+
+/// A moving road user as a nominal controller sees it: its state where the controller assumes
+/// it, and the gap (m) between it and the vehicle at the state u0 is evaluated at (the
+/// clearance of its barrier: for a lead to follow, D = lead's rear − vehicle's front).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SeenActor {
+    pub state: crate::actor::ActorState,
+    pub gap: f64,
+    /// A lead on the line (`[obstacles.following]`).
+    pub lead: bool,
 }
 
 /// A straight reference path: a point, its heading (rad) and the reference speed (m/s).
@@ -332,6 +357,126 @@ impl NominalController for BicyclePathLqr {
             heading: self.path_heading,
             speed: self.reference_speed,
         })
+    }
+}
+
+/// `kind = "car_following"`: Molnar, Kiss, Ames, Orosz's nominal behind a lead (arXiv 2112.08445;
+/// their `truck.m`): u0 = A (min(κ (D − D_st), v_max) − v) + B (min(v_L, v_max) − v), with D the
+/// gap to the first lead (`[obstacles.following]`) and v_L its speed where the controller
+/// assumes it; without a known lead, D = ∞ (cruise at v_max).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CarFollowingParams {
+    /// A (1/s): the gain on the headway's speed error.
+    #[serde(default = "default_gap_gain")]
+    pub gap_gain: f64,
+    /// B (1/s): the gain on the lead's speed.
+    #[serde(default = "default_speed_gain")]
+    pub speed_gain: f64,
+    /// D_st (m): the standstill gap.
+    #[serde(default = "default_standstill")]
+    pub standstill: f64,
+    /// κ (1/s): the range policy's slope.
+    #[serde(default = "default_kappa")]
+    pub kappa: f64,
+    /// v_max (m/s).
+    #[serde(default = "default_max_speed")]
+    pub max_speed: f64,
+}
+
+fn default_gap_gain() -> f64 {
+    0.4
+}
+fn default_speed_gain() -> f64 {
+    0.5
+}
+fn default_standstill() -> f64 {
+    5.0
+}
+fn default_kappa() -> f64 {
+    0.5
+}
+fn default_max_speed() -> f64 {
+    20.0
+}
+
+impl Params for CarFollowingParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        for (key, v) in [
+            ("nominal.gap_gain", self.gap_gain),
+            ("nominal.speed_gain", self.speed_gain),
+            ("nominal.kappa", self.kappa),
+            ("nominal.max_speed", self.max_speed),
+        ] {
+            if !positive_finite(v) {
+                return Err(ParamError::new(key, format!("expected a positive number, found {v}")));
+            }
+        }
+        if !(self.standstill.is_finite() && self.standstill >= 0.0) {
+            return Err(ParamError::new(
+                "nominal.standstill",
+                format!("expected a gap >= 0 (m), found {}", self.standstill),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Molnar et al.'s car-following law ([`CarFollowingParams`]) for a vehicle on a line whose
+/// one input is its acceleration.
+pub struct CarFollowing {
+    params: CarFollowingParams,
+    speed: usize,
+}
+
+pub fn build_car_following(
+    p: &CarFollowingParams,
+    ctx: &NominalContext,
+) -> Result<Box<dyn NominalController>, ParamError> {
+    let model = ctx.model.as_ref();
+    let refuse = || {
+        ParamError::new(
+            "nominal.kind",
+            "car_following needs a vehicle on a line whose one input is its acceleration (e.g. vehicle.kind = \"double_integrator_1d\")",
+        )
+    };
+    let position = model.line_position().ok_or_else(refuse)?;
+    let n = model.state_dim();
+    if ctx.channels.len() != 1 {
+        return Err(refuse());
+    }
+    // The speed: the state the position's derivative is; its derivative the input itself.
+    let x = DVector::zeros(n);
+    let jacobian = model.drift_jacobian(&x);
+    let row = jacobian.row(position);
+    let speed = (0..n)
+        .find(|&s| row[s] == 1.0 && row.iter().enumerate().all(|(j, v)| j == s || *v == 0.0))
+        .ok_or_else(refuse)?;
+    if model.input_matrix(&x)[(speed, 0)] != 1.0 || model.drift(&x)[speed] != 0.0 {
+        return Err(refuse());
+    }
+    Ok(Box::new(CarFollowing {
+        params: p.clone(),
+        speed,
+    }))
+}
+
+impl NominalController for CarFollowing {
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        self.input_with_actors_into(time, x, &[], u)
+    }
+    fn reads_actors(&self) -> bool {
+        true
+    }
+    fn input_with_actors_into(&self, _: f64, x: &[f64], actors: &[SeenActor], u: &mut [f64]) {
+        let p = &self.params;
+        let v = x[self.speed];
+        let (gap, lead_speed) = actors
+            .iter()
+            .find(|a| a.lead)
+            .map_or((f64::INFINITY, p.max_speed), |a| (a.gap, a.state.velocity[0]));
+        u[0] = p.gap_gain * ((p.kappa * (gap - p.standstill)).min(p.max_speed) - v)
+            + p.speed_gain * (lead_speed.min(p.max_speed) - v);
     }
 }
 

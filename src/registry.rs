@@ -160,6 +160,9 @@ impl Registry {
         r.add_nominal("path_lqr", nominal::build_path_lqr)
             .label("LQR path tracking")
             .description("LQR tracking of a reference path, linearised about it (Riccati by the matrix sign function)");
+        r.add_nominal("car_following", nominal::build_car_following)
+            .label("car following (Molnar et al.)")
+            .description("Molnar, Kiss, Ames, Orosz's nominal behind a lead: A (min(κ (D − D_st), v_max) − v) + B (min(v_L, v_max) − v)");
         r.add_nominal("constant", nominal::build_constant)
             .label("constant input")
             .description("the same input at every tick");

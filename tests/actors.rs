@@ -324,23 +324,51 @@ fn actor_keys_are_falsify_ranges() {
 
 #[test]
 fn molnar_truck_keeps_its_headway_when_it_predicts_the_lead_as_it_brakes() {
-    // h = D − 3 − 2 v behind a lead braking at up to 10 m/s², input delay 0.5 s. The nominal
-    // alone drives into the lead; the predictor CBF-QP (2.26) keeps h ≥ 0 when it extrapolates
-    // the lead's acceleration or knows its future, and not when it extrapolates its velocity
-    // (the lead's braking over the delay is missed) or does not compensate the delay.
+    // h = D − 3 − 2 v behind a lead braking at up to 10 m/s², input delay 0.5 s, with Molnar et
+    // al.'s nominal (the file's `car_following`) and with a driver who does not react (u0 = 0).
+    // The predictor CBF-QP (2.26) keeps h ≥ 0 when it extrapolates the lead's acceleration or
+    // knows its future, and not when it extrapolates its velocity (the lead's braking over the
+    // delay is missed) or does not compensate the delay.
     let dir = tempfile::tempdir().unwrap();
     let run = |name: &str, sets: &[&str]| outcome("molnar_truck.toml", &dir.path().join(name), sets);
-    let m = run("nominal.mcap", &["filter={kind=\"none\"}"]);
-    assert!(collided(&m), "{m}");
     let min_h = |m: &serde_json::Value| m["min_h"].as_f64().unwrap();
+    let still = "nominal={kind=\"constant\", input=[0.0]}";
+    let m = run("nominal.mcap", &["filter={kind=\"none\"}", still]);
+    assert!(collided(&m), "{m}");
+    // Molnar's nominal alone brakes for the lead but breaks the headway.
+    let m = run("molnar-nominal.mcap", &["filter={kind=\"none\"}"]);
+    assert!(!collided(&m) && min_h(&m) < -1.0, "{m}");
     for k in ["constant_acceleration", "oracle", "static"] {
-        let m = run(&format!("{k}.mcap"), &[&format!("actor_knowledge.kind=\"{k}\"")]);
+        let knowledge = format!("actor_knowledge.kind=\"{k}\"");
+        let m = run(&format!("{k}.mcap"), &[&knowledge, still]);
         assert!(!collided(&m) && min_h(&m) >= 0.0, "{k}: {m}");
+        let m = run(&format!("molnar-{k}.mcap"), &[&knowledge]);
+        assert!(!collided(&m) && min_h(&m) >= 0.0, "{k}, Molnar's nominal: {m}");
     }
-    let m = run("cv.mcap", &["actor_knowledge.kind=\"constant_velocity\""]);
+    let m = run("cv.mcap", &["actor_knowledge.kind=\"constant_velocity\"", still]);
     assert!(min_h(&m) < -1.0, "{m}");
-    let m = run("uncompensated.mcap", &["filter.compensation=\"none\""]);
+    let m = run("molnar-cv.mcap", &["actor_knowledge.kind=\"constant_velocity\""]);
     assert!(min_h(&m) < -1.0, "{m}");
+    let m = run("uncompensated.mcap", &["filter.compensation=\"none\"", still]);
+    assert!(min_h(&m) < -1.0, "{m}");
+
+    // Molnar's nominal by hand from the logged state and lead (no filter, so u0 is evaluated
+    // at x(t) with the lead at t): A (min(κ (D − D_st), v_max) − v) + B (min(v_L, v_max) − v).
+    let log = dir.path().join("molnar-nominal.mcap");
+    let states = read_topic::<proto::State>(&log, "/state");
+    let actors = read_topic::<proto::Actors>(&log, "/actors");
+    let issued = read_topic::<proto::IssuedCommand>(&log, "/command/issued");
+    assert!(issued.len() > 1000);
+    let mut largest: f64 = 0.0;
+    for c in &issued {
+        let s = states.iter().find(|s| s.time == c.time).unwrap();
+        let a = actors.iter().find(|a| a.time == c.time).unwrap();
+        let (p, v, lead_x, lead_v) = (s.values[0], s.values[1], a.actors[0].x, a.actors[0].vx);
+        let gap = lead_x - 2.0 - p;
+        let u0 = 0.4 * ((0.5 * (gap - 5.0)).min(20.0) - v) + 0.5 * (lead_v.min(20.0) - v);
+        largest = largest.max((c.nominal[0] - u0).abs());
+    }
+    assert!(largest < 1e-9, "u0 differs from Molnar's law by {largest}");
 
     // By hand, over the 0.5 s delay: taken as static the lead is v_L τ = 7.5 m off while it
     // cruises at 15 m/s; extrapolating its velocity while it brakes at 10 m/s² misses

@@ -17,7 +17,7 @@ use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
 use crate::filter::{ChannelInput, ChannelOutcome, FilterError, LawInput, SafetyFilter, TICK_TOLERANCE};
-use crate::nominal::NominalController;
+use crate::nominal::{NominalController, SeenActor};
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
 use crate::sensing::Sensor;
@@ -95,6 +95,8 @@ struct LawWorkspace {
     /// Per first-order row of a mixed-relative-degree barrier (after the one row per
     /// barrier in `constraints`), the barrier's index.
     first_order_of: Vec<usize>,
+    /// The moving actors as a nominal that reads them sees them (capacity: one per actor).
+    seen: Vec<SeenActor>,
 }
 
 impl LawWorkspace {
@@ -112,9 +114,14 @@ impl LawWorkspace {
     /// line: for the per-channel loop of a tick (the κ closure, called at every predictor
     /// step, keeps them inline).
     #[inline(always)]
-    fn channel_laws(&mut self, laws: &Laws<'_>, time: f64, nominal_state: &[f64], (z, at): (&[f64], f64)) -> usize {
-        laws.nominal
-            .input_into(time, nominal_state, self.nominal.as_mut_slice());
+    fn channel_laws(
+        &mut self,
+        laws: &Laws<'_>,
+        time: f64,
+        nominal_state: (&[f64], f64),
+        (z, at): (&[f64], f64),
+    ) -> usize {
+        self.nominal_into(laws, time, nominal_state);
         laws.form
             .map_or(0, |form| self.constraints_out_of_line(laws, form, z, at))
     }
@@ -141,7 +148,7 @@ impl LawWorkspace {
             let start = free[..end].partition_point(|&j| delay(j) < d);
             let group = &free[start..end];
             let nominal_time = if nominal_predicts { s } else { s - d };
-            laws.nominal.input_into(nominal_time, z, self.nominal.as_mut_slice());
+            self.nominal_into(laws, nominal_time, (z, s));
             self.input.as_mut_slice().copy_from_slice(u);
             let input = LawInput {
                 time: s - d,
@@ -158,6 +165,32 @@ impl LawWorkspace {
             end = start;
         }
         Ok(())
+    }
+
+    /// nominal ← u0 at (`time`, x), x the state at time `at`; for a nominal that reads actors,
+    /// with every known moving actor where the controller assumes it at `at` (where it is when
+    /// the vehicle is at x) and the gap its (first) barrier measures at x ([`SeenActor`]).
+    #[inline(always)]
+    fn nominal_into(&mut self, laws: &Laws<'_>, time: f64, (x, at): (&[f64], f64)) {
+        if !laws.nominal.reads_actors() {
+            laws.nominal.input_into(time, x, self.nominal.as_mut_slice());
+            return;
+        }
+        self.seen.clear();
+        for (k, motion) in laws.actors.motions.iter().enumerate() {
+            let (Some(motion), true, Some(moved)) = (motion, laws.actors.primary[k], self.moving[k].as_mut()) else {
+                continue;
+            };
+            let state = laws.actors.assumed(motion, k, at);
+            moved.move_actor(state.shifted(laws.actors.offsets[k]).position);
+            self.seen.push(SeenActor {
+                state,
+                gap: moved.clearance_at(x),
+                lead: matches!(moved.shape, crate::barrier::Shape::Headway { .. }),
+            });
+        }
+        laws.nominal
+            .input_with_actors_into(time, x, &self.seen, self.nominal.as_mut_slice());
     }
 
     #[inline(never)]
@@ -381,6 +414,7 @@ impl ControlLoop {
                 column: vec![0.0; n],
                 point_input: vec![[0.0; 2]; r],
                 first_order_of: Vec::new(),
+                seen: Vec::new(),
             },
             spare_states: Vec::new(),
             realize: PredictorWorkspace::new(n, r),
@@ -532,6 +566,9 @@ impl ControlLoop {
         self.add_known(barrier, Some(motion));
         *self.actors.offsets.last_mut().expect("just added") = offset;
         *self.actors.primary.last_mut().expect("just added") = primary;
+        // (len stays 0 outside a tick: reserve for every primary actor.)
+        let primaries = self.actors.primary.iter().filter(|&&p| p).count();
+        self.work.law.seen.reserve(primaries);
     }
 
     fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>) {
@@ -719,10 +756,11 @@ impl ControlLoop {
             } else {
                 (&*state, t)
             };
-            let (nominal_time, nominal_state) = if nominal_predicts {
-                (p.target_time, &p.state)
+            // (u0's time, and its state with the time that state is for.)
+            let (nominal_time, nominal_state, state_time) = if nominal_predicts {
+                (p.target_time, &p.state, p.target_time)
             } else {
-                (t, eval_state)
+                (t, eval_state, eval_time)
             };
             // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
             let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
@@ -730,7 +768,7 @@ impl ControlLoop {
                 count = law.channel_laws(
                     &laws,
                     nominal_time,
-                    nominal_state.as_slice(),
+                    (nominal_state.as_slice(), state_time),
                     (eval_state.as_slice(), eval_time),
                 );
             }
