@@ -1035,9 +1035,8 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
 
 /// One obstacle's `motion`: the trajectory it defines must be usable (the checks of
 /// [`crate::actor::Trajectory::new`], at the key they name) and every jitter ≥ 0 and finite.
-/// An obstacle's `radius` (a circle) or `shape` (a box, ODE plant only), one of the two.
+/// An obstacle's `radius` (a circle) or `shape` (a box), one of the two.
 fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Result<(), ScenarioError> {
-    let sc = &s.scenario;
     let Some(ObstacleShape::Box {
         length,
         width,
@@ -1081,12 +1080,6 @@ fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Re
             ));
         }
         _ => {}
-    }
-    if sc.plant == PlantKind::Mujoco {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.shape"),
-            "box obstacles run on `plant = \"ode\"` only for now (MuJoCo's obstacles are sphere geoms)",
-        ));
     }
     Ok(())
 }
@@ -1229,12 +1222,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
         footprint
             .check(OBSTACLE_EXTENT)
             .map_err(|e| s.field_error(&format!("vehicle.footprint.{}", e.key), e.message))?;
-        if sc.plant == PlantKind::Mujoco {
-            return Err(s.field_error(
-                "vehicle.footprint",
-                "footprints run on `plant = \"ode\"` only for now (MuJoCo's contacts are the hull geom's)",
-            ));
-        }
     }
     for (i, o) in sc.obstacles.iter().enumerate() {
         validate_obstacle_shape(s, i, o)?;

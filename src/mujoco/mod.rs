@@ -447,6 +447,63 @@ impl Model {
         [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
     }
 
+    /// The body a geom belongs to (`geom_bodyid`; 0 is the world body).
+    pub fn geom_body(&self, geom: usize) -> usize {
+        self.int_array(self.raw().geom_bodyid, self.raw().ngeom)[geom] as usize
+    }
+
+    /// Position of a geom in its body's frame (`geom_pos`).
+    pub fn geom_pos(&self, geom: usize) -> [f64; 3] {
+        let all = self.num_array(self.raw().geom_pos, self.raw().ngeom * 3);
+        [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// Half-extents of a geom along its own axes, for the solid primitives (sphere, capsule,
+    /// ellipsoid, cylinder, box); None for planes, height fields and meshes.
+    pub fn geom_half_extents(&self, geom: usize) -> Option<[f64; 3]> {
+        let kind = self.int_array(self.raw().geom_type, self.raw().ngeom)[geom];
+        let [a, b, c] = self.geom_size(geom);
+        // mjtGeom of 2.2.2: plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4, cylinder 5,
+        // box 6, mesh 7.
+        match kind {
+            2 => Some([a, a, a]),
+            3 => Some([a, a, a + b]),
+            5 => Some([a, a, b]),
+            4 | 6 => Some([a, b, c]),
+            _ => None,
+        }
+    }
+
+    /// A geom's contact bits (`[contype, conaffinity]`).
+    pub fn geom_collision(&self, geom: usize) -> [i32; 2] {
+        let n = self.raw().ngeom;
+        [
+            self.int_array(self.raw().geom_contype, n)[geom],
+            self.int_array(self.raw().geom_conaffinity, n)[geom],
+        ]
+    }
+
+    /// Sets a geom's contact bits (`[contype, conaffinity]`): `[0, 0]` takes it out of every
+    /// contact.
+    ///
+    /// # Panics
+    /// If `geom` is not a geom of the model.
+    pub fn set_geom_collision(&mut self, geom: usize, bits: [i32; 2]) {
+        let n = self.ngeom();
+        assert!(geom < n, "geom {geom} of {n}");
+        let m = self.raw();
+        for (p, bit) in [(m.geom_contype, bits[0]), (m.geom_conaffinity, bits[1])] {
+            // SAFETY: live model arrays of ngeom ints, uniquely borrowed through &mut self;
+            // geom < ngeom.
+            unsafe { *p.add(geom) = bit };
+        }
+    }
+
+    /// The parent of a body (`body_parentid`; the world body is its own parent).
+    pub fn body_parent(&self, body: usize) -> usize {
+        self.int_array(self.raw().body_parentid, self.raw().nbody)[body] as usize
+    }
+
     /// Number of bodies (the world body included).
     pub fn nbody(&self) -> usize {
         self.raw().nbody as usize
