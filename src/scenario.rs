@@ -357,7 +357,7 @@ pub struct ObstacleSpec {
     /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
     /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
     /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
-    /// x less `radius`).
+    /// x less `radius`, or less a box's half extent along x).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub following: Option<FollowingSpec>,
 }
@@ -1268,12 +1268,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                         format!("expected a finite value >= 0, found {v}"),
                     ));
                 }
-            }
-            if o.shape.is_some() {
-                return Err(s.field_error(
-                    &format!("obstacles.{i}.following"),
-                    "a lead is a `radius` (half its length), not a `shape`",
-                ));
             }
         }
     }

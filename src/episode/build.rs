@@ -938,7 +938,8 @@ fn obstacle_motion(
 
 /// Obstacle `i`, a lead to follow on the line (`following`): its headway barrier
 /// h = D − D_sf − T v (Molnar et al.), with the vehicle's speed the state its position's
-/// derivative is (ṗ = x_s: the drift Jacobian's row of p at x(0) is the unit vector e_s).
+/// derivative is (ṗ = x_s: the drift Jacobian's row of p at x(0) is the unit vector e_s), and
+/// D measured to the lead's rear (its centre less its radius, or a box's half extent along x).
 fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f64>) -> Result<Obstacle, EpisodeError> {
     let sc = &loaded.scenario;
     let o = &sc.obstacles[i];
@@ -967,14 +968,29 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
     };
     let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
     let (motion, centre) = obstacle_motion(loaded, i)?;
-    let radius = o.radius.unwrap_or(0.0);
+    // How far the lead's rear is behind its centre along the line: its radius, or a box's
+    // half extent along x at its heading.
+    let (rear, outline) = match o.shape {
+        Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => {
+            let heading = o.circles().0;
+            let (s, c) = heading.sin_cos();
+            (
+                0.5 * (length * c.abs() + width * s.abs()),
+                super::Outline::Box { length, width, heading },
+            )
+        }
+        None => {
+            let radius = o.radius.unwrap_or(0.0);
+            (radius, super::Outline::Circle { radius })
+        }
+    };
     let barrier = Barrier {
         name: name.clone(),
         shape: crate::barrier::Shape::Headway {
             position,
             speed,
             lead: centre[0],
-            rear: radius,
+            rear,
             standstill: following.standstill,
             time_headway: following.time_headway,
         },
@@ -995,7 +1011,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
         barriers: vec![barrier],
         offsets: vec![[0.0; 2]],
         centre,
-        outline: super::Outline::Circle { radius },
+        outline,
         appear_at: (o.appear_at
             + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
         .max(0.0),
