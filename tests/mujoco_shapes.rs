@@ -225,8 +225,10 @@ fn static_and_moving_boxes_are_hit_on_mujoco_where_the_exact_shapes_first_overla
                     mujoco.depth
                 );
             } else {
+                // Box and box: MuJoCo 2.2.2's box-box collider reports half the penetration
+                // (docs/actors.md, "On MuJoCo").
                 assert!(
-                    mujoco.depth <= exact_depth + 1e-6,
+                    (2.0 * mujoco.depth - exact_depth).abs() < 0.05 * exact_depth,
                     "{name}: {} vs {exact_depth}",
                     mujoco.depth
                 );
