@@ -203,7 +203,6 @@ fn model_with_obstacles(
         let look = "contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"";
         let (name, [x, y]) = (obstacle_geom_name(i), o.centre);
         let shape = match o.shape {
-            // A static obstacle's text is as it always was (logs of static scenes unchanged).
             None => format!("type=\"sphere\" size=\"{}\"", o.radius.unwrap_or_default()),
             Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => format!(
                 "type=\"box\" size=\"{} {} {}\" quat=\"{}\"",
@@ -214,6 +213,7 @@ fn model_with_obstacles(
             ),
         };
         let lead = hull.filter(|_| o.following.is_some());
+        // A sphere's text, static or moving, is as it always was (logs unchanged).
         geoms.push_str(&match (&o.motion, lead) {
             (_, Some(hull)) => format!(
                 "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} pos=\"0 {} {}\" {look}/></body>\n",
