@@ -485,7 +485,7 @@ pub enum BarrierForm {
 impl BarrierForm {
     /// (λ1, λ2) with s² + l1 s + l0 = (s + λ1)(s + λ2), λ1 ≥ λ2 > 0, for the relative-degree-2
     /// form with real positive roots (l0 > 0, l1 > 0, l1² ≥ 4 l0); None otherwise. The
-    /// mixed-relative-degree condition of a body circle ([`Shape::mixed_relative_degree`]) is
+    /// mixed-relative-degree condition of a body circle ([`Barrier::mixed_relative_degree`]) is
     /// built on this factorisation.
     pub fn real_rates(&self) -> Option<(f64, f64)> {
         let &BarrierForm::RelativeDegree2 { l0, l1 } = self else {

@@ -55,30 +55,48 @@ pub trait Plant: Send {
 pub struct MujocoPlant {
     sim: Simulation,
     vehicle: Box<dyn MujocoVehicle>,
-    obstacle_geoms: Vec<usize>,
-    /// Per obstacle: the mocap index of its body (moving obstacles), or None (static).
-    obstacle_mocaps: Vec<Option<usize>>,
+    obstacles: Vec<MujocoObstacle>,
+    /// The vehicle's geom whose contacts count: its hull, or the box added for a footprint
+    /// or a lead.
+    contact_geom: usize,
     input_buffer: Vec<f64>,
 }
 
+/// An obstacle as the MuJoCo plant sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MujocoObstacle {
+    /// Its geom (sphere or box).
+    pub geom: usize,
+    /// The mocap index of its body if it moves, None if it stands in the world body.
+    pub mocap: Option<usize>,
+    /// How many barriers the episode keeps for it (one per pair of covering circles): its
+    /// depth goes to the first, the others get none.
+    pub barriers: usize,
+}
+
 impl MujocoPlant {
-    /// `obstacle_mocaps[i]`: the mocap index of obstacle i's body if it moves.
+    /// The vehicle's contacts are its hull geom's until [`MujocoPlant::with_contact_geom`].
     pub fn new(
         sim: Simulation,
         vehicle: Box<dyn MujocoVehicle>,
-        obstacle_geoms: Vec<usize>,
-        obstacle_mocaps: Vec<Option<usize>>,
+        obstacles: Vec<MujocoObstacle>,
         x0: &DVector<f64>,
     ) -> MujocoPlant {
         let mut plant = MujocoPlant {
             sim,
+            contact_geom: vehicle.hull_geom(),
             vehicle,
-            obstacle_geoms,
-            obstacle_mocaps,
+            obstacles,
             input_buffer: Vec::new(),
         };
         plant.vehicle.write_state(&mut plant.sim, x0);
         plant
+    }
+
+    /// The vehicle's contacts are those of `geom` (a geom of its body) instead of the hull's.
+    pub fn with_contact_geom(mut self, geom: usize) -> MujocoPlant {
+        self.contact_geom = geom;
+        self
     }
 }
 
@@ -137,24 +155,30 @@ impl Plant for MujocoPlant {
     }
     /// Sets the obstacle's mocap body (at z = 0): the next `mj_step`'s collision sees it there.
     fn move_obstacle(&mut self, index: usize, position: [f64; 2]) {
-        if let Some(&Some(mocap)) = self.obstacle_mocaps.get(index) {
+        if let Some(mocap) = self.obstacles.get(index).and_then(|o| o.mocap) {
             self.sim.set_mocap_pos(mocap, [position[0], position[1], 0.0]);
         }
     }
-    /// From MuJoCo's contacts between the hull and the obstacle geoms. The contacts after
-    /// `mj_step` are those of the step's first collision phase (the state at its start).
+    /// From MuJoCo's contacts between the vehicle's contact geom (the hull, or the footprint's
+    /// or lead's box) and each obstacle's geom, deepest first in the obstacle's first barrier
+    /// slot. The contacts after `mj_step` are those of the step's first collision phase (the
+    /// state at its start).
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {
-        let hull = self.vehicle.hull_geom();
+        let vehicle = self.contact_geom;
         let contacts = self.sim.data().contacts();
         depths.clear();
-        depths.extend(self.obstacle_geoms.iter().take(obstacles.len()).map(|&geom| {
-            contacts
+        for o in &self.obstacles {
+            let geom = o.geom;
+            let depth = contacts
                 .iter()
-                .filter(|c| (c.geom1 == hull && c.geom2 == geom) || (c.geom2 == hull && c.geom1 == geom))
+                .filter(|c| (c.geom1 == vehicle && c.geom2 == geom) || (c.geom2 == vehicle && c.geom1 == geom))
                 .map(|c| -c.dist)
                 .filter(|d| *d > 0.0)
-                .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))))
-        }));
+                .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))));
+            depths.push(depth);
+            depths.extend(std::iter::repeat_n(None, o.barriers.saturating_sub(1)));
+        }
+        depths.truncate(obstacles.len());
     }
 }
 

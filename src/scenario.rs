@@ -357,7 +357,7 @@ pub struct ObstacleSpec {
     /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
     /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
     /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
-    /// x less `radius`).
+    /// x less `radius`, or less a box's half extent along x).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub following: Option<FollowingSpec>,
 }
@@ -1035,9 +1035,8 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
 
 /// One obstacle's `motion`: the trajectory it defines must be usable (the checks of
 /// [`crate::actor::Trajectory::new`], at the key they name) and every jitter ≥ 0 and finite.
-/// An obstacle's `radius` (a circle) or `shape` (a box, ODE plant only), one of the two.
+/// An obstacle's `radius` (a circle) or `shape` (a box), one of the two.
 fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Result<(), ScenarioError> {
-    let sc = &s.scenario;
     let Some(ObstacleShape::Box {
         length,
         width,
@@ -1081,12 +1080,6 @@ fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Re
             ));
         }
         _ => {}
-    }
-    if sc.plant == PlantKind::Mujoco {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.shape"),
-            "box obstacles run on `plant = \"ode\"` only for now (MuJoCo's obstacles are sphere geoms)",
-        ));
     }
     Ok(())
 }
@@ -1229,12 +1222,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
         footprint
             .check(OBSTACLE_EXTENT)
             .map_err(|e| s.field_error(&format!("vehicle.footprint.{}", e.key), e.message))?;
-        if sc.plant == PlantKind::Mujoco {
-            return Err(s.field_error(
-                "vehicle.footprint",
-                "footprints run on `plant = \"ode\"` only for now (MuJoCo's contacts are the hull geom's)",
-            ));
-        }
     }
     for (i, o) in sc.obstacles.iter().enumerate() {
         validate_obstacle_shape(s, i, o)?;
@@ -1281,12 +1268,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                         format!("expected a finite value >= 0, found {v}"),
                     ));
                 }
-            }
-            if o.shape.is_some() {
-                return Err(s.field_error(
-                    &format!("obstacles.{i}.following"),
-                    "a lead is a `radius` (half its length), not a `shape`",
-                ));
             }
         }
     }

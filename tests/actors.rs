@@ -399,12 +399,8 @@ fn molnar_truck_keeps_its_headway_when_it_predicts_the_lead_as_it_brakes() {
 }
 
 #[test]
-fn a_lead_needs_a_vehicle_on_a_line_and_the_ode_plant() {
-    run_expecting_failure(
-        "molnar_truck.toml",
-        &["plant=\"mujoco\""],
-        &["obstacles.0.following", "runs on `plant = \"ode\"` only"],
-    );
+fn a_lead_needs_a_vehicle_on_a_line() {
+    // (It runs on MuJoCo too: tests/mujoco_shapes.rs.)
     run_expecting_failure(
         "molnar_truck.toml",
         &["obstacles.0.following.time_headway=-1.0"],

@@ -225,10 +225,7 @@ fn footprints_and_boxes_are_validated_with_the_key() {
     let dir = tempfile::tempdir().unwrap();
     let dir = dir.path();
     let car = scenario_text(BESIDE, true);
-    let mujoco = car.replacen("plant = \"ode\"", "plant = \"mujoco\"", 1);
-    fails(dir, &mujoco, &[], &["vehicle.footprint", "plant = \"ode\""]);
-    let hull = scenario_text(BESIDE, false).replacen("plant = \"ode\"", "plant = \"mujoco\"", 1);
-    fails(dir, &hull, &[], &["obstacles.0.shape", "plant = \"ode\""]);
+    // (Footprints and boxes run on MuJoCo too: tests/mujoco_shapes.rs.)
     fails(
         dir,
         &car,

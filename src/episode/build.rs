@@ -17,7 +17,7 @@ use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
 use crate::log::{KindInfo, RunInfo};
 use crate::mujoco::{self, Model, ObjKind, Simulation};
 use crate::nominal::{NominalContext, NominalController};
-use crate::plant::{MujocoPlant, OdePlant, Plant, PlantKind};
+use crate::plant::{MujocoObstacle, MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
 use crate::scenario::{ActuationSpec, DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
@@ -44,21 +44,142 @@ pub(super) struct PlantParts {
     pub dynamics: Arc<dyn Dynamics>,
     pub hull_radius: f64,
     pub timestep: f64,
+    /// The geom whose contacts are the vehicle's when it is not the hull ([`CONTACT_GEOM`]).
+    contact_geom: Option<usize>,
     /// The vehicle kind's own keys, checked and normalised by its parameter type (what the
     /// log's resolved scenario holds).
     pub vehicle_params: toml::Table,
 }
 
-/// MJCF of the model with each obstacle added as a sphere geom `obstacle_<i>` (contype 0,
-/// conaffinity 1: it collides with the vehicle hull and nothing else): static in the world
-/// body, or, when it moves, in a mocap body `obstacle_<i>_body` the plant moves every step.
+/// Where the vehicle's collision geom `hull` sits, read from the compiled bare model: what a
+/// footprint's box or a lead's contact box is placed by.
+struct HullGeometry {
+    /// The name of the body holding the hull (the geom added for contacts goes into it).
+    body: String,
+    /// The hull's position in that body's frame.
+    pos: [f64; 3],
+    /// Its half-extents along its own axes.
+    half: [f64; 3],
+    /// Its position in the world at the model's reference pose (bodies taken as unrotated).
+    world: [f64; 3],
+}
+
+/// The geom mjsafe adds to the vehicle's body when its contacts are not the hull's: the
+/// footprint's box, or, behind a lead, a box whose front face is the vehicle's position.
+pub(super) const CONTACT_GEOM: &str = "vehicle_contact";
+
+/// Whether the vehicle's contacts come from an added geom: with a footprint, or a lead to
+/// follow (its headway's gap is measured from the vehicle's position, its front).
+fn needs_contact_geom(loaded: &LoadedScenario) -> bool {
+    let sc = &loaded.scenario;
+    sc.plant == PlantKind::Mujoco
+        && (sc.vehicle.footprint.is_some() || sc.obstacles.iter().any(|o| o.following.is_some()))
+}
+
+/// The hull of the bound vehicle in `model`: its body (a named body other than the world),
+/// position and extents.
+fn hull_geometry(model: &Model, hull: usize) -> Result<HullGeometry, String> {
+    let body = model.geom_body(hull);
+    let name = (body != 0).then(|| model.name(ObjKind::Body, body)).flatten();
+    let Some(name) = name.filter(|n| !n.is_empty()) else {
+        return Err("the collision geom `hull` must be in a named body of the vehicle (a footprint's or a lead's contact box is added to it)".into());
+    };
+    let Some(half) = model.geom_half_extents(hull) else {
+        return Err("the collision geom `hull` must be a sphere, capsule, ellipsoid, cylinder or box".into());
+    };
+    let pos = model.geom_pos(hull);
+    let mut world = pos;
+    let mut b = body;
+    while b != 0 {
+        let p = model.body_pos(b);
+        (0..3).for_each(|k| world[k] += p[k]);
+        b = model.body_parent(b);
+    }
+    Ok(HullGeometry {
+        body: name,
+        pos,
+        half,
+        world,
+    })
+}
+
+/// The end of the start tag `<body … name="name" …>` in `xml` (comments skipped), where a
+/// child element can be inserted; None if there is none or it closes itself.
+fn body_tag_end(xml: &str, name: &str) -> Option<usize> {
+    let bytes = xml.as_bytes();
+    let mut i = 0;
+    while let Some(at) = xml[i..].find('<').map(|k| i + k) {
+        if xml[at..].starts_with("<!--") {
+            i = at + 4 + xml[at + 4..].find("-->")? + 3;
+            continue;
+        }
+        // The tag's end: the first '>' outside quotes.
+        let mut quote = None;
+        let mut end = at + 1;
+        while end < bytes.len() {
+            match (bytes[end], quote) {
+                (b'"' | b'\'', None) => quote = Some(bytes[end]),
+                (c, Some(q)) if c == q => quote = None,
+                (b'>', None) => break,
+                _ => {}
+            }
+            end += 1;
+        }
+        if end >= bytes.len() {
+            return None;
+        }
+        let tag = &xml[at + 1..end];
+        let is_body = tag
+            .strip_prefix("body")
+            .is_some_and(|rest| rest.starts_with(char::is_whitespace));
+        if is_body && !tag.ends_with('/') && attribute(tag, "name").as_deref() == Some(name) {
+            return Some(end + 1);
+        }
+        i = end + 1;
+    }
+    None
+}
+
+/// The value of attribute `key` in a start tag's text (`body name="x" pos="…"`).
+fn attribute(tag: &str, key: &str) -> Option<String> {
+    let mut rest = tag.split_once(char::is_whitespace)?.1;
+    loop {
+        rest = rest.trim_start();
+        let (attr, after) = rest.split_once('=')?;
+        let after = after.trim_start();
+        let quote = after.chars().next().filter(|c| *c == '"' || *c == '\'')?;
+        let (value, next) = after[1..].split_once(quote)?;
+        if attr.trim() == key {
+            return Some(value.to_string());
+        }
+        rest = next;
+    }
+}
+
+/// The quaternion (w x y z) of a turn by `heading` about z.
+fn yaw_quat(heading: f64) -> String {
+    let (s, c) = (0.5 * heading).sin_cos();
+    format!("{c} 0 0 {s}")
+}
+
+/// MJCF of the model with each obstacle added as a geom `obstacle_<i>` (contype 0,
+/// conaffinity 1: it collides with the vehicle's contact geom and nothing else): a sphere of
+/// its radius, or a box of its length and width (half-height half its longer side) turned by
+/// its heading; static in the world body, or, when it moves, in a mocap body
+/// `obstacle_<i>_body` the plant moves every step. A lead's geom sits at the height and on the
+/// line of the vehicle's hull (`hull`). With `hull` (a footprint or a lead), the vehicle's
+/// body gets the geom [`CONTACT_GEOM`]: the footprint's box centred on the reference point (the
+/// body's origin) at the hull's height, or a box of the hull's extents ending at the body's
+/// origin (the vehicle's front, as the headway measures it).
 fn model_with_obstacles(
     xml: &str,
     model_path: &std::path::Path,
     loaded: &LoadedScenario,
+    hull: Option<&HullGeometry>,
 ) -> Result<String, ScenarioError> {
-    let obstacles = &loaded.scenario.obstacles;
-    if obstacles.is_empty() {
+    let sc = &loaded.scenario;
+    let obstacles = &sc.obstacles;
+    if obstacles.is_empty() && hull.is_none() {
         return Ok(xml.to_string());
     }
     let Some(at) = xml.rfind("</worldbody>") else {
@@ -71,23 +192,76 @@ fn model_with_obstacles(
         ));
     };
     let mut geoms = String::new();
-    // A box obstacle (ODE plant only) has no geom.
-    for (i, o) in obstacles.iter().enumerate().filter(|(_, o)| o.shape.is_none()) {
-        let rest = format!(
-            "size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"",
-            o.radius.unwrap_or_default()
-        );
+    // On the ODE plant the model only gives the dynamics: a box has no geom there (its text
+    // as it always was).
+    let ode = sc.plant == PlantKind::Ode;
+    for (i, o) in obstacles
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| !(ode && o.shape.is_some()))
+    {
+        let look = "contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"";
         let (name, [x, y]) = (obstacle_geom_name(i), o.centre);
-        // A static obstacle's text is as it always was (logs of static scenes unchanged).
-        geoms.push_str(&match o.motion {
-            None => format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" {rest}/>\n"),
-            Some(_) => format!(
-                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" {rest}/></body>\n",
+        let shape = match o.shape {
+            None => format!("type=\"sphere\" size=\"{}\"", o.radius.unwrap_or_default()),
+            Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => format!(
+                "type=\"box\" size=\"{} {} {}\" quat=\"{}\"",
+                0.5 * length,
+                0.5 * width,
+                0.5 * length.max(width),
+                yaw_quat(o.circles().0)
+            ),
+        };
+        let lead = hull.filter(|_| o.following.is_some());
+        // A sphere's text, static or moving, is as it always was (logs unchanged).
+        geoms.push_str(&match (&o.motion, lead) {
+            (_, Some(hull)) => format!(
+                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} pos=\"0 {} {}\" {look}/></body>\n",
+                obstacle_body_name(i),
+                hull.world[1] - y,
+                hull.world[2]
+            ),
+            (None, None) if o.shape.is_none() => {
+                format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n", o.radius.unwrap_or_default())
+            }
+            (None, None) => format!("    <geom name=\"{name}\" {shape} pos=\"{x} {y} 0\" {look}/>\n"),
+            (Some(_), None) if o.shape.is_none() => format!(
+                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/></body>\n",
+                obstacle_body_name(i),
+                o.radius.unwrap_or_default()
+            ),
+            (Some(_), None) => format!(
+                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} {look}/></body>\n",
                 obstacle_body_name(i)
             ),
         });
     }
-    Ok(format!("{}{}{}", &xml[..at], geoms, &xml[at..]))
+    let mut text = format!("{}{}{}", &xml[..at], geoms, &xml[at..]);
+    if let Some(hull) = hull {
+        let (size, pos) = match &sc.vehicle.footprint {
+            Some(f) => (
+                [0.5 * f.length, 0.5 * f.width, 0.5 * f.length.max(f.width)],
+                [0.0, 0.0, hull.pos[2]],
+            ),
+            None => (hull.half, [-hull.half[0], hull.pos[1], hull.pos[2]]),
+        };
+        let geom = format!(
+            "<geom name=\"{CONTACT_GEOM}\" type=\"box\" size=\"{} {} {}\" pos=\"{} {} {}\" mass=\"0\" rgba=\"0.2 0.4 0.9 0.3\"/>",
+            size[0], size[1], size[2], pos[0], pos[1], pos[2]
+        );
+        let Some(end) = body_tag_end(&text, &hull.body) else {
+            return Err(loaded.field_error(
+                "vehicle.model",
+                format!(
+                    "{}: expected the start tag <body name=\"{}\"> of the hull's body, to add the vehicle's contact box to",
+                    model_path.display(),
+                    hull.body
+                ),
+            ));
+        };
+        text.insert_str(end, &geom);
+    }
+    Ok(text)
 }
 
 pub(super) fn obstacle_geom_name(index: usize) -> String {
@@ -133,13 +307,29 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
         (VehicleBinding::Mjcf(bind), Some(model_path)) => {
             let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
                 .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
-            let xml = model_with_obstacles(&xml, &model_path, loaded)?;
-            let mut model = Model::from_xml_string(&xml, &model_path.display().to_string()).map_err(|source| {
-                EpisodeError::Model {
+            let origin = model_path.display().to_string();
+            let compile = |xml: &str| {
+                Model::from_xml_string(xml, &origin).map_err(|source| EpisodeError::Model {
                     file: file.clone(),
                     reason: source,
+                })
+            };
+            // A footprint or a lead: the hull's body and extents from the bare model first.
+            let hull = match needs_contact_geom(loaded) {
+                true => {
+                    let bare = compile(&xml)?;
+                    let bound = bind(&bare).map_err(|reason| EpisodeError::Model {
+                        file: file.clone(),
+                        reason,
+                    })?;
+                    let hull = hull_geometry(&bare, bound.hull_geom())
+                        .map_err(|message| loaded.field_error("vehicle.model", format!("{origin}: {message}")))?;
+                    Some(hull)
                 }
-            })?;
+                false => None,
+            };
+            let xml = model_with_obstacles(&xml, &model_path, loaded, hull.as_ref())?;
+            let mut model = compile(&xml)?;
             if let Some(h) = sc.vehicle.timestep {
                 model.set_timestep(h);
             }
@@ -150,13 +340,42 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
                     Integrator::Implicit => mujoco::Integrator::Implicit,
                 });
             }
-            let bound = bind(&model).map_err(|reason| EpisodeError::Model { file, reason })?;
+            let mut bound = bind(&model).map_err(|reason| EpisodeError::Model {
+                file: file.clone(),
+                reason,
+            })?;
+            let contact_geom = match hull {
+                Some(_) => {
+                    // The added box takes the hull's contact bits; the hull then touches nothing.
+                    let hull = bound.hull_geom();
+                    let contact = model
+                        .require(ObjKind::Geom, CONTACT_GEOM)
+                        .map_err(|reason| EpisodeError::Model {
+                            file: file.clone(),
+                            reason,
+                        })?;
+                    if model.geom_body(contact) != model.geom_body(hull) {
+                        return Err(loaded
+                            .field_error(
+                                "vehicle.model",
+                                format!("{origin}: the vehicle's contact box did not land in the hull's body"),
+                            )
+                            .into());
+                    }
+                    model.set_geom_collision(contact, model.geom_collision(hull));
+                    model.set_geom_collision(hull, [0, 0]);
+                    bound = bind(&model).map_err(|reason| EpisodeError::Model { file, reason })?;
+                    Some(contact)
+                }
+                None => None,
+            };
             Ok(PlantParts {
                 dynamics: bound.dynamics(),
                 hull_radius: bound.hull_radius(),
                 timestep: model.timestep(),
                 model: Some(model),
                 vehicle: Some(bound),
+                contact_geom,
                 vehicle_params,
             })
         }
@@ -166,6 +385,7 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
             dynamics: build(&vehicle_params).map_err(|e| param_error(loaded, e))?,
             hull_radius: 0.0,
             timestep: sc.vehicle.timestep.expect("validated"),
+            contact_geom: None,
             vehicle_params,
         }),
         // The scenario's validation pairs MJCF kinds with a model file and the others without.
@@ -718,17 +938,13 @@ fn obstacle_motion(
 
 /// Obstacle `i`, a lead to follow on the line (`following`): its headway barrier
 /// h = D − D_sf − T v (Molnar et al.), with the vehicle's speed the state its position's
-/// derivative is (ṗ = x_s: the drift Jacobian's row of p at x(0) is the unit vector e_s).
+/// derivative is (ṗ = x_s: the drift Jacobian's row of p at x(0) is the unit vector e_s), and
+/// D measured to the lead's rear (its centre less its radius, or a box's half extent along x).
 fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f64>) -> Result<Obstacle, EpisodeError> {
     let sc = &loaded.scenario;
     let o = &sc.obstacles[i];
     let following = o.following.expect("a lead");
     let key = format!("obstacles.{i}.following");
-    if sc.plant == crate::scenario::PlantKind::Mujoco {
-        return Err(loaded
-            .field_error(&key, "a lead to follow runs on `plant = \"ode\"` only")
-            .into());
-    }
     let Some(position) = model.line_position() else {
         return Err(loaded
             .field_error(
@@ -752,14 +968,29 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
     };
     let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
     let (motion, centre) = obstacle_motion(loaded, i)?;
-    let radius = o.radius.unwrap_or(0.0);
+    // How far the lead's rear is behind its centre along the line: its radius, or a box's
+    // half extent along x at its heading.
+    let (rear, outline) = match o.shape {
+        Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => {
+            let heading = o.circles().0;
+            let (s, c) = heading.sin_cos();
+            (
+                0.5 * (length * c.abs() + width * s.abs()),
+                super::Outline::Box { length, width, heading },
+            )
+        }
+        None => {
+            let radius = o.radius.unwrap_or(0.0);
+            (radius, super::Outline::Circle { radius })
+        }
+    };
     let barrier = Barrier {
         name: name.clone(),
         shape: crate::barrier::Shape::Headway {
             position,
             speed,
             lead: centre[0],
-            rear: radius,
+            rear,
             standstill: following.standstill,
             time_headway: following.time_headway,
         },
@@ -780,7 +1011,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
         barriers: vec![barrier],
         offsets: vec![[0.0; 2]],
         centre,
-        outline: super::Outline::Circle { radius },
+        outline,
         appear_at: (o.appear_at
             + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
         .max(0.0),
@@ -793,11 +1024,12 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
 }
 
 /// The plant: MuJoCo (the obstacles' geoms looked up for contacts, the moving ones' mocap
-/// bodies to move them) or the analytic ODE with the scenario's state disturbance.
+/// bodies to move them; `barriers[i]` the number of obstacle i's barriers) or the analytic
+/// ODE with the scenario's state disturbance.
 pub(super) fn plant(
     loaded: &LoadedScenario,
     parts: PlantParts,
-    obstacles: usize,
+    barriers: &[usize],
     x0: &DVector<f64>,
 ) -> Result<Box<dyn Plant>, EpisodeError> {
     let sc = &loaded.scenario;
@@ -805,38 +1037,34 @@ pub(super) fn plant(
     Ok(match sc.plant {
         PlantKind::Mujoco => {
             let model = parts.model.expect("MuJoCo kinds have a model (validated)");
-            let geoms = (0..obstacles)
-                .map(|i| model.require(ObjKind::Geom, &obstacle_geom_name(i)))
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(|source| EpisodeError::Model {
-                    file: file.clone(),
-                    reason: source,
-                })?;
-            let mocaps = (sc.obstacles.iter().take(obstacles).enumerate())
-                .map(|(i, o)| {
-                    if o.motion.is_none() {
-                        return Ok(None);
-                    }
-                    let name = obstacle_body_name(i);
-                    let body = model.require(ObjKind::Body, &name)?;
-                    model.body_mocap_id(body).map(Some).ok_or(mujoco::MjError::MissingName {
-                        kind: "mocap body",
-                        name,
-                    })
+            let obstacles = (sc.obstacles.iter().zip(barriers).enumerate())
+                .map(|(i, (o, &barriers))| {
+                    let geom = model.require(ObjKind::Geom, &obstacle_geom_name(i))?;
+                    let mocap = match o.motion {
+                        None => None,
+                        Some(_) => {
+                            let name = obstacle_body_name(i);
+                            let body = model.require(ObjKind::Body, &name)?;
+                            let mocap = model.body_mocap_id(body).ok_or(mujoco::MjError::MissingName {
+                                kind: "mocap body",
+                                name,
+                            })?;
+                            Some(mocap)
+                        }
+                    };
+                    Ok(MujocoObstacle { geom, mocap, barriers })
                 })
-                .collect::<Result<Vec<_>, _>>()
+                .collect::<Result<Vec<_>, mujoco::MjError>>()
                 .map_err(|source| EpisodeError::Model {
                     file: file.clone(),
                     reason: source,
                 })?;
             let sim = Simulation::new(model)?;
-            Box::new(MujocoPlant::new(
-                sim,
-                parts.vehicle.expect("bound with the model"),
-                geoms,
-                mocaps,
-                x0,
-            ))
+            let plant = MujocoPlant::new(sim, parts.vehicle.expect("bound with the model"), obstacles, x0);
+            Box::new(match parts.contact_geom {
+                Some(geom) => plant.with_contact_geom(geom),
+                None => plant,
+            })
         }
         PlantKind::Ode => {
             let n = parts.dynamics.state_dim();

@@ -192,7 +192,8 @@ impl Episode {
             .collect();
         let scene_lines = build::scene_lines(loaded, model.planar_position(), &barriers[..own_barriers], &around);
         let vehicle_params = std::mem::take(&mut parts.vehicle_params);
-        let plant = build::plant(loaded, parts, obstacles.len(), &x0)?;
+        let barrier_counts: Vec<usize> = obstacles.iter().map(|o| o.barriers.len()).collect();
+        let plant = build::plant(loaded, parts, &barrier_counts, &x0)?;
         let mut control = ControlLoop::new(
             model.clone(),
             nominal,
@@ -314,12 +315,15 @@ impl Episode {
         let position = self.control.model().planar_position();
         let moving = self.obstacles.iter().any(|o| o.motion.is_some());
         for (k, a) in actuation.iter().enumerate() {
-            // Moving obstacles go where the run put them (triggered by the same states).
-            if let (true, Some([i, j])) = (moving, position) {
+            // Moving obstacles go where the run put them (triggered by the same states; a lead
+            // on the line has no trigger).
+            if moving {
                 let (time, x) = (k as f64 * h, self.plant.state());
                 for (index, o) in self.obstacles.iter_mut().enumerate() {
                     if let Some(motion) = &mut o.motion {
-                        motion.check_trigger(time, [x[i], x[j]]);
+                        if let Some([i, j]) = position {
+                            motion.check_trigger(time, [x[i], x[j]]);
+                        }
                         self.plant.move_obstacle(index, motion.state_at(time).position);
                     }
                 }

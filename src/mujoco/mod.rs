@@ -146,6 +146,9 @@ unsafe extern "C" {
     ) -> *mut ffi::mjModel;
 }
 
+/// How many compiled models a thread keeps for texts compiled again ([`COMPILED`]).
+const CACHED_MODELS: usize = 2;
+
 /// Size of MuJoCo's error buffer for `mj_loadXML`.
 const ERROR_BUFFER: usize = 1000;
 
@@ -154,11 +157,13 @@ thread_local! {
     /// ~2 MB, which cost every episode's start-up): each load adds the model text as a file
     /// and deletes it again.
     static MODEL_VFS: std::cell::RefCell<Option<Box<ffi::mjVFS>>> = const { std::cell::RefCell::new(None) };
-    /// The last model compiled on this thread from text that names no other file, with that
-    /// text. A sweep or a search compiles one model text for every run; a copy of the compiled
+    /// The last [`CACHED_MODELS`] models compiled on this thread from text that names no other
+    /// file, with that text, the most recently used last. A sweep or a search compiles one
+    /// model text for every run (two with a footprint or a lead on MuJoCo: the bare model,
+    /// whose hull places the added geoms, then the model with them); a copy of the compiled
     /// model (`mj_copyModel`) is that model without the parse and the compile, whose temporary
     /// `mjData` zeroed MuJoCo's stack several times per load.
-    static COMPILED: std::cell::RefCell<Option<(String, Model)>> = const { std::cell::RefCell::new(None) };
+    static COMPILED: std::cell::RefCell<Vec<(String, Model)>> = const { std::cell::RefCell::new(Vec::new()) };
     /// The `mjData` of the last simulation dropped on this thread: the next one of a model
     /// with the same sizes resets it (`mj_resetData`, what `mj_makeData` does after
     /// allocating) instead of allocating 4 MB that the allocator may have handed back to the
@@ -232,9 +237,13 @@ impl Model {
         })?;
         let cacheable = !names_other_files(xml);
         if cacheable {
-            let cached = COMPILED.with(|cell| match &*cell.borrow() {
-                Some((text, model)) if text == xml => Some(model.try_clone()),
-                _ => None,
+            let cached = COMPILED.with(|cell| {
+                let mut cache = cell.borrow_mut();
+                let at = cache.iter().position(|(text, _)| text == xml)?;
+                let entry = cache.remove(at);
+                let copy = entry.1.try_clone();
+                cache.push(entry);
+                Some(copy)
             });
             if let Some(model) = cached {
                 return model;
@@ -243,7 +252,13 @@ impl Model {
         let model = Self::compile(xml, origin)?;
         if cacheable {
             let copy = model.try_clone()?;
-            COMPILED.with(|cell| *cell.borrow_mut() = Some((xml.to_string(), copy)));
+            COMPILED.with(|cell| {
+                let mut cache = cell.borrow_mut();
+                if cache.len() >= CACHED_MODELS {
+                    cache.remove(0);
+                }
+                cache.push((xml.to_string(), copy));
+            });
         }
         Ok(model)
     }
@@ -445,6 +460,63 @@ impl Model {
     pub fn geom_size(&self, geom: usize) -> [f64; 3] {
         let all = self.num_array(self.raw().geom_size, self.raw().ngeom * 3);
         [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// The body a geom belongs to (`geom_bodyid`; 0 is the world body).
+    pub fn geom_body(&self, geom: usize) -> usize {
+        self.int_array(self.raw().geom_bodyid, self.raw().ngeom)[geom] as usize
+    }
+
+    /// Position of a geom in its body's frame (`geom_pos`).
+    pub fn geom_pos(&self, geom: usize) -> [f64; 3] {
+        let all = self.num_array(self.raw().geom_pos, self.raw().ngeom * 3);
+        [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// Half-extents of a geom along its own axes, for the solid primitives (sphere, capsule,
+    /// ellipsoid, cylinder, box); None for planes, height fields and meshes.
+    pub fn geom_half_extents(&self, geom: usize) -> Option<[f64; 3]> {
+        let kind = self.int_array(self.raw().geom_type, self.raw().ngeom)[geom];
+        let [a, b, c] = self.geom_size(geom);
+        // mjtGeom of 2.2.2: plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4, cylinder 5,
+        // box 6, mesh 7.
+        match kind {
+            2 => Some([a, a, a]),
+            3 => Some([a, a, a + b]),
+            5 => Some([a, a, b]),
+            4 | 6 => Some([a, b, c]),
+            _ => None,
+        }
+    }
+
+    /// A geom's contact bits (`[contype, conaffinity]`).
+    pub fn geom_collision(&self, geom: usize) -> [i32; 2] {
+        let n = self.raw().ngeom;
+        [
+            self.int_array(self.raw().geom_contype, n)[geom],
+            self.int_array(self.raw().geom_conaffinity, n)[geom],
+        ]
+    }
+
+    /// Sets a geom's contact bits (`[contype, conaffinity]`): `[0, 0]` takes it out of every
+    /// contact.
+    ///
+    /// # Panics
+    /// If `geom` is not a geom of the model.
+    pub fn set_geom_collision(&mut self, geom: usize, bits: [i32; 2]) {
+        let n = self.ngeom();
+        assert!(geom < n, "geom {geom} of {n}");
+        let m = self.raw();
+        for (p, bit) in [(m.geom_contype, bits[0]), (m.geom_conaffinity, bits[1])] {
+            // SAFETY: live model arrays of ngeom ints, uniquely borrowed through &mut self;
+            // geom < ngeom.
+            unsafe { *p.add(geom) = bit };
+        }
+    }
+
+    /// The parent of a body (`body_parentid`; the world body is its own parent).
+    pub fn body_parent(&self, body: usize) -> usize {
+        self.int_array(self.raw().body_parentid, self.raw().nbody)[body] as usize
     }
 
     /// Number of bodies (the world body included).
@@ -1229,7 +1301,7 @@ mod tests {
             let twice = Model::from_xml_string(SLIDER, "slider").unwrap();
             assert_eq!(trajectory(twice), expected);
             assert_eq!(made(), 1);
-            // Other text is compiled (and becomes the cached one); text naming a file always is.
+            // Other text is compiled (and joins the two cached ones); text naming a file always is.
             let other = SLIDER.replace("mass=\"2\"", "mass=\"3\"");
             let heavier = Model::from_xml_string(&other, "slider").unwrap();
             assert_eq!(compiles(), 2);
@@ -1239,6 +1311,9 @@ mod tests {
             let direct = Model::compile(SLIDER, "slider").unwrap();
             assert_eq!(trajectory(direct), expected);
             assert_eq!(made(), 1);
+            // The last two texts are both served (the bare and the full model of a footprint).
+            let copies = [&other, SLIDER, &other].map(|t| Model::from_xml_string(t, "slider").unwrap());
+            assert_eq!(compiles(), 3, "{} copies served from the cache", copies.len());
             // Other sizes get their own mjData; the spare is the last one dropped.
             let with_site = SLIDER.replace("<freejoint/>", "<freejoint/><site name=\"s\"/>");
             let sited = trajectory(Model::from_xml_string(&with_site, "slider").unwrap());
