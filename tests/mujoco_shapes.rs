@@ -338,9 +338,11 @@ fn gap_closes(log: &Path) -> f64 {
 fn a_braking_lead_on_mujoco_is_hit_when_the_gap_closes_unless_the_filter_keeps_the_headway() {
     let dir = tempfile::tempdir().unwrap();
     let step = 0.01;
+    // No filter, and a driver who does not react (the file's nominal brakes for the lead).
     let none = "filter={kind=\"none\"}";
-    let ode = truck(dir.path(), "ode", "ode", &[none]);
-    let mujoco = truck(dir.path(), "mujoco", "mujoco", &[none]);
+    let still = "nominal={kind=\"constant\", input=[0.0]}";
+    let ode = truck(dir.path(), "ode", "ode", &[none, still]);
+    let mujoco = truck(dir.path(), "mujoco", "mujoco", &[none, still]);
     let (ode_start, mujoco_start) = (
         events(&ode, "collision_start")[0].clone(),
         events(&mujoco, "collision_start")[0].clone(),
@@ -366,7 +368,7 @@ fn a_braking_lead_on_mujoco_is_hit_when_the_gap_closes_unless_the_filter_keeps_t
         dir.path(),
         "boxed",
         "mujoco",
-        &[none],
+        &[none, still],
         "shape = { kind = \"box\", length = 4.0, width = 1.8 }",
     );
     let boxed_start = events(&boxed, "collision_start")[0].clone();
