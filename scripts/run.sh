@@ -10,16 +10,20 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
-cargo build --quiet --bin mjsafe
 bin="${CARGO_TARGET_DIR:-target}/debug/mjsafe"
 stamp="$(date -u +%Y%m%dT%H%M%S)"
 if [ $# -gt 0 ]; then
+  cargo build --quiet --bin mjsafe
   scenario="$1"
   log="logs/$(basename "$scenario" .toml)-$stamp.mcap"
   "$bin" run "$scenario" --out "$log" "${@:2}"
   "$bin" analyze "$log"
   exit
 fi
+# The comparison is headless: build without the rerun SDK first (about half the cold build), so
+# the table comes before the rest is built (docs/performance.md, "Set-up time").
+echo "run: building mjsafe without the rerun viewer support for the comparison (cargo build --no-default-features)"
+cargo build --quiet --bin mjsafe --no-default-features
 dir="logs/ch4-$stamp"
 scenario=scenarios/bicycle_obstacle.toml
 "$bin" run "$scenario" --out "$dir/delay_free.mcap"
@@ -34,3 +38,8 @@ echo "Ch. 4, Example 2: the same delayed bicycle and obstacle, three safety filt
 echo
 echo "Only (4.67), which compensates each channel's own delay, keeps h >= 0 and avoids the obstacle."
 echo "Overlay plots: $dir/plots/overlay-trajectory.png, overlay-barriers.png, overlay-inputs.png"
+# Then everything else: the default build with the rerun feature (`--rerun`, `--rrd`, `replay`).
+echo
+echo "run: building mjsafe with the rerun viewer support (cargo build), for --rerun, --rrd and replay"
+cargo build --quiet --bin mjsafe
+echo "run: done: $bin has every feature"
