@@ -474,3 +474,47 @@ fn a_footprint_needs_the_hull_in_the_vehicle_s_body() {
     assert!(err.contains("named body of the vehicle"), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
 }
+
+#[test]
+fn a_model_that_already_names_a_geom_as_mjsafe_would_is_refused_with_one_line() {
+    // MuJoCo refuses a repeated name with its own text about the modified model; mjsafe says
+    // which name, before MuJoCo sees it.
+    let dir = tempfile::tempdir().unwrap();
+    let xml = std::fs::read_to_string(root().join("models/bicycle.xml")).unwrap();
+    for name in ["vehicle_contact", "obstacle_0"] {
+        let taken = xml.replacen(
+            "<geom name=\"hull\"",
+            &format!("<geom name=\"{name}\" type=\"sphere\" size=\"0.1\" contype=\"0\" conaffinity=\"0\"/><geom name=\"hull\""),
+            1,
+        );
+        let model = write(dir.path(), &format!("{name}.xml"), &taken);
+        let scenario = bicycle(
+            dir.path(),
+            name,
+            "mujoco",
+            true,
+            Target::Static {
+                centre: [0.0, 5.0],
+                heading: 0.0,
+            },
+        );
+        let text = std::fs::read_to_string(&scenario).unwrap().replace(
+            &format!("{:?}", root().join("models/bicycle.xml").display().to_string()),
+            &format!("{:?}", model.display().to_string()),
+        );
+        let scenario = write(dir.path(), &format!("{name}.toml"), &text);
+        let o = mjsafe(&[
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            dir.path().join("x.mcap").to_str().unwrap(),
+        ]);
+        let err = stderr(&o);
+        assert!(!o.status.success());
+        assert!(
+            err.contains("vehicle.model") && err.contains(&format!("`{name}`")),
+            "{err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    }
+}

@@ -191,6 +191,22 @@ fn model_with_obstacles(
             ),
         ));
     };
+    // The names added below must be new to the model (MuJoCo would refuse a repeated name with
+    // its own message, about a line of the modified text).
+    let added = (0..obstacles.len())
+        .flat_map(|i| [obstacle_geom_name(i), obstacle_body_name(i)])
+        .chain(hull.map(|_| CONTACT_GEOM.to_string()));
+    for name in added {
+        if xml.contains(&format!("name=\"{name}\"")) {
+            return Err(loaded.field_error(
+                "vehicle.model",
+                format!(
+                    "{}: already has an element named `{name}`, a name mjsafe gives to the obstacles and the vehicle's contact box it adds: expected another name",
+                    model_path.display()
+                ),
+            ));
+        }
+    }
     let mut geoms = String::new();
     // On the ODE plant the model only gives the dynamics: a box has no geom there (its text
     // as it always was).
