@@ -429,6 +429,9 @@ impl crate::log::Sink for TableSink {
     }
 }
 
+/// A table's columns: each one's name and type.
+type Columns = Vec<(String, Kind)>;
+
 /// A column's type.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
@@ -586,7 +589,7 @@ impl<T: Tables> RunVisitor for Export<'_, T> {
 impl Rows<'_> {
     /// The row `message` makes, if its topic is asked for: its time and columns (its cells
     /// in `self.cells`).
-    fn row(&mut self, message: &Message<'_>) -> Result<Option<(f64, Vec<(String, Kind)>)>, ReadError> {
+    fn row(&mut self, message: &Message<'_>) -> Result<Option<(f64, Columns)>, ReadError> {
         let topic = message.topic;
         let wanted = self.topics.contains(&topic);
         if !(wanted || topic == Topic::State && self.state_names.is_none()) {

@@ -12,6 +12,8 @@
 //! search holds no Python lock while it steps, so Python-written filters (which take the GIL
 //! in the control callback) and other Python threads can run meanwhile.
 
+#![deny(unsafe_code)]
+
 use std::error::Error;
 use std::path::{Path, PathBuf};
 
@@ -56,12 +58,41 @@ fn type_name(value: &Bound<'_, PyAny>) -> String {
         .map_or_else(|_| "object".to_string(), |n| n.to_string())
 }
 
+/// A TOML basic string on one line: `"…"` with `\`, `"` and control characters escaped.
+fn toml_string(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 2);
+    out.push('"');
+    for c in text.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            '\t' => out.push_str("\\t"),
+            '\r' => out.push_str("\\r"),
+            c if c.is_control() => out.push_str(&format!("\\u{:04X}", u32::from(c))),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// A float as TOML text, as a person writes it: `0.4`, `4.0`, `1e300`, `nan`, `inf`.
+fn toml_float(x: f64) -> String {
+    if x.is_nan() {
+        "nan".to_string()
+    } else {
+        // Rust's shortest round-trip form (`inf`, `-inf`, `1e300`, `1e-7` included) is TOML.
+        format!("{x:?}")
+    }
+}
+
 /// A TOML key as written in an inline table: bare when it may be, else quoted.
 fn toml_key(key: &str) -> String {
     if !key.is_empty() && key.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
         key.to_string()
     } else {
-        toml::Value::String(key.to_string()).to_string()
+        toml_string(key)
     }
 }
 
@@ -74,14 +105,15 @@ fn toml_text(value: &Bound<'_, PyAny>, what: &str, depth: usize) -> PyResult<Str
             "{what}: nested more than {MAX_DEPTH} deep (a list or dict that contains itself?)"
         )));
     }
-    if value.is_instance_of::<PyBool>() || type_name(value) == "bool_" {
+    // Python's bool, numpy's (`bool_`, named `bool` since numpy 2).
+    if value.is_instance_of::<PyBool>() || matches!(type_name(value).as_str(), "bool" | "bool_") {
         return Ok(value.is_truthy()?.to_string());
     }
     if value.is_instance_of::<PyString>() {
-        return Ok(toml::Value::String(value.extract::<String>()?).to_string());
+        return Ok(toml_string(&value.extract::<String>()?));
     }
     if value.is_instance_of::<PyFloat>() {
-        return Ok(toml::Value::Float(value.extract::<f64>()?).to_string());
+        return Ok(toml_float(value.extract::<f64>()?));
     }
     // Integers, Python's or numpy's (anything with __index__): their decimal text.
     if let Ok(index) = value.call_method0("__index__") {
@@ -89,7 +121,7 @@ fn toml_text(value: &Bound<'_, PyAny>, what: &str, depth: usize) -> PyResult<Str
     }
     if let Ok(x) = value.extract::<f64>() {
         // numpy floats and other numbers with __float__.
-        return Ok(toml::Value::Float(x).to_string());
+        return Ok(toml_float(x));
     }
     if value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>() {
         let items: Vec<String> = value
@@ -125,9 +157,12 @@ fn overrides(set: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>
     let Some(set) = set.filter(|s| !s.is_none()) else {
         return Ok(Vec::new());
     };
-    let mapping = set
-        .cast::<PyMapping>()
-        .map_err(|_| PyValueError::new_err(format!("{name}: expected a dict of dotted keys, not a {}", type_name(set))))?;
+    let mapping = set.cast::<PyMapping>().map_err(|_| {
+        PyValueError::new_err(format!(
+            "{name}: expected a dict of dotted keys, not a {}",
+            type_name(set)
+        ))
+    })?;
     let mut out = Vec::new();
     for item in mapping.items()?.try_iter()? {
         let (key, value): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item?.extract()?;
@@ -155,9 +190,9 @@ fn ranges(dict: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>> 
     })?;
     let mut out = Vec::new();
     for item in mapping.items()?.try_iter()? {
-        let (key, value): (String, Bound<'_, PyAny>) = item?.extract().map_err(|_| {
-            PyValueError::new_err(format!("{name}: a key is a dotted str such as \"delays.steering\""))
-        })?;
+        let (key, value): (String, Bound<'_, PyAny>) = item?
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("{name}: a key is a dotted str such as \"delays.steering\"")))?;
         let bounds: Vec<f64> = value
             .extract::<Vec<f64>>()
             .ok()
@@ -318,15 +353,17 @@ fn run<'py>(
 /// The metrics of a log, as `mjsafe analyze --json` gives them (JSON text).
 #[pyfunction]
 fn log_metrics(py: Python<'_>, path: PathBuf) -> PyResult<String> {
-    py.detach(move || mjsafe::analyze::analyze_file(&path).map(|m| metrics_json(&m)).map_err(bad))
+    py.detach(move || {
+        mjsafe::analyze::analyze_file(&path)
+            .map(|m| metrics_json(&m))
+            .map_err(bad)
+    })
 }
 
 /// The tables of a log, as `mjsafe export` writes them (every table topic).
 #[pyfunction]
 fn log_tables<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let tables = py.detach(move || {
-        mjsafe::export::read_tables(&path, &mjsafe::export::table_topics()).map_err(bad)
-    })?;
+    let tables = py.detach(move || mjsafe::export::read_tables(&path, &mjsafe::export::table_topics()).map_err(bad))?;
     tables_to_py(py, &tables)
 }
 
@@ -421,8 +458,7 @@ fn falsify<'py>(
     };
     let (report, scenario_toml, evaluations) = py.detach(move || -> PyResult<_> {
         let (problem, _) = request.problem().map_err(bad)?;
-        let report =
-            mjsafe::falsify::falsify(&problem, &out, &search_line, compare_random, |_| {}).map_err(failed)?;
+        let report = mjsafe::falsify::falsify(&problem, &out, &search_line, compare_random, |_| {}).map_err(failed)?;
         let read = |p: &Path| std::fs::read_to_string(p).map_err(failed);
         let scenario_toml = report
             .counterexample
