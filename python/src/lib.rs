@@ -458,7 +458,16 @@ fn falsify<'py>(
     };
     let (report, scenario_toml, evaluations) = py.detach(move || -> PyResult<_> {
         let (problem, _) = request.problem().map_err(bad)?;
-        let report = mjsafe::falsify::falsify(&problem, &out, &search_line, compare_random, |_| {}).map_err(failed)?;
+        let report = mjsafe::falsify::falsify(&problem, &out, &search_line, compare_random, |_| {}).map_err(|e| {
+            use mjsafe::falsify::FalsifyError as E;
+            // With the context the command line gives it; what the search refuses before its
+            // first run (a key of the baseline the scenario rejects) is a bad argument.
+            let message = format!("falsify: {}", line(&e));
+            match e {
+                E::Spec(_) | E::Objective { .. } | E::Sweep(_) | E::Scenario(_) => PyValueError::new_err(message),
+                _ => PyRuntimeError::new_err(message),
+            }
+        })?;
         let read = |p: &Path| std::fs::read_to_string(p).map_err(failed);
         let scenario_toml = report
             .counterexample
