@@ -86,7 +86,13 @@ if [ "$want_test" = 1 ]; then
     exit 1
   fi
   wheel=$(ls "$wheels"/mjsafe-*.whl)
-  digest=$(sha256sum "$wheel" | cut -d' ' -f1)
+  # The wheel's contents, without what changes from build to build (its SBOM's serial number
+  # and the RECORD listing it).
+  digest=$("$venv/bin/python" -c 'import hashlib, sys, zipfile
+z = zipfile.ZipFile(sys.argv[1]); h = hashlib.sha256()
+for n in sorted(z.namelist()):
+    if "/sboms/" not in n and not n.endswith("/RECORD"): h.update(n.encode() + b"\0" + z.read(n))
+print(h.hexdigest())' "$wheel")
   if [ "$(cat "$venv/.mjsafe-wheel" 2>/dev/null)" != "$digest" ] || ! "$venv/bin/python" -c 'import mjsafe' >/dev/null 2>&1; then
     echo "setup: installing the mjsafe Python package into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$wheel"
