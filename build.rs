@@ -60,6 +60,9 @@ fn main() {
             println!("cargo:rustc-link-search=native={}", dir.display());
             // Found at run time without LD_LIBRARY_PATH.
             println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+            // For the crates that link this one (`links = "mujoco"`: DEP_MUJOCO_LIB_DIR), e.g.
+            // the Python package's module, whose run path needs it too.
+            println!("cargo:lib_dir={}", dir.display());
         }
         None => {
             if let Some((dir, from)) = include_override {

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Installs what mjsafe needs and is missing, on Debian 12 as root (idempotent, quiet when
 # everything is there). `scripts/setup.sh` for running; `scripts/setup.sh --test` adds the
-# Python readers the test suite uses as independent checks (in a venv, never system-wide) and
-# the single-node Slurm of tests/cluster.rs (Debian's slurm-wlm and munge; nothing started here).
+# Python readers the test suite uses as independent checks (in a venv, never system-wide), the
+# mjsafe Python package (python/, built by maturin, installed into that venv) and the
+# single-node Slurm of tests/cluster.rs (Debian's slurm-wlm and munge; nothing started here).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 want_test=0
@@ -63,13 +64,38 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml' >/dev/null 2>&1 \
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest' >/dev/null 2>&1 \
+    || [ ! -x "$venv/bin/maturin" ] \
     || [ "$("$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | sed -n 's/^Version: //p')" != 0.36.3 ] \
     || [ ! -x "$venv/bin/rerun" ]; then
-    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML) and the rerun CLI (rerun-sdk) into $venv"
+    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML, pandas), the rerun CLI (rerun-sdk), maturin and pytest into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check -r scripts/requirements-test.txt
   fi
   # No usage data from the rerun CLI the tests run (it would try the network).
   [ -f "${XDG_CONFIG_HOME:-$HOME/.config}/rerun/analytics.json" ] \
     || CI=1 "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || true
+  # The mjsafe Python package (python/): built by maturin with the tests' profile (dev, which
+  # shares their compiled dependencies; headless, without the rerun SDK), installed into the
+  # venv when its wheel changed. A rebuild with nothing changed takes seconds.
+  wheels=$(mktemp -d)
+  trap 'rm -rf "$wheels"' EXIT
+  if ! "$venv/bin/maturin" build --profile dev -m python/Cargo.toml --interpreter "$venv/bin/python" \
+    --out "$wheels" >"$wheels/build.log" 2>&1; then
+    cat "$wheels/build.log" >&2
+    echo "setup: building the mjsafe Python package (python/) failed" >&2
+    exit 1
+  fi
+  wheel=$(ls "$wheels"/mjsafe-*.whl)
+  # The wheel's contents, without what changes from build to build (its SBOM's serial number
+  # and the RECORD listing it).
+  digest=$("$venv/bin/python" -c 'import hashlib, sys, zipfile
+z = zipfile.ZipFile(sys.argv[1]); h = hashlib.sha256()
+for n in sorted(z.namelist()):
+    if "/sboms/" not in n and not n.endswith("/RECORD"): h.update(n.encode() + b"\0" + z.read(n))
+print(h.hexdigest())' "$wheel")
+  if [ "$(cat "$venv/.mjsafe-wheel" 2>/dev/null)" != "$digest" ] || ! "$venv/bin/python" -c 'import mjsafe' >/dev/null 2>&1; then
+    echo "setup: installing the mjsafe Python package into $venv"
+    "$venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$wheel"
+    echo "$digest" >"$venv/.mjsafe-wheel"
+  fi
 fi

@@ -184,17 +184,16 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
             &[log],
         )?;
     }
-    let mut export = Export {
-        log,
-        dir: &dir,
-        format,
+    let mut export = Export::new(
+        &log.display().to_string(),
         topics,
-        tables: BTreeMap::new(),
-        state_names: None,
-        failure: None,
-        cells: Vec::new(),
-        complete: false,
-    };
+        FileTables {
+            log,
+            dir: &dir,
+            format,
+            tables: BTreeMap::new(),
+        },
+    );
     let result = read_run_file(log, &mut export);
     if let Some(failure) = export.failure.take() {
         return Err(failure);
@@ -206,7 +205,7 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
     let empty: Vec<Topic> = topics
         .iter()
         .copied()
-        .filter(|t| !export.tables.contains_key(t))
+        .filter(|t| !export.out.tables.contains_key(t))
         .collect();
     for &topic in &empty {
         let path = table_path(log, &dir, topic, format);
@@ -221,16 +220,217 @@ pub fn export_log(log: &Path, dir: Option<&Path>, topics: &[Topic], format: Form
         }
     }
     let mut written = Vec::new();
-    for (topic, table) in std::mem::take(&mut export.tables) {
+    for (topic, table) in std::mem::take(&mut export.out.tables) {
         let rows = table.rows;
         written.push((topic, table.finish()?, rows));
     }
     Ok(Exported {
         tables: written,
         empty,
-        complete: export.complete,
+        complete: export.rows.complete,
     })
 }
+
+/// The most bytes the tables of one log may take in memory ([`read_tables`], [`TableSink`]):
+/// 8 per number or flag, a text's length plus 24. Beyond it the tables are files
+/// ([`export_log`], which streams).
+pub const MEMORY_LIMIT: usize = 1 << 30;
+
+/// One column of a table held in memory.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Values {
+    F64(Vec<f64>),
+    U64(Vec<u64>),
+    Bool(Vec<bool>),
+    Text(Vec<String>),
+}
+
+impl Values {
+    fn of(kind: Kind) -> Values {
+        match kind {
+            Kind::F64 => Values::F64(Vec::new()),
+            Kind::U64 => Values::U64(Vec::new()),
+            Kind::Bool => Values::Bool(Vec::new()),
+            Kind::Text => Values::Text(Vec::new()),
+        }
+    }
+
+    /// Appends `cell`; the bytes it takes.
+    fn push(&mut self, cell: &Cell) -> usize {
+        match (self, cell) {
+            (Values::F64(v), Cell::F(x)) => v.push(*x),
+            (Values::U64(v), Cell::U(x)) => v.push(*x),
+            (Values::Bool(v), Cell::B(x)) => v.push(*x),
+            (Values::Text(v), Cell::S(x)) => {
+                v.push(x.clone());
+                return x.len() + 24;
+            }
+            _ => unreachable!("cells follow the columns"),
+        }
+        8
+    }
+}
+
+/// A topic's table held in memory: the columns of its file ([`export_log`]), in order, each
+/// with its name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MemoryTable {
+    pub columns: Vec<(String, Values)>,
+    kinds: Vec<(String, Kind)>,
+}
+
+impl MemoryTable {
+    /// Rows in the table.
+    pub fn rows(&self) -> usize {
+        match self.columns.first().map(|(_, v)| v) {
+            Some(Values::F64(v)) => v.len(),
+            Some(Values::U64(v)) => v.len(),
+            Some(Values::Bool(v)) => v.len(),
+            Some(Values::Text(v)) => v.len(),
+            None => 0,
+        }
+    }
+}
+
+/// The tables of one log in memory: one per topic with messages, as [`export_log`] would
+/// write them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MemoryTables {
+    pub tables: BTreeMap<Topic, MemoryTable>,
+    /// The log says its run completed (see [`Exported::complete`]).
+    pub complete: bool,
+    /// Bytes taken so far (at most [`MEMORY_LIMIT`]).
+    bytes: usize,
+}
+
+/// The rows of a log into [`MemoryTables`], within [`MEMORY_LIMIT`].
+struct InMemory {
+    file: String,
+    tables: MemoryTables,
+}
+
+impl Tables for InMemory {
+    fn push(
+        &mut self,
+        topic: Topic,
+        time: f64,
+        columns: Vec<(String, Kind)>,
+        cells: &[Cell],
+    ) -> Result<(), ExportError> {
+        let table = self.tables.tables.entry(topic).or_insert_with(|| MemoryTable {
+            columns: columns.iter().map(|(n, k)| (n.clone(), Values::of(*k))).collect(),
+            kinds: columns.clone(),
+        });
+        check_layout(&self.file, (topic, time), &table.kinds, &columns)?;
+        let bytes: usize = table
+            .columns
+            .iter_mut()
+            .zip(cells)
+            .map(|((_, values), cell)| values.push(cell))
+            .sum();
+        self.tables.bytes = self.tables.bytes.saturating_add(bytes);
+        if self.tables.bytes > MEMORY_LIMIT {
+            return Err(ExportError::Write {
+                file: self.file.clone(),
+                message: format!(
+                    "its tables take more than {MEMORY_LIMIT} bytes in memory (at {topic}, t = {time}); write them to files with `mjsafe export`, which streams"
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The tables of `topics` of `log`, in memory: the rows and columns [`export_log`] writes
+/// (the same reader and decoding), at most [`MEMORY_LIMIT`] bytes of them.
+pub fn read_tables(log: &Path, topics: &[Topic]) -> Result<MemoryTables, ExportError> {
+    let file = log.display().to_string();
+    let mut export = Export::new(
+        &file,
+        topics,
+        InMemory {
+            file: file.clone(),
+            tables: MemoryTables::default(),
+        },
+    );
+    let result = read_run_file(log, &mut export);
+    if let Some(failure) = export.failure.take() {
+        return Err(failure);
+    }
+    result?;
+    let mut tables = export.out.tables;
+    tables.complete = export.rows.complete;
+    Ok(tables)
+}
+
+/// A sink that keeps a running episode's tables in memory: each record encoded as the log
+/// encodes it and read back through the one decoder into the rows [`read_tables`] gives of
+/// its log, every table topic, at most [`MEMORY_LIMIT`] bytes (beyond it the sink fails, and
+/// the run stops: [`crate::run`]).
+pub struct TableSink {
+    export: Export<'static, InMemory>,
+    /// What stands for the log.
+    name: String,
+    buffer: Vec<u8>,
+}
+
+impl TableSink {
+    /// A sink whose tables and errors name `name` as their log.
+    pub fn new(name: &str) -> TableSink {
+        static TOPICS: std::sync::OnceLock<Vec<Topic>> = std::sync::OnceLock::new();
+        let topics = TOPICS.get_or_init(table_topics);
+        TableSink {
+            export: Export::new(
+                name,
+                topics,
+                InMemory {
+                    file: name.to_string(),
+                    tables: MemoryTables::default(),
+                },
+            ),
+            name: name.to_string(),
+            buffer: Vec::new(),
+        }
+    }
+
+    /// The tables of the run (after the episode finished the sink: `complete` as its log's).
+    pub fn tables(self) -> MemoryTables {
+        let mut tables = self.export.out.tables;
+        tables.complete = self.export.rows.complete;
+        tables
+    }
+}
+
+impl crate::log::Sink for TableSink {
+    fn record(&mut self, record: &Record) -> Result<(), crate::log::LogError> {
+        let topic = record.kind();
+        if !self.export.rows.topics.contains(&topic) {
+            return Ok(());
+        }
+        record.encode_into(&mut self.buffer);
+        let message = Message::new(
+            topic,
+            crate::log::mcap::sim_time_ns(record.time()),
+            &self.buffer,
+            &self.name,
+        );
+        self.export.message(&message).map_err(|e| crate::log::LogError::Write {
+            path: self.name.clone(),
+            message: match self.export.failure.take() {
+                Some(failure) => failure.to_string(),
+                None => e.to_string(),
+            },
+        })
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), crate::log::LogError> {
+        self.export.rows.complete = complete;
+        Ok(())
+    }
+}
+
+/// A table's columns: each one's name and type.
+type Columns = Vec<(String, Kind)>;
 
 /// A column's type.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -250,57 +450,116 @@ enum Cell {
     S(String),
 }
 
-/// The export as a visitor of the run reader.
-struct Export<'a> {
+/// Where an export's rows go: the table files ([`export_log`]) or tables in memory
+/// ([`read_tables`], [`TableSink`]).
+trait Tables {
+    /// Appends a row of `topic` with `columns`, its values `cells`.
+    fn push(
+        &mut self,
+        topic: Topic,
+        time: f64,
+        columns: Vec<(String, Kind)>,
+        cells: &[Cell],
+    ) -> Result<(), ExportError>;
+}
+
+/// The error of a row whose columns are not its table's: a table has the same columns in
+/// every row.
+fn check_layout(
+    file: &str,
+    (topic, time): (Topic, f64),
+    table: &[(String, Kind)],
+    row: &[(String, Kind)],
+) -> Result<(), ExportError> {
+    if table == row {
+        return Ok(());
+    }
+    let names = |c: &[(String, Kind)]| c.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(",");
+    Err(ExportError::Layout {
+        file: file.to_string(),
+        topic,
+        time,
+        message: format!(
+            "the columns change from [{}] to [{}]; a table needs the same columns in every row",
+            names(table),
+            names(row)
+        ),
+    })
+}
+
+/// The table files of one log's export.
+struct FileTables<'a> {
     log: &'a Path,
     dir: &'a Path,
     format: Format,
-    topics: &'a [Topic],
     tables: BTreeMap<Topic, Table>,
+}
+
+impl Tables for FileTables<'_> {
+    fn push(
+        &mut self,
+        topic: Topic,
+        time: f64,
+        columns: Vec<(String, Kind)>,
+        cells: &[Cell],
+    ) -> Result<(), ExportError> {
+        let table = match self.tables.entry(topic) {
+            std::collections::btree_map::Entry::Occupied(entry) => {
+                let table = entry.into_mut();
+                check_layout(&self.log.display().to_string(), (topic, time), &table.columns, &columns)?;
+                table
+            }
+            std::collections::btree_map::Entry::Vacant(entry) => {
+                let path = table_path(self.log, self.dir, topic, self.format);
+                entry.insert(Table::create(&path, self.log, self.format, columns)?)
+            }
+        };
+        table.push(cells)
+    }
+}
+
+/// What an export reads of a log besides its rows, and the row being made.
+struct Rows<'a> {
+    topics: &'a [Topic],
     /// The state names of the first `/state` message (the prediction columns).
     state_names: Option<Vec<String>>,
-    /// A write error, carried out of the reader.
-    failure: Option<ExportError>,
     cells: Vec<Cell>,
     /// `mjsafe_status` says the run completed.
     complete: bool,
 }
 
-impl Export<'_> {
-    fn fail(&mut self, e: ExportError) -> ReadError {
-        self.failure = Some(e);
-        ReadError::Foreign {
-            file: self.log.display().to_string(),
-            message: "export stopped".into(),
+/// The export as a visitor of the run reader: each message of a topic asked for becomes a row
+/// of `out`.
+struct Export<'a, T> {
+    /// The log, as errors name it.
+    file: String,
+    rows: Rows<'a>,
+    out: T,
+    /// A write error, carried out of the reader.
+    failure: Option<ExportError>,
+}
+
+impl<'a, T: Tables> Export<'a, T> {
+    fn new(file: &str, topics: &'a [Topic], out: T) -> Export<'a, T> {
+        Export {
+            file: file.to_string(),
+            rows: Rows {
+                topics,
+                state_names: None,
+                cells: Vec::new(),
+                complete: false,
+            },
+            out,
+            failure: None,
         }
     }
 
-    fn row(&mut self, topic: Topic, time: f64, columns: Vec<(String, Kind)>) -> Result<(), ExportError> {
-        if !self.tables.contains_key(&topic) {
-            let path = table_path(self.log, self.dir, topic, self.format);
-            let table = Table::create(&path, self.log, self.format, columns)?;
-            self.tables.insert(topic, table);
-        } else {
-            let table = &self.tables[&topic];
-            if table.columns != columns {
-                let names = |c: &[(String, Kind)]| c.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(",");
-                return Err(ExportError::Layout {
-                    file: self.log.display().to_string(),
-                    topic,
-                    time,
-                    message: format!(
-                        "the columns change from [{}] to [{}]; a table needs the same columns in every row",
-                        names(&table.columns),
-                        names(&columns)
-                    ),
-                });
-            }
+    fn fail(&mut self, e: ExportError) -> ReadError {
+        self.failure = Some(e);
+        ReadError::Foreign {
+            file: self.file.clone(),
+            message: "export stopped".into(),
         }
-        let cells = std::mem::take(&mut self.cells);
-        let table = self.tables.get_mut(&topic).expect("created above");
-        let result = table.push(&cells);
-        self.cells = cells;
-        result
     }
 }
 
@@ -308,19 +567,33 @@ fn col(name: impl Into<String>, kind: Kind) -> (String, Kind) {
     (name.into(), kind)
 }
 
-impl RunVisitor for Export<'_> {
+impl<T: Tables> RunVisitor for Export<'_, T> {
     fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
         if name == crate::log::read::STATUS_METADATA {
-            self.complete = entries.get("complete").is_some_and(|c| c == "true");
+            self.rows.complete = entries.get("complete").is_some_and(|c| c == "true");
         }
         Ok(())
     }
 
     fn message(&mut self, message: &Message<'_>) -> Result<(), ReadError> {
+        let Some((time, columns)) = self.rows.row(message)? else {
+            return Ok(());
+        };
+        let cells = std::mem::take(&mut self.rows.cells);
+        let result = self.out.push(message.topic, time, columns, &cells);
+        self.rows.cells = cells;
+        result.map_err(|e| self.fail(e))
+    }
+}
+
+impl Rows<'_> {
+    /// The row `message` makes, if its topic is asked for: its time and columns (its cells
+    /// in `self.cells`).
+    fn row(&mut self, message: &Message<'_>) -> Result<Option<(f64, Columns)>, ReadError> {
         let topic = message.topic;
         let wanted = self.topics.contains(&topic);
         if !(wanted || topic == Topic::State && self.state_names.is_none()) {
-            return Ok(());
+            return Ok(None);
         }
         let record = message.record()?;
         let time = record.time();
@@ -334,7 +607,7 @@ impl RunVisitor for Export<'_> {
                     self.state_names = Some(m.names.clone());
                 }
                 if !wanted {
-                    return Ok(());
+                    return Ok(None);
                 }
                 columns.push(col("step", Kind::U64));
                 c.push(Cell::U(m.step));
@@ -468,12 +741,9 @@ impl RunVisitor for Export<'_> {
                     Cell::F(m.depth),
                 ]);
             }
-            Record::Scene(..) | Record::Transform(..) | Record::Log(..) => return Ok(()),
+            Record::Scene(..) | Record::Transform(..) | Record::Log(..) => return Ok(None),
         }
-        match self.row(topic, time, columns) {
-            Ok(()) => Ok(()),
-            Err(e) => Err(self.fail(e)),
-        }
+        Ok(Some((time, columns)))
     }
 }
 

@@ -33,6 +33,8 @@ pub enum FalsifyError {
     Spec(String),
     #[error(transparent)]
     Sweep(#[from] sweep::SweepError),
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
     #[error("{path}: {reason}")]
     Io { path: String, reason: std::io::Error },
     #[error("the optimiser: {0}")]
@@ -84,6 +86,135 @@ pub struct Problem {
     pub worst: bool,
     /// What the baseline must do besides staying safe.
     pub baseline_progress: BaselineProgress,
+}
+
+/// What `mjsafe falsify` is given (its flags, as the command line spells them), before the
+/// checks that make it a [`Problem`]: the command line and the embeddings (the Python
+/// package) check it alike.
+#[derive(Debug, Clone)]
+pub struct Request {
+    pub scenario: PathBuf,
+    /// `--range KEY=LO..HI[:STEP]`.
+    pub ranges: Vec<String>,
+    /// `--set KEY=VALUE`.
+    pub set: Vec<String>,
+    pub objective: String,
+    pub threshold: f64,
+    pub budget: usize,
+    pub seed: u64,
+    /// None: every core.
+    pub threads: Option<usize>,
+    pub worst: bool,
+    pub baseline_threshold: f64,
+    /// `--baseline KEY=VALUE`.
+    pub baseline: Vec<String>,
+    pub baseline_no_stall: bool,
+    pub baseline_reaches_goal: bool,
+}
+
+impl Request {
+    /// The problem, every argument checked and the scenario loaded with the overrides; and the
+    /// scenario's name (of the default output directory).
+    pub fn problem(self) -> Result<(Problem, String), FalsifyError> {
+        let Request {
+            scenario,
+            ranges,
+            set,
+            objective,
+            threshold,
+            budget,
+            seed,
+            threads,
+            worst,
+            baseline_threshold,
+            baseline,
+            baseline_no_stall,
+            baseline_reaches_goal,
+        } = self;
+        let spec = |message: String| FalsifyError::Spec(message);
+        let ranges = ranges
+            .iter()
+            .map(|r| sweep::parse_range(r))
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
+            return Err(spec(format!(
+                "--range {twice}: the key is given twice (each key takes one --range)"
+            )));
+        }
+        check_objective(&objective)?;
+        if !threshold.is_finite() {
+            return Err(spec(format!(
+                "--threshold: expected a finite number, found {threshold}"
+            )));
+        }
+        if !baseline_threshold.is_finite() {
+            return Err(spec(format!(
+                "--baseline-threshold: expected a finite number, found {baseline_threshold}"
+            )));
+        }
+        let threads = sweep::threads(threads)?;
+        // The scenario and every override are checked once before the search starts.
+        let base = crate::scenario::load(&scenario, &set)?;
+        for (given, flag) in [
+            (baseline_no_stall, "--baseline-no-stall"),
+            (baseline_reaches_goal, "--baseline-reaches-goal"),
+        ] {
+            if given && baseline.is_empty() {
+                return Err(spec(format!(
+                    "{flag}: a requirement of the baseline; give the baseline with --baseline KEY=VALUE"
+                )));
+            }
+        }
+        if baseline_reaches_goal && base.scenario.goal.is_none() {
+            return Err(spec(format!(
+                "--baseline-reaches-goal: {} has no [goal] (add one, or --set \"goal={{position=[x, y], radius=r}}\")",
+                scenario.display()
+            )));
+        }
+        if let Some((group, _)) = metric_and_sign(&objective).0.split_once('.') {
+            // A per-channel metric names a channel of the vehicle: told by one run of the
+            // scenario as given (when it runs), not by a whole budget of absent values.
+            let run = Run {
+                index: 0,
+                overrides: set.clone(),
+                parameters: Vec::new(),
+            };
+            let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
+            if let Some(metrics) = &row.metrics {
+                let columns = FlatMetrics::columns([metrics]);
+                if !columns.iter().any(|c| c == metric_and_sign(&objective).0) {
+                    let prefix = format!("{group}.");
+                    let known: Vec<&str> = columns
+                        .iter()
+                        .map(String::as_str)
+                        .filter(|c| c.starts_with(&prefix))
+                        .collect();
+                    return Err(spec(format!(
+                        "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
+                        if known.is_empty() { "none".to_string() } else { known.join(", ") }
+                    )));
+                }
+            }
+        }
+        let problem = Problem {
+            scenario,
+            set,
+            ranges,
+            objective,
+            threshold,
+            baseline_threshold,
+            baseline,
+            budget,
+            seed,
+            threads,
+            worst,
+            baseline_progress: BaselineProgress {
+                no_stall: baseline_no_stall,
+                reach_goal: baseline_reaches_goal,
+            },
+        };
+        Ok((problem, base.scenario.name))
+    }
 }
 
 /// Progress the baseline must make for a candidate to count (a delay-free filter can stay

@@ -762,10 +762,13 @@ pub fn execute(
     (threads, keep): (usize, Keep),
     mut done: impl FnMut(&Row),
 ) -> Result<Vec<Row>, SweepError> {
-    std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
-        path: dir.display().to_string(),
-        reason: source,
-    })?;
+    // Runs analysed in memory write nothing there.
+    if keep == Keep::Logs {
+        std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
+            path: dir.display().to_string(),
+            reason: source,
+        })?;
+    }
     let next = AtomicUsize::new(0);
     let mut rows: Vec<Option<Row>> = vec![None; indices.len()];
     std::thread::scope(|scope| -> Result<(), SweepError> {
@@ -822,6 +825,26 @@ pub fn execute(
             })
         })
         .collect())
+}
+
+/// The runs executed at once for `--threads` (`requested`): at least 1; none given, every core.
+pub fn threads(requested: Option<usize>) -> Result<usize, SweepError> {
+    match requested {
+        Some(0) => Err(SweepError::Spec("--threads: expected at least 1".into())),
+        Some(k) => Ok(k),
+        None => Ok(std::thread::available_parallelism().map_or(1, |n| n.get())),
+    }
+}
+
+/// Checks that `dir` may hold a sweep's logs and summary: a directory, or nothing yet.
+pub fn check_out_dir(dir: &Path) -> Result<(), SweepError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(SweepError::Spec(format!(
+            "--out {}: expected a directory for the sweep's logs and summary, found a file",
+            dir.display()
+        )));
+    }
+    Ok(())
 }
 
 /// How summary files start: an existing file that starts otherwise is never replaced.

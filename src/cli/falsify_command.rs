@@ -114,84 +114,23 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         compare_random,
         out,
     } = args;
-    let ranges = ranges
-        .iter()
-        .map(|r| sweep::parse_range(r))
-        .collect::<Result<Vec<_>, _>>()?;
-    if let Some(twice) = sweep::swept_twice(ranges.iter().map(|r| r.key.as_str())) {
-        bail!("--range {twice}: the key is given twice (each key takes one --range)");
-    }
-    falsify::check_objective(&objective)?;
-    if !threshold.is_finite() {
-        bail!("--threshold: expected a finite number, found {threshold}");
-    }
-    if !baseline_threshold.is_finite() {
-        bail!("--baseline-threshold: expected a finite number, found {baseline_threshold}");
-    }
-    let threads = match threads {
-        Some(0) => bail!("--threads: expected at least 1"),
-        Some(k) => k,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
-    // The scenario and every override are checked once before the search starts.
-    let base = scenario::load(&scenario, &overrides)?;
-    for (given, flag) in [
-        (baseline_no_stall, "--baseline-no-stall"),
-        (baseline_reaches_goal, "--baseline-reaches-goal"),
-    ] {
-        if given && baseline.is_empty() {
-            bail!("{flag}: a requirement of the baseline; give the baseline with --baseline KEY=VALUE");
-        }
-    }
-    if baseline_reaches_goal && base.scenario.goal.is_none() {
-        bail!(
-            "--baseline-reaches-goal: {} has no [goal] (add one, or --set \"goal={{position=[x, y], radius=r}}\")",
-            scenario.display()
-        );
-    }
-    if let Some((group, _)) = falsify::metric_and_sign(&objective).0.split_once('.') {
-        // A per-channel metric names a channel of the vehicle: told by one run of the
-        // scenario as given (when it runs), not by a whole budget of absent values.
-        let run = sweep::Run {
-            index: 0,
-            overrides: overrides.clone(),
-            parameters: Vec::new(),
-        };
-        let row = sweep::execute_analysed(&scenario, &run, "the scenario's run");
-        if let Some(metrics) = &row.metrics {
-            let columns = FlatMetrics::columns([metrics]);
-            if !columns.iter().any(|c| c == falsify::metric_and_sign(&objective).0) {
-                let prefix = format!("{group}.");
-                let known: Vec<&str> = columns
-                    .iter()
-                    .map(String::as_str)
-                    .filter(|c| c.starts_with(&prefix))
-                    .collect();
-                bail!(
-                    "--objective {objective}: not a metric of this scenario's runs; its per-channel {group} metrics: {}",
-                    if known.is_empty() { "none".to_string() } else { known.join(", ") }
-                );
-            }
-        }
-    }
-    let problem = falsify::Problem {
+    let (problem, name) = falsify::Request {
         scenario,
-        set: overrides,
         ranges,
+        set: overrides,
         objective,
         threshold,
-        baseline_threshold,
-        baseline,
         budget,
         seed,
         threads,
         worst,
-        baseline_progress: falsify::BaselineProgress {
-            no_stall: baseline_no_stall,
-            reach_goal: baseline_reaches_goal,
-        },
-    };
-    let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{}", base.scenario.name)));
+        baseline_threshold,
+        baseline,
+        baseline_no_stall,
+        baseline_reaches_goal,
+    }
+    .problem()?;
+    let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{name}")));
     run_falsify(&problem, &out, compare_random)
 }
 

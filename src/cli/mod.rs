@@ -36,7 +36,7 @@ fn write_stdout(args: std::fmt::Arguments) {
     }
 }
 
-use crate::analyze::{self, FlatMetrics, RunMetrics};
+use crate::analyze::{self, RunMetrics};
 use crate::episode;
 use crate::falsify;
 use crate::log::Sink;

@@ -57,11 +57,7 @@ pub(super) struct SweepOptions {
 pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
     let spec = SweepSpec::build(args)?;
     let shard = options.shard.as_deref().map(sweep::parse_shard).transpose()?;
-    let threads = match options.threads {
-        Some(0) => bail!("--threads: expected at least 1"),
-        Some(k) => k,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
+    let threads = sweep::threads(options.threads)?;
     let dir = options
         .out
         .clone()
@@ -78,12 +74,7 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
         }
         return Ok(ExitCode::SUCCESS);
     }
-    if dir.exists() && !dir.is_dir() {
-        bail!(
-            "--out {}: expected a directory for the sweep's logs and summary, found a file",
-            dir.display()
-        );
-    }
+    sweep::check_out_dir(&dir)?;
     Summary::check_outputs(&dir, shard).with_context(|| format!("writing the summary into {}", dir.display()))?;
     let _graceful = episode::GracefulStop::begin();
     let terminal = std::io::stderr().is_terminal();

@@ -1,0 +1,297 @@
+"""mjsafe from Python: run, sweep and falsify scenarios and read their logs, with the Rust core
+doing the work (the same run path, search and log reader as the ``mjsafe`` command line).
+
+    import mjsafe
+    r = mjsafe.run("scenarios/bicycle_obstacle.toml", set={"delays.steering": 0.4})
+    r.min_h, r.collision            # -18.6..., {'time': 3.68, 'with': 'obstacle_0', 'depth': 1.83}
+    r.metrics["min_clearance"]      # every metric of `mjsafe analyze --json`
+
+    summary = mjsafe.sweep("scenarios/bicycle_obstacle.toml",
+                           grid={"delays.acceleration": [0.5, 1.0, 1.5]})
+    found = mjsafe.falsify("scenarios/bicycle_obstacle_gamma_m.toml",
+                           ranges={"delays.steering": (0.0, 0.5)}, budget=40)
+    log = mjsafe.read_log("logs/run.mcap")
+    log.tables()["/barrier"]        # pandas DataFrame, the columns of `mjsafe export`
+
+Arguments take what the command line takes, in Python types: ``set={"delays.steering": 0.4,
+"filter": {"kind": "gamma_m", "l0": 4.0, "l1": 4.0, "m": 50.0}}`` is ``--set
+delays.steering=0.4 --set filter={kind="gamma_m", l0=4.0, l1=4.0, m=50.0}``. A bad argument (an
+unknown key, a wrong type, a missing file) raises ``ValueError`` with the command line's error
+line. See docs/python.md.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mjsafe import _core
+
+__version__: str = _core.__version__
+
+__all__ = [
+    "run",
+    "sweep",
+    "falsify",
+    "read_log",
+    "RunResult",
+    "FalsifyResult",
+    "LogData",
+    "toml_value",
+]
+
+
+def toml_value(value: Any) -> str:
+    """The TOML text ``set`` makes of a Python value: what ``--set KEY=`` would be given."""
+    return _core.toml_value(value)
+
+
+def _read_csv(source: str | os.PathLike[str] | io.StringIO) -> pd.DataFrame:
+    """A CSV mjsafe wrote, read as pandas reads it with the exact doubles it holds."""
+    # pandas 3 parses floats exactly by default (and deprecates `float_precision`); older
+    # pandas needs "round_trip".
+    exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    return pd.read_csv(source, **exact)
+
+
+def _frames(tables: Mapping[str, list[tuple[str, str, Any]]]) -> dict[str, pd.DataFrame]:
+    """{topic: DataFrame} of the tables the Rust side hands over (column, kind, values)."""
+    frames = {}
+    for topic, columns in tables.items():
+        data = {}
+        for name, kind, values in columns:
+            if kind == "f64":
+                data[name] = np.frombuffer(values, dtype="<f8").copy()
+            elif kind == "u64":
+                # Step counts and relative degrees: int64 as pandas reads the export's CSV.
+                data[name] = np.frombuffer(values, dtype="<u8").astype(np.int64)
+            elif kind == "bool":
+                data[name] = np.frombuffer(values, dtype=np.uint8).astype(bool)
+            else:
+                data[name] = pd.Series(values, dtype="str")
+        frames[topic] = pd.DataFrame(data)
+    return frames
+
+
+class RunResult:
+    """One run's outcome (what ``mjsafe run --json`` prints, and the run's metrics).
+
+    Attributes:
+        min_h: min h over every barrier and step (None when the barriers have different units;
+            see ``metrics["min_h_by_barrier"]``).
+        collision: None, or ``{"time": s, "with": obstacle, "depth": m}`` of the first one.
+        metrics: the run's object of ``mjsafe analyze --json`` (every metric, ``units``,
+            ``complete``, ``error``, …); ``metrics["file"]`` is the log, or ``"(in memory)"``.
+        error: None, or why the run stopped early (the run's error line); the run is then
+            ``metrics["complete"] == False``.
+        log: the MCAP log written (``out=``), or None.
+        steps, simulated_time, real_time_factor: as ``mjsafe run --json`` reports them.
+    """
+
+    def __init__(self, raw: dict[str, Any]) -> None:
+        self.metrics: dict[str, Any] = json.loads(raw["metrics"])
+        self.min_h: float | None = self.metrics.get("min_h")
+        self.collision: dict[str, Any] | None = self.metrics.get("collision")
+        self.error: str | None = raw["error"]
+        self.log: str | None = raw["log"]
+        self.steps: int = raw["steps"]
+        self.simulated_time: float = raw["simulated_time"]
+        self.real_time_factor: float | None = raw["real_time_factor"]
+        self._tables = raw["tables"]
+
+    def tables(self) -> dict[str, pd.DataFrame]:
+        """``{topic: DataFrame}``, one per topic with messages, with the columns of
+        ``mjsafe export`` (``time`` first). Kept in memory by ``run(..., tables=True)``, else
+        read from the run's log; a run with neither has none (``ValueError``)."""
+        if self._tables is not None:
+            return _frames(self._tables)
+        if self.log is not None:
+            return _frames(_core.log_tables(self.log))
+        raise ValueError(
+            "this run kept no tables and wrote no log: run it with tables=True (tables kept in "
+            "memory) or with out=PATH (tables read from the log)"
+        )
+
+    def __repr__(self) -> str:
+        collision = "no collision" if self.collision is None else f"collision at t = {self.collision['time']:.3f} s"
+        error = "" if self.error is None else f", error={self.error!r}"
+        return f"RunResult({self.metrics.get('scenario')!r}, min_h={self.min_h}, {collision}, log={self.log!r}{error})"
+
+
+class LogData:
+    """A log read by mjsafe's log reader: its metrics (``mjsafe analyze --json``) and tables
+    (``mjsafe export``)."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path: str = os.fspath(path)
+        self.metrics: dict[str, Any] = json.loads(_core.log_metrics(self.path))
+
+    def tables(self) -> dict[str, pd.DataFrame]:
+        """``{topic: DataFrame}`` with the columns of ``mjsafe export`` (``time`` first)."""
+        return _frames(_core.log_tables(self.path))
+
+    def __repr__(self) -> str:
+        return f"LogData({self.path!r})"
+
+
+class FalsifyResult:
+    """What a falsification search found.
+
+    Attributes:
+        counterexamples: the values found (``{range key: value}``, ready for ``set=``); the
+            first violation, or with ``worst=True`` the most severe one; empty if none.
+        scenario_toml: the counterexample as a standalone scenario (TOML text), or None.
+        evaluations: every evaluated candidate (the rows of evaluations.csv).
+        reproduced: the objective of the counterexample's own run from its scenario file.
+        log: the counterexample's log (with ``out=``), or None.
+        out: the directory of the search's outputs (with ``out=``), or None.
+        interrupted: whether the search was stopped before its end.
+    """
+
+    def __init__(self, raw: dict[str, Any], out: str | None) -> None:
+        self.counterexamples: list[dict[str, Any]] = raw["counterexamples"]
+        self.scenario_toml: str | None = raw["scenario_toml"]
+        self.evaluations: pd.DataFrame = _read_csv(io.StringIO(raw["evaluations_csv"]))
+        self.reproduced: float | None = raw["reproduced"]
+        self.out: str | None = out
+        self.log: str | None = raw["log"] if out is not None else None
+        self.interrupted: bool = raw["interrupted"]
+
+    def __repr__(self) -> str:
+        return (
+            f"FalsifyResult({len(self.evaluations)} evaluations, "
+            f"counterexamples={self.counterexamples!r})"
+        )
+
+
+def run(
+    path: str | os.PathLike[str],
+    set: Mapping[str, Any] | None = None,
+    out: str | os.PathLike[str] | None = None,
+    tables: bool = False,
+) -> RunResult:
+    """Runs a scenario once, as ``mjsafe run PATH --set … --out OUT``.
+
+    Args:
+        path: the scenario file (TOML).
+        set: overrides, ``{dotted key: value}`` (``--set``), applied in order; a dict value is a
+            whole table, e.g. ``{"filter": {"kind": "gamma_m", "l0": 4.0, "l1": 4.0, "m": 50.0}}``.
+        out: the MCAP log to write; None writes no log (the run is analysed in memory, as a
+            falsification candidate is: the same metrics).
+        tables: keep the run's tables in memory (``RunResult.tables()`` without a log).
+
+    Raises:
+        ValueError: bad input (the command line's error line): an unknown key, a wrong type, a
+            missing scenario or model, an output refused.
+        RuntimeError: the run could not finish its log or analysis.
+    """
+    raw = _core.run(os.fspath(path), set, None if out is None else os.fspath(out), tables)
+    return RunResult(raw)
+
+
+def read_log(path: str | os.PathLike[str]) -> LogData:
+    """Reads an MCAP log of a run: its metrics now, its tables on ``.tables()``.
+
+    Raises:
+        ValueError: not a readable log of a run (the error ``mjsafe analyze`` gives).
+    """
+    return LogData(path)
+
+
+def sweep(
+    path: str | os.PathLike[str],
+    grid: Mapping[str, Sequence[Any]] | None = None,
+    random: Mapping[str, tuple[float, float] | tuple[float, float, float]] | None = None,
+    draws: int = 0,
+    seed: int = 0,
+    set: Mapping[str, Any] | None = None,
+    threads: int | None = None,
+    *,
+    out: str | os.PathLike[str] | None = None,
+) -> pd.DataFrame:
+    """A parameter sweep, as ``mjsafe sweep``: the grid's cartesian product, times ``draws``
+    seeded random draws of the ``random`` ranges, run in parallel.
+
+    Args:
+        path: the scenario file (TOML).
+        grid: ``{dotted key: [values]}`` (``--grid KEY=V1,V2,…``); the first key varies slowest.
+        random: ``{dotted key: (lo, hi)}`` or ``(lo, hi, step)`` (``--range``), drawn ``draws``
+            times (``--random N``) with ``seed`` (``--seed``).
+        set: overrides applied to every run (``--set``).
+        threads: runs at once (default: every core).
+        out: a directory for the runs' logs and summary.csv/summary.json (``--out``); None
+            keeps no logs and writes nothing (``--no-logs``: each run analysed in memory).
+
+    Returns:
+        The summary, one row per run: the columns of summary.csv (index, log, the swept keys,
+        every metric column, error).
+
+    Raises:
+        ValueError: bad arguments (the command line's error line).
+    """
+    text = _core.sweep(
+        os.fspath(path), grid, random, draws, seed, set, threads, None if out is None else os.fspath(out)
+    )
+    return _read_csv(io.StringIO(text))
+
+
+def falsify(
+    path: str | os.PathLike[str],
+    ranges: Mapping[str, tuple[float, float] | tuple[float, float, float]],
+    baseline: Mapping[str, Any] | None = None,
+    budget: int = 200,
+    seed: int = 0,
+    objective: str = "min_h",
+    threshold: float = 0.0,
+    worst: bool = False,
+    *,
+    set: Mapping[str, Any] | None = None,
+    baseline_threshold: float = 0.0,
+    baseline_no_stall: bool = False,
+    baseline_reaches_goal: bool = False,
+    compare_random: bool = False,
+    threads: int | None = None,
+    out: str | os.PathLike[str] | None = None,
+) -> FalsifyResult:
+    """A falsification search, as ``mjsafe falsify``: CMA-ES over the ``ranges`` box for a run
+    whose ``objective`` falls below ``threshold``.
+
+    Args:
+        path: the scenario file (TOML).
+        ranges: ``{dotted key: (lo, hi)}`` or ``(lo, hi, step)`` (``--range``), at least one.
+        baseline: the reference configuration as overrides (``--baseline``): a candidate counts
+            only where its baseline is safe (objective ≥ ``baseline_threshold``).
+        budget, seed, objective, threshold, worst: ``--budget``, ``--seed``, ``--objective``
+            (``"-metric"`` searches for large values), ``--threshold``, ``--worst``.
+        set: overrides of every candidate (``--set``).
+        baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads:
+            the flags of the same names.
+        out: the directory of the search's outputs (evaluations.csv/.json, the counterexample
+            scenario and log, the convergence plot); None: a temporary one, removed after.
+
+    Raises:
+        ValueError: bad arguments (the command line's error line).
+    """
+    call = ", ".join(
+        [repr(os.fspath(path)), f"ranges={dict(ranges)!r}"]
+        + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set)] if v is not None]
+        + [f"budget={budget!r}", f"seed={seed!r}", f"objective={objective!r}", f"threshold={threshold!r}"]
+        + (["worst=True"] if worst else [])
+    )
+    search_line = f"mjsafe.falsify({call})"
+    args = (
+        os.fspath(path), ranges, baseline, budget, seed, objective, threshold, worst, set,
+        baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads,
+    )
+    if out is not None:
+        raw = _core.falsify(*args, os.fspath(out), search_line)
+        return FalsifyResult(raw, os.fspath(out))
+    with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
+        raw = _core.falsify(*args, tmp, search_line)
+        return FalsifyResult(raw, None)

@@ -1,0 +1,77 @@
+"""Type stubs of the mjsafe package (see __init__.py for the documentation)."""
+
+import os
+from typing import Any, Mapping, Sequence
+
+import pandas as pd
+
+__version__: str
+__all__: list[str]
+
+_Path = str | os.PathLike[str]
+_Range = tuple[float, float] | tuple[float, float, float]
+
+def toml_value(value: Any) -> str: ...
+
+class RunResult:
+    min_h: float | None
+    collision: dict[str, Any] | None
+    metrics: dict[str, Any]
+    error: str | None
+    log: str | None
+    steps: int
+    simulated_time: float
+    real_time_factor: float | None
+    def tables(self) -> dict[str, pd.DataFrame]: ...
+
+class LogData:
+    path: str
+    metrics: dict[str, Any]
+    def __init__(self, path: _Path) -> None: ...
+    def tables(self) -> dict[str, pd.DataFrame]: ...
+
+class FalsifyResult:
+    counterexamples: list[dict[str, Any]]
+    scenario_toml: str | None
+    evaluations: pd.DataFrame
+    reproduced: float | None
+    log: str | None
+    out: str | None
+    interrupted: bool
+
+def run(
+    path: _Path,
+    set: Mapping[str, Any] | None = None,
+    out: _Path | None = None,
+    tables: bool = False,
+) -> RunResult: ...
+def read_log(path: _Path) -> LogData: ...
+def sweep(
+    path: _Path,
+    grid: Mapping[str, Sequence[Any]] | None = None,
+    random: Mapping[str, _Range] | None = None,
+    draws: int = 0,
+    seed: int = 0,
+    set: Mapping[str, Any] | None = None,
+    threads: int | None = None,
+    *,
+    out: _Path | None = None,
+) -> pd.DataFrame: ...
+def falsify(
+    path: _Path,
+    ranges: Mapping[str, _Range],
+    baseline: Mapping[str, Any] | None = None,
+    budget: int = 200,
+    seed: int = 0,
+    objective: str = "min_h",
+    threshold: float = 0.0,
+    worst: bool = False,
+    *,
+    set: Mapping[str, Any] | None = None,
+    baseline_threshold: float = 0.0,
+    baseline_no_stall: bool = False,
+    baseline_reaches_goal: bool = False,
+    compare_random: bool = False,
+    threads: int | None = None,
+    out: _Path | None = None,
+) -> FalsifyResult: ...
