@@ -44,6 +44,7 @@ __all__ = [
     "FalsifyResult",
     "LogData",
     "toml_value",
+    "register_filter",
 ]
 
 
@@ -193,6 +194,31 @@ def run(
     """
     raw = _core.run(os.fspath(path), set, None if out is None else os.fspath(out), tables)
     return RunResult(raw)
+
+
+def register_filter(kind: str, cls: type) -> None:
+    """Registers a safety filter written in Python as the filter ``kind`` of this process.
+
+    ``cls(params)`` is built for each run with the scenario's ``[filter]`` table (without
+    ``kind``) as a dict. Its attributes: ``barrier_form`` (``{"alpha": a}``, ``{"l0": l0,
+    "l1": l1}`` or None: the condition whose constraint data the filter receives),
+    ``uses_prediction`` (bool, default False: evaluated at the channel's prediction rather
+    than the measured state), and on the class an optional ``label`` (e.g. an equation
+    number, shown in logs and legends). Its method ``filter_channel(self, t, channel, state,
+    nominal, constraints)`` receives numpy arrays and ``constraints`` as a list of ``(a, b)``
+    (the constraint a + b·u ≥ 0 of each known barrier at ``state``) and returns channel
+    ``channel``'s command: a float, a dict with ``input`` (and ``active``, ``infeasible``,
+    ``mu``: what ``/filter`` records), or None (no barrier known: the nominal passes).
+
+    The kind then works in scenario files and ``set`` dicts, in ``run``, ``sweep`` and
+    ``falsify``. It runs inside the control tick with the GIL held; an exception stops the
+    run with an error event carrying its type and message (``RunResult.error``).
+
+    Raises:
+        ValueError: a kind that is not letters, digits and ``_``, or a class without
+            ``filter_channel``.
+    """
+    _core.register_filter(kind, cls)
 
 
 def read_log(path: str | os.PathLike[str]) -> LogData:

@@ -14,6 +14,8 @@
 
 #![deny(unsafe_code)]
 
+mod kinds;
+
 use std::error::Error;
 use std::path::{Path, PathBuf};
 
@@ -517,5 +519,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(falsify, m)?)?;
     m.add_function(wrap_pyfunction!(toml_value, m)?)?;
+    m.add_function(wrap_pyfunction!(kinds::register_filter, m)?)?;
     Ok(())
 }

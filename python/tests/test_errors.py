@@ -1,6 +1,8 @@
 """Bad arguments raise ValueError with the command line's own error line (the text after
 `error: `), checked against the `mjsafe` binary for each function."""
 
+import re
+
 import pytest
 
 import mjsafe
@@ -14,7 +16,13 @@ def same_error(call, *cli_args):
     with pytest.raises(ValueError) as raised:
         call()
     expected = cli_error(*cli_args)
-    assert str(raised.value) == expected
+    got = str(raised.value)
+    # An unknown kind lists the known ones: in this process also the kinds registered from
+    # Python (mjsafe.register_filter), after the built-ins the command line lists.
+    if "unknown kind" in expected:
+        assert got.startswith(expected) and re.fullmatch(r"(, `\w+`)*", got[len(expected):]), got
+    else:
+        assert got == expected
     assert "\n" not in expected
     return expected
 

@@ -1,0 +1,229 @@
+//! Filters and nominal controllers written in Python (`mjsafe.register_filter`,
+//! `mjsafe.register_nominal`): registry kinds whose instances call a Python object from the
+//! control tick, with the GIL taken for the call (the run itself releases it: Python kinds
+//! run one call at a time, whichever run thread calls them).
+
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList, PyTuple};
+
+use mjsafe::barrier::BarrierForm;
+use mjsafe::filter::{ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter};
+
+/// A Python kind's parameters: its scenario table as it is (the class checks them).
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(transparent)]
+pub struct AnyParams(toml::Table);
+
+impl mjsafe::registry::Params for AnyParams {}
+
+/// "TypeName: message" of a Python exception, on one line.
+fn exception_line(py: Python<'_>, e: &PyErr) -> String {
+    let kind = e
+        .get_type(py)
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "Exception".into());
+    let message = e.value(py).str().map(|s| s.to_string()).unwrap_or_default();
+    format!("{kind}: {}", message.replace('\n', " "))
+}
+
+/// The class instance built with the scenario's parameters (without `kind`), as a dict.
+fn instantiate(cls: &Py<PyAny>, params: &toml::Table, section: &str) -> Result<Py<PyAny>, ParamError> {
+    Python::attach(|py| {
+        let dict = PyDict::new(py);
+        for (key, value) in params.iter().filter(|(k, _)| k.as_str() != "kind") {
+            let value = crate::toml_to_py(py, value).map_err(|e| ParamError::new(section, exception_line(py, &e)))?;
+            dict.set_item(key, value)
+                .map_err(|e| ParamError::new(section, exception_line(py, &e)))?;
+        }
+        cls.bind(py)
+            .call1((dict,))
+            .map(Bound::unbind)
+            .map_err(|e| ParamError::new(section, format!("the Python class raised {}", exception_line(py, &e))))
+    })
+}
+
+/// The filter's `barrier_form` attribute: None, {"alpha": a} or {"l0": …, "l1": …}.
+fn read_form(object: &Bound<'_, PyAny>) -> Result<Option<BarrierForm>, ParamError> {
+    let expected = "filter: expected `barrier_form` to be None, {\"alpha\": a} or {\"l0\": l0, \"l1\": l1}";
+    let Ok(value) = object.getattr("barrier_form") else {
+        return Ok(None);
+    };
+    if value.is_none() {
+        return Ok(None);
+    }
+    let dict = value
+        .cast::<PyDict>()
+        .map_err(|_| ParamError::new("filter", expected))?;
+    let get = |key: &str| -> Result<Option<f64>, ParamError> {
+        match dict.get_item(key).map_err(|_| ParamError::new("filter", expected))? {
+            Some(v) => v
+                .extract::<f64>()
+                .map(Some)
+                .map_err(|_| ParamError::new("filter", expected)),
+            None => Ok(None),
+        }
+    };
+    if dict.len() > 2 {
+        return Err(ParamError::new("filter", expected));
+    }
+    mjsafe::filter::barrier_form(get("alpha")?, get("l0")?, get("l1")?).map(Some)
+}
+
+/// A filter written in Python: `filter_channel(t, channel, state, nominal, constraints)` of an
+/// instance of the registered class (docs/python.md, "Filters in Python").
+pub struct PythonFilter {
+    kind: String,
+    object: Py<PyAny>,
+    form: Option<BarrierForm>,
+    uses_prediction: bool,
+    asarray: Py<PyAny>,
+}
+
+/// What `filter_channel` returned: None (no decision: the nominal passes), a number (the
+/// command), or a dict with `input` and optionally `active`, `infeasible`, `mu`.
+fn outcome(result: &Bound<'_, PyAny>, nominal: f64) -> Result<Option<ChannelOutcome>, String> {
+    let expected = "expected a number, a dict with `input` (and `active`, `infeasible`, `mu`), or None";
+    if result.is_none() {
+        return Ok(None);
+    }
+    if let Ok(dict) = result.cast::<PyDict>() {
+        let number = |key: &str| -> Result<Option<f64>, String> {
+            match dict.get_item(key).map_err(|e| e.to_string())? {
+                Some(v) => v
+                    .extract::<f64>()
+                    .map(Some)
+                    .map_err(|_| format!("`{key}`: expected a number")),
+                None => Ok(None),
+            }
+        };
+        let flag = |key: &str| -> Result<Option<bool>, String> {
+            match dict.get_item(key).map_err(|e| e.to_string())? {
+                Some(v) => v
+                    .extract::<bool>()
+                    .map(Some)
+                    .map_err(|_| format!("`{key}`: expected a bool")),
+                None => Ok(None),
+            }
+        };
+        let input = number("input")?.ok_or_else(|| format!("a dict without `input`: {expected}"))?;
+        let active = flag("active")?.unwrap_or(input != nominal);
+        let infeasible = flag("infeasible")?.unwrap_or(false);
+        let mu = number("mu")?.unwrap_or(f64::NAN);
+        return Ok(Some(ChannelOutcome::new(input, active, infeasible, mu)));
+    }
+    match result.extract::<f64>() {
+        Ok(input) => Ok(Some(ChannelOutcome::new(input, input != nominal, false, f64::NAN))),
+        Err(_) => Err(format!(
+            "{expected}; found {}",
+            result.get_type().name().map(|n| n.to_string()).unwrap_or_default()
+        )),
+    }
+}
+
+impl SafetyFilter for PythonFilter {
+    fn barrier_form(&self) -> Option<BarrierForm> {
+        self.form
+    }
+
+    fn uses_prediction(&self) -> bool {
+        self.uses_prediction
+    }
+
+    fn filter_channel(&mut self, input: &ChannelInput<'_>) -> Result<Option<ChannelOutcome>, FilterError> {
+        let kind = &self.kind;
+        Python::attach(|py| {
+            let asarray = self.asarray.bind(py);
+            let array = |values: &[f64]| -> PyResult<Bound<'_, PyAny>> { asarray.call1((PyList::new(py, values)?,)) };
+            let call = || -> PyResult<Bound<'_, PyAny>> {
+                let constraints = PyList::empty(py);
+                for c in input.constraints {
+                    constraints.append(PyTuple::new(
+                        py,
+                        [c.a.into_pyobject(py)?.into_any(), array(c.b.as_slice())?],
+                    )?)?;
+                }
+                let args = (
+                    input.time,
+                    input.channel,
+                    array(input.state)?,
+                    array(input.nominal.as_slice())?,
+                    constraints,
+                );
+                self.object.bind(py).call_method1("filter_channel", args)
+            };
+            match call() {
+                Ok(result) => outcome(&result, input.nominal[input.channel])
+                    .map_err(|message| FilterError::Other(format!("the Python filter `{kind}` returned {message}"))),
+                Err(e) => Err(FilterError::Other(format!(
+                    "the Python filter `{kind}` raised {}",
+                    exception_line(py, &e)
+                ))),
+            }
+        })
+    }
+}
+
+/// Builds the registered class with the scenario's parameters and reads its attributes.
+fn build_filter(
+    kind: &str,
+    cls: &Py<PyAny>,
+    asarray: &Py<PyAny>,
+    params: &AnyParams,
+) -> Result<Box<dyn SafetyFilter>, ParamError> {
+    let object = instantiate(cls, &params.0, "filter")?;
+    Python::attach(|py| {
+        let bound = object.bind(py);
+        let form = read_form(bound)?;
+        let uses_prediction = match bound.getattr("uses_prediction") {
+            Ok(v) => v
+                .extract::<bool>()
+                .map_err(|_| ParamError::new("filter", "expected `uses_prediction` to be a bool"))?,
+            Err(_) => false,
+        };
+        Ok(Box::new(PythonFilter {
+            kind: kind.to_string(),
+            object: object.clone_ref(py),
+            form,
+            uses_prediction,
+            asarray: asarray.clone_ref(py),
+        }) as Box<dyn SafetyFilter>)
+    })
+}
+
+/// `mjsafe.register_filter(kind, cls)`: the kind works in scenario files and `set` dicts, in
+/// `run`, `sweep` and `falsify` (in this process).
+#[pyfunction]
+pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<()> {
+    if kind.is_empty() || !kind.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(PyValueError::new_err(format!(
+            "register_filter: expected a kind of letters, digits and `_`, found {kind:?}"
+        )));
+    }
+    let class = cls.bind(py);
+    if !class.hasattr("filter_channel")? {
+        return Err(PyValueError::new_err(
+            "register_filter: expected a class with a method filter_channel(self, t, channel, state, nominal, constraints)",
+        ));
+    }
+    let label = match class.getattr("label") {
+        Ok(l) if !l.is_none() => Some(
+            l.extract::<String>()
+                .map_err(|_| PyValueError::new_err("register_filter: expected `label` to be a string"))?,
+        ),
+        _ => None,
+    };
+    let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
+    let name = kind.to_string();
+    mjsafe::registry::register(move |r| {
+        let described = r.add_filter(&name.clone(), move |p: &AnyParams, _: &FilterContext| {
+            build_filter(&name, &cls, &asarray, p)
+        });
+        let described = described.description("a filter written in Python (mjsafe.register_filter)");
+        if let Some(label) = &label {
+            described.label(label);
+        }
+    });
+    Ok(())
+}

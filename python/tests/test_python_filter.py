@@ -1,0 +1,107 @@
+"""Safety filters written in Python (mjsafe.register_filter): the delay-free CBF-QP (4.9) in
+numpy against the built-in `cbf_qp`, exceptions, bad classes, and a sweep of a Python kind."""
+
+import numpy as np
+import pytest
+
+import mjsafe
+from conftest import scenario
+
+
+class DelayFreeCbfQp:
+    """(4.9): min ‖u − u0‖² s.t. a_k + b_k·u ≥ 0, by an active-set search over the
+    constraints (one or two here); component `channel` of the solution."""
+
+    label = "numpy CBF-QP (4.9)"
+
+    def __init__(self, params):
+        self.barrier_form = {"l0": params["l0"], "l1": params["l1"]}
+        self.uses_prediction = False
+
+    def filter_channel(self, t, channel, state, nominal, constraints):
+        if not constraints:
+            return None
+        u = nominal.copy()
+        for a, b in constraints:
+            mu = a + b @ u
+            if mu < 0 and b @ b > 0:
+                u = u - mu / (b @ b) * b
+        return {"input": float(u[channel]), "active": bool(np.any(u != nominal)), "mu": float(constraints[0][0] + constraints[0][1] @ nominal)}
+
+
+def test_a_numpy_cbf_qp_reproduces_the_built_in_min_h():
+    mjsafe.register_filter("numpy_cbf_qp", DelayFreeCbfQp)
+    built_in = mjsafe.run(scenario("bicycle_obstacle.toml"))
+    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "numpy_cbf_qp", "l0": 4.0, "l1": 4.0}})
+    assert built_in.metrics["filter_label"] != ours.metrics["filter_label"]
+    assert ours.metrics["filter_label"] == "numpy CBF-QP (4.9)"
+    assert ours.error is None
+    assert abs(ours.min_h - built_in.min_h) < 1e-9, (ours.min_h, built_in.min_h)
+    assert ours.collision["time"] == built_in.collision["time"]
+
+
+class Raises:
+    barrier_form = {"alpha": 1.0}
+
+    def __init__(self, params):
+        self.after = params.get("after", 0.0)
+
+    def filter_channel(self, t, channel, state, nominal, constraints):
+        if t >= self.after:
+            raise ZeroDivisionError("the filter divided by zero")
+        return float(nominal[channel])
+
+
+def test_an_exception_stops_the_run_with_its_type_and_message():
+    mjsafe.register_filter("raises", Raises)
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "raises", "after": 1.0}})
+    assert r.error is not None and "ZeroDivisionError: the filter divided by zero" in r.error, r.error
+    assert "raises" in r.error
+    assert r.metrics["complete"] is False
+    assert 0.99 <= r.simulated_time <= 1.02
+
+
+def test_a_class_without_filter_channel_or_a_bad_kind_is_refused():
+    class Nothing:
+        pass
+
+    with pytest.raises(ValueError, match="filter_channel"):
+        mjsafe.register_filter("nothing", Nothing)
+    with pytest.raises(ValueError, match="letters, digits"):
+        mjsafe.register_filter("bad kind", DelayFreeCbfQp)
+
+
+def test_a_bad_barrier_form_or_return_value_is_one_clear_error():
+    class BadForm(DelayFreeCbfQp):
+        def __init__(self, params):
+            self.barrier_form = {"l0": 5.0, "l1": 4.0}
+
+    mjsafe.register_filter("bad_form", BadForm)
+    with pytest.raises((ValueError, RuntimeError), match="l1"):
+        mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "bad_form"}})
+
+    class Text(Raises):
+        def filter_channel(self, t, channel, state, nominal, constraints):
+            return "fast"
+
+    mjsafe.register_filter("text", Text)
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "text"}})
+    assert r.error is not None and "expected a number" in r.error, r.error
+
+
+def test_a_python_kind_sweeps_on_several_threads():
+    mjsafe.register_filter("numpy_cbf_qp", DelayFreeCbfQp)
+    rows = mjsafe.sweep(
+        scenario("bicycle_obstacle.toml"),
+        grid={"delays.steering": [0.0, 0.1, 0.2]},
+        set={"filter": {"kind": "numpy_cbf_qp", "l0": 4.0, "l1": 4.0}},
+        threads=2,
+    )
+    built = mjsafe.sweep(
+        scenario("bicycle_obstacle.toml"),
+        grid={"delays.steering": [0.0, 0.1, 0.2]},
+        set={"filter": {"kind": "cbf_qp", "l0": 4.0, "l1": 4.0}},
+        threads=2,
+    )
+    assert len(rows) == 3
+    assert np.allclose(rows["min_h"].to_numpy(), built["min_h"].to_numpy(), rtol=0, atol=1e-9)
