@@ -231,6 +231,14 @@ pub trait NominalController: Send {
         self.input_into(time, x, u)
     }
 
+    /// [`NominalController::input_with_actors_into`] for a controller that can fail (one
+    /// written in another language): the control loop calls this one, and an error stops the
+    /// run with an error event carrying the message. Default: never fails.
+    fn try_input_into(&self, time: f64, x: &[f64], actors: &[SeenActor], u: &mut [f64]) -> Result<(), String> {
+        self.input_with_actors_into(time, x, actors, u);
+        Ok(())
+    }
+
     /// Whether the controller is itself a predictor-feedback law, evaluated at the prediction
     /// p(t) and its time φ⁻¹(t) even when the safety filter is not delay-compensated (§2.4.2).
     fn uses_prediction(&self) -> bool {

@@ -45,6 +45,7 @@ __all__ = [
     "LogData",
     "toml_value",
     "register_filter",
+    "register_nominal",
 ]
 
 
@@ -219,6 +220,21 @@ def register_filter(kind: str, cls: type) -> None:
             ``filter_channel``.
     """
     _core.register_filter(kind, cls)
+
+
+def register_nominal(kind: str, cls: type) -> None:
+    """Registers a nominal controller written in Python as the nominal ``kind`` of this process.
+
+    ``cls(params)`` is built for each run with the scenario's ``[nominal]`` table (without
+    ``kind``) as a dict; its method ``input(self, t, state)`` receives the time and the state
+    (a numpy array) the controller evaluates u0 at and returns one value per channel; ``label``
+    on the class is optional. An exception, or a result that is not one number per channel,
+    stops the run with an error event carrying the message (``RunResult.error``).
+
+    Raises:
+        ValueError: a kind that is not letters, digits and ``_``, or a class without ``input``.
+    """
+    _core.register_nominal(kind, cls)
 
 
 def read_log(path: str | os.PathLike[str]) -> LogData:

@@ -9,6 +9,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 
 use mjsafe::barrier::BarrierForm;
 use mjsafe::filter::{ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter};
+use mjsafe::nominal::{NominalContext, NominalController, SeenActor};
 
 /// A Python kind's parameters: its scenario table as it is (the class checks them).
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -221,6 +222,93 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
             build_filter(&name, &cls, &asarray, p)
         });
         let described = described.description("a filter written in Python (mjsafe.register_filter)");
+        if let Some(label) = &label {
+            described.label(label);
+        }
+    });
+    Ok(())
+}
+
+/// A nominal controller written in Python: `input(t, state)` of an instance of the registered
+/// class, one command per channel.
+pub struct PythonNominal {
+    kind: String,
+    object: Py<PyAny>,
+    asarray: Py<PyAny>,
+}
+
+impl NominalController for PythonNominal {
+    fn input_into(&self, time: f64, x: &[f64], u: &mut [f64]) {
+        // Only the control loop calls a nominal, through `try_input_into`; an error here has
+        // nowhere to go, so it leaves non-finite commands, which the loop refuses.
+        if self.try_input_into(time, x, &[], u).is_err() {
+            u.fill(f64::NAN);
+        }
+    }
+
+    fn try_input_into(&self, time: f64, x: &[f64], _: &[SeenActor], u: &mut [f64]) -> Result<(), String> {
+        let kind = &self.kind;
+        Python::attach(|py| {
+            let call = || -> PyResult<Bound<'_, PyAny>> {
+                let state = self.asarray.bind(py).call1((PyList::new(py, x)?,))?;
+                self.object.bind(py).call_method1("input", (time, state))
+            };
+            let result =
+                call().map_err(|e| format!("the Python nominal `{kind}` raised {}", exception_line(py, &e)))?;
+            let values: Vec<f64> = result.extract().map_err(|_| {
+                format!(
+                    "the Python nominal `{kind}` returned {}: expected a sequence of {} numbers (one per channel)",
+                    result.get_type().name().map(|n| n.to_string()).unwrap_or_default(),
+                    u.len()
+                )
+            })?;
+            if values.len() != u.len() {
+                return Err(format!(
+                    "the Python nominal `{kind}` returned {} values: expected {} (one per channel)",
+                    values.len(),
+                    u.len()
+                ));
+            }
+            u.copy_from_slice(&values);
+            Ok(())
+        })
+    }
+}
+
+/// `mjsafe.register_nominal(kind, cls)`: `cls(params)` with the scenario's `[nominal]` table,
+/// whose `input(t, state)` gives u0 (one value per channel).
+#[pyfunction]
+pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<()> {
+    if kind.is_empty() || !kind.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(PyValueError::new_err(format!(
+            "register_nominal: expected a kind of letters, digits and `_`, found {kind:?}"
+        )));
+    }
+    let class = cls.bind(py);
+    if !class.hasattr("input")? {
+        return Err(PyValueError::new_err(
+            "register_nominal: expected a class with a method input(self, t, state)",
+        ));
+    }
+    let label = match class.getattr("label") {
+        Ok(l) if !l.is_none() => Some(
+            l.extract::<String>()
+                .map_err(|_| PyValueError::new_err("register_nominal: expected `label` to be a string"))?,
+        ),
+        _ => None,
+    };
+    let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
+    let name = kind.to_string();
+    mjsafe::registry::register(move |r| {
+        let described = r.add_nominal(&name.clone(), move |p: &AnyParams, _: &NominalContext| {
+            let object = instantiate(&cls, &p.0, "nominal")?;
+            Ok(Box::new(PythonNominal {
+                kind: name.clone(),
+                object,
+                asarray: Python::attach(|py| asarray.clone_ref(py)),
+            }) as Box<dyn NominalController>)
+        });
+        let described = described.description("a nominal controller written in Python (mjsafe.register_nominal)");
         if let Some(label) = &label {
             described.label(label);
         }

@@ -520,5 +520,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(falsify, m)?)?;
     m.add_function(wrap_pyfunction!(toml_value, m)?)?;
     m.add_function(wrap_pyfunction!(kinds::register_filter, m)?)?;
+    m.add_function(wrap_pyfunction!(kinds::register_nominal, m)?)?;
     Ok(())
 }

@@ -105,3 +105,53 @@ def test_a_python_kind_sweeps_on_several_threads():
     )
     assert len(rows) == 3
     assert np.allclose(rows["min_h"].to_numpy(), built["min_h"].to_numpy(), rtol=0, atol=1e-9)
+
+
+class Hold:
+    """u0 = the scenario's `input`, one value per channel (the built-in `constant`)."""
+
+    label = "held input"
+
+    def __init__(self, params):
+        self.u = [float(v) for v in params["input"]]
+
+    def input(self, t, state):
+        assert isinstance(state, np.ndarray) and state.shape == (4,)
+        return self.u
+
+
+def test_a_python_nominal_reproduces_the_built_in_constant_input():
+    mjsafe.register_nominal("hold", Hold)
+    s = {"filter": {"kind": "gamma_m", "l0": 4.0, "l1": 4.0, "m": 50.0}}
+    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={**s, "nominal": {"kind": "hold", "input": [0.05, 0.3]}})
+    built_in = mjsafe.run(scenario("bicycle_obstacle.toml"), set={**s, "nominal": {"kind": "constant", "input": [0.05, 0.3]}})
+    assert ours.error is None
+    assert ours.min_h == built_in.min_h
+    assert ours.collision == built_in.collision
+
+
+class Broken(Hold):
+    def input(self, t, state):
+        if t > 0.5:
+            raise KeyError("no such gain")
+        return self.u[:1]
+
+
+def test_a_python_nominal_s_exception_or_wrong_length_stops_the_run():
+    mjsafe.register_nominal("broken", Broken)
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"nominal": {"kind": "broken", "input": [0.0, 0.0]}})
+    assert r.error is not None and "returned 1 values: expected 2" in r.error, r.error
+    assert r.simulated_time < 0.02
+
+    class Late(Hold):
+        def input(self, t, state):
+            if t > 0.5:
+                raise KeyError("no such gain")
+            return self.u
+
+    mjsafe.register_nominal("late", Late)
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"nominal": {"kind": "late", "input": [0.0, 0.0]}})
+    assert r.error is not None and "KeyError: 'no such gain'" in r.error and "late" in r.error, r.error
+    assert r.metrics["complete"] is False
+    with pytest.raises(ValueError, match="input"):
+        mjsafe.register_nominal("nothing", object)

@@ -120,10 +120,11 @@ impl LawWorkspace {
         time: f64,
         nominal_state: (&[f64], f64),
         (z, at): (&[f64], f64),
-    ) -> usize {
-        self.nominal_into(laws, time, nominal_state);
-        laws.form
-            .map_or(0, |form| self.constraints_out_of_line(laws, form, z, at))
+    ) -> Result<usize, FilterError> {
+        self.nominal_into(laws, time, nominal_state)?;
+        Ok(laws
+            .form
+            .map_or(0, |form| self.constraints_out_of_line(laws, form, z, at)))
     }
 
     /// u[j] ← κ_j for the channels in `free` at the predicted z = x(s) ([`SafetyFilter::issued_law`]),
@@ -148,7 +149,7 @@ impl LawWorkspace {
             let start = free[..end].partition_point(|&j| delay(j) < d);
             let group = &free[start..end];
             let nominal_time = if nominal_predicts { s } else { s - d };
-            self.nominal_into(laws, nominal_time, (z, s));
+            self.nominal_into(laws, nominal_time, (z, s))?;
             self.input.as_mut_slice().copy_from_slice(u);
             let input = LawInput {
                 time: s - d,
@@ -171,10 +172,12 @@ impl LawWorkspace {
     /// with every known moving actor where the controller assumes it at `at` (where it is when
     /// the vehicle is at x) and the gap its (first) barrier measures at x ([`SeenActor`]).
     #[inline(always)]
-    fn nominal_into(&mut self, laws: &Laws<'_>, time: f64, (x, at): (&[f64], f64)) {
+    fn nominal_into(&mut self, laws: &Laws<'_>, time: f64, (x, at): (&[f64], f64)) -> Result<(), FilterError> {
         if !laws.nominal.reads_actors() {
-            laws.nominal.input_into(time, x, self.nominal.as_mut_slice());
-            return;
+            return laws
+                .nominal
+                .try_input_into(time, x, &[], self.nominal.as_mut_slice())
+                .map_err(FilterError::Other);
         }
         self.seen.clear();
         for (k, motion) in laws.actors.motions.iter().enumerate() {
@@ -190,7 +193,8 @@ impl LawWorkspace {
             });
         }
         laws.nominal
-            .input_with_actors_into(time, x, &self.seen, self.nominal.as_mut_slice());
+            .try_input_into(time, x, &self.seen, self.nominal.as_mut_slice())
+            .map_err(FilterError::Other)
     }
 
     #[inline(never)]
@@ -770,7 +774,7 @@ impl ControlLoop {
                     nominal_time,
                     (nominal_state.as_slice(), state_time),
                     (eval_state.as_slice(), eval_time),
-                );
+                )?;
             }
             let outcome = filter.filter_channel(&ChannelInput {
                 time: t,
