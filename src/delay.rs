@@ -490,6 +490,12 @@ impl DelayQueue {
         }
     }
 
+    /// The commands issued and still held (issue time, value), oldest first: those that may
+    /// still apply (older ones are discarded as the run goes, [`DelayQueue::discard_before`]).
+    pub fn issued(&self) -> impl ExactSizeIterator<Item = (f64, f64)> + '_ {
+        self.history.iter().copied()
+    }
+
     pub fn channel(&self) -> &str {
         &self.channel
     }

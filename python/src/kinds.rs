@@ -80,6 +80,23 @@ pub struct PythonFilter {
     form: Option<BarrierForm>,
     uses_prediction: bool,
     asarray: Py<PyAny>,
+    /// Whether `filter_channel` takes the keyword arguments `queues` and `timestep` (named,
+    /// or through `**kwargs`).
+    takes_queues: bool,
+    takes_timestep: bool,
+}
+
+/// Which of `names` the method accepts as keyword arguments (by name, or through `**kwargs`).
+fn accepts(method: &Bound<'_, PyAny>, names: [&str; 2]) -> PyResult<[bool; 2]> {
+    let py = method.py();
+    let inspect = py.import("inspect")?;
+    let parameters = inspect.call_method1("signature", (method,))?.getattr("parameters")?;
+    let var_keyword = inspect.getattr("Parameter")?.getattr("VAR_KEYWORD")?;
+    let mut any = false;
+    for p in parameters.call_method0("values")?.try_iter()? {
+        any |= p?.getattr("kind")?.eq(&var_keyword)?;
+    }
+    Ok(names.map(|n| any || parameters.contains(n).unwrap_or(false)))
 }
 
 /// What `filter_channel` returned: None (no decision: the nominal passes), a number (the
@@ -152,7 +169,30 @@ impl SafetyFilter for PythonFilter {
                     array(input.nominal.as_slice())?,
                     constraints,
                 );
-                self.object.bind(py).call_method1("filter_channel", args)
+                let kwargs = PyDict::new(py);
+                if self.takes_queues {
+                    // Per channel: its name, its delay at t and the commands issued that may
+                    // still apply, as an array of (issue time, value) rows (read-only copies).
+                    let queues = PyList::empty(py);
+                    for q in input.queues {
+                        let queue = PyDict::new(py);
+                        queue.set_item("channel", q.channel())?;
+                        let delay = q.constant_delay().unwrap_or_else(|| q.profile().delay(input.time));
+                        queue.set_item("delay", delay)?;
+                        let rows = PyList::empty(py);
+                        for (time, value) in q.issued() {
+                            rows.append(PyList::new(py, [time, value])?)?;
+                        }
+                        let issued = asarray.call1((rows,))?.call_method1("reshape", (-1, 2))?;
+                        queue.set_item("issued", issued)?;
+                        queues.append(queue)?;
+                    }
+                    kwargs.set_item("queues", queues)?;
+                }
+                if self.takes_timestep {
+                    kwargs.set_item("timestep", input.timestep)?;
+                }
+                self.object.bind(py).call_method("filter_channel", args, Some(&kwargs))
             };
             match call() {
                 Ok(result) => outcome(&result, input.nominal[input.channel])
@@ -183,12 +223,19 @@ fn build_filter(
                 .map_err(|_| ParamError::new("filter", "expected `uses_prediction` to be a bool"))?,
             Err(_) => false,
         };
+        let method = bound
+            .getattr("filter_channel")
+            .map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
+        let [takes_queues, takes_timestep] =
+            accepts(&method, ["queues", "timestep"]).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
         Ok(Box::new(PythonFilter {
             kind: kind.to_string(),
             object: object.clone_ref(py),
             form,
             uses_prediction,
             asarray: asarray.clone_ref(py),
+            takes_queues,
+            takes_timestep,
         }) as Box<dyn SafetyFilter>)
     })
 }

@@ -155,3 +155,35 @@ def test_a_python_nominal_s_exception_or_wrong_length_stops_the_run():
     assert r.metrics["complete"] is False
     with pytest.raises(ValueError, match="input"):
         mjsafe.register_nominal("nothing", object)
+
+
+class SeesQueues:
+    """Passes the nominal, recording what the queues and the timestep said at each call."""
+
+    barrier_form = {"alpha": 1.0}
+    seen = []
+
+    def __init__(self, params):
+        pass
+
+    def filter_channel(self, t, channel, state, nominal, constraints, *, queues, timestep):
+        SeesQueues.seen.append((t, channel, [q["channel"] for q in queues], [q["delay"] for q in queues],
+                                [q["issued"].copy() for q in queues], timestep))
+        return float(nominal[channel])
+
+
+def test_the_queues_and_the_timestep_reach_a_filter_that_takes_them():
+    mjsafe.register_filter("sees_queues", SeesQueues)
+    SeesQueues.seen.clear()
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"),
+                   set={"filter": {"kind": "sees_queues"}, "duration": 1.0, "obstacles.0.appear_at": 0.0})
+    assert r.error is None, r.error
+    assert len(SeesQueues.seen) == 2 * 100    # two channels, 100 ticks of 10 ms
+    t, channel, names, delays, issued, timestep = SeesQueues.seen[-1]
+    assert names == ["steering", "acceleration"] and delays == [0.2, 1.5]
+    # The commands issued before this tick that may still apply: every tick of the last
+    # delay (the queue keeps back to t − D), as (issue time, value) rows.
+    assert timestep == 0.002
+    for queue, delay in zip(issued, delays):
+        assert queue.ndim == 2 and queue.shape[1] == 2
+        assert queue[-1, 0] < t and queue[0, 0] <= max(t - delay, 0.0) + 1e-9
