@@ -1071,6 +1071,40 @@ mod tests {
         }
     }
 
+    /// The largest relative difference between `b`'s ∇h and ∇²h v at x (four states) and
+    /// central differences of h and of ∇h.
+    fn derivatives_against_differences(b: &Barrier, x: [f64; 4]) -> f64 {
+        let mut worst: f64 = 0.0;
+        let mut g = [0.0; 4];
+        b.gradient_into(&x, &mut g);
+        let e = 1e-5;
+        let shifted = |i: usize, d: f64| {
+            let mut y = x;
+            y[i] += d;
+            y
+        };
+        for (i, g) in g.iter().enumerate() {
+            let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
+            worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
+        }
+        let v = [0.3, -1.2, 0.8, 0.5];
+        let mut hv = [0.0; 4];
+        b.add_hessian_times(&x, &v, &mut hv);
+        for i in 0..4 {
+            // Row i of ∇²h from differences of the gradient, times v.
+            let fd_row: f64 = (0..4)
+                .map(|j| {
+                    let (mut gp, mut gm) = ([0.0; 4], [0.0; 4]);
+                    b.gradient_into(&shifted(j, e), &mut gp);
+                    b.gradient_into(&shifted(j, -e), &mut gm);
+                    (gp[i] - gm[i]) / (2.0 * e) * v[j]
+                })
+                .sum();
+            worst = worst.max((fd_row - hv[i]).abs() / (1.0 + hv[i].abs()));
+        }
+        worst
+    }
+
     /// A body circle's ∇h and ∇²h v against central differences of h, at states all round the
     /// heading, with lateral offsets too.
     #[test]
@@ -1086,33 +1120,7 @@ mod tests {
                 2.3,
             );
             let x = [3.0 * (0.3 * s).cos(), 2.0 * s.sin(), 0.41 * s - 9.0, 2.5];
-            let mut g = [0.0; 4];
-            b.gradient_into(&x, &mut g);
-            let e = 1e-5;
-            let shifted = |i: usize, d: f64| {
-                let mut y = x;
-                y[i] += d;
-                y
-            };
-            for (i, g) in g.iter().enumerate() {
-                let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
-                worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
-            }
-            let v = [0.3, -1.2, 0.8, 0.5];
-            let mut hv = [0.0; 4];
-            b.add_hessian_times(&x, &v, &mut hv);
-            for i in 0..4 {
-                // Row i of ∇²h from differences of the gradient, times v.
-                let fd_row: f64 = (0..4)
-                    .map(|j| {
-                        let (mut gp, mut gm) = ([0.0; 4], [0.0; 4]);
-                        b.gradient_into(&shifted(j, e), &mut gp);
-                        b.gradient_into(&shifted(j, -e), &mut gm);
-                        (gp[i] - gm[i]) / (2.0 * e) * v[j]
-                    })
-                    .sum();
-                worst = worst.max((fd_row - hv[i]).abs() / (1.0 + hv[i].abs()));
-            }
+            worst = worst.max(derivatives_against_differences(&b, x));
             assert_eq!(b.max_index(), 2);
             let d = b.clearance(&DVector::from_column_slice(&x));
             assert!((((d + 2.3).powi(2) - 2.3 * 2.3) - b.h_at(&x)).abs() < 1e-9);
@@ -1223,32 +1231,7 @@ mod tests {
             assert!((arc.clearance(&DVector::from_column_slice(&x)) - clearance).abs() < 1e-12);
             assert!(line.mixed_relative_degree() && arc.mixed_relative_degree());
             for b in [&line, &arc] {
-                let mut g = [0.0; 4];
-                b.gradient_into(&x, &mut g);
-                let e = 1e-5;
-                let shifted = |i: usize, d: f64| {
-                    let mut y = x;
-                    y[i] += d;
-                    y
-                };
-                for (i, g) in g.iter().enumerate() {
-                    let fd = (b.h_at(&shifted(i, e)) - b.h_at(&shifted(i, -e))) / (2.0 * e);
-                    worst = worst.max((fd - g).abs() / (1.0 + g.abs()));
-                }
-                let v = [0.3, -1.2, 0.8, 0.5];
-                let mut hv = [0.0; 4];
-                b.add_hessian_times(&x, &v, &mut hv);
-                for i in 0..4 {
-                    let fd_row: f64 = (0..4)
-                        .map(|j| {
-                            let (mut gp, mut gm) = ([0.0; 4], [0.0; 4]);
-                            b.gradient_into(&shifted(j, e), &mut gp);
-                            b.gradient_into(&shifted(j, -e), &mut gm);
-                            (gp[i] - gm[i]) / (2.0 * e) * v[j]
-                        })
-                        .sum();
-                    worst = worst.max((fd_row - hv[i]).abs() / (1.0 + hv[i].abs()));
-                }
+                worst = worst.max(derivatives_against_differences(b, x));
             }
         }
         assert!(worst < 1e-7, "largest relative difference {worst:e}");

@@ -823,6 +823,12 @@ pub(super) fn check_mixed_relative_degree(
     }
 }
 
+/// When obstacle i becomes known: its `appear_at` plus its seeded jitter, not before t = 0.
+fn appear_at(sc: &crate::scenario::Scenario, i: usize) -> f64 {
+    let o = &sc.obstacles[i];
+    (o.appear_at + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0)).max(0.0)
+}
+
 /// The vehicle's circles: (offset in its body frame, radius): its hull circle about the
 /// planar position, or the covering circles of `vehicle.footprint` (`crate::footprint`).
 pub(super) fn vehicle_circles(loaded: &LoadedScenario, hull_radius: f64) -> Vec<([f64; 2], f64)> {
@@ -921,9 +927,7 @@ pub(super) fn obstacles(
             offsets,
             centre,
             outline,
-            appear_at: (o.appear_at
-                + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
-            .max(0.0),
+            appear_at: appear_at(sc, i),
             known: false,
             in_contact: false,
             contact_depth: 0.0,
@@ -1028,9 +1032,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
         offsets: vec![[0.0; 2]],
         centre,
         outline,
-        appear_at: (o.appear_at
-            + o.appear_jitter * random::symmetric_unit(sc.seed, Stream::ObstacleAppearance, i as u64, 0))
-        .max(0.0),
+        appear_at: appear_at(sc, i),
         known: false,
         in_contact: false,
         contact_depth: 0.0,
