@@ -255,6 +255,13 @@ pub trait NominalController: Send {
     fn reference_path(&self) -> Option<ReferencePath> {
         None
     }
+
+    /// The values of a nominal commanded from outside the loop (`kind = "external"`: a
+    /// learning agent's action, set between steps by [`crate::episode::Episode::set_external_input`]);
+    /// `None` for a controller that computes its own.
+    fn external_input_mut(&mut self) -> Option<&mut [f64]> {
+        None
+    }
 }
 
 /// A moving road user as a nominal controller sees it: its state where the controller assumes
@@ -523,6 +530,48 @@ impl NominalController for ConstantInput {
     }
     fn constant_input(&self) -> Option<&[f64]> {
         Some(&self.0)
+    }
+}
+
+/// `kind = "external"`: u0 is set from outside the loop between steps (`mjsafe.Env`'s
+/// action, [`crate::episode::Episode::set_external_input`]); `initial` until then (default 0).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalParams {
+    #[serde(default)]
+    pub initial: Option<Vec<f64>>,
+}
+
+impl Params for ExternalParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        if self.initial.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(ParamError::new("nominal.initial", "expected finite numbers"));
+        }
+        Ok(())
+    }
+}
+
+/// A nominal set from outside: the last values set, held (zero-order hold). The predictors
+/// assume it held over their window, the best guess without a model of what sets it.
+pub struct ExternalInput(Vec<f64>);
+
+pub fn build_external(p: &ExternalParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
+    let initial = p.initial.clone().unwrap_or_else(|| vec![0.0; ctx.channels.len()]);
+    if initial.len() != ctx.channels.len() {
+        return Err(ParamError::new(
+            "nominal.initial",
+            format!("expected {} values ({})", ctx.channels.len(), ctx.channels.join(", ")),
+        ));
+    }
+    Ok(Box::new(ExternalInput(initial)))
+}
+
+impl NominalController for ExternalInput {
+    fn input_into(&self, _: f64, _: &[f64], u: &mut [f64]) {
+        u.copy_from_slice(&self.0);
+    }
+    fn external_input_mut(&mut self) -> Option<&mut [f64]> {
+        Some(&mut self.0)
     }
 }
 

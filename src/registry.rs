@@ -166,6 +166,9 @@ impl Registry {
         r.add_nominal("constant", nominal::build_constant)
             .label("constant input")
             .description("the same input at every tick");
+        r.add_nominal("external", nominal::build_external)
+            .label("external input")
+            .description("set from outside the loop at every tick (mjsafe.Env's action), held between settings");
         r.add_nominal("unicycle_stabilizer", nominal::build_unicycle_stabilizer)
             .label("unicycle stabiliser (2.40)–(2.46)")
             .description("drives the unicycle to the origin (2.40)–(2.46)");

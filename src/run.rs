@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::analyze::{self, AnalysisSink, AnalyzeError, RunMetrics};
-use crate::episode::{Episode, EpisodeError, EpisodeSummary};
+use crate::episode::{Ended, Episode, EpisodeError, EpisodeSummary};
 use crate::log::mcap::{self, McapSink};
 use crate::log::{LogError, Record, RunInfo, Sink, Tee};
 use crate::scenario::LoadedScenario;
@@ -150,32 +150,123 @@ impl Prepared {
     }
 
     /// Runs the episode into its log of record and `further` sinks, then analyses it.
-    pub fn run(mut self, further: Vec<Box<dyn Sink + '_>>) -> Result<Outcome, RunError> {
-        let (summary, failed) = {
-            let log: &mut dyn Sink = match &mut self.record {
-                LogOfRecord::Log { sink, .. } => sink.as_mut(),
-                LogOfRecord::Metrics(sink) => sink.as_mut(),
-                LogOfRecord::Nothing(sink) => sink,
-            };
-            let mut outputs = Tee::new(log, further);
-            let result = self.episode.run(&mut [&mut outputs]);
-            (result, outputs.other_failed())
+    pub fn run(self, further: Vec<Box<dyn Sink + '_>>) -> Result<Outcome, RunError> {
+        let _graceful = crate::episode::GracefulStop::begin();
+        self.start(further).finish(Rest::Run)
+    }
+
+    /// Starts the run without taking a step: its caller steps it ([`Running::advance`]).
+    pub fn start<'a>(self, further: Vec<Box<dyn Sink + 'a>>) -> Running<'a> {
+        Running {
+            prepared: self,
+            further,
+            failed: false,
+            last_time: 0.0,
+            run_seconds: 0.0,
+        }
+    }
+}
+
+/// What [`Running::finish`] does with the steps not taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rest {
+    /// Takes them: the episode runs to its end.
+    Run,
+    /// Ends the episode where it is ([`Episode::end_here`]): its log says where it stopped.
+    EndHere,
+}
+
+/// A run started ([`Prepared::start`]) and stepped by its caller, one plant step at a time,
+/// through the loop of [`Prepared::run`] (which is [`Running::finish`] with [`Rest::Run`]).
+pub struct Running<'a> {
+    prepared: Prepared,
+    further: Vec<Box<dyn Sink + 'a>>,
+    /// Whether a further sink failed (the run then stopped).
+    failed: bool,
+    /// Time of the last record (of an error event a later step logs).
+    last_time: f64,
+    run_seconds: f64,
+}
+
+impl<'a> Running<'a> {
+    /// The episode (its state, queues and step between steps).
+    pub fn episode(&self) -> &Episode {
+        &self.prepared.episode
+    }
+
+    /// Sets the input of an `external` nominal ([`Episode::set_external_input`]).
+    pub fn set_external_input(&mut self, input: &[f64]) -> Result<(), String> {
+        self.prepared.episode.set_external_input(input)
+    }
+
+    /// Takes the episode's next step into the log of record and the further sinks
+    /// ([`Episode::advance`]); returns how the episode ended once it has. After an error the
+    /// run can only be finished.
+    pub fn advance(&mut self) -> Result<Option<Ended>, RunError> {
+        self.with_outputs(|episode, outputs| episode.advance(outputs))
+    }
+
+    /// Calls `step` with the episode and the outputs (the log of record, then the further
+    /// sinks), timing it; a failed further sink's error becomes [`RunError::Sink`].
+    fn with_outputs<T>(
+        &mut self,
+        step: impl FnOnce(&mut Episode, &mut [&mut dyn Sink]) -> Result<T, EpisodeError>,
+    ) -> Result<T, RunError> {
+        let started = Instant::now();
+        let further = (std::mem::take(&mut self.further), self.last_time);
+        let Prepared { episode, record, .. } = &mut self.prepared;
+        let mut outputs = Tee::resume(record.sink(), further);
+        let result = step(episode, &mut [&mut outputs]);
+        self.failed |= outputs.other_failed();
+        (self.further, self.last_time) = outputs.into_parts();
+        self.run_seconds += started.elapsed().as_secs_f64();
+        match result {
+            Err(EpisodeError::Log(error)) if self.failed => Err(RunError::Sink {
+                error,
+                log: self.prepared.record.path(),
+            }),
+            result => Ok(result?),
+        }
+    }
+
+    /// Ends the run ([`Rest`] says how), finishes every sink and analyses the log of record.
+    /// An error of a step or of a sink finishes the sinks as incomplete and is returned.
+    pub fn finish(mut self, rest: Rest) -> Result<Outcome, RunError> {
+        let ended = self.with_outputs(|episode, outputs| match rest {
+            Rest::Run => loop {
+                if let Some(end) = episode.advance(outputs)? {
+                    break Ok(end);
+                }
+            },
+            Rest::EndHere => episode.end_here(outputs),
+        });
+        let (steps, error) = match ended {
+            Ok(end) => end,
+            Err(e) => {
+                let _ = self.prepared.record.sink().finish(false);
+                for sink in &mut self.further {
+                    let _ = sink.finish(false);
+                }
+                return Err(e);
+            }
         };
-        let log = match &self.record {
-            LogOfRecord::Log { path, .. } => Some(path.clone()),
-            _ => None,
-        };
-        let summary = match summary {
-            Err(EpisodeError::Log(error)) if failed => return Err(RunError::Sink { error, log }),
-            result => result?,
+        let complete = error.is_none();
+        let finished = self.with_outputs(|_, outputs| outputs[0].finish(complete).map_err(EpisodeError::from));
+        finished?;
+        let summary = EpisodeSummary {
+            steps,
+            simulated_time: steps as f64 * self.prepared.episode.timestep(),
+            wall_seconds: self.run_seconds,
+            error,
         };
         let mut timing = RunTiming {
-            assemble_seconds: self.assemble_seconds,
+            assemble_seconds: self.prepared.assemble_seconds,
             run_seconds: summary.wall_seconds,
             ..RunTiming::default()
         };
+        let log = self.prepared.record.path();
         let started = Instant::now();
-        let metrics = match self.record {
+        let metrics = match self.prepared.record {
             LogOfRecord::Log { sink, path } => {
                 timing.writer_busy_seconds = sink.writer_busy().as_secs_f64();
                 drop(sink);
@@ -191,6 +282,23 @@ impl Prepared {
             metrics,
             timing,
         })
+    }
+}
+
+impl LogOfRecord {
+    fn sink(&mut self) -> &mut dyn Sink {
+        match self {
+            LogOfRecord::Log { sink, .. } => sink.as_mut(),
+            LogOfRecord::Metrics(sink) => sink.as_mut(),
+            LogOfRecord::Nothing(sink) => sink,
+        }
+    }
+
+    fn path(&self) -> Option<PathBuf> {
+        match self {
+            LogOfRecord::Log { path, .. } => Some(path.clone()),
+            _ => None,
+        }
     }
 }
 

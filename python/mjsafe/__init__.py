@@ -46,6 +46,7 @@ __all__ = [
     "toml_value",
     "register_filter",
     "register_nominal",
+    "Env",
 ]
 
 
@@ -337,3 +338,6 @@ def falsify(
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
         raw = _core.falsify(*args, tmp, search_line)
         return FalsifyResult(raw, None)
+
+
+from mjsafe.env import Env  # noqa: E402  (it reads RunResult from this module)

@@ -15,6 +15,7 @@
 #![deny(unsafe_code)]
 
 mod kinds;
+mod stepper;
 
 use std::error::Error;
 use std::path::{Path, PathBuf};
@@ -336,6 +337,15 @@ fn run<'py>(
         Ok((outcome, sink.map(TableSink::tables)))
     })?;
     let (outcome, kept) = result;
+    outcome_dict(py, &outcome, kept.as_ref())
+}
+
+/// A run's outcome as the dict `mjsafe.RunResult` is made of.
+fn outcome_dict<'py>(
+    py: Python<'py>,
+    outcome: &mjsafe::run::Outcome,
+    tables: Option<&MemoryTables>,
+) -> PyResult<Bound<'py, PyDict>> {
     let dict = PyDict::new(py);
     let metrics = outcome.metrics.as_ref().expect("a logged or analysed run has metrics");
     dict.set_item("metrics", metrics_json(metrics))?;
@@ -345,8 +355,8 @@ fn run<'py>(
     dict.set_item("simulated_time", outcome.summary.simulated_time)?;
     let rtf = outcome.summary.real_time_factor();
     dict.set_item("real_time_factor", rtf.is_finite().then_some(rtf))?;
-    match kept {
-        Some(t) => dict.set_item("tables", tables_to_py(py, &t)?)?,
+    match tables {
+        Some(t) => dict.set_item("tables", tables_to_py(py, t)?)?,
         None => dict.set_item("tables", py.None())?,
     }
     Ok(dict)
@@ -519,6 +529,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(falsify, m)?)?;
     m.add_function(wrap_pyfunction!(toml_value, m)?)?;
+    m.add_class::<stepper::Stepper>()?;
     m.add_function(wrap_pyfunction!(kinds::register_filter, m)?)?;
     m.add_function(wrap_pyfunction!(kinds::register_nominal, m)?)?;
     Ok(())

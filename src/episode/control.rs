@@ -513,6 +513,11 @@ impl ControlLoop {
         (self.filter.uses_prediction() || self.nominal.uses_prediction()) && self.structure != Structure::None
     }
 
+    /// The nominal controller (to set an external one's input between steps).
+    pub fn nominal_mut(&mut self) -> &mut dyn NominalController {
+        self.nominal.as_mut()
+    }
+
     /// The safety filter.
     pub fn filter(&self) -> &dyn SafetyFilter {
         self.filter.as_ref()

@@ -138,7 +138,49 @@ pub struct Episode {
     /// The `stall_time` definition applied to the records as they are logged, for the `stall`
     /// event (it reads the records and only adds an event: nothing feeds back into control).
     stall: (StallDetector, RunFacts),
+    /// Where the step loop stands ([`Episode::advance`]).
+    cursor: Cursor,
 }
+
+/// The step loop's state between steps: the next step k, x(t_k) and the input of the step
+/// (allocated once), and how the episode ended once it has.
+struct Cursor {
+    step: u64,
+    x: DVector<f64>,
+    applied: DVector<f64>,
+    end: Option<Ended>,
+    /// The steps the episode was to take, when its caller ended it early ([`Episode::end_here`]).
+    planned: Option<u64>,
+}
+
+/// A barrier at a state ([`Episode::barriers_now`]): the fields of the log's `BarrierValue`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarrierNow {
+    pub name: String,
+    /// h(x), in the barrier's own unit.
+    pub h: f64,
+    /// Signed distance to the boundary (m for obstacles and road edges).
+    pub clearance: f64,
+    /// Whether the controller knows it yet.
+    pub known: bool,
+    /// Whether it is an obstacle's (vs a state constraint or road edge).
+    pub obstacle: bool,
+}
+
+impl BarrierNow {
+    fn of(b: &Barrier, x: &DVector<f64>, known: bool, obstacle: bool) -> BarrierNow {
+        BarrierNow {
+            name: b.name.clone(),
+            h: b.h(x),
+            clearance: b.clearance(x),
+            known,
+            obstacle,
+        }
+    }
+}
+
+/// How an episode ended: the steps it took and why it stopped early, if it did.
+pub type Ended = (u64, Option<StopReason>);
 
 impl Episode {
     /// Loads the model, builds plant and controller, and checks everything that depends on
@@ -245,6 +287,13 @@ impl Episode {
             inside_step: Vec::new(),
             stall: (StallDetector::default(), RunFacts::from_metadata(&info.metadata())),
             info,
+            cursor: Cursor {
+                step: 0,
+                x: DVector::zeros(model.state_dim()),
+                applied: DVector::zeros(model.input_dim()),
+                end: None,
+                planned: None,
+            },
         })
     }
 
@@ -445,149 +494,270 @@ impl Episode {
     }
 
     /// The step loop. Returns the steps taken and the in-run error that stopped it, if any.
-    fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<(u64, Option<StopReason>), EpisodeError> {
-        let h = self.control.timestep();
-        let channels = self.control.model().channel_names().to_vec();
-        // Per-step values, allocated once: x(t_k), and the input the plant received during
-        // step k.
-        let mut x = DVector::zeros(self.control.model().state_dim());
-        let mut applied = DVector::zeros(channels.len());
-
+    fn run_steps(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<Ended, EpisodeError> {
         PROGRESS.store(0, std::sync::atomic::Ordering::Relaxed);
-        for k in 0..=self.steps {
-            let time = k as f64 * h;
-            PROGRESS.store(k, std::sync::atomic::Ordering::Relaxed);
-            self.plant.state_into(&mut x);
-            self.move_actors(sinks, time, &x)?;
-            for i in self.reveal_obstacles(time) {
-                let o = &self.obstacles[i];
-                let message = format!("{} becomes known to the controller", o.name);
-                Self::emit(
-                    sinks,
-                    Self::event(time, "obstacle_appeared", message, vec![o.name.clone()], 0.0),
-                )?;
-                Self::emit(sinks, obstacle_scene(time, o))?;
+        loop {
+            if let Some(end) = self.advance(sinks)? {
+                return Ok(end);
             }
+        }
+    }
 
-            self.emit_scene(sinks, k, time, &x)?;
-            if let Record::State(m) = &mut self.records.state {
-                (m.time, m.step) = (time, k);
-                m.values.clear();
-                m.values.extend_from_slice(x.as_slice());
+    /// Takes the loop's next step k — x(t_k) logged, the plant stepped to t_{k+1} (with the
+    /// control tick when t_k is on the tick grid), what happened during the step logged — or,
+    /// after the last step, logs the episode's end. Returns how the episode ended once it has
+    /// (then again at every call, doing nothing). [`Episode::run`] is this in a loop; stepping
+    /// it from outside (the Python `Env`) runs the same loop, the sinks finished by the caller.
+    pub fn advance(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<Option<Ended>, EpisodeError> {
+        if let Some(end) = &self.cursor.end {
+            return Ok(Some(end.clone()));
+        }
+        let k = self.cursor.step;
+        let mut x = std::mem::replace(&mut self.cursor.x, DVector::zeros(0));
+        let mut applied = std::mem::replace(&mut self.cursor.applied, DVector::zeros(0));
+        let result = self.step_at(sinks, k, &mut x, &mut applied);
+        (self.cursor.x, self.cursor.applied) = (x, applied);
+        self.cursor.step = k + 1;
+        let end = match result {
+            Ok(end) => end,
+            Err(e) => {
+                // A sink failed: the episode cannot go on.
+                self.cursor.end = Some((k, Some(StopReason::Error(e.to_string()))));
+                return Err(e);
             }
-            Self::emit_ref(sinks, &self.records.state)?;
-            self.check_stall(sinks, time)?;
-            // Checked after the state is logged, so even a run stopped before its first step
-            // leaves a log with its initial state.
-            if stop_requested() {
-                self.close_contacts(sinks, time)?;
-                Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
-                return Ok((k, Some(StopReason::Interrupted)));
+        };
+        self.cursor.end.clone_from(&end);
+        Ok(end)
+    }
+
+    /// Ends the episode before its last step, at its current step k, as its caller decided (a
+    /// learning environment's episode that terminated): x(t_k) is logged, open contacts are
+    /// closed and an `episode_end` event says where it stopped. The log is complete up to there.
+    pub fn end_here(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<Ended, EpisodeError> {
+        if self.cursor.end.is_none() {
+            self.cursor.planned = Some(self.steps);
+            self.steps = self.cursor.step;
+        }
+        loop {
+            if let Some(end) = self.advance(sinks)? {
+                return Ok(end);
             }
-            if x.iter().any(|v| !v.is_finite()) {
-                return self.stop_with_error(
-                    sinks,
-                    time,
-                    k,
-                    format!("non-finite state {:?} at t = {time}", x.as_slice()),
-                );
+        }
+    }
+
+    /// The next step k of the loop ([`Episode::advance`]); t_k = k h.
+    pub fn step_index(&self) -> u64 {
+        self.cursor.step
+    }
+
+    /// Sets the input of a nominal commanded from outside (`nominal.kind = "external"`), used
+    /// from the next control tick on; an error names what was expected.
+    pub fn set_external_input(&mut self, input: &[f64]) -> Result<(), String> {
+        let channels = self.control.model().channel_names().join(", ");
+        let Some(held) = self.control.nominal_mut().external_input_mut() else {
+            return Err("the scenario's nominal is not `external`: its nominal computes its own input".into());
+        };
+        if input.len() != held.len() {
+            return Err(format!(
+                "expected {} values ({channels}), found {}",
+                held.len(),
+                input.len()
+            ));
+        }
+        if let Some(v) = input.iter().find(|v| !v.is_finite()) {
+            return Err(format!("expected finite numbers ({channels}), found {v}"));
+        }
+        held.copy_from_slice(input);
+        Ok(())
+    }
+
+    /// The controller's delay queues (delays, commands issued), one per channel.
+    pub fn queues(&self) -> &[crate::delay::DelayQueue] {
+        self.control.queues()
+    }
+
+    /// Every barrier at the plant's current state x(t_k) (the obstacles' pairs first, as in the
+    /// `/barrier` record; a moving obstacle where its motion puts it at t_k): what a caller
+    /// stepping the episode observes between steps.
+    pub fn barriers_now(&self) -> Vec<BarrierNow> {
+        let time = self.cursor.step as f64 * self.control.timestep();
+        let x = self.plant.state();
+        let mut out = Vec::new();
+        for o in &self.obstacles {
+            let centre = o.motion.as_ref().map(|m| m.state_at(time).position);
+            for (b, offset) in o.barriers.iter().zip(&o.offsets) {
+                let mut b = b.clone();
+                if let Some(c) = centre {
+                    b.move_actor([c[0] + offset[0], c[1] + offset[1]]);
+                }
+                out.push(BarrierNow::of(&b, &x, o.known, true));
             }
-            match self.control.realize(time, &x, k == self.steps) {
-                Ok(done) => {
-                    for c in done {
-                        // A target inside the step (off the grid: a time-varying delay) is
-                        // logged after the step's records of t_k, so the log stays in
-                        // log-time order (a reader streams it instead of sorting it).
-                        if c.prediction.target_time > time + TICK_TOLERANCE * h {
-                            self.inside_step.push(c);
-                            continue;
-                        }
-                        Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
-                        self.control.recycle(c);
+        }
+        out.extend(self.barriers.iter().map(|b| BarrierNow::of(b, &x, true, false)));
+        out
+    }
+
+    /// The names of the state's components, in order.
+    pub fn state_names(&self) -> &[String] {
+        self.control.model().state_names()
+    }
+
+    /// The input channels, in order.
+    pub fn channel_names(&self) -> &[String] {
+        self.control.model().channel_names()
+    }
+
+    /// Control ticks happen every this many steps.
+    pub fn steps_per_tick(&self) -> u64 {
+        self.control.steps_per_tick()
+    }
+
+    /// The plant step h (s).
+    pub fn timestep(&self) -> f64 {
+        self.control.timestep()
+    }
+
+    /// Step k of the loop: returns how the episode ended if it did at this step.
+    fn step_at(
+        &mut self,
+        sinks: &mut [&mut dyn Sink],
+        k: u64,
+        x: &mut DVector<f64>,
+        applied: &mut DVector<f64>,
+    ) -> Result<Option<Ended>, EpisodeError> {
+        let h = self.control.timestep();
+        let time = k as f64 * h;
+        PROGRESS.store(k, std::sync::atomic::Ordering::Relaxed);
+        self.plant.state_into(x);
+        self.move_actors(sinks, time, x)?;
+        for i in self.reveal_obstacles(time) {
+            let o = &self.obstacles[i];
+            let message = format!("{} becomes known to the controller", o.name);
+            Self::emit(
+                sinks,
+                Self::event(time, "obstacle_appeared", message, vec![o.name.clone()], 0.0),
+            )?;
+            Self::emit(sinks, obstacle_scene(time, o))?;
+        }
+
+        self.emit_scene(sinks, k, time, x)?;
+        if let Record::State(m) = &mut self.records.state {
+            (m.time, m.step) = (time, k);
+            m.values.clear();
+            m.values.extend_from_slice(x.as_slice());
+        }
+        Self::emit_ref(sinks, &self.records.state)?;
+        self.check_stall(sinks, time)?;
+        // Checked after the state is logged, so even a run stopped before its first step
+        // leaves a log with its initial state.
+        if stop_requested() {
+            self.close_contacts(sinks, time)?;
+            Self::emit(sinks, Self::event(time, "interrupted", INTERRUPTED.into(), vec![], 0.0))?;
+            return Ok(Some((k, Some(StopReason::Interrupted))));
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return self.stop_with_error(
+                sinks,
+                time,
+                k,
+                format!("non-finite state {:?} at t = {time}", x.as_slice()),
+            );
+        }
+        match self.control.realize(time, x, k == self.steps) {
+            Ok(done) => {
+                for c in done {
+                    // A target inside the step (off the grid: a time-varying delay) is
+                    // logged after the step's records of t_k, so the log stays in
+                    // log-time order (a reader streams it instead of sorting it).
+                    if c.prediction.target_time > time + TICK_TOLERANCE * h {
+                        self.inside_step.push(c);
+                        continue;
                     }
-                }
-                Err(e) => return self.stop_with_error(sinks, time, k, e.to_string()),
-            }
-            if k == self.steps {
-                break;
-            }
-
-            if let Err(e) = self.plant.step(&mut self.control) {
-                return self.stop_with_error(sinks, time, k, e.to_string());
-            }
-            if let Some(e) = self.control.take_error() {
-                return self.stop_with_error(sinks, time, k, e.to_string());
-            }
-            while let Some(w) = self.plant.take_warning() {
-                Self::emit(
-                    sinks,
-                    Self::event(
-                        time,
-                        crate::log::MUJOCO_WARNING,
-                        w.message,
-                        vec![w.name.to_string()],
-                        0.0,
-                    ),
-                )?;
-            }
-            if let Some(actuation) = &mut self.actuation {
-                actuation.push(self.plant.actuation());
-            }
-
-            // What happened during step k: tick, applied input, barriers, contacts.
-            let sensor = self.control.has_sensor();
-            if let Some((tick, barriers)) = self.control.take_tick() {
-                Self::emit_tick(sinks, tick, barriers, k, sensor, &mut self.records)?;
-                if let Record::Filter(m) = &self.records.filter {
-                    self.stall.0.observe(Observed::Filter(m), &self.stall.1);
+                    Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
+                    self.control.recycle(c);
                 }
             }
-            let applied_now = self.control.applied();
-            debug_assert_eq!(applied_now.len(), applied.len(), "one applied input per channel");
-            for (a, &(value, _)) in applied.iter_mut().zip(applied_now) {
-                *a = value;
+            Err(e) => return self.stop_with_error(sinks, time, k, e.to_string()),
+        }
+        if k == self.steps {
+            return self.end_of_episode(sinks).map(Some);
+        }
+
+        if let Err(e) = self.plant.step(&mut self.control) {
+            return self.stop_with_error(sinks, time, k, e.to_string());
+        }
+        if let Some(e) = self.control.take_error() {
+            return self.stop_with_error(sinks, time, k, e.to_string());
+        }
+        while let Some(w) = self.plant.take_warning() {
+            Self::emit(
+                sinks,
+                Self::event(
+                    time,
+                    crate::log::MUJOCO_WARNING,
+                    w.message,
+                    vec![w.name.to_string()],
+                    0.0,
+                ),
+            )?;
+        }
+        if let Some(actuation) = &mut self.actuation {
+            actuation.push(self.plant.actuation());
+        }
+
+        // What happened during step k: tick, applied input, barriers, contacts.
+        let sensor = self.control.has_sensor();
+        if let Some((tick, barriers)) = self.control.take_tick() {
+            Self::emit_tick(sinks, tick, barriers, k, sensor, &mut self.records)?;
+            if let Record::Filter(m) = &self.records.filter {
+                self.stall.0.observe(Observed::Filter(m), &self.stall.1);
             }
-            if let Record::Applied(m) = &mut self.records.applied {
+        }
+        let applied_now = self.control.applied();
+        debug_assert_eq!(applied_now.len(), applied.len(), "one applied input per channel");
+        for (a, &(value, _)) in applied.iter_mut().zip(applied_now) {
+            *a = value;
+        }
+        if let Record::Applied(m) = &mut self.records.applied {
+            m.time = time;
+            m.values.clear();
+            m.values.extend_from_slice(applied.as_slice());
+            m.issued_at.clear();
+            m.issued_at.extend(applied_now.iter().map(|a| a.1));
+        }
+        Self::emit_ref(sinks, &self.records.applied)?;
+        // With actuator dynamics the plant received the actuators' output, not the command.
+        if let Some(actuated) = self.control.actuated() {
+            applied.copy_from_slice(actuated);
+            if let Record::Actuated(m) = &mut self.records.actuated {
                 m.time = time;
                 m.values.clear();
-                m.values.extend_from_slice(applied.as_slice());
+                m.values.extend_from_slice(actuated);
                 m.issued_at.clear();
-                m.issued_at.extend(applied_now.iter().map(|a| a.1));
+                m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
             }
-            Self::emit_ref(sinks, &self.records.applied)?;
-            // With actuator dynamics the plant received the actuators' output, not the command.
-            if let Some(actuated) = self.control.actuated() {
-                applied.copy_from_slice(actuated);
-                if let Record::Actuated(m) = &mut self.records.actuated {
-                    m.time = time;
-                    m.values.clear();
-                    m.values.extend_from_slice(actuated);
-                    m.issued_at.clear();
-                    m.issued_at.extend(self.control.applied().iter().map(|a| a.1));
-                }
-                Self::emit_ref(sinks, &self.records.actuated)?;
-            }
-            self.emit_barriers(sinks, time, &x, &applied)?;
-            self.check_contacts(sinks, time)?;
-            let mut inside_step = std::mem::take(&mut self.inside_step);
-            for c in inside_step.drain(..) {
-                Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
-                self.control.recycle(c);
-            }
-            self.inside_step = inside_step;
+            Self::emit_ref(sinks, &self.records.actuated)?;
         }
-        let end = self.steps as f64 * h;
+        self.emit_barriers(sinks, time, x, applied)?;
+        self.check_contacts(sinks, time)?;
+        let mut inside_step = std::mem::take(&mut self.inside_step);
+        for c in inside_step.drain(..) {
+            Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
+            self.control.recycle(c);
+        }
+        self.inside_step = inside_step;
+        Ok(None)
+    }
+
+    /// The end of the last step: open contacts closed, an `episode_end` event.
+    fn end_of_episode(&mut self, sinks: &mut [&mut dyn Sink]) -> Result<Ended, EpisodeError> {
+        let end = self.steps as f64 * self.control.timestep();
         self.close_contacts(sinks, end)?;
-        Self::emit(
-            sinks,
-            Self::event(
-                end,
-                "episode_end",
-                format!("completed {} steps", self.steps),
-                vec![],
-                0.0,
-            ),
-        )?;
+        let message = match self.cursor.planned {
+            Some(planned) => format!("stopped by its caller after {} of {planned} steps", self.steps),
+            None => format!("completed {} steps", self.steps),
+        };
+        Self::emit(sinks, Self::event(end, "episode_end", message, vec![], 0.0))?;
         Ok((self.steps, None))
     }
 
@@ -677,10 +847,10 @@ impl Episode {
         time: f64,
         steps: u64,
         message: String,
-    ) -> Result<(u64, Option<StopReason>), EpisodeError> {
+    ) -> Result<Option<Ended>, EpisodeError> {
         self.close_contacts(sinks, time)?;
         Self::emit(sinks, Self::event(time, "error", message.clone(), vec![], 0.0))?;
-        Ok((steps, Some(StopReason::Error(message))))
+        Ok(Some((steps, Some(StopReason::Error(message)))))
     }
 }
 

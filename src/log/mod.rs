@@ -432,16 +432,16 @@ impl<S: Sink + ?Sized> Sink for &mut S {
 /// and is finished as incomplete. The further sinks are finished first, so a failure at their
 /// end also marks the log incomplete. A failed sink is dropped unfinished (a saved recording
 /// is then deleted, see [`Sink`] implementations).
-pub struct Tee<'a> {
-    log: &'a mut dyn Sink,
+pub struct Tee<'l, 'a> {
+    log: &'l mut dyn Sink,
     others: Vec<Box<dyn Sink + 'a>>,
     /// Time of the last record (of the error event).
     time: f64,
     failed: bool,
 }
 
-impl<'a> Tee<'a> {
-    pub fn new(log: &'a mut dyn Sink, others: Vec<Box<dyn Sink + 'a>>) -> Tee<'a> {
+impl<'l, 'a> Tee<'l, 'a> {
+    pub fn new(log: &'l mut dyn Sink, others: Vec<Box<dyn Sink + 'a>>) -> Tee<'l, 'a> {
         Tee {
             log,
             others,
@@ -453,6 +453,20 @@ impl<'a> Tee<'a> {
     /// Whether a further sink failed (and the log was marked incomplete because of it).
     pub fn other_failed(&self) -> bool {
         self.failed
+    }
+
+    /// The further sinks still running (a failed one was dropped) and the time of the last
+    /// record, to go on with a later `Tee` ([`Tee::resume`]).
+    pub fn into_parts(self) -> (Vec<Box<dyn Sink + 'a>>, f64) {
+        (self.others, self.time)
+    }
+
+    /// A `Tee` going on from [`Tee::into_parts`] of an earlier one.
+    pub fn resume(log: &'l mut dyn Sink, (others, time): (Vec<Box<dyn Sink + 'a>>, f64)) -> Tee<'l, 'a> {
+        Tee {
+            time,
+            ..Tee::new(log, others)
+        }
     }
 
     /// Logs the failure of a further sink as an error event (the log's own failure, if any,
@@ -469,7 +483,7 @@ impl<'a> Tee<'a> {
     }
 }
 
-impl Sink for Tee<'_> {
+impl Sink for Tee<'_, '_> {
     fn record(&mut self, record: &Record) -> Result<(), LogError> {
         self.log.record(record)?;
         self.time = record.time();
