@@ -358,14 +358,14 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
     }
     let class = cls.bind(py);
     if !class.hasattr("filter_channel")? {
-        return Err(PyValueError::new_err(
+        return Err(PyTypeError::new_err(
             "register_filter: expected a class with a method filter_channel(self, t, channel, state, nominal, constraints)",
         ));
     }
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
-                .map_err(|_| PyValueError::new_err("register_filter: expected `label` to be a string"))?,
+                .map_err(|_| PyTypeError::new_err("register_filter: expected `label` to be a str"))?,
         ),
         _ => None,
     };
@@ -448,14 +448,14 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
     }
     let class = cls.bind(py);
     if !class.hasattr("input")? {
-        return Err(PyValueError::new_err(
+        return Err(PyTypeError::new_err(
             "register_nominal: expected a class with a method input(self, t, state)",
         ));
     }
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
-                .map_err(|_| PyValueError::new_err("register_nominal: expected `label` to be a string"))?,
+                .map_err(|_| PyTypeError::new_err("register_nominal: expected `label` to be a str"))?,
         ),
         _ => None,
     };

@@ -65,7 +65,8 @@ def test_a_class_without_filter_channel_or_a_bad_kind_is_refused():
     class Nothing:
         pass
 
-    with pytest.raises(ValueError, match="filter_channel"):
+    # Not the protocol's type: TypeError; a kind of the right type but a bad value: ValueError.
+    with pytest.raises(TypeError, match="filter_channel"):
         mjsafe.register_filter("nothing", Nothing)
     with pytest.raises(ValueError, match="letters, digits"):
         mjsafe.register_filter("bad kind", DelayFreeCbfQp)
@@ -153,7 +154,7 @@ def test_a_python_nominal_s_exception_or_wrong_length_stops_the_run():
     r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"nominal": {"kind": "late", "input": [0.0, 0.0]}})
     assert r.error is not None and "KeyError: 'no such gain'" in r.error and "late" in r.error, r.error
     assert r.metrics["complete"] is False
-    with pytest.raises(ValueError, match="input"):
+    with pytest.raises(TypeError, match="input"):
         mjsafe.register_nominal("nothing", object)
 
 
