@@ -15,17 +15,21 @@ doing the work (the same run path, search and log reader as the ``mjsafe`` comma
 
 Arguments take what the command line takes, in Python types: ``set={"delays.steering": 0.4,
 "filter": {"kind": "gamma_m", "l0": 4.0, "l1": 4.0, "m": 50.0}}`` is ``--set
-delays.steering=0.4 --set filter={kind="gamma_m", l0=4.0, l1=4.0, m=50.0}``. A bad argument (an
-unknown key, a wrong type, a missing file) raises ``ValueError`` with the command line's error
-line. See docs/python.md.
+delays.steering=0.4 --set filter={kind="gamma_m", l0=4.0, l1=4.0, m=50.0}``. An argument of
+the wrong Python type raises ``TypeError`` naming it; a bad value (an unknown key, a value the
+scenario refuses, a missing file) raises ``ValueError`` with the command line's error line. See
+docs/python.md.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import numbers
+import operator
 import os
 import tempfile
+from collections.abc import Mapping as _MappingABC
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -53,6 +57,73 @@ __all__ = [
 def toml_value(value: Any) -> str:
     """The TOML text ``set`` makes of a Python value: what ``--set KEY=`` would be given."""
     return _core.toml_value(value)
+
+
+# Argument checks: a wrong Python type is a TypeError naming the argument and the type it
+# must be (as Python's own functions word it); a right type with a bad value is a ValueError
+# (the command line's error line when it is the command line's check).
+
+_U64_MAX = 2**64 - 1
+
+
+def _type_error(function: str, name: str, expected: str, value: Any) -> TypeError:
+    return TypeError(f"{function}(): argument '{name}' must be {expected}, not {type(value).__name__}")
+
+
+def _path(function: str, name: str, value: Any, optional: bool = False) -> str | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, (str, bytes, os.PathLike)):
+        path = os.fspath(value)
+        return os.fsdecode(path) if isinstance(path, bytes) else path
+    raise _type_error(function, name, "a str or os.PathLike" + (" or None" if optional else ""), value)
+
+
+def _int(function: str, name: str, value: Any, low: int, optional: bool = False) -> int | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not hasattr(type(value), "__index__"):
+        raise _type_error(function, name, "an int" + (" or None" if optional else ""), value)
+    number = operator.index(value)
+    if not low <= number <= _U64_MAX:
+        raise ValueError(f"{function}(): argument '{name}' must be an integer in {low}..=2^64 - 1, found {number}")
+    return number
+
+
+def _float(function: str, name: str, value: Any) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise _type_error(function, name, "a real number (int or float)", value)
+    return float(value)
+
+
+def _bool(function: str, name: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise _type_error(function, name, "a bool", value)
+    return bool(value)
+
+
+def _str(function: str, name: str, value: Any) -> str:
+    if not isinstance(value, str):
+        raise _type_error(function, name, "a str", value)
+    return value
+
+
+def _mapping(function: str, name: str, value: Any, what: str, optional: bool = True) -> Mapping[str, Any] | None:
+    if value is None and optional:
+        return None
+    if not isinstance(value, _MappingABC):
+        raise _type_error(function, name, what + (" or None" if optional else ""), value)
+    return value
+
+
+_SET = "a dict of dotted keys to values"
+_RANGES = "a dict of dotted keys to (lo, hi) or (lo, hi, step)"
+
+
+def _class(function: str, kind: Any, cls: Any) -> None:
+    _str(function, "kind", kind)
+    if not isinstance(cls, type):
+        raise _type_error(function, "cls", "a class", cls)
 
 
 def _read_csv(source: str | os.PathLike[str] | io.StringIO) -> pd.DataFrame:
@@ -190,11 +261,18 @@ def run(
         tables: keep the run's tables in memory (``RunResult.tables()`` without a log).
 
     Raises:
-        ValueError: bad input (the command line's error line): an unknown key, a wrong type, a
-            missing scenario or model, an output refused.
+        TypeError: an argument of the wrong Python type (a path that is not a str or
+            os.PathLike, ``set`` not a dict, a value without a TOML form such as None).
+        ValueError: bad input (the command line's error line): an unknown key, a value the
+            scenario refuses, a missing scenario or model, an output refused.
         RuntimeError: the run could not finish its log or analysis.
     """
-    raw = _core.run(os.fspath(path), set, None if out is None else os.fspath(out), tables)
+    raw = _core.run(
+        _path("run", "path", path),
+        _mapping("run", "set", set, _SET),
+        _path("run", "out", out, optional=True),
+        _bool("run", "tables", tables),
+    )
     return RunResult(raw)
 
 
@@ -216,10 +294,22 @@ def register_filter(kind: str, cls: type) -> None:
     ``falsify``. It runs inside the control tick with the GIL held; an exception stops the
     run with an error event carrying its type and message (``RunResult.error``).
 
+    A class may also define ``issued_law(self, t, prediction_time, state, nominal,
+    constraints, free, u)``: the law the predictors assume for the commands not yet issued
+    inside their window (default: the delay-free CBF-QP). It gets the tick ``t`` that issues
+    them, the time ``prediction_time`` the predicted ``state`` is for, u0 there
+    (``nominal``), the ``constraints`` there, ``free`` (the indices of the channels whose
+    commands it gives, a list) and ``u`` (every channel's command; outside ``free`` the ones
+    applied at ``prediction_time``), and returns one command per channel of ``free``, in its
+    order (e.g. ``solution[free]``), or None (the nominal). An exception or another return
+    stops the run with an error event, as in ``filter_channel``.
+
     Raises:
-        ValueError: a kind that is not letters, digits and ``_``, or a class without
-            ``filter_channel``.
+        TypeError: ``kind`` not a str, ``cls`` not a class, a class without
+            ``filter_channel``, or an ``issued_law`` that is not a method.
+        ValueError: a kind that is not letters, digits and ``_``.
     """
+    _class("register_filter", kind, cls)
     _core.register_filter(kind, cls)
 
 
@@ -233,8 +323,10 @@ def register_nominal(kind: str, cls: type) -> None:
     stops the run with an error event carrying the message (``RunResult.error``).
 
     Raises:
-        ValueError: a kind that is not letters, digits and ``_``, or a class without ``input``.
+        TypeError: ``kind`` not a str, ``cls`` not a class, or a class without ``input``.
+        ValueError: a kind that is not letters, digits and ``_``.
     """
+    _class("register_nominal", kind, cls)
     _core.register_nominal(kind, cls)
 
 
@@ -242,9 +334,10 @@ def read_log(path: str | os.PathLike[str]) -> LogData:
     """Reads an MCAP log of a run: its metrics now, its tables on ``.tables()``.
 
     Raises:
+        TypeError: ``path`` not a str or os.PathLike.
         ValueError: not a readable log of a run (the error ``mjsafe analyze`` gives).
     """
-    return LogData(path)
+    return LogData(_path("read_log", "path", path))
 
 
 def sweep(
@@ -276,10 +369,19 @@ def sweep(
         every metric column, error).
 
     Raises:
-        ValueError: bad arguments (the command line's error line).
+        TypeError: an argument of the wrong Python type (``draws="x"``, ``grid`` values not a
+            list, a range not a tuple of numbers, …).
+        ValueError: bad values (the command line's error line; a negative count).
     """
     text = _core.sweep(
-        os.fspath(path), grid, random, draws, seed, set, threads, None if out is None else os.fspath(out)
+        _path("sweep", "path", path),
+        _mapping("sweep", "grid", grid, "a dict of dotted keys to lists of values"),
+        _mapping("sweep", "random", random, _RANGES),
+        _int("sweep", "draws", draws, 0),
+        _int("sweep", "seed", seed, 0),
+        _mapping("sweep", "set", set, _SET),
+        _int("sweep", "threads", threads, 0, optional=True),
+        _path("sweep", "out", out, optional=True),
     )
     return _read_csv(io.StringIO(text))
 
@@ -319,22 +421,40 @@ def falsify(
             scenario and log, the convergence plot); None: a temporary one, removed after.
 
     Raises:
-        ValueError: bad arguments (the command line's error line).
+        TypeError: an argument of the wrong Python type (``budget="many"``, ``ranges`` not a
+            dict, ``objective`` not a str, …).
+        ValueError: bad values (the command line's error line; a negative count).
     """
+    f = "falsify"
+    path = _path(f, "path", path)
+    ranges = _mapping(f, "ranges", ranges, _RANGES, optional=False)
+    baseline = _mapping(f, "baseline", baseline, _SET)
+    budget = _int(f, "budget", budget, 0)
+    seed = _int(f, "seed", seed, 0)
+    objective = _str(f, "objective", objective)
+    threshold = _float(f, "threshold", threshold)
+    worst = _bool(f, "worst", worst)
+    set = _mapping(f, "set", set, _SET)
+    baseline_threshold = _float(f, "baseline_threshold", baseline_threshold)
+    baseline_no_stall = _bool(f, "baseline_no_stall", baseline_no_stall)
+    baseline_reaches_goal = _bool(f, "baseline_reaches_goal", baseline_reaches_goal)
+    compare_random = _bool(f, "compare_random", compare_random)
+    threads = _int(f, "threads", threads, 0, optional=True)
+    out = _path(f, "out", out, optional=True)
     call = ", ".join(
-        [repr(os.fspath(path)), f"ranges={dict(ranges)!r}"]
+        [repr(path), f"ranges={dict(ranges)!r}"]
         + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set)] if v is not None]
         + [f"budget={budget!r}", f"seed={seed!r}", f"objective={objective!r}", f"threshold={threshold!r}"]
         + (["worst=True"] if worst else [])
     )
     search_line = f"mjsafe.falsify({call})"
     args = (
-        os.fspath(path), ranges, baseline, budget, seed, objective, threshold, worst, set,
+        path, ranges, baseline, budget, seed, objective, threshold, worst, set,
         baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads,
     )
     if out is not None:
-        raw = _core.falsify(*args, os.fspath(out), search_line)
-        return FalsifyResult(raw, os.fspath(out))
+        raw = _core.falsify(*args, out, search_line)
+        return FalsifyResult(raw, out)
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
         raw = _core.falsify(*args, tmp, search_line)
         return FalsifyResult(raw, None)

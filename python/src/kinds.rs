@@ -3,12 +3,15 @@
 //! control tick, with the GIL taken for the call (the run itself releases it: Python kinds
 //! run one call at a time, whichever run thread calls them).
 
-use pyo3::exceptions::PyValueError;
+use nalgebra::DVector;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 
-use mjsafe::barrier::BarrierForm;
-use mjsafe::filter::{ChannelInput, ChannelOutcome, FilterContext, FilterError, ParamError, SafetyFilter};
+use mjsafe::barrier::{BarrierForm, Constraint};
+use mjsafe::filter::{
+    delay_free_qp, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter,
+};
 use mjsafe::nominal::{NominalContext, NominalController, SeenActor};
 
 /// A Python kind's parameters: its scenario table as it is (the class checks them).
@@ -84,6 +87,62 @@ pub struct PythonFilter {
     /// or through `**kwargs`).
     takes_queues: bool,
     takes_timestep: bool,
+    /// Whether the instance has an `issued_law` (else the predictors assume the trait's
+    /// default, the delay-free CBF-QP).
+    has_law: bool,
+    /// The error of the first `issued_law` call that failed: the run stops at this tick, and
+    /// the predictors' further calls in it return the same error without calling Python.
+    law_failed: Option<String>,
+}
+
+/// The constraints as a list of `(a, b)` tuples, b a numpy array.
+fn constraint_list<'py>(
+    py: Python<'py>,
+    asarray: &Bound<'py, PyAny>,
+    constraints: &[Constraint],
+) -> PyResult<Bound<'py, PyList>> {
+    let list = PyList::empty(py);
+    for c in constraints {
+        let b = asarray.call1((PyList::new(py, c.b.as_slice())?,))?;
+        list.append(PyTuple::new(py, [c.a.into_pyobject(py)?.into_any(), b])?)?;
+    }
+    Ok(list)
+}
+
+/// What `issued_law` returned, into `u[j]` for j in `free`: None (the nominal, as a filter
+/// without a known barrier issues), or one number per channel of `free`, in its order.
+fn law_values(
+    result: &Bound<'_, PyAny>,
+    free: &[usize],
+    nominal: &DVector<f64>,
+    u: &mut DVector<f64>,
+) -> Result<(), String> {
+    let n = free.len();
+    if result.is_none() {
+        for &j in free {
+            u[j] = nominal[j];
+        }
+        return Ok(());
+    }
+    let values: Vec<f64> = result.extract().map_err(|_| {
+        format!(
+            "{}: expected None or a sequence of {n} numbers (one per channel of `free`)",
+            result.get_type().name().map(|n| n.to_string()).unwrap_or_default()
+        )
+    })?;
+    if values.len() != n {
+        return Err(format!(
+            "{} values: expected {n} (one per channel of `free`, in its order)",
+            values.len()
+        ));
+    }
+    if let Some(x) = values.iter().find(|x| !x.is_finite()) {
+        return Err(format!("{x}: expected finite commands"));
+    }
+    for (&j, value) in free.iter().zip(values) {
+        u[j] = value;
+    }
+    Ok(())
 }
 
 /// Which of `names` the method accepts as keyword arguments (by name, or through `**kwargs`).
@@ -155,13 +214,7 @@ impl SafetyFilter for PythonFilter {
             let asarray = self.asarray.bind(py);
             let array = |values: &[f64]| -> PyResult<Bound<'_, PyAny>> { asarray.call1((PyList::new(py, values)?,)) };
             let call = || -> PyResult<Bound<'_, PyAny>> {
-                let constraints = PyList::empty(py);
-                for c in input.constraints {
-                    constraints.append(PyTuple::new(
-                        py,
-                        [c.a.into_pyobject(py)?.into_any(), array(c.b.as_slice())?],
-                    )?)?;
-                }
+                let constraints = constraint_list(py, asarray, input.constraints)?;
                 let args = (
                     input.time,
                     input.channel,
@@ -204,6 +257,47 @@ impl SafetyFilter for PythonFilter {
             }
         })
     }
+
+    /// The instance's `issued_law(t, prediction_time, state, nominal, constraints, free, u)`,
+    /// or without one the trait's default (the delay-free CBF-QP).
+    fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
+        if !self.has_law {
+            delay_free_qp(input.constraints, input.nominal, None, None, u);
+            return Ok(());
+        }
+        if let Some(message) = &self.law_failed {
+            return Err(FilterError::Other(message.clone()));
+        }
+        let kind = &self.kind;
+        let result = Python::attach(|py| {
+            let asarray = self.asarray.bind(py);
+            let array = |values: &[f64]| -> PyResult<Bound<'_, PyAny>> { asarray.call1((PyList::new(py, values)?,)) };
+            let call = || -> PyResult<Bound<'_, PyAny>> {
+                let args = (
+                    input.time,
+                    input.prediction_time,
+                    array(input.state)?,
+                    array(input.nominal.as_slice())?,
+                    constraint_list(py, asarray, input.constraints)?,
+                    PyList::new(py, input.free)?,
+                    array(u.as_slice())?,
+                );
+                self.object.bind(py).call_method1("issued_law", args)
+            };
+            match call() {
+                Ok(result) => law_values(&result, input.free, input.nominal, u)
+                    .map_err(|message| format!("the Python filter `{kind}`: issued_law returned {message}")),
+                Err(e) => Err(format!(
+                    "the Python filter `{kind}`: issued_law raised {}",
+                    exception_line(py, &e)
+                )),
+            }
+        });
+        result.map_err(|message| {
+            self.law_failed = Some(message.clone());
+            FilterError::Other(message)
+        })
+    }
 }
 
 /// Builds the registered class with the scenario's parameters and reads its attributes.
@@ -228,6 +322,17 @@ fn build_filter(
             .map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
         let [takes_queues, takes_timestep] =
             accepts(&method, ["queues", "timestep"]).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
+        let has_law = match bound.getattr("issued_law") {
+            Ok(law) if law.is_none() => false,
+            Ok(law) if law.is_callable() => true,
+            Ok(_) => {
+                return Err(ParamError::new(
+                    "filter",
+                    "expected `issued_law` to be a method (or None)",
+                ))
+            }
+            Err(_) => false,
+        };
         Ok(Box::new(PythonFilter {
             kind: kind.to_string(),
             object: object.clone_ref(py),
@@ -236,6 +341,8 @@ fn build_filter(
             asarray: asarray.clone_ref(py),
             takes_queues,
             takes_timestep,
+            has_law,
+            law_failed: None,
         }) as Box<dyn SafetyFilter>)
     })
 }
@@ -251,17 +358,25 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
     }
     let class = cls.bind(py);
     if !class.hasattr("filter_channel")? {
-        return Err(PyValueError::new_err(
+        return Err(PyTypeError::new_err(
             "register_filter: expected a class with a method filter_channel(self, t, channel, state, nominal, constraints)",
         ));
     }
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
-                .map_err(|_| PyValueError::new_err("register_filter: expected `label` to be a string"))?,
+                .map_err(|_| PyTypeError::new_err("register_filter: expected `label` to be a str"))?,
         ),
         _ => None,
     };
+    if let Ok(law) = class.getattr("issued_law") {
+        if !law.is_none() && !law.is_callable() {
+            return Err(PyTypeError::new_err(format!(
+                "register_filter: expected `issued_law` to be a method issued_law(self, t, prediction_time, state, nominal, constraints, free, u), not a {}",
+                law.get_type().name().map(|n| n.to_string()).unwrap_or_default()
+            )));
+        }
+    }
     let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
     let name = kind.to_string();
     mjsafe::registry::register(move |r| {
@@ -333,14 +448,14 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
     }
     let class = cls.bind(py);
     if !class.hasattr("input")? {
-        return Err(PyValueError::new_err(
+        return Err(PyTypeError::new_err(
             "register_nominal: expected a class with a method input(self, t, state)",
         ));
     }
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
-                .map_err(|_| PyValueError::new_err("register_nominal: expected `label` to be a string"))?,
+                .map_err(|_| PyTypeError::new_err("register_nominal: expected `label` to be a str"))?,
         ),
         _ => None,
     };

@@ -20,7 +20,7 @@ mod stepper;
 use std::error::Error;
 use std::path::{Path, PathBuf};
 
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyList, PyMapping, PyString, PyTuple};
 
@@ -139,7 +139,7 @@ fn toml_text(value: &Bound<'_, PyAny>, what: &str, depth: usize) -> PyResult<Str
         for item in mapping.items()?.try_iter()? {
             let (key, item): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item?.extract()?;
             let Ok(key) = key.extract::<String>() else {
-                return Err(PyValueError::new_err(format!(
+                return Err(PyTypeError::new_err(format!(
                     "{what}: a key of a table is a str, not a {}",
                     type_name(&key)
                 )));
@@ -149,7 +149,7 @@ fn toml_text(value: &Bound<'_, PyAny>, what: &str, depth: usize) -> PyResult<Str
         }
         return Ok(format!("{{{}}}", entries.join(", ")));
     }
-    Err(PyValueError::new_err(format!(
+    Err(PyTypeError::new_err(format!(
         "{what}: a {} has no TOML value (expected a bool, int, float, str, list or dict)",
         type_name(value)
     )))
@@ -161,7 +161,7 @@ fn overrides(set: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>
         return Ok(Vec::new());
     };
     let mapping = set.cast::<PyMapping>().map_err(|_| {
-        PyValueError::new_err(format!(
+        PyTypeError::new_err(format!(
             "{name}: expected a dict of dotted keys, not a {}",
             type_name(set)
         ))
@@ -170,7 +170,7 @@ fn overrides(set: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>
     for item in mapping.items()?.try_iter()? {
         let (key, value): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item?.extract()?;
         let Ok(key) = key.extract::<String>() else {
-            return Err(PyValueError::new_err(format!(
+            return Err(PyTypeError::new_err(format!(
                 "{name}: a key is a dotted str such as \"delays.steering\", not a {}",
                 type_name(&key)
             )));
@@ -186,7 +186,7 @@ fn ranges(dict: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>> 
         return Ok(Vec::new());
     };
     let mapping = dict.cast::<PyMapping>().map_err(|_| {
-        PyValueError::new_err(format!(
+        PyTypeError::new_err(format!(
             "{name}: expected a dict of dotted keys to (lo, hi) or (lo, hi, step), not a {}",
             type_name(dict)
         ))
@@ -195,17 +195,24 @@ fn ranges(dict: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>> 
     for item in mapping.items()?.try_iter()? {
         let (key, value): (String, Bound<'_, PyAny>) = item?
             .extract()
-            .map_err(|_| PyValueError::new_err(format!("{name}: a key is a dotted str such as \"delays.steering\"")))?;
-        let bounds: Vec<f64> = value
-            .extract::<Vec<f64>>()
-            .ok()
-            .filter(|b| b.len() == 2 || b.len() == 3)
-            .ok_or_else(|| {
-                PyValueError::new_err(format!(
-                    "{name}[{key:?}]: expected (lo, hi) or (lo, hi, step) of numbers, found {}",
-                    value.repr().map_or_else(|_| type_name(&value), |r| r.to_string())
-                ))
-            })?;
+            .map_err(|_| PyTypeError::new_err(format!("{name}: a key is a dotted str such as \"delays.steering\"")))?;
+        let found = || value.repr().map_or_else(|_| type_name(&value), |r| r.to_string());
+        // A tuple or list of numbers (a str is not one), of the wrong length: a bad value.
+        let numbers = (!value.is_instance_of::<PyString>())
+            .then(|| value.extract::<Vec<f64>>().ok())
+            .flatten();
+        let Some(bounds) = numbers else {
+            return Err(PyTypeError::new_err(format!(
+                "{name}[{key:?}]: expected (lo, hi) or (lo, hi, step) of numbers, found {}",
+                found()
+            )));
+        };
+        if !(bounds.len() == 2 || bounds.len() == 3) {
+            return Err(PyValueError::new_err(format!(
+                "{name}[{key:?}]: expected (lo, hi) or (lo, hi, step) of numbers, found {}",
+                found()
+            )));
+        }
         let mut text = format!("{key}={:?}..{:?}", bounds[0], bounds[1]);
         if let Some(step) = bounds.get(2) {
             text.push_str(&format!(":{step:?}"));
@@ -221,7 +228,7 @@ fn grids(dict: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<String>> {
         return Ok(Vec::new());
     };
     let mapping = dict.cast::<PyMapping>().map_err(|_| {
-        PyValueError::new_err(format!(
+        PyTypeError::new_err(format!(
             "grid: expected a dict of dotted keys to lists of values, not a {}",
             type_name(dict)
         ))
@@ -230,9 +237,9 @@ fn grids(dict: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<String>> {
     for item in mapping.items()?.try_iter()? {
         let (key, values): (String, Bound<'_, PyAny>) = item?
             .extract()
-            .map_err(|_| PyValueError::new_err("grid: a key is a dotted str such as \"delays.steering\""))?;
+            .map_err(|_| PyTypeError::new_err("grid: a key is a dotted str such as \"delays.steering\""))?;
         if !(values.is_instance_of::<PyList>() || values.is_instance_of::<PyTuple>()) {
-            return Err(PyValueError::new_err(format!(
+            return Err(PyTypeError::new_err(format!(
                 "grid[{key:?}]: expected a list of values, not a {}",
                 type_name(&values)
             )));

@@ -3,6 +3,8 @@ root (as the page says), writing nothing there."""
 
 import re
 
+import pytest
+
 from conftest import ROOT
 
 
@@ -13,6 +15,13 @@ def blocks(text: str) -> list[str]:
 def test_the_python_page_runs(monkeypatch, capsys):
     page = (ROOT / "docs" / "python.md").read_text()
     code = blocks(page)
+    # The cvxpy example runs, not skips: setup installs cvxpy (scripts/requirements-test.txt).
+    assert any("import cvxpy" in block for block in code)
+    try:
+        import cvxpy  # noqa: F401
+    except ImportError as e:
+        pytest.fail(f"docs/python.md's cvxpy example needs cvxpy (scripts/requirements-test.txt), which "
+                    f"scripts/setup.sh --test installs into the test venv: {type(e).__name__}: {e}")
     assert len(code) >= 6
     monkeypatch.chdir(ROOT)
     before = sorted(p.name for p in ROOT.iterdir()), sorted(p.name for p in (ROOT / "logs").iterdir())

@@ -65,7 +65,8 @@ def test_a_class_without_filter_channel_or_a_bad_kind_is_refused():
     class Nothing:
         pass
 
-    with pytest.raises(ValueError, match="filter_channel"):
+    # Not the protocol's type: TypeError; a kind of the right type but a bad value: ValueError.
+    with pytest.raises(TypeError, match="filter_channel"):
         mjsafe.register_filter("nothing", Nothing)
     with pytest.raises(ValueError, match="letters, digits"):
         mjsafe.register_filter("bad kind", DelayFreeCbfQp)
@@ -153,7 +154,7 @@ def test_a_python_nominal_s_exception_or_wrong_length_stops_the_run():
     r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"nominal": {"kind": "late", "input": [0.0, 0.0]}})
     assert r.error is not None and "KeyError: 'no such gain'" in r.error and "late" in r.error, r.error
     assert r.metrics["complete"] is False
-    with pytest.raises(ValueError, match="input"):
+    with pytest.raises(TypeError, match="input"):
         mjsafe.register_nominal("nothing", object)
 
 
@@ -187,3 +188,130 @@ def test_the_queues_and_the_timestep_reach_a_filter_that_takes_them():
     for queue, delay in zip(issued, delays):
         assert queue.ndim == 2 and queue.shape[1] == 2
         assert queue[-1, 0] < t and queue[0, 0] <= max(t - delay, 0.0) + 1e-9
+
+
+class MarginQp:
+    """Issues, at each channel's prediction, the CBF-QP with a margin: min ‖u − u0‖² s.t.
+    a − margin + b·u ≥ 0 (a law other than the delay-free CBF-QP the predictors assume by
+    default). No `issued_law`: the predictors assume the default law."""
+
+    label = "numpy margin CBF-QP"
+
+    def __init__(self, params):
+        self.barrier_form = {"l0": 4.0, "l1": 4.0}
+        self.uses_prediction = True
+        self.margin = params["margin"]
+
+    def law(self, nominal, constraints):
+        u = nominal.copy()
+        for a, b in constraints:
+            mu = a - self.margin + b @ u
+            if mu < 0 and b @ b > 0:
+                u = u - mu / (b @ b) * b
+        return u
+
+    def filter_channel(self, t, channel, state, nominal, constraints):
+        if not constraints:
+            return None
+        return float(self.law(nominal, constraints)[channel])
+
+
+class MarginQpWithLaw(MarginQp):
+    """The same filter, telling the predictors the law it issues."""
+
+    calls = 0
+
+    def issued_law(self, t, prediction_time, state, nominal, constraints, free, u):
+        MarginQpWithLaw.calls += 1
+        assert isinstance(u, np.ndarray) and u.shape == nominal.shape == (2,) and state.shape == (4,)
+        assert prediction_time > t and list(free) == [0]     # steering, issued inside acceleration's window
+        if not constraints:
+            return None
+        return self.law(nominal, constraints)[free]
+
+
+def prediction_errors(r, since):
+    """Per channel, the largest ‖predicted − realised‖ of the predictions issued from `since`."""
+    p = r.tables()["/prediction"]
+    p = p[p["issued_at"] >= since - 1e-9]
+    names = [c.removeprefix("predicted.") for c in p.columns if c.startswith("predicted.")]
+    error = np.sqrt(sum((p[f"predicted.{n}"] - p[f"realized.{n}"]) ** 2 for n in names))
+    return {channel: float(e.max()) for channel, e in error.groupby(p["channel"])}
+
+
+def test_the_predictors_assume_the_python_filter_s_issued_law():
+    # (4.25): on the exact (ODE) plant a prediction is the state that follows only if the
+    # predictors assume, for the commands not yet issued in their window, the law the filter
+    # really issues. From the obstacle's appearance (2.75 s) the margin QP differs from the
+    # delay-free CBF-QP (the default law), so only the filter that says so predicts exactly.
+    mjsafe.register_filter("margin_qp", MarginQp)
+    mjsafe.register_filter("margin_qp_law", MarginQpWithLaw)
+    s = {"plant": "ode", "duration": 6.0}
+    MarginQpWithLaw.calls = 0
+    exact = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"),
+                       set={**s, "filter": {"kind": "margin_qp_law", "margin": 2.0}}, tables=True)
+    default = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"),
+                         set={**s, "filter": {"kind": "margin_qp", "margin": 2.0}}, tables=True)
+    assert exact.error is None and default.error is None, (exact.error, default.error)
+    assert MarginQpWithLaw.calls > 100
+    # The commands issued are the same law's, so the two runs differ only in their predictions.
+    ours, theirs = prediction_errors(exact, 2.75), prediction_errors(default, 2.75)
+    print("max prediction error with issued_law", ours, "with the default law", theirs)
+    assert set(ours) == {"steering", "acceleration"}
+    # Measured: 8e-14 m with issued_law, 3.9e-2 m (acceleration) with the default law.
+    assert max(ours.values()) <= 1e-9, ours
+    assert theirs["acceleration"] > 1e-3, theirs
+
+
+class PredictedCbfQp(DelayFreeCbfQp):
+    """The delay-free CBF-QP at each channel's prediction, without `issued_law`: the built-in
+    `cbf_qp` with `compensation = "predictor"` (4.34), whose law is the default one."""
+
+    def __init__(self, params):
+        super().__init__(params)
+        self.uses_prediction = True
+
+
+def test_without_issued_law_the_predictors_assume_the_delay_free_cbf_qp():
+    mjsafe.register_filter("predicted_cbf_qp", PredictedCbfQp)
+    s = {"plant": "ode", "duration": 6.0}
+    ours = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"),
+                      set={**s, "filter": {"kind": "predicted_cbf_qp", "l0": 4.0, "l1": 4.0}}, tables=True)
+    built_in = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"), tables=True, set={
+        **s, "filter": {"kind": "cbf_qp", "l0": 4.0, "l1": 4.0, "compensation": "predictor"}})
+    assert ours.error is None and built_in.error is None
+    assert abs(ours.min_h - built_in.min_h) < 1e-9, (ours.min_h, built_in.min_h)
+    assert max(prediction_errors(ours, 2.75).values()) <= 1e-9
+
+
+class LawRaises(MarginQp):
+    def issued_law(self, t, prediction_time, state, nominal, constraints, free, u):
+        if constraints:
+            raise ArithmeticError("no law at this state")
+        return nominal[free]
+
+
+class LawTooShort(MarginQp):
+    def issued_law(self, t, prediction_time, state, nominal, constraints, free, u):
+        return [] if constraints else None
+
+
+def test_an_exception_or_a_bad_return_in_issued_law_stops_the_run():
+    mjsafe.register_filter("law_raises", LawRaises)
+    r = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"), set={"filter": {"kind": "law_raises", "margin": 1.0}})
+    assert r.error is not None and "ArithmeticError: no law at this state" in r.error, r.error
+    assert "law_raises" in r.error and "issued_law" in r.error
+    assert r.metrics["complete"] is False
+    # Stopped at the first tick a barrier is known (2.75 s).
+    assert 2.74 <= r.simulated_time <= 2.77, r.simulated_time
+
+    mjsafe.register_filter("law_too_short", LawTooShort)
+    r = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"), set={"filter": {"kind": "law_too_short", "margin": 1.0}})
+    assert r.error is not None and "issued_law returned 0 values: expected 1" in r.error, r.error
+    assert r.metrics["complete"] is False
+
+    class NotALaw(MarginQp):
+        issued_law = 3
+
+    with pytest.raises(TypeError, match="issued_law"):
+        mjsafe.register_filter("not_a_law", NotALaw)
