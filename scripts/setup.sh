@@ -64,7 +64,7 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy' >/dev/null 2>&1 \
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy, gymnasium' >/dev/null 2>&1 \
     || [ ! -x "$venv/bin/maturin" ] \
     || [ "$("$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | sed -n 's/^Version: //p')" != 0.36.3 ] \
     || [ ! -x "$venv/bin/rerun" ]; then

@@ -132,3 +132,68 @@ fn a_users_filter_carries_its_own_label_into_the_log_and_the_analysis() {
         common::stdout(&o)
     );
 }
+
+/// Stepping a run from outside (`Prepared::start`, `Running::advance`) is the run: stepped to
+/// its end it writes the log `Prepared::run` writes, byte for byte; ended early by its caller
+/// (`Rest::EndHere`) its log is complete up to there, with the state where it stopped, and the
+/// sink failure path is the run's.
+#[test]
+fn a_run_stepped_from_outside_is_the_same_run() {
+    use mjsafe::run::{Keep, Prepared, Rest};
+    let dir = tempfile::tempdir().unwrap();
+    let loaded = embed::load_scenario(
+        &root().join("scenarios/bicycle_obstacle.toml"),
+        &["duration=2.0".to_string(), "delays.steering=0.3".to_string()],
+    )
+    .unwrap();
+    let whole = dir.path().join("whole.mcap");
+    Prepared::new(&loaded, Keep::Log(&whole))
+        .unwrap()
+        .run(Vec::new())
+        .unwrap();
+
+    let stepped = dir.path().join("stepped.mcap");
+    let mut running = Prepared::new(&loaded, Keep::Log(&stepped)).unwrap().start(Vec::new());
+    let mut calls = 0;
+    let end = loop {
+        calls += 1;
+        if let Some(end) = running.advance().unwrap() {
+            break end;
+        }
+    };
+    // h = 2 ms (models/bicycle.xml): 1000 steps.
+    assert_eq!(end, (1000, None));
+    assert_eq!(calls, 1001, "one call per step, and one that logs x(T) and the end");
+    assert_eq!(running.episode().step_index(), 1000);
+    let outcome = running.finish(Rest::Run).unwrap();
+    assert_eq!(outcome.summary.steps, 1000);
+    assert_eq!(std::fs::read(&stepped).unwrap(), std::fs::read(&whole).unwrap());
+
+    // Ended by its caller after 250 steps: x(t_250) is the last state, the log is complete.
+    let early = dir.path().join("early.mcap");
+    let mut running = Prepared::new(&loaded, Keep::Log(&early)).unwrap().start(Vec::new());
+    for _ in 0..250 {
+        assert_eq!(running.advance().unwrap(), None);
+    }
+    let x250 = running.episode().plant_state();
+    let outcome = running.finish(Rest::EndHere).unwrap();
+    assert_eq!(outcome.summary.steps, 250);
+    let metrics = outcome.metrics.unwrap();
+    assert!(metrics.complete, "{:?}", metrics.error);
+    let tables = mjsafe::export::read_tables(&early, &mjsafe::export::table_topics()).unwrap();
+    let (_, state) = tables.tables.iter().find(|(t, _)| t.name() == "/state").unwrap();
+    let column = |name: &str| match &state.columns.iter().find(|(n, _)| n == name).unwrap().1 {
+        mjsafe::export::Values::F64(v) => v.clone(),
+        other => panic!("{name}: {other:?}"),
+    };
+    assert_eq!(*column("time").last().unwrap(), 0.5);
+    assert_eq!(*column("x1").last().unwrap(), x250[0]);
+    let (_, events) = tables.tables.iter().find(|(t, _)| t.name() == "/event").unwrap();
+    let mjsafe::export::Values::Text(messages) = &events.columns.iter().find(|(n, _)| n == "message").unwrap().1 else {
+        panic!("messages are text")
+    };
+    assert_eq!(
+        messages.last().unwrap(),
+        "stopped by its caller after 250 of 1000 steps"
+    );
+}

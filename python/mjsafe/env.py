@@ -16,8 +16,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from mjsafe import _core
+from mjsafe import _core  # type: ignore[attr-defined]
 
+_gym: Any
+_spaces: Any
 try:  # Gymnasium is optional: the environment works without it.
     import gymnasium as _gym
     from gymnasium import spaces as _spaces
@@ -56,7 +58,7 @@ class Env(_Base):  # type: ignore[misc, valid-type]
     None), ``distance_to_goal`` (m, with a goal).
     """
 
-    metadata = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": []}
 
     def __init__(
         self,

@@ -10,7 +10,9 @@
 //! The GIL: every function converts its arguments while holding it, then releases it for the
 //! whole of the Rust work (`Python::detach`, formerly `allow_threads`): a run, a sweep or a
 //! search holds no Python lock while it steps, so Python-written filters (which take the GIL
-//! in the control callback) and other Python threads can run meanwhile.
+//! in the control callback) and other Python threads can run meanwhile. A run, sweep or search
+//! works on a thread of its own while the calling thread watches for Ctrl-C
+//! ([`interruptible`]); `mjsafe.Env` steps on the calling thread, with the GIL (a tick is short).
 
 #![deny(unsafe_code)]
 
@@ -313,6 +315,35 @@ fn metrics_json(metrics: &mjsafe::analyze::RunMetrics) -> String {
     serde_json::to_string(metrics).expect("metrics serialise")
 }
 
+/// Runs `work` (a run, a sweep, a search) on a thread of its own while this thread, without the
+/// GIL, waits for it and checks Python's signals every 50 ms: Ctrl-C (KeyboardInterrupt) asks
+/// the work to stop as `mjsafe run` does on SIGINT (every episode logs `interrupted` and
+/// finishes its log as incomplete), waits for it to return, and is raised.
+fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce() -> PyResult<T> + Send) -> PyResult<T> {
+    std::thread::scope(|scope| {
+        let worker = scope.spawn(work);
+        loop {
+            py.detach(|| {
+                let started = std::time::Instant::now();
+                while !worker.is_finished() && started.elapsed() < std::time::Duration::from_millis(50) {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
+            });
+            if worker.is_finished() {
+                return worker
+                    .join()
+                    .unwrap_or_else(|_| Err(PyRuntimeError::new_err("the run panicked (a bug of mjsafe)")));
+            }
+            if let Err(signal) = py.check_signals() {
+                mjsafe::episode::request_stop();
+                let _ = py.detach(|| worker.join());
+                mjsafe::episode::clear_stop_request();
+                return Err(signal);
+            }
+        }
+    })
+}
+
 /// What stands for the log of a run without one (`out=None`), in its metrics and errors.
 const IN_MEMORY: &str = "(in memory)";
 
@@ -327,7 +358,7 @@ fn run<'py>(
     tables: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let overrides = overrides(set, "set")?;
-    let result = py.detach(move || -> Result<_, PyErr> {
+    let result = interruptible(py, move || -> Result<_, PyErr> {
         let loaded = mjsafe::scenario::load(&path, &overrides).map_err(bad)?;
         let keep = match &out {
             Some(log) => Keep::Log(log),
@@ -412,7 +443,7 @@ fn sweep<'py>(
         seed: Some(seed),
         ranges: ranges(random, "random")?,
     };
-    py.detach(move || {
+    interruptible(py, move || {
         let spec = SweepSpec::build(&args).map_err(bad)?;
         let threads = sweep::threads(threads).map_err(bad)?;
         let (dir, keep) = match &out {
@@ -475,7 +506,7 @@ fn falsify<'py>(
         baseline_no_stall,
         baseline_reaches_goal,
     };
-    let (report, scenario_toml, evaluations) = py.detach(move || -> PyResult<_> {
+    let (report, scenario_toml, evaluations) = interruptible(py, move || -> PyResult<_> {
         let (problem, _) = request.problem().map_err(bad)?;
         let report = mjsafe::falsify::falsify(&problem, &out, &search_line, compare_random, |_| {}).map_err(|e| {
             use mjsafe::falsify::FalsifyError as E;

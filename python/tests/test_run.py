@@ -165,3 +165,49 @@ def test_run_releases_the_gil():
     assert ended - started > 0.05
     # With the GIL held the thread could not tick at all during the run.
     assert len(during) >= 10, (len(during), ended - started)
+
+
+CTRL_C_CHILD = """
+import signal, sys, time
+import mjsafe
+# Python's own Ctrl-C handler, even when the test runner was started with SIGINT ignored.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+path, log, what = sys.argv[1], sys.argv[2], sys.argv[3]
+started = time.monotonic()
+try:
+    if what == "run":
+        mjsafe.run(path, set={"duration": 3000.0}, out=log)
+    else:
+        mjsafe.sweep(path, grid={"delays.steering": [0.1, 0.2, 0.3, 0.4]}, set={"duration": 3000.0}, threads=2)
+    print("finished", flush=True)
+except KeyboardInterrupt:
+    print(f"interrupted after {time.monotonic() - started:.1f} s", flush=True)
+    again = mjsafe.run(path, set={"duration": 1.0})
+    print("next run:", again.error, flush=True)
+"""
+
+
+@pytest.mark.parametrize("what", ["run", "sweep"])
+def test_ctrl_c_stops_a_long_call_and_the_next_one_runs(tmp_path, what):
+    import signal
+    import subprocess
+    import sys
+
+    log = tmp_path / "long.mcap"
+    child = subprocess.Popen(
+        [sys.executable, "-c", CTRL_C_CHILD, BICYCLE, str(log), what],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(2.0)  # well inside the run (3000 s of simulation: minutes)
+    child.send_signal(signal.SIGINT)
+    out, err = child.communicate(timeout=60)
+    assert child.returncode == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("interrupted after"), out
+    assert float(lines[0].split()[2]) < 30.0
+    assert lines[1] == "next run: None", "the stop request is withdrawn once the call returned"
+    if what == "run":
+        metrics = analyze_json(str(log))
+        assert metrics["complete"] is False and metrics["error"] == "interrupted by a signal"

@@ -517,7 +517,6 @@ impl Episode {
         let mut applied = std::mem::replace(&mut self.cursor.applied, DVector::zeros(0));
         let result = self.step_at(sinks, k, &mut x, &mut applied);
         (self.cursor.x, self.cursor.applied) = (x, applied);
-        self.cursor.step = k + 1;
         let end = match result {
             Ok(end) => end,
             Err(e) => {
@@ -526,6 +525,10 @@ impl Episode {
                 return Err(e);
             }
         };
+        // The next step, or where the episode ended.
+        if end.is_none() {
+            self.cursor.step = k + 1;
+        }
         self.cursor.end.clone_from(&end);
         Ok(end)
     }
@@ -545,7 +548,7 @@ impl Episode {
         }
     }
 
-    /// The next step k of the loop ([`Episode::advance`]); t_k = k h.
+    /// The next step k of the loop ([`Episode::advance`]), or the step it ended at; t_k = k h.
     pub fn step_index(&self) -> u64 {
         self.cursor.step
     }
@@ -960,6 +963,12 @@ static STOP_REQUESTED: std::sync::atomic::AtomicBool = std::sync::atomic::Atomic
 /// Asks every running episode to stop (Ctrl-C, SIGTERM).
 pub fn request_stop() {
     STOP_REQUESTED.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Withdraws a stop request once every run it stopped has returned: for a process that goes on
+/// after a stop (the Python package, whose user interrupted one call with Ctrl-C).
+pub fn clear_stop_request() {
+    STOP_REQUESTED.store(false, std::sync::atomic::Ordering::SeqCst);
 }
 
 /// Whether a stop was requested.
