@@ -20,10 +20,13 @@ if [ $# -gt 0 ]; then
   "$bin" analyze "$log"
   exit
 fi
-# The comparison is headless: build without the rerun SDK first (about half the cold build), so
+# The comparison first, from the quickest build: headless (without the rerun SDK) and without
+# optimisation (Cargo.toml's `quick` profile: the same results, a third of the cold build), so
 # the table comes before the rest is built (docs/performance.md, "Set-up time").
-echo "run: building mjsafe without the rerun viewer support for the comparison (cargo build --no-default-features)"
-cargo build --quiet --bin mjsafe --no-default-features
+echo "run: building mjsafe for the comparison (headless, unoptimised: cargo build --profile quick --no-default-features)"
+cargo build --quiet --profile quick --bin mjsafe --no-default-features
+full="$bin"
+bin="${CARGO_TARGET_DIR:-target}/quick/mjsafe"
 dir="logs/ch4-$stamp"
 scenario=scenarios/bicycle_obstacle.toml
 "$bin" run "$scenario" --out "$dir/delay_free.mcap"
@@ -42,4 +45,4 @@ echo "Overlay plots: $dir/plots/overlay-trajectory.png, overlay-barriers.png, ov
 echo
 echo "run: building mjsafe with the rerun viewer support (cargo build), for --rerun, --rrd and replay"
 cargo build --quiet --bin mjsafe
-echo "run: done: $bin has every feature"
+echo "run: done: $full has every feature"
