@@ -257,7 +257,7 @@ pub trait NominalController: Send {
     }
 
     /// The values of a nominal commanded from outside the loop (`kind = "external"`: a
-    /// learning agent's action, set between steps by [`crate::episode::Episode::set_external_input`]);
+    /// learning agent's action, set between steps by `Episode::set_external_input`);
     /// `None` for a controller that computes its own.
     fn external_input_mut(&mut self) -> Option<&mut [f64]> {
         None
@@ -534,7 +534,7 @@ impl NominalController for ConstantInput {
 }
 
 /// `kind = "external"`: u0 is set from outside the loop between steps (`mjsafe.Env`'s
-/// action, [`crate::episode::Episode::set_external_input`]); `initial` until then (default 0).
+/// action, `Episode::set_external_input`); `initial` until then (default 0).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExternalParams {
