@@ -64,11 +64,11 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy, gymnasium' >/dev/null 2>&1 \
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy, gymnasium, rtamt' >/dev/null 2>&1 \
     || [ ! -x "$venv/bin/maturin" ] \
     || [ "$("$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | sed -n 's/^Version: //p')" != 0.36.3 ] \
     || [ ! -x "$venv/bin/rerun" ]; then
-    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML, pandas), the rerun CLI (rerun-sdk), maturin, pytest and cvxpy into $venv"
+    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML, pandas), the rerun CLI (rerun-sdk), maturin, pytest, cvxpy and rtamt into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check -r scripts/requirements-test.txt
   fi
   # No usage data from the rerun CLI the tests run (it would try the network).
