@@ -658,3 +658,72 @@ fn push_and_finish_do_not_allocate() {
     let y: Vec<f64> = samples.iter().map(|s| s[1]).collect();
     assert!(same(v, robustness(&f, &[&x, &y], 0.5).unwrap()));
 }
+
+#[test]
+fn any_text_parses_or_fails_without_panicking() {
+    const PIECES: [&str; 40] = [
+        "x",
+        "y",
+        "obstacle_0.h",
+        "\"G\"",
+        "`a`",
+        "0",
+        "1.5",
+        "-",
+        "+",
+        "*",
+        "(",
+        ")",
+        "[",
+        "]",
+        ",",
+        ":",
+        "<",
+        ">=",
+        "==",
+        "!=",
+        "!",
+        "&&",
+        "|",
+        "->",
+        "<->",
+        "not",
+        "and",
+        "or",
+        "always",
+        "F",
+        "until",
+        "S",
+        "once",
+        "abs",
+        "true",
+        "ms",
+        " ",
+        "1e3",
+        "next",
+        "#",
+    ];
+    let mut rng = SplitMix64(13);
+    let mut parsed = 0;
+    for _ in 0..20_000 {
+        let len = 1 + rng.below(14);
+        let text: String = (0..len)
+            .map(|_| PIECES[rng.below(PIECES.len())])
+            .collect::<Vec<_>>()
+            .join(" ");
+        if let Ok(f) = parse(&text) {
+            parsed += 1;
+            assert_eq!(parse(&f.to_string()).as_ref(), Ok(&f), "{text}");
+            if !f.signals().is_empty() && f.check_step(1.0).is_ok() {
+                let n = 1 + rng.below(6);
+                let t = trace(&mut rng, n, true);
+                let values: Vec<&[f64]> = f.signals().iter().map(|_| t[0].as_slice()).collect();
+                let offline = robustness(&f, &values, 1.0).unwrap();
+                if f.online() {
+                    assert!(same(online_value(&f, &values, 1.0), offline), "{text}");
+                }
+            }
+        }
+    }
+    assert!(parsed > 20, "{parsed} parsed");
+}
