@@ -108,7 +108,7 @@ pub enum StlError {
 
 /// A comparison operator of an atom.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Comparison {
+enum Comparison {
     Less,
     LessEqual,
     Greater,
@@ -119,7 +119,7 @@ pub enum Comparison {
 
 impl Comparison {
     /// The operator's text.
-    pub fn symbol(self) -> &'static str {
+    fn symbol(self) -> &'static str {
         match self {
             Comparison::Less => "<",
             Comparison::LessEqual => "<=",
