@@ -47,6 +47,15 @@
 //! comparison follows IEEE 754 (∞ − ∞ is NaN). RTAMT (Python's `min`/`max`) gives
 //! order-dependent values there: only traces without NaN are compared with it.
 //!
+//! **RTAMT** (0.4.10, tests/stl_rtamt.rs: bit-identical robustness signals on every operator,
+//! random formulas and a real run) differs only outside the formulas both accept and evaluate
+//! the same: RTAMT lacks `&&`, `||`, `!=`, `true`, `false`, unary `-` before a signal, names
+//! beginning with `/` and quoted names, and reads `a.b` as a field of `a`; it takes a bound's
+//! decimal text exactly (here a bound within a relative 10⁻⁹ of a whole number of steps is
+//! accepted); its `min`/`max` with a NaN depend on the operands' order; its `evaluate` fails on
+//! a one-sample trace. Its `next`, `prev`, `rise`, `fall`, `unless`, division, `sqrt`, `exp`,
+//! `pow`, `log`, `ln`, declarations and named constants are not supported here.
+//!
 //! **Online**: a [`Monitor`] takes one sample at a time with memory bounded by the bounds (a
 //! sliding-window aggregate per bounded operator, a running value per unbounded past operator),
 //! and unbounded future operators only where nothing but `not`/`and`/`or`/… is above them (their
@@ -99,7 +108,7 @@ pub enum StlError {
 
 /// A comparison operator of an atom.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Comparison {
+enum Comparison {
     Less,
     LessEqual,
     Greater,
@@ -110,7 +119,7 @@ pub enum Comparison {
 
 impl Comparison {
     /// The operator's text.
-    pub fn symbol(self) -> &'static str {
+    fn symbol(self) -> &'static str {
         match self {
             Comparison::Less => "<",
             Comparison::LessEqual => "<=",

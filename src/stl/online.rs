@@ -2,11 +2,12 @@
 //! ρ(φ, 0) at the end of the run — the value [`super::robustness`] gives on the whole trace.
 //!
 //! The formula becomes a list of operators in post-order. Each one turns the stream of its
-//! operands' robustness values into its own, one value per sample, as soon as the samples its
-//! window needs have arrived (a bounded future operator lags by its bound; past operators do
-//! not lag); a binary operator's faster operand waits in a small FIFO for the slower one. At
-//! the end of the run ([`Monitor::finish`]) the lagging operators flush the rest of their
-//! values with the windows cut at the last sample. Unbounded future operators (only with
+//! operands' robustness values into its own, one value per sample: output i in round i + H,
+//! H its horizon (a bounded future operator lags by its bound over its operand's horizon; past
+//! operators do not lag); a binary operator's faster operand waits in a FIFO of the difference
+//! of the horizons for the slower one. At the end of the run ([`Monitor::finish`]) the rounds
+//! go on without samples: the lagging operators give the rest of their values with the windows
+//! cut at the last sample. Unbounded future operators (only with
 //! nothing but Boolean connectives above them, [`Formula::online`]) keep one running value
 //! over the whole run, and the connectives above them are evaluated at the end. Every buffer
 //! is sized in [`Monitor::new`]: nothing is allocated afterwards.
