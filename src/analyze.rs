@@ -6,7 +6,7 @@ use std::io::Read;
 use std::path::Path;
 
 use crate::log::read::{self, Decoder, Message, ReadError, RunRead, RunVisitor};
-use crate::log::Topic;
+use crate::log::{proto, Topic};
 use crate::metrics::{Accumulators, Observed, RunFacts};
 pub use crate::metrics::{Cell, Collision, FlatMetrics, PredictionStats, PrescribedTimeMetrics, RunMetrics, Value};
 
@@ -40,8 +40,15 @@ impl From<crate::files::FileError> for AnalyzeError {
 /// whatever the log's length. The result does not depend on where the run metadata sits in
 /// the data section (the MCAP spec allows it anywhere).
 pub fn analyze_file(path: &Path) -> Result<RunMetrics, AnalyzeError> {
+    analyze_file_with(path, &[])
+}
+
+/// [`analyze_file`] with requirements (name, STL formula) evaluated besides the run's own
+/// (`analyze --require`; one of the run's with the same name is replaced): `req.<name>`.
+pub fn analyze_file_with(path: &Path, requirements: &[(String, String)]) -> Result<RunMetrics, AnalyzeError> {
     let file = path.display().to_string();
     let mut analysis = Analysis::new(&file);
+    analysis.metrics.add_requirements(requirements);
     let result = read::read_run_file(path, &mut analysis);
     analysis.conclude(result)
 }
@@ -105,20 +112,12 @@ impl AnalysisSink {
 
 impl crate::log::Sink for AnalysisSink {
     fn record(&mut self, record: &crate::log::Record) -> Result<(), crate::log::LogError> {
-        use crate::log::Record;
         let Some(analysis) = self.analysis.as_mut() else {
             return Ok(());
         };
         self.records += 1;
-        let observed = match record {
-            Record::State(m) => Observed::State(m),
-            Record::Barrier(m) => Observed::Barrier(m),
-            Record::Filter(m) => Observed::Filter(m),
-            Record::Issued(m) => Observed::Issued(m),
-            Record::Prediction(m) => Observed::Prediction(m),
-            Record::Event(m) => Observed::Event(m),
-            Record::Actors(m) => Observed::Actors(m),
-            _ => return Ok(()),
+        let Some(observed) = Observed::of(record) else {
+            return Ok(());
         };
         analysis.observe(observed);
         Ok(())
@@ -216,7 +215,7 @@ impl RunVisitor for Analysis {
         if !self.metrics.reads(m.topic) {
             return Ok(());
         }
-        let (event, actors);
+        let (event, actors, command, measured): (proto::Event, proto::Actors, proto::AppliedCommand, proto::State);
         let observed = match m.topic {
             Topic::State => Observed::State(self.decoder.state(m)?),
             Topic::Barrier => Observed::Barrier(self.decoder.barrier(m)?),
@@ -230,6 +229,18 @@ impl RunVisitor for Analysis {
             Topic::Actors => {
                 actors = m.decode()?;
                 Observed::Actors(&actors)
+            }
+            // Only a requirement's signals read these.
+            Topic::Applied | Topic::Actuated => {
+                command = m.decode()?;
+                match m.topic {
+                    Topic::Applied => Observed::Applied(&command),
+                    _ => Observed::Actuated(&command),
+                }
+            }
+            Topic::Measured => {
+                measured = m.decode()?;
+                Observed::Measured(&measured)
             }
             _ => return Ok(()),
         };

@@ -35,6 +35,7 @@ use parquet::file::properties::WriterProperties;
 use crate::files::{FileError, OutputFile, Replace};
 use crate::log::read::{read_run_file, Message, ReadError, RunVisitor};
 use crate::log::{Record, Topic};
+use crate::signals::{table_row, Cell, Columns, Kind, Observed};
 
 /// Rows per Parquet batch handed to the writer.
 pub const BATCH_ROWS: usize = 4096;
@@ -429,27 +430,6 @@ impl crate::log::Sink for TableSink {
     }
 }
 
-/// A table's columns: each one's name and type.
-type Columns = Vec<(String, Kind)>;
-
-/// A column's type.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    F64,
-    U64,
-    Bool,
-    Text,
-}
-
-/// One value of a row.
-#[derive(Debug, Clone, PartialEq)]
-enum Cell {
-    F(f64),
-    U(u64),
-    B(bool),
-    S(String),
-}
-
 /// Where an export's rows go: the table files ([`export_log`]) or tables in memory
 /// ([`read_tables`], [`TableSink`]).
 trait Tables {
@@ -563,10 +543,6 @@ impl<'a, T: Tables> Export<'a, T> {
     }
 }
 
-fn col(name: impl Into<String>, kind: Kind) -> (String, Kind) {
-    (name.into(), kind)
-}
-
 impl<T: Tables> RunVisitor for Export<'_, T> {
     fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
         if name == crate::log::read::STATUS_METADATA {
@@ -596,154 +572,22 @@ impl Rows<'_> {
             return Ok(None);
         }
         let record = message.record()?;
-        let time = record.time();
-        self.cells.clear();
-        let c = &mut self.cells;
-        c.push(Cell::F(time));
-        let mut columns = vec![col("time", Kind::F64)];
-        match &record {
-            Record::State(m) | Record::Measured(m) => {
-                if topic == Topic::State && self.state_names.is_none() {
-                    self.state_names = Some(m.names.clone());
-                }
-                if !wanted {
-                    return Ok(None);
-                }
-                columns.push(col("step", Kind::U64));
-                c.push(Cell::U(m.step));
-                for (name, v) in m.names.iter().zip(&m.values) {
-                    columns.push(col(name.clone(), Kind::F64));
-                    c.push(Cell::F(*v));
-                }
+        if let Record::State(m) = &record {
+            if self.state_names.is_none() {
+                self.state_names = Some(m.names.clone());
             }
-            Record::Issued(m) => {
-                for (i, ch) in m.channels.iter().enumerate() {
-                    columns.push(col(format!("{ch}.nominal"), Kind::F64));
-                    columns.push(col(format!("{ch}.filtered"), Kind::F64));
-                    c.push(Cell::F(m.nominal.get(i).copied().unwrap_or(f64::NAN)));
-                    c.push(Cell::F(m.filtered.get(i).copied().unwrap_or(f64::NAN)));
-                }
-            }
-            Record::Applied(m) | Record::Actuated(m) => {
-                for (i, ch) in m.channels.iter().enumerate() {
-                    columns.push(col(ch.clone(), Kind::F64));
-                    columns.push(col(format!("{ch}.issued_at"), Kind::F64));
-                    c.push(Cell::F(m.values.get(i).copied().unwrap_or(f64::NAN)));
-                    c.push(Cell::F(m.issued_at.get(i).copied().unwrap_or(f64::NAN)));
-                }
-            }
-            Record::Barrier(m) => {
-                for b in &m.barriers {
-                    let n = &b.name;
-                    for (field, v) in [
-                        ("h", b.h),
-                        ("constraint", b.constraint),
-                        ("clearance", b.clearance),
-                        ("time_to_collision", b.time_to_collision),
-                    ] {
-                        columns.push(col(format!("{n}.{field}"), Kind::F64));
-                        c.push(Cell::F(v));
-                    }
-                    columns.push(col(format!("{n}.known"), Kind::Bool));
-                    c.push(Cell::B(b.known));
-                    columns.push(col(format!("{n}.relative_degree"), Kind::U64));
-                    c.push(Cell::U(u64::from(b.relative_degree)));
-                    columns.push(col(format!("{n}.obstacle"), Kind::Bool));
-                    c.push(Cell::B(b.obstacle));
-                }
-            }
-            Record::Actors(m) => {
-                for a in &m.actors {
-                    for (field, v) in [
-                        ("x", a.x),
-                        ("y", a.y),
-                        ("vx", a.vx),
-                        ("vy", a.vy),
-                        ("ax", a.ax),
-                        ("ay", a.ay),
-                    ] {
-                        columns.push(col(format!("{}.{field}", a.name), Kind::F64));
-                        c.push(Cell::F(v));
-                    }
-                }
-            }
-            Record::Filter(m) => {
-                columns.extend([
-                    col("active", Kind::Bool),
-                    col("infeasible", Kind::Bool),
-                    col("mu", Kind::F64),
-                ]);
-                c.extend([Cell::B(m.active), Cell::B(m.infeasible), Cell::F(m.mu)]);
-                for (i, ch) in m.channels.iter().enumerate() {
-                    columns.push(col(format!("{ch}.correction"), Kind::F64));
-                    c.push(Cell::F(m.correction.get(i).copied().unwrap_or(f64::NAN)));
-                }
-            }
-            Record::Prediction(m) => {
-                columns.extend([
-                    col("channel", Kind::Text),
-                    col("issued_at", Kind::F64),
-                    col("horizon", Kind::F64),
-                ]);
-                c.extend([Cell::S(m.channel.clone()), Cell::F(m.issued_at), Cell::F(m.horizon)]);
-                let name = |i: usize| {
-                    self.state_names
-                        .as_ref()
-                        .filter(|n| n.len() == m.predicted.len())
-                        .map_or_else(|| i.to_string(), |n| n[i].clone())
-                };
-                for (i, v) in m.predicted.iter().enumerate() {
-                    columns.push(col(format!("predicted.{}", name(i)), Kind::F64));
-                    c.push(Cell::F(*v));
-                }
-                for i in 0..m.predicted.len() {
-                    columns.push(col(format!("realized.{}", name(i)), Kind::F64));
-                    c.push(Cell::F(m.realized.get(i).copied().unwrap_or(f64::NAN)));
-                }
-                columns.extend([
-                    col("error", Kind::F64),
-                    col("relative_error", Kind::F64),
-                    col("reused_chain", Kind::Bool),
-                    col("chain_mismatch", Kind::F64),
-                ]);
-                c.extend([
-                    Cell::F(m.error),
-                    Cell::F(m.relative_error),
-                    Cell::B(m.reused_chain),
-                    Cell::F(m.chain_mismatch),
-                ]);
-                // Per moving obstacle: assumed and true position at the target time, distance.
-                let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(f64::NAN);
-                for (k, a) in m.actors.iter().enumerate() {
-                    for (field, v) in [
-                        ("predicted_x", at(&m.actor_predicted, 2 * k)),
-                        ("predicted_y", at(&m.actor_predicted, 2 * k + 1)),
-                        ("realized_x", at(&m.actor_realized, 2 * k)),
-                        ("realized_y", at(&m.actor_realized, 2 * k + 1)),
-                        ("error", at(&m.actor_error, k)),
-                    ] {
-                        columns.push(col(format!("{a}.{field}"), Kind::F64));
-                        c.push(Cell::F(v));
-                    }
-                }
-            }
-            Record::Event(m) => {
-                columns.extend([
-                    col("kind", Kind::Text),
-                    col("message", Kind::Text),
-                    col("participants", Kind::Text),
-                    col("depth", Kind::F64),
-                ]);
-                c.extend([
-                    Cell::S(m.kind.clone()),
-                    Cell::S(m.message.clone()),
-                    Cell::S(m.participants.join(" ")),
-                    Cell::F(m.depth),
-                ]);
-            }
-            Record::Scene(..) | Record::Transform(..) | Record::Log(..) => return Ok(None),
         }
-        Ok(Some((time, columns)))
+        let Some(observed) = Observed::of(&record).filter(|_| wanted) else {
+            return Ok(None);
+        };
+        let mut columns = Vec::new();
+        table_row(
+            observed,
+            self.state_names.as_deref(),
+            &mut self.cells,
+            Some(&mut columns),
+        );
+        Ok(Some((observed.time(), columns)))
     }
 }
 

@@ -36,6 +36,7 @@ pub mod road;
 pub mod run;
 pub mod scenario;
 pub mod sensing;
+pub mod signals;
 pub mod stl;
 pub mod sweep;
 pub mod table;

@@ -20,6 +20,9 @@ pub enum ScenarioError {
     Field { file: String, key: String, message: String },
     #[error("--set {spec}: {message}")]
     Override { spec: String, message: String },
+    /// A `--require NAME=FORMULA` that is not one (its name or formula).
+    #[error("--require {flag}: {message}")]
+    Require { flag: String, message: String },
 }
 
 /// A scenario as written in its file (after overrides).
@@ -87,6 +90,19 @@ pub struct Scenario {
     /// What the controller assumes of moving obstacles (`[actor_knowledge]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub actor_knowledge: Option<ActorKnowledgeSpec>,
+    /// `[[requirements]]`: STL formulas over the run's signals, each reported as
+    /// `req.<name>` (its robustness at t = 0; docs/requirements.md).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub requirements: Vec<RequirementSpec>,
+}
+
+/// One `[[requirements]]` entry: a name (the `req.<name>` metric) and an STL formula over the
+/// run's signals (docs/requirements.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RequirementSpec {
+    pub name: String,
+    pub formula: String,
 }
 
 /// The `[goal]` table: a disc the planar position should enter, optionally by a deadline.
@@ -748,7 +764,11 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
     let (key, raw) = spec
         .split_once('=')
         .ok_or_else(|| err("expected KEY=VALUE, e.g. delays.steering=0.4".into()))?;
-    let key = key.trim();
+    // `KEY+=VALUE` appends VALUE to the array at KEY (made when absent): `--require`.
+    let (key, append) = match key.trim().strip_suffix('+') {
+        Some(key) => (key.trim(), true),
+        None => (key.trim(), false),
+    };
     let value = override_value(raw).map_err(err)?;
     let segments: Vec<&str> = key.split('.').collect();
     if segments.iter().any(|s| s.is_empty()) {
@@ -775,8 +795,36 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ScenarioErr
             _ => return Err(err(format!("`{parent}` is a value, not a table"))),
         };
     }
+    if append {
+        match current {
+            toml::Value::Array(items) => items.push(value),
+            // Made just now by the walk above: the key was absent.
+            toml::Value::Table(t) if t.is_empty() => *current = toml::Value::Array(vec![value]),
+            _ => {
+                return Err(err(format!(
+                    "`{key}` is not an array: `{key}+=VALUE` appends to an array"
+                )))
+            }
+        }
+        return Ok(());
+    }
     *current = value;
     Ok(())
+}
+
+/// The `--set` override of `--require NAME=FORMULA`: `requirements+={name = …, formula = …}`
+/// (the name and the formula checked first: one error line naming the flag).
+pub fn require_override(flag: &str) -> Result<String, ScenarioError> {
+    let (name, formula) = parse_require_flag(flag).map_err(|message| ScenarioError::Require {
+        flag: flag.to_string(),
+        message,
+    })?;
+    let quote = |text: &str| toml::Value::String(text.to_string()).to_string();
+    Ok(format!(
+        "requirements+={{name = {}, formula = {}}}",
+        quote(&name),
+        quote(&formula)
+    ))
 }
 
 fn positive_finite(x: f64) -> bool {
@@ -846,7 +894,64 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     validate_control_and_model(s)?;
     validate_barriers_and_obstacles(s)?;
     validate_road(s)?;
-    validate_goal(s)
+    validate_goal(s)?;
+    validate_requirements(s)
+}
+
+/// The longest requirement name (a metric column `req.<name>`).
+pub const MAX_REQUIREMENT_NAME: usize = 64;
+
+/// A requirement's name: letters, digits, `_` and `-`, at most [`MAX_REQUIREMENT_NAME`]
+/// characters.
+pub fn check_requirement_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= MAX_REQUIREMENT_NAME
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "expected a name of 1 to {MAX_REQUIREMENT_NAME} letters, digits, `_` or `-` (the metric `req.<name>`), found {name:?}"
+        ))
+    }
+}
+
+/// `NAME=FORMULA` of `--require`: the name and the formula's text, both checked.
+pub fn parse_require_flag(text: &str) -> Result<(String, String), String> {
+    let Some((name, formula)) = text.split_once('=') else {
+        return Err(format!("expected NAME=FORMULA, found {text:?}"));
+    };
+    let name = name.trim();
+    check_requirement_name(name)?;
+    crate::stl::parse(formula).map_err(|e| e.to_string())?;
+    Ok((name.to_string(), formula.trim().to_string()))
+}
+
+/// At most this many requirements per run (each is a metric column and a monitor).
+pub const MAX_REQUIREMENTS: usize = 64;
+
+/// `requirements`: distinct names a metric column can carry, formulas that parse, bounds that
+/// are whole numbers of the plant step (checked with the model: `stl::Formula::check_step`).
+fn validate_requirements(s: &LoadedScenario) -> Result<(), ScenarioError> {
+    let list = &s.scenario.requirements;
+    if list.len() > MAX_REQUIREMENTS {
+        return Err(s.field_error(
+            "requirements",
+            format!("expected at most {MAX_REQUIREMENTS} requirements, found {}", list.len()),
+        ));
+    }
+    for (i, r) in list.iter().enumerate() {
+        check_requirement_name(&r.name).map_err(|e| s.field_error(&format!("requirements[{i}].name"), e))?;
+        if list[..i].iter().any(|other| other.name == r.name) {
+            return Err(s.field_error(
+                &format!("requirements[{i}].name"),
+                format!("`{}` is already the name of an earlier requirement", r.name),
+            ));
+        }
+        crate::stl::parse(&r.formula)
+            .map_err(|e| s.field_error(&format!("requirements[{i}].formula"), e.to_string()))?;
+    }
+    Ok(())
 }
 
 /// `goal`: a finite centre, a positive radius and deadline (planarity is checked with the model).

@@ -15,7 +15,12 @@ use mjsafe::metrics::Shape;
 /// the controller assumes static).
 fn logs(dir: &std::path::Path) -> [String; 5] {
     let runs: [(&str, &str, &[&str]); 5] = [
-        ("scenarios", "bicycle_obstacle_gamma_m", &[]),
+        // A requirement (docs/requirements.md): the `req` metric.
+        (
+            "scenarios",
+            "bicycle_obstacle_gamma_m",
+            &["--require", "clear=always obstacle_0.h >= 0"],
+        ),
         ("scenarios", "red_light", &[]),
         ("scenarios", "bicycle_obstacle", &[]),
         ("scenarios", "bicycle_obstacle_nodelay", &[]),

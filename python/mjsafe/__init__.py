@@ -118,6 +118,7 @@ def _mapping(function: str, name: str, value: Any, what: str, optional: bool = T
 
 _SET = "a dict of dotted keys to values"
 _RANGES = "a dict of dotted keys to (lo, hi) or (lo, hi, step)"
+_REQUIRE = "a dict of requirement names to STL formulas (str)"
 
 
 def _class(function: str, kind: Any, cls: Any) -> None:
@@ -249,6 +250,7 @@ def run(
     set: Mapping[str, Any] | None = None,
     out: str | os.PathLike[str] | None = None,
     tables: bool = False,
+    require: Mapping[str, str] | None = None,
 ) -> RunResult:
     """Runs a scenario once, as ``mjsafe run PATH --set … --out OUT``.
 
@@ -259,6 +261,9 @@ def run(
         out: the MCAP log to write; None writes no log (the run is analysed in memory, as a
             falsification candidate is: the same metrics).
         tables: keep the run's tables in memory (``RunResult.tables()`` without a log).
+        require: requirements ``{name: STL formula}`` (``--require NAME=FORMULA``; added to the
+            scenario's ``[[requirements]]``): each one's robustness is ``metrics["req"][name]``
+            (docs/requirements.md).
 
     Raises:
         TypeError: an argument of the wrong Python type (a path that is not a str or
@@ -272,6 +277,7 @@ def run(
         _mapping("run", "set", set, _SET),
         _path("run", "out", out, optional=True),
         _bool("run", "tables", tables),
+        _mapping("run", "require", require, _REQUIRE),
     )
     return RunResult(raw)
 
@@ -350,6 +356,7 @@ def sweep(
     threads: int | None = None,
     *,
     out: str | os.PathLike[str] | None = None,
+    require: Mapping[str, str] | None = None,
 ) -> pd.DataFrame:
     """A parameter sweep, as ``mjsafe sweep``: the grid's cartesian product, times ``draws``
     seeded random draws of the ``random`` ranges, run in parallel.
@@ -363,6 +370,8 @@ def sweep(
         threads: runs at once (default: every core).
         out: a directory for the runs' logs and summary.csv/summary.json (``--out``); None
             keeps no logs and writes nothing (``--no-logs``: each run analysed in memory).
+        require: requirements of every run ``{name: STL formula}`` (``--require``): the
+            summary's ``req.<name>`` columns.
 
     Returns:
         The summary, one row per run: the columns of summary.csv (index, log, the swept keys,
@@ -382,6 +391,7 @@ def sweep(
         _mapping("sweep", "set", set, _SET),
         _int("sweep", "threads", threads, 0, optional=True),
         _path("sweep", "out", out, optional=True),
+        _mapping("sweep", "require", require, _REQUIRE),
     )
     return _read_csv(io.StringIO(text))
 
@@ -403,6 +413,7 @@ def falsify(
     compare_random: bool = False,
     threads: int | None = None,
     out: str | os.PathLike[str] | None = None,
+    require: Mapping[str, str] | None = None,
 ) -> FalsifyResult:
     """A falsification search, as ``mjsafe falsify``: CMA-ES over the ``ranges`` box for a run
     whose ``objective`` falls below ``threshold``.
@@ -419,6 +430,8 @@ def falsify(
             the flags of the same names.
         out: the directory of the search's outputs (evaluations.csv/.json, the counterexample
             scenario and log, the convergence plot); None: a temporary one, removed after.
+        require: requirements of every candidate ``{name: STL formula}`` (``--require``);
+            ``objective="req.<name>"`` minimises one's robustness.
 
     Raises:
         TypeError: an argument of the wrong Python type (``budget="many"``, ``ranges`` not a
@@ -441,9 +454,10 @@ def falsify(
     compare_random = _bool(f, "compare_random", compare_random)
     threads = _int(f, "threads", threads, 0, optional=True)
     out = _path(f, "out", out, optional=True)
+    require = _mapping(f, "require", require, _REQUIRE)
     call = ", ".join(
         [repr(path), f"ranges={dict(ranges)!r}"]
-        + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set)] if v is not None]
+        + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set), ("require", require)] if v is not None]
         + [f"budget={budget!r}", f"seed={seed!r}", f"objective={objective!r}", f"threshold={threshold!r}"]
         + (["worst=True"] if worst else [])
     )
@@ -453,10 +467,10 @@ def falsify(
         baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads,
     )
     if out is not None:
-        raw = _core.falsify(*args, out, search_line)
+        raw = _core.falsify(*args, out, search_line, require)
         return FalsifyResult(raw, out)
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
-        raw = _core.falsify(*args, tmp, search_line)
+        raw = _core.falsify(*args, tmp, search_line, require)
         return FalsifyResult(raw, None)
 
 

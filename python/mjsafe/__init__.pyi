@@ -45,6 +45,7 @@ def run(
     set: Mapping[str, Any] | None = None,
     out: _Path | None = None,
     tables: bool = False,
+    require: Mapping[str, str] | None = None,
 ) -> RunResult: ...
 def read_log(path: _Path) -> LogData: ...
 def sweep(
@@ -57,6 +58,7 @@ def sweep(
     threads: int | None = None,
     *,
     out: _Path | None = None,
+    require: Mapping[str, str] | None = None,
 ) -> pd.DataFrame: ...
 def falsify(
     path: _Path,
@@ -75,6 +77,7 @@ def falsify(
     compare_random: bool = False,
     threads: int | None = None,
     out: _Path | None = None,
+    require: Mapping[str, str] | None = None,
 ) -> FalsifyResult: ...
 def register_filter(kind: str, cls: type) -> None: ...
 def register_nominal(kind: str, cls: type) -> None: ...

@@ -182,6 +182,36 @@ fn overrides(set: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>
     Ok(out)
 }
 
+/// The overrides of `set`, then those of `require` (`{name: formula}`, as `--require
+/// NAME=FORMULA` each: appended to the scenario's `[[requirements]]`).
+fn overrides_and_requirements(
+    set: Option<&Bound<'_, PyAny>>,
+    require: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<String>> {
+    let mut out = overrides(set, "set")?;
+    let Some(require) = require.filter(|r| !r.is_none()) else {
+        return Ok(out);
+    };
+    let mapping = require.cast::<PyMapping>().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "require: expected a dict of requirement names to STL formulas, not a {}",
+            type_name(require)
+        ))
+    })?;
+    for item in mapping.items()?.try_iter()? {
+        let (name, formula): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item?.extract()?;
+        let (Ok(name), Ok(formula)) = (name.extract::<String>(), formula.extract::<String>()) else {
+            return Err(PyTypeError::new_err(format!(
+                "require: expected str names and str formulas, found a {} and a {}",
+                type_name(&name),
+                type_name(&formula)
+            )));
+        };
+        out.push(mjsafe::scenario::require_override(&format!("{name}={formula}")).map_err(bad)?);
+    }
+    Ok(out)
+}
+
 /// The `KEY=LO..HI[:STEP]` texts of a dict of `(lo, hi)` or `(lo, hi, step)`.
 fn ranges(dict: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Vec<String>> {
     let Some(dict) = dict.filter(|s| !s.is_none()) else {
@@ -349,15 +379,16 @@ const IN_MEMORY: &str = "(in memory)";
 
 /// One run of a scenario: `mjsafe run` (or, without `out`, analysed in memory).
 #[pyfunction]
-#[pyo3(signature = (path, set=None, out=None, tables=false))]
+#[pyo3(signature = (path, set=None, out=None, tables=false, require=None))]
 fn run<'py>(
     py: Python<'py>,
     path: PathBuf,
     set: Option<&Bound<'py, PyAny>>,
     out: Option<PathBuf>,
     tables: bool,
+    require: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let overrides = overrides(set, "set")?;
+    let overrides = overrides_and_requirements(set, require)?;
     let result = interruptible(py, move || -> Result<_, PyErr> {
         let loaded = mjsafe::scenario::load(&path, &overrides).map_err(bad)?;
         let keep = match &out {
@@ -420,7 +451,7 @@ fn log_tables<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict
 /// A sweep: `mjsafe sweep` (with `out`: its logs and summary files there; without: every run
 /// analysed in memory, `--no-logs`, nothing written); the summary as CSV text.
 #[pyfunction]
-#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None))]
+#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None, require=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep<'py>(
     py: Python<'py>,
@@ -432,12 +463,13 @@ fn sweep<'py>(
     set: Option<&Bound<'py, PyAny>>,
     threads: Option<usize>,
     out: Option<PathBuf>,
+    require: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<String> {
     use mjsafe::sweep::{self, Summary, SweepArgs, SweepSpec};
     let args = SweepArgs {
         scenario: Some(path),
         sweep_file: None,
-        set: overrides(set, "set")?,
+        set: overrides_and_requirements(set, require)?,
         grids: grids(grid)?,
         random: (draws > 0).then_some(draws),
         seed: Some(seed),
@@ -469,7 +501,7 @@ fn sweep<'py>(
 #[pyo3(signature = (
     path, ranges_, baseline, budget, seed, objective, threshold, worst, set,
     baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads, out,
-    search_line
+    search_line, require=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn falsify<'py>(
@@ -490,11 +522,12 @@ fn falsify<'py>(
     threads: Option<usize>,
     out: PathBuf,
     search_line: String,
+    require: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let request = mjsafe::falsify::Request {
         scenario: path,
         ranges: ranges(ranges_, "ranges")?,
-        set: overrides(set, "set")?,
+        set: overrides_and_requirements(set, require)?,
         objective,
         threshold,
         budget,

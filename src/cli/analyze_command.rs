@@ -7,8 +7,9 @@ use super::*;
 pub(super) fn analyze_or_recover(
     file: &Path,
     recover: bool,
+    requirements: &[(String, String)],
 ) -> Result<(RunMetrics, Option<analyze::AnalyzeError>), analyze::AnalyzeError> {
-    match analyze::analyze_file(file) {
+    match analyze::analyze_file_with(file, requirements) {
         Ok(m) => Ok((m, None)),
         Err(analyze::AnalyzeError::Corrupt {
             damage,
@@ -18,11 +19,16 @@ pub(super) fn analyze_or_recover(
     }
 }
 
-pub(super) fn analyze_files(files: &[PathBuf], format: Format, recover: bool) -> ExitCode {
+pub(super) fn analyze_files(
+    files: &[PathBuf],
+    format: Format,
+    recover: bool,
+    requirements: &[(String, String)],
+) -> ExitCode {
     let mut runs: Vec<RunMetrics> = Vec::new();
     let mut failed = false;
     for file in files {
-        match analyze_or_recover(file, recover) {
+        match analyze_or_recover(file, recover, requirements) {
             Ok((m, None)) => runs.push(m),
             Ok((m, Some(e))) => {
                 eprintln!("error: {e} (--recover: reporting the metrics of what was read before)");
@@ -64,12 +70,17 @@ pub(super) fn analyze_files(files: &[PathBuf], format: Format, recover: bool) ->
     }
 }
 
-pub(super) fn compare_files(files: &[PathBuf], format: Format, recover: bool) -> Result<ExitCode> {
+pub(super) fn compare_files(
+    files: &[PathBuf],
+    format: Format,
+    recover: bool,
+    requirements: &[(String, String)],
+) -> Result<ExitCode> {
     let [a, b] = files else {
         bail!("--compare takes exactly two logs A B, {} given", files.len());
     };
-    let (ma, damage_a) = analyze_or_recover(a, recover)?;
-    let (mb, damage_b) = analyze_or_recover(b, recover)?;
+    let (ma, damage_a) = analyze_or_recover(a, recover, requirements)?;
+    let (mb, damage_b) = analyze_or_recover(b, recover, requirements)?;
     let rows = crate::metrics::report::compare(&ma, &mb);
     match format {
         Format::Json => {
@@ -207,15 +218,16 @@ pub(super) fn analyze_command(
     mode: AnalyzeMode,
     plot: Option<&Path>,
     recover: bool,
+    requirements: &[(String, String)],
 ) -> Result<ExitCode> {
     let plots_failed = match plot {
         Some(dir) => plot_logs(files, dir)?,
         None => false,
     };
     let code = match mode {
-        AnalyzeMode::Compare => compare_files(files, format, recover)?,
+        AnalyzeMode::Compare => compare_files(files, format, recover, requirements)?,
         AnalyzeMode::Merge(out) => merge_summaries(files, format, out.as_deref())?,
-        AnalyzeMode::Metrics => analyze_files(files, format, recover),
+        AnalyzeMode::Metrics => analyze_files(files, format, recover, requirements),
     };
     Ok(if plots_failed { ExitCode::FAILURE } else { code })
 }
@@ -309,6 +321,10 @@ pub struct AnalyzeCommand {
     /// chunks that passed their CRC), marked incomplete; the exit status is still non-zero.
     #[arg(long, conflicts_with = "merge")]
     recover: bool,
+    /// A requirement to evaluate on every log besides its run's own: an STL formula over the
+    /// run's signals, reported as `req.NAME` (docs/requirements.md) (repeatable).
+    #[arg(long = "require", value_name = "NAME=FORMULA", conflicts_with = "merge")]
+    require: Vec<String>,
 }
 
 impl AnalyzeCommand {
@@ -324,7 +340,11 @@ impl AnalyzeCommand {
             out,
             plot,
             recover,
+            require,
         } = self;
+        let requirements = (require.iter())
+            .map(|flag| scenario::parse_require_flag(flag).map_err(|e| anyhow::anyhow!("--require {flag}: {e}")))
+            .collect::<Result<Vec<_>>>()?;
         let format = if brief {
             Format::Brief
         } else if json {
@@ -339,7 +359,7 @@ impl AnalyzeCommand {
             (_, true) => AnalyzeMode::Merge(out),
             _ => AnalyzeMode::Metrics,
         };
-        analyze_command(&files, format, mode, plot.as_deref(), recover)
+        analyze_command(&files, format, mode, plot.as_deref(), recover, &requirements)
     }
 }
 

@@ -14,6 +14,10 @@ pub struct FalsifyArgs {
     /// Override applied to every candidate: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
+    /// A requirement of every candidate (an STL formula, docs/requirements.md): with
+    /// `--objective req.NAME` the search minimises its robustness (repeatable).
+    #[arg(long = "require", value_name = "NAME=FORMULA")]
+    pub require: Vec<String>,
     /// The metric minimised (a numeric column of `analyze --csv`): min_h, min_clearance,
     /// min_time_to_collision, progress_along_path, …; `-<metric>` minimises its negation, a
     /// search for large values: `--objective=-distance_to_goal --threshold=-5` looks for runs
@@ -100,7 +104,8 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
     let FalsifyArgs {
         scenario,
         ranges,
-        overrides,
+        mut overrides,
+        require,
         objective,
         threshold,
         budget,
@@ -114,6 +119,9 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         compare_random,
         out,
     } = args;
+    for flag in &require {
+        overrides.push(scenario::require_override(flag)?);
+    }
     let (problem, name) = falsify::Request {
         scenario,
         ranges,

@@ -57,6 +57,8 @@ pub mod exit {
     pub const RUNS_FAILED: u8 = 3;
     /// `--fail-on-collision`: the run (or some run of the sweep) collided.
     pub const COLLISION: u8 = 4;
+    /// `run --fail-on-violation`: a requirement's robustness is negative.
+    pub const VIOLATION: u8 = 5;
     /// Interrupted by Ctrl-C / SIGTERM (128 + SIGINT).
     pub const INTERRUPTED: u8 = 130;
     /// stdout was a closed pipe (128 + SIGPIPE), e.g. `mjsafe info LOG | head`.
@@ -75,6 +77,7 @@ Exit codes:
   3    sweep: some runs failed (summary written, their rows hold the error); falsify: every
        candidate failed (evaluations written, their rows hold the error)
   4    --fail-on-collision: the run, or some run of the sweep, collided
+  5    run --fail-on-violation: a requirement is violated (robustness < 0)
   130  interrupted (Ctrl-C, SIGTERM): logs finished as incomplete
   141  stdout was a closed pipe"
     };

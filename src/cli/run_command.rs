@@ -1,6 +1,8 @@
 //! `mjsafe run` and `mjsafe replay`: one scenario into its log (and rerun), a log back into rerun.
 
 use super::*;
+use crate::metrics::builtin::REQUIREMENTS;
+use crate::metrics::Value;
 
 /// Rerun outputs of `mjsafe run` (with the `rerun` feature); none given: nothing is built or sent.
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -83,6 +85,7 @@ impl RerunArgs {
 pub(super) struct RunOutput {
     json: bool,
     fail_on_collision: bool,
+    fail_on_violation: bool,
 }
 
 /// A progress line on a terminal (stderr) for a run that takes more than two seconds: the
@@ -189,6 +192,10 @@ pub(super) fn run_scenario(
         if let Some(t) = metrics.number("stall_time") {
             value["stall_time"] = serde_json::json!(t);
         }
+        // Only for a run with requirements: their robustness (null when absent: `missing`).
+        if let Some(Value::PerChannel(values)) = metrics.value(REQUIREMENTS) {
+            value["req"] = serde_json::json!(values);
+        }
         if !metrics.warnings.is_empty() {
             value["warnings"] = serde_json::json!(metrics.warnings);
         }
@@ -241,6 +248,18 @@ pub(super) fn run_scenario(
     for warning in &metrics.warnings {
         eprintln!("warning: MuJoCo: {warning}; the run's metrics describe that physics, not the model's");
     }
+    let requirements = requirement_values(&loaded, &metrics);
+    if !report.json {
+        for (name, value) in &requirements {
+            match value {
+                Ok(r) => outln!(
+                    "requirement {name}: {} (robustness {r:.4})",
+                    if *r < 0.0 { "VIOLATED" } else { "satisfied" }
+                ),
+                Err(reason) => outln!("requirement {name}: not evaluated ({reason})"),
+            }
+        }
+    }
     if let Some(error) = summary.error {
         eprintln!("error: the episode stopped early: {error} (the log holds the run up to that point)");
         // 130: the shell's convention for a run ended by a signal.
@@ -259,7 +278,46 @@ pub(super) fn run_scenario(
             return Ok(ExitCode::from(exit::COLLISION));
         }
     }
+    if report.fail_on_violation {
+        if let Some((name, Err(reason))) = requirements.iter().find(|(_, v)| v.is_err()) {
+            eprintln!("error: --fail-on-violation: requirement {name} cannot be evaluated: {reason}");
+            return Ok(ExitCode::from(exit::ERROR));
+        }
+        let violated: Vec<String> = (requirements.iter())
+            .filter_map(|(name, v)| {
+                v.as_ref()
+                    .ok()
+                    .filter(|r| **r < 0.0)
+                    .map(|r| format!("{name} ({r:.4})"))
+            })
+            .collect();
+        if !violated.is_empty() {
+            eprintln!("error: --fail-on-violation: violated: {}", violated.join(", "));
+            return Ok(ExitCode::from(exit::VIOLATION));
+        }
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Each requirement of the run, in the scenario's order: its robustness, or why it has none.
+fn requirement_values(loaded: &scenario::LoadedScenario, metrics: &RunMetrics) -> Vec<(String, Result<f64, String>)> {
+    let values = match metrics.value(REQUIREMENTS) {
+        Some(Value::PerChannel(Some(values))) => Some(values),
+        _ => None,
+    };
+    (loaded.scenario.requirements.iter())
+        .map(|r| {
+            let column = format!("{REQUIREMENTS}.{}", r.name);
+            let value = values.and_then(|v| v.get(&r.name).copied()).ok_or_else(|| {
+                metrics
+                    .missing
+                    .get(&column)
+                    .cloned()
+                    .unwrap_or_else(|| "no value".into())
+            });
+            (r.name.clone(), value)
+        })
+        .collect()
 }
 
 #[cfg(feature = "rerun")]
@@ -306,6 +364,14 @@ pub struct RunCommand {
     /// Exit with 4 when the run collided (a CI gate); without it a collision exits 0.
     #[arg(long)]
     fail_on_collision: bool,
+    /// A requirement: an STL formula over the run's signals, reported as `req.NAME` (its
+    /// robustness; docs/requirements.md), added to the scenario's `[[requirements]]` (repeatable).
+    #[arg(long = "require", value_name = "NAME=FORMULA")]
+    require: Vec<String>,
+    /// Exit with 5 when a requirement is violated (robustness < 0; a CI gate next to
+    /// --fail-on-collision, which is checked first); 1 when one cannot be evaluated.
+    #[arg(long)]
+    fail_on_violation: bool,
     #[command(flatten)]
     rerun: RerunArgs,
 }
@@ -315,12 +381,17 @@ impl RunCommand {
     pub fn execute(self) -> Result<ExitCode> {
         let RunCommand {
             scenario,
-            overrides,
+            mut overrides,
             out,
             json,
             fail_on_collision,
+            require,
+            fail_on_violation,
             rerun,
         } = self;
+        for flag in &require {
+            overrides.push(scenario::require_override(flag)?);
+        }
         run_scenario(
             &scenario,
             &overrides,
@@ -329,6 +400,7 @@ impl RunCommand {
             RunOutput {
                 json,
                 fail_on_collision,
+                fail_on_violation,
             },
         )
     }

@@ -205,6 +205,10 @@ pub struct SweepCommand {
     /// Override applied to every run: KEY.PATH=VALUE in TOML value syntax, or a bare word as a string (`plant=ode`) (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+    /// A requirement of every run (an STL formula; its robustness is the summary column
+    /// `req.NAME`; docs/requirements.md) (repeatable).
+    #[arg(long = "require", value_name = "NAME=FORMULA")]
+    require: Vec<String>,
     /// Number of random draws of the --range keys (per grid point).
     #[arg(long, value_name = "N")]
     random: Option<usize>,
@@ -245,7 +249,8 @@ impl SweepCommand {
             scenario,
             grids,
             sweep_file,
-            overrides,
+            mut overrides,
+            require,
             random,
             seed,
             ranges,
@@ -257,6 +262,9 @@ impl SweepCommand {
             fail_on_collision,
             no_logs,
         } = self;
+        for flag in &require {
+            overrides.push(scenario::require_override(flag)?);
+        }
         let args = SweepArgs {
             scenario,
             sweep_file,

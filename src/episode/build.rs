@@ -1269,9 +1269,25 @@ pub(super) fn run_info(
         predicts: control.predicts(),
         kinds,
         goal: sc.goal,
+        requirements: requirements(loaded, timestep)?,
         // Set by the episode, which holds the nominal.
         reference_path: None,
     })
+}
+
+/// The scenario's requirements (name, formula), each formula's bounds checked against the
+/// plant step h: its signals are sampled every step.
+fn requirements(loaded: &LoadedScenario, timestep: f64) -> Result<Vec<(String, String)>, EpisodeError> {
+    let mut out = Vec::new();
+    for (i, r) in loaded.scenario.requirements.iter().enumerate() {
+        let key = format!("requirements[{i}].formula");
+        let formula = crate::stl::parse(&r.formula).map_err(|e| loaded.field_error(&key, e.to_string()))?;
+        formula
+            .check_step(timestep)
+            .map_err(|e| loaded.field_error(&key, e.to_string()))?;
+        out.push((r.name.clone(), r.formula.clone()));
+    }
+    Ok(out)
 }
 
 /// The largest delay of a queue over [0, duration]: a constant one itself, a time-varying one

@@ -194,6 +194,7 @@ mod tests {
             predicts: false,
             kinds: Vec::new(),
             goal: None,
+            requirements: Vec::new(),
             reference_path: None,
         }
     }

@@ -301,6 +301,9 @@ pub fn event_log(event: &proto::Event) -> foxglove::messages::Log {
     }
 }
 
+/// The run metadata key of a requirement's formula: `requirement.<name>`.
+pub const REQUIREMENT_METADATA_PREFIX: &str = "requirement.";
+
 /// Run-level facts stored once in the log's metadata.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunInfo {
@@ -330,6 +333,8 @@ pub struct RunInfo {
     pub kinds: Vec<KindInfo>,
     /// The scenario's `[goal]`: metadata `goal_position` ("x y"), `goal_radius`, `goal_by`.
     pub goal: Option<crate::scenario::GoalSpec>,
+    /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
+    pub requirements: Vec<(String, String)>,
     /// The nominal's straight reference path (point, heading): metadata `reference_path`
     /// ("x y heading").
     pub reference_path: Option<([f64; 2], f64)>,
@@ -387,6 +392,9 @@ impl RunInfo {
         }
         if let Some(([x, y], heading)) = self.reference_path {
             metadata.insert("reference_path".to_string(), format!("{x} {y} {heading}"));
+        }
+        for (name, formula) in &self.requirements {
+            metadata.insert(format!("{REQUIREMENT_METADATA_PREFIX}{name}"), formula.clone());
         }
         for k in &self.kinds {
             metadata.insert(format!("{}_kind", k.role), k.kind.clone());

@@ -242,7 +242,16 @@ pub static METRICS: &[Metric] = &[
         ..metric("at_prescribed_time", SECONDS, Shape::AtPrescribedTime, &[Topic::State], new::<AtPrescribedTime>,
             "the values at the prescribed time T")
     },
+    Metric {
+        metadata: &["timestep"],
+        applies: |run| !run.requirements.is_empty(),
+        ..metric(REQUIREMENTS, "signal units", Shape::PerBarrier, &[Topic::State], new::<super::requirements::RequirementsAccumulator>,
+            "per requirement (scenario `[[requirements]]`, `--require NAME=FORMULA`): the robustness ρ(φ, 0) of its STL formula over the run's signals, in the unit of the signals its atoms compare (docs/requirements.md); < 0: violated, > 0: satisfied; absent with its reason when a signal is unknown or has no value")
+    },
 ];
+
+/// The name of the requirements' metric (`req.<name>` columns).
+pub const REQUIREMENTS: &str = "req";
 
 /// `Some(min(current, x))`.
 fn lower(current: Option<f64>, x: f64) -> Option<f64> {

@@ -8,6 +8,7 @@
 
 pub mod builtin;
 pub mod report;
+pub mod requirements;
 mod value;
 
 use std::collections::BTreeMap;
@@ -15,36 +16,11 @@ use std::collections::BTreeMap;
 use serde::ser::SerializeMap;
 use serde::Serialize;
 
-use crate::log::{proto, read, Topic};
+use crate::log::{read, Topic};
 
 pub use value::{Cell, Collision, FlatMetrics, PredictionStats, PrescribedTimeMetrics, Value};
 
-/// A record a metric may read.
-#[derive(Debug, Clone, Copy)]
-pub enum Observed<'a> {
-    State(&'a proto::State),
-    Barrier(&'a proto::Barrier),
-    Filter(&'a proto::Filter),
-    Issued(&'a proto::IssuedCommand),
-    Prediction(&'a proto::Prediction),
-    Event(&'a proto::Event),
-    Actors(&'a proto::Actors),
-}
-
-impl Observed<'_> {
-    /// The topic the record is logged on.
-    pub fn topic(&self) -> Topic {
-        match self {
-            Observed::State(_) => Topic::State,
-            Observed::Barrier(_) => Topic::Barrier,
-            Observed::Filter(_) => Topic::Filter,
-            Observed::Issued(_) => Topic::Issued,
-            Observed::Prediction(_) => Topic::Prediction,
-            Observed::Event(_) => Topic::Event,
-            Observed::Actors(_) => Topic::Actors,
-        }
-    }
-}
+pub use crate::signals::Observed;
 
 /// What the run metadata says about the run, as the metrics need it.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -66,6 +42,9 @@ pub struct RunFacts {
     /// The nominal's straight reference path: a point and the heading ψ (metadata
     /// `reference_path`).
     pub reference_path: Option<([f64; 2], f64)>,
+    /// The requirements to evaluate, (name, formula): the run's (metadata
+    /// `requirement.<name>`), then those an analysis adds (`analyze --require`).
+    pub requirements: Vec<(String, String)>,
 }
 
 /// A goal as the run metadata records it: the disc of centre `position` and `radius` (m),
@@ -107,6 +86,7 @@ impl RunFacts {
                 .get("reference_path")
                 .and_then(|p| numbers::<3>(p))
                 .map(|[x, y, heading]| ([x, y], heading)),
+            requirements: requirements::from_metadata(metadata),
         }
     }
 
@@ -271,9 +251,30 @@ impl Accumulators {
         !self.readers[topic as usize].is_empty()
     }
 
-    /// The facts of the run metadata, for the records that follow.
-    pub fn set_facts(&mut self, facts: RunFacts) {
+    /// The facts of the run metadata, for the records that follow. With requirements, the
+    /// `req` metric reads every signal topic.
+    pub fn set_facts(&mut self, mut facts: RunFacts) {
+        // Requirements added to the analysis (`analyze --require`) after the run's own.
+        for (name, formula) in std::mem::take(&mut self.facts.requirements) {
+            facts.requirements.retain(|(n, _)| *n != name);
+            facts.requirements.push((name, formula));
+        }
+        if !facts.requirements.is_empty() {
+            let req = builtin::METRICS.iter().position(|m| m.name == builtin::REQUIREMENTS);
+            for (topic, req) in crate::signals::SIGNAL_TOPICS.iter().zip(std::iter::repeat(req)) {
+                let readers = &mut self.readers[*topic as usize];
+                if let Some(i) = req.filter(|i| !readers.contains(i)) {
+                    readers.push(i);
+                }
+            }
+        }
         self.facts = facts;
+    }
+
+    /// Adds requirements to evaluate besides the run's own (`analyze --require`): call it
+    /// before the run metadata is read.
+    pub fn add_requirements(&mut self, requirements: &[(String, String)]) {
+        self.facts.requirements.extend(requirements.iter().cloned());
     }
 
     /// Hands `record` to the metrics that read its topic.
@@ -481,6 +482,7 @@ pub fn reference_table() -> String {
         let keyed = |column: &str, key: &str| match m.shape {
             _ if column.is_empty() => String::new(),
             Shape::PerChannel | Shape::Prediction => format!("{column}.<channel>"),
+            Shape::PerBarrier if m.name == builtin::REQUIREMENTS => format!("{column}.<name>"),
             Shape::PerBarrier => format!("{column}.<barrier>"),
             Shape::AtPrescribedTime if key == "state_residuals" => format!("{column}.<i>"),
             _ => column.to_string(),

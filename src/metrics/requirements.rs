@@ -1,0 +1,297 @@
+//! Requirements: STL formulas ([`crate::stl`]) over the signals of a run, each reported as the
+//! metric `req.<name>`, its robustness ρ(φ, 0) (docs/requirements.md).
+//!
+//! The signals are the columns of the tables of `mjsafe export` ([`crate::signals::table_row`],
+//! the one definition of those columns), on the plant's step grid:
+//!
+//! - a sample per `/state` message, at its time t_k; every other table topic's latest message
+//!   at or before t_k gives its columns' values (per-tick signals such as `/filter` and
+//!   `/command/issued` are held between ticks, and the last state, which starts no step, holds
+//!   the per-step topics' values of the step before);
+//! - a name is a column of exactly one table (`speed`, `obstacle_0.h`, `steering.filtered`) or
+//!   a qualified `<topic>.<column>` (`/state/measured.speed`); a name found in several tables
+//!   (`time`, `step`, a state name with a sensor) is refused with its qualified spellings;
+//!   `/prediction` and `/event` are not signals;
+//! - booleans are 1 and 0, counts are numbers.
+//!
+//! A formula with bounded memory ([`crate::stl::Formula::online`]) is monitored as the records
+//! arrive (a fixed number of samples, allocation-free per step); the others keep their signals
+//! and are evaluated when the run ends. Both give the offline value of [`crate::stl::robustness`].
+
+use std::collections::BTreeMap;
+
+use crate::log::{Topic, REQUIREMENT_METADATA_PREFIX};
+use crate::metrics::{Accumulate, Observed, RunFacts, Value};
+use crate::signals::{is_signal_topic, resolve_name, table_row, Cell, Columns, Source};
+use crate::stl::{self, Formula};
+
+/// The requirements a run's metadata records (`requirement.<name>` = formula), by name.
+pub fn from_metadata(metadata: &BTreeMap<String, String>) -> Vec<(String, String)> {
+    metadata
+        .iter()
+        .filter_map(|(k, v)| Some((k.strip_prefix(REQUIREMENT_METADATA_PREFIX)?.to_string(), v.clone())))
+        .collect()
+}
+
+/// One requirement being evaluated.
+struct Tracked {
+    name: String,
+    formula: Formula,
+    /// Per signal of the formula, its slot in [`RequirementsAccumulator::values`].
+    slots: Vec<usize>,
+    /// The sample handed to the monitor (one value per signal of the formula).
+    sample: Vec<f64>,
+    how: How,
+    /// Why it has no value (set at the first problem).
+    absent: Option<String>,
+}
+
+/// How a requirement is evaluated.
+enum How {
+    Online(stl::Monitor),
+    /// Every sample of each signal, for the offline evaluation at the end.
+    Offline(Vec<Vec<f64>>),
+}
+
+/// The `req` metric's accumulator: the signals of every requirement of the run, sampled on the
+/// step grid, into each requirement's monitor.
+#[derive(Default)]
+pub struct RequirementsAccumulator {
+    started: bool,
+    tracked: Vec<Tracked>,
+    /// Distinct signal names of all requirements, and their current values.
+    names: Vec<String>,
+    values: Vec<f64>,
+    /// Per signal, where it comes from once resolved.
+    sources: Vec<Option<Source>>,
+    /// Per signal topic, its columns (from its first message).
+    columns: BTreeMap<Topic, Columns>,
+    /// Per signal topic, its latest row until the names are resolved (the first sample).
+    first_rows: BTreeMap<Topic, Vec<Cell>>,
+    resolved: bool,
+    /// The time of the sample being gathered, once a record was seen.
+    open: Option<f64>,
+    /// Whether the open sample has its `/state`.
+    has_state: bool,
+    samples: u64,
+    step: f64,
+    cells: Vec<Cell>,
+}
+
+impl RequirementsAccumulator {
+    /// Builds the monitors from the run's requirements (first record).
+    fn start(&mut self, run: &RunFacts) {
+        self.started = true;
+        self.step = run.timestep.unwrap_or(f64::NAN);
+        for (name, text) in &run.requirements {
+            let parsed = stl::parse(text).map_err(|e| format!("formula {text:?}: {e}"));
+            let formula = match parsed {
+                Ok(f) => f,
+                Err(reason) => {
+                    self.tracked.push(Tracked::absent(name, reason));
+                    continue;
+                }
+            };
+            let mut slots = Vec::new();
+            for signal in formula.signals() {
+                let slot = match self.names.iter().position(|n| n == signal) {
+                    Some(i) => i,
+                    None => {
+                        self.names.push(signal.clone());
+                        self.values.push(f64::NAN);
+                        self.sources.push(None);
+                        self.names.len() - 1
+                    }
+                };
+                slots.push(slot);
+            }
+            let how = if !self.step.is_finite() {
+                Err("no `timestep` in the run metadata".to_string())
+            } else if let Err(e) = formula.check_step(self.step) {
+                Err(e.to_string())
+            } else if formula.online() {
+                stl::Monitor::new(&formula, self.step)
+                    .map(How::Online)
+                    .map_err(|e| e.to_string())
+            } else {
+                Ok(How::Offline(vec![Vec::new(); slots.len()]))
+            };
+            let (how, absent) = match how {
+                Ok(how) => (how, None),
+                Err(reason) => (How::Offline(Vec::new()), Some(reason)),
+            };
+            self.tracked.push(Tracked {
+                name: name.clone(),
+                sample: vec![f64::NAN; slots.len()],
+                slots,
+                formula,
+                how,
+                absent,
+            });
+        }
+    }
+
+    /// Resolves every signal name to its table cell, from the columns seen (at the first
+    /// sample's end: every signal topic has logged at t = 0 by then).
+    fn resolve(&mut self) {
+        self.resolved = true;
+        let rows = std::mem::take(&mut self.first_rows);
+        for (i, name) in self.names.iter().enumerate() {
+            match resolve_name(name, &self.columns) {
+                Ok(source) => {
+                    self.values[i] = rows
+                        .get(&source.topic)
+                        .map_or(f64::NAN, |row| number(row.get(source.cell)));
+                    self.sources[i] = Some(source);
+                }
+                Err(reason) => {
+                    for t in self.tracked.iter_mut().filter(|t| t.slots.contains(&i)) {
+                        t.absent.get_or_insert_with(|| reason.clone());
+                    }
+                }
+            }
+        }
+    }
+
+    /// Hands the open sample (the values as of its time) to every requirement.
+    fn push_sample(&mut self) {
+        if !self.resolved {
+            self.resolve();
+        }
+        let time = self.samples as f64 * self.step;
+        for t in self.tracked.iter_mut().filter(|t| t.absent.is_none()) {
+            for (value, &slot) in t.sample.iter_mut().zip(&t.slots) {
+                *value = self.values[slot];
+            }
+            if let Some(k) = t.sample.iter().position(|v| v.is_nan()) {
+                t.absent = Some(format!(
+                    "signal `{}` has no value at t = {time} s",
+                    t.formula.signals()[k]
+                ));
+                continue;
+            }
+            match &mut t.how {
+                How::Online(monitor) => monitor.push(&t.sample),
+                How::Offline(signals) => {
+                    for (signal, v) in signals.iter_mut().zip(&t.sample) {
+                        signal.push(*v);
+                    }
+                }
+            }
+        }
+        self.samples += 1;
+    }
+
+    /// Updates the current values from a record of a signal topic.
+    fn update(&mut self, record: Observed<'_>) {
+        let topic = record.topic();
+        if !self.columns.contains_key(&topic) {
+            let mut columns = Vec::new();
+            table_row(record, None, &mut self.cells, Some(&mut columns));
+            self.columns.insert(topic, columns);
+        } else {
+            table_row(record, None, &mut self.cells, None);
+        }
+        if !self.resolved {
+            self.first_rows.insert(topic, self.cells.clone());
+            return;
+        }
+        for (value, source) in self.values.iter_mut().zip(&self.sources) {
+            if let Some(source) = source.as_ref().filter(|s| s.topic == topic) {
+                *value = number(self.cells.get(source.cell));
+            }
+        }
+    }
+}
+
+/// A cell as a signal's value: booleans 1 and 0, counts as numbers (text: none).
+fn number(cell: Option<&Cell>) -> f64 {
+    match cell {
+        Some(Cell::F(x)) => *x,
+        Some(Cell::U(n)) => *n as f64,
+        Some(Cell::B(b)) => f64::from(u8::from(*b)),
+        Some(Cell::S(_)) | None => f64::NAN,
+    }
+}
+
+impl Tracked {
+    fn absent(name: &str, reason: String) -> Tracked {
+        Tracked {
+            name: name.to_string(),
+            formula: stl::parse("true").expect("`true` parses"),
+            slots: Vec::new(),
+            sample: Vec::new(),
+            how: How::Offline(Vec::new()),
+            absent: Some(reason),
+        }
+    }
+}
+
+impl Accumulate for RequirementsAccumulator {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        if !self.started {
+            self.start(run);
+        }
+        if self.tracked.is_empty() || !is_signal_topic(record.topic()) {
+            return;
+        }
+        let time = record.time();
+        // Records come in log-time order: a later time closes the sample being gathered.
+        if let Some(open) = self.open {
+            if time > open + 1e-6 * self.step && self.has_state {
+                self.push_sample();
+                self.has_state = false;
+            }
+        }
+        self.open = Some(time);
+        self.has_state |= record.topic() == Topic::State;
+        self.update(record);
+    }
+
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if !self.started {
+            self.start(run);
+        }
+        if self.has_state {
+            self.push_sample();
+            self.has_state = false;
+        }
+        let mut values = BTreeMap::new();
+        for t in &mut self.tracked {
+            let value = match (&t.absent, &mut t.how) {
+                (Some(_), _) => None,
+                (None, How::Online(monitor)) => Some(monitor.finish()),
+                (None, How::Offline(signals)) => {
+                    let views: Vec<&[f64]> = signals.iter().map(Vec::as_slice).collect();
+                    match stl::robustness(&t.formula, &views, self.step) {
+                        Ok(v) => Some(v),
+                        Err(e) => {
+                            t.absent = Some(e.to_string());
+                            None
+                        }
+                    }
+                }
+            };
+            match value {
+                Some(v) if !v.is_nan() => {
+                    values.insert(t.name.clone(), v);
+                }
+                Some(_) => {
+                    missing.insert(format!("req.{}", t.name), "a signal is NaN in the run".into());
+                }
+                None => {
+                    let reason = t.absent.clone().unwrap_or_else(|| "no samples".into());
+                    missing.insert(format!("req.{}", t.name), reason);
+                }
+            }
+        }
+        if self.samples == 0 && !self.tracked.is_empty() {
+            for t in &self.tracked {
+                missing
+                    .entry(format!("req.{}", t.name))
+                    .or_insert_with(|| "no /state message in the log".into());
+            }
+        }
+        Value::PerChannel((!values.is_empty()).then_some(values))
+    }
+}
