@@ -161,3 +161,18 @@ def test_falsify_minimises_a_requirements_robustness(tmp_path):
     assert found.counterexamples, found.evaluations
     own = mjsafe.read_log(found.log).metrics["req"]["clear"]
     assert own < 0 and own == pytest.approx(found.reproduced)
+
+
+def test_sweep_reports_each_requirement_as_a_column():
+    summary = mjsafe.sweep(
+        GAMMA_M,
+        grid={"delays.steering": [0.2, 0.6]},
+        set={"duration": 6.0},
+        require={"clear": "always obstacle_0.h >= 0"},
+    )
+    assert list(summary["delays.steering"]) == [0.2, 0.6]
+    # Each row's req.clear is the robustness of that run alone.
+    for steering, value in zip(summary["delays.steering"], summary["req.clear"]):
+        alone = mjsafe.run(GAMMA_M, set={"duration": 6.0, "delays.steering": steering}, require={"clear": "always obstacle_0.h >= 0"})
+        assert value == alone.metrics["req"]["clear"]
+        assert value == pytest.approx(alone.metrics["min_h"], abs=1e-12)  # always h >= 0 is min h
