@@ -295,3 +295,108 @@ impl Accumulate for RequirementsAccumulator {
         Value::PerChannel((!values.is_empty()).then_some(values))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::proto;
+    use crate::mujoco::counting_alloc::{allocations, count_allocations};
+
+    /// A run of `n` steps of h = 0.1 s: x1 = k h, a barrier h = 1 − x1, the filter active
+    /// from x1 ≥ 0.5 (ticks every other step, held between them).
+    fn feed(acc: &mut RequirementsAccumulator, facts: &RunFacts, n: u64, counted_from: u64) -> u64 {
+        let mut state = proto::State {
+            names: vec!["x1".into()],
+            values: vec![0.0],
+            ..Default::default()
+        };
+        let mut barrier = proto::Barrier {
+            barriers: vec![proto::BarrierValue {
+                name: "wall".into(),
+                ..Default::default()
+            }],
+            ..Default::default()
+        };
+        let mut filter = proto::Filter {
+            channels: vec!["u".into()],
+            correction: vec![0.0],
+            ..Default::default()
+        };
+        let mut counted = 0;
+        for k in 0..n {
+            if k == counted_from {
+                allocations(true);
+                count_allocations(true);
+            }
+            let t = k as f64 * 0.1;
+            (state.time, state.step, state.values[0]) = (t, k, t);
+            acc.observe(Observed::State(&state), facts);
+            if k + 1 == n {
+                break;
+            }
+            if k % 2 == 0 {
+                (filter.time, filter.active) = (t, t >= 0.5);
+                acc.observe(Observed::Filter(&filter), facts);
+            }
+            (barrier.time, barrier.barriers[0].h) = (t, 1.0 - t);
+            acc.observe(Observed::Barrier(&barrier), facts);
+        }
+        if counted_from < n {
+            count_allocations(false);
+            counted = allocations(true);
+        }
+        counted
+    }
+
+    fn facts(requirements: &[(&str, &str)]) -> RunFacts {
+        RunFacts {
+            timestep: Some(0.1),
+            requirements: requirements
+                .iter()
+                .map(|(n, f)| (n.to_string(), f.to_string()))
+                .collect(),
+            ..RunFacts::default()
+        }
+    }
+
+    #[test]
+    fn signals_are_sampled_on_the_state_grid_held_between_ticks() {
+        // 11 samples, t = 0 … 1.0 s. always wall.h >= 0: min over samples of 1 − x1, where the
+        // last state (t = 1) holds the barrier of t = 0.9: 0.1. eventually active: held from
+        // the tick at 0.6 (the first at or after 0.5).
+        let facts = facts(&[
+            ("wall", "always wall.h >= 0"),
+            ("active", "eventually[0, 0.5] active > 0.5"),
+            ("late", "eventually active > 0.5"),
+            ("x", "always x1 <= 1"),
+        ]);
+        let mut acc = RequirementsAccumulator::default();
+        feed(&mut acc, &facts, 11, u64::MAX);
+        let mut missing = BTreeMap::new();
+        let Value::PerChannel(Some(values)) = acc.value(&facts, &mut missing) else {
+            panic!("no values: {missing:?}")
+        };
+        assert!(missing.is_empty(), "{missing:?}");
+        assert!((values["wall"] - 0.1).abs() < 1e-12, "{values:?}");
+        assert_eq!(values["active"], -0.5, "inactive over [0, 0.5]");
+        assert_eq!(values["late"], 0.5);
+        assert!((values["x"] - 0.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn monitoring_a_step_does_not_allocate() {
+        // After the first samples (names resolved, buffers grown), a step costs no allocation.
+        let facts = facts(&[
+            ("wall", "always (wall.h >= 0 or eventually[0, 2] active > 0.5)"),
+            ("past", "always (x1 > 3 implies once[0, 1] active > 0.5)"),
+        ]);
+        let mut acc = RequirementsAccumulator::default();
+        let counted = feed(&mut acc, &facts, 400, 50);
+        assert_eq!(counted, 0, "allocations while monitoring");
+        let mut missing = BTreeMap::new();
+        assert!(
+            matches!(acc.value(&facts, &mut missing), Value::PerChannel(Some(_))),
+            "{missing:?}"
+        );
+    }
+}
