@@ -556,20 +556,20 @@ impl Episode {
     /// Sets the input of a nominal commanded from outside (`nominal.kind = "external"`), used
     /// from the next control tick on; an error names what was expected.
     pub fn set_external_input(&mut self, input: &[f64]) -> Result<(), String> {
-        let channels = self.control.model().channel_names().join(", ");
+        // The channel names only for an error: a learning loop sets the input at every tick.
+        let channels = |model: &dyn crate::dynamics::Dynamics| model.channel_names().join(", ");
+        let expected = self.control.model().input_dim();
+        if input.len() != expected {
+            let names = channels(self.control.model().as_ref());
+            return Err(format!("expected {expected} values ({names}), found {}", input.len()));
+        }
+        if let Some(v) = input.iter().find(|v| !v.is_finite()) {
+            let names = channels(self.control.model().as_ref());
+            return Err(format!("expected finite numbers ({names}), found {v}"));
+        }
         let Some(held) = self.control.nominal_mut().external_input_mut() else {
             return Err("the scenario's nominal is not `external`: its nominal computes its own input".into());
         };
-        if input.len() != held.len() {
-            return Err(format!(
-                "expected {} values ({channels}), found {}",
-                held.len(),
-                input.len()
-            ));
-        }
-        if let Some(v) = input.iter().find(|v| !v.is_finite()) {
-            return Err(format!("expected finite numbers ({channels}), found {v}"));
-        }
         held.copy_from_slice(input);
         Ok(())
     }

@@ -259,12 +259,12 @@ impl Accumulators {
             facts.requirements.retain(|(n, _)| *n != name);
             facts.requirements.push((name, formula));
         }
-        if !facts.requirements.is_empty() {
-            let req = builtin::METRICS.iter().position(|m| m.name == builtin::REQUIREMENTS);
-            for (topic, req) in crate::signals::SIGNAL_TOPICS.iter().zip(std::iter::repeat(req)) {
-                let readers = &mut self.readers[*topic as usize];
-                if let Some(i) = req.filter(|i| !readers.contains(i)) {
-                    readers.push(i);
+        let req = builtin::METRICS.iter().position(|m| m.name == builtin::REQUIREMENTS);
+        if let Some(req) = req.filter(|_| !facts.requirements.is_empty()) {
+            for topic in crate::signals::SIGNAL_TOPICS {
+                let readers = &mut self.readers[topic as usize];
+                if !readers.contains(&req) {
+                    readers.push(req);
                 }
             }
         }

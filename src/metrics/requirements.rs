@@ -59,6 +59,8 @@ enum How {
 pub struct RequirementsAccumulator {
     started: bool,
     tracked: Vec<Tracked>,
+    /// Requirements whose formula does not parse (a log written by another version), with why.
+    unparsed: Vec<(String, String)>,
     /// Distinct signal names of all requirements, and their current values.
     names: Vec<String>,
     values: Vec<f64>,
@@ -88,7 +90,7 @@ impl RequirementsAccumulator {
             let formula = match parsed {
                 Ok(f) => f,
                 Err(reason) => {
-                    self.tracked.push(Tracked::absent(name, reason));
+                    self.unparsed.push((name.clone(), reason));
                     continue;
                 }
             };
@@ -214,19 +216,6 @@ fn number(cell: Option<&Cell>) -> f64 {
     }
 }
 
-impl Tracked {
-    fn absent(name: &str, reason: String) -> Tracked {
-        Tracked {
-            name: name.to_string(),
-            formula: stl::parse("true").expect("`true` parses"),
-            slots: Vec::new(),
-            sample: Vec::new(),
-            how: How::Offline(Vec::new()),
-            absent: Some(reason),
-        }
-    }
-}
-
 impl Accumulate for RequirementsAccumulator {
     fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
         if !self.started {
@@ -284,6 +273,9 @@ impl Accumulate for RequirementsAccumulator {
                     missing.insert(format!("req.{}", t.name), reason);
                 }
             }
+        }
+        for (name, reason) in &self.unparsed {
+            missing.insert(format!("req.{name}"), reason.clone());
         }
         if self.samples == 0 && !self.tracked.is_empty() {
             for t in &self.tracked {
