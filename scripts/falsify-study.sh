@@ -59,3 +59,10 @@ problem gamma_m_jitter 120 "${box[@]}" \
   --range actuation.steering.extra_latency.max=0..0.1 --range actuation.acceleration.extra_latency.max=0..0.1 \
   --range seed=0..1000:1 \
   --baseline actuation.steering.extra_latency.max=0.0 --baseline actuation.acceleration.extra_latency.max=0.0
+# 5. Problem 1 with the start x over [-50, -10]: qualified failures are rare (about 1 % of
+#    uniform draws: the delayed filter fails while the delay-free baseline stays clear only in a
+#    slab of start x about 1 m wide, near -18.6). Budget 600.
+problem gamma_m_rare 600 --range vehicle.initial_state.0=-50..-10 --range obstacles.0.centre.1=-3..3 \
+  --range delays.acceleration=0.5..2.0:0.1 \
+  --baseline delays.steering=0.0 --baseline delays.acceleration=0.0 \
+  --baseline 'filter={kind="cbf_qp", l0=4.0, l1=4.0}'
