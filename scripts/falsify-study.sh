@@ -1,32 +1,28 @@
 #!/usr/bin/env bash
-# Runs-to-first-violation of `mjsafe falsify` (CMA-ES) against random search with the same
-# budget, over seeds 1..10, on three problems (docs/falsification.md). Prints a Markdown table.
-#   scripts/falsify-study.sh [MJSAFE_BINARY] [OUT_DIR]     (SEEDS="1 2", ONLY=<problem> to narrow)
+# Runs to the first violation of `mjsafe falsify`'s methods (guided search, CMA-ES, random
+# search) with the same budget, over seeds 1..10, on five problems (docs/falsification.md).
+# Prints a Markdown table.
+#   scripts/falsify-study.sh [MJSAFE_BINARY] [OUT_DIR]
+#   (SEEDS="1 2", ONLY=<problem>, METHODS="guided random" to narrow; VERBOSE=1: per-seed counts)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mjsafe="${1:-target/release/mjsafe}"
 out="${2:-logs/falsify-study}"
 seeds="${SEEDS:-1 2 3 4 5 6 7 8 9 10}"
 box=(--range vehicle.initial_state.0=-26..-16 --range obstacles.0.centre.1=-3..3)
+methods="${METHODS:-guided cmaes random}"
 problem() { # name budget args…
   local name=$1 budget=$2; shift 2
   if [ -n "${ONLY:-}" ] && [ "$ONLY" != "$name" ]; then return; fi
-  for seed in $seeds; do
-    "$mjsafe" falsify scenarios/bicycle_obstacle_gamma_m.toml "$@" --budget "$budget" --seed "$seed" \
-      --compare-random --out "$out/$name-$seed" >/dev/null 2>&1 || true
+  for method in $methods; do
+    for seed in $seeds; do
+      "$mjsafe" falsify scenarios/bicycle_obstacle_gamma_m.toml "$@" --budget "$budget" --seed "$seed" \
+        --method "$method" --out "$out/$name-$method-$seed" >/dev/null 2>&1 || true
+    done
   done
-  python3 - "$out" "$name" "$budget" $seeds <<'PY'
+  python3 - "$out" "$name" "$budget" "$methods" $seeds <<'PY'
 import json, statistics, sys
-out, name, budget, seeds = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4:]
-found = {"cmaes": [], "random": []}
-for seed in seeds:
-    try:
-        d = json.load(open(f"{out}/{name}-{seed}/evaluations.json"))
-    except OSError:
-        continue
-    for s in d["searches"]:
-        n = s["runs_to_first_violation"]
-        found[s["method"]].append(n if n is not None else float("inf"))
+out, name, budget, methods, seeds = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4].split(), sys.argv[5:]
 def show(v):
     if not v:
         return "–"
@@ -34,11 +30,33 @@ def show(v):
     misses = sum(1 for x in v if x == float("inf"))
     text = f"> {budget}" if m == float("inf") else f"{m:g}"
     return f"{text} ({len(v) - misses}/{len(v)} found)"
-print(f"| {name} | {budget} | {show(found['cmaes'])} | {show(found['random'])} |")
+cells = []
+for method in methods:
+    found = []
+    for seed in seeds:
+        try:
+            d = json.load(open(f"{out}/{name}-{method}-{seed}/evaluations.json"))
+        except OSError:
+            continue
+        n = d["searches"][0]["runs_to_first_violation"]
+        found.append(n if n is not None else float("inf"))
+    if "VERBOSE" in __import__("os").environ:
+        print(name, method, found, file=sys.stderr)
+    cells.append(show(found))
+print(f"| {name} | {budget} | " + " | ".join(cells) + " |")
 PY
 }
-echo "| problem | budget | CMA-ES median runs to first violation | random search |"
-echo "|---|---|---|---|"
+header="| problem | budget |"; rule="|---|---|"
+for method in $methods; do
+  case $method in
+    guided) header+=" guided search: median runs to first violation |";;
+    cmaes) header+=" CMA-ES |";;
+    random) header+=" random search |";;
+  esac
+  rule+="---|"
+done
+echo "$header"
+echo "$rule"
 # 1. (4.67) over start x, obstacle offset and acceleration delay; only the filter's own failures
 #    count: the delay-free CBF-QP without delays must stay clear of the same candidate.
 problem gamma_m_baseline 120 "${box[@]}" --range delays.acceleration=0.5..2.0:0.1 \

@@ -25,6 +25,8 @@ use crate::analyze::{Cell, FlatMetrics};
 use crate::random::SplitMix64;
 use crate::sweep::{self, Range, Run};
 
+pub mod guided;
+
 #[derive(Debug, thiserror::Error)]
 pub enum FalsifyError {
     #[error("--objective {name}: {message}")]
@@ -44,9 +46,13 @@ pub enum FalsifyError {
 }
 
 /// How candidates are chosen.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
+    /// A first generation spread over the box, bisection of the boundary between candidates
+    /// that hold and candidates whose baseline fails too, and CMA-ES; seeds are noise
+    /// ([`guided`]).
+    Guided,
     /// CMA-ES on the box mapped to [0, 1]^d (reflected at the bounds), restarted with a doubled
     /// population (IPOP) when it converges before the budget is spent.
     Cmaes,
@@ -57,6 +63,7 @@ pub enum Method {
 impl Method {
     pub fn name(self) -> &'static str {
         match self {
+            Method::Guided => "guided search",
             Method::Cmaes => "CMA-ES",
             Method::Random => "random search",
         }
@@ -86,6 +93,8 @@ pub struct Problem {
     pub worst: bool,
     /// What the baseline must do besides staying safe.
     pub baseline_progress: BaselineProgress,
+    /// How candidates are chosen.
+    pub method: Method,
 }
 
 /// What `mjsafe falsify` is given (its flags, as the command line spells them), before the
@@ -110,6 +119,8 @@ pub struct Request {
     pub baseline: Vec<String>,
     pub baseline_no_stall: bool,
     pub baseline_reaches_goal: bool,
+    /// `--method`.
+    pub method: Method,
 }
 
 impl Request {
@@ -130,6 +141,7 @@ impl Request {
             baseline,
             baseline_no_stall,
             baseline_reaches_goal,
+            method,
         } = self;
         let spec = |message: String| FalsifyError::Spec(message);
         let ranges = ranges
@@ -212,6 +224,7 @@ impl Request {
                 no_stall: baseline_no_stall,
                 reach_goal: baseline_reaches_goal,
             },
+            method,
         };
         Ok((problem, base.scenario.name))
     }
@@ -607,6 +620,7 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
         interrupted: false,
     };
     let result = match method {
+        Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
     };
@@ -1068,8 +1082,8 @@ pub fn falsify(
     // the way.
     let outputs = Outputs::in_dir(dir);
     outputs.check(problem)?;
-    let mut searches = vec![search(problem, Method::Cmaes, &mut progress)?];
-    if compare_random && !searches[0].interrupted {
+    let mut searches = vec![search(problem, problem.method, &mut progress)?];
+    if compare_random && problem.method != Method::Random && !searches[0].interrupted {
         searches.push(search(problem, Method::Random, &mut progress)?);
     }
     let refs: Vec<&Search> = searches.iter().collect();

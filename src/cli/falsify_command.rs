@@ -57,6 +57,11 @@ pub struct FalsifyArgs {
     /// (`distance_to_goal` = 0).
     #[arg(long)]
     pub baseline_reaches_goal: bool,
+    /// How candidates are chosen: guided (a spread first generation, bisection of the boundary
+    /// where the baseline starts to fail, CMA-ES; seeds as noise), cmaes (CMA-ES from the box's
+    /// centre) or random (uniform draws).
+    #[arg(long, value_enum, default_value_t = falsify::Method::Guided)]
+    pub method: falsify::Method,
     /// Also run random search with the same budget and seed, and compare runs to the first
     /// violation.
     #[arg(long)]
@@ -116,6 +121,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         baseline,
         baseline_no_stall,
         baseline_reaches_goal,
+        method,
         compare_random,
         out,
     } = args;
@@ -136,6 +142,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         baseline,
         baseline_no_stall,
         baseline_reaches_goal,
+        method,
     }
     .problem()?;
     let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{name}")));
