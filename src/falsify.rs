@@ -61,6 +61,17 @@ pub enum Method {
 }
 
 impl Method {
+    /// The method `--method` names (guided, cmaes, random).
+    pub fn from_flag(flag: &str) -> Option<Method> {
+        match flag {
+            "guided" => Some(Method::Guided),
+            "cmaes" => Some(Method::Cmaes),
+            "random" => Some(Method::Random),
+            _ => None,
+        }
+    }
+
+    /// Its name for people.
     pub fn name(self) -> &'static str {
         match self {
             Method::Guided => "guided search",
@@ -95,6 +106,8 @@ pub struct Problem {
     pub baseline_progress: BaselineProgress,
     /// How candidates are chosen.
     pub method: Method,
+    /// How many distinct failure modes to find (1: the first violation, or the worst).
+    pub counterexamples: usize,
 }
 
 /// What `mjsafe falsify` is given (its flags, as the command line spells them), before the
@@ -121,6 +134,8 @@ pub struct Request {
     pub baseline_reaches_goal: bool,
     /// `--method`.
     pub method: Method,
+    /// `--counterexamples K`.
+    pub counterexamples: usize,
 }
 
 impl Request {
@@ -142,6 +157,7 @@ impl Request {
             baseline_no_stall,
             baseline_reaches_goal,
             method,
+            counterexamples,
         } = self;
         let spec = |message: String| FalsifyError::Spec(message);
         let ranges = ranges
@@ -165,6 +181,11 @@ impl Request {
             )));
         }
         let threads = sweep::threads(threads)?;
+        if !(1..=MAX_COUNTEREXAMPLES).contains(&counterexamples) {
+            return Err(spec(format!(
+                "--counterexamples: expected 1 to {MAX_COUNTEREXAMPLES} failure modes, found {counterexamples}"
+            )));
+        }
         // The scenario and every override are checked once before the search starts.
         let base = crate::scenario::load(&scenario, &set)?;
         for (given, flag) in [
@@ -225,6 +246,7 @@ impl Request {
                 reach_goal: baseline_reaches_goal,
             },
             method,
+            counterexamples,
         };
         Ok((problem, base.scenario.name))
     }
@@ -317,6 +339,49 @@ pub struct Evaluation {
     pub severity: Severity,
     /// Why the objective is absent (run failed, metric not in the log, …).
     pub error: Option<String>,
+    /// How the candidate's run fails: what it first collided with, else the barrier of its
+    /// lowest h (`min_h_by_barrier`); absent without a barrier.
+    pub failure_mode: Option<String>,
+    /// The candidate's point in the box, each range mapped to [0, 1].
+    #[serde(skip)]
+    pub point: Vec<f64>,
+}
+
+/// Most failure modes `--counterexamples` may ask for.
+pub const MAX_COUNTEREXAMPLES: usize = 100;
+
+/// Two violations are distinct failure modes when they fail differently (their
+/// [`Evaluation::failure_mode`]) or lie this far apart in some coordinate of the box (a
+/// quarter of its range).
+pub const MODE_SEPARATION: f64 = 0.25;
+
+impl Evaluation {
+    /// The largest difference of a coordinate between two candidates, in box units.
+    pub fn box_distance(&self, other: &Evaluation) -> f64 {
+        self.point
+            .iter()
+            .zip(&other.point)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Whether two violations are distinct failure modes ([`MODE_SEPARATION`]).
+    pub fn distinct_from(&self, other: &Evaluation) -> bool {
+        self.failure_mode != other.failure_mode || self.box_distance(other) >= MODE_SEPARATION
+    }
+}
+
+/// How a run fails: the object of its first collision, else the barrier of its lowest h.
+fn failure_mode(metrics: &FlatMetrics) -> Option<String> {
+    if let Cell::Text(Some(with)) = metrics.cell("collision_with") {
+        return Some(format!("collision with {with}"));
+    }
+    FlatMetrics::columns([metrics])
+        .iter()
+        .filter_map(|c| c.strip_prefix("min_h_by_barrier.").map(|b| (b, metrics.number(c))))
+        .filter_map(|(b, h)| h.map(|h| (b, h)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(barrier, _)| format!("lowest h: {barrier}"))
 }
 
 /// The severity of a run: its lowest barrier value and its first collision, if any.
@@ -381,6 +446,31 @@ impl Search {
             let objective = |e: &Evaluation| e.objective.unwrap_or(f64::INFINITY);
             objective(a).total_cmp(&objective(b))
         })
+    }
+
+    /// Up to `k` distinct failure modes ([`Evaluation::distinct_from`]): the violations taken
+    /// in search order (with `worst`: most severe first), each kept when it is distinct from
+    /// every one kept before it. The first is [`Search::first_violation`] (with `worst`:
+    /// [`Search::worst_violation`]).
+    pub fn failure_modes(&self, k: usize, worst: bool) -> Vec<&Evaluation> {
+        let mut violations: Vec<&Evaluation> = self.evaluations.iter().filter(|e| e.violation).collect();
+        if worst {
+            // Stable: among equal objectives the earlier one first, as worst_violation does.
+            violations.sort_by(|a, b| {
+                let objective = |e: &Evaluation| e.objective.unwrap_or(f64::INFINITY);
+                objective(a).total_cmp(&objective(b))
+            });
+        }
+        let mut modes: Vec<&Evaluation> = Vec::new();
+        for v in violations {
+            if modes.len() == k {
+                break;
+            }
+            if modes.iter().all(|m| v.distinct_from(m)) {
+                modes.push(v);
+            }
+        }
+        modes
     }
 
     /// The candidate with the lowest score among those with an objective.
@@ -517,10 +607,13 @@ impl Evaluator<'_> {
             violation: false,
             severity: Severity::default(),
             error: None,
+            failure_mode: None,
+            point: unit.to_vec(),
         };
         let objective = match self.metric(candidate.clone()) {
-            Ok((v, severity, _)) => {
+            Ok((v, severity, metrics)) => {
                 evaluation.severity = severity;
+                evaluation.failure_mode = failure_mode(&metrics);
                 v
             }
             Err(e) => {
@@ -561,9 +654,12 @@ impl Evaluator<'_> {
     }
 }
 
-/// Order of a generation's evaluations: by their parameters' unit coordinates (not by which
-/// thread finished first).
-fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)]) {
+/// Order of a generation's evaluations: a parallel batch has none of its own, so they are
+/// sorted by their unit coordinates (not by which thread finished first) and then put in a
+/// random order seeded by the search's seed and the generation. Sorted alone, the count of
+/// runs to the first violation favoured problems whose violations lie at low values of the
+/// first range (gamma_m_underestimate: run 1 for every seed).
+fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)], seed: u64, generation: usize) {
     batch.sort_by(|(a, _), (b, _)| {
         a.iter()
             .zip(b)
@@ -571,6 +667,10 @@ fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)]) {
             .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal)
     });
+    let mut generator = SplitMix64(seed ^ 0x0D0E_5EED ^ (generation as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    for k in (1..batch.len()).rev() {
+        batch.swap(k, generator.below(k + 1));
+    }
 }
 
 /// Runs one search. `progress` is called after every generation with the search so far.
@@ -634,17 +734,22 @@ fn done(problem: &Problem, found: &mut Search) -> bool {
         found.interrupted = true;
         return true;
     }
-    found.evaluations.len() >= problem.budget || (!problem.worst && found.first_violation().is_some())
+    found.evaluations.len() >= problem.budget
+        || (!problem.worst && found.failure_modes(problem.counterexamples, false).len() >= problem.counterexamples)
 }
 
-/// Appends a generation's evaluations in canonical order.
-fn append(found: &mut Search, generation: usize, mut batch: Vec<(Vec<f64>, Evaluation)>) {
-    canonical_order(&mut batch);
-    for (_, mut e) in batch {
+/// Appends a generation's evaluations in canonical order; returns their unit points in that
+/// order.
+fn append(found: &mut Search, seed: u64, generation: usize, mut batch: Vec<(Vec<f64>, Evaluation)>) -> Vec<Vec<f64>> {
+    canonical_order(&mut batch, seed, generation);
+    let mut units = Vec::with_capacity(batch.len());
+    for (unit, mut e) in batch {
         e.index = found.evaluations.len();
         e.generation = generation;
         found.evaluations.push(e);
+        units.push(unit);
     }
+    units
 }
 
 fn run_random(
@@ -673,7 +778,7 @@ fn run_random(
                 })
                 .collect()
         });
-        append(found, generation, batch);
+        append(found, problem.seed, generation, batch);
         generation += 1;
         progress(found);
     }
@@ -723,7 +828,7 @@ fn run_cmaes(
         loop {
             let terminated = pool.install(|| optimiser.next_parallel());
             let evaluated = std::mem::take(&mut *batch.lock().unwrap_or_else(|p| p.into_inner()));
-            append(found, generation, evaluated);
+            append(found, problem.seed, generation, evaluated);
             generation += 1;
             progress(found);
             if done(problem, found) || terminated.is_some() {
@@ -801,6 +906,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                 "candidate_min_h",
                 "candidate_collision_time",
                 "candidate_collision_depth",
+                "failure_mode",
                 "error",
             ]
             .iter()
@@ -832,6 +938,7 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
                     number(e.severity.min_h),
                     number(e.severity.collision_time),
                     number(e.severity.collision_depth),
+                    e.failure_mode.clone().unwrap_or_default(),
                     e.error.clone().unwrap_or_default(),
                 ])
                 .collect(),
@@ -869,6 +976,70 @@ pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn violation(index: usize, point: [f64; 2], objective: f64, mode: &str) -> Evaluation {
+        Evaluation {
+            index,
+            generation: 0,
+            parameters: Vec::new(),
+            objective: Some(objective),
+            baseline: None,
+            score: objective,
+            qualified: true,
+            baseline_progress: None,
+            violation: objective < 0.0,
+            severity: Severity::default(),
+            error: None,
+            failure_mode: Some(mode.into()),
+            point: point.to_vec(),
+        }
+    }
+
+    #[test]
+    fn failure_modes_are_violations_a_quarter_of_a_range_apart_or_failing_differently() {
+        let evaluations = vec![
+            violation(0, [0.50, 0.50], -0.1, "collision with a"),
+            violation(1, [0.60, 0.40], -0.9, "collision with a"), // within 0.25 of #0
+            violation(2, [0.50, 0.80], -0.2, "collision with a"), // 0.30 from #0 in y
+            violation(3, [0.55, 0.55], 0.4, "collision with a"),  // not a violation
+            violation(4, [0.52, 0.48], -0.3, "collision with b"), // fails differently
+        ];
+        let search = Search {
+            method: Method::Guided,
+            evaluations,
+            interrupted: false,
+        };
+        let indices = |modes: Vec<&Evaluation>| modes.iter().map(|e| e.index).collect::<Vec<_>>();
+        assert_eq!(indices(search.failure_modes(10, false)), [0, 2, 4]);
+        assert_eq!(indices(search.failure_modes(2, false)), [0, 2]);
+        // Most severe first: #1 (−0.9), then #4 (another object), then #2 (0.4 from #1 in y).
+        assert_eq!(indices(search.failure_modes(10, true)), [1, 4, 2]);
+        assert_eq!(
+            search.failure_modes(1, true)[0].index,
+            search.worst_violation().unwrap().index
+        );
+    }
+
+    #[test]
+    fn a_generations_order_depends_on_its_points_and_seed_not_on_completion() {
+        let batch = |order: &[usize]| -> Vec<(Vec<f64>, Evaluation)> {
+            order
+                .iter()
+                .map(|&i| (vec![i as f64 / 10.0], violation(i, [0.0, 0.0], 1.0, "")))
+                .collect()
+        };
+        let ordered = |mut b: Vec<(Vec<f64>, Evaluation)>, seed| {
+            canonical_order(&mut b, seed, 3);
+            b.iter().map(|(_, e)| e.index).collect::<Vec<_>>()
+        };
+        let a = ordered(batch(&[0, 1, 2, 3, 4, 5, 6, 7]), 1);
+        assert_eq!(a, ordered(batch(&[7, 3, 5, 1, 0, 2, 6, 4]), 1));
+        let mut sorted = a.clone();
+        sorted.sort();
+        assert_eq!(sorted, (0..8).collect::<Vec<_>>());
+        assert_ne!(a, sorted, "a random order, not the coordinates' (seed 1)");
+        assert_ne!(a, ordered(batch(&[0, 1, 2, 3, 4, 5, 6, 7]), 2));
+    }
 
     #[test]
     fn reflection_keeps_candidates_in_the_box() {
@@ -916,18 +1087,27 @@ mod tests {
 #[derive(Debug)]
 pub struct Report {
     pub searches: Vec<Search>,
-    /// The counterexample scenario and its log, when a violation was found.
-    pub counterexample: Option<(PathBuf, PathBuf)>,
-    /// The evaluation the counterexample is (the first violation, or with `worst` the most
-    /// severe one).
-    pub chosen: Option<Evaluation>,
-    /// The objective of the counterexample's own run (from the written file).
-    pub reproduced: Option<f64>,
-    /// Ctrl-C came during the counterexample's run: its log is incomplete.
+    /// The counterexamples written, one per failure mode (the first: the first violation, or
+    /// with `worst` the most severe one).
+    pub counterexamples: Vec<Counterexample>,
+    /// Ctrl-C came during a counterexample's run: its log is incomplete.
     pub rerun_interrupted: bool,
     pub evaluations_csv: PathBuf,
     pub evaluations_json: PathBuf,
     pub convergence_png: Option<PathBuf>,
+}
+
+/// One failure mode written as a scenario and its log.
+#[derive(Debug)]
+pub struct Counterexample {
+    /// The evaluation it is.
+    pub evaluation: Evaluation,
+    /// The scenario file (`counterexample.toml`, then `counterexample-2.toml`, …).
+    pub scenario: PathBuf,
+    /// Its log, re-run from the file.
+    pub log: PathBuf,
+    /// The objective of its own run from the file (None when not re-run: interrupted).
+    pub reproduced: Option<f64>,
 }
 
 /// How the outputs start: existing files that start otherwise are never replaced.
@@ -937,18 +1117,26 @@ const SCENARIO_START: &[u8] = b"# Counterexample found by `mjsafe falsify`";
 
 /// The files a search writes into its directory.
 struct Outputs {
-    scenario: PathBuf,
-    log: PathBuf,
+    /// Each failure mode's scenario and log.
+    counterexamples: Vec<(PathBuf, PathBuf)>,
     csv: PathBuf,
     json: PathBuf,
     png: PathBuf,
 }
 
 impl Outputs {
-    fn in_dir(dir: &Path) -> Outputs {
+    fn in_dir(dir: &Path, modes: usize) -> Outputs {
         Outputs {
-            scenario: dir.join("counterexample.toml"),
-            log: dir.join("counterexample.mcap"),
+            counterexamples: (1..=modes)
+                .map(|k| {
+                    let name = if k == 1 {
+                        "counterexample".to_string()
+                    } else {
+                        format!("counterexample-{k}")
+                    };
+                    (dir.join(format!("{name}.toml")), dir.join(format!("{name}.mcap")))
+                })
+                .collect(),
             csv: dir.join("evaluations.csv"),
             json: dir.join("evaluations.json"),
             png: dir.join("convergence.png"),
@@ -960,16 +1148,22 @@ impl Outputs {
         use crate::files::{check_output, Replace};
         let inputs = [problem.scenario.as_path()];
         let checks = [
-            (&self.scenario, "counterexample scenario", SCENARIO_START),
             (&self.csv, "falsification evaluations", CSV_START),
             (&self.json, "falsification evaluations", JSON_START),
             (&self.png, "PNG plot", crate::plot::PNG_MAGIC),
         ];
-        for (path, what, start) in checks {
+        let scenarios = self
+            .counterexamples
+            .iter()
+            .map(|(scenario, _)| (scenario, "counterexample scenario", SCENARIO_START));
+        for (path, what, start) in scenarios.chain(checks) {
             check_output(path, what, Replace::IfStartsWith(start), &inputs)
                 .map_err(|e| FalsifyError::Output(e.to_string()))?;
         }
-        crate::log::mcap::check_target(&self.log, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))
+        for (_, log) in &self.counterexamples {
+            crate::log::mcap::check_target(log, &inputs).map_err(|e| FalsifyError::Output(e.to_string()))?;
+        }
+        Ok(())
     }
 }
 
@@ -1080,7 +1274,7 @@ pub fn falsify(
     })?;
     // Every output is checked before the first run: the search is never lost to a file in
     // the way.
-    let outputs = Outputs::in_dir(dir);
+    let outputs = Outputs::in_dir(dir, problem.counterexamples);
     outputs.check(problem)?;
     let mut searches = vec![search(problem, problem.method, &mut progress)?];
     if compare_random && problem.method != Method::Random && !searches[0].interrupted {
@@ -1100,77 +1294,94 @@ pub fn falsify(
     } else {
         None
     };
-    let optimiser = &searches[0];
-    let chosen = if problem.worst {
-        optimiser.worst_violation()
-    } else {
-        optimiser.first_violation()
-    };
-    let mut counterexample = None;
-    let mut reproduced = None;
+    let modes: Vec<Evaluation> = searches[0]
+        .failure_modes(problem.counterexamples, problem.worst)
+        .into_iter()
+        .cloned()
+        .collect();
+    let interrupted = searches.iter().any(|s| s.interrupted);
+    let mut counterexamples = Vec::new();
     let mut rerun_interrupted = false;
-    if let Some(e) = chosen {
-        let text = counterexample_text(problem, e, search_line)?;
+    for (e, (scenario, log)) in modes.into_iter().zip(&outputs.counterexamples) {
+        let text = counterexample_text(problem, &e, search_line)?;
         let inputs = [problem.scenario.as_path()];
         crate::files::write_atomically(
-            &outputs.scenario,
+            scenario,
             "counterexample scenario",
             crate::files::Replace::IfStartsWith(SCENARIO_START),
             &inputs,
             text.as_bytes(),
         )
         .map_err(|e| FalsifyError::Output(e.to_string()))?;
-        let interrupted = searches.iter().any(|s| s.interrupted);
         // The written file alone reproduces the run (no overrides); after Ctrl-C the file is
         // kept but not re-run (the stop request would end that run too).
-        if !interrupted {
-            let run = Run {
-                index: 0,
-                overrides: Vec::new(),
-                parameters: Vec::new(),
-            };
-            let row = sweep::execute_logged(&outputs.scenario, &run, dir, "counterexample.mcap".into());
-            if crate::episode::stop_requested() {
-                // Ctrl-C during the re-run: its log is finished as incomplete, not a reproduction.
-                rerun_interrupted = true;
-            } else {
-                reproduced = row
-                    .metrics
-                    .as_ref()
-                    .and_then(|m| objective_value(m, &problem.objective));
-                // The search's own value, bit for bit up to round-off, or the file is not the run.
-                let expected = e.objective;
-                let same =
-                    matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
-                if let (false, Some(error)) = (same, &row.error) {
-                    return Err(FalsifyError::Output(format!(
-                        "{}: the counterexample's run failed: {error} (evaluations written)",
-                        outputs.scenario.display()
-                    )));
-                }
-                if !same {
-                    let shown = |v: Option<f64>| v.map_or("absent".to_string(), |v| format!("{v:e}"));
-                    return Err(FalsifyError::Output(format!(
-                        "{}: the written counterexample does not reproduce the search's run ({} = {} in the search, {} from the file; evaluations written)",
-                        outputs.scenario.display(),
-                        problem.objective,
-                        shown(expected),
-                        shown(reproduced)
-                    )));
-                }
-            }
+        let mut reproduced = None;
+        if !interrupted && !rerun_interrupted {
+            let file_name = log
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            reproduced = rerun(problem, &e, scenario, dir, file_name)?;
+            rerun_interrupted = reproduced.is_none();
         }
-        counterexample = Some((outputs.scenario.clone(), outputs.log.clone()));
+        counterexamples.push(Counterexample {
+            evaluation: e,
+            scenario: scenario.clone(),
+            log: log.clone(),
+            reproduced,
+        });
     }
-    let chosen = chosen.cloned();
     Ok(Report {
         searches,
-        counterexample,
-        chosen,
-        reproduced,
+        counterexamples,
         rerun_interrupted,
         evaluations_csv,
         evaluations_json,
         convergence_png,
     })
+}
+
+/// Re-runs a written counterexample `scenario` into `dir/file_name` and checks that it
+/// reproduces the search's metric (to 1e-9 relative): its objective, or None when Ctrl-C
+/// ended the run (its log is then incomplete).
+fn rerun(
+    problem: &Problem,
+    e: &Evaluation,
+    scenario: &Path,
+    dir: &Path,
+    file_name: String,
+) -> Result<Option<f64>, FalsifyError> {
+    let run = Run {
+        index: 0,
+        overrides: Vec::new(),
+        parameters: Vec::new(),
+    };
+    let row = sweep::execute_logged(scenario, &run, dir, file_name);
+    if crate::episode::stop_requested() {
+        return Ok(None);
+    }
+    let reproduced = row
+        .metrics
+        .as_ref()
+        .and_then(|m| objective_value(m, &problem.objective));
+    // The search's own value, bit for bit up to round-off, or the file is not the run.
+    let expected = e.objective;
+    let same = matches!((reproduced, expected), (Some(a), Some(b)) if (a - b).abs() <= 1e-9 * (1.0 + b.abs()));
+    if let (false, Some(error)) = (same, &row.error) {
+        return Err(FalsifyError::Output(format!(
+            "{}: the counterexample's run failed: {error} (evaluations written)",
+            scenario.display()
+        )));
+    }
+    if !same {
+        let shown = |v: Option<f64>| v.map_or("absent".to_string(), |v| format!("{v:e}"));
+        return Err(FalsifyError::Output(format!(
+            "{}: the written counterexample does not reproduce the search's run ({} = {} in the search, {} from the file; evaluations written)",
+            scenario.display(),
+            problem.objective,
+            shown(expected),
+            shown(reproduced)
+        )));
+    }
+    Ok(reproduced)
 }

@@ -219,23 +219,29 @@ class FalsifyResult:
     """What a falsification search found.
 
     Attributes:
-        counterexamples: the values found (``{range key: value}``, ready for ``set=``); the
-            first violation, or with ``worst=True`` the most severe one; empty if none.
-        scenario_toml: the counterexample as a standalone scenario (TOML text), or None.
+        counterexamples: the values found (``{range key: value}``, ready for ``set=``), one per
+            distinct failure mode (``counterexamples=K``): the first violation (with
+            ``worst=True`` the most severe one) first; empty if none.
+        scenario_tomls: each counterexample as a standalone scenario (TOML text);
+            ``scenario_toml`` is the first, or None.
         evaluations: every evaluated candidate (the rows of evaluations.csv).
-        reproduced: the objective of the counterexample's own run from its scenario file.
-        log: the counterexample's log (with ``out=``), or None.
+        reproduced_all: the objective of each counterexample's own run from its scenario
+            file (None: not re-run, the search was interrupted); ``reproduced`` the first's.
+        logs: each counterexample's log (with ``out=``); ``log`` the first's, or None.
         out: the directory of the search's outputs (with ``out=``), or None.
         interrupted: whether the search was stopped before its end.
     """
 
     def __init__(self, raw: dict[str, Any], out: str | None) -> None:
         self.counterexamples: list[dict[str, Any]] = raw["counterexamples"]
-        self.scenario_toml: str | None = raw["scenario_toml"]
+        self.scenario_tomls: list[str] = raw["scenario_tomls"]
+        self.scenario_toml: str | None = self.scenario_tomls[0] if self.scenario_tomls else None
         self.evaluations: pd.DataFrame = _read_csv(io.StringIO(raw["evaluations_csv"]))
-        self.reproduced: float | None = raw["reproduced"]
+        self.reproduced_all: list[float | None] = raw["reproduced"]
+        self.reproduced: float | None = self.reproduced_all[0] if self.reproduced_all else None
         self.out: str | None = out
-        self.log: str | None = raw["log"] if out is not None else None
+        self.logs: list[str] = raw["logs"] if out is not None else []
+        self.log: str | None = self.logs[0] if self.logs else None
         self.interrupted: bool = raw["interrupted"]
 
     def __repr__(self) -> str:
@@ -414,6 +420,8 @@ def falsify(
     threads: int | None = None,
     out: str | os.PathLike[str] | None = None,
     require: Mapping[str, str] | None = None,
+    method: str = "guided",
+    counterexamples: int = 1,
 ) -> FalsifyResult:
     """A falsification search, as ``mjsafe falsify``: CMA-ES over the ``ranges`` box for a run
     whose ``objective`` falls below ``threshold``.
@@ -432,6 +440,8 @@ def falsify(
             scenario and log, the convergence plot); None: a temporary one, removed after.
         require: requirements of every candidate ``{name: STL formula}`` (``--require``);
             ``objective="req.<name>"`` minimises one's robustness.
+        method: ``"guided"`` (default), ``"cmaes"`` or ``"random"`` (``--method``).
+        counterexamples: up to this many distinct failure modes (``--counterexamples``).
 
     Raises:
         TypeError: an argument of the wrong Python type (``budget="many"``, ``ranges`` not a
@@ -455,11 +465,15 @@ def falsify(
     threads = _int(f, "threads", threads, 0, optional=True)
     out = _path(f, "out", out, optional=True)
     require = _mapping(f, "require", require, _REQUIRE)
+    method = _str(f, "method", method)
+    counterexamples = _int(f, "counterexamples", counterexamples, 1)
     call = ", ".join(
         [repr(path), f"ranges={dict(ranges)!r}"]
         + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set), ("require", require)] if v is not None]
         + [f"budget={budget!r}", f"seed={seed!r}", f"objective={objective!r}", f"threshold={threshold!r}"]
         + (["worst=True"] if worst else [])
+        + ([f"method={method!r}"] if method != "guided" else [])
+        + ([f"counterexamples={counterexamples!r}"] if counterexamples != 1 else [])
     )
     search_line = f"mjsafe.falsify({call})"
     args = (
@@ -467,10 +481,10 @@ def falsify(
         baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads,
     )
     if out is not None:
-        raw = _core.falsify(*args, out, search_line, require)
+        raw = _core.falsify(*args, out, search_line, require, method, counterexamples)
         return FalsifyResult(raw, out)
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
-        raw = _core.falsify(*args, tmp, search_line, require)
+        raw = _core.falsify(*args, tmp, search_line, require, method, counterexamples)
         return FalsifyResult(raw, None)
 
 

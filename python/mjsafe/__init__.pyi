@@ -33,9 +33,12 @@ class LogData:
 
 class FalsifyResult:
     counterexamples: list[dict[str, Any]]
+    scenario_tomls: list[str]
     scenario_toml: str | None
     evaluations: pd.DataFrame
+    reproduced_all: list[float | None]
     reproduced: float | None
+    logs: list[str]
     log: str | None
     out: str | None
     interrupted: bool
@@ -78,6 +81,8 @@ def falsify(
     threads: int | None = None,
     out: _Path | None = None,
     require: Mapping[str, str] | None = None,
+    method: str = "guided",
+    counterexamples: int = 1,
 ) -> FalsifyResult: ...
 def register_filter(kind: str, cls: type) -> None: ...
 def register_nominal(kind: str, cls: type) -> None: ...

@@ -501,7 +501,7 @@ fn sweep<'py>(
 #[pyo3(signature = (
     path, ranges_, baseline, budget, seed, objective, threshold, worst, set,
     baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads, out,
-    search_line, require=None
+    search_line, require=None, method="guided", counterexamples=1
 ))]
 #[allow(clippy::too_many_arguments)]
 fn falsify<'py>(
@@ -523,7 +523,14 @@ fn falsify<'py>(
     out: PathBuf,
     search_line: String,
     require: Option<&Bound<'py, PyAny>>,
+    method: &str,
+    counterexamples: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let method = mjsafe::falsify::Method::from_flag(method).ok_or_else(|| {
+        PyValueError::new_err(format!(
+            "falsify: method: expected one of guided, cmaes, random, found {method:?}"
+        ))
+    })?;
     let request = mjsafe::falsify::Request {
         scenario: path,
         ranges: ranges(ranges_, "ranges")?,
@@ -538,6 +545,8 @@ fn falsify<'py>(
         baseline: overrides(baseline, "baseline")?,
         baseline_no_stall,
         baseline_reaches_goal,
+        method,
+        counterexamples,
     };
     let (report, scenario_toml, evaluations) = interruptible(py, move || -> PyResult<_> {
         let (problem, _) = request.problem().map_err(bad)?;
@@ -553,31 +562,31 @@ fn falsify<'py>(
         })?;
         let read = |p: &Path| std::fs::read_to_string(p).map_err(failed);
         let scenario_toml = report
-            .counterexample
-            .as_ref()
-            .map(|(scenario, _)| read(scenario))
-            .transpose()?;
+            .counterexamples
+            .iter()
+            .map(|c| read(&c.scenario))
+            .collect::<PyResult<Vec<_>>>()?;
         let evaluations = read(&report.evaluations_csv)?;
         Ok((report, scenario_toml, evaluations))
     })?;
     let dict = PyDict::new(py);
     let counterexamples = PyList::empty(py);
-    if let Some(e) = &report.chosen {
+    let (reproduced, logs) = (PyList::empty(py), PyList::empty(py));
+    for c in &report.counterexamples {
         let found = PyDict::new(py);
-        for (key, text) in &e.parameters {
+        for (key, text) in &c.evaluation.parameters {
             let value = mjsafe::scenario::override_value(text).map_err(PyRuntimeError::new_err)?;
             found.set_item(key, toml_to_py(py, &value)?)?;
         }
         counterexamples.append(found)?;
+        reproduced.append(c.reproduced)?;
+        logs.append(c.log.display().to_string())?;
     }
     dict.set_item("counterexamples", counterexamples)?;
-    dict.set_item("scenario_toml", scenario_toml)?;
+    dict.set_item("scenario_tomls", scenario_toml)?;
     dict.set_item("evaluations_csv", evaluations)?;
-    dict.set_item("reproduced", report.reproduced)?;
-    dict.set_item(
-        "log",
-        report.counterexample.as_ref().map(|(_, log)| log.display().to_string()),
-    )?;
+    dict.set_item("reproduced", reproduced)?;
+    dict.set_item("logs", logs)?;
     dict.set_item(
         "interrupted",
         report.searches.iter().any(|s| s.interrupted) || report.rerun_interrupted,

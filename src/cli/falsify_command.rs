@@ -62,6 +62,10 @@ pub struct FalsifyArgs {
     /// centre) or random (uniform draws).
     #[arg(long, value_enum, default_value_t = falsify::Method::Guided)]
     pub method: falsify::Method,
+    /// Find up to K distinct failure modes (violations that fail differently or lie a quarter
+    /// of a range apart), each written as counterexample[-k].toml with its log.
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub counterexamples: usize,
     /// Also run random search with the same budget and seed, and compare runs to the first
     /// violation.
     #[arg(long)]
@@ -122,6 +126,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         baseline_no_stall,
         baseline_reaches_goal,
         method,
+        counterexamples,
         compare_random,
         out,
     } = args;
@@ -143,6 +148,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         baseline_no_stall,
         baseline_reaches_goal,
         method,
+        counterexamples,
     }
     .problem()?;
     let out = out.unwrap_or_else(|| Path::new("logs").join(format!("falsify-{name}")));
@@ -185,39 +191,59 @@ pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random
                 .map_or(String::new(), |b| format!(" (baseline {b:.4})")),
         );
     }
-    if let Some(e) = &report.chosen {
+    let first = if problem.worst { "most severe" } else { "first" };
+    for (k, c) in report.counterexamples.iter().enumerate() {
+        let e = &c.evaluation;
         outln!(
-            "{} violation: index {} in evaluations.csv, {} = {}{} | {}",
-            if problem.worst { "most severe" } else { "first" },
+            "{} violation: index {} in evaluations.csv, {} = {}{} | {}{}",
+            if k == 0 {
+                first.to_string()
+            } else {
+                format!("failure mode {}", k + 1)
+            },
             e.index,
             problem.objective,
             e.objective.map_or("absent".into(), |v| format!("{v:.4}")),
             e.baseline.map_or(String::new(), |b| format!(" (baseline {b:.4})")),
-            e.severity.describe()
+            e.severity.describe(),
+            e.failure_mode.as_ref().map_or(String::new(), |m| format!(", {m}"))
+        );
+        outln!(
+            "counterexample: {} ({})",
+            c.scenario.display(),
+            match c.reproduced {
+                Some(v) => format!("its run: {}, {} = {v:.4}", c.log.display(), problem.objective),
+                None if report.rerun_interrupted =>
+                    format!("its run was interrupted: {} is incomplete", c.log.display()),
+                None => "not re-run: the search was interrupted".into(),
+            }
         );
     }
-    match &report.counterexample {
-        Some((scenario, log)) => outln!(
-            "counterexample: {} ({}) | evaluations: {}, {}{}",
-            scenario.display(),
-            match report.reproduced {
-                Some(v) => format!("its run: {}, {} = {v:.4}", log.display(), problem.objective),
-                None if report.rerun_interrupted => format!("its run was interrupted: {} is incomplete", log.display()),
-                None => "not re-run: the search was interrupted".into(),
-            },
+    if report.counterexamples.is_empty() {
+        outln!(
+            "no counterexample within {} runs | evaluations: {}, {}",
+            report.searches[0].evaluations.len(),
+            report.evaluations_csv.display(),
+            report.evaluations_json.display()
+        );
+    } else {
+        if report.counterexamples.len() < problem.counterexamples {
+            outln!(
+                "{} distinct failure modes of the {} asked for within {} runs",
+                report.counterexamples.len(),
+                problem.counterexamples,
+                report.searches[0].evaluations.len()
+            );
+        }
+        outln!(
+            "evaluations: {}, {}{}",
             report.evaluations_csv.display(),
             report.evaluations_json.display(),
             report
                 .convergence_png
                 .as_ref()
                 .map_or(String::new(), |p| format!(" | plot: {}", p.display()))
-        ),
-        None => outln!(
-            "no counterexample within {} runs | evaluations: {}, {}",
-            report.searches[0].evaluations.len(),
-            report.evaluations_csv.display(),
-            report.evaluations_json.display()
-        ),
+        );
     }
     if report.searches.iter().any(|s| s.interrupted) {
         eprintln!("error: the search was interrupted; what it found so far is written");

@@ -1,6 +1,7 @@
 //! The guided search (`--method guided`, the default): a first generation spread over the box,
 //! then generations that bisect the boundary between a qualified candidate that holds and a
-//! failing candidate whose baseline fails too, interleaved with CMA-ES; seeds are noise.
+//! failing candidate whose baseline fails too, and after those CMA-ES generations alternating
+//! with uniform draws over the box (docs/falsification.md measures each of these ideas).
 //!
 //! Why the boundary: a baseline-qualified violation is a candidate that fails while its
 //! baseline holds. Where the baseline is the more capable configuration (no delays, the true
@@ -12,66 +13,20 @@
 //! boundaries meet (a bracket shorter than [`BRACKET_TOLERANCE`]) the pair is spent. Without a
 //! baseline no candidate is in U and the search is the spread generation plus CMA-ES.
 //!
-//! A range named `seed` is noise, not a coordinate to optimise (its value changes the run
-//! unpredictably): every candidate draws it uniformly, and CMA-ES and the brackets work on the
-//! other coordinates only.
+//! Determinism: every draw comes from the search's seeded generator in the order of the
+//! generations, and a generation's evaluations are recorded in canonical order.
 
 use std::sync::Mutex;
 
 use super::{append, done, population_size, reflect, Evaluation, Evaluator, FalsifyError, Problem, Search};
 use crate::random::SplitMix64;
 
-/// A bracket whose endpoints are closer than this (Euclidean, in box units over the searched
-/// coordinates) is spent: the candidate's and the baseline's boundaries meet there.
+/// A bracket whose endpoints are closer than this (Euclidean, in box units) is spent: the candidate's and the baseline's boundaries meet there.
 pub const BRACKET_TOLERANCE: f64 = 1e-3;
 
 /// At most this many of the latest candidates of each class are paired (bounds the pairing's
 /// cost at any budget).
 const PAIRING_WINDOW: usize = 400;
-
-/// Whether range `key` is noise (a seed), drawn per candidate instead of searched.
-pub fn is_noise(key: &str) -> bool {
-    key == "seed"
-}
-
-/// Which ideas are on (all by default; the study switches them off one at a time to measure
-/// each: `MJSAFE_FALSIFY_ABLATE=spread,brackets,noise`).
-#[derive(Debug, Clone, Copy)]
-struct Ideas {
-    spread: bool,
-    brackets: bool,
-    noise: bool,
-    explore: bool,
-    /// Largest share of the evaluations spent on brackets.
-    bracket_share: f64,
-}
-
-impl Ideas {
-    fn from_env() -> Ideas {
-        let off = std::env::var("MJSAFE_FALSIFY_ABLATE").unwrap_or_default();
-        let share = std::env::var("MJSAFE_FALSIFY_SHARE")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(0.5);
-        Ideas {
-            spread: !off.contains("spread"),
-            brackets: !off.contains("brackets"),
-            noise: !off.contains("noise"),
-            explore: !off.contains("explore"),
-            bracket_share: share,
-        }
-    }
-}
-
-/// A uniform draw for a noise coordinate of the CMA-ES candidate `x` (a function of the
-/// candidate and the search's seed only: the same on any number of threads).
-fn noise_draw(seed: u64, x: &[f64], dimension: usize) -> f64 {
-    let mut key = seed ^ 0x5EED_0F_5EED ^ (dimension as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    for v in x {
-        key = SplitMix64(key ^ v.to_bits()).next_u64();
-    }
-    SplitMix64(key).next_f64()
-}
 
 /// The two classes of the boundary a violation lies on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -103,16 +58,17 @@ struct Memory {
 }
 
 impl Memory {
-    fn distance(&self, a: usize, b: usize, searched: &[usize]) -> f64 {
-        searched
+    fn distance(&self, a: usize, b: usize) -> f64 {
+        self.units[a]
             .iter()
-            .map(|&i| (self.units[a][i] - self.units[b][i]).powi(2))
+            .zip(&self.units[b])
+            .map(|(x, y)| (x - y).powi(2))
             .sum::<f64>()
             .sqrt()
     }
 
     /// The closest unused pair (holds, fails with its baseline), if any.
-    fn closest_pair(&self, searched: &[usize]) -> Option<(usize, usize, f64)> {
+    fn closest_pair(&self) -> Option<(usize, usize, f64)> {
         let latest = |class: Class| -> Vec<usize> {
             let mut v: Vec<usize> = (0..self.units.len())
                 .rev()
@@ -127,7 +83,7 @@ impl Memory {
         let mut best: Option<(usize, usize, f64)> = None;
         for &s in &holds {
             for &u in &fails {
-                let d = self.distance(s, u, searched);
+                let d = self.distance(s, u);
                 if best.is_none_or(|(_, _, b)| d < b) {
                     best = Some((s, u, d));
                 }
@@ -146,15 +102,8 @@ pub(super) fn run_guided(
     progress: &mut impl FnMut(&Search),
 ) -> Result<(), FalsifyError> {
     use rayon::prelude::*;
-    let ideas = Ideas::from_env();
     let d = problem.ranges.len();
     let lambda = population_size(d);
-    let noise: Vec<bool> = problem
-        .ranges
-        .iter()
-        .map(|r| ideas.noise && is_noise(&r.key))
-        .collect();
-    let searched: Vec<usize> = (0..d).filter(|&i| !noise[i]).collect();
     let mut generator = SplitMix64(problem.seed ^ 0x6D1D_ED5E_A2C4);
     let mut memory = Memory {
         units: Vec::new(),
@@ -175,32 +124,41 @@ pub(super) fn run_guided(
     };
     let mut generation = 0;
     // Records a generation (in canonical order) into the search and the memory.
+    // Records a generation (in canonical order) into the search and the memory; with more than
+    // one failure mode asked for, the candidates near a new violation stop ending brackets (the
+    // next bracket looks elsewhere). Returns whether the generation found a violation.
     let record = |found: &mut Search,
-                      memory: &mut Memory,
-                      generation: &mut usize,
-                      batch: Vec<(Vec<f64>, Evaluation)>,
-                      lineage: Option<usize>,
-                      progress: &mut dyn FnMut(&Search)| {
+                  memory: &mut Memory,
+                  generation: &mut usize,
+                  batch: Vec<(Vec<f64>, Evaluation)>,
+                  lineage: Option<usize>,
+                  progress: &mut dyn FnMut(&Search)| {
         let start = found.evaluations.len();
-        let mut batch = batch;
-        super::canonical_order(&mut batch);
-        let units: Vec<Vec<f64>> = batch.iter().map(|(u, _)| u.clone()).collect();
-        append(found, *generation, batch);
+        let units = append(found, problem.seed, *generation, batch);
         for (u, e) in units.into_iter().zip(&found.evaluations[start..]) {
             memory.units.push(u);
             memory.used.push(false);
             memory.lineage.push(lineage);
             memory.classes.push(class_of(e, problem.threshold));
         }
+        let new_violations: Vec<&Evaluation> = found.evaluations[start..].iter().filter(|e| e.violation).collect();
+        if problem.counterexamples > 1 {
+            for v in &new_violations {
+                for (i, e) in found.evaluations.iter().enumerate() {
+                    if e.box_distance(v) < super::MODE_SEPARATION {
+                        memory.used[i] = true;
+                    }
+                }
+            }
+        }
         *generation += 1;
         progress(found);
+        !new_violations.is_empty()
     };
     let remaining = |found: &Search| problem.budget.saturating_sub(found.evaluations.len());
 
-    // 1. The first generation: a Latin hypercube over the searched coordinates (each
-    //    coordinate's λ strata hit once), noise drawn uniformly.
-    let spread = ideas.spread || searched.is_empty();
-    if spread && !done(problem, found) {
+    // 1. The first generation: a Latin hypercube (each coordinate's λ strata hit once).
+    if !done(problem, found) {
         let count = lambda.min(remaining(found));
         let mut units = vec![vec![0.0; d]; count];
         for i in 0..d {
@@ -209,11 +167,7 @@ pub(super) fn run_guided(
                 strata.swap(k, generator.below(k + 1));
             }
             for (unit, stratum) in units.iter_mut().zip(strata) {
-                unit[i] = if noise[i] {
-                    generator.next_f64()
-                } else {
-                    (stratum as f64 + generator.next_f64()) / count as f64
-                };
+                unit[i] = (stratum as f64 + generator.next_f64()) / count as f64;
             }
         }
         let batch = evaluate(units);
@@ -222,17 +176,8 @@ pub(super) fn run_guided(
 
     // 2. Brackets and CMA-ES generations.
     let cmaes_batch: Mutex<Vec<(Vec<f64>, Evaluation)>> = Mutex::new(Vec::new());
-    let seed = problem.seed;
-    let noise_ref = &noise;
-    let searched_ref = &searched;
     let objective = |x: &cmaes::DVector<f64>| {
-        let mut unit = vec![0.0; d];
-        for (&i, &z) in searched_ref.iter().zip(x.iter()) {
-            unit[i] = reflect(z);
-        }
-        for i in (0..d).filter(|&i| noise_ref[i]) {
-            unit[i] = noise_draw(seed, x.as_slice(), i);
-        }
+        let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
         let e = evaluator.evaluate(&unit);
         let score = e.score;
         cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()).push((unit, e));
@@ -245,19 +190,8 @@ pub(super) fn run_guided(
     let mut lineages = 0usize;
     let (mut cmaes_generations, mut explore_generations) = (0usize, 0usize);
     while !done(problem, found) {
-        if searched.is_empty() {
-            // Nothing to search but noise: uniform draws.
-            let units = (0..lambda.min(remaining(found)))
-                .map(|_| (0..d).map(|_| generator.next_f64()).collect())
-                .collect();
-            let batch = evaluate(units);
-            record(found, &mut memory, &mut generation, batch, None, progress);
-            continue;
-        }
-        let may_bracket =
-            ideas.brackets && (bracket_evaluations as f64) <= ideas.bracket_share * found.evaluations.len() as f64;
-        if may_bracket {
-            if let Some((s, u, distance)) = memory.closest_pair(&searched) {
+        if 2 * bracket_evaluations <= found.evaluations.len() {
+            if let Some((s, u, distance)) = memory.closest_pair() {
                 if distance < BRACKET_TOLERANCE {
                     // The boundaries meet: spend the pair and its lineage.
                     let spent = memory.lineage[s].or(memory.lineage[u]);
@@ -280,12 +214,8 @@ pub(super) fn run_guided(
                         let t = k as f64 / (count + 1) as f64;
                         (0..d)
                             .map(|i| {
-                                if noise[i] {
-                                    generator.next_f64()
-                                } else {
-                                    let (a, b) = (memory.units[s][i], memory.units[u][i]);
-                                    a + t * (b - a)
-                                }
+                                let (a, b) = (memory.units[s][i], memory.units[u][i]);
+                                a + t * (b - a)
                             })
                             .collect()
                     })
@@ -298,7 +228,7 @@ pub(super) fn run_guided(
         }
         // Every other generation explores: uniform draws over the box (what random search does),
         // so an optimiser stuck in a flat or noisy basin costs at most half the budget.
-        if ideas.explore && cmaes_generations > explore_generations {
+        if cmaes_generations > explore_generations {
             let units = (0..lambda.min(remaining(found)))
                 .map(|_| (0..d).map(|_| generator.next_f64()).collect())
                 .collect();
@@ -312,14 +242,11 @@ pub(super) fn run_guided(
         if optimiser.is_none() {
             let mean: Vec<f64> = if restarts == 0 {
                 match found.best() {
-                    Some(best) => {
-                        let at = best.index;
-                        searched.iter().map(|&i| memory.units[at][i]).collect()
-                    }
-                    None => vec![0.5; searched.len()],
+                    Some(best) => memory.units[best.index].clone(),
+                    None => vec![0.5; d],
                 }
             } else {
-                searched.iter().map(|_| generator.next_f64()).collect()
+                (0..d).map(|_| generator.next_f64()).collect()
             };
             optimiser = Some(
                 cmaes::CMAESOptions::new(mean, 0.3)
@@ -335,8 +262,12 @@ pub(super) fn run_guided(
         };
         cmaes_generations += 1;
         let batch = std::mem::take(&mut *cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()));
-        record(found, &mut memory, &mut generation, batch, None, progress);
-        if terminated.is_some() {
+        let violated = record(found, &mut memory, &mut generation, batch, None, progress);
+        if violated && problem.counterexamples > 1 && !problem.worst {
+            // Another failure mode is wanted: start again elsewhere.
+            optimiser = None;
+            restarts += 1;
+        } else if terminated.is_some() {
             optimiser = None;
             restarts += 1;
             population *= 2;
