@@ -5,7 +5,7 @@
 #     (as the reference's Figs. 4.6/4.7);
 #   sweep-min_h-vs-delay.png: min h against the acceleration delay D2 (0.25 ... 2 s; (4.67)
 #     needs D1 = 0.2 <= D2) for the delay-free CBF-QP and (4.67) (a sweep, `mjsafe plot-sweep`);
-#   falsify-convergence.png: best score against runs of `mjsafe falsify` (CMA-ES) and random
+#   falsify-convergence.png: best score against runs of `mjsafe falsify` (guided search) and random
 #     search on (4.67) with the delay-free baseline (docs/falsification.md, problem 1, seed 7).
 # The text is drawn with the font embedded in mjsafe, so the PNGs do not depend on the machine.
 set -euo pipefail

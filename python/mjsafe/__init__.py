@@ -466,7 +466,7 @@ def falsify(
     out = _path(f, "out", out, optional=True)
     require = _mapping(f, "require", require, _REQUIRE)
     method = _str(f, "method", method)
-    counterexamples = _int(f, "counterexamples", counterexamples, 1)
+    counterexamples = _int(f, "counterexamples", counterexamples, 0)
     call = ", ".join(
         [repr(path), f"ranges={dict(ranges)!r}"]
         + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set), ("require", require)] if v is not None]

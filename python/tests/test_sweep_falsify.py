@@ -136,3 +136,30 @@ def test_falsify_with_out_baseline_and_worst_writes_the_cli_outputs(tmp_path):
         assert (out / "counterexample.toml").read_text() == found.scenario_toml
     else:
         assert found.scenario_toml is None and found.log is None
+
+
+def test_falsify_counterexamples_are_the_cli_failure_modes_each_with_its_log(tmp_path):
+    rare = {"vehicle.initial_state.0": (-50.0, -10.0), "obstacles.0.centre.1": (-3.0, 3.0),
+            "delays.acceleration": (0.5, 2.0, 0.1)}
+    baseline = {"delays.steering": 0.0, "delays.acceleration": 0.0,
+                "filter": {"kind": "cbf_qp", "l0": 4.0, "l1": 4.0}}
+    out = tmp_path / "search"
+    found = mjsafe.falsify(GAMMA_M, ranges=rare, baseline=baseline, budget=240, seed=1, counterexamples=3,
+                           out=out)
+    assert len(found.counterexamples) == 3 == len(found.logs) == len(found.scenario_tomls)
+    assert found.logs == [str(out / n) for n in ("counterexample.mcap", "counterexample-2.mcap",
+                                                 "counterexample-3.mcap")]
+    assert found.log == found.logs[0] and found.reproduced == found.reproduced_all[0]
+    # Each failure mode's values, run as overrides, give the min h its own log reproduced.
+    for values, reproduced in zip(found.counterexamples, found.reproduced_all):
+        assert mjsafe.run(GAMMA_M, set=values).min_h == reproduced < 0
+    cli_out = tmp_path / "cli"
+    cli("falsify", GAMMA_M, "--range", "vehicle.initial_state.0=-50..-10", "--range", "obstacles.0.centre.1=-3..3",
+        "--range", "delays.acceleration=0.5..2.0:0.1", "--baseline", "delays.steering=0.0", "--baseline",
+        "delays.acceleration=0.0", "--baseline", 'filter={kind = "cbf_qp", l0 = 4.0, l1 = 4.0}',
+        "--budget", "240", "--seed", "1", "--counterexamples", "3", "--out", str(cli_out))
+    pd.testing.assert_frame_equal(found.evaluations, read_csv(cli_out / "evaluations.csv"), check_exact=True)
+    assert (cli_out / "counterexample-3.toml").exists()
+    # Random search, by name.
+    uniform = mjsafe.falsify(GAMMA_M, ranges=rare, baseline=baseline, budget=16, seed=1, method="random")
+    assert set(uniform.evaluations["method"]) == {"random search"}
