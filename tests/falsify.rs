@@ -333,6 +333,45 @@ fn the_guided_search_finds_rare_failures_sooner_than_random_search() {
     );
 }
 
+/// `--objective req.NAME` with a baseline: a counterexample violates the requirement while
+/// its baseline satisfies it. `always obstacle_0.h >= 0` has robustness min h, so every row's
+/// objective (the STL monitor's) equals its candidate_min_h (the min_h metric's).
+#[test]
+fn a_requirements_robustness_is_an_objective_qualified_by_the_baselines() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let mut args = GAMMA_M_BOX.to_vec();
+    args.extend_from_slice(&DELAY_FREE_BASELINE);
+    args.extend_from_slice(&[
+        "--require",
+        "clear=always obstacle_0.h >= 0",
+        "--objective",
+        "req.clear",
+        "--budget",
+        "80",
+        "--seed",
+        "1",
+    ]);
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &out);
+    assert!(o.status.success(), "{}", text(&o));
+    let rows = evaluation_rows(&out);
+    let number = |r: &std::collections::HashMap<String, String>, k: &str| r[k].parse::<f64>().unwrap();
+    for r in &rows {
+        let (m, b) = (number(r, "req.clear"), number(r, "baseline"));
+        assert_eq!(m, number(r, "candidate_min_h"), "{r:?}");
+        assert_eq!(r["qualified"], (b >= 0.0).to_string(), "{r:?}");
+        assert_eq!(r["violation"], (m < 0.0 && b >= 0.0).to_string(), "{r:?}");
+    }
+    let first = rows
+        .iter()
+        .find(|r| r["violation"] == "true")
+        .expect("a violation within 80 runs");
+    let logged = analyze_json(&out.join("counterexample.mcap"))["req"]["clear"]
+        .as_f64()
+        .unwrap();
+    assert_eq!(logged, number(first, "req.clear"));
+}
+
 #[test]
 fn bad_falsify_input_is_one_error_line_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
