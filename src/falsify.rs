@@ -1,6 +1,7 @@
 //! Falsification: search a scenario's parameter box for a run that violates safety, instead of
-//! sampling it. An optimiser (CMA-ES from the `cmaes` crate) minimises an analysis metric (the
-//! robustness: `min_h` by default) over the `--range` keys; a candidate whose metric falls
+//! sampling it. A search ([`Method`]: the guided search of [`guided`] by default, CMA-ES from
+//! the `cmaes` crate, or uniform draws) minimises an analysis metric (the robustness: `min_h`
+//! by default, or a requirement's `req.<name>`) over the `--range` keys; a candidate whose metric falls
 //! below the threshold T is a violation. With a baseline (the same candidate under other
 //! overrides, e.g. without delays), a candidate counts (is *qualified*) only where the baseline
 //! is safe by its own threshold T_b (`--baseline-threshold`, default 0): m_baseline ≥ T_b,
@@ -11,9 +12,9 @@
 //! stays safe by stalling (or never reaches the goal) disqualifies the candidate too.
 //!
 //! Determinism: a candidate's result depends only on its parameters (each run is seeded by the
-//! scenario), CMA-ES samples from its own seeded generator, and a generation's evaluations are
-//! numbered in the order of their parameters, not of their completion: the same seed gives the
-//! same search on any number of threads.
+//! scenario), every method samples from its own seeded generator, and a generation's
+//! evaluations are numbered in an order of their parameters and the seed, not of their
+//! completion: the same seed gives the same search on any number of threads.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -659,10 +660,11 @@ impl Evaluator<'_> {
 /// random order seeded by the search's seed and the generation. Sorted alone, the count of
 /// runs to the first violation favoured problems whose violations lie at low values of the
 /// first range (gamma_m_underestimate: run 1 for every seed).
-fn canonical_order(batch: &mut [(Vec<f64>, Evaluation)], seed: u64, generation: usize) {
-    batch.sort_by(|(a, _), (b, _)| {
-        a.iter()
-            .zip(b)
+fn canonical_order(batch: &mut [Evaluation], seed: u64, generation: usize) {
+    batch.sort_by(|a, b| {
+        a.point
+            .iter()
+            .zip(&b.point)
             .map(|(x, y)| x.total_cmp(y))
             .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal)
@@ -738,18 +740,14 @@ fn done(problem: &Problem, found: &mut Search) -> bool {
         || (!problem.worst && found.failure_modes(problem.counterexamples, false).len() >= problem.counterexamples)
 }
 
-/// Appends a generation's evaluations in canonical order; returns their unit points in that
-/// order.
-fn append(found: &mut Search, seed: u64, generation: usize, mut batch: Vec<(Vec<f64>, Evaluation)>) -> Vec<Vec<f64>> {
+/// Appends a generation's evaluations in canonical order.
+fn append(found: &mut Search, seed: u64, generation: usize, mut batch: Vec<Evaluation>) {
     canonical_order(&mut batch, seed, generation);
-    let mut units = Vec::with_capacity(batch.len());
-    for (unit, mut e) in batch {
+    for mut e in batch {
         e.index = found.evaluations.len();
         e.generation = generation;
         found.evaluations.push(e);
-        units.push(unit);
     }
-    units
 }
 
 fn run_random(
@@ -769,15 +767,7 @@ fn run_random(
         let units: Vec<Vec<f64>> = (0..count)
             .map(|_| (0..d).map(|_| generator.next_f64()).collect())
             .collect();
-        let batch: Vec<(Vec<f64>, Evaluation)> = pool.install(|| {
-            units
-                .into_par_iter()
-                .map(|u| {
-                    let e = evaluator.evaluate(&u);
-                    (u, e)
-                })
-                .collect()
-        });
+        let batch: Vec<Evaluation> = pool.install(|| units.into_par_iter().map(|u| evaluator.evaluate(&u)).collect());
         append(found, problem.seed, generation, batch);
         generation += 1;
         progress(found);
@@ -812,12 +802,12 @@ fn run_cmaes(
         } else {
             (0..d).map(|_| restart_generator.next_f64()).collect()
         };
-        let batch: Mutex<Vec<(Vec<f64>, Evaluation)>> = Mutex::new(Vec::new());
+        let batch: Mutex<Vec<Evaluation>> = Mutex::new(Vec::new());
         let objective = |x: &cmaes::DVector<f64>| {
             let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
             let e = evaluator.evaluate(&unit);
             let score = e.score;
-            batch.lock().unwrap_or_else(|p| p.into_inner()).push((unit, e));
+            batch.lock().unwrap_or_else(|p| p.into_inner()).push(e);
             score
         };
         let mut optimiser = cmaes::CMAESOptions::new(mean, 0.3)
@@ -1022,15 +1012,15 @@ mod tests {
 
     #[test]
     fn a_generations_order_depends_on_its_points_and_seed_not_on_completion() {
-        let batch = |order: &[usize]| -> Vec<(Vec<f64>, Evaluation)> {
+        let batch = |order: &[usize]| -> Vec<Evaluation> {
             order
                 .iter()
-                .map(|&i| (vec![i as f64 / 10.0], violation(i, [0.0, 0.0], 1.0, "")))
+                .map(|&i| violation(i, [i as f64 / 10.0, 0.0], 1.0, ""))
                 .collect()
         };
-        let ordered = |mut b: Vec<(Vec<f64>, Evaluation)>, seed| {
+        let ordered = |mut b: Vec<Evaluation>, seed| {
             canonical_order(&mut b, seed, 3);
-            b.iter().map(|(_, e)| e.index).collect::<Vec<_>>()
+            b.iter().map(|e| e.index).collect::<Vec<_>>()
         };
         let a = ordered(batch(&[0, 1, 2, 3, 4, 5, 6, 7]), 1);
         assert_eq!(a, ordered(batch(&[7, 3, 5, 1, 0, 2, 6, 4]), 1));

@@ -46,10 +46,14 @@ fn class_of(e: &Evaluation, threshold: f64) -> Class {
     }
 }
 
-/// What the guided search knows of its candidates, in the search's order.
+/// The Euclidean distance of two points of the box (box units).
+fn euclidean(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt()
+}
+
+/// What the guided search knows of its candidates besides their evaluations, in the search's
+/// order.
 struct Memory {
-    /// Each candidate's point in the unit box (all coordinates).
-    units: Vec<Vec<f64>>,
     /// Whether a candidate already ended a bracket.
     used: Vec<bool>,
     /// The bracket lineage a candidate was placed by.
@@ -58,19 +62,10 @@ struct Memory {
 }
 
 impl Memory {
-    fn distance(&self, a: usize, b: usize) -> f64 {
-        self.units[a]
-            .iter()
-            .zip(&self.units[b])
-            .map(|(x, y)| (x - y).powi(2))
-            .sum::<f64>()
-            .sqrt()
-    }
-
     /// The closest unused pair (holds, fails with its baseline), if any.
-    fn closest_pair(&self) -> Option<(usize, usize, f64)> {
+    fn closest_pair(&self, evaluations: &[Evaluation]) -> Option<(usize, usize, f64)> {
         let latest = |class: Class| -> Vec<usize> {
-            let mut v: Vec<usize> = (0..self.units.len())
+            let mut v: Vec<usize> = (0..self.classes.len())
                 .rev()
                 .filter(|&i| !self.used[i] && self.classes[i] == class)
                 .take(PAIRING_WINDOW)
@@ -83,7 +78,7 @@ impl Memory {
         let mut best: Option<(usize, usize, f64)> = None;
         for &s in &holds {
             for &u in &fails {
-                let d = self.distance(s, u);
+                let d = euclidean(&evaluations[s].point, &evaluations[u].point);
                 if best.is_none_or(|(_, _, b)| d < b) {
                     best = Some((s, u, d));
                 }
@@ -106,21 +101,12 @@ pub(super) fn run_guided(
     let lambda = population_size(d);
     let mut generator = SplitMix64(problem.seed ^ 0x6D1D_ED5E_A2C4);
     let mut memory = Memory {
-        units: Vec::new(),
         used: Vec::new(),
         lineage: Vec::new(),
         classes: Vec::new(),
     };
-    let evaluate = |units: Vec<Vec<f64>>| -> Vec<(Vec<f64>, Evaluation)> {
-        pool.install(|| {
-            units
-                .into_par_iter()
-                .map(|u| {
-                    let e = evaluator.evaluate(&u);
-                    (u, e)
-                })
-                .collect()
-        })
+    let evaluate = |units: Vec<Vec<f64>>| -> Vec<Evaluation> {
+        pool.install(|| units.into_par_iter().map(|u| evaluator.evaluate(&u)).collect())
     };
     let mut generation = 0;
     // Records a generation (in canonical order) into the search and the memory.
@@ -130,13 +116,12 @@ pub(super) fn run_guided(
     let record = |found: &mut Search,
                   memory: &mut Memory,
                   generation: &mut usize,
-                  batch: Vec<(Vec<f64>, Evaluation)>,
+                  batch: Vec<Evaluation>,
                   lineage: Option<usize>,
                   progress: &mut dyn FnMut(&Search)| {
         let start = found.evaluations.len();
-        let units = append(found, problem.seed, *generation, batch);
-        for (u, e) in units.into_iter().zip(&found.evaluations[start..]) {
-            memory.units.push(u);
+        append(found, problem.seed, *generation, batch);
+        for e in &found.evaluations[start..] {
             memory.used.push(false);
             memory.lineage.push(lineage);
             memory.classes.push(class_of(e, problem.threshold));
@@ -175,12 +160,12 @@ pub(super) fn run_guided(
     }
 
     // 2. Brackets and CMA-ES generations.
-    let cmaes_batch: Mutex<Vec<(Vec<f64>, Evaluation)>> = Mutex::new(Vec::new());
+    let cmaes_batch: Mutex<Vec<Evaluation>> = Mutex::new(Vec::new());
     let objective = |x: &cmaes::DVector<f64>| {
         let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
         let e = evaluator.evaluate(&unit);
         let score = e.score;
-        cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()).push((unit, e));
+        cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()).push(e);
         score
     };
     let mut optimiser = None;
@@ -191,11 +176,11 @@ pub(super) fn run_guided(
     let (mut cmaes_generations, mut explore_generations) = (0usize, 0usize);
     while !done(problem, found) {
         if 2 * bracket_evaluations <= found.evaluations.len() {
-            if let Some((s, u, distance)) = memory.closest_pair() {
+            if let Some((s, u, distance)) = memory.closest_pair(&found.evaluations) {
                 if distance < BRACKET_TOLERANCE {
                     // The boundaries meet: spend the pair and its lineage.
                     let spent = memory.lineage[s].or(memory.lineage[u]);
-                    for i in 0..memory.units.len() {
+                    for i in 0..memory.classes.len() {
                         if i == s || i == u || (spent.is_some() && memory.lineage[i] == spent) {
                             memory.used[i] = true;
                         }
@@ -214,7 +199,7 @@ pub(super) fn run_guided(
                         let t = k as f64 / (count + 1) as f64;
                         (0..d)
                             .map(|i| {
-                                let (a, b) = (memory.units[s][i], memory.units[u][i]);
+                                let (a, b) = (found.evaluations[s].point[i], found.evaluations[u].point[i]);
                                 a + t * (b - a)
                             })
                             .collect()
@@ -242,7 +227,7 @@ pub(super) fn run_guided(
         if optimiser.is_none() {
             let mean: Vec<f64> = if restarts == 0 {
                 match found.best() {
-                    Some(best) => memory.units[best.index].clone(),
+                    Some(best) => best.point.clone(),
                     None => vec![0.5; d],
                 }
             } else {
