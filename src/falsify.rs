@@ -825,7 +825,13 @@ fn run_cmaes(
                 break;
             }
         }
-        population *= 2;
+        // Doubled (IPOP), never beyond what is left of the budget: a generation is run whole.
+        population = (population * 2).min(
+            problem
+                .budget
+                .saturating_sub(found.evaluations.len())
+                .max(population_size(d)),
+        );
     }
     Ok(())
 }

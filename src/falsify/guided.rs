@@ -255,7 +255,8 @@ pub(super) fn run_guided(
         } else if terminated.is_some() {
             optimiser = None;
             restarts += 1;
-            population *= 2;
+            // Doubled (IPOP), never beyond what is left of the budget (a generation runs whole).
+            population = (population * 2).min(remaining(found).max(lambda));
         }
     }
     Ok(())
