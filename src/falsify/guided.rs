@@ -21,7 +21,8 @@ use std::sync::Mutex;
 use super::{append, done, population_size, reflect, Evaluation, Evaluator, FalsifyError, Problem, Search};
 use crate::random::SplitMix64;
 
-/// A bracket whose endpoints are closer than this (Euclidean, in box units) is spent: the candidate's and the baseline's boundaries meet there.
+/// A bracket whose endpoints are closer than this (Euclidean, in box units) is spent: the
+/// candidate's and the baseline's boundaries meet there.
 pub const BRACKET_TOLERANCE: f64 = 1e-3;
 
 /// At most this many of the latest candidates of each class are paired (bounds the pairing's
@@ -260,4 +261,63 @@ pub(super) fn run_guided(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn evaluation(point: [f64; 2], m: f64, baseline: f64) -> Evaluation {
+        Evaluation {
+            index: 0,
+            generation: 0,
+            parameters: Vec::new(),
+            objective: Some(m),
+            baseline: Some(baseline),
+            score: 0.0,
+            qualified: baseline >= 0.0,
+            baseline_progress: None,
+            violation: m < 0.0 && baseline >= 0.0,
+            severity: Default::default(),
+            error: None,
+            failure_mode: None,
+            point: point.to_vec(),
+        }
+    }
+
+    #[test]
+    fn brackets_pair_the_closest_holding_and_doubly_failing_candidates_once() {
+        let evaluations = vec![
+            evaluation([0.0, 0.0], 0.3, 0.2),    // holds
+            evaluation([0.4, 0.0], 0.1, 0.05),   // holds
+            evaluation([0.9, 0.0], -2.0, -1.0),  // fails with its baseline
+            evaluation([0.6, 0.0], -0.5, -0.01), // fails with its baseline
+            evaluation([0.5, 0.5], -0.2, 0.0),   // a violation: neither class
+        ];
+        let classes: Vec<Class> = evaluations.iter().map(|e| class_of(e, 0.0)).collect();
+        assert_eq!(
+            classes,
+            [
+                Class::Holds,
+                Class::Holds,
+                Class::FailsWithBaseline,
+                Class::FailsWithBaseline,
+                Class::Other
+            ]
+        );
+        let mut memory = Memory {
+            used: vec![false; 5],
+            lineage: vec![None; 5],
+            classes,
+        };
+        let (s, u, d) = memory.closest_pair(&evaluations).unwrap();
+        assert_eq!((s, u), (1, 3));
+        assert!((d - 0.2).abs() < 1e-12);
+        // A candidate ends one bracket: the next pair is the closest of the others.
+        memory.used[1] = true;
+        memory.used[3] = true;
+        assert_eq!(memory.closest_pair(&evaluations).map(|(s, u, _)| (s, u)), Some((0, 2)));
+        memory.used[0] = true;
+        assert_eq!(memory.closest_pair(&evaluations), None);
+    }
 }
