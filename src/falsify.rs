@@ -585,6 +585,27 @@ impl Evaluator<'_> {
         Ok((value, Severity::of(&metrics), metrics))
     }
 
+    /// Runs the candidates at `units` in parallel on `pool`, in their order.
+    fn evaluate_all(&self, pool: &rayon::ThreadPool, units: Vec<Vec<f64>>) -> Vec<Evaluation> {
+        use rayon::prelude::*;
+        pool.install(|| units.into_par_iter().map(|u| self.evaluate(&u)).collect())
+    }
+
+    /// What CMA-ES minimises: the score of the candidate at x reflected into the box; each
+    /// evaluation is kept in `batch` (its generation's evaluations).
+    fn cmaes_objective<'a>(
+        &'a self,
+        batch: &'a Mutex<Vec<Evaluation>>,
+    ) -> impl Fn(&cmaes::DVector<f64>) -> f64 + Sync + 'a {
+        move |x| {
+            let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
+            let e = self.evaluate(&unit);
+            let score = e.score;
+            batch.lock().unwrap_or_else(|p| p.into_inner()).push(e);
+            score
+        }
+    }
+
     /// Runs the candidate at `unit` (and its baseline) and scores it.
     fn evaluate(&self, unit: &[f64]) -> Evaluation {
         let parameters = self.parameters(unit);
@@ -757,17 +778,13 @@ fn run_random(
     found: &mut Search,
     progress: &mut impl FnMut(&Search),
 ) -> Result<(), FalsifyError> {
-    use rayon::prelude::*;
     let d = problem.ranges.len();
     let batch_size = population_size(d);
     let mut generator = SplitMix64(problem.seed ^ 0x005E_ED0F_F41F);
     let mut generation = 0;
     while !done(problem, found) {
         let count = batch_size.min(problem.budget - found.evaluations.len());
-        let units: Vec<Vec<f64>> = (0..count)
-            .map(|_| (0..d).map(|_| generator.next_f64()).collect())
-            .collect();
-        let batch: Vec<Evaluation> = pool.install(|| units.into_par_iter().map(|u| evaluator.evaluate(&u)).collect());
+        let batch = evaluator.evaluate_all(pool, uniform_points(&mut generator, count, d));
         append(found, problem.seed, generation, batch);
         generation += 1;
         progress(found);
@@ -779,6 +796,34 @@ fn run_random(
 /// the cores busy; it depends on d only, never on the thread count.
 fn population_size(d: usize) -> usize {
     (4 + (3.0 * (d as f64).ln()).floor() as usize).max(8)
+}
+
+/// The population of a CMA-ES restart: doubled (IPOP), never beyond what is left of the
+/// budget (a generation runs whole), never below λ.
+fn doubled_population(population: usize, problem: &Problem, found: &Search) -> usize {
+    let left = problem.budget.saturating_sub(found.evaluations.len());
+    (population * 2).min(left.max(population_size(problem.ranges.len())))
+}
+
+/// `count` uniform points of the d-dimensional unit box.
+fn uniform_points(generator: &mut SplitMix64, count: usize, d: usize) -> Vec<Vec<f64>> {
+    (0..count)
+        .map(|_| (0..d).map(|_| generator.next_f64()).collect())
+        .collect()
+}
+
+/// CMA-ES from `mean` (box units, step size 0.3) over `objective`, seeded.
+fn cmaes_from<F: cmaes::ObjectiveFunction>(
+    mean: Vec<f64>,
+    population: usize,
+    seed: u64,
+    objective: F,
+) -> Result<cmaes::CMAES<F>, FalsifyError> {
+    cmaes::CMAESOptions::new(mean, 0.3)
+        .population_size(population)
+        .seed(seed)
+        .build(objective)
+        .map_err(|e| FalsifyError::Optimiser(format!("{e:?}")))
 }
 
 fn run_cmaes(
@@ -803,18 +848,8 @@ fn run_cmaes(
             (0..d).map(|_| restart_generator.next_f64()).collect()
         };
         let batch: Mutex<Vec<Evaluation>> = Mutex::new(Vec::new());
-        let objective = |x: &cmaes::DVector<f64>| {
-            let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
-            let e = evaluator.evaluate(&unit);
-            let score = e.score;
-            batch.lock().unwrap_or_else(|p| p.into_inner()).push(e);
-            score
-        };
-        let mut optimiser = cmaes::CMAESOptions::new(mean, 0.3)
-            .population_size(population)
-            .seed(problem.seed.wrapping_add(restart))
-            .build(&objective)
-            .map_err(|e| FalsifyError::Optimiser(format!("{e:?}")))?;
+        let objective = evaluator.cmaes_objective(&batch);
+        let mut optimiser = cmaes_from(mean, population, problem.seed.wrapping_add(restart), &objective)?;
         loop {
             let terminated = pool.install(|| optimiser.next_parallel());
             let evaluated = std::mem::take(&mut *batch.lock().unwrap_or_else(|p| p.into_inner()));
@@ -825,13 +860,7 @@ fn run_cmaes(
                 break;
             }
         }
-        // Doubled (IPOP), never beyond what is left of the budget: a generation is run whole.
-        population = (population * 2).min(
-            problem
-                .budget
-                .saturating_sub(found.evaluations.len())
-                .max(population_size(d)),
-        );
+        population = doubled_population(population, problem, found);
     }
     Ok(())
 }

@@ -18,7 +18,10 @@
 
 use std::sync::Mutex;
 
-use super::{append, done, population_size, reflect, Evaluation, Evaluator, FalsifyError, Problem, Search};
+use super::{
+    append, cmaes_from, done, doubled_population, population_size, uniform_points, Evaluation, Evaluator, FalsifyError,
+    Problem, Search,
+};
 use crate::random::SplitMix64;
 
 /// A bracket whose endpoints are closer than this (Euclidean, in box units) is spent: the
@@ -97,7 +100,6 @@ pub(super) fn run_guided(
     found: &mut Search,
     progress: &mut impl FnMut(&Search),
 ) -> Result<(), FalsifyError> {
-    use rayon::prelude::*;
     let d = problem.ranges.len();
     let lambda = population_size(d);
     let mut generator = SplitMix64(problem.seed ^ 0x6D1D_ED5E_A2C4);
@@ -106,9 +108,7 @@ pub(super) fn run_guided(
         lineage: Vec::new(),
         classes: Vec::new(),
     };
-    let evaluate = |units: Vec<Vec<f64>>| -> Vec<Evaluation> {
-        pool.install(|| units.into_par_iter().map(|u| evaluator.evaluate(&u)).collect())
-    };
+    let evaluate = |units: Vec<Vec<f64>>| evaluator.evaluate_all(pool, units);
     let mut generation = 0;
     // Records a generation (in canonical order) into the search and the memory.
     // Records a generation (in canonical order) into the search and the memory; with more than
@@ -162,13 +162,7 @@ pub(super) fn run_guided(
 
     // 2. Brackets and CMA-ES generations.
     let cmaes_batch: Mutex<Vec<Evaluation>> = Mutex::new(Vec::new());
-    let objective = |x: &cmaes::DVector<f64>| {
-        let unit: Vec<f64> = x.iter().map(|&z| reflect(z)).collect();
-        let e = evaluator.evaluate(&unit);
-        let score = e.score;
-        cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()).push(e);
-        score
-    };
+    let objective = evaluator.cmaes_objective(&cmaes_batch);
     let mut optimiser = None;
     let mut population = lambda;
     let mut restarts = 0u64;
@@ -215,9 +209,7 @@ pub(super) fn run_guided(
         // Every other generation explores: uniform draws over the box (what random search does),
         // so an optimiser stuck in a flat or noisy basin costs at most half the budget.
         if cmaes_generations > explore_generations {
-            let units = (0..lambda.min(remaining(found)))
-                .map(|_| (0..d).map(|_| generator.next_f64()).collect())
-                .collect();
+            let units = uniform_points(&mut generator, lambda.min(remaining(found)), d);
             explore_generations += 1;
             let batch = evaluate(units);
             record(found, &mut memory, &mut generation, batch, None, progress);
@@ -234,13 +226,12 @@ pub(super) fn run_guided(
             } else {
                 (0..d).map(|_| generator.next_f64()).collect()
             };
-            optimiser = Some(
-                cmaes::CMAESOptions::new(mean, 0.3)
-                    .population_size(population)
-                    .seed(problem.seed.wrapping_add(restarts))
-                    .build(&objective)
-                    .map_err(|e| FalsifyError::Optimiser(format!("{e:?}")))?,
-            );
+            optimiser = Some(cmaes_from(
+                mean,
+                population,
+                problem.seed.wrapping_add(restarts),
+                &objective,
+            )?);
         }
         let terminated = match optimiser.as_mut() {
             Some(o) => pool.install(|| o.next_parallel()),
@@ -256,8 +247,7 @@ pub(super) fn run_guided(
         } else if terminated.is_some() {
             optimiser = None;
             restarts += 1;
-            // Doubled (IPOP), never beyond what is left of the budget (a generation runs whole).
-            population = (population * 2).min(remaining(found).max(lambda));
+            population = doubled_population(population, problem, found);
         }
     }
     Ok(())
