@@ -14,7 +14,7 @@
 //! baseline no candidate is in U and the search is the spread generation plus CMA-ES.
 //!
 //! Noise: where a random seed or actuation jitter decides the outcome, a bracket generation's
-//! classes interleave along its segment ([`ordered_along`]); the score's mean then does not
+//! classes interleave along its segment (`ordered_along`); the score's mean then does not
 //! point to violations either, so the rest of the budget goes to uniform draws (random search,
 //! the best a search can do where the score reveals no structure).
 //!
