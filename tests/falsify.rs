@@ -633,3 +633,139 @@ fn an_unwritable_out_directory_is_refused_before_the_search() {
     assert!(err.contains("--out /sys/kernel: cannot write"), "{err}");
     assert!(!err.contains("runs |"), "no run before the refusal: {err}");
 }
+
+/// The rows of one search's evaluations.csv grouped by generation, each row as its point in
+/// box units (the order of `ranges`: key, lo, hi) and its class along a bracket: 0 holds
+/// (qualified), 1 a violation, 2 fails with a failing baseline, 3 holds while its baseline
+/// fails.
+fn generations_in_box_units(out: &Path, ranges: &[(&str, f64, f64)]) -> Vec<Vec<(Vec<f64>, u8)>> {
+    let mut generations: Vec<Vec<(Vec<f64>, u8)>> = Vec::new();
+    for row in evaluation_rows(out) {
+        let g: usize = row["generation"].parse().unwrap();
+        let point = ranges
+            .iter()
+            .map(|(key, lo, hi)| (row[*key].parse::<f64>().unwrap() - lo) / (hi - lo))
+            .collect();
+        let class = match (row["violation"].as_str(), row["qualified"].as_str()) {
+            ("true", _) => 1,
+            (_, "true") => 0,
+            _ if row["candidate_min_h"].parse::<f64>().unwrap() < 0.0 => 2,
+            _ => 3,
+        };
+        if generations.len() <= g {
+            generations.resize(g + 1, Vec::new());
+        }
+        generations[g].push((point, class));
+    }
+    generations
+}
+
+/// A generation of the guided search's brackets: its points on one segment (box units, to
+/// `tolerance`: the rounding of quantised ranges), with each point's position along it.
+fn along_one_segment(points: &[(Vec<f64>, u8)], tolerance: f64) -> Option<Vec<(f64, u8)>> {
+    let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    let (mut a, mut b) = (0, 0);
+    for i in 0..points.len() {
+        for j in 0..points.len() {
+            if distance(&points[i].0, &points[j].0) > distance(&points[a].0, &points[b].0) {
+                (a, b) = (i, j);
+            }
+        }
+    }
+    let (pa, pb) = (&points[a].0, &points[b].0);
+    let length = distance(pa, pb);
+    let mut along = Vec::new();
+    for (p, class) in points {
+        let t = p
+            .iter()
+            .zip(pa)
+            .zip(pb)
+            .map(|((x, s), e)| (x - s) * (e - s))
+            .sum::<f64>()
+            / length.powi(2);
+        let on_line: Vec<f64> = pa.iter().zip(pb).map(|(s, e)| s + t * (e - s)).collect();
+        if distance(p, &on_line) > tolerance {
+            return None;
+        }
+        along.push((t, *class));
+    }
+    along.sort_by(|x, y| x.0.total_cmp(&y.0));
+    Some(along)
+}
+
+/// Where actuation jitter and its seed decide the outcome (docs/falsification.md, problem 4),
+/// the first bracket's classes interleave along its segment and the guided search brackets no
+/// more (the rest is uniform draws); where the outcome is a function of the box (problem 5)
+/// the brackets go on until they find the violation.
+#[test]
+fn a_bracket_whose_classes_interleave_ends_the_bracketing() {
+    let dir = tempfile::tempdir().unwrap();
+    let jitter = dir.path().join("jitter");
+    let o = falsify(
+        "bicycle_obstacle_gamma_m.toml",
+        &[
+            "--range", "vehicle.initial_state.0=-26..-16",
+            "--range", "obstacles.0.centre.1=-3..3",
+            "--set", "actuation={steering={extra_latency={distribution=\"uniform\", max=0.0}}, acceleration={extra_latency={distribution=\"uniform\", max=0.0}}}",
+            "--range", "actuation.steering.extra_latency.max=0..0.1",
+            "--range", "actuation.acceleration.extra_latency.max=0..0.1",
+            "--range", "seed=0..1000:1",
+            "--baseline", "actuation.steering.extra_latency.max=0.0",
+            "--baseline", "actuation.acceleration.extra_latency.max=0.0",
+            "--budget", "96", "--seed", "1",
+        ],
+        &jitter,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let ranges = [
+        ("vehicle.initial_state.0", -26.0, -16.0),
+        ("obstacles.0.centre.1", -3.0, 3.0),
+        ("actuation.steering.extra_latency.max", 0.0, 0.1),
+        ("actuation.acceleration.extra_latency.max", 0.0, 0.1),
+        ("seed", 0.0, 1000.0),
+    ];
+    let generations = generations_in_box_units(&jitter, &ranges);
+    assert!(generations.len() > 3, "{} generations", generations.len());
+    let brackets: Vec<(usize, Vec<(f64, u8)>)> = generations
+        .iter()
+        .enumerate()
+        .filter_map(|(g, points)| along_one_segment(points, 1e-3).map(|a| (g, a)))
+        .collect();
+    assert_eq!(
+        brackets.len(),
+        1,
+        "bracket generations: {:?}",
+        brackets.iter().map(|b| b.0).collect::<Vec<_>>()
+    );
+    let (g, along) = &brackets[0];
+    assert_eq!(*g, 1, "the bracket follows the first generation");
+    let classes: Vec<u8> = along.iter().map(|(_, c)| *c).collect();
+    assert!(
+        classes.contains(&3) || classes.windows(2).any(|w| w[0] > w[1]),
+        "the bracket's classes along its segment: {classes:?}"
+    );
+
+    let rare = dir.path().join("rare");
+    let mut args = RARE_BOX.to_vec();
+    args.extend_from_slice(&DELAY_FREE_BASELINE);
+    args.extend_from_slice(&["--budget", "200", "--seed", "1"]);
+    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &rare);
+    assert!(o.status.success(), "{}", text(&o));
+    let ranges = [
+        ("vehicle.initial_state.0", -50.0, -10.0),
+        ("obstacles.0.centre.1", -3.0, 3.0),
+        ("delays.acceleration", 0.5, 2.0),
+    ];
+    let generations = generations_in_box_units(&rare, &ranges);
+    let ordered: Vec<usize> = generations
+        .iter()
+        .enumerate()
+        .filter_map(|(g, points)| {
+            // D2's step of 0.1 rounds a point by up to 0.033 box units.
+            let classes: Vec<u8> = along_one_segment(points, 0.04)?.iter().map(|(_, c)| *c).collect();
+            classes.windows(2).all(|w| w[0] <= w[1]).then_some(g)
+        })
+        .collect();
+    assert!(ordered.len() >= 2, "ordered bracket generations: {ordered:?}");
+    assert!(generations.last().unwrap().iter().any(|(_, class)| *class == 1));
+}
