@@ -15,8 +15,9 @@
 //!
 //! Noise: where a random seed or actuation jitter decides the outcome, a bracket generation's
 //! classes interleave along its segment (`ordered_along`); the score's mean then does not
-//! point to violations either, so the rest of the budget goes to uniform draws (random search,
-//! the best a search can do where the score reveals no structure).
+//! point to violations either, so the rest of the budget goes to uniform draws, each redrawn
+//! while its nearest evaluated candidate (seeds left out of the distance) was not qualified
+//! (`qualified_points`): random search over the part of the box where the baseline may hold.
 //!
 //! Determinism: every draw comes from the search's seeded generator in the order of the
 //! generations, and a generation's evaluations are recorded in canonical order.
@@ -86,6 +87,57 @@ fn ordered_along(a: &[f64], b: &[f64], evaluations: &[Evaluation], threshold: f6
     }
     ranked.sort_by(|x, y| x.0.total_cmp(&y.0));
     ranked.windows(2).all(|w| w[0].1 <= w[1].1)
+}
+
+/// Whether a range is a random seed (`seed`, `….seed`): its value changes the outcome without
+/// order, so distances between candidates leave it out.
+fn is_seed(key: &str) -> bool {
+    key == "seed" || key.ends_with(".seed")
+}
+
+/// Proposals drawn for one point of [`qualified_points`] before it takes the last one.
+const PROPOSALS_PER_POINT: usize = 64;
+
+/// `count` uniform points of the d-dimensional unit box, each redrawn (up to
+/// [`PROPOSALS_PER_POINT`] times) while its nearest evaluated candidate (of the latest
+/// [`PAIRING_WINDOW`], distance over the coordinates `dims`) was not qualified: a candidate
+/// whose baseline fails is never a violation, so the draws avoid the part of the box the
+/// baseline is known to fail in.
+fn qualified_points(
+    generator: &mut SplitMix64,
+    count: usize,
+    d: usize,
+    dims: &[usize],
+    evaluations: &[Evaluation],
+) -> Vec<Vec<f64>> {
+    let known: Vec<&Evaluation> = evaluations[evaluations.len().saturating_sub(PAIRING_WINDOW)..]
+        .iter()
+        .filter(|e| e.error.is_none() && e.objective.is_some())
+        .collect();
+    let nearest_qualified = |z: &[f64]| {
+        known
+            .iter()
+            .map(|e| {
+                (
+                    dims.iter().map(|&k| (e.point[k] - z[k]).powi(2)).sum::<f64>(),
+                    e.qualified,
+                )
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .is_none_or(|(_, qualified)| qualified)
+    };
+    (0..count)
+        .map(|_| {
+            let mut z = uniform_points(generator, 1, d).remove(0);
+            for _ in 1..PROPOSALS_PER_POINT {
+                if nearest_qualified(&z) {
+                    break;
+                }
+                z = uniform_points(generator, 1, d).remove(0);
+            }
+            z
+        })
+        .collect()
 }
 
 /// The Euclidean distance of two points of the box (box units).
@@ -209,8 +261,9 @@ pub(super) fn run_guided(
     let (mut cmaes_generations, mut explore_generations) = (0usize, 0usize);
     // Set by a bracket whose classes interleave: noise decides the outcome, the score does not
     // point to violations (CMA-ES minimises its mean and drifts to low jitter), and the rest of
-    // the budget goes to uniform draws.
+    // the budget goes to uniform draws where the baseline may hold.
     let mut noisy = false;
+    let seed_free: Vec<usize> = (0..d).filter(|&k| !is_seed(&problem.ranges[k].key)).collect();
     while !done(problem, found) {
         if !noisy && 2 * bracket_evaluations <= found.evaluations.len() {
             if let Some((s, u, distance)) = memory.closest_pair(&found.evaluations) {
@@ -256,7 +309,12 @@ pub(super) fn run_guided(
         // Every other generation explores: uniform draws over the box (what random search does),
         // so an optimiser stuck in a flat or noisy basin costs at most half the budget.
         if noisy || cmaes_generations > explore_generations {
-            let units = uniform_points(&mut generator, lambda.min(remaining(found)), d);
+            let count = lambda.min(remaining(found));
+            let units = if noisy {
+                qualified_points(&mut generator, count, d, &seed_free, &found.evaluations)
+            } else {
+                uniform_points(&mut generator, count, d)
+            };
             explore_generations += 1;
             let batch = evaluate(units);
             record(found, &mut memory, &mut generation, batch, None, progress);
@@ -381,5 +439,27 @@ mod tests {
         failed.objective = None;
         failed.error = Some("run failed".into());
         assert!(ordered_along(&a, &b, &[holds(0.2), failed, fails(0.8)], 0.0));
+    }
+
+    #[test]
+    fn draws_after_noise_avoid_where_the_nearest_candidate_was_not_qualified() {
+        // The baseline fails for x > 0.5 (the second coordinate is a seed: left out).
+        let evaluations: Vec<Evaluation> = (0..20)
+            .map(|i| {
+                let x = (i as f64 + 0.5) / 20.0;
+                let seed = if i % 2 == 0 { 0.05 } else { 0.95 };
+                evaluation([x, seed], 0.1, if x < 0.5 { 0.1 } else { -0.1 })
+            })
+            .collect();
+        let mut generator = SplitMix64(7);
+        let points = qualified_points(&mut generator, 200, 2, &[0], &evaluations);
+        assert_eq!(points.len(), 200);
+        assert!(points.iter().all(|p| p[0] < 0.5), "{points:?}");
+        // Seeds stay uniform draws over the whole range.
+        assert!(points.iter().any(|p| p[1] > 0.5) && points.iter().any(|p| p[1] < 0.5));
+        // With no qualified candidate the draws are uniform (the last proposal is taken).
+        let failing: Vec<Evaluation> = (0..4).map(|i| evaluation([i as f64 / 4.0, 0.5], -1.0, -1.0)).collect();
+        let points = qualified_points(&mut generator, 50, 2, &[0], &failing);
+        assert!(points.iter().any(|p| p[0] > 0.5) && points.iter().any(|p| p[0] < 0.5));
     }
 }
