@@ -128,14 +128,14 @@ fn qualified_points(
     };
     (0..count)
         .map(|_| {
-            let mut z = uniform_points(generator, 1, d).remove(0);
-            for _ in 1..PROPOSALS_PER_POINT {
-                if nearest_qualified(&z) {
-                    break;
+            let mut attempts = 1;
+            loop {
+                let z: Vec<f64> = (0..d).map(|_| generator.next_f64()).collect();
+                if attempts == PROPOSALS_PER_POINT || nearest_qualified(&z) {
+                    return z;
                 }
-                z = uniform_points(generator, 1, d).remove(0);
+                attempts += 1;
             }
-            z
         })
         .collect()
 }
@@ -200,7 +200,6 @@ pub(super) fn run_guided(
     };
     let evaluate = |units: Vec<Vec<f64>>| evaluator.evaluate_all(pool, units);
     let mut generation = 0;
-    // Records a generation (in canonical order) into the search and the memory.
     // Records a generation (in canonical order) into the search and the memory; with more than
     // one failure mode asked for, the candidates near a new violation stop ending brackets (the
     // next bracket looks elsewhere). Returns whether the generation found a violation.
