@@ -50,9 +50,9 @@ pub enum FalsifyError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// A first generation spread over the box, bisection of the boundary between candidates
+    /// A first generation spread over the box, trisection of the boundary between candidates
     /// that hold and candidates whose baseline fails too, CMA-ES alternating with uniform
-    /// draws, and only uniform draws away from where the baseline failed once a bisection
+    /// draws, and only uniform draws away from where the baseline failed once a trisection
     /// shows noise ([`guided`]).
     Guided,
     /// CMA-ES on the box mapped to [0, 1]^d (reflected at the bounds), restarted with a doubled

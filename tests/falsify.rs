@@ -660,43 +660,58 @@ fn generations_in_box_units(out: &Path, ranges: &[(&str, f64, f64)]) -> Vec<Vec<
     generations
 }
 
-/// A generation of the guided search's brackets: its points on one segment (box units, to
-/// `tolerance`: the rounding of quantised ranges), with each point's position along it.
-fn along_one_segment(points: &[(Vec<f64>, u8)], tolerance: f64) -> Option<Vec<(f64, u8)>> {
+/// The guided search's bracket generations, found independently of its code: a generation of
+/// two points at the thirds of the segment between two earlier points (box units, to
+/// `tolerance`: the rounding of quantised ranges). Each comes with whether the classes of all
+/// points evaluated so far on its line are ordered as a bracket assumes (holding, violations,
+/// failing; none that holds while its baseline fails).
+fn bracket_generations(generations: &[Vec<(Vec<f64>, u8)>], tolerance: f64) -> Vec<(usize, bool)> {
     let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
-    let (mut a, mut b) = (0, 0);
-    for i in 0..points.len() {
-        for j in 0..points.len() {
-            if distance(&points[i].0, &points[j].0) > distance(&points[a].0, &points[b].0) {
-                (a, b) = (i, j);
-            }
+    let at = |a: &[f64], b: &[f64], t: f64| -> Vec<f64> { a.iter().zip(b).map(|(x, y)| x + t * (y - x)).collect() };
+    let mut brackets = Vec::new();
+    for (g, points) in generations.iter().enumerate() {
+        if points.len() != 2 {
+            continue;
         }
-    }
-    let (pa, pb) = (&points[a].0, &points[b].0);
-    let length = distance(pa, pb);
-    let mut along = Vec::new();
-    for (p, class) in points {
-        let t = p
+        let earlier: Vec<&(Vec<f64>, u8)> = generations[..g].iter().flatten().collect();
+        let ends = earlier.iter().enumerate().find_map(|(i, a)| {
+            earlier[i + 1..].iter().find_map(|b| {
+                let thirds = [at(&a.0, &b.0, 1.0 / 3.0), at(&a.0, &b.0, 2.0 / 3.0)];
+                let hits =
+                    |p: &[f64], q: &[f64]| distance(p, &thirds[0]) < tolerance && distance(q, &thirds[1]) < tolerance;
+                (hits(&points[0].0, &points[1].0) || hits(&points[1].0, &points[0].0)).then_some((a, b))
+            })
+        });
+        let Some((a, b)) = ends else { continue };
+        // The line's points, ranked from the end that holds.
+        let (a, b) = if a.1 == 0 { (a, b) } else { (b, a) };
+        let length = distance(&a.0, &b.0);
+        let mut along: Vec<(f64, u8)> = earlier
             .iter()
-            .zip(pa)
-            .zip(pb)
-            .map(|((x, s), e)| (x - s) * (e - s))
-            .sum::<f64>()
-            / length.powi(2);
-        let on_line: Vec<f64> = pa.iter().zip(pb).map(|(s, e)| s + t * (e - s)).collect();
-        if distance(p, &on_line) > tolerance {
-            return None;
-        }
-        along.push((t, *class));
+            .copied()
+            .chain(points.iter())
+            .filter_map(|(p, class)| {
+                let t = p
+                    .iter()
+                    .zip(&a.0)
+                    .zip(&b.0)
+                    .map(|((x, s), e)| (x - s) * (e - s))
+                    .sum::<f64>()
+                    / length.powi(2);
+                (distance(p, &at(&a.0, &b.0, t)) < tolerance).then_some((t, *class))
+            })
+            .collect();
+        along.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let ordered = along.iter().all(|(_, c)| *c != 3) && along.windows(2).all(|w| w[0].1 <= w[1].1);
+        brackets.push((g, ordered));
     }
-    along.sort_by(|x, y| x.0.total_cmp(&y.0));
-    Some(along)
+    brackets
 }
 
 /// Where actuation jitter and its seed decide the outcome (docs/falsification.md, problem 4),
-/// the first bracket's classes interleave along its segment and the guided search brackets no
-/// more (the rest is uniform draws); where the outcome is a function of the box (problem 5)
-/// the brackets go on until they find the violation.
+/// the classes on a bracket's line soon interleave and the guided search brackets no more (the
+/// rest is uniform draws); where the outcome is a function of the box (problem 5) the brackets
+/// stay ordered and go on until they find the violation.
 #[test]
 fn a_bracket_whose_classes_interleave_ends_the_bracketing() {
     let dir = tempfile::tempdir().unwrap();
@@ -725,47 +740,44 @@ fn a_bracket_whose_classes_interleave_ends_the_bracketing() {
         ("seed", 0.0, 1000.0),
     ];
     let generations = generations_in_box_units(&jitter, &ranges);
-    assert!(generations.len() > 3, "{} generations", generations.len());
-    let brackets: Vec<(usize, Vec<(f64, u8)>)> = generations
-        .iter()
-        .enumerate()
-        .filter_map(|(g, points)| along_one_segment(points, 1e-3).map(|a| (g, a)))
-        .collect();
-    assert_eq!(
-        brackets.len(),
-        1,
-        "bracket generations: {:?}",
-        brackets.iter().map(|b| b.0).collect::<Vec<_>>()
-    );
-    let (g, along) = &brackets[0];
-    assert_eq!(*g, 1, "the bracket follows the first generation");
-    let classes: Vec<u8> = along.iter().map(|(_, c)| *c).collect();
+    let brackets = bracket_generations(&generations, 1e-3);
+    let (last, ordered) = *brackets.last().expect("a bracket generation");
+    assert!(!ordered, "the last bracket's line is ordered: {brackets:?}");
     assert!(
-        classes.contains(&3) || classes.windows(2).any(|w| w[0] > w[1]),
-        "the bracket's classes along its segment: {classes:?}"
+        brackets[..brackets.len() - 1].iter().all(|(_, ordered)| *ordered),
+        "a bracket after an interleaved line: {brackets:?}"
     );
+    assert!(generations.len() > last + 2, "no uniform draws after the brackets");
+    assert!(generations[last + 1..].iter().all(|points| points.len() == 8));
 
-    let rare = dir.path().join("rare");
-    let mut args = RARE_BOX.to_vec();
-    args.extend_from_slice(&DELAY_FREE_BASELINE);
-    args.extend_from_slice(&["--budget", "200", "--seed", "1"]);
-    let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &rare);
-    assert!(o.status.success(), "{}", text(&o));
     let ranges = [
         ("vehicle.initial_state.0", -50.0, -10.0),
         ("obstacles.0.centre.1", -3.0, 3.0),
         ("delays.acceleration", 0.5, 2.0),
     ];
-    let generations = generations_in_box_units(&rare, &ranges);
-    let ordered: Vec<usize> = generations
-        .iter()
-        .enumerate()
-        .filter_map(|(g, points)| {
-            // D2's step of 0.1 rounds a point by up to 0.033 box units.
-            let classes: Vec<u8> = along_one_segment(points, 0.04)?.iter().map(|(_, c)| *c).collect();
-            classes.windows(2).all(|w| w[0] <= w[1]).then_some(g)
-        })
-        .collect();
-    assert!(ordered.len() >= 2, "ordered bracket generations: {ordered:?}");
-    assert!(generations.last().unwrap().iter().any(|(_, class)| *class == 1));
+    let mut bracket_count = 0;
+    for seed in ["1", "2", "3", "4"] {
+        let rare = dir.path().join(format!("rare-{seed}"));
+        let mut args = RARE_BOX.to_vec();
+        args.extend_from_slice(&DELAY_FREE_BASELINE);
+        args.extend_from_slice(&["--budget", "200", "--seed", seed]);
+        let o = falsify("bicycle_obstacle_gamma_m.toml", &args, &rare);
+        assert!(o.status.success(), "{}", text(&o));
+        let generations = generations_in_box_units(&rare, &ranges);
+        // D2's step of 0.1 rounds a point by up to 0.033 box units.
+        let brackets = bracket_generations(&generations, 0.04);
+        assert!(
+            brackets.iter().all(|(_, ordered)| *ordered),
+            "seed {seed}: {brackets:?}"
+        );
+        let last = brackets.last().map(|b| b.0);
+        assert_eq!(
+            last,
+            Some(generations.len() - 1),
+            "seed {seed}: the violation is a bracket's"
+        );
+        assert!(generations.last().unwrap().iter().any(|(_, class)| *class == 1));
+        bracket_count += brackets.len();
+    }
+    assert!(bracket_count > 4, "one bracket generation per seed: {bracket_count}");
 }

@@ -57,9 +57,9 @@ pub struct FalsifyArgs {
     /// (`distance_to_goal` = 0).
     #[arg(long)]
     pub baseline_reaches_goal: bool,
-    /// How candidates are chosen: guided (a spread first generation, bisection of the boundary
+    /// How candidates are chosen: guided (a spread first generation, trisection of the boundary
     /// where the baseline starts to fail, CMA-ES alternating with uniform draws; once a
-    /// bisection shows that noise decides, only uniform draws away from where the baseline
+    /// trisection shows that noise decides, only uniform draws away from where the baseline
     /// failed), cmaes (CMA-ES from the box's centre) or random (uniform draws).
     #[arg(long, value_enum, default_value_t = falsify::Method::Guided)]
     pub method: falsify::Method,

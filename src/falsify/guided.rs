@@ -1,5 +1,5 @@
 //! The guided search (`--method guided`, the default): a first generation spread over the box,
-//! then generations that bisect the boundary between a qualified candidate that holds and a
+//! then generations that trisect the boundary between a qualified candidate that holds and a
 //! failing candidate whose baseline fails too, and after those CMA-ES generations alternating
 //! with uniform draws over the box (docs/falsification.md measures each of these ideas).
 //!
@@ -8,13 +8,14 @@
 //! delay assumed, no jitter), "the baseline fails" implies "the candidate fails", so on a path
 //! from a candidate that holds (class S: qualified, m ≥ T) to one that fails with a failing
 //! baseline (class U), the candidate fails first: the points between its failure boundary and
-//! the baseline's are violations. Multisection of the closest S–U pair (λ points evenly on the
-//! segment, one generation) shrinks the bracket by λ + 1 per generation; when the two
-//! boundaries meet (a bracket shorter than [`BRACKET_TOLERANCE`]) the pair is spent. Without a
-//! baseline no candidate is in U and the search is the spread generation plus CMA-ES.
+//! the baseline's are violations. Trisection of the closest S–U pair not bracketed yet (two
+//! points at the segment's thirds, one generation) shrinks the bracket 3 times per
+//! generation; when the two boundaries meet (a bracket shorter than [`BRACKET_TOLERANCE`]) the
+//! pair is spent. Without a baseline no candidate is in U and the search is the spread
+//! generation plus CMA-ES.
 //!
-//! Noise: where a random seed or actuation jitter decides the outcome, a bracket generation's
-//! classes interleave along its segment (`ordered_along`); the score's mean then does not
+//! Noise: where a random seed or actuation jitter decides the outcome, the classes of the
+//! points on a bracket's line interleave (`ordered_along`); the score's mean then does not
 //! point to violations either, so the rest of the budget goes to uniform draws, each redrawn
 //! while its nearest evaluated candidate (seeds left out of the distance) was not qualified
 //! (`qualified_points`): random search over the part of the box where the baseline may hold.
@@ -22,6 +23,7 @@
 //! Determinism: every draw comes from the search's seeded generator in the order of the
 //! generations, and a generation's evaluations are recorded in canonical order.
 
+use std::collections::HashSet;
 use std::sync::Mutex;
 
 use super::{
@@ -33,6 +35,12 @@ use crate::random::SplitMix64;
 /// A bracket whose endpoints are closer than this (Euclidean, in box units) is spent: the
 /// candidate's and the baseline's boundaries meet there.
 pub const BRACKET_TOLERANCE: f64 = 1e-3;
+
+/// Points of a bracket generation, at k/(n + 1) of the segment: each generation shrinks the
+/// bracket 3 times (two runs), where 8 points shrink it 9 times for eight runs. On the
+/// rare-failure box (problem 5 of docs/falsification.md) the slab of violations is 2–10 % of
+/// the first segment, and trisection reaches it in fewer runs than one generation of 8.
+const BRACKET_POINTS: usize = 2;
 
 /// At most this many of the latest candidates of each class are paired (bounds the pairing's
 /// cost at any budget).
@@ -56,16 +64,20 @@ fn class_of(e: &Evaluation, threshold: f64) -> Class {
     }
 }
 
-/// Whether a bracket generation's evaluations lie along the segment from `a` (holds) to `b`
-/// (fails with its baseline) in the order the bracket assumes: holding, then violations, then
-/// failing with the baseline. Where a random seed or actuation jitter decides the outcome the
-/// classes interleave (or a candidate holds where its more capable baseline fails), and
-/// multisection does not converge: gamma_m_jitter's first bracket shrank from 0.54 to 0.03 box
-/// units in five generations without being spent.
-fn ordered_along(a: &[f64], b: &[f64], evaluations: &[Evaluation], threshold: f64) -> bool {
+/// Whether `evaluations` (the points on a bracket's line) lie along the direction from `a`
+/// (holds) to `b` (fails with its baseline) in the order the bracket assumes: holding, then
+/// violations, then failing with the baseline. Where a random seed or actuation jitter decides
+/// the outcome the classes interleave (or a candidate holds where its more capable baseline
+/// fails), and the brackets do not converge: gamma_m_jitter's first bracket of 8 points shrank
+/// from 0.54 to 0.03 box units in five generations without being spent.
+fn ordered_along<'a>(
+    a: &[f64],
+    b: &[f64],
+    evaluations: impl IntoIterator<Item = &'a Evaluation>,
+    threshold: f64,
+) -> bool {
     let direction: Vec<f64> = a.iter().zip(b).map(|(x, y)| y - x).collect();
-    let length2: f64 = direction.iter().map(|x| x * x).sum();
-    let mut ranked: Vec<(f64, u8)> = Vec::with_capacity(evaluations.len());
+    let mut ranked: Vec<(f64, u8)> = Vec::new();
     for e in evaluations {
         let rank = match class_of(e, threshold) {
             _ if e.violation => 1,
@@ -75,18 +87,33 @@ fn ordered_along(a: &[f64], b: &[f64], evaluations: &[Evaluation], threshold: f6
             // Holds while its baseline fails: the premise of the bracket fails here.
             Class::Other => return false,
         };
-        let t = e
+        ranked.push((projection(&e.point, a, &direction), rank));
+    }
+    ranked.sort_by(|x, y| x.0.total_cmp(&y.0));
+    ranked.windows(2).all(|w| w[0].1 <= w[1].1)
+}
+
+/// The evaluations on the line through `a` and `b` (within 1e-9 box units): a bracket's ends,
+/// its points and those of the earlier brackets of its lineage, which all lie on that line.
+fn on_line<'a>(a: &'a [f64], b: &'a [f64], evaluations: &'a [Evaluation]) -> impl Iterator<Item = &'a Evaluation> {
+    let direction: Vec<f64> = a.iter().zip(b).map(|(x, y)| y - x).collect();
+    let length2: f64 = direction.iter().map(|x| x * x).sum();
+    evaluations.iter().filter(move |e| {
+        let t = projection(&e.point, a, &direction) / length2;
+        let off2: f64 = e
             .point
             .iter()
             .zip(a)
             .zip(&direction)
-            .map(|((p, x), d)| (p - x) * d)
-            .sum::<f64>()
-            / length2;
-        ranked.push((t, rank));
-    }
-    ranked.sort_by(|x, y| x.0.total_cmp(&y.0));
-    ranked.windows(2).all(|w| w[0].1 <= w[1].1)
+            .map(|((p, x), d)| (p - x - t * d).powi(2))
+            .sum();
+        off2 < 1e-18
+    })
+}
+
+/// (p − a) · direction.
+fn projection(p: &[f64], a: &[f64], direction: &[f64]) -> f64 {
+    p.iter().zip(a).zip(direction).map(|((p, x), d)| (p - x) * d).sum()
 }
 
 /// Whether a range is a random seed (`seed`, `….seed`): its value changes the outcome without
@@ -148,15 +175,19 @@ fn euclidean(a: &[f64], b: &[f64]) -> f64 {
 /// What the guided search knows of its candidates besides their evaluations, in the search's
 /// order.
 struct Memory {
-    /// Whether a candidate already ended a bracket.
+    /// Whether a candidate no longer ends brackets (its lineage is spent, or it lies near a
+    /// violation found when more than one failure mode is asked for).
     used: Vec<bool>,
     /// The bracket lineage a candidate was placed by.
     lineage: Vec<Option<usize>>,
     classes: Vec<Class>,
+    /// The pairs (holds, fails) that already ended a bracket. Each end stays free to pair
+    /// with the bracket's new points: a trisection's points may all fall on one side.
+    bracketed: HashSet<(usize, usize)>,
 }
 
 impl Memory {
-    /// The closest unused pair (holds, fails with its baseline), if any.
+    /// The closest pair (holds, fails with its baseline) not yet bracketed, if any.
     fn closest_pair(&self, evaluations: &[Evaluation]) -> Option<(usize, usize, f64)> {
         let latest = |class: Class| -> Vec<usize> {
             let mut v: Vec<usize> = (0..self.classes.len())
@@ -172,6 +203,9 @@ impl Memory {
         let mut best: Option<(usize, usize, f64)> = None;
         for &s in &holds {
             for &u in &fails {
+                if self.bracketed.contains(&(s, u)) {
+                    continue;
+                }
                 let d = euclidean(&evaluations[s].point, &evaluations[u].point);
                 if best.is_none_or(|(_, _, b)| d < b) {
                     best = Some((s, u, d));
@@ -197,6 +231,7 @@ pub(super) fn run_guided(
         used: Vec::new(),
         lineage: Vec::new(),
         classes: Vec::new(),
+        bracketed: HashSet::new(),
     };
     let evaluate = |units: Vec<Vec<f64>>| evaluator.evaluate_all(pool, units);
     let mut generation = 0;
@@ -232,9 +267,18 @@ pub(super) fn run_guided(
     };
     let remaining = |found: &Search| problem.budget.saturating_sub(found.evaluations.len());
 
-    // 1. The first generation: a Latin hypercube (each coordinate's λ strata hit once).
+    // 1. The first generation: a Latin hypercube (each coordinate's strata hit once).
     if !done(problem, found) {
-        let count = lambda.min(remaining(found));
+        // With a baseline it only has to give the brackets a pair: half of λ (problem 5 of
+        // docs/falsification.md: 9.5 runs against 12 with λ; problem 1: 4.5 against 10).
+        // Without one it is CMA-ES's first look at the box (problem 3 with 4 points: two of
+        // ten seeds without a violation).
+        let first = if problem.baseline.is_empty() {
+            lambda
+        } else {
+            lambda.div_ceil(2)
+        };
+        let count = first.min(remaining(found));
         let mut units = vec![vec![0.0; d]; count];
         for i in 0..d {
             let mut strata: Vec<usize> = (0..count).collect();
@@ -280,9 +324,8 @@ pub(super) fn run_guided(
                     lineages += 1;
                     lineages
                 });
-                memory.used[s] = true;
-                memory.used[u] = true;
-                let count = lambda.min(remaining(found));
+                memory.bracketed.insert((s, u));
+                let count = BRACKET_POINTS.min(remaining(found));
                 let units: Vec<Vec<f64>> = (1..=count)
                     .map(|k| {
                         let t = k as f64 / (count + 1) as f64;
@@ -296,10 +339,10 @@ pub(super) fn run_guided(
                     .collect();
                 bracket_evaluations += units.len();
                 let batch = evaluate(units);
-                let start = found.evaluations.len();
                 let violated = record(found, &mut memory, &mut generation, batch, Some(lineage), progress);
                 let (a, b) = (&found.evaluations[s].point, &found.evaluations[u].point);
-                if !violated && !ordered_along(a, b, &found.evaluations[start..], problem.threshold) {
+                let recent = &found.evaluations[found.evaluations.len().saturating_sub(PAIRING_WINDOW)..];
+                if !violated && !ordered_along(a, b, on_line(a, b, recent), problem.threshold) {
                     noisy = true;
                 }
                 continue;
@@ -403,14 +446,17 @@ mod tests {
             used: vec![false; 5],
             lineage: vec![None; 5],
             classes,
+            bracketed: HashSet::new(),
         };
         let (s, u, d) = memory.closest_pair(&evaluations).unwrap();
         assert_eq!((s, u), (1, 3));
         assert!((d - 0.2).abs() < 1e-12);
-        // A candidate ends one bracket: the next pair is the closest of the others.
-        memory.used[1] = true;
-        memory.used[3] = true;
-        assert_eq!(memory.closest_pair(&evaluations).map(|(s, u, _)| (s, u)), Some((0, 2)));
+        // A pair ends one bracket; its ends pair with others (0.5 apart before 0.6 and 0.9).
+        memory.bracketed.insert((1, 3));
+        assert_eq!(memory.closest_pair(&evaluations).map(|(s, u, _)| (s, u)), Some((1, 2)));
+        memory.bracketed.insert((1, 2));
+        assert_eq!(memory.closest_pair(&evaluations).map(|(s, u, _)| (s, u)), Some((0, 3)));
+        // A candidate that no longer ends brackets leaves every pair it is in.
         memory.used[0] = true;
         assert_eq!(memory.closest_pair(&evaluations), None);
     }
