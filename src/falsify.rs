@@ -52,8 +52,8 @@ pub enum FalsifyError {
 pub enum Method {
     /// A first generation spread over the box, trisection of the boundary between candidates
     /// that hold and candidates whose baseline fails too, CMA-ES alternating with uniform
-    /// draws, and only uniform draws away from where the baseline failed once a trisection
-    /// shows noise ([`guided`]).
+    /// draws, and once a trisection shows noise only uniform draws where the baseline held,
+    /// with the smallest baseline margin nearby ([`guided`]).
     Guided,
     /// CMA-ES on the box mapped to [0, 1]^d (reflected at the bounds), restarted with a doubled
     /// population (IPOP) when it converges before the budget is spent.

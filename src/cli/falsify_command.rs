@@ -59,8 +59,9 @@ pub struct FalsifyArgs {
     pub baseline_reaches_goal: bool,
     /// How candidates are chosen: guided (a spread first generation, trisection of the boundary
     /// where the baseline starts to fail, CMA-ES alternating with uniform draws; once a
-    /// trisection shows that noise decides, only uniform draws away from where the baseline
-    /// failed), cmaes (CMA-ES from the box's centre) or random (uniform draws).
+    /// trisection shows that noise decides, only uniform draws where the baseline held, with
+    /// the smallest margin nearby), cmaes (CMA-ES from the box's centre) or random (uniform
+    /// draws).
     #[arg(long, value_enum, default_value_t = falsify::Method::Guided)]
     pub method: falsify::Method,
     /// Find up to K distinct failure modes (violations that fail differently or lie a quarter
