@@ -166,24 +166,24 @@ fn qualified_points(
         .map(|_| {
             let mut best: Option<(f64, Vec<f64>)> = None;
             let mut qualified = 0;
-            for attempt in 1..=PROPOSALS_PER_POINT {
-                let z: Vec<f64> = (0..d).map(|_| generator.next_f64()).collect();
+            let mut z = Vec::new();
+            for _ in 0..PROPOSALS_PER_POINT {
+                z = (0..d).map(|_| generator.next_f64()).collect();
                 match nearest(&z) {
                     None => return z,
+                    Some((false, _)) => {}
                     Some((true, margin)) => {
-                        qualified += 1;
                         if best.as_ref().is_none_or(|(m, _)| margin < *m) {
-                            best = Some((margin, z));
+                            best = Some((margin, z.clone()));
                         }
+                        qualified += 1;
                         if qualified == QUALIFIED_CHOICES {
                             break;
                         }
                     }
-                    Some((false, _)) if attempt == PROPOSALS_PER_POINT && best.is_none() => return z,
-                    Some((false, _)) => {}
                 }
             }
-            best.map(|(_, z)| z).unwrap_or_default()
+            best.map_or(z, |(_, b)| b)
         })
         .collect()
 }
