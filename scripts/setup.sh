@@ -74,6 +74,23 @@ if [ "$want_test" = 1 ]; then
   # No usage data from the rerun CLI the tests run (it would try the network).
   [ -f "${XDG_CONFIG_HOME:-$HOME/.config}/rerun/analytics.json" ] \
     || CI=1 "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || true
+  # CommonRoad's own reader (PyPI commonroad-io), the independent check tests/commonroad_check.py
+  # runs on CommonRoad scenarios and our logs of them. It pins protobuf 3.20.2, which the readers
+  # above cannot share, so it gets a venv of its own, with the same mcap as
+  # scripts/requirements-test.txt.
+  cr_venv="${MJSAFE_CR_VENV:-$HOME/.cache/mjsafe/cr-venv}"
+  cr_io=2026.1
+  mcap_pin=$(grep -m 1 '^mcap==' scripts/requirements-test.txt)
+  if [ ! -x "$cr_venv/bin/python" ]; then
+    echo "setup: creating Python venv for the CommonRoad reader at $cr_venv"
+    python3 -m venv "$cr_venv"
+  fi
+  if ! "$cr_venv/bin/python" -c 'import sys, importlib.metadata as md, commonroad, mcap
+sys.exit(md.version("commonroad-io") != sys.argv[1] or "mcap==" + md.version("mcap") != sys.argv[2])' \
+    "$cr_io" "$mcap_pin" >/dev/null 2>&1; then
+    echo "setup: installing the CommonRoad reader (commonroad-io $cr_io) and $mcap_pin into $cr_venv"
+    "$cr_venv/bin/pip" install -q --disable-pip-version-check "commonroad-io==$cr_io" "$mcap_pin"
+  fi
   # The mjsafe Python package (python/): built by maturin with the tests' profile (dev, which
   # shares their compiled dependencies; headless, without the rerun SDK), installed into the
   # venv when its wheel changed. A rebuild with nothing changed takes seconds.

@@ -19,6 +19,14 @@ pub struct Rectangle {
     /// Covering circles (default [`Rectangle::default_circles`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub circles: Option<usize>,
+    /// How far the rectangle's centre lies ahead of the body's reference point along its
+    /// heading (m; default 0: centred on it), e.g. a car's centre ahead of its rear axle.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub offset: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 /// A footprint that cannot be used: the key and what was expected.
@@ -45,6 +53,12 @@ impl Rectangle {
 
     /// Finite positive sides at most `extent`, and 1…[`MAX_CIRCLES`] circles.
     pub fn check(&self, extent: f64) -> Result<(), FootprintError> {
+        if !(self.offset.is_finite() && self.offset.abs() <= extent) {
+            return Err(FootprintError {
+                key: "offset",
+                message: format!("expected a distance (m) within ±{extent:e}, found {}", self.offset),
+            });
+        }
         for (key, v) in [("length", self.length), ("width", self.width)] {
             if !(v.is_finite() && v > 0.0 && v <= extent) {
                 return Err(FootprintError {
@@ -71,7 +85,7 @@ impl Rectangle {
         let radius = (0.25 * piece * piece + 0.25 * self.width * self.width).sqrt();
         (1..=n)
             .map(|k| Circle {
-                offset: [-0.5 * self.length + (k as f64 - 0.5) * piece, 0.0],
+                offset: [self.offset - 0.5 * self.length + (k as f64 - 0.5) * piece, 0.0],
                 radius,
             })
             .collect()
@@ -136,6 +150,7 @@ mod tests {
                 length: l,
                 width: w,
                 circles: n,
+                offset: 0.0,
             };
             let circles = r.circles();
             assert_eq!(circles.len(), n.unwrap_or((l / w).ceil() as usize));
@@ -157,6 +172,7 @@ mod tests {
             length: 4.6,
             width: 1.8,
             circles: None,
+            offset: 0.0,
         };
         assert_eq!(car.circles().len(), 3);
         assert!((car.circles()[0].radius - 1.182276).abs() < 1e-6);
@@ -168,6 +184,7 @@ mod tests {
             length: 4.0,
             width: 2.0,
             circles: None,
+            offset: 0.0,
         };
         assert!(ok.check(1e9).is_ok());
         for (r, key) in [
@@ -176,6 +193,7 @@ mod tests {
             (Rectangle { length: 2e9, ..ok }, "length"),
             (Rectangle { circles: Some(0), ..ok }, "circles"),
             (Rectangle { circles: Some(9), ..ok }, "circles"),
+            (Rectangle { offset: f64::NAN, ..ok }, "offset"),
         ] {
             assert_eq!(r.check(1e9).unwrap_err().key, key);
         }

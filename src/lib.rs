@@ -10,6 +10,7 @@ pub mod analyze;
 pub mod barrier;
 pub mod bench;
 pub mod cli;
+pub mod commonroad;
 pub mod delay;
 pub mod dynamics;
 pub mod embed;
@@ -22,6 +23,7 @@ pub mod footprint;
 pub mod log;
 pub mod message;
 pub mod metrics;
+pub mod models;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod nominal;

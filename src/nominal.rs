@@ -1,5 +1,7 @@
 //! Nominal (safety-agnostic) controllers u0(x), the input the safety filter corrects.
 
+pub mod route;
+
 use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector, Vector2};
@@ -342,13 +344,21 @@ impl Params for PathLqrParams {
 }
 
 pub fn build_path_lqr(p: &PathLqrParams, ctx: &NominalContext) -> Result<Box<dyn NominalController>, ParamError> {
-    // Any vehicle whose analytic model is the kinematic bicycle (4.78): `bicycle`, `car`, a user's.
+    let wheelbase = bicycle_wheelbase(ctx, "path_lqr")?;
+    let lqr = BicyclePathLqr::new(p.path_point, p.path_heading, p.reference_speed, wheelbase, p.q, p.r)
+        .map_err(|e| ParamError::new("nominal", e.to_string()))?;
+    Ok(Box::new(lqr))
+}
+
+/// The wheelbase L of a vehicle whose analytic model is the kinematic bicycle (4.78) (`bicycle`,
+/// `car`, a user's), or the error of nominal `kind` that needs one.
+pub(crate) fn bicycle_wheelbase(ctx: &NominalContext, kind: &str) -> Result<f64, ParamError> {
     let bicycle = crate::dynamics::BicycleModel::new(1.0);
     if ctx.model.state_names() != bicycle.state_names() || ctx.model.channel_names() != bicycle.channel_names() {
         return Err(ParamError::new(
             "nominal.kind",
             format!(
-                "path_lqr needs a vehicle with the kinematic bicycle model (4.78) (state {}; inputs {}), e.g. vehicle.kind = \"bicycle\" or \"car\"",
+                "{kind} needs a vehicle with the kinematic bicycle model (4.78) (state {}; inputs {}), e.g. vehicle.kind = \"bicycle\" or \"car\"",
                 bicycle.state_names().join(", "),
                 bicycle.channel_names().join(", ")
             ),
@@ -356,10 +366,7 @@ pub fn build_path_lqr(p: &PathLqrParams, ctx: &NominalContext) -> Result<Box<dyn
     }
     // (4.78): G[2, 0] = v tan'(0)/L at v = 1.
     let n = ctx.model.state_dim();
-    let wheelbase = ctx.model.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip();
-    let lqr = BicyclePathLqr::new(p.path_point, p.path_heading, p.reference_speed, wheelbase, p.q, p.r)
-        .map_err(|e| ParamError::new("nominal", e.to_string()))?;
-    Ok(Box::new(lqr))
+    Ok(ctx.model.input_matrix(&DVector::from_element(n, 1.0))[(2, 0)].recip())
 }
 
 impl NominalController for BicyclePathLqr {

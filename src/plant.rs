@@ -40,7 +40,8 @@ pub trait Plant: Send {
     fn step_with_actuation(&mut self, actuation: &[f64]);
     /// Places moving obstacle `index` (its index among all obstacles) at `position` for the
     /// next step. The ODE plant reads the barriers it is given instead: nothing to do.
-    fn move_obstacle(&mut self, index: usize, position: [f64; 2]);
+    /// (`turn`: its rotation since the start, rad; a box turns with it.)
+    fn move_obstacle(&mut self, index: usize, position: [f64; 2], turn: f64);
     /// Penetration depth (> 0) into each obstacle, or None when not touching.
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>);
     /// A warning of the physics engine, raised since the last call, after which the physics
@@ -154,9 +155,12 @@ impl Plant for MujocoPlant {
         self.sim.step_without_hook();
     }
     /// Sets the obstacle's mocap body (at z = 0): the next `mj_step`'s collision sees it there.
-    fn move_obstacle(&mut self, index: usize, position: [f64; 2]) {
+    fn move_obstacle(&mut self, index: usize, position: [f64; 2], turn: f64) {
         if let Some(mocap) = self.obstacles.get(index).and_then(|o| o.mocap) {
             self.sim.set_mocap_pos(mocap, [position[0], position[1], 0.0]);
+            if turn != 0.0 {
+                self.sim.set_mocap_yaw(mocap, turn);
+            }
         }
     }
     /// From MuJoCo's contacts between the vehicle's contact geom (the hull, or the footprint's
@@ -273,7 +277,7 @@ impl Plant for OdePlant {
         self.step_start = std::mem::replace(&mut self.x, next);
         self.step += 1;
     }
-    fn move_obstacle(&mut self, _index: usize, _position: [f64; 2]) {}
+    fn move_obstacle(&mut self, _index: usize, _position: [f64; 2], _turn: f64) {}
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle, at the state
     /// the last step started from (the state the episode logs with this step's barriers).
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {

@@ -160,6 +160,9 @@ impl Registry {
         r.add_nominal("path_lqr", nominal::build_path_lqr)
             .label("LQR path tracking")
             .description("LQR tracking of a reference path, linearised about it (Riccati by the matrix sign function)");
+        r.add_nominal("route", nominal::route::build)
+            .label("route following")
+            .description("pure pursuit of a reference path (a CommonRoad route's centre line) at a reference speed, ignoring other road users");
         r.add_nominal("car_following", nominal::build_car_following)
             .label("car following (Molnar et al.)")
             .description("Molnar, Kiss, Ames, Orosz's nominal behind a lead: A (min(κ (D − D_st), v_max) − v) + B (min(v_L, v_max) − v)");

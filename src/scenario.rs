@@ -94,6 +94,10 @@ pub struct Scenario {
     /// `req.<name>` (its robustness at t = 0; docs/requirements.md).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub requirements: Vec<RequirementSpec>,
+    /// `[commonroad]`: the world of a CommonRoad scenario file, its defaults under every key the
+    /// scenario does not write itself (docs/commonroad.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub commonroad: Option<crate::commonroad::CommonRoadSpec>,
 }
 
 /// One `[[requirements]]` entry: a name (the `req.<name>` metric) and an STL formula over the
@@ -370,6 +374,10 @@ pub struct ObstacleSpec {
     /// then its position at t = 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub motion: Option<MotionSpec>,
+    /// The id of the road user in `[commonroad] file` whose recorded states this obstacle follows
+    /// (instead of a `motion`; docs/commonroad.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recorded: Option<u64>,
     /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
     /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
     /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
@@ -423,7 +431,12 @@ impl ObstacleSpec {
                     Some(m) => m.direction.map_or(0.0, |d| d[1].atan2(d[0])),
                     None => heading.unwrap_or(0.0),
                 };
-                let rectangle = crate::footprint::Rectangle { length, width, circles };
+                let rectangle = crate::footprint::Rectangle {
+                    length,
+                    width,
+                    circles,
+                    offset: 0.0,
+                };
                 let circles = rectangle.circles().into_iter();
                 (
                     heading,
@@ -598,18 +611,35 @@ pub struct LoadedScenario {
     pub source_text: String,
     /// `--set` overrides applied, in order.
     pub overrides: Vec<String>,
+    /// The CommonRoad file of `[commonroad]`, as read.
+    pub commonroad: Option<std::sync::Arc<mjsafe_commonroad::CommonRoad>>,
 }
 
 impl LoadedScenario {
     /// The model path resolved against the scenario file's directory.
+    /// A built-in model (`mjsafe:<name>`, [`crate::models`]) is its name.
     pub fn model_path(&self) -> Option<PathBuf> {
         let dir = self.path.parent().unwrap_or_else(|| Path::new("."));
-        self.scenario.vehicle.model.as_ref().map(|m| dir.join(m))
+        self.scenario.vehicle.model.as_ref().map(|m| match crate::models::is_builtin(m) {
+            true => m.clone(),
+            false => dir.join(m),
+        })
     }
 
-    /// The files a run of this scenario reads (the scenario, its model): outputs never replace them.
+    /// The CommonRoad file of `[commonroad]`, resolved against the scenario file's directory.
+    pub fn commonroad_path(&self) -> Option<PathBuf> {
+        let dir = self.path.parent().unwrap_or_else(|| Path::new("."));
+        self.scenario.commonroad.as_ref().map(|c| dir.join(&c.file))
+    }
+
+    /// The files a run of this scenario reads (the scenario, its model, its CommonRoad file):
+    /// outputs never replace them.
     pub fn inputs(&self) -> Vec<PathBuf> {
-        std::iter::once(self.path.clone()).chain(self.model_path()).collect()
+        let model = self.model_path().filter(|m| !crate::models::is_builtin(m));
+        std::iter::once(self.path.clone())
+            .chain(model)
+            .chain(self.commonroad_path())
+            .collect()
     }
 
     /// The error for a field of this scenario.
@@ -628,7 +658,12 @@ impl LoadedScenario {
 }
 
 /// Reads a scenario file and applies `--set key.path=VALUE` overrides (VALUE in TOML syntax).
+/// A CommonRoad file (`.xml`) is the scenario `[commonroad] file = …` beside it: its world with
+/// every default (docs/commonroad.md).
 pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xml")) {
+        return from_text(path, crate::commonroad::scenario_text(path, None), overrides);
+    }
     let text = crate::files::read_text_limited(path, "scenario", crate::files::SCENARIO_LIMIT)?;
     from_text(path, text, overrides)
 }
@@ -637,12 +672,13 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, Scenari
 /// relative model path), with overrides applied and validated.
 pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
     let file = path.display().to_string();
-    let scenario = parse(&text, &file, overrides)?;
+    let (scenario, commonroad) = parse_with_world(&text, &file, overrides)?;
     let loaded = LoadedScenario {
         scenario,
         path: path.to_path_buf(),
         source_text: text,
         overrides: overrides.to_vec(),
+        commonroad,
     };
     validate(&loaded)?;
     Ok(loaded)
@@ -650,6 +686,16 @@ pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<Load
 
 /// Parses scenario text; `file` names it in errors.
 pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, ScenarioError> {
+    parse_with_world(text, file, overrides).map(|(scenario, _)| scenario)
+}
+
+/// [`parse`], and the CommonRoad file of `[commonroad]` (read relative to `file`'s directory),
+/// whose world fills every key the scenario and its overrides leave out.
+fn parse_with_world(
+    text: &str,
+    file: &str,
+    overrides: &[String],
+) -> Result<(Scenario, Option<std::sync::Arc<mjsafe_commonroad::CommonRoad>>), ScenarioError> {
     let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| ScenarioError::Syntax {
         file: file.to_string(),
         message: e
@@ -664,6 +710,7 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
             )
             .replace("` as i128", "`"),
     })?;
+    let world = crate::commonroad::expand(&mut table, file, overrides, apply_override)?;
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
@@ -695,7 +742,7 @@ pub fn parse(text: &str, file: &str, overrides: &[String]) -> Result<Scenario, S
     scenario.filter.params = registry
         .check_filter(&scenario.filter.kind, &scenario.filter.params)
         .map_err(field)?;
-    Ok(scenario)
+    Ok((scenario, world))
 }
 
 pub use crate::message::plain_serde_message;
@@ -1167,7 +1214,12 @@ fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Re
             "a box obstacle has no radius (its covering circles follow from `shape`): expected `radius` or `shape`, not both",
         ));
     }
-    let rectangle = crate::footprint::Rectangle { length, width, circles };
+    let rectangle = crate::footprint::Rectangle {
+        length,
+        width,
+        circles,
+        offset: 0.0,
+    };
     rectangle
         .check(OBSTACLE_EXTENT)
         .map_err(|e| s.field_error(&format!("obstacles.{i}.shape.{}", e.key), e.message))?;
@@ -1364,6 +1416,9 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
         }
         if let Some(m) = &o.motion {
             validate_motion(s, i, o, m)?;
+        }
+        if let Some(id) = o.recorded {
+            crate::commonroad::check_recorded(s, i, o, id)?;
         }
         if let Some(f) = &o.following {
             for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {

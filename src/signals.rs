@@ -168,10 +168,13 @@ pub fn table_row(
                     ("vy", a.vy),
                     ("ax", a.ax),
                     ("ay", a.ay),
+                    ("heading", a.heading),
                 ] {
                     name(&|| format!("{}.{field}", a.name), Kind::F64);
                     c.push(Cell::F(v));
                 }
+                name(&|| format!("{}.absent", a.name), Kind::Bool);
+                c.push(Cell::B(a.absent));
             }
         }
         Observed::Filter(m) => {

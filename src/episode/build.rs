@@ -257,7 +257,7 @@ fn model_with_obstacles(
         let (size, pos) = match &sc.vehicle.footprint {
             Some(f) => (
                 [0.5 * f.length, 0.5 * f.width, 0.5 * f.length.max(f.width)],
-                [0.0, 0.0, hull.pos[2]],
+                [f.offset, 0.0, hull.pos[2]],
             ),
             None => (hull.half, [-hull.half[0], hull.pos[1], hull.pos[2]]),
         };
@@ -321,8 +321,12 @@ pub(super) fn plant_parts(loaded: &LoadedScenario) -> Result<PlantParts, Episode
     }
     match (binding, loaded.model_path()) {
         (VehicleBinding::Mjcf(bind), Some(model_path)) => {
-            let xml = crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
-                .map_err(|e| loaded.field_error("vehicle.model", e.to_string()))?;
+            let xml = match crate::models::is_builtin(&model_path) {
+                true => crate::models::builtin(&model_path).map(str::to_string),
+                false => crate::files::read_text_limited(&model_path, "MJCF model", crate::files::MODEL_LIMIT)
+                    .map_err(|e| e.to_string()),
+            }
+            .map_err(|e| loaded.field_error("vehicle.model", e))?;
             let origin = model_path.display().to_string();
             let compile = |xml: &str| {
                 Model::from_xml_string(xml, &origin).map_err(|source| EpisodeError::Model {
@@ -946,6 +950,12 @@ fn obstacle_motion(
 ) -> Result<(Option<crate::actor::ActorMotion>, [f64; 2]), ScenarioError> {
     let sc = &loaded.scenario;
     let o = &sc.obstacles[i];
+    if let (Some(id), Some(cr)) = (o.recorded, &loaded.commonroad) {
+        let motion = crate::commonroad::recorded_motion(cr, id)
+            .map_err(|e| loaded.field_error(&format!("obstacles.{i}.recorded"), e))?;
+        let centre = motion.state_at(0.0).position;
+        return Ok((Some(crate::actor::ActorMotion::Recorded(std::sync::Arc::new(motion))), centre));
+    }
     let Some(m) = &o.motion else {
         return Ok((None, o.centre));
     };

@@ -299,15 +299,15 @@ impl KnownActors {
     fn assumed(&self, motion: &ActorMotion, k: usize, at: f64) -> ActorState {
         let at = at.max(self.now);
         self.knowledge
-            .predict(&self.observed[k], self.now, at, |t| motion.state_at(t))
+            .predict(&self.observed[k], self.now, at, |t| motion.where_at(t, k))
     }
 
     /// observed ← every actor's state at the tick time t.
     fn observe(&mut self, t: f64) {
         self.now = t;
-        for (o, m) in self.observed.iter_mut().zip(&self.motions) {
+        for (k, (o, m)) in self.observed.iter_mut().zip(&self.motions).enumerate() {
             if let Some(m) = m {
-                *o = m.state_at(t);
+                *o = m.where_at(t, k);
             }
         }
     }

@@ -373,7 +373,8 @@ impl Episode {
                         if let Some([i, j]) = position {
                             motion.check_trigger(time, [x[i], x[j]]);
                         }
-                        self.plant.move_obstacle(index, motion.state_at(time).position);
+                        let state = motion.where_at(time, index);
+                        self.plant.move_obstacle(index, state.position, state.turn);
                     }
                 }
             }
@@ -471,20 +472,26 @@ impl Episode {
                     }
                 }
             }
-            let state = motion.state_at(time);
+            let state = motion.where_at(time, index);
             o.state = state;
-            self.plant.move_obstacle(index, state.position);
+            self.plant.move_obstacle(index, state.position, state.turn);
             o.centre = state.position;
             let copies = &mut self.obstacle_barriers[pairs];
             for ((b, copy), offset) in o.barriers.iter_mut().zip(copies).zip(&o.offsets) {
+                let at = state.shifted(*offset).position;
                 for b in [&mut *b, copy] {
-                    b.move_actor([state.position[0] + offset[0], state.position[1] + offset[1]]);
+                    b.move_actor(at);
                 }
             }
             if let Some(entry) = entries.next() {
-                (entry.x, entry.y) = (state.position[0], state.position[1]);
+                // An actor that does not exist now: where it was last (or will be first) seen.
+                let absent = !motion.exists_at(time);
+                let seen = if absent { motion.state_at(time) } else { state };
+                (entry.x, entry.y) = (seen.position[0], seen.position[1]);
                 (entry.vx, entry.vy) = (state.velocity[0], state.velocity[1]);
                 (entry.ax, entry.ay) = (state.acceleration[0], state.acceleration[1]);
+                entry.heading = seen.heading;
+                entry.absent = absent;
             }
         }
         for sink in sinks.iter_mut() {
@@ -586,12 +593,12 @@ impl Episode {
         let time = self.cursor.step as f64 * self.control.timestep();
         let x = self.plant.state();
         let mut out = Vec::new();
-        for o in &self.obstacles {
-            let centre = o.motion.as_ref().map(|m| m.state_at(time).position);
+        for (index, o) in self.obstacles.iter().enumerate() {
+            let state = o.motion.as_ref().map(|m| m.where_at(time, index));
             for (b, offset) in o.barriers.iter().zip(&o.offsets) {
                 let mut b = b.clone();
-                if let Some(c) = centre {
-                    b.move_actor([c[0] + offset[0], c[1] + offset[1]]);
+                if let Some(state) = state {
+                    b.move_actor(state.shifted(*offset).position);
                 }
                 out.push(BarrierNow::of(&b, &x, o.known, true));
             }

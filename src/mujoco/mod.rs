@@ -1123,6 +1123,18 @@ impl Simulation {
         slice_mut(v.d.mocap_pos, 3 * n)[3 * mocap..3 * mocap + 3].copy_from_slice(&position);
     }
 
+    /// Sets mocap body `mocap`'s orientation to the turn `yaw` (rad) about the vertical axis.
+    ///
+    /// # Panics
+    /// If `mocap` is not below the model's `nmocap`.
+    pub fn set_mocap_yaw(&mut self, mocap: usize, yaw: f64) {
+        let n = self.model.nmocap();
+        assert!(mocap < n, "mocap body {mocap} of {n}");
+        let (s, c) = (0.5 * yaw).sin_cos();
+        let v = self.data.view();
+        slice_mut(v.d.mocap_quat, 4 * n)[4 * mocap..4 * mocap + 4].copy_from_slice(&[c, 0.0, 0.0, s]);
+    }
+
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
     pub fn set_ctrl(&mut self, ctrl: &[f64]) {
         let v = self.data.view();

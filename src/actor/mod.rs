@@ -5,28 +5,68 @@
 
 use serde::{Deserialize, Serialize};
 
+use std::sync::Arc;
+
 use crate::barrier::{BarrierForm, Constraint};
+
+pub mod recorded;
+
+pub use recorded::{RecordedMotion, RecordedState};
 
 /// Most breakpoints of an acceleration profile.
 pub const MAX_BREAKPOINTS: usize = 64;
 /// Most waypoints of a path.
 pub const MAX_WAYPOINTS: usize = 64;
 
-/// An actor's planar state at one time: position o (m), velocity ȯ (m/s), acceleration ö (m/s²).
+/// An actor's planar state at one time: position o (m), velocity ȯ (m/s), acceleration ö (m/s²),
+/// heading θ (rad), its turn since the heading its covering circles were laid out at (rad), yaw
+/// rate θ̇ (rad/s) and yaw acceleration θ̈ (rad/s²). A motion along a line keeps its heading
+/// (turn, rate and yaw acceleration 0); a recorded one turns.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ActorState {
     pub position: [f64; 2],
     pub velocity: [f64; 2],
     pub acceleration: [f64; 2],
+    pub heading: f64,
+    pub turn: f64,
+    pub yaw_rate: f64,
+    pub yaw_acceleration: f64,
 }
 
 impl ActorState {
-    /// The state of the point at `offset` from the actor's centre, carried along without
-    /// turning (a box's covering circle: a box keeps its heading).
+    /// The state of the point at `offset` from the actor's centre (the world-frame offset at the
+    /// reference heading, e.g. a box's covering circle), turned with the actor: position
+    /// o + R(turn) c, velocity ȯ + θ̇ J R c, acceleration ö + θ̈ J R c − θ̇² R c (J: a quarter turn).
+    /// An actor that has not turned carries the offset unchanged.
     pub fn shifted(&self, offset: [f64; 2]) -> ActorState {
+        if self.turn == 0.0 && self.yaw_rate == 0.0 && self.yaw_acceleration == 0.0 {
+            return ActorState {
+                position: [self.position[0] + offset[0], self.position[1] + offset[1]],
+                ..*self
+            };
+        }
+        let (s, c) = self.turn.sin_cos();
+        let r = [c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]];
+        let jr = [-r[1], r[0]];
+        let (w, dw) = (self.yaw_rate, self.yaw_acceleration);
         ActorState {
-            position: [self.position[0] + offset[0], self.position[1] + offset[1]],
+            position: [self.position[0] + r[0], self.position[1] + r[1]],
+            velocity: [self.velocity[0] + w * jr[0], self.velocity[1] + w * jr[1]],
+            acceleration: [
+                self.acceleration[0] + dw * jr[0] - w * w * r[0],
+                self.acceleration[1] + dw * jr[1] - w * w * r[1],
+            ],
             ..*self
+        }
+    }
+
+    /// The same state without its turning (rates 0), keeping its heading: what a prediction that
+    /// holds the heading assumes.
+    fn without_turning(self) -> ActorState {
+        ActorState {
+            yaw_rate: 0.0,
+            yaw_acceleration: 0.0,
+            ..self
         }
     }
 }
@@ -298,6 +338,79 @@ impl Trajectory {
             position: [from[0] + s * ux, from[1] + s * uy],
             velocity: [v * ux, v * uy],
             acceleration: [a * ux, a * uy],
+            heading: uy.atan2(ux),
+            ..ActorState::default()
+        }
+    }
+}
+
+/// How far away an actor that does not exist is parked (m).
+pub const PARKED: f64 = 1e7;
+
+/// An actor's true motion over a run: along a line or polyline ([`StraightActor`]) or through
+/// recorded states ([`RecordedMotion`], shared between the run's copies).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ActorMotion {
+    Straight(StraightActor),
+    Recorded(Arc<RecordedMotion>),
+}
+
+impl ActorMotion {
+    /// The motion along a line of `motion` ([`StraightActor::new`]).
+    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<ActorMotion, MotionError> {
+        Ok(ActorMotion::Straight(StraightActor::new(motion, trigger_distance)?))
+    }
+
+    /// The actor's true state at time t, as far as the run has decided it.
+    pub fn state_at(&self, t: f64) -> ActorState {
+        match self {
+            ActorMotion::Straight(m) => m.state_at(t),
+            ActorMotion::Recorded(m) => m.state_at(t),
+        }
+    }
+
+    /// Whether the actor exists at t (a recorded one: from its first recorded state to its last).
+    pub fn exists_at(&self, t: f64) -> bool {
+        match self {
+            ActorMotion::Straight(_) => true,
+            ActorMotion::Recorded(m) => m.exists_at(t),
+        }
+    }
+
+    /// Where the actor is at t for the barriers, the plant and the controller: its true state, or
+    /// — while it does not exist (a recorded road user before its first or after its last
+    /// recorded state) — parked at rest [`PARKED`] metres away (`slot` its own place), where no
+    /// barrier is active and no contact can happen.
+    pub fn where_at(&self, t: f64, slot: usize) -> ActorState {
+        if self.exists_at(t) {
+            return self.state_at(t);
+        }
+        ActorState {
+            position: [PARKED + 100.0 * slot as f64, PARKED],
+            ..ActorState::default()
+        }
+    }
+
+    /// Fires a trigger ([`StraightActor::check_trigger`]; a recording has none).
+    pub fn check_trigger(&mut self, t: f64, vehicle: [f64; 2]) -> bool {
+        match self {
+            ActorMotion::Straight(m) => m.check_trigger(t, vehicle),
+            ActorMotion::Recorded(_) => false,
+        }
+    }
+
+    /// When the trigger fired, if it has.
+    pub fn triggered_at(&self) -> Option<f64> {
+        match self {
+            ActorMotion::Straight(m) => m.triggered_at(),
+            ActorMotion::Recorded(_) => None,
+        }
+    }
+
+    /// Marks the trigger fired at `t` (a copy of the motion following the run's own).
+    pub fn set_triggered_at(&mut self, t: f64) {
+        if let ActorMotion::Straight(m) = self {
+            m.set_triggered_at(t);
         }
     }
 }
@@ -306,7 +419,7 @@ impl Trajectory {
 /// distance, when the vehicle first comes that close to the actor's centre (the profile's
 /// times then count from that moment; until it, the actor keeps its initial speed).
 #[derive(Debug, Clone, PartialEq)]
-pub struct ActorMotion {
+pub struct StraightActor {
     trajectory: Trajectory,
     trigger_distance: Option<f64>,
     /// When the trigger fired (None: not yet, or no trigger).
@@ -315,10 +428,10 @@ pub struct ActorMotion {
     speed: f64,
 }
 
-impl ActorMotion {
+impl StraightActor {
     /// The motion of `motion`, started at once (`trigger_distance` None) or by the vehicle
     /// coming within `trigger_distance` metres (> 0, finite) of the actor's centre.
-    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<ActorMotion, MotionError> {
+    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<StraightActor, MotionError> {
         if let Some(d) = trigger_distance {
             if !(d.is_finite() && d > 0.0) {
                 return Err(motion_error(
@@ -327,7 +440,7 @@ impl ActorMotion {
                 ));
             }
         }
-        Ok(ActorMotion {
+        Ok(StraightActor {
             trajectory: Trajectory::new(motion)?,
             trigger_distance,
             triggered_at: None,
@@ -409,7 +522,8 @@ fn first_time_at_speed(p: &Piece, v_min: f64) -> f64 {
 }
 
 /// What the controller assumes of an actor's motion over a channel's delay (a scenario section
-/// next to `assumed_delays`).
+/// next to `assumed_delays`). Every assumption but the oracle holds the actor's heading (a
+/// recorded road user's box does not turn over the delay).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum ActorKnowledge {
@@ -433,12 +547,15 @@ impl ActorKnowledge {
         match self {
             ActorKnowledge::Static => ActorState {
                 position: o,
-                ..ActorState::default()
+                velocity: [0.0; 2],
+                acceleration: [0.0; 2],
+                ..observed.without_turning()
             },
             ActorKnowledge::ConstantVelocity => ActorState {
                 position: [o[0] + v[0] * d, o[1] + v[1] * d],
                 velocity: v,
                 acceleration: [0.0; 2],
+                ..observed.without_turning()
             },
             ActorKnowledge::ConstantAcceleration => ActorState {
                 position: [
@@ -447,6 +564,7 @@ impl ActorKnowledge {
                 ],
                 velocity: [v[0] + a[0] * d, v[1] + a[1] * d],
                 acceleration: a,
+                ..observed.without_turning()
             },
             ActorKnowledge::Oracle => truth(at),
         }

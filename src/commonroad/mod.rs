@@ -1,0 +1,445 @@
+//! CommonRoad worlds (docs/commonroad.md): a scenario's `[commonroad]` names a CommonRoad file
+//! (read by the `mjsafe-commonroad` crate) and a planning problem, and the file's world fills
+//! every key the scenario does not write itself — the ego at the planning problem's start, the
+//! recorded road users as obstacles following their recorded states, the route's centre line as
+//! the nominal's reference path, delays, the γm filter (4.67) and the recording's duration.
+
+pub mod route;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use mjsafe_commonroad::{CommonRoad, GoalPosition, ObstacleRole, PlanningProblem, Shape};
+use serde::{Deserialize, Serialize};
+
+use crate::scenario::{LoadedScenario, ObstacleSpec, ScenarioError};
+
+/// `[commonroad]`: the CommonRoad file (relative to the scenario file) and the planning problem
+/// (its id; default the file's first).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CommonRoadSpec {
+    pub file: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub planning_problem: Option<u64>,
+}
+
+/// A vehicle parameter set of CommonRoad (commonroad-vehicle-models): the footprint L × W, the
+/// distances a, b from the centre of gravity to the front and rear axles (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VehicleParameters {
+    pub name: &'static str,
+    pub length: f64,
+    pub width: f64,
+    pub a: f64,
+    pub b: f64,
+}
+
+/// The ego of a CommonRoad world: CommonRoad's vehicle parameter set 2 (BMW 320i).
+pub const VEHICLE: VehicleParameters = VehicleParameters {
+    name: "CommonRoad vehicle 2 (BMW 320i)",
+    length: 4.508,
+    width: 1.61,
+    a: 1.1561957064,
+    b: 1.4227170936,
+};
+
+/// The default delays (s) of a CommonRoad world: steering, acceleration.
+pub const DELAYS: (f64, f64) = (0.2, 0.5);
+
+/// The model a CommonRoad world's ego runs on (built in: [`crate::models`]).
+pub const MODEL: &str = "mjsafe:commonroad_car.xml";
+
+type Cache = Mutex<HashMap<PathBuf, (u64, std::time::SystemTime, Arc<CommonRoad>)>>;
+
+/// Reads a CommonRoad file (once per file and modification: sweeps and falsification read the
+/// same file for every run).
+pub fn read(path: &Path) -> Result<Arc<CommonRoad>, String> {
+    static CACHE: std::sync::OnceLock<Cache> = std::sync::OnceLock::new();
+    let meta = std::fs::metadata(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let stamp = (meta.len(), meta.modified().unwrap_or(std::time::UNIX_EPOCH));
+    let cache = CACHE.get_or_init(Default::default);
+    if let Some((len, modified, cr)) = cache.lock().unwrap_or_else(|e| e.into_inner()).get(path) {
+        if (*len, *modified) == stamp {
+            return Ok(cr.clone());
+        }
+    }
+    let cr = Arc::new(mjsafe_commonroad::read_file(path).map_err(|e| e.to_string())?);
+    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if cache.len() >= 64 {
+        cache.clear();
+    }
+    cache.insert(path.to_path_buf(), (stamp.0, stamp.1, cr.clone()));
+    Ok(cr)
+}
+
+/// Fills `table` (a scenario's TOML) with the world of its `[commonroad]` (as the `overrides`
+/// leave it), keys the table writes kept; returns the file as read. `file` names the scenario.
+pub fn expand(
+    table: &mut toml::Table,
+    file: &str,
+    overrides: &[String],
+    apply: fn(&mut toml::Table, &str) -> Result<(), ScenarioError>,
+) -> Result<Option<Arc<CommonRoad>>, ScenarioError> {
+    let field = |key: &str, message: String| ScenarioError::Field {
+        file: file.to_string(),
+        key: key.to_string(),
+        message,
+    };
+    // `[commonroad]` as the overrides leave it.
+    let mut probe = toml::Table::new();
+    if let Some(c) = table.get("commonroad") {
+        probe.insert("commonroad".into(), c.clone());
+    }
+    for spec in overrides.iter().filter(|s| s.trim_start().starts_with("commonroad.")) {
+        apply(&mut probe, spec)?;
+    }
+    let Some(value) = probe.remove("commonroad") else {
+        return Ok(None);
+    };
+    let spec: CommonRoadSpec = serde_path_to_error::deserialize(value).map_err(|e| {
+        let key = format!("commonroad.{}", e.path()).replace("commonroad..", "commonroad");
+        field(&key, crate::message::plain_serde_message(&e.into_inner().to_string()))
+    })?;
+    let dir = Path::new(file).parent().unwrap_or_else(|| Path::new("."));
+    let cr = read(&dir.join(&spec.file)).map_err(|e| field("commonroad.file", e))?;
+    let problem = cr
+        .planning_problem(spec.planning_problem)
+        .map_err(|e| field("commonroad.planning_problem", e.to_string()))?;
+    let defaults = world(&cr, problem).map_err(|e| field("commonroad", e))?;
+    merge(table, defaults);
+    Ok(Some(cr))
+}
+
+/// Puts each key of `defaults` into `table` where it is absent; a table the scenario writes
+/// merges key by key, unless it names its own `kind` (a filter, nominal or vehicle of another
+/// kind replaces the default whole).
+fn merge(table: &mut toml::Table, defaults: toml::Table) {
+    for (key, default) in defaults {
+        match (table.get_mut(&key), default) {
+            (None, default) => {
+                table.insert(key, default);
+            }
+            (Some(toml::Value::Table(own)), toml::Value::Table(default)) => {
+                let other_kind = own.get("kind").is_some_and(|k| Some(k) != default.get("kind"));
+                if !other_kind {
+                    merge(own, default);
+                }
+            }
+            (Some(_), _) => {}
+        }
+    }
+}
+
+/// The world of planning problem `problem` as scenario keys.
+pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, String> {
+    let dt = cr.time_step;
+    let start = problem.initial;
+    let speed = start.velocity.unwrap_or(0.0);
+    // CommonRoad's position is the vehicle's centre; the bicycle's is its rear axle, b behind.
+    let (s, c) = start.orientation.sin_cos();
+    let rear = [start.position[0] - VEHICLE.b * c, start.position[1] - VEHICLE.b * s];
+    let route = ego_route(cr, problem)?;
+    let goal_speed = problem.goals.iter().find_map(|g| g.velocity).map(|(lo, hi)| 0.5 * (lo + hi));
+    let reference_speed = goal_speed.unwrap_or(speed).max(1.0);
+    let steps = cr.duration_steps().max(problem.goals.iter().map(|g| g.time_steps.1.max(0) as u64).max().unwrap_or(0));
+    let duration = (steps.max(1) as f64) * dt;
+    let mut t = toml::Table::new();
+    let v = |x: f64| toml::Value::Float(x);
+    let point = |p: [f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
+    t.insert("name".into(), toml::Value::String(cr.benchmark_id.replace(['/', '\\'], "_")));
+    t.insert(
+        "description".into(),
+        toml::Value::String(format!(
+            "CommonRoad {} ({}), planning problem {}",
+            cr.benchmark_id, cr.source, problem.id
+        )),
+    );
+    t.insert("duration".into(), v(duration));
+    t.insert("vehicle".into(), toml::Value::Table(vehicle(rear, start.orientation, speed)));
+    t.insert("delays".into(), table(&[("steering", v(DELAYS.0)), ("acceleration", v(DELAYS.1))]));
+    t.insert("initial_input".into(), table(&[("steering", v(0.0)), ("acceleration", v(0.0))]));
+    t.insert("control".into(), table(&[("period", v(0.01))]));
+    let path: Vec<toml::Value> = route.centre.iter().map(|p| point(*p)).collect();
+    t.insert(
+        "nominal".into(),
+        table(&[
+            ("kind", toml::Value::String("route".into())),
+            ("speed", v(reference_speed)),
+            ("path", toml::Value::Array(path)),
+        ]),
+    );
+    t.insert(
+        "filter".into(),
+        table(&[
+            ("kind", toml::Value::String("gamma_m".into())),
+            ("l0", v(4.0)),
+            ("l1", v(4.0)),
+            ("m", v(50.0)),
+        ]),
+    );
+    t.insert(
+        "actor_knowledge".into(),
+        table(&[("kind", toml::Value::String("constant_velocity".into()))]),
+    );
+    // (Some files list the ego itself as a road user under the planning problem's id.)
+    let obstacles = (cr.obstacles.iter().filter(|o| o.id != problem.id))
+        .filter_map(obstacle)
+        .collect::<Result<Vec<_>, String>>()?;
+    t.insert("obstacles".into(), toml::Value::Array(obstacles));
+    Ok(t)
+}
+
+fn table(entries: &[(&str, toml::Value)]) -> toml::Value {
+    toml::Value::Table(entries.iter().map(|(k, v)| (k.to_string(), v.clone())).collect())
+}
+
+/// `[vehicle]`: the car-sized bicycle at its rear axle `rear`, heading and speed.
+fn vehicle(rear: [f64; 2], heading: f64, speed: f64) -> toml::Table {
+    let v = toml::Value::Float;
+    let mut t = toml::Table::new();
+    t.insert("kind".into(), toml::Value::String("bicycle".into()));
+    t.insert("model".into(), toml::Value::String(MODEL.into()));
+    t.insert(
+        "initial_state".into(),
+        toml::Value::Array(vec![v(rear[0]), v(rear[1]), v(heading), v(speed)]),
+    );
+    let footprint = table(&[
+        ("length", v(VEHICLE.length)),
+        ("width", v(VEHICLE.width)),
+        ("offset", v(VEHICLE.b)),
+    ]);
+    t.insert("footprint".into(), footprint);
+    t
+}
+
+/// The ego's route: from the lanelet its start lies in to a goal lanelet (the goal's lanelets,
+/// or those its goal shapes' centres lie in), or along successors without a goal position.
+pub fn ego_route(cr: &CommonRoad, problem: &PlanningProblem) -> Result<route::Route, String> {
+    let start = problem.initial;
+    let Some(&first) = route::lanelets_at(cr, start.position, start.orientation).first() else {
+        return Err(format!(
+            "planning problem {}: its start ({}, {}) lies in no lanelet driving its way",
+            problem.id, start.position[0], start.position[1]
+        ));
+    };
+    let mut goals: Vec<u64> = Vec::new();
+    for g in &problem.goals {
+        match &g.position {
+            Some(GoalPosition::Lanelets(ids)) => goals.extend(ids),
+            Some(GoalPosition::Shapes(shapes)) => {
+                for shape in shapes {
+                    let heading = g.orientation.map_or(start.orientation, |(lo, hi)| 0.5 * (lo + hi));
+                    goals.extend(route::lanelets_at(cr, shape.center(), heading));
+                }
+            }
+            None => {}
+        }
+    }
+    let lanelets = route::plan(cr, first, &goals).ok_or_else(|| {
+        format!(
+            "planning problem {}: no route from lanelet {first} to a goal lanelet ({goals:?}) over successors and same-direction neighbours",
+            problem.id
+        )
+    })?;
+    let centre = route::centre_of(cr, &lanelets);
+    if centre.len() < 2 {
+        return Err(format!("planning problem {}: the route's centre line has fewer than 2 points", problem.id));
+    }
+    Ok(route::Route { lanelets, centre })
+}
+
+/// An obstacle entry of a road user: a rectangle as a box at its heading, a circle, a polygon
+/// as the box around it along its longest edge (covering it); dynamic ones follow their
+/// recording (`recorded`), static ones stand. None for a road user without a shape or state.
+fn obstacle(o: &mjsafe_commonroad::Obstacle) -> Option<Result<toml::Value, String>> {
+    let (shape, first) = (o.shapes.first()?, o.states.first()?);
+    let v = toml::Value::Float;
+    let mut t = toml::Table::new();
+    t.insert("name".into(), toml::Value::String(format!("cr_{}", o.id)));
+    let (s, c) = first.orientation.sin_cos();
+    let local = local_centre(shape);
+    let centre = [
+        first.position[0] + c * local[0] - s * local[1],
+        first.position[1] + s * local[0] + c * local[1],
+    ];
+    t.insert("centre".into(), toml::Value::Array(vec![v(centre[0]), v(centre[1])]));
+    let boxed = |length: f64, width: f64, heading: f64| {
+        table(&[
+            ("kind", toml::Value::String("box".into())),
+            ("length", v(length)),
+            ("width", v(width)),
+            ("heading", v(heading)),
+        ])
+    };
+    match shape {
+        Shape::Rectangle {
+            length,
+            width,
+            orientation,
+            ..
+        } => {
+            t.insert("shape".into(), boxed(*length, *width, first.orientation + orientation));
+        }
+        Shape::Circle { radius, .. } => {
+            t.insert("radius".into(), v(*radius));
+        }
+        Shape::Polygon { points } => {
+            let (length, width, heading, _) = bounding_box(points);
+            t.insert("shape".into(), boxed(length, width, first.orientation + heading));
+        }
+    }
+    if o.role == ObstacleRole::Dynamic {
+        t.insert("recorded".into(), toml::Value::Integer(o.id as i64));
+    }
+    Some(Ok(toml::Value::Table(t)))
+}
+
+/// The centre of a road user's shape in its own frame (a polygon's: its bounding box's).
+fn local_centre(shape: &Shape) -> [f64; 2] {
+    match shape {
+        Shape::Polygon { points } => bounding_box(points).3,
+        _ => shape.center(),
+    }
+}
+
+/// The rectangle around a polygon along its longest edge: length, width, heading, centre offset.
+fn bounding_box(points: &[[f64; 2]]) -> (f64, f64, f64, [f64; 2]) {
+    let n = points.len();
+    let edge = (0..n)
+        .max_by(|&a, &b| {
+            let l = |k: usize| {
+                let (p, q) = (points[k], points[(k + 1) % n]);
+                (q[0] - p[0]).hypot(q[1] - p[1])
+            };
+            l(a).total_cmp(&l(b))
+        })
+        .unwrap_or(0);
+    let (p, q) = (points[edge], points[(edge + 1) % n]);
+    let heading = (q[1] - p[1]).atan2(q[0] - p[0]);
+    let (s, c) = heading.sin_cos();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points {
+        let local = [c * p[0] + s * p[1], -s * p[0] + c * p[1]];
+        for k in 0..2 {
+            lo[k] = lo[k].min(local[k]);
+            hi[k] = hi[k].max(local[k]);
+        }
+    }
+    let mid = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+    (
+        (hi[0] - lo[0]).max(1e-3),
+        (hi[1] - lo[1]).max(1e-3),
+        heading,
+        [c * mid[0] - s * mid[1], s * mid[0] + c * mid[1]],
+    )
+}
+
+/// The recorded motion of road user `id`: its states at their times (step × time step), the
+/// position of its shape's centre.
+pub fn recorded_motion(cr: &CommonRoad, id: u64) -> Result<crate::actor::RecordedMotion, String> {
+    let Some(o) = cr.obstacle(id).filter(|o| o.role == ObstacleRole::Dynamic) else {
+        return Err(format!("expected the id of a dynamic road user of {}, found {id}", cr.file));
+    };
+    let local = o.shapes.first().map_or([0.0; 2], local_centre);
+    let states: Vec<crate::actor::RecordedState> = o
+        .states
+        .iter()
+        .map(|s| {
+            let (sn, cs) = s.orientation.sin_cos();
+            crate::actor::RecordedState {
+                time: s.time_step as f64 * cr.time_step,
+                position: [
+                    s.position[0] + cs * local[0] - sn * local[1],
+                    s.position[1] + sn * local[0] + cs * local[1],
+                ],
+                orientation: s.orientation,
+            }
+        })
+        .collect();
+    crate::actor::RecordedMotion::new(&states).map_err(|e| format!("road user {id}: {}", e.message))
+}
+
+/// Checks obstacle `i`'s `recorded = id`: a `[commonroad]` file with that dynamic road user, and
+/// no `motion` besides.
+pub fn check_recorded(s: &LoadedScenario, i: usize, o: &ObstacleSpec, id: u64) -> Result<(), ScenarioError> {
+    let key = format!("obstacles.{i}.recorded");
+    if o.motion.is_some() || o.following.is_some() {
+        return Err(s.field_error(&key, "a recorded road user has no `motion` or `following` besides"));
+    }
+    let Some(cr) = &s.commonroad else {
+        return Err(s.field_error(&key, "expected a `[commonroad] file` whose road user it names"));
+    };
+    recorded_motion(cr, id).map(|_| ()).map_err(|e| s.field_error(&key, e))
+}
+
+/// The text of a scenario that is the world of CommonRoad file `xml` with every default (what
+/// `mjsafe run FILE.xml` runs, read as if it were a scenario file beside the XML).
+pub fn scenario_text(xml: &Path, planning_problem: Option<u64>) -> String {
+    let name = xml.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let mut text = format!("[commonroad]\nfile = {}\n", toml::Value::String(name));
+    if let Some(id) = planning_problem {
+        text.push_str(&format!("planning_problem = {id}\n"));
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn data(name: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("data/commonroad").join(name)
+    }
+
+    /// US101-4: the ego starts at the planning problem's centre (0, 0) less b along its
+    /// heading; its route reaches the lanelet the goal rectangle's centre lies in.
+    #[test]
+    fn the_world_of_us101_4() {
+        let cr = read(&data("USA_US101-4_1_T-1.xml")).unwrap();
+        let problem = cr.planning_problem(None).unwrap();
+        let t = world(&cr, problem).unwrap();
+        let x0 = t["vehicle"]["initial_state"].as_array().unwrap();
+        let theta = -0.76501_f64;
+        assert!((x0[0].as_float().unwrap() + VEHICLE.b * theta.cos()).abs() < 1e-12);
+        assert!((x0[1].as_float().unwrap() + VEHICLE.b * theta.sin()).abs() < 1e-12);
+        assert_eq!(t["obstacles"].as_array().unwrap().len(), 22);
+        let route = ego_route(&cr, problem).unwrap();
+        let goal = route::lanelets_at(&cr, [17.836, -17.2178], -0.72);
+        assert!(goal.iter().any(|g| route.lanelets.contains(g)), "{route:?} {goal:?}");
+        assert!((t["duration"].as_float().unwrap() - 10.0).abs() < 1e-9, "{}", t["duration"]);
+    }
+
+    /// Every committed file gives a world (a route from its start).
+    #[test]
+    fn every_committed_file_gives_a_world() {
+        for entry in std::fs::read_dir(data("")).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "xml") {
+                let cr = read(&path).unwrap();
+                let problem = cr.planning_problem(None).unwrap();
+                world(&cr, problem).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            }
+        }
+    }
+
+    /// Recorded positions are the file's at every step (the shape's centre at the origin).
+    #[test]
+    fn recorded_motion_is_the_file_at_every_step() {
+        let cr = read(&data("USA_US101-4_1_T-1.xml")).unwrap();
+        let o = cr.obstacle(373).unwrap();
+        let m = recorded_motion(&cr, 373).unwrap();
+        for s in &o.states {
+            let at = m.state_at(s.time_step as f64 * cr.time_step);
+            assert!((at.position[0] - s.position[0]).abs() < 1e-9 && (at.position[1] - s.position[1]).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn a_polygon_gets_the_box_around_it() {
+        let (l, w, heading, mid) = bounding_box(&[[0.0, 0.0], [4.0, 0.0], [4.0, 2.0], [0.0, 2.0]]);
+        assert!((l - 4.0).abs() < 1e-12 && (w - 2.0).abs() < 1e-12 && heading.abs() < 1e-12);
+        assert!((mid[0] - 2.0).abs() < 1e-12 && (mid[1] - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,429 @@
+"""Independent check of mjsafe's CommonRoad support with CommonRoad's own reader.
+
+Run with the CommonRoad venv's python (scripts/setup.sh --test creates it at
+${MJSAFE_CR_VENV:-~/.cache/mjsafe/cr-venv}: PyPI commonroad-io and mcap, nothing of mjsafe's):
+
+    python tests/commonroad_check.py SCENARIO.xml [LOG.mcap] [--time-step-size DT]
+        [--planning-problem-json OUT] [--lanelets-json OUT] [--set-valued centre|contains|skip]
+
+The scenario is read with commonroad-io (`CommonRoadFileReader(path).open()`); the log with the
+`mcap` package's reader, its `/actors` messages (`mjsafe.Actors`, proto/mjsafe.proto) decoded
+from the protobuf wire format by hand, so no generated classes (and no protobuf runtime, which
+commonroad-io pins to 3.20.2) are involved.
+
+For every `/actors` message whose time t is k * dt (within 1e-9 s; dt the scenario's
+timeStepSize unless --time-step-size), every dynamic obstacle with a recorded trajectory is
+compared with `obstacle.state_at_time(k)` (an index into the recorded states, no
+interpolation). None there: the actor `cr_<id>` must be `absent` or not listed. Otherwise it
+must be listed and not absent, |x - position[0]| and |y - position[1]| <= 1e-9 m, and its heading
+equal to the state's orientation modulo 2 pi within 1e-9 rad.
+
+Set-valued states (2018b files such as DEU_A9-3_1_T-1 give positions as rectangles and
+orientations as intervals): `--set-valued centre` (default) compares with the shape's centre
+and the interval's midpoint, `contains` accepts a position inside the shape and a heading inside
+the interval, `skip` leaves them out. Obstacles with a set-based prediction (an occupancySet,
+no states after the initial one) are compared at their initial time step only.
+
+Prints `commonroad_check: N states compared, M absent, K mismatches` and exits 1 with the
+first 10 mismatches listed when K > 0, or when no `/actors` message fell on a time step.
+
+--planning-problem-json OUT writes the planning problem set as commonroad-io reads it:
+    {"time_step_size": dt, "planning_problems": [{"id", "initial_state": {"position": [x, y],
+     "orientation", "velocity", "time_step"},
+     "goal_states": [{"time_step": [start, end], "position": null | {"lanelets": [ids]} |
+     {"shapes": [shape, ...]}, "orientation": [start, end] | null,
+     "velocity": [start, end] | null}]}]}   (problems sorted by id)
+  a shape: {"type": "rectangle", "center": [x, y], "length", "width", "orientation"},
+  {"type": "circle", "center": [x, y], "radius"} or {"type": "polygon", "vertices": [[x, y],
+  ...]} (the vertices as commonroad-io keeps them: clockwise, the first repeated at the end).
+  A value given as an interval in the file is [start, end] in place of a number. The initial
+  yaw rate and slip angle are left out: commonroad-io 2026.1 reads them as 0 whenever the initial
+  state has no <acceleration> (its StateFactory stops filling InitialState at the first missing
+  attribute, and acceleration comes before yaw_rate and slip_angle), so in USA_Lanker-1_1,
+  USA_Peach-4_8, USA_US101-4_1 and USA_US101-5_1 they differ from the file.
+--lanelets-json OUT writes every lanelet (sorted by id): {"lanelets": [{"id", "left": [[x, y],
+  ...], "right": [...], "predecessor": [ids], "successor": [ids], "adjacent_left": id | null,
+  "adjacent_left_same_direction": bool | null, "adjacent_right": ..., "adjacent_right_same_direction":
+  ..., "lanelet_types": [names]}]}.
+The XML alone is enough for these two (the log argument may be left out).
+"""
+import argparse
+import json
+import logging
+import math
+import struct
+import sys
+import warnings
+
+TOL = 1e-9
+TWO_PI = 2.0 * math.pi
+
+
+# ---------------------------------------------------------------- protobuf wire format
+
+
+def _varint(buf, i):
+    value = shift = 0
+    while True:
+        if i >= len(buf):
+            raise ValueError("truncated varint")
+        b = buf[i]
+        i += 1
+        value |= (b & 0x7F) << shift
+        if b < 0x80:
+            return value, i
+        shift += 7
+        if shift > 63:
+            raise ValueError("varint longer than 10 bytes")
+
+
+def _fields(buf):
+    """Yield (field number, wire type, value) of a protobuf message: an int for varints, 8 or 4
+    raw bytes for fixed64 / fixed32, a bytes object for length-delimited fields."""
+    i = 0
+    n = len(buf)
+    while i < n:
+        key, i = _varint(buf, i)
+        field, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(buf, i)
+        elif wire == 1:
+            value, i = buf[i:i + 8], i + 8
+        elif wire == 2:
+            length, i = _varint(buf, i)
+            value, i = buf[i:i + length], i + length
+        elif wire == 5:
+            value, i = buf[i:i + 4], i + 4
+        else:
+            raise ValueError(f"unsupported wire type {wire} (field {field})")
+        if i > n:
+            raise ValueError(f"field {field} runs past the end of the message")
+        yield field, wire, value
+
+
+def _double(wire, value, what):
+    if wire != 1:
+        raise ValueError(f"{what}: wire type {wire}, expected 1 (double)")
+    return struct.unpack("<d", value)[0]
+
+
+ACTOR_DOUBLES = {2: "x", 3: "y", 4: "vx", 5: "vy", 6: "ax", 7: "ay", 8: "heading"}
+
+
+def decode_actor(buf):
+    """mjsafe.ActorValue; proto3 leaves out zero / false / empty fields, so they default here."""
+    actor = {"name": "", "x": 0.0, "y": 0.0, "vx": 0.0, "vy": 0.0, "ax": 0.0, "ay": 0.0,
+             "heading": 0.0, "absent": False}
+    for field, wire, value in _fields(buf):
+        if field == 1:
+            if wire != 2:
+                raise ValueError(f"ActorValue.name: wire type {wire}")
+            actor["name"] = bytes(value).decode("utf-8")
+        elif field in ACTOR_DOUBLES:
+            actor[ACTOR_DOUBLES[field]] = _double(wire, value, "ActorValue." + ACTOR_DOUBLES[field])
+        elif field == 9:
+            if wire != 0:
+                raise ValueError(f"ActorValue.absent: wire type {wire}")
+            actor["absent"] = value != 0
+        # Unknown fields: skipped, as a protobuf reader would.
+    return actor
+
+
+def decode_actors(buf):
+    """mjsafe.Actors { double time = 1; repeated ActorValue actors = 2; }"""
+    time, actors = 0.0, []
+    for field, wire, value in _fields(buf):
+        if field == 1:
+            time = _double(wire, value, "Actors.time")
+        elif field == 2:
+            if wire != 2:
+                raise ValueError(f"Actors.actors: wire type {wire}")
+            actors.append(decode_actor(value))
+    return time, actors
+
+
+def read_actor_messages(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        for schema, channel, message in reader.iter_messages(topics=["/actors"]):
+            if channel.message_encoding != "protobuf":
+                raise SystemExit(f"commonroad_check: /actors message encoding is "
+                                 f"{channel.message_encoding!r}, expected 'protobuf'")
+            if schema is not None and schema.name != "mjsafe.Actors":
+                raise SystemExit(f"commonroad_check: /actors schema is {schema.name!r}, "
+                                 "expected 'mjsafe.Actors'")
+            time, actors = decode_actors(message.data)
+            yield message.log_time, time, actors
+
+
+# ---------------------------------------------------------------- CommonRoad side
+
+
+def open_scenario(path):
+    # commonroad-io logs a warning per deprecated intersection element (2020a files written
+    # before 2022) and warns about non-standard benchmark ids: not our business here.
+    logging.getLogger("commonroad").setLevel(logging.ERROR)
+    from commonroad.common.file_reader import CommonRoadFileReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return CommonRoadFileReader(path).open()
+
+
+def is_interval(v):
+    from commonroad.common.util import Interval
+
+    return isinstance(v, Interval)
+
+
+def num(v):
+    """A number, or [start, end] for an interval; None stays None."""
+    if v is None:
+        return None
+    if is_interval(v):
+        return [float(v.start), float(v.end)]
+    return float(v)
+
+
+def point(p):
+    return [float(p[0]), float(p[1])]
+
+
+def shape_json(occ):
+    """Flatten a commonroad-io occupancy into a list of shape dicts."""
+    from commonroad.geometry.occupancy.circle_occupancy import CircleOccupancy
+    from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
+    from commonroad.geometry.occupancy.polygon_occupancy import PolygonOccupancy
+    from commonroad.geometry.occupancy.rect_occupancy import RectOccupancy
+
+    if isinstance(occ, OccupancyGroup):
+        return [s for o in occ.occupancies for s in shape_json(o)]
+    if isinstance(occ, RectOccupancy):
+        return [{"type": "rectangle", "center": [float(occ.rect_center.x), float(occ.rect_center.y)],
+                 "length": float(occ.length), "width": float(occ.width),
+                 "orientation": float(occ.orientation)}]
+    if isinstance(occ, CircleOccupancy):
+        return [{"type": "circle", "center": [float(occ.circle_center.x), float(occ.circle_center.y)],
+                 "radius": float(occ.radius)}]
+    if isinstance(occ, PolygonOccupancy):
+        return [{"type": "polygon", "vertices": [point(v) for v in occ.vertices]}]
+    raise SystemExit(f"commonroad_check: unknown goal shape {type(occ).__name__}")
+
+
+def planning_problems_json(pps, dt):
+    out = []
+    for pid in sorted(pps.planning_problem_dict):
+        pp = pps.planning_problem_dict[pid]
+        s = pp.initial_state
+        initial = {
+            "position": point(s.position),
+            "orientation": num(getattr(s, "orientation", None)),
+            "velocity": num(getattr(s, "velocity", None)),
+            "time_step": int(s.time_step),
+        }
+        lanelets = pp.goal.lanelets_of_goal_position or {}
+        goals = []
+        for i, g in enumerate(pp.goal.state_list):
+            if i in lanelets:
+                position = {"lanelets": [int(x) for x in lanelets[i]]}
+            elif getattr(g, "position", None) is not None:
+                position = {"shapes": shape_json(g.position)}
+            else:
+                position = None
+            ts = g.time_step
+            goals.append({
+                "time_step": [int(ts.start), int(ts.end)] if is_interval(ts) else [int(ts), int(ts)],
+                "position": position,
+                "orientation": num(getattr(g, "orientation", None)),
+                "velocity": num(getattr(g, "velocity", None)),
+            })
+        out.append({"id": int(pid), "initial_state": initial, "goal_states": goals})
+    return {"time_step_size": dt, "planning_problems": out}
+
+
+def lanelets_json(scenario):
+    out = []
+    for l in sorted(scenario.lanelet_network.lanelets, key=lambda l: l.lanelet_id):
+        out.append({
+            "id": int(l.lanelet_id),
+            "left": [point(p) for p in l.left_vertices],
+            "right": [point(p) for p in l.right_vertices],
+            "predecessor": [int(x) for x in l.predecessor],
+            "successor": [int(x) for x in l.successor],
+            "adjacent_left": None if l.adj_left is None else int(l.adj_left),
+            "adjacent_left_same_direction": l.adj_left_same_direction if l.adj_left is not None else None,
+            "adjacent_right": None if l.adj_right is None else int(l.adj_right),
+            "adjacent_right_same_direction": l.adj_right_same_direction if l.adj_right is not None else None,
+            "lanelet_types": sorted(t.value for t in (l.lanelet_type or [])),
+        })
+    return {"lanelets": out}
+
+
+def angle_diff(a, b):
+    """|a - b| modulo 2 pi, in [0, pi]."""
+    d = math.fmod(a - b, TWO_PI)
+    if d < 0:
+        d += TWO_PI
+    return min(d, TWO_PI - d)
+
+
+def angle_in_interval(a, start, end):
+    d = math.fmod(a - start, TWO_PI)
+    if d < 0:
+        d += TWO_PI
+    return d <= (end - start) + TOL or TWO_PI - d <= TOL
+
+
+def describe_position(pos):
+    if hasattr(pos, "__len__"):
+        return f"({float(pos[0])!r}, {float(pos[1])!r})"
+    c = pos.center
+    return f"a {type(pos).__name__} centred at ({c.x!r}, {c.y!r})"
+
+
+def compare_state(actor, state, mode):
+    """Returns (problem or None, set_valued)."""
+    import shapely
+
+    pos, ori = state.position, state.orientation
+    set_valued = not hasattr(pos, "__len__") or is_interval(ori)
+    if set_valued and mode == "skip":
+        return None, True
+    problems = []
+    x, y, h = actor["x"], actor["y"], actor["heading"]
+    if hasattr(pos, "__len__"):
+        px, py = float(pos[0]), float(pos[1])
+        if abs(x - px) > TOL or abs(y - py) > TOL:
+            problems.append(f"position ({x!r}, {y!r}) != ({px!r}, {py!r})")
+    elif mode == "contains":
+        if not pos.contains_point(shapely.Point(x, y)):
+            problems.append(f"position ({x!r}, {y!r}) outside the state's {type(pos).__name__}")
+    else:
+        c = pos.center
+        if abs(x - c.x) > TOL or abs(y - c.y) > TOL:
+            problems.append(f"position ({x!r}, {y!r}) != centre ({c.x!r}, {c.y!r}) of the state's "
+                            f"{type(pos).__name__}")
+    if is_interval(ori):
+        if mode == "contains":
+            if not angle_in_interval(h, ori.start, ori.end):
+                problems.append(f"heading {h!r} outside [{ori.start!r}, {ori.end!r}]")
+        else:
+            mid = 0.5 * (ori.start + ori.end)
+            if angle_diff(h, mid) > TOL:
+                problems.append(f"heading {h!r} != midpoint {mid!r} of [{ori.start!r}, {ori.end!r}]")
+    elif ori is None:
+        problems.append("the recorded state has no orientation")
+    elif angle_diff(h, float(ori)) > TOL:
+        problems.append(f"heading {h!r} != orientation {float(ori)!r} (mod 2 pi)")
+    return ("; ".join(problems) if problems else None), set_valued
+
+
+def check_log(scenario, log_path, dt, mode):
+    from commonroad.prediction.prediction import SetBasedPrediction
+
+    obstacles = sorted(scenario.dynamic_obstacles, key=lambda o: o.obstacle_id)
+    known = {f"cr_{o.obstacle_id}" for o in obstacles}
+    compared = absent = set_valued_count = skipped = messages = on_step = 0
+    mismatches = []
+    for log_time, t, actors in read_actor_messages(log_path):
+        messages += 1
+        if log_time != round(t * 1e9):
+            mismatches.append(f"/actors at t={t!r}: log_time {log_time} ns is not its time")
+        k = round(t / dt)
+        if k < 0 or abs(t - k * dt) > TOL:
+            continue
+        on_step += 1
+        by_name = {}
+        for a in actors:
+            if a["name"] in by_name:
+                mismatches.append(f"t={t!r} (step {k}): actor {a['name']} listed twice")
+            by_name[a["name"]] = a
+        for unknown in sorted(set(by_name) - known):
+            if unknown.startswith("cr_"):
+                mismatches.append(f"t={t!r} (step {k}): actor {unknown} is no dynamic obstacle of "
+                                  "the scenario")
+        for o in obstacles:
+            name = f"cr_{o.obstacle_id}"
+            actor = by_name.get(name)
+            if isinstance(o.prediction, SetBasedPrediction) and k != o.initial_state.time_step:
+                skipped += 1  # an occupancy set: no state to compare with
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                state = o.state_at_time(k)
+            if state is None:
+                if actor is not None and not actor["absent"]:
+                    mismatches.append(f"t={t!r} (step {k}) {name}: listed and not absent, but the "
+                                      "scenario has no state at this step")
+                else:
+                    absent += 1
+                continue
+            if actor is None:
+                mismatches.append(f"t={t!r} (step {k}) {name}: not in /actors, the scenario has a "
+                                  f"state at {describe_position(state.position)}")
+                continue
+            if actor["absent"]:
+                mismatches.append(f"t={t!r} (step {k}) {name}: absent, but the scenario has a state")
+                continue
+            problem, sv = compare_state(actor, state, mode)
+            if sv:
+                set_valued_count += 1
+                if mode == "skip":
+                    skipped += 1
+                    continue
+            compared += 1
+            if problem:
+                mismatches.append(f"t={t!r} (step {k}) {name}: {problem}")
+    return messages, on_step, compared, absent, set_valued_count, skipped, mismatches
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("xml")
+    ap.add_argument("log", nargs="?")
+    ap.add_argument("--time-step-size", type=float, default=None,
+                    help="dt in seconds (default: the scenario's timeStepSize)")
+    ap.add_argument("--planning-problem-json", metavar="OUT")
+    ap.add_argument("--lanelets-json", metavar="OUT")
+    ap.add_argument("--set-valued", choices=["centre", "contains", "skip"], default="centre",
+                    help="how to compare states given as shapes / intervals (default: centre)")
+    args = ap.parse_args(argv)
+    if args.log is None and not (args.planning_problem_json or args.lanelets_json):
+        ap.error("nothing to do: give a log, --planning-problem-json or --lanelets-json")
+
+    scenario, pps = open_scenario(args.xml)
+    dt = args.time_step_size if args.time_step_size is not None else float(scenario.dt)
+    if not dt > 0:
+        ap.error(f"time step size {dt} is not positive")
+
+    if args.planning_problem_json:
+        with open(args.planning_problem_json, "w") as f:
+            json.dump(planning_problems_json(pps, dt), f, indent=1)
+    if args.lanelets_json:
+        with open(args.lanelets_json, "w") as f:
+            json.dump(lanelets_json(scenario), f)
+    if args.log is None:
+        return 0
+
+    messages, on_step, compared, absent, set_valued, skipped, mismatches = check_log(
+        scenario, args.log, dt, args.set_valued)
+    if set_valued or skipped:
+        print(f"commonroad_check: {set_valued} set-valued states ({args.set_valued}), "
+              f"{skipped} left out (set-valued skipped or set-based predictions)")
+    print(f"commonroad_check: {compared} states compared, {absent} absent, "
+          f"{len(mismatches)} mismatches")
+    if on_step == 0:
+        print(f"commonroad_check: none of the {messages} /actors messages is at a multiple of "
+              f"dt = {dt}", file=sys.stderr)
+        return 1
+    if mismatches:
+        for m in mismatches[:10]:
+            print("  " + m, file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
