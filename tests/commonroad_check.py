@@ -320,10 +320,15 @@ def compare_state(actor, state, mode):
     return ("; ".join(problems) if problems else None), set_valued
 
 
-def check_log(scenario, log_path, dt, mode):
+def check_log(scenario, log_path, dt, mode, ego_ids=()):
     from commonroad.prediction.prediction import SetBasedPrediction
 
-    obstacles = sorted(scenario.dynamic_obstacles, key=lambda o: o.obstacle_id)
+    # A road user listed under a planning problem's id is the ego itself (two commonroad-crime
+    # files do this): mjsafe drives it, it is no road user of the run.
+    obstacles = sorted(
+        (o for o in scenario.dynamic_obstacles if o.obstacle_id not in ego_ids),
+        key=lambda o: o.obstacle_id,
+    )
     known = {f"cr_{o.obstacle_id}" for o in obstacles}
     compared = absent = set_valued_count = skipped = messages = on_step = 0
     mismatches = []
@@ -407,8 +412,9 @@ def main(argv=None):
     if args.log is None:
         return 0
 
+    ego_ids = {pp.planning_problem_id for pp in pps.planning_problem_dict.values()}
     messages, on_step, compared, absent, set_valued, skipped, mismatches = check_log(
-        scenario, args.log, dt, args.set_valued)
+        scenario, args.log, dt, args.set_valued, ego_ids)
     if set_valued or skipped:
         print(f"commonroad_check: {set_valued} set-valued states ({args.set_valued}), "
               f"{skipped} left out (set-valued skipped or set-based predictions)")

@@ -107,7 +107,17 @@ pub fn expand(
     let problem = cr
         .planning_problem(spec.planning_problem)
         .map_err(|e| field("commonroad.planning_problem", e.to_string()))?;
-    let defaults = world(&cr, problem).map_err(|e| field("commonroad", e))?;
+    let mut defaults = world(&cr, problem).map_err(|e| field("commonroad", e))?;
+    // A filter's or nominal's `kind` an override sets (`--set filter.kind=cbf_qp`) replaces that
+    // default table whole, as one the scenario writes does.
+    for spec in overrides {
+        let Some((key, _)) = spec.split_once('=') else { continue };
+        if let Some(section) = key.trim().strip_suffix(".kind") {
+            if ["filter", "nominal"].contains(&section) && table.get(section).and_then(|t| t.get("kind")).is_none() {
+                defaults.remove(section);
+            }
+        }
+    }
     merge(table, defaults);
     Ok(Some(cr))
 }
@@ -218,12 +228,13 @@ fn vehicle(rear: [f64; 2], heading: f64, speed: f64) -> toml::Table {
 /// or those its goal shapes' centres lie in), or along successors without a goal position.
 pub fn ego_route(cr: &CommonRoad, problem: &PlanningProblem) -> Result<route::Route, String> {
     let start = problem.initial;
-    let Some(&first) = route::lanelets_at(cr, start.position, start.orientation).first() else {
+    let starts = route::lanelets_at(cr, start.position, start.orientation);
+    if starts.is_empty() {
         return Err(format!(
             "planning problem {}: its start ({}, {}) lies in no lanelet driving its way",
             problem.id, start.position[0], start.position[1]
         ));
-    };
+    }
     let mut goals: Vec<u64> = Vec::new();
     for g in &problem.goals {
         match &g.position {
@@ -237,9 +248,11 @@ pub fn ego_route(cr: &CommonRoad, problem: &PlanningProblem) -> Result<route::Ro
             None => {}
         }
     }
-    let lanelets = route::plan(cr, first, &goals).ok_or_else(|| {
+    // From the best aligned lanelet the start lies in that has a route (overlapping lanelets
+    // at a junction: the one leading to the goal).
+    let lanelets = starts.iter().find_map(|&first| route::plan(cr, first, &goals)).ok_or_else(|| {
         format!(
-            "planning problem {}: no route from lanelet {first} to a goal lanelet ({goals:?}) over successors and same-direction neighbours",
+            "planning problem {}: no route from lanelet {starts:?} to a goal lanelet ({goals:?}) over successors and same-direction neighbours",
             problem.id
         )
     })?;

@@ -230,23 +230,24 @@ fn model_with_obstacles(
         };
         let lead = hull.filter(|_| o.following.is_some());
         // A sphere's text, static or moving, is as it always was (logs unchanged).
-        geoms.push_str(&match (&o.motion, lead) {
+        let moving = o.motion.is_some() || o.recorded.is_some();
+        geoms.push_str(&match (moving, lead) {
             (_, Some(hull)) => format!(
                 "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} pos=\"0 {} {}\" {look}/></body>\n",
                 obstacle_body_name(i),
                 hull.world[1] - y,
                 hull.world[2]
             ),
-            (None, None) if o.shape.is_none() => {
+            (false, None) if o.shape.is_none() => {
                 format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n", o.radius.unwrap_or_default())
             }
-            (None, None) => format!("    <geom name=\"{name}\" {shape} pos=\"{x} {y} 0\" {look}/>\n"),
-            (Some(_), None) if o.shape.is_none() => format!(
+            (false, None) => format!("    <geom name=\"{name}\" {shape} pos=\"{x} {y} 0\" {look}/>\n"),
+            (true, None) if o.shape.is_none() => format!(
                 "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/></body>\n",
                 obstacle_body_name(i),
                 o.radius.unwrap_or_default()
             ),
-            (Some(_), None) => format!(
+            (true, None) => format!(
                 "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} {look}/></body>\n",
                 obstacle_body_name(i)
             ),
@@ -1068,9 +1069,9 @@ pub(super) fn plant(
             let obstacles = (sc.obstacles.iter().zip(barriers).enumerate())
                 .map(|(i, (o, &barriers))| {
                     let geom = model.require(ObjKind::Geom, &obstacle_geom_name(i))?;
-                    let mocap = match o.motion {
-                        None => None,
-                        Some(_) => {
+                    let mocap = match o.motion.is_some() || o.recorded.is_some() {
+                        false => None,
+                        true => {
                             let name = obstacle_body_name(i);
                             let body = model.require(ObjKind::Body, &name)?;
                             let mocap = model.body_mocap_id(body).ok_or(mujoco::MjError::MissingName {
