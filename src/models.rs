@@ -18,8 +18,16 @@ pub fn is_builtin(path: &Path) -> bool {
 /// The text of the built-in model `path` names, or the names there are.
 pub fn builtin(path: &Path) -> Result<&'static str, String> {
     let name = path.to_str().and_then(|p| p.strip_prefix(PREFIX)).unwrap_or_default();
-    BUILTIN.iter().find(|(n, _)| *n == name).map(|(_, text)| *text).ok_or_else(|| {
-        let names: Vec<String> = BUILTIN.iter().map(|(n, _)| format!("{PREFIX}{n}")).collect();
-        format!("expected a built-in model ({}), found {}", names.join(", "), path.display())
-    })
+    BUILTIN
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, text)| *text)
+        .ok_or_else(|| {
+            let names: Vec<String> = BUILTIN.iter().map(|(n, _)| format!("{PREFIX}{n}")).collect();
+            format!(
+                "expected a built-in model ({}), found {}",
+                names.join(", "),
+                path.display()
+            )
+        })
 }

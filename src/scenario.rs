@@ -620,10 +620,14 @@ impl LoadedScenario {
     /// A built-in model (`mjsafe:<name>`, [`crate::models`]) is its name.
     pub fn model_path(&self) -> Option<PathBuf> {
         let dir = self.path.parent().unwrap_or_else(|| Path::new("."));
-        self.scenario.vehicle.model.as_ref().map(|m| match crate::models::is_builtin(m) {
-            true => m.clone(),
-            false => dir.join(m),
-        })
+        self.scenario
+            .vehicle
+            .model
+            .as_ref()
+            .map(|m| match crate::models::is_builtin(m) {
+                true => m.clone(),
+                false => dir.join(m),
+            })
     }
 
     /// The CommonRoad file of `[commonroad]`, resolved against the scenario file's directory.

@@ -151,7 +151,11 @@ impl RecordedMotion {
         let (first, last) = self.span();
         let inside = (first..=last).contains(&t);
         let t = t.clamp(first, last);
-        let k = self.times.partition_point(|&tk| tk <= t).saturating_sub(1).min(self.times.len() - 2);
+        let k = self
+            .times
+            .partition_point(|&tk| tk <= t)
+            .saturating_sub(1)
+            .min(self.times.len() - 2);
         let u = t - self.times[k];
         let ([x, vx, ax], [y, vy, ay], [heading, rate, yaw_acceleration]) =
             (self.x.at(k, u), self.y.at(k, u), self.heading.at(k, u));
@@ -227,7 +231,12 @@ mod tests {
     /// (a circle) is matched to O(h⁴) inside.
     #[test]
     fn derivatives_are_those_of_the_positions() {
-        let circle = |t: f64| ([10.0 * (0.5 * t).cos(), 10.0 * (0.5 * t).sin()], 0.5 * t + std::f64::consts::FRAC_PI_2);
+        let circle = |t: f64| {
+            (
+                [10.0 * (0.5 * t).cos(), 10.0 * (0.5 * t).sin()],
+                0.5 * t + std::f64::consts::FRAC_PI_2,
+            )
+        };
         let m = RecordedMotion::new(&states(circle, 81, 0.1)).unwrap();
         let e = 1e-5;
         for t in [0.35, 1.0, 2.05, 4.0, 6.3] {
@@ -236,7 +245,11 @@ mod tests {
                 let v = (c.position[i] - a.position[i]) / (2.0 * e);
                 let acc = (c.velocity[i] - a.velocity[i]) / (2.0 * e);
                 assert!((v - b.velocity[i]).abs() < 1e-6, "t {t}: v {v} vs {}", b.velocity[i]);
-                assert!((acc - b.acceleration[i]).abs() < 1e-5, "t {t}: a {acc} vs {}", b.acceleration[i]);
+                assert!(
+                    (acc - b.acceleration[i]).abs() < 1e-5,
+                    "t {t}: a {acc} vs {}",
+                    b.acceleration[i]
+                );
             }
             let rate = (c.heading - a.heading) / (2.0 * e);
             assert!((rate - b.yaw_rate).abs() < 1e-6);
@@ -256,7 +269,16 @@ mod tests {
     #[test]
     fn headings_are_unwrapped() {
         let tau = std::f64::consts::TAU;
-        let wrapped = |t: f64| ([t, 0.0], if 3.0 + t > std::f64::consts::PI { 3.0 + t - tau } else { 3.0 + t });
+        let wrapped = |t: f64| {
+            (
+                [t, 0.0],
+                if 3.0 + t > std::f64::consts::PI {
+                    3.0 + t - tau
+                } else {
+                    3.0 + t
+                },
+            )
+        };
         let m = RecordedMotion::new(&states(wrapped, 11, 0.1)).unwrap();
         let at = m.state_at(0.55);
         assert!((at.heading - 3.55).abs() < 1e-9, "{}", at.heading);

@@ -151,14 +151,28 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
     let (s, c) = start.orientation.sin_cos();
     let rear = [start.position[0] - VEHICLE.b * c, start.position[1] - VEHICLE.b * s];
     let route = ego_route(cr, problem)?;
-    let goal_speed = problem.goals.iter().find_map(|g| g.velocity).map(|(lo, hi)| 0.5 * (lo + hi));
+    let goal_speed = problem
+        .goals
+        .iter()
+        .find_map(|g| g.velocity)
+        .map(|(lo, hi)| 0.5 * (lo + hi));
     let reference_speed = goal_speed.unwrap_or(speed).max(1.0);
-    let steps = cr.duration_steps().max(problem.goals.iter().map(|g| g.time_steps.1.max(0) as u64).max().unwrap_or(0));
+    let steps = cr.duration_steps().max(
+        problem
+            .goals
+            .iter()
+            .map(|g| g.time_steps.1.max(0) as u64)
+            .max()
+            .unwrap_or(0),
+    );
     let duration = (steps.max(1) as f64) * dt;
     let mut t = toml::Table::new();
     let v = |x: f64| toml::Value::Float(x);
     let point = |p: [f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
-    t.insert("name".into(), toml::Value::String(cr.benchmark_id.replace(['/', '\\'], "_")));
+    t.insert(
+        "name".into(),
+        toml::Value::String(cr.benchmark_id.replace(['/', '\\'], "_")),
+    );
     t.insert(
         "description".into(),
         toml::Value::String(format!(
@@ -167,9 +181,18 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
         )),
     );
     t.insert("duration".into(), v(duration));
-    t.insert("vehicle".into(), toml::Value::Table(vehicle(rear, start.orientation, speed)));
-    t.insert("delays".into(), table(&[("steering", v(DELAYS.0)), ("acceleration", v(DELAYS.1))]));
-    t.insert("initial_input".into(), table(&[("steering", v(0.0)), ("acceleration", v(0.0))]));
+    t.insert(
+        "vehicle".into(),
+        toml::Value::Table(vehicle(rear, start.orientation, speed)),
+    );
+    t.insert(
+        "delays".into(),
+        table(&[("steering", v(DELAYS.0)), ("acceleration", v(DELAYS.1))]),
+    );
+    t.insert(
+        "initial_input".into(),
+        table(&[("steering", v(0.0)), ("acceleration", v(0.0))]),
+    );
     t.insert("control".into(), table(&[("period", v(0.01))]));
     let path: Vec<toml::Value> = route.centre.iter().map(|p| point(*p)).collect();
     t.insert(
@@ -258,7 +281,10 @@ pub fn ego_route(cr: &CommonRoad, problem: &PlanningProblem) -> Result<route::Ro
     })?;
     let centre = route::centre_of(cr, &lanelets);
     if centre.len() < 2 {
-        return Err(format!("planning problem {}: the route's centre line has fewer than 2 points", problem.id));
+        return Err(format!(
+            "planning problem {}: the route's centre line has fewer than 2 points",
+            problem.id
+        ));
     }
     Ok(route::Route { lanelets, centre })
 }
@@ -353,7 +379,10 @@ fn bounding_box(points: &[[f64; 2]]) -> (f64, f64, f64, [f64; 2]) {
 /// position of its shape's centre.
 pub fn recorded_motion(cr: &CommonRoad, id: u64) -> Result<crate::actor::RecordedMotion, String> {
     let Some(o) = cr.obstacle(id).filter(|o| o.role == ObstacleRole::Dynamic) else {
-        return Err(format!("expected the id of a dynamic road user of {}, found {id}", cr.file));
+        return Err(format!(
+            "expected the id of a dynamic road user of {}, found {id}",
+            cr.file
+        ));
     };
     let local = o.shapes.first().map_or([0.0; 2], local_centre);
     let states: Vec<crate::actor::RecordedState> = o
@@ -390,7 +419,9 @@ pub fn check_recorded(s: &LoadedScenario, i: usize, o: &ObstacleSpec, id: u64) -
 /// The text of a scenario that is the world of CommonRoad file `xml` with every default (what
 /// `mjsafe run FILE.xml` runs, read as if it were a scenario file beside the XML).
 pub fn scenario_text(xml: &Path, planning_problem: Option<u64>) -> String {
-    let name = xml.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let name = xml
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
     let mut text = format!("[commonroad]\nfile = {}\n", toml::Value::String(name));
     if let Some(id) = planning_problem {
         text.push_str(&format!("planning_problem = {id}\n"));
@@ -421,7 +452,11 @@ mod tests {
         let route = ego_route(&cr, problem).unwrap();
         let goal = route::lanelets_at(&cr, [17.836, -17.2178], -0.72);
         assert!(goal.iter().any(|g| route.lanelets.contains(g)), "{route:?} {goal:?}");
-        assert!((t["duration"].as_float().unwrap() - 10.0).abs() < 1e-9, "{}", t["duration"]);
+        assert!(
+            (t["duration"].as_float().unwrap() - 10.0).abs() < 1e-9,
+            "{}",
+            t["duration"]
+        );
     }
 
     /// Every committed file gives a world (a route from its start).

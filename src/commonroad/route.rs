@@ -40,7 +40,10 @@ fn mid(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
 
 /// The polyline's length (m).
 pub fn length(points: &[[f64; 2]]) -> f64 {
-    points.windows(2).map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1])).sum()
+    points
+        .windows(2)
+        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+        .sum()
 }
 
 /// `n` ≥ 2 points at equal arc-length fractions of the polyline.
@@ -59,7 +62,11 @@ fn resample(points: &[[f64; 2]], n: usize) -> Vec<[f64; 2]> {
             segment += 1;
         }
         let l = seg_len(points, segment);
-        let f = if l > 0.0 { ((target - walked) / l).clamp(0.0, 1.0) } else { 0.0 };
+        let f = if l > 0.0 {
+            ((target - walked) / l).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         let (a, b) = (points[segment], points[segment + 1]);
         out.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
     }
@@ -72,7 +79,13 @@ fn seg_len(points: &[[f64; 2]], k: usize) -> f64 {
 
 /// Whether `p` lies inside the lanelet's polygon (left bound, then the right bound reversed).
 pub fn contains(l: &Lanelet, p: [f64; 2]) -> bool {
-    let polygon: Vec<[f64; 2]> = l.left.points.iter().chain(l.right.points.iter().rev()).copied().collect();
+    let polygon: Vec<[f64; 2]> = l
+        .left
+        .points
+        .iter()
+        .chain(l.right.points.iter().rev())
+        .copied()
+        .collect();
     let mut inside = false;
     let mut j = polygon.len() - 1;
     for i in 0..polygon.len() {
@@ -202,7 +215,10 @@ pub fn centre_of(cr: &CommonRoad, route: &[u64]) -> Vec<[f64; 2]> {
                 let half = centre.len() - line.len().min(centre.len()) / 2;
                 centre.truncate(half.max(1));
                 let last = *centre.last().unwrap_or(&last);
-                (0..line.len()).min_by(|&a, &b| dist2(line[a], last).total_cmp(&dist2(line[b], last))).unwrap_or(0) + 1
+                (0..line.len())
+                    .min_by(|&a, &b| dist2(line[a], last).total_cmp(&dist2(line[b], last)))
+                    .unwrap_or(0)
+                    + 1
             }
             Some(_) => 1, // a successor starts where its predecessor ends
             None => 0,

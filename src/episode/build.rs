@@ -955,7 +955,10 @@ fn obstacle_motion(
         let motion = crate::commonroad::recorded_motion(cr, id)
             .map_err(|e| loaded.field_error(&format!("obstacles.{i}.recorded"), e))?;
         let centre = motion.state_at(0.0).position;
-        return Ok((Some(crate::actor::ActorMotion::Recorded(std::sync::Arc::new(motion))), centre));
+        return Ok((
+            Some(crate::actor::ActorMotion::Recorded(std::sync::Arc::new(motion))),
+            centre,
+        ));
     }
     let Some(m) = &o.motion else {
         return Ok((None, o.centre));

@@ -65,7 +65,11 @@ impl Params for RouteParams {
                 format!("expected 2 to {MAX_PATH_POINTS} points, found {n}"),
             ));
         }
-        if let Some(k) = self.path.iter().position(|p| !(p[0].is_finite() && p[1].is_finite() && p[0].abs() <= 1e9 && p[1].abs() <= 1e9)) {
+        if let Some(k) = self
+            .path
+            .iter()
+            .position(|p| !(p[0].is_finite() && p[1].is_finite() && p[0].abs() <= 1e9 && p[1].abs() <= 1e9))
+        {
             return Err(ParamError::new(
                 "nominal.path",
                 format!("expected finite points within ±1e9 m (point {k} is not)"),
@@ -78,7 +82,10 @@ impl Params for RouteParams {
             ("max_acceleration", self.max_acceleration),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= 1e6) {
-                return Err(ParamError::new(&format!("nominal.{key}"), format!("expected a positive number, found {v}")));
+                return Err(ParamError::new(
+                    &format!("nominal.{key}"),
+                    format!("expected a positive number, found {v}"),
+                ));
             }
         }
         if !(self.lookahead_time.is_finite() && (0.0..=1e3).contains(&self.lookahead_time)) {
@@ -191,8 +198,7 @@ mod tests {
             vehicle_kind: "bicycle",
             channels: &channels,
         };
-        let params: RouteParams =
-            toml::from_str(&format!("path = {path:?}\nspeed = 10.0")).expect("params");
+        let params: RouteParams = toml::from_str(&format!("path = {path:?}\nspeed = 10.0")).expect("params");
         params.validate().unwrap();
         build(&params, &ctx).unwrap()
     }
@@ -218,7 +224,9 @@ mod tests {
             let k2 = f(&add(&x, &k1, h / 2.0));
             let k3 = f(&add(&x, &k2, h / 2.0));
             let k4 = f(&add(&x, &k3, h));
-            x = (0..4).map(|i| x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])).collect();
+            x = (0..4)
+                .map(|i| x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+                .collect();
             if (300..400).contains(&k) {
                 worst_after_settling = worst_after_settling.max(x[1].abs());
             }

@@ -1,0 +1,176 @@
+//! CommonRoad worlds (docs/commonroad.md) through the real binary: every committed scenario runs
+//! and its recorded road users are where CommonRoad's own reader (PyPI commonroad-io, in a venv
+//! of its own: tests/commonroad_check.py) puts them at every recorded step; the outcome on real
+//! traffic; `[commonroad]` scenarios with overrides; hostile files get one line.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::{mjsafe, stderr, stdout};
+
+fn data(name: &str) -> PathBuf {
+    common::root().join("data/commonroad").join(name)
+}
+
+/// The interpreter of the CommonRoad venv (`scripts/setup.sh --test`).
+fn commonroad_python() -> String {
+    std::env::var("MJSAFE_CR_PYTHON").unwrap_or_else(|_| {
+        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/cr-venv/bin/python";
+        assert!(
+            Path::new(&venv).exists(),
+            "no Python with commonroad-io: run scripts/test.sh (it creates {venv}) or set MJSAFE_CR_PYTHON"
+        );
+        venv
+    })
+}
+
+fn run(xml: &Path, out: &Path, extra: &[&str]) -> String {
+    let mut args = vec!["run", xml.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let o = mjsafe(&args);
+    assert!(o.status.success(), "{}: {}{}", xml.display(), stdout(&o), stderr(&o));
+    stdout(&o)
+}
+
+/// Every committed file runs with the defaults, and at every recorded step every road user in
+/// `/actors` is where commonroad-io's `state_at_time(k)` puts it (1e-9 m, 1e-9 rad), absent
+/// where it has no state.
+#[test]
+fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(data(""))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 10, "{files:?}");
+    for xml in &files {
+        let log = dir
+            .path()
+            .join(format!("{}.mcap", xml.file_stem().unwrap().to_string_lossy()));
+        run(xml, &log, &[]);
+        let check = Command::new(commonroad_python())
+            .args([
+                common::root().join("tests/commonroad_check.py").to_str().unwrap(),
+                xml.to_str().unwrap(),
+                log.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&check.stdout),
+            String::from_utf8_lossy(&check.stderr)
+        );
+        assert!(check.status.success(), "{}: {text}", xml.display());
+        assert!(text.contains(" 0 mismatches"), "{text}");
+    }
+}
+
+/// The dissertation's outcome on recorded traffic (US-101, a jam): with delays of 0.2 s and
+/// 0.5 s the nominal alone runs into the car ahead and the delay-free CBF-QP (4.9)–(4.11) does too;
+/// the γm filter (4.67) stays clear.
+#[test]
+fn on_us101_the_gamma_m_filter_stays_clear_where_the_others_collide() {
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_US101-4_1_T-1.xml");
+    let outcome = |name: &str, sets: &[&str]| {
+        let log = dir.path().join(format!("{name}.mcap"));
+        let mut extra = Vec::new();
+        for s in sets {
+            extra.extend(["--set", s]);
+        }
+        run(&xml, &log, &extra);
+        common::analyze_json(&log)
+    };
+    let nominal = outcome("nominal", &["filter.kind=none"]);
+    let qp = outcome("qp", &["filter.kind=cbf_qp", "filter.l0=4.0", "filter.l1=4.0"]);
+    let gamma = outcome("gamma", &[]);
+    assert!(nominal["collision"].is_object(), "{nominal}");
+    assert!(qp["collision"].is_object(), "{qp}");
+    assert!(gamma["collision"].is_null(), "{gamma}");
+    assert!(gamma["min_h"].as_f64().unwrap() > 0.0, "{gamma}");
+}
+
+/// A scenario TOML names the file and overrides what it likes; the planning problem that does
+/// not exist is one line naming the ids there are; the same inputs give the same bytes.
+#[test]
+fn a_scenario_names_a_commonroad_file_and_overrides_its_defaults() {
+    let dir = tempfile::tempdir().unwrap();
+    let toml = dir.path().join("us101.toml");
+    std::fs::write(
+        &toml,
+        format!(
+            "duration = 2.0\n\n[commonroad]\nfile = {:?}\nplanning_problem = 458\n\n[delays]\nacceleration = 0.3\n",
+            data("USA_US101-4_1_T-1.xml").display().to_string()
+        ),
+    )
+    .unwrap();
+    let (a, b) = (dir.path().join("a.mcap"), dir.path().join("b.mcap"));
+    run(&toml, &a, &["--set", "delays.steering=0.1"]);
+    run(&toml, &b, &["--set", "delays.steering=0.1"]);
+    assert_eq!(
+        std::fs::read(&a).unwrap(),
+        std::fs::read(&b).unwrap(),
+        "byte-identical logs"
+    );
+    let m = common::analyze_json(&a);
+    assert!((m["simulated_time"].as_f64().unwrap() - 2.0).abs() < 1e-9, "{m}");
+    let o = mjsafe(&["run", toml.to_str().unwrap(), "--set", "commonroad.planning_problem=9"]);
+    let err = stderr(&o);
+    assert!(!o.status.success() && err.trim().lines().count() == 1, "{err}");
+    assert!(
+        err.contains("commonroad.planning_problem") && err.contains("458"),
+        "{err}"
+    );
+}
+
+/// Hostile files: one line naming the file and what was wrong, a non-zero exit, no panic.
+#[test]
+fn hostile_commonroad_files_get_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = std::fs::read_to_string(data("ZAM_Tutorial-1_1_T-1.xml")).unwrap();
+    let cases = [
+        (
+            "malformed.xml",
+            good.replacen("</lanelet>", "</lanelt>", 1),
+            "malformed XML",
+        ),
+        (
+            "dangling.xml",
+            good.replacen("<lanelet ref=\"1\"/>", "<lanelet ref=\"91\"/>", 1),
+            "91",
+        ),
+        (
+            "timestep.xml",
+            good.replacen("timeStepSize=\"0.1\"", "timeStepSize=\"-0.1\"", 1),
+            "timeStepSize",
+        ),
+        ("huge.xml", good.replacen("<x>", "<x>1e300", 1), "1e300"),
+        (
+            "version.xml",
+            good.replacen("commonRoadVersion=\"2020a\"", "commonRoadVersion=\"2031z\"", 1),
+            "2031z",
+        ),
+    ];
+    for (name, text, needle) in cases {
+        assert!(text != good, "{name}: the edit applies");
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let o = mjsafe(&[
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            dir.path().join("x.mcap").to_str().unwrap(),
+        ]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+    }
+    assert!(!dir.path().join("x.mcap").exists());
+}
