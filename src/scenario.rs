@@ -714,7 +714,7 @@ fn parse_with_world(
             )
             .replace("` as i128", "`"),
     })?;
-    let world = crate::commonroad::expand(&mut table, file, overrides, apply_override)?;
+    let world = commonroad_world(&mut table, file, overrides)?;
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
@@ -750,6 +750,58 @@ fn parse_with_world(
 }
 
 pub use crate::message::plain_serde_message;
+
+/// The world of `table`'s `[commonroad]` (as the `overrides` leave it) filled in where the table
+/// is silent (docs/commonroad.md); the file as read. `file` names the scenario.
+fn commonroad_world(
+    table: &mut toml::Table,
+    file: &str,
+    overrides: &[String],
+) -> Result<Option<std::sync::Arc<mjsafe_commonroad::CommonRoad>>, ScenarioError> {
+    let field = |key: String, message: String| ScenarioError::Field {
+        file: file.to_string(),
+        key,
+        message,
+    };
+    let mut probe = toml::Table::new();
+    if let Some(c) = table.get("commonroad") {
+        probe.insert("commonroad".into(), c.clone());
+    }
+    for spec in overrides.iter().filter(|s| s.trim_start().starts_with("commonroad.")) {
+        apply_override(&mut probe, spec)?;
+    }
+    let Some(value) = probe.remove("commonroad") else {
+        return Ok(None);
+    };
+    let spec: crate::commonroad::CommonRoadSpec = serde_path_to_error::deserialize(value).map_err(|e| {
+        let inner = e.path().to_string();
+        let key = if inner == "." {
+            "commonroad".to_string()
+        } else {
+            format!("commonroad.{inner}")
+        };
+        field(key, plain_serde_message(&e.into_inner().to_string()))
+    })?;
+    let dir = Path::new(file).parent().unwrap_or_else(|| Path::new("."));
+    let (cr, defaults) = crate::commonroad::defaults(&spec, dir).map_err(|(key, message)| field(key, message))?;
+    crate::commonroad::fill(table, defaults, overrides);
+    Ok(Some(cr))
+}
+
+/// Checks obstacle `i`'s `recorded = id`: a `[commonroad]` file with that dynamic road user, and
+/// no `motion` or `following` besides.
+fn check_recorded(s: &LoadedScenario, i: usize, o: &ObstacleSpec, id: u64) -> Result<(), ScenarioError> {
+    let key = format!("obstacles.{i}.recorded");
+    if o.motion.is_some() || o.following.is_some() {
+        return Err(s.field_error(&key, "a recorded road user has no `motion` or `following` besides"));
+    }
+    let Some(cr) = &s.commonroad else {
+        return Err(s.field_error(&key, "expected a `[commonroad] file` whose road user it names"));
+    };
+    crate::commonroad::recorded_motion(cr, id)
+        .map(|_| ())
+        .map_err(|e| s.field_error(&key, e))
+}
 
 /// The field a dotted override key names, spelled one way: array indices as numbers
 /// (`obstacles.00.radius` and `obstacles.+0.radius` are `obstacles.0.radius`, as an override
@@ -1422,7 +1474,7 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             validate_motion(s, i, o, m)?;
         }
         if let Some(id) = o.recorded {
-            crate::commonroad::check_recorded(s, i, o, id)?;
+            check_recorded(s, i, o, id)?;
         }
         if let Some(f) = &o.following {
             for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {

@@ -136,6 +136,7 @@ Examples:
 mod analyze_command;
 mod bench_command;
 mod falsify_command;
+mod import_command;
 mod log_commands;
 mod man_command;
 mod run_command;
@@ -144,6 +145,7 @@ mod sweep_command;
 use analyze_command::*;
 use bench_command::*;
 use falsify_command::*;
+use import_command::*;
 use log_commands::*;
 use man_command::*;
 use run_command::*;
@@ -212,6 +214,9 @@ pub enum Command {
     /// List every metric `analyze` computes: its JSON name, flat column, unit and meaning
     /// (docs/metrics.md's table is this output with --markdown).
     Metrics(MetricsCommand),
+    /// Write the scenario a file of another format runs as, every default spelled out:
+    /// `mjsafe import commonroad FILE.xml --out X.toml` (docs/commonroad.md).
+    Import(ImportCommand),
     /// Print a shell completion script on stdout, e.g.
     /// `mjsafe completions bash > ~/.local/share/bash-completion/completions/mjsafe`.
     Completions(CompletionsCommand),
@@ -249,6 +254,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Info(command) => command.execute(),
         Command::Bench(command) => command.execute(),
         Command::Metrics(command) => command.execute(),
+        Command::Import(command) => command.execute(),
         Command::Completions(command) => command.execute(),
         Command::Man(command) => command.execute(),
     }

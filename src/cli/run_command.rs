@@ -154,6 +154,12 @@ pub(super) fn run_scenario(
     report: RunOutput,
 ) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
+    // What of a CommonRoad file mjsafe does not use, named (nothing dropped silently).
+    if let (Some(cr), Some(spec)) = (&loaded.commonroad, loaded.commonroad_path()) {
+        for line in cr.ignored_line().into_iter().chain(cr.notes()) {
+            eprintln!("{}: {line}", spec.display());
+        }
+    }
     let inputs = loaded.inputs();
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));

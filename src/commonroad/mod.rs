@@ -13,8 +13,6 @@ use std::sync::{Arc, Mutex};
 use mjsafe_commonroad::{CommonRoad, GoalPosition, ObstacleRole, PlanningProblem, Shape};
 use serde::{Deserialize, Serialize};
 
-use crate::scenario::{LoadedScenario, ObstacleSpec, ScenarioError};
-
 /// `[commonroad]`: the CommonRoad file (relative to the scenario file) and the planning problem
 /// (its id; default the file's first).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,42 +72,21 @@ pub fn read(path: &Path) -> Result<Arc<CommonRoad>, String> {
     Ok(cr)
 }
 
-/// Fills `table` (a scenario's TOML) with the world of its `[commonroad]` (as the `overrides`
-/// leave it), keys the table writes kept; returns the file as read. `file` names the scenario.
-pub fn expand(
-    table: &mut toml::Table,
-    file: &str,
-    overrides: &[String],
-    apply: fn(&mut toml::Table, &str) -> Result<(), ScenarioError>,
-) -> Result<Option<Arc<CommonRoad>>, ScenarioError> {
-    let field = |key: &str, message: String| ScenarioError::Field {
-        file: file.to_string(),
-        key: key.to_string(),
-        message,
-    };
-    // `[commonroad]` as the overrides leave it.
-    let mut probe = toml::Table::new();
-    if let Some(c) = table.get("commonroad") {
-        probe.insert("commonroad".into(), c.clone());
-    }
-    for spec in overrides.iter().filter(|s| s.trim_start().starts_with("commonroad.")) {
-        apply(&mut probe, spec)?;
-    }
-    let Some(value) = probe.remove("commonroad") else {
-        return Ok(None);
-    };
-    let spec: CommonRoadSpec = serde_path_to_error::deserialize(value).map_err(|e| {
-        let key = format!("commonroad.{}", e.path()).replace("commonroad..", "commonroad");
-        field(&key, crate::message::plain_serde_message(&e.into_inner().to_string()))
-    })?;
-    let dir = Path::new(file).parent().unwrap_or_else(|| Path::new("."));
-    let cr = read(&dir.join(&spec.file)).map_err(|e| field("commonroad.file", e))?;
+/// The world of `spec` (its file read relative to `dir`): the file as read and the scenario
+/// keys of its planning problem; an error is (the key, what was expected).
+pub fn defaults(spec: &CommonRoadSpec, dir: &Path) -> Result<(Arc<CommonRoad>, toml::Table), (String, String)> {
+    let cr = read(&dir.join(&spec.file)).map_err(|e| ("commonroad.file".to_string(), e))?;
     let problem = cr
         .planning_problem(spec.planning_problem)
-        .map_err(|e| field("commonroad.planning_problem", e.to_string()))?;
-    let mut defaults = world(&cr, problem).map_err(|e| field("commonroad", e))?;
-    // A filter's or nominal's `kind` an override sets (`--set filter.kind=cbf_qp`) replaces that
-    // default table whole, as one the scenario writes does.
+        .map_err(|e| ("commonroad.planning_problem".to_string(), e.to_string()))?;
+    let defaults = world(&cr, problem).map_err(|e| ("commonroad".to_string(), e))?;
+    Ok((cr, defaults))
+}
+
+/// Fills `table` (a scenario's TOML) with `defaults` where it is silent ([`merge`]); a filter's
+/// or nominal's `kind` one of `overrides` sets (`filter.kind=cbf_qp`) replaces that default table
+/// whole, as one the scenario writes does.
+pub fn fill(table: &mut toml::Table, mut defaults: toml::Table, overrides: &[String]) {
     for spec in overrides {
         let Some((key, _)) = spec.split_once('=') else { continue };
         if let Some(section) = key.trim().strip_suffix(".kind") {
@@ -119,7 +96,6 @@ pub fn expand(
         }
     }
     merge(table, defaults);
-    Ok(Some(cr))
 }
 
 /// Puts each key of `defaults` into `table` where it is absent; a table the scenario writes
@@ -401,19 +377,6 @@ pub fn recorded_motion(cr: &CommonRoad, id: u64) -> Result<crate::actor::Recorde
         })
         .collect();
     crate::actor::RecordedMotion::new(&states).map_err(|e| format!("road user {id}: {}", e.message))
-}
-
-/// Checks obstacle `i`'s `recorded = id`: a `[commonroad]` file with that dynamic road user, and
-/// no `motion` besides.
-pub fn check_recorded(s: &LoadedScenario, i: usize, o: &ObstacleSpec, id: u64) -> Result<(), ScenarioError> {
-    let key = format!("obstacles.{i}.recorded");
-    if o.motion.is_some() || o.following.is_some() {
-        return Err(s.field_error(&key, "a recorded road user has no `motion` or `following` besides"));
-    }
-    let Some(cr) = &s.commonroad else {
-        return Err(s.field_error(&key, "expected a `[commonroad] file` whose road user it names"));
-    };
-    recorded_motion(cr, id).map(|_| ()).map_err(|e| s.field_error(&key, e))
 }
 
 /// The text of a scenario that is the world of CommonRoad file `xml` with every default (what

@@ -83,7 +83,7 @@ impl Params for RouteParams {
         ] {
             if !(v.is_finite() && v > 0.0 && v <= 1e6) {
                 return Err(ParamError::new(
-                    &format!("nominal.{key}"),
+                    format!("nominal.{key}"),
                     format!("expected a positive number, found {v}"),
                 ));
             }
