@@ -154,12 +154,7 @@ pub(super) fn run_scenario(
     report: RunOutput,
 ) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
-    // What of a CommonRoad file mjsafe does not use, named (nothing dropped silently).
-    if let (Some(cr), Some(spec)) = (&loaded.commonroad, loaded.commonroad_path()) {
-        for line in cr.ignored_line().into_iter().chain(cr.notes()) {
-            eprintln!("{}: {line}", spec.display());
-        }
-    }
+    print_commonroad_notes(&loaded);
     let inputs = loaded.inputs();
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let log_path = out.unwrap_or_else(|| episode::default_log_path(Path::new("logs"), &loaded.scenario.name));
@@ -441,5 +436,15 @@ impl ReplayCommand {
             recover,
         } = self;
         replay(&file, rrd, connect, recover)
+    }
+}
+
+/// What of a scenario's CommonRoad file mjsafe does not use, named on stderr (nothing of it is
+/// dropped silently).
+fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
+    if let (Some(cr), Some(file)) = (&loaded.commonroad, loaded.commonroad_path()) {
+        for line in cr.ignored_line().into_iter().chain(cr.notes()) {
+            eprintln!("{}: {line}", file.display());
+        }
     }
 }
