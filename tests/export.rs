@@ -298,7 +298,9 @@ fn topics_select_tables_and_the_optional_topics_are_exported() {
     assert!(o.status.success(), "{}", stderr(&o));
     let actors = std::fs::read_to_string(dir.path().join("walker-actors.csv")).unwrap();
     assert!(
-        actors.starts_with("time,walker.x,walker.y,walker.vx,walker.vy,walker.ax,walker.ay\n"),
+        actors.starts_with(
+            "time,walker.x,walker.y,walker.vx,walker.vy,walker.ax,walker.ay,walker.heading,walker.absent\n"
+        ),
         "{actors}"
     );
     let predictions = std::fs::read_to_string(dir.path().join("walker-prediction.csv")).unwrap();
