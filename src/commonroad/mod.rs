@@ -379,6 +379,75 @@ pub fn recorded_motion(cr: &CommonRoad, id: u64) -> Result<crate::actor::Recorde
     crate::actor::RecordedMotion::new(&states).map_err(|e| format!("road user {id}: {}", e.message))
 }
 
+/// A lanelet bound to draw: its entity id, its points (a dashed one's as pairs, each a dash's
+/// ends), whether it is dashed.
+pub type DrawnBound = (String, Vec<[f64; 2]>, bool);
+
+/// Most lanelets drawn.
+pub const MAX_DRAWN_LANELETS: usize = 2000;
+
+/// The bounds of the lanelets near the points `around` (within [`DRAW_MARGIN`] metres of their
+/// bounding box), to draw: `road/lanelet/<id>/left|right` solid, or, for a dashed line marking
+/// (`dashed`, `broad_dashed`, `dashed_dashed`), `road/lane/lanelet_<id>_left|right` as dashes of
+/// 3 m every 6 m.
+pub fn lanelet_lines(cr: &CommonRoad, around: &[[f64; 2]]) -> Vec<DrawnBound> {
+    const DRAW_MARGIN: f64 = 20.0;
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in around {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k] - DRAW_MARGIN);
+            hi[k] = hi[k].max(p[k] + DRAW_MARGIN);
+        }
+    }
+    let near = |points: &[[f64; 2]]| points.iter().any(|p| (0..2).all(|k| (lo[k]..=hi[k]).contains(&p[k])));
+    let mut out = Vec::new();
+    for l in cr
+        .lanelets
+        .iter()
+        .filter(|l| near(&l.left.points) || near(&l.right.points))
+        .take(MAX_DRAWN_LANELETS)
+    {
+        for (side, bound) in [("left", &l.left), ("right", &l.right)] {
+            let dashed = bound.marking.as_deref().is_some_and(|m| m.contains("dashed"));
+            out.push(match dashed {
+                true => (
+                    format!("road/lane/lanelet_{}_{side}", l.id),
+                    dashes(&bound.points, 3.0),
+                    true,
+                ),
+                false => (format!("road/lanelet/{}/{side}", l.id), bound.points.clone(), false),
+            });
+        }
+    }
+    out
+}
+
+/// A polyline as dashes of length `dash` every 2 `dash` along it: point pairs.
+fn dashes(points: &[[f64; 2]], dash: f64) -> Vec<[f64; 2]> {
+    let mut out = Vec::new();
+    let mut s = 0.0; // arc length at the current segment's start
+    for w in points.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let l = (b[0] - a[0]).hypot(b[1] - a[1]);
+        if l <= 0.0 {
+            continue;
+        }
+        let at = |t: f64| {
+            let f = ((t - s) / l).clamp(0.0, 1.0);
+            [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]
+        };
+        // The dashes starting on this segment: at multiples of 2 dash (clipped to the segment).
+        let mut start = (s / (2.0 * dash)).ceil() * 2.0 * dash;
+        while start < s + l {
+            out.push(at(start));
+            out.push(at((start + dash).min(s + l)));
+            start += 2.0 * dash;
+        }
+        s += l;
+    }
+    out
+}
+
 /// The text of a scenario that is the world of CommonRoad file `xml` with every default (what
 /// `mjsafe run FILE.xml` runs, read as if it were a scenario file beside the XML).
 pub fn scenario_text(xml: &Path, planning_problem: Option<u64>) -> String {

@@ -741,7 +741,8 @@ pub(super) fn road_edges(
     Ok(barriers)
 }
 
-/// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, the goal disc's
+/// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, a CommonRoad
+/// world's lanelet bounds (`road/lanelet/…`, dashed ones `road/lane/lanelet_…`), the goal disc's
 /// rim dashed (`goal`), and `barrier/<name>` for a half-space barrier on the planar position,
 /// drawn where h = 0),
 /// lines drawn over the stretch near the points `around` (start, path, obstacles).
@@ -770,6 +771,11 @@ pub(super) fn scene_lines(
                 points: marking.curve().dashes(around),
                 dashed: true,
             });
+        }
+    }
+    if let Some(cr) = &loaded.commonroad {
+        for (id, points, dashed) in crate::commonroad::lanelet_lines(cr, around) {
+            lines.push(SceneLine { id, points, dashed });
         }
     }
     if let Some(goal) = &loaded.scenario.goal {
@@ -936,6 +942,7 @@ pub(super) fn obstacles(
             known: false,
             in_contact: false,
             contact_depth: 0.0,
+            absent: false,
             motion,
             state: Default::default(),
         });
@@ -1050,6 +1057,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
         known: false,
         in_contact: false,
         contact_depth: 0.0,
+        absent: false,
         motion,
         state: Default::default(),
     })

@@ -53,6 +53,8 @@ struct Obstacle {
     in_contact: bool,
     /// Deepest penetration of the current contact episode.
     contact_depth: f64,
+    /// A recorded road user outside its recorded span (its barriers parked, `/actors` absent).
+    absent: bool,
     /// A moving obstacle's true motion (its barrier's centre follows it at every step).
     motion: Option<crate::actor::ActorMotion>,
     /// Its true state at the current step (set by `move_actors`, read by the `/barrier` record).
@@ -475,7 +477,12 @@ impl Episode {
             let state = motion.where_at(time, index);
             o.state = state;
             self.plant.move_obstacle(index, state.position, state.turn);
-            o.centre = state.position;
+            // Drawn where it was last (or will be first) seen while it does not exist.
+            o.absent = !motion.exists_at(time);
+            o.centre = match o.absent {
+                true => motion.state_at(time).position,
+                false => state.position,
+            };
             let copies = &mut self.obstacle_barriers[pairs];
             for ((b, copy), offset) in o.barriers.iter_mut().zip(copies).zip(&o.offsets) {
                 let at = state.shifted(*offset).position;
@@ -485,7 +492,7 @@ impl Episode {
             }
             if let Some(entry) = entries.next() {
                 // An actor that does not exist now: where it was last (or will be first) seen.
-                let absent = !motion.exists_at(time);
+                let absent = o.absent;
                 let seen = if absent { motion.state_at(time) } else { state };
                 (entry.x, entry.y) = (seen.position[0], seen.position[1]);
                 (entry.vx, entry.vy) = (state.velocity[0], state.velocity[1]);

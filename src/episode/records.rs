@@ -415,7 +415,7 @@ impl Episode {
                     Outline::Circle { radius } => {
                         if let Record::Scene(t, update) = &mut view.record {
                             *t = time;
-                            scene::obstacle_into(update, time, &o.name, centre, radius, o.known);
+                            scene::obstacle_into(update, time, &o.name, centre, radius, o.known && !o.absent);
                         }
                     }
                     Outline::Box { .. } => view.record = obstacle_scene(time, o),
@@ -660,10 +660,13 @@ fn time_to_contact(d: [f64; 2], v: [f64; 2], r: f64) -> f64 {
 
 /// An obstacle as a Foxglove entity (grey until known, red after): a cylinder, or a box's cube.
 pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
+    // Grey while unknown to the controller or absent (a recorded road user outside its span,
+    // drawn where it was last seen); a box turned as its motion turned it.
+    let known = o.known && !o.absent;
     let update = match o.outline {
-        Outline::Circle { radius } => scene::obstacle(time, &o.name, o.centre, radius, o.known),
+        Outline::Circle { radius } => scene::obstacle(time, &o.name, o.centre, radius, known),
         Outline::Box { length, width, heading } => {
-            scene::box_obstacle(time, &o.name, o.centre, heading, [length, width], o.known)
+            scene::box_obstacle(time, &o.name, o.centre, heading + o.state.turn, [length, width], known)
         }
     };
     Record::Scene(time, update)
