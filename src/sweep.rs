@@ -110,6 +110,9 @@ pub struct Run {
 #[derive(Debug, Clone, Default)]
 pub struct SweepArgs {
     pub scenario: Option<PathBuf>,
+    /// CommonRoad files (`--scenarios`, patterns expanded by [`expand_scenarios`]): one axis of
+    /// the sweep, `commonroad.file`, over them (docs/commonroad.md).
+    pub scenarios: Vec<PathBuf>,
     pub sweep_file: Option<PathBuf>,
     pub set: Vec<String>,
     pub grids: Vec<String>,
@@ -123,6 +126,9 @@ pub struct SweepArgs {
 #[serde(deny_unknown_fields)]
 struct SweepFile {
     scenario: Option<String>,
+    /// CommonRoad files or patterns (`*`, `?`, `[…]`), relative to the sweep file.
+    #[serde(default)]
+    scenarios: Vec<String>,
     name: Option<String>,
     #[serde(default)]
     set: Vec<String>,
@@ -165,6 +171,58 @@ struct RandomEntry {
     count: usize,
     #[serde(default)]
     seed: u64,
+}
+
+/// Most files one `--scenarios` sweep runs.
+pub const MAX_SCENARIO_FILES: usize = 100_000;
+
+/// The CommonRoad files `patterns` name (`*`, `?`, `[…]` as a shell expands them, each pattern's
+/// matches sorted), in order, each once; a pattern that matches no `.xml` file is an error.
+pub fn expand_scenarios(patterns: &[String]) -> Result<Vec<PathBuf>, String> {
+    let mut files: Vec<PathBuf> = Vec::new();
+    for pattern in patterns {
+        let paths = glob::glob(pattern).map_err(|e| format!("`{pattern}`: {e}"))?;
+        let mut matched: Vec<PathBuf> = paths.filter_map(Result::ok).filter(|p| p.is_file()).collect();
+        matched.sort();
+        if matched.is_empty() {
+            return Err(format!("`{pattern}` names no file"));
+        }
+        if let Some(other) = matched
+            .iter()
+            .find(|p| !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("xml")))
+        {
+            return Err(format!("expected CommonRoad files (.xml), found {}", other.display()));
+        }
+        for path in matched {
+            if !files.contains(&path) {
+                files.push(path);
+            }
+            if files.len() > MAX_SCENARIO_FILES {
+                return Err(format!("more than {MAX_SCENARIO_FILES} files"));
+            }
+        }
+    }
+    Ok(files)
+}
+
+/// The axis `commonroad.file` over `files` (the first is the sweep's base scenario, which
+/// reads the others relative to its directory: a file beside it by its name, others by their
+/// absolute path).
+fn scenario_axis(files: &[PathBuf]) -> Result<Grid, SweepError> {
+    let base_dir = files[0].parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut values = Vec::with_capacity(files.len());
+    for f in files {
+        let relative = match (f.parent(), f.file_name()) {
+            (Some(dir), Some(name)) if dir == base_dir => PathBuf::from(name),
+            _ => std::fs::canonicalize(f).map_err(|e| SweepError::Spec(format!("{}: {e}", f.display())))?,
+        };
+        values.push(toml::Value::String(relative.display().to_string()).to_string());
+    }
+    Ok(Grid {
+        key: "commonroad.file".into(),
+        values,
+        with: Vec::new(),
+    })
 }
 
 /// The first key that names a field an earlier key names (spelled either way:
@@ -403,6 +461,7 @@ impl SweepSpec {
     /// grids and ranges after the file's, and `--random`/`--seed` replace the file's).
     pub fn build(args: &SweepArgs) -> Result<SweepSpec, SweepError> {
         let mut scenario_path: Option<PathBuf> = args.scenario.clone();
+        let mut scenario_files = args.scenarios.clone();
         let mut name = None;
         let mut set = Vec::new();
         let mut grids = Vec::new();
@@ -424,6 +483,13 @@ impl SweepSpec {
                     )));
                 }
                 scenario_path = Some(path.parent().unwrap_or(Path::new("")).join(s));
+            }
+            if !parsed.scenarios.is_empty() {
+                let dir = path.parent().unwrap_or(Path::new(""));
+                let patterns: Vec<String> = (parsed.scenarios.iter())
+                    .map(|p| dir.join(p).display().to_string())
+                    .collect();
+                scenario_files.extend(expand_scenarios(&patterns).map_err(|e| err(format!("key `scenarios`: {e}")))?);
             }
             if let Some(problem) = parsed.name.as_deref().and_then(scenario::file_name_problem) {
                 return Err(err(format!("key `name`: {problem}")));
@@ -472,6 +538,16 @@ impl SweepSpec {
                 random_count = Some(r.count);
                 seed = Some(r.seed);
             }
+        }
+        if let Some(first) = scenario_files.first() {
+            if scenario_path.is_some() {
+                return Err(SweepError::Spec(
+                    "a scenario and --scenarios (or a sweep file's `scenarios`): give one, the files are the sweep's base".into(),
+                ));
+            }
+            grids.insert(0, scenario_axis(&scenario_files)?);
+            scenario_path = Some(first.clone());
+            name = name.or_else(|| Some("scenarios".into()));
         }
         let scenario_path = scenario_path.ok_or_else(|| {
             SweepError::Spec("no scenario: give SCENARIO or a sweep file with `scenario = \"…\"`".into())
@@ -556,6 +632,7 @@ impl SweepSpec {
     }
 
     /// Sweep keys in column order: grid keys, then range keys.
+    /// (A sweep over CommonRoad files has the key `commonroad.file` first.)
     pub fn keys(&self) -> Vec<String> {
         self.grids
             .iter()

@@ -174,3 +174,70 @@ fn hostile_commonroad_files_get_one_line() {
     }
     assert!(!dir.path().join("x.mcap").exists());
 }
+
+/// A set: `sweep --scenarios PATTERN` runs every file once, one summary row per benchmark ID
+/// (read here from each file's text); a sweep file's `scenarios` does the same, crossed with
+/// its grid.
+#[test]
+fn a_sweep_runs_a_set_of_commonroad_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("set");
+    let o = mjsafe(&[
+        "sweep",
+        "--scenarios",
+        "data/commonroad/*.xml",
+        "--no-logs",
+        "--set",
+        "duration=0.5",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let mut rows = summary.lines();
+    let header: Vec<&str> = rows.next().unwrap().split(',').collect();
+    let column = header.iter().position(|c| *c == "scenario").expect("a scenario column");
+    let mut ids: Vec<String> = rows.map(|r| r.split(',').nth(column).unwrap().to_string()).collect();
+    let mut expected: Vec<String> = std::fs::read_dir(data(""))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+        .map(|p| {
+            let text = std::fs::read_to_string(&p).unwrap();
+            let at = text.find("benchmarkID=\"").unwrap() + "benchmarkID=\"".len();
+            text[at..at + text[at..].find('"').unwrap()].to_string()
+        })
+        .collect();
+    ids.sort();
+    expected.sort();
+    assert_eq!(ids, expected);
+
+    let sweep = dir.path().join("set.sweep.toml");
+    std::fs::write(
+        &sweep,
+        format!(
+            "scenarios = [{:?}, {:?}]\nset = [\"duration=0.5\"]\n\n[[grid]]\nkey = \"delays.acceleration\"\nvalues = [0.3, 0.6]\n",
+            data("USA_US101-4_1_T-1.xml").display().to_string(),
+            data("ZAM_Tutorial-*.xml").display().to_string()
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("file");
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        sweep.to_str().unwrap(),
+        "--no-logs",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    assert_eq!(summary.lines().count(), 1 + 4, "{summary}");
+    let o = mjsafe(&["sweep", "--scenarios", "data/commonroad/*.nothing"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("names no file"),
+        "{}",
+        stderr(&o)
+    );
+}

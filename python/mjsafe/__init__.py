@@ -353,7 +353,7 @@ def read_log(path: str | os.PathLike[str]) -> LogData:
 
 
 def sweep(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str] | None = None,
     grid: Mapping[str, Sequence[Any]] | None = None,
     random: Mapping[str, tuple[float, float] | tuple[float, float, float]] | None = None,
     draws: int = 0,
@@ -363,12 +363,13 @@ def sweep(
     *,
     out: str | os.PathLike[str] | None = None,
     require: Mapping[str, str] | None = None,
+    scenarios: Sequence[str | os.PathLike[str]] | None = None,
 ) -> pd.DataFrame:
     """A parameter sweep, as ``mjsafe sweep``: the grid's cartesian product, times ``draws``
     seeded random draws of the ``random`` ranges, run in parallel.
 
     Args:
-        path: the scenario file (TOML).
+        path: the scenario file (TOML); None with ``scenarios``.
         grid: ``{dotted key: [values]}`` (``--grid KEY=V1,V2,…``); the first key varies slowest.
         random: ``{dotted key: (lo, hi)}`` or ``(lo, hi, step)`` (``--range``), drawn ``draws``
             times (``--random N``) with ``seed`` (``--seed``).
@@ -378,6 +379,9 @@ def sweep(
             keeps no logs and writes nothing (``--no-logs``: each run analysed in memory).
         require: requirements of every run ``{name: STL formula}`` (``--require``): the
             summary's ``req.<name>`` columns.
+        scenarios: CommonRoad files or patterns (``--scenarios``, e.g.
+            ``["data/commonroad/*.xml"]``), the swept key ``commonroad.file``
+            (docs/commonroad.md); instead of ``path``.
 
     Returns:
         The summary, one row per run: the columns of summary.csv (index, log, the swept keys,
@@ -388,8 +392,11 @@ def sweep(
             list, a range not a tuple of numbers, …).
         ValueError: bad values (the command line's error line; a negative count).
     """
+    if scenarios is not None and (isinstance(scenarios, (str, bytes)) or not isinstance(scenarios, Sequence)):
+        raise _type_error("sweep", "scenarios", "a list of str or os.PathLike, or None", scenarios)
+    files = None if scenarios is None else [_path("sweep", "scenarios", f) for f in scenarios]
     text = _core.sweep(
-        _path("sweep", "path", path),
+        _path("sweep", "path", path, optional=scenarios is not None),
         _mapping("sweep", "grid", grid, "a dict of dotted keys to lists of values"),
         _mapping("sweep", "random", random, _RANGES),
         _int("sweep", "draws", draws, 0),
@@ -398,6 +405,7 @@ def sweep(
         _int("sweep", "threads", threads, 0, optional=True),
         _path("sweep", "out", out, optional=True),
         _mapping("sweep", "require", require, _REQUIRE),
+        files,
     )
     return _read_csv(io.StringIO(text))
 

@@ -52,7 +52,7 @@ def run(
 ) -> RunResult: ...
 def read_log(path: _Path) -> LogData: ...
 def sweep(
-    path: _Path,
+    path: _Path | None = None,
     grid: Mapping[str, Sequence[Any]] | None = None,
     random: Mapping[str, _Range] | None = None,
     draws: int = 0,
@@ -62,6 +62,7 @@ def sweep(
     *,
     out: _Path | None = None,
     require: Mapping[str, str] | None = None,
+    scenarios: Sequence[_Path] | None = None,
 ) -> pd.DataFrame: ...
 def falsify(
     path: _Path,

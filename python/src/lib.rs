@@ -451,11 +451,11 @@ fn log_tables<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict
 /// A sweep: `mjsafe sweep` (with `out`: its logs and summary files there; without: every run
 /// analysed in memory, `--no-logs`, nothing written); the summary as CSV text.
 #[pyfunction]
-#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None, require=None))]
+#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None, require=None, scenarios=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep<'py>(
     py: Python<'py>,
-    path: PathBuf,
+    path: Option<PathBuf>,
     grid: Option<&Bound<'py, PyAny>>,
     random: Option<&Bound<'py, PyAny>>,
     draws: usize,
@@ -464,10 +464,14 @@ fn sweep<'py>(
     threads: Option<usize>,
     out: Option<PathBuf>,
     require: Option<&Bound<'py, PyAny>>,
+    scenarios: Option<Vec<String>>,
 ) -> PyResult<String> {
     use mjsafe::sweep::{self, Summary, SweepArgs, SweepSpec};
+    let scenarios = sweep::expand_scenarios(&scenarios.unwrap_or_default())
+        .map_err(|e| PyValueError::new_err(format!("mjsafe.sweep: scenarios: {e}")))?;
     let args = SweepArgs {
-        scenario: Some(path),
+        scenario: path,
+        scenarios,
         sweep_file: None,
         set: overrides_and_requirements(set, require)?,
         grids: grids(grid)?,

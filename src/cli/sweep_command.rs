@@ -195,6 +195,11 @@ pub(super) fn plot_sweep_command(summary: PathBuf, x: &str, y: &str, out: Option
 pub struct SweepCommand {
     /// Scenario file (TOML); or name it in the sweep file.
     scenario: Option<PathBuf>,
+    /// CommonRoad files to run, one run each per other grid point: files or patterns (quoted:
+    /// `--scenarios 'data/commonroad/*.xml'`), the swept key `commonroad.file` (repeatable;
+    /// docs/commonroad.md).
+    #[arg(long = "scenarios", value_name = "FILES", conflicts_with = "scenario")]
+    scenarios: Vec<String>,
     /// A grid axis: KEY=V1,V2,… (values in TOML syntax; commas inside [], {} and quotes
     /// are part of a value). Runs are the cartesian product of all grids (repeatable).
     #[arg(long = "grid", value_name = "KEY=V1,V2,…")]
@@ -247,6 +252,7 @@ impl SweepCommand {
     pub fn execute(self) -> Result<ExitCode> {
         let SweepCommand {
             scenario,
+            scenarios,
             grids,
             sweep_file,
             mut overrides,
@@ -265,8 +271,10 @@ impl SweepCommand {
         for flag in &require {
             overrides.push(scenario::require_override(flag)?);
         }
+        let scenarios = sweep::expand_scenarios(&scenarios).map_err(|e| anyhow::anyhow!("--scenarios {e}"))?;
         let args = SweepArgs {
             scenario,
+            scenarios,
             sweep_file,
             set: overrides,
             grids,
