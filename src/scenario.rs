@@ -109,18 +109,38 @@ pub struct RequirementSpec {
     pub formula: String,
 }
 
-/// The `[goal]` table: a disc the planar position should enter, optionally by a deadline.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// The `[goal]` table: a region the planar position should enter — a disc (`position`,
+/// `radius`) or polygons (their union; a CommonRoad goal's rectangles, polygons and lanelets) —
+/// optionally within a time window (`after`, `by`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GoalSpec {
     /// Centre of the disc (planar position, m).
-    pub position: [f64; 2],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f64; 2]>,
     /// Radius of the disc (m, > 0).
-    pub radius: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// The region as polygons instead (each at least 3 points, m; at most
+    /// [`MAX_GOAL_POLYGONS`] of at most [`MAX_GOAL_POINTS`] points).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub polygons: Vec<Vec<[f64; 2]>>,
+    /// Start of the time window (s, ≥ 0): states before it do not count.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub after: Option<f64>,
+    /// The point that must enter the region lies this far ahead of the planar position along
+    /// the heading (m; a CommonRoad goal: the car's centre, b ahead of the bicycle's rear axle).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset: Option<f64>,
     /// Deadline (s, > 0): `distance_to_goal` counts only the states up to it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub by: Option<f64>,
 }
+
+/// Most polygons of a goal region, and most points of one.
+pub const MAX_GOAL_POLYGONS: usize = 64;
+/// Most points of one goal polygon.
+pub const MAX_GOAL_POINTS: usize = 10_000;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -1062,25 +1082,61 @@ fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let Some(goal) = &s.scenario.goal else {
         return Ok(());
     };
-    if goal
-        .position
-        .iter()
-        .any(|v| !v.is_finite() || v.abs() > OBSTACLE_EXTENT)
-    {
-        return Err(s.field_error(
-            "goal.position",
-            format!("expected two finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
-        ));
+    let point_ok = |p: &[f64; 2]| p.iter().all(|v| v.is_finite() && v.abs() <= OBSTACLE_EXTENT);
+    match (goal.position, goal.radius, goal.polygons.is_empty()) {
+        (Some(position), Some(radius), true) => {
+            if !point_ok(&position) {
+                return Err(s.field_error(
+                    "goal.position",
+                    format!("expected two finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
+                ));
+            }
+            if !positive_finite(radius) || radius > OBSTACLE_EXTENT {
+                return Err(s.field_error("goal.radius", format!("expected a positive radius (m), found {radius}")));
+            }
+        }
+        (None, None, false) => {
+            if goal.polygons.len() > MAX_GOAL_POLYGONS {
+                return Err(s.field_error(
+                    "goal.polygons",
+                    format!(
+                        "expected at most {MAX_GOAL_POLYGONS} polygons, found {}",
+                        goal.polygons.len()
+                    ),
+                ));
+            }
+            for (i, polygon) in goal.polygons.iter().enumerate() {
+                if !(3..=MAX_GOAL_POINTS).contains(&polygon.len()) || !polygon.iter().all(point_ok) {
+                    return Err(s.field_error(
+                        &format!("goal.polygons.{i}"),
+                        format!("expected 3 to {MAX_GOAL_POINTS} points with finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
+                    ));
+                }
+            }
+        }
+        _ => {
+            return Err(s.field_error(
+                "goal",
+                "expected a disc (`position` and `radius`) or `polygons`, one of the two",
+            ))
+        }
     }
-    if !positive_finite(goal.radius) || goal.radius > OBSTACLE_EXTENT {
-        return Err(s.field_error(
-            "goal.radius",
-            format!("expected a positive radius (m), found {}", goal.radius),
-        ));
+    if let Some(offset) = goal.offset {
+        if !(offset.is_finite() && offset.abs() <= OBSTACLE_EXTENT) {
+            return Err(s.field_error("goal.offset", format!("expected a distance (m), found {offset}")));
+        }
+    }
+    if let Some(after) = goal.after {
+        if !(after.is_finite() && after >= 0.0) {
+            return Err(s.field_error("goal.after", format!("expected a time >= 0 (s), found {after}")));
+        }
     }
     if let Some(by) = goal.by {
-        if !positive_finite(by) {
-            return Err(s.field_error("goal.by", format!("expected a positive time (s), found {by}")));
+        if !positive_finite(by) || goal.after.is_some_and(|after| by < after) {
+            return Err(s.field_error(
+                "goal.by",
+                format!("expected a positive time (s), not before `after`, found {by}"),
+            ));
         }
     }
     Ok(())

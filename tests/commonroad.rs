@@ -241,3 +241,151 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
         stderr(&o)
     );
 }
+
+/// What commonroad-io reads of a file (`tests/commonroad_check.py --planning-problem-json`,
+/// `--lanelets-json`).
+fn commonroad_io_json(xml: &Path, flag: &str) -> serde_json::Value {
+    let out = tempfile::NamedTempFile::new().unwrap();
+    let check = Command::new(commonroad_python())
+        .args([
+            common::root().join("tests/commonroad_check.py").to_str().unwrap(),
+            xml.to_str().unwrap(),
+            flag,
+            out.path().to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(check.status.success(), "{}", String::from_utf8_lossy(&check.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.path()).unwrap()).unwrap()
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * (1.0 + b.abs())
+}
+
+/// Every committed file's imported scenario starts the ego where commonroad-io puts the planning
+/// problem's initial state (its centre: the rear axle plus b along the heading) and makes its
+/// goal the planning problem's: each rectangle's corners, each lanelet's polygon (left bound,
+/// right bound reversed), a lone circle's disc, the time interval × the time step.
+#[test]
+fn the_ego_and_the_goal_are_the_planning_problems() {
+    let dir = tempfile::tempdir().unwrap();
+    let b = 1.4227170936;
+    for entry in std::fs::read_dir(data("")).unwrap() {
+        let xml = entry.unwrap().path();
+        if xml.extension().is_none_or(|e| e != "xml") {
+            continue;
+        }
+        let toml_path = dir.path().join("x.toml");
+        let _ = std::fs::remove_file(&toml_path);
+        let o = mjsafe(&[
+            "import",
+            "commonroad",
+            xml.to_str().unwrap(),
+            "--out",
+            toml_path.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+        let pp = commonroad_io_json(&xml, "--planning-problem-json");
+        let lanelets = commonroad_io_json(&xml, "--lanelets-json");
+        let dt = pp["time_step_size"].as_f64().unwrap();
+        let problem = &pp["planning_problems"][0];
+        let name = xml.display();
+        // The ego.
+        let x0: Vec<f64> = (scenario["vehicle"]["initial_state"].as_array().unwrap().iter())
+            .map(|v| v.as_float().unwrap())
+            .collect();
+        let init = &problem["initial_state"];
+        let theta = init["orientation"].as_f64().unwrap();
+        let centre = [x0[0] + b * theta.cos(), x0[1] + b * theta.sin()];
+        assert!(close(centre[0], init["position"][0].as_f64().unwrap()), "{name}");
+        assert!(close(centre[1], init["position"][1].as_f64().unwrap()), "{name}");
+        assert!(
+            close(x0[2], theta) && close(x0[3], init["velocity"].as_f64().unwrap()),
+            "{name}"
+        );
+        // The goal region, polygon by polygon in the file's order.
+        let mut expected: Vec<Vec<[f64; 2]>> = Vec::new();
+        let mut disc = None;
+        let (mut start, mut end) = (i64::MAX, i64::MIN);
+        for g in problem["goal_states"].as_array().unwrap() {
+            start = start.min(g["time_step"][0].as_i64().unwrap());
+            end = end.max(g["time_step"][1].as_i64().unwrap());
+            let position = &g["position"];
+            for s in position["shapes"].as_array().into_iter().flatten() {
+                let c = [s["center"][0].as_f64().unwrap(), s["center"][1].as_f64().unwrap()];
+                match s["type"].as_str().unwrap() {
+                    "rectangle" => {
+                        let (l, w, o) = (
+                            s["length"].as_f64().unwrap(),
+                            s["width"].as_f64().unwrap(),
+                            s["orientation"].as_f64().unwrap(),
+                        );
+                        let (u, v) = ([o.cos(), o.sin()], [-o.sin(), o.cos()]);
+                        expected.push(
+                            [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)]
+                                .iter()
+                                .map(|(a, b)| {
+                                    let (x, y) = (0.5 * l * a, 0.5 * w * b);
+                                    [c[0] + x * u[0] + y * v[0], c[1] + x * u[1] + y * v[1]]
+                                })
+                                .collect(),
+                        );
+                    }
+                    "circle" => disc = Some((c, s["radius"].as_f64().unwrap())),
+                    other => panic!("{name}: a goal shape {other} the committed files do not have"),
+                }
+            }
+            for id in position["lanelets"].as_array().into_iter().flatten() {
+                let l = (lanelets["lanelets"].as_array().unwrap().iter())
+                    .find(|l| l["id"] == *id)
+                    .expect("the goal lanelet");
+                let points = |side: &str| -> Vec<[f64; 2]> {
+                    (l[side].as_array().unwrap().iter())
+                        .map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()])
+                        .collect()
+                };
+                let mut polygon = points("left");
+                polygon.extend(points("right").into_iter().rev());
+                expected.push(polygon);
+            }
+        }
+        let goal = scenario.get("goal");
+        if expected.is_empty() && disc.is_none() {
+            assert!(goal.is_none(), "{name}: a goal of a time alone has no region: {goal:?}");
+            continue;
+        }
+        let goal = goal.unwrap_or_else(|| panic!("{name}: no [goal]"));
+        match disc {
+            Some((c, r)) => {
+                let p = goal["position"].as_array().unwrap();
+                assert!(
+                    close(p[0].as_float().unwrap(), c[0]) && close(p[1].as_float().unwrap(), c[1]),
+                    "{name}"
+                );
+                assert!(close(goal["radius"].as_float().unwrap(), r), "{name}");
+            }
+            None => {
+                let got: Vec<Vec<[f64; 2]>> = (goal["polygons"].as_array().unwrap().iter())
+                    .map(|p| {
+                        (p.as_array().unwrap().iter())
+                            .map(|q| [q[0].as_float().unwrap(), q[1].as_float().unwrap()])
+                            .collect()
+                    })
+                    .collect();
+                assert_eq!(got.len(), expected.len(), "{name}");
+                for (g, e) in got.iter().zip(&expected) {
+                    assert_eq!(g.len(), e.len(), "{name}");
+                    assert!(
+                        g.iter().zip(e).all(|(a, b)| close(a[0], b[0]) && close(a[1], b[1])),
+                        "{name}: {g:?} vs {e:?}"
+                    );
+                }
+            }
+        }
+        let window = |key: &str| goal.get(key).map(|v| v.as_float().unwrap());
+        assert_eq!(window("after"), (start > 0).then(|| start as f64 * dt), "{name}");
+        assert_eq!(window("by"), (end > 0).then(|| end as f64 * dt), "{name}");
+    }
+}

@@ -193,6 +193,9 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
         table(&[("kind", toml::Value::String("constant_velocity".into()))]),
     );
     // (Some files list the ego itself as a road user under the planning problem's id.)
+    if let Some(goal) = goal(cr, problem) {
+        t.insert("goal".into(), toml::Value::Table(goal));
+    }
     let obstacles = (cr.obstacles.iter().filter(|o| o.id != problem.id))
         .filter_map(obstacle)
         .collect::<Result<Vec<_>, String>>()?;
@@ -202,6 +205,92 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
 
 fn table(entries: &[(&str, toml::Value)]) -> toml::Value {
     toml::Value::Table(entries.iter().map(|(k, v)| (k.to_string(), v.clone())).collect())
+}
+
+/// `[goal]`: the planning problem's goal region — its rectangles and polygons, its lanelets'
+/// polygons, its circles (a single circle as the disc itself, circles among other shapes as
+/// inscribed 64-gons) — within its time interval (steps × time step). None for a goal of a
+/// time alone (nothing to reach: the run must only last).
+fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
+    let v = toml::Value::Float;
+    let point = |p: [f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
+    let mut t = toml::Table::new();
+    let shapes: Vec<&Shape> = (problem.goals.iter())
+        .filter_map(|g| match &g.position {
+            Some(GoalPosition::Shapes(shapes)) => Some(shapes.iter()),
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    let lanelets: Vec<u64> = (problem.goals.iter())
+        .filter_map(|g| match &g.position {
+            Some(GoalPosition::Lanelets(ids)) => Some(ids.iter().copied()),
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    if let ([Shape::Circle { radius, center }], true) = (shapes.as_slice(), lanelets.is_empty()) {
+        t.insert("position".into(), point(*center));
+        t.insert("radius".into(), v(*radius));
+    } else {
+        let mut polygons: Vec<Vec<[f64; 2]>> = shapes.iter().map(|s| shape_polygon(s)).collect();
+        polygons.extend(lanelets.iter().filter_map(|id| cr.lanelet(*id)).map(|l| {
+            l.left
+                .points
+                .iter()
+                .chain(l.right.points.iter().rev())
+                .copied()
+                .collect()
+        }));
+        if polygons.is_empty() {
+            return None;
+        }
+        let polygons = polygons
+            .into_iter()
+            .map(|p| toml::Value::Array(p.into_iter().map(point).collect()));
+        t.insert("polygons".into(), toml::Value::Array(polygons.collect()));
+    }
+    let (start, end) = (problem.goals.iter())
+        .map(|g| g.time_steps)
+        .fold((i64::MAX, i64::MIN), |(a, b), (s, e)| (a.min(s), b.max(e)));
+    if start > 0 {
+        t.insert("after".into(), v(start as f64 * cr.time_step));
+    }
+    // CommonRoad's goal is for the car's centre, b ahead of the bicycle's rear axle.
+    t.insert("offset".into(), v(VEHICLE.b));
+    if end > 0 {
+        t.insert("by".into(), v(end as f64 * cr.time_step));
+    }
+    Some(t)
+}
+
+/// A goal shape as a polygon: a rectangle's corners, a polygon's points, a circle's inscribed
+/// 64-gon.
+fn shape_polygon(shape: &Shape) -> Vec<[f64; 2]> {
+    match shape {
+        Shape::Rectangle {
+            length,
+            width,
+            orientation,
+            center,
+        } => {
+            let (s, c) = orientation.sin_cos();
+            [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)]
+                .iter()
+                .map(|(a, b)| {
+                    let (x, y) = (0.5 * length * a, 0.5 * width * b);
+                    [center[0] + c * x - s * y, center[1] + s * x + c * y]
+                })
+                .collect()
+        }
+        Shape::Polygon { points } => points.clone(),
+        Shape::Circle { radius, center } => (0..64)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 64.0;
+                [center[0] + radius * a.cos(), center[1] + radius * a.sin()]
+            })
+            .collect(),
+    }
 }
 
 /// `[vehicle]`: the car-sized bicycle at its rear axle `rear`, heading and speed.

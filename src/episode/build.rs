@@ -779,11 +779,21 @@ pub(super) fn scene_lines(
         }
     }
     if let Some(goal) = &loaded.scenario.goal {
-        lines.push(SceneLine {
-            id: "goal".into(),
-            points: dashed_circle(goal.position, goal.radius),
-            dashed: true,
-        });
+        if let (Some(position), Some(radius)) = (goal.position, goal.radius) {
+            lines.push(SceneLine {
+                id: "goal".into(),
+                points: dashed_circle(position, radius),
+                dashed: true,
+            });
+        }
+        for (k, polygon) in goal.polygons.iter().enumerate() {
+            let closed: Vec<[f64; 2]> = polygon.iter().chain(polygon.first()).copied().collect();
+            lines.push(SceneLine {
+                id: format!("goal/{k}"),
+                points: closed.windows(2).flat_map(|w| [w[0], w[1]]).collect(),
+                dashed: true,
+            });
+        }
     }
     for b in barriers {
         if let Some(curve) = crate::road::planar_half_space(&b.shape, position) {
@@ -1290,7 +1300,7 @@ pub(super) fn run_info(
         heading_index: control.model().heading_index(),
         predicts: control.predicts(),
         kinds,
-        goal: sc.goal,
+        goal: sc.goal.clone(),
         requirements: requirements(loaded, timestep)?,
         // Set by the episode, which holds the nominal.
         reference_path: None,

@@ -331,7 +331,8 @@ pub struct RunInfo {
     /// The kinds the run is made of (filter, nominal, vehicle) as their registrations describe
     /// them: metadata `<role>_kind`, `<role>_label`, `<role>_description`.
     pub kinds: Vec<KindInfo>,
-    /// The scenario's `[goal]`: metadata `goal_position` ("x y"), `goal_radius`, `goal_by`.
+    /// The scenario's `[goal]`: metadata `goal_position` ("x y") and `goal_radius`, or
+    /// `goal_polygons` (JSON), and `goal_after`, `goal_by`.
     pub goal: Option<crate::scenario::GoalSpec>,
     /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
     pub requirements: Vec<(String, String)>,
@@ -383,9 +384,20 @@ impl RunInfo {
             metadata.insert("prescribed_time".to_string(), format!("{t}"));
         }
         if let Some(goal) = &self.goal {
-            let [x, y] = goal.position;
-            metadata.insert("goal_position".to_string(), format!("{x} {y}"));
-            metadata.insert("goal_radius".to_string(), format!("{}", goal.radius));
+            if let (Some([x, y]), Some(radius)) = (goal.position, goal.radius) {
+                metadata.insert("goal_position".to_string(), format!("{x} {y}"));
+                metadata.insert("goal_radius".to_string(), format!("{radius}"));
+            }
+            if !goal.polygons.is_empty() {
+                let polygons = serde_json::to_string(&goal.polygons).unwrap_or_default();
+                metadata.insert("goal_polygons".to_string(), polygons);
+            }
+            if let Some(after) = goal.after {
+                metadata.insert("goal_after".to_string(), format!("{after}"));
+            }
+            if let Some(offset) = goal.offset {
+                metadata.insert("goal_offset".to_string(), format!("{offset}"));
+            }
             if let Some(by) = goal.by {
                 metadata.insert("goal_by".to_string(), format!("{by}"));
             }

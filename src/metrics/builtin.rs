@@ -200,12 +200,12 @@ pub static METRICS: &[Metric] = &[
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("distance_to_goal", METRES, Shape::Number, &[Topic::State], new::<DistanceToGoal>,
-            "runs with a `[goal]` (metadata `goal_position` g, `goal_radius` r, `goal_by`): min over the `/state` messages up to `by` (all without it) of max(0, ‖p − g‖ − r), p the planar position: how far the vehicle stayed from the goal disc; 0: it entered the disc (by `by`)")
+            "runs with a `[goal]` (metadata `goal_position` g and `goal_radius` r, or `goal_polygons`; `goal_after`, `goal_by`): min over the `/state` messages from `after` up to `by` (all without them) of the distance from p, the planar position, to the region (max(0, ‖p − g‖ − r) for a disc; 0 inside a polygon, else the distance to its edges): how far the vehicle stayed from the goal; 0: it entered it (in the window)")
     },
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("time_to_goal", SECONDS, Shape::Number, &[Topic::State], new::<TimeToGoal>,
-            "`time` of the first `/state` message with ‖p − g‖ ≤ r (whether before `by` or not); absent when the vehicle never enters the disc, the closest approach under `missing`")
+            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not); absent when the vehicle never enters it, the closest approach under `missing`")
     },
     Metric {
         applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
@@ -838,6 +838,8 @@ const NOT_PLANAR: &str = "the log's /state has no planar position (x, y) to meas
 #[derive(Default)]
 struct GoalApproach {
     planar: Option<Option<[usize; 2]>>,
+    /// The goal's point lies ahead along a heading the log's state does not have.
+    no_heading: bool,
     closest: Option<(f64, f64)>,
     closest_by: Option<(f64, f64)>,
     reached: Option<f64>,
@@ -845,14 +847,26 @@ struct GoalApproach {
 
 impl GoalApproach {
     fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
-        let (Observed::State(m), Some(goal)) = (record, run.goal) else {
+        let (Observed::State(m), Some(goal)) = (record, &run.goal) else {
             return;
         };
-        let Some((t, x, y)) = planar_of(&mut self.planar, m, run) else {
+        let Some((t, mut x, mut y)) = planar_of(&mut self.planar, m, run) else {
             return;
         };
-        let d = (x - goal.position[0]).hypot(y - goal.position[1]);
-        if d <= goal.radius && self.reached.is_none() {
+        // Before the window opens a state does not count.
+        if goal.after.is_some_and(|after| t < after - 1e-9) {
+            return;
+        }
+        // The point that must enter: `offset` ahead along the heading (no heading: absent).
+        if let Some((offset, heading)) = goal.offset {
+            let Some(theta) = heading.and_then(|h| m.values.get(h)) else {
+                self.no_heading = true;
+                return;
+            };
+            (x, y) = (x + offset * theta.cos(), y + offset * theta.sin());
+        }
+        let d = goal.distance([x, y]);
+        if d <= 0.0 && self.reached.is_none() {
             self.reached = Some(t);
         }
         let closer = |c: Option<(f64, f64)>| c.is_none_or(|(closest, _)| d < closest);
@@ -874,6 +888,13 @@ impl GoalApproach {
             missing.insert(name.into(), NOT_PLANAR.into());
             return false;
         }
+        if self.no_heading {
+            missing.insert(
+                name.into(),
+                "the goal's point lies `goal_offset` ahead along the heading, and the log declares no heading (`heading_index`)".into(),
+            );
+            return false;
+        }
         true
     }
 }
@@ -889,8 +910,7 @@ impl Accumulate for DistanceToGoal {
         if !self.0.planar("distance_to_goal", run, missing) {
             return Value::Number(None);
         }
-        let radius = run.goal.map_or(0.0, |g| g.radius);
-        Value::Number(self.0.closest_by.map(|(d, _)| (d - radius).max(0.0)))
+        Value::Number(self.0.closest_by.map(|(d, _)| d))
     }
 }
 
@@ -905,13 +925,12 @@ impl Accumulate for TimeToGoal {
         if !self.0.planar("time_to_goal", run, missing) {
             return Value::Number(None);
         }
-        if let (None, Some(goal), Some((d, t))) = (self.0.reached, run.goal, self.0.closest) {
-            let [x, y] = goal.position;
+        if let (None, Some(goal), Some((d, t))) = (self.0.reached, &run.goal, self.0.closest) {
             missing.insert(
                 "time_to_goal".into(),
                 format!(
-                    "the vehicle never reached the goal (within {} m of ({x}, {y})): closest {d:.3} m from its centre, at t = {t:.3} s",
-                    goal.radius
+                    "the vehicle never reached the goal ({}): closest {d:.3} m from it, at t = {t:.3} s",
+                    goal.describe()
                 ),
             );
         }

@@ -37,7 +37,8 @@ pub struct RunFacts {
     pub predicts: Option<bool>,
     /// The planar position the vehicle declared (None: not declared; Some(None): none).
     pub declared_planar: Option<Option<[usize; 2]>>,
-    /// The scenario's goal (metadata `goal_position`, `goal_radius`, `goal_by`).
+    /// The scenario's goal (metadata `goal_position`, `goal_radius` or `goal_polygons`,
+    /// `goal_after`, `goal_by`).
     pub goal: Option<Goal>,
     /// The nominal's straight reference path: a point and the heading ψ (metadata
     /// `reference_path`).
@@ -47,13 +48,61 @@ pub struct RunFacts {
     pub requirements: Vec<(String, String)>,
 }
 
-/// A goal as the run metadata records it: the disc of centre `position` and `radius` (m),
-/// to be entered by `by` (s), if given.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A goal as the run metadata records it: a region — the disc of centre `position` and
+/// `radius` (m), or the union of `polygons` — to be entered after `after` and by `by` (s), if
+/// given.
+#[derive(Debug, Clone, PartialEq)]
 pub struct Goal {
-    pub position: [f64; 2],
-    pub radius: f64,
+    pub disc: Option<([f64; 2], f64)>,
+    pub polygons: Vec<Vec<[f64; 2]>>,
+    pub after: Option<f64>,
+    /// The point that must enter lies this far ahead of the planar position along the heading
+    /// (metadata `goal_offset`, with `heading_index`: its state index).
+    pub offset: Option<(f64, Option<usize>)>,
     pub by: Option<f64>,
+}
+
+impl Goal {
+    /// The distance (m) from `p` to the region: 0 inside it.
+    pub fn distance(&self, p: [f64; 2]) -> f64 {
+        let disc = self.disc.map(|(c, r)| ((p[0] - c[0]).hypot(p[1] - c[1]) - r).max(0.0));
+        let polygons = self.polygons.iter().map(|polygon| polygon_distance(polygon, p));
+        disc.into_iter().chain(polygons).fold(f64::INFINITY, f64::min)
+    }
+
+    /// The region in words, for a reason: the disc's centre and radius, or the polygons.
+    pub fn describe(&self) -> String {
+        match self.disc {
+            Some(([x, y], r)) => format!("within {r} m of ({x}, {y})"),
+            None => format!("inside its {} polygon(s)", self.polygons.len()),
+        }
+    }
+}
+
+/// The distance from `p` to a polygon (0 inside: even-odd rule), m.
+fn polygon_distance(polygon: &[[f64; 2]], p: [f64; 2]) -> f64 {
+    let n = polygon.len();
+    let mut inside = false;
+    let mut nearest = f64::INFINITY;
+    for i in 0..n {
+        let (a, b) = (polygon[i], polygon[(i + n - 1) % n]);
+        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0] {
+            inside = !inside;
+        }
+        let d = [b[0] - a[0], b[1] - a[1]];
+        let l2 = d[0] * d[0] + d[1] * d[1];
+        let f = if l2 > 0.0 {
+            (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        nearest = nearest.min((p[0] - a[0] - f * d[0]).hypot(p[1] - a[1] - f * d[1]));
+    }
+    if inside {
+        0.0
+    } else {
+        nearest
+    }
 }
 
 /// Whitespace-separated numbers, exactly `N` of them.
@@ -73,15 +122,24 @@ impl RunFacts {
             prescribed_time: number("prescribed_time"),
             predicts: metadata.get("predicts").and_then(|s| s.parse().ok()),
             declared_planar: read::declared_planar_position(metadata),
-            goal: metadata
-                .get("goal_position")
-                .and_then(|p| numbers::<2>(p))
-                .zip(number("goal_radius"))
-                .map(|(position, radius)| Goal {
-                    position,
-                    radius,
+            goal: {
+                let disc = metadata
+                    .get("goal_position")
+                    .and_then(|p| numbers::<2>(p))
+                    .zip(number("goal_radius"));
+                let polygons: Vec<Vec<[f64; 2]>> = metadata
+                    .get("goal_polygons")
+                    .and_then(|p| serde_json::from_str(p).ok())
+                    .unwrap_or_default();
+                let heading = metadata.get("heading_index").and_then(|h| h.trim().parse().ok());
+                (disc.is_some() || !polygons.is_empty()).then(|| Goal {
+                    disc,
+                    polygons,
+                    after: number("goal_after"),
+                    offset: number("goal_offset").map(|offset| (offset, heading)),
                     by: number("goal_by"),
-                }),
+                })
+            },
             reference_path: metadata
                 .get("reference_path")
                 .and_then(|p| numbers::<3>(p))
@@ -512,4 +570,48 @@ pub fn reference_table() -> String {
         }
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The distance to a goal region, by hand: 0 inside a polygon (a square and an L shape,
+    /// concave), the distance to the nearest edge or corner outside; a disc's max(0, d − r); the
+    /// union's smallest.
+    #[test]
+    fn distance_to_a_goal_region() {
+        let square = vec![[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]];
+        let ell = vec![
+            [10.0, 0.0],
+            [14.0, 0.0],
+            [14.0, 1.0],
+            [11.0, 1.0],
+            [11.0, 4.0],
+            [10.0, 4.0],
+        ];
+        let goal = Goal {
+            disc: None,
+            polygons: vec![square, ell],
+            after: None,
+            offset: None,
+            by: None,
+        };
+        assert_eq!(goal.distance([1.0, 1.0]), 0.0);
+        assert!((goal.distance([3.0, 1.0]) - 1.0).abs() < 1e-12);
+        assert!((goal.distance([3.0, 3.0]) - 2f64.sqrt()).abs() < 1e-12);
+        assert_eq!(goal.distance([10.5, 3.0]), 0.0);
+        // The L's notch is outside it: 0.5 m from the inner edges.
+        assert!((goal.distance([12.0, 2.0]) - 1.0).abs() < 1e-12);
+        assert!((goal.distance([11.5, 1.5]) - 0.5).abs() < 1e-12);
+        let disc = Goal {
+            disc: Some(([0.0, 0.0], 1.0)),
+            polygons: Vec::new(),
+            after: None,
+            offset: None,
+            by: None,
+        };
+        assert!((disc.distance([3.0, 4.0]) - 4.0).abs() < 1e-12);
+        assert_eq!(disc.distance([0.5, 0.0]), 0.0);
+    }
 }
