@@ -6,6 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::Dynamics;
 
+pub mod curve;
+
 /// The shape of a barrier's safe set (scenario `[[barriers]]`, with `kind = "ball"` or
 /// `kind = "half_space"`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -49,6 +51,19 @@ pub enum Shape {
         offset: [f64; 2],
         normal: [f64; 2],
         distance: f64,
+    },
+    /// A circle fixed to the vehicle body at `offset` on the `side` (+1: left, −1: right) of a
+    /// smooth curve (a polyline road edge, [`curve::SmoothCurve`]): h = side·e(q) − `margin`,
+    /// e the signed distance from q = p + R(θ) c to the curve, `margin` the circle's radius
+    /// plus the curve's deviation from its polyline. Built by the episode, not a scenario key.
+    #[serde(skip)]
+    BodyCurve {
+        position: [usize; 2],
+        heading: usize,
+        offset: [f64; 2],
+        curve: std::sync::Arc<curve::SmoothCurve>,
+        side: f64,
+        margin: f64,
     },
     /// Car following behind a lead on the line (Molnar et al., arXiv 2112.08445):
     /// h = D − D_sf − T v with the gap D = `lead` − `rear` − p, p = `x[position]` (the
@@ -179,7 +194,9 @@ impl Barrier {
     /// and [`LieWorkspace::first_order_part_into`] gives the companion row ḣ + λ1 h ≥ 0.
     pub fn mixed_relative_degree(&self) -> bool {
         match &self.shape {
-            Shape::BodyCircle { offset, .. } | Shape::BodyHalfSpace { offset, .. } => *offset != [0.0, 0.0],
+            Shape::BodyCircle { offset, .. }
+            | Shape::BodyHalfSpace { offset, .. }
+            | Shape::BodyCurve { offset, .. } => *offset != [0.0, 0.0],
             _ => false,
         }
     }
@@ -190,9 +207,9 @@ impl Barrier {
             Shape::Ball { indices, .. } => indices.iter().copied().max().unwrap_or(0),
             Shape::HalfSpace { coefficients, .. } => coefficients.len().saturating_sub(1),
             Shape::Quadratic { q, c, .. } => q.len().max(c.len()).saturating_sub(1),
-            Shape::BodyCircle { position, heading, .. } | Shape::BodyHalfSpace { position, heading, .. } => {
-                position[0].max(position[1]).max(*heading)
-            }
+            Shape::BodyCircle { position, heading, .. }
+            | Shape::BodyHalfSpace { position, heading, .. }
+            | Shape::BodyCurve { position, heading, .. } => position[0].max(position[1]).max(*heading),
             Shape::Headway { position, speed, .. } => (*position).max(*speed),
         }
     }
@@ -251,6 +268,17 @@ impl Barrier {
             } => {
                 let (q, _) = body_point(position, heading, offset, x);
                 normal[0] * q[0] + normal[1] * q[1] + distance
+            }
+            Shape::BodyCurve {
+                position,
+                heading,
+                offset,
+                curve,
+                side,
+                margin,
+            } => {
+                let (q, _) = body_point(*position, *heading, *offset, x);
+                side * curve.nearest(q).distance - margin
             }
             &Shape::Headway {
                 position,
@@ -317,8 +345,8 @@ impl Barrier {
                     d
                 }
             }
-            // n is a unit vector: h is the distance.
-            Shape::BodyHalfSpace { .. } => self.h_at(x),
+            // n is a unit vector: h is the distance; e is a distance.
+            Shape::BodyHalfSpace { .. } | Shape::BodyCurve { .. } => self.h_at(x),
             // The gap D between the vehicle's front and the lead's rear.
             &Shape::Headway {
                 position, lead, rear, ..
@@ -394,6 +422,21 @@ impl Barrier {
                 g[position[1]] = normal[1];
                 g[heading] += normal[0] * w[0] + normal[1] * w[1];
             }
+            // ∂h/∂p = side n(s*), ∂h/∂θ = side n·w.
+            Shape::BodyCurve {
+                position,
+                heading,
+                offset,
+                curve,
+                side,
+                ..
+            } => {
+                let (q, w) = body_point(*position, *heading, *offset, x);
+                let n = curve.nearest(q).normal;
+                g[position[0]] = side * n[0];
+                g[position[1]] = side * n[1];
+                g[*heading] += side * (n[0] * w[0] + n[1] * w[1]);
+            }
             &Shape::Headway {
                 position,
                 speed,
@@ -445,6 +488,30 @@ impl Barrier {
                 out[i] += sign * (v[i] + w[0] * vt);
                 out[j] += sign * (v[j] + w[1] * vt);
                 out[heading] += sign * (w[0] * v[i] + w[1] * v[j]) + sign * (c2 - d[0] * rc[0] - d[1] * rc[1]) * vt;
+            }
+            // With H = side ∇²e(q) = −side κ/(1 − κ e) t tᵀ: ∂²h/∂p² = H, ∂²h/∂p∂θ = H w,
+            // ∂²h/∂θ² = wᵀ H w + side n·R''c = wᵀ H w − side n·Rc.
+            Shape::BodyCurve {
+                position,
+                heading,
+                offset,
+                curve,
+                side,
+                ..
+            } => {
+                let (q, w) = body_point(*position, *heading, *offset, x);
+                let near = curve.nearest(q);
+                let (t, n) = (near.tangent, near.normal);
+                let factor = -side * near.curvature / (1.0 - near.curvature * near.distance);
+                let [i, j] = *position;
+                let vt = v[*heading];
+                // H (v_p + w v_θ) = factor t (t·(v_p + w v_θ)).
+                let along = t[0] * (v[i] + w[0] * vt) + t[1] * (v[j] + w[1] * vt);
+                out[i] += factor * t[0] * along;
+                out[j] += factor * t[1] * along;
+                let tw = t[0] * w[0] + t[1] * w[1];
+                let rc = [w[1], -w[0]];
+                out[*heading] += factor * tw * along - side * (n[0] * rc[0] + n[1] * rc[1]) * vt;
             }
             // Only ∂²h/∂θ² = n·R''c = −n·Rc.
             &Shape::BodyHalfSpace {
@@ -1235,6 +1302,91 @@ mod tests {
             }
         }
         assert!(worst < 1e-7, "largest relative difference {worst:e}");
+    }
+
+    /// A polyline road edge made smooth ([`curve::SmoothCurve`]) for a footprint's circles on the
+    /// bicycle (4.78): ∇h and ∇²h v against central differences of h, and the
+    /// mixed-relative-degree rows (ḣ + λ1 h, then ψ̇ + λ2 ψ) against differences along the
+    /// closed loop with the input held, near a curving, kinked polyline.
+    #[test]
+    fn a_smoothed_polyline_edge_matches_differences_along_the_flow() {
+        let points: Vec<[f64; 2]> = (0..60)
+            .map(|k| {
+                let s = 1.7 * k as f64;
+                [s, 6.0 * (0.05 * s).sin() + if k % 7 == 3 { 0.2 } else { 0.0 }]
+            })
+            .collect();
+        let curve = std::sync::Arc::new(curve::SmoothCurve::new(&points).unwrap());
+        let model = BicycleModel::new(2.5789128);
+        let form = BarrierForm::RelativeDegree2 { l0: 3.0, l1: 4.0 };
+        let (lambda1, lambda2) = form.real_rates().unwrap();
+        let mut work = LieWorkspace::new(&model);
+        let (mut second, mut first) = (Constraint::zeros(2), Constraint::zeros(2));
+        let mut worst: f64 = 0.0;
+        let mut worst_derivative: f64 = 0.0;
+        for k in 0..40 {
+            let s = k as f64;
+            let offset = [1.4 + 0.9 * (0.7 * s).cos(), 0.3 * (1.1 * s).sin()];
+            let b = Barrier {
+                name: "edge/0".into(),
+                shape: Shape::BodyCurve {
+                    position: [0, 1],
+                    heading: 2,
+                    offset,
+                    curve: curve.clone(),
+                    side: if k % 2 == 0 { 1.0 } else { -1.0 },
+                    margin: 1.1 + curve.deviation(),
+                },
+            };
+            let x = [
+                10.0 + 2.0 * s,
+                6.0 * (0.1 + 0.1 * s).sin() - 2.5 + 0.1 * s,
+                0.05 * s - 1.0,
+                4.0 + 0.1 * s,
+            ];
+            worst_derivative = worst_derivative.max(derivatives_against_differences(&b, x));
+            let u = [0.3 * (0.7 * s).sin(), -1.5 + 0.1 * s];
+            work.constraint_into(&b, form, &model, &x, &mut second);
+            assert!(work.first_order_part_into(form, &mut first));
+            let flow = |z: [f64; 4], v: [f64; 2], dt: f64| -> [f64; 4] {
+                let f = |y: &[f64; 4]| {
+                    let mut d = [0.0; 4];
+                    model.dynamics_into(y, &v, &mut d);
+                    d
+                };
+                let add = |y: &[f64; 4], d: &[f64; 4], c: f64| std::array::from_fn(|i| y[i] + c * d[i]);
+                let k1 = f(&z);
+                let k2 = f(&add(&z, &k1, 0.5 * dt));
+                let k3 = f(&add(&z, &k2, 0.5 * dt));
+                let k4 = f(&add(&z, &k3, dt));
+                std::array::from_fn(|i| z[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+            };
+            let e = 1e-4;
+            let h_dot = (b.h_at(&flow(x, u, e)) - b.h_at(&flow(x, u, -e))) / (2.0 * e);
+            let expected_first = h_dot + lambda1 * b.h_at(&x);
+            let psi = |z: [f64; 4]| {
+                let drift = (b.h_at(&flow(z, [0.0; 2], e)) - b.h_at(&flow(z, [0.0; 2], -e))) / (2.0 * e);
+                drift + lambda1 * b.h_at(&z)
+            };
+            let psi_dot = (psi(flow(x, u, e)) - psi(flow(x, u, -e))) / (2.0 * e);
+            let expected_second = psi_dot + lambda2 * psi(x);
+            let value = |c: &Constraint| c.a + c.b[0] * u[0] + c.b[1] * u[1];
+            worst = worst.max((value(&first) - expected_first).abs() / (1.0 + expected_first.abs()));
+            worst = worst.max((value(&second) - expected_second).abs() / (1.0 + expected_second.abs()));
+            // h is the distance from the circle to the smooth curve less the margin.
+            let (sn, cs) = x[2].sin_cos();
+            let q = [
+                x[0] + cs * offset[0] - sn * offset[1],
+                x[1] + sn * offset[0] + cs * offset[1],
+            ];
+            let side = if k % 2 == 0 { 1.0 } else { -1.0 };
+            assert!((b.h_at(&x) - (side * curve.nearest(q).distance - 1.1 - curve.deviation())).abs() < 1e-12);
+        }
+        assert!(
+            worst_derivative < 1e-6,
+            "∇h, ∇²h: largest relative difference {worst_derivative:e}"
+        );
+        assert!(worst < 1e-5, "rows: largest relative difference {worst:e}");
     }
 
     /// With a zero offset the body circle is the planar ball (4.81): the same Lie derivatives

@@ -1478,7 +1478,10 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                     && d.is_finite()
             }
             // Not a scenario key (`#[serde(skip)]`): built by the episode.
-            Shape::BodyCircle { .. } | Shape::BodyHalfSpace { .. } | Shape::Headway { .. } => false,
+            Shape::BodyCircle { .. }
+            | Shape::BodyHalfSpace { .. }
+            | Shape::BodyCurve { .. }
+            | Shape::Headway { .. } => false,
         };
         if !ok {
             return Err(s.field_error(
