@@ -64,7 +64,20 @@ pub enum Edge {
         radius: f64,
         road: ArcSide,
     },
+    /// A polyline (e.g. a CommonRoad lanelet bound), made smooth for the barrier condition
+    /// ([`crate::barrier::curve::SmoothCurve`]: a C² curve, its deviation δ from the polyline
+    /// added to the margin); the road on its `road` side, looking along the points. Needs a
+    /// vehicle with a heading; at most [`MAX_EDGE_POINTS`] points.
+    Polyline {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+        points: Vec<[f64; 2]>,
+        road: LineSide,
+    },
 }
+
+/// Most points of a polyline edge.
+pub const MAX_EDGE_POINTS: usize = 10_000;
 
 /// One lane marking (`[[road.lanes]]`): a whole line or circle, drawn dashed.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -116,25 +129,40 @@ impl Curve {
 impl Edge {
     /// The edge's name: the given one or `road_edge_<index>`.
     pub fn name(&self, index: usize) -> String {
-        let (Edge::Line { name, .. } | Edge::Arc { name, .. }) = self;
+        let (Edge::Line { name, .. } | Edge::Arc { name, .. } | Edge::Polyline { name, .. }) = self;
         name.clone().unwrap_or_else(|| format!("road_edge_{index}"))
     }
 
-    /// The edge's line or circle (a line's direction normalised; validation refuses a zero one).
-    pub fn curve(&self) -> Curve {
+    /// The edge's line or circle (a line's direction normalised; validation refuses a zero one);
+    /// None for a polyline.
+    pub fn curve(&self) -> Option<Curve> {
         match self {
-            Edge::Line { point, direction, .. } => Curve::line(*point, *direction),
-            Edge::Arc { centre, radius, .. } => Curve::Circle {
+            Edge::Line { point, direction, .. } => Some(Curve::line(*point, *direction)),
+            Edge::Arc { centre, radius, .. } => Some(Curve::Circle {
                 centre: *centre,
                 radius: *radius,
-            },
+            }),
+            Edge::Polyline { .. } => None,
+        }
+    }
+
+    /// The polyline to draw: a line's stretch near the points `around`, a closed circle, a
+    /// polyline edge's own points.
+    pub fn drawn(&self, around: &[[f64; 2]]) -> Vec<[f64; 2]> {
+        match (self, self.curve()) {
+            (Edge::Polyline { points, .. }, _) => points.clone(),
+            (_, Some(curve)) => curve.polyline(around),
+            (_, None) => Vec::new(),
         }
     }
 
     /// The barrier keeping a hull of `hull_radius` about the planar position (state indices
-    /// `position`) on the road side of this edge (module docs).
-    pub fn barrier(&self, name: &str, position: [usize; 2], hull_radius: f64) -> Barrier {
+    /// `position`) on the road side of this edge (module docs); None for a polyline edge,
+    /// whose barrier reads the heading ([`Edge::body_barriers`] with one circle at the
+    /// reference point).
+    pub fn barrier(&self, name: &str, position: [usize; 2], hull_radius: f64) -> Option<Barrier> {
         let shape = match self {
+            Edge::Polyline { .. } => return None,
             Edge::Line {
                 point, direction, road, ..
             } => {
@@ -164,10 +192,10 @@ impl Edge {
                 inside: *road == ArcSide::Inside,
             },
         };
-        Barrier {
+        Some(Barrier {
             name: name.to_string(),
             shape,
-        }
+        })
     }
 
     /// The barriers keeping each covering circle of a footprint (offset along and across the
@@ -182,11 +210,32 @@ impl Edge {
         (position, heading): ([usize; 2], usize),
         circles: &[([f64; 2], f64)],
     ) -> Vec<Barrier> {
+        // A polyline's smooth curve, built once for all the circles (validated: it exists).
+        let smooth = match self {
+            Edge::Polyline { points, .. } => crate::barrier::curve::SmoothCurve::new(points)
+                .ok()
+                .map(std::sync::Arc::new),
+            _ => None,
+        };
         circles
             .iter()
             .enumerate()
             .map(|(i, &(offset, rho))| {
                 let shape = match self {
+                    Edge::Polyline { road, .. } => {
+                        let curve = smooth.clone().expect("a validated polyline has a smooth curve");
+                        Shape::BodyCurve {
+                            position,
+                            heading,
+                            offset,
+                            margin: rho + curve.deviation(),
+                            curve,
+                            side: match road {
+                                LineSide::Left => 1.0,
+                                LineSide::Right => -1.0,
+                            },
+                        }
+                    }
                     Edge::Line {
                         point, direction, road, ..
                     } => {
@@ -225,9 +274,17 @@ impl Edge {
             .collect()
     }
 
-    /// Signed distance from the planar point `p` to the edge, positive on the road side.
+    /// Signed distance from the planar point `p` to the edge, positive on the road side (a
+    /// polyline's: to its smooth curve).
     pub fn distance(&self, p: [f64; 2]) -> f64 {
         match self {
+            Edge::Polyline { points, road, .. } => {
+                let e = crate::barrier::curve::SmoothCurve::new(points).map_or(f64::NAN, |c| c.nearest(p).distance);
+                match road {
+                    LineSide::Left => e,
+                    LineSide::Right => -e,
+                }
+            }
             Edge::Line {
                 point, direction, road, ..
             } => {
@@ -453,7 +510,7 @@ mod tests {
                     direction,
                     road,
                 };
-                let barrier = edge.barrier("e", [0, 1], hull);
+                let barrier = edge.barrier("e", [0, 1], hull).unwrap();
                 for p in POINTS {
                     let expected = sign * left_distance(point, b, p) - hull;
                     let x = state(p);
@@ -483,7 +540,7 @@ mod tests {
                     radius,
                     road,
                 };
-                let barrier = edge.barrier("e", [0, 1], hull);
+                let barrier = edge.barrier("e", [0, 1], hull).unwrap();
                 let x = state(p);
                 // h ≥ 0 exactly where the hull is on the road; its clearance is the gap (m).
                 assert_eq!(barrier.h(&x) >= 0.0, gap >= 0.0, "{road:?} {p:?}");

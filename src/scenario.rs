@@ -1606,9 +1606,28 @@ fn validate_road(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
-    let edges = road.edges.iter().map(|e| match e {
-        Edge::Line { point, direction, .. } => (Some((*point, *direction)), None),
-        Edge::Arc { centre, radius, .. } => (None, Some((*centre, *radius))),
+    for (i, edge) in road.edges.iter().enumerate() {
+        if let Edge::Polyline { points, .. } = edge {
+            let finite = points
+                .iter()
+                .all(|p| p.iter().all(|v| v.is_finite() && v.abs() <= OBSTACLE_EXTENT));
+            if !(2..=crate::road::MAX_EDGE_POINTS).contains(&points.len()) || !finite {
+                return Err(s.field_error(
+                    &format!("road.edges.{i}.points"),
+                    format!(
+                        "expected 2 to {} points with finite coordinates within ±{OBSTACLE_EXTENT:e} m",
+                        crate::road::MAX_EDGE_POINTS
+                    ),
+                ));
+            }
+            crate::barrier::curve::SmoothCurve::new(points)
+                .map_err(|e| s.field_error(&format!("road.edges.{i}.points"), e))?;
+        }
+    }
+    let edges = road.edges.iter().filter_map(|e| match e {
+        Edge::Line { point, direction, .. } => Some((Some((*point, *direction)), None)),
+        Edge::Arc { centre, radius, .. } => Some((None, Some((*centre, *radius)))),
+        Edge::Polyline { .. } => None,
     });
     let lanes = road.lanes.iter().map(|m| match m {
         Marking::Line { point, direction, .. } => (Some((*point, *direction)), None),

@@ -385,7 +385,7 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
             }
         }
         let window = |key: &str| goal.get(key).map(|v| v.as_float().unwrap());
-        assert_eq!(window("after"), (start > 0).then(|| start as f64 * dt), "{name}");
-        assert_eq!(window("by"), (end > 0).then(|| end as f64 * dt), "{name}");
+        assert_eq!(window("after"), (start > 0).then_some(start as f64 * dt), "{name}");
+        assert_eq!(window("by"), (end > 0).then_some(end as f64 * dt), "{name}");
     }
 }

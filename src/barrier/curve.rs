@@ -137,7 +137,7 @@ impl SmoothCurve {
             }
             s.push(total);
         }
-        if !(total > 0.0) || s.windows(2).any(|w| w[1] <= w[0]) {
+        if total.is_nan() || total <= 0.0 || s.windows(2).any(|w| w[1] <= w[0]) {
             return Err("expected a polyline of positive length".into());
         }
         let xs: Vec<f64> = samples.iter().map(|p| p[0]).collect();

@@ -716,9 +716,22 @@ pub(super) fn road_edges(
                     .into());
             }
         }
-        let edge_barriers = match &footprint {
-            Some((circles, heading)) => edge.body_barriers(&edge.name(i), (position, *heading), circles),
-            None => vec![edge.barrier(&edge.name(i), position, hull_radius)],
+        let edge_barriers = match (&footprint, edge, model.heading_index()) {
+            (Some((circles, heading)), _, _) => edge.body_barriers(&edge.name(i), (position, *heading), circles),
+            // A polyline edge's barrier reads the heading: the hull as one circle at the
+            // reference point.
+            (None, crate::road::Edge::Polyline { .. }, Some(heading)) => {
+                edge.body_barriers(&edge.name(i), (position, heading), &[([0.0, 0.0], hull_radius)])
+            }
+            (None, crate::road::Edge::Polyline { .. }, None) => {
+                return Err(loaded
+                    .field_error(
+                        &format!("road.edges.{i}"),
+                        "a polyline edge needs a vehicle with a heading",
+                    )
+                    .into());
+            }
+            (None, _, _) => edge.barrier(&edge.name(i), position, hull_radius).into_iter().collect(),
         };
         for barrier in edge_barriers {
             if barrier.h(x0) < 0.0 {
@@ -761,7 +774,7 @@ pub(super) fn scene_lines(
         for (i, edge) in road.edges.iter().enumerate() {
             lines.push(SceneLine {
                 id: format!("road/{}", edge.name(i)),
-                points: edge.curve().polyline(around),
+                points: edge.drawn(around),
                 dashed: false,
             });
         }
