@@ -70,13 +70,13 @@ fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
     }
 }
 
-/// The dissertation's outcome on recorded traffic (US-101, a jam): with delays of 0.2 s and
-/// 0.5 s the nominal alone runs into the car ahead and the delay-free CBF-QP (4.9)–(4.11) does too;
-/// the γm filter (4.67) stays clear.
+/// The dissertation's outcome on recorded traffic (US-101, 25 cars in a jam), road edges on:
+/// with delays of 0.2 s and 0.5 s the nominal alone and the delay-free CBF-QP (4.9)–(4.11)
+/// collide; the predictor CBF-QP (4.34) and the γm filter (4.67) stay clear and on the road.
 #[test]
-fn on_us101_the_gamma_m_filter_stays_clear_where_the_others_collide() {
+fn on_us101_the_delay_compensating_filters_stay_clear_where_the_others_collide() {
     let dir = tempfile::tempdir().unwrap();
-    let xml = data("USA_US101-4_1_T-1.xml");
+    let xml = data("USA_US101-5_1_T-1.xml");
     let outcome = |name: &str, sets: &[&str]| {
         let log = dir.path().join(format!("{name}.mcap"));
         let mut extra = Vec::new();
@@ -86,13 +86,22 @@ fn on_us101_the_gamma_m_filter_stays_clear_where_the_others_collide() {
         run(&xml, &log, &extra);
         common::analyze_json(&log)
     };
+    let qp = ["filter.kind=cbf_qp", "filter.l0=4.0", "filter.l1=4.0"];
     let nominal = outcome("nominal", &["filter.kind=none"]);
-    let qp = outcome("qp", &["filter.kind=cbf_qp", "filter.l0=4.0", "filter.l1=4.0"]);
+    let delay_free = outcome("qp", &qp);
+    let predictor = outcome("predictor", &[qp[0], qp[1], qp[2], "filter.compensation=predictor"]);
     let gamma = outcome("gamma", &[]);
     assert!(nominal["collision"].is_object(), "{nominal}");
-    assert!(qp["collision"].is_object(), "{qp}");
-    assert!(gamma["collision"].is_null(), "{gamma}");
-    assert!(gamma["min_h"].as_f64().unwrap() > 0.0, "{gamma}");
+    assert!(delay_free["collision"].is_object(), "{delay_free}");
+    for m in [&predictor, &gamma] {
+        assert!(m["collision"].is_null(), "{m}");
+        let by_barrier = m["min_h_by_barrier"].as_object().unwrap();
+        assert!(
+            by_barrier.keys().any(|k| k.starts_with("road_")),
+            "road edges are barriers"
+        );
+        assert!(by_barrier.values().all(|h| h.as_f64().unwrap() > 0.0), "{m}");
+    }
 }
 
 /// A scenario TOML names the file and overrides what it likes; the planning problem that does
@@ -264,8 +273,8 @@ fn close(a: f64, b: f64) -> bool {
 }
 
 /// Every committed file's imported scenario starts the ego where commonroad-io puts the planning
-/// problem's initial state (its centre: the rear axle plus b along the heading) and makes its
-/// goal the planning problem's: each rectangle's corners, each lanelet's polygon (left bound,
+/// problem's initial state (its centre: the rear axle plus b along the heading), draws its road
+/// edges through lanelet bound vertices, and makes its goal the planning problem's: each rectangle's corners, each lanelet's polygon (left bound,
 /// right bound reversed), a lone circle's disc, the time interval × the time step.
 #[test]
 fn the_ego_and_the_goal_are_the_planning_problems() {
@@ -305,6 +314,26 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
             close(x0[2], theta) && close(x0[3], init["velocity"].as_f64().unwrap()),
             "{name}"
         );
+        // The road edges are lanelet bounds: every point one of commonroad-io's bound vertices.
+        let vertices: Vec<[f64; 2]> = (lanelets["lanelets"].as_array().unwrap().iter())
+            .flat_map(|l| ["left", "right"].map(|side| l[side].as_array().unwrap().clone()))
+            .flatten()
+            .map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()])
+            .collect();
+        for edge in scenario
+            .get("road")
+            .and_then(|r| r["edges"].as_array())
+            .into_iter()
+            .flatten()
+        {
+            for p in edge["points"].as_array().unwrap() {
+                let p = [p[0].as_float().unwrap(), p[1].as_float().unwrap()];
+                assert!(
+                    vertices.iter().any(|v| close(v[0], p[0]) && close(v[1], p[1])),
+                    "{name}: road edge point {p:?} is no lanelet bound's"
+                );
+            }
+        }
         // The goal region, polygon by polygon in the file's order.
         let mut expected: Vec<Vec<[f64; 2]>> = Vec::new();
         let mut disc = None;

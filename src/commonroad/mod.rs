@@ -127,6 +127,7 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
     let (s, c) = start.orientation.sin_cos();
     let rear = [start.position[0] - VEHICLE.b * c, start.position[1] - VEHICLE.b * s];
     let route = ego_route(cr, problem)?;
+    // (route before the road edges below: both follow it.)
     let goal_speed = problem
         .goals
         .iter()
@@ -196,6 +197,18 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
     if let Some(goal) = goal(cr, problem) {
         t.insert("goal".into(), toml::Value::Table(goal));
     }
+    let (road, omitted) = road(cr, &route, rear, start.orientation);
+    if let Some(road) = road {
+        t.insert("road".into(), toml::Value::Table(road));
+    }
+    if !omitted.is_empty() {
+        let description = format!(
+            "{}; {}",
+            t["description"].as_str().unwrap_or_default(),
+            omitted.join("; ")
+        );
+        t.insert("description".into(), toml::Value::String(description));
+    }
     let obstacles = (cr.obstacles.iter().filter(|o| o.id != problem.id))
         .filter_map(obstacle)
         .collect::<Result<Vec<_>, String>>()?;
@@ -262,6 +275,68 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
         t.insert("by".into(), v(end as f64 * cr.time_step));
     }
     Some(t)
+}
+
+/// The largest deviation (m) of a road edge's smooth curve from its polyline that a world
+/// keeps as a barrier: beyond it the outer bounds do not join up (a merge, a split), and the
+/// margin would take the road away.
+pub const MAX_EDGE_DEVIATION: f64 = 0.5;
+
+/// `[road]`: the route's road edges ([`route::road_edges`]) as polyline edges, the road on
+/// their inner side; an edge whose smooth curve deviates more than [`MAX_EDGE_DEVIATION`]
+/// from its polyline, or that the ego's footprint would start beyond, is left out, the reason
+/// returned (it goes into the scenario's description).
+fn road(cr: &CommonRoad, route: &route::Route, rear: [f64; 2], heading: f64) -> (Option<toml::Table>, Vec<String>) {
+    let (left, right) = route::road_edges(cr, &route.lanelets);
+    let v = toml::Value::Float;
+    let mut edges = Vec::new();
+    let mut omitted = Vec::new();
+    let footprint = crate::footprint::Rectangle {
+        length: VEHICLE.length,
+        width: VEHICLE.width,
+        circles: None,
+        offset: VEHICLE.b,
+    };
+    for (name, points, side, road_side) in [("road_left", left, -1.0, "right"), ("road_right", right, 1.0, "left")] {
+        let Ok(curve) = crate::barrier::curve::SmoothCurve::new(&points) else {
+            omitted.push(format!("{name} left out: fewer than 2 distinct points"));
+            continue;
+        };
+        if curve.deviation() > MAX_EDGE_DEVIATION {
+            omitted.push(format!(
+                "{name} left out: its smooth curve deviates {:.2} m from the lanelet bounds (more than {MAX_EDGE_DEVIATION} m: they do not join up)",
+                curve.deviation()
+            ));
+            continue;
+        }
+        // Every covering circle of the footprint starts on the road side.
+        let clear = footprint.circles().iter().all(|c| {
+            let q = crate::footprint::rotate(c.offset, heading);
+            let q = [rear[0] + q[0], rear[1] + q[1]];
+            side * curve.nearest(q).distance - c.radius - curve.deviation() >= 0.0
+        });
+        if !clear {
+            omitted.push(format!("{name} left out: the ego's footprint starts beyond it"));
+            continue;
+        }
+        let point = |p: &[f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
+        edges.push(table(&[
+            ("kind", toml::Value::String("polyline".into())),
+            ("name", toml::Value::String(name.into())),
+            ("points", toml::Value::Array(points.iter().map(point).collect())),
+            ("road", toml::Value::String(road_side.into())),
+        ]));
+    }
+    if edges.is_empty() {
+        return (None, omitted);
+    }
+    (
+        Some(toml::Table::from_iter([(
+            "edges".to_string(),
+            toml::Value::Array(edges),
+        )])),
+        omitted,
+    )
 }
 
 /// A goal shape as a polygon: a rectangle's corners, a polygon's points, a circle's inscribed

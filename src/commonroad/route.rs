@@ -229,6 +229,48 @@ pub fn centre_of(cr: &CommonRoad, route: &[u64]) -> Vec<[f64; 2]> {
     centre
 }
 
+/// The lanelet farthest to one side of `id` over same-direction neighbours (`left`: over
+/// `adjacent_left`, else `adjacent_right`), at most [`MAX_ROUTE`] steps.
+fn outermost(cr: &CommonRoad, id: u64, left: bool) -> u64 {
+    let mut current = id;
+    for _ in 0..MAX_ROUTE {
+        let next = cr
+            .lanelet(current)
+            .and_then(|l| if left { l.adjacent_left } else { l.adjacent_right });
+        match next {
+            Some(a) if a.same_direction && a.id != id => current = a.id,
+            _ => break,
+        }
+    }
+    current
+}
+
+/// The road's edges along a route (and [`RUN_OUT`] past it): the left bounds of the leftmost and
+/// the right bounds of the rightmost same-direction lanelets beside each route lanelet, joined
+/// in driving order (each lanelet once); (left edge, right edge).
+pub fn road_edges(cr: &CommonRoad, route: &[u64]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    let route = run_out(cr, route.to_vec(), RUN_OUT);
+    let mut edges = (Vec::new(), Vec::new());
+    for (left, edge) in [(true, &mut edges.0), (false, &mut edges.1)] {
+        let mut used: Vec<u64> = Vec::new();
+        for id in &route {
+            let outer = outermost(cr, *id, left);
+            if used.contains(&outer) {
+                continue;
+            }
+            used.push(outer);
+            let Some(l) = cr.lanelet(outer) else { continue };
+            let bound = if left { &l.left.points } else { &l.right.points };
+            for p in bound {
+                if edge.last().is_none_or(|q: &[f64; 2]| dist2(*q, *p) > 1e-12) {
+                    edge.push(*p);
+                }
+            }
+        }
+    }
+    edges
+}
+
 /// A queue entry ordered by the least cost first (then the id, for a deterministic order).
 #[derive(Debug, PartialEq)]
 struct Entry(f64, u64);
