@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The CommonRoad study (docs/studies.md, "Real traffic"): every committed CommonRoad scenario
+# (data/commonroad/) with its defaults (delays 0.2 s steering, 0.5 s acceleration; road edges;
+# the goal region) under the nominal alone, the delay-free CBF-QP (2.16), the predictor CBF-QP
+# (4.34) and the gamma-m filter (4.67), the road users assumed at constant velocity; then (4.67)
+# with the road users assumed static, at constant acceleration and known exactly (oracle).
+# Two sweeps with no logs (`sweep --scenarios`); prints a Markdown table.
+#   scripts/commonroad-study.sh [MJSAFE_BINARY] [OUT_DIR]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+mjsafe="${1:-target/release/mjsafe}"
+out="${2:-logs/commonroad-study}"
+rm -rf "$out/filters" "$out/knowledge"
+qp='kind="cbf_qp",l0=4.0,l1=4.0'
+"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/filters" \
+  --grid "filter={kind=\"none\"},{$qp},{$qp,compensation=\"predictor\"},{kind=\"gamma_m\",l0=4.0,l1=4.0,m=50.0}" \
+  >/dev/null 2>&1
+"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
+  --grid 'actor_knowledge.kind=static,constant_acceleration,oracle' >/dev/null 2>&1
+python3 - "$out" <<'PY'
+import csv, sys
+out = sys.argv[1]
+label = {
+    '{kind="none"}': "nominal alone",
+    '{kind="cbf_qp",l0=4.0,l1=4.0}': "delay-free CBF-QP (2.16)",
+    '{kind="cbf_qp",l0=4.0,l1=4.0,compensation="predictor"}': "(4.34)",
+    '{kind="gamma_m",l0=4.0,l1=4.0,m=50.0}': "(4.67)",
+    'static': "(4.67), static", '"static"': "(4.67), static",
+    'constant_acceleration': "(4.67), const. accel.", '"constant_acceleration"': "(4.67), const. accel.",
+    'oracle': "(4.67), oracle", '"oracle"': "(4.67), oracle",
+}
+columns, cells = [], {}
+for sweep, key in (("filters", "filter"), ("knowledge", "actor_knowledge.kind")):
+    for row in csv.DictReader(open(f"{out}/{sweep}/summary.csv")):
+        column = label[row[key]]
+        if column not in columns:
+            columns.append(column)
+        if row["error"]:
+            cell = "error"
+        elif row["collision_with"]:
+            speed = row.get(f"impact_speed_by_actor.{row['collision_with']}", "")
+            cell = f"**hit {row['collision_with']}** {float(row['collision_time']):.2f} s"
+            if speed:
+                cell += f", {float(speed):.1f} m/s"
+        else:
+            cell = "clear"
+            ttc = row.get("min_time_to_collision", "")
+            if ttc:
+                cell += f", TTC {float(ttc):.1f} s"
+        goal = row.get("time_to_goal", "")
+        if row.get("distance_to_goal", "") != "":
+            cell += f"; goal {float(goal):.1f} s" if goal else "; goal missed"
+        if row.get("stall_time", ""):
+            cell += f"; stall {float(row['stall_time']):.1f} s"
+        # By file: two commonroad-crime files share a benchmark ID.
+        cells[(row["commonroad.file"].strip('"').removesuffix(".xml"), column)] = cell
+scenarios = sorted({s for s, _ in cells})
+print("| file | " + " | ".join(columns) + " |")
+print("|---|" + "---|" * len(columns))
+for s in scenarios:
+    print(f"| {s} | " + " | ".join(cells.get((s, c), "") for c in columns) + " |")
+PY
