@@ -882,12 +882,20 @@ pub fn counterexample_text(
     let loaded =
         crate::scenario::load(&problem.scenario, &overrides).map_err(|e| FalsifyError::Output(e.to_string()))?;
     let mut scenario = loaded.scenario.clone();
-    if let Some(model) = loaded.model_path() {
+    // Paths made absolute so that the counterexample runs from wherever it is written (a
+    // built-in model is its name).
+    if let Some(model) = loaded.model_path().filter(|m| !crate::models::is_builtin(m)) {
         let absolute = std::fs::canonicalize(&model).map_err(|reason| FalsifyError::Io {
             path: model.display().to_string(),
             reason,
         })?;
         scenario.vehicle.model = Some(absolute);
+    }
+    if let (Some(file), Some(spec)) = (loaded.commonroad_path(), scenario.commonroad.as_mut()) {
+        spec.file = std::fs::canonicalize(&file).map_err(|reason| FalsifyError::Io {
+            path: file.display().to_string(),
+            reason,
+        })?;
     }
     let body = toml::to_string(&scenario).map_err(|e| FalsifyError::Output(e.to_string()))?;
     let mut text = String::new();

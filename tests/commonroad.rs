@@ -418,3 +418,34 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
         assert_eq!(window("by"), (end > 0).then_some(end as f64 * dt), "{name}");
     }
 }
+
+/// `falsify` searches a CommonRoad world like any scenario, and its counterexample (a scenario
+/// naming the file and the built-in model) runs from its own directory and reproduces the
+/// violation.
+#[test]
+fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let o = mjsafe(&[
+        "falsify",
+        "data/commonroad/USA_US101-5_1_T-1.xml",
+        "--set",
+        "filter.kind=none",
+        "--range",
+        "delays.acceleration=0.2..0.8",
+        "--budget",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+    let counterexample = out.join("counterexample.toml");
+    let text = std::fs::read_to_string(&counterexample).unwrap();
+    assert!(
+        text.contains("mjsafe:commonroad_car.xml") && text.contains("USA_US101-5_1_T-1.xml"),
+        "{text}"
+    );
+    let log = dir.path().join("again.mcap");
+    run(&counterexample, &log, &[]);
+    assert!(common::analyze_json(&log)["min_h"].as_f64().unwrap() < 0.0);
+}

@@ -83,7 +83,7 @@ pub fn defaults(spec: &CommonRoadSpec, dir: &Path) -> Result<(Arc<CommonRoad>, t
     Ok((cr, defaults))
 }
 
-/// Fills `table` (a scenario's TOML) with `defaults` where it is silent ([`merge`]); a filter's
+/// Fills `table` (a scenario's TOML) with `defaults` where it is silent (key by key); a filter's
 /// or nominal's `kind` one of `overrides` sets (`filter.kind=cbf_qp`) replaces that default table
 /// whole, as one the scenario writes does.
 pub fn fill(table: &mut toml::Table, mut defaults: toml::Table, overrides: &[String]) {
@@ -550,7 +550,7 @@ pub type DrawnBound = (String, Vec<[f64; 2]>, bool);
 /// Most lanelets drawn.
 pub const MAX_DRAWN_LANELETS: usize = 2000;
 
-/// The bounds of the lanelets near the points `around` (within [`DRAW_MARGIN`] metres of their
+/// The bounds of the lanelets near the points `around` (within 20 m of their
 /// bounding box), to draw: `road/lanelet/<id>/left|right` solid, or, for a dashed line marking
 /// (`dashed`, `broad_dashed`, `dashed_dashed`), `road/lane/lanelet_<id>_left|right` as dashes of
 /// 3 m every 6 m.
