@@ -432,7 +432,10 @@ fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
         "--set",
         "filter.kind=none",
         "--range",
-        "delays.acceleration=0.2..0.8",
+        "delays.acceleration=0.2..0.8:0.1",
+        // (min_h mixes m² and m barriers here: absent; the clearance is in metres.)
+        "--objective",
+        "min_clearance",
         "--budget",
         "4",
         "--out",
@@ -447,5 +450,5 @@ fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
     );
     let log = dir.path().join("again.mcap");
     run(&counterexample, &log, &[]);
-    assert!(common::analyze_json(&log)["min_h"].as_f64().unwrap() < 0.0);
+    assert!(common::analyze_json(&log)["min_clearance"].as_f64().unwrap() < 0.0);
 }

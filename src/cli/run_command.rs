@@ -229,6 +229,14 @@ pub(super) fn run_scenario(
             // Barriers of different units have no one min h: each its own.
             match (metrics.min_h(), metrics.min_h_by_barrier()) {
                 (Some(h), _) => format!("{h:.3}"),
+                // Many (a CommonRoad world's): the clearance, one unit for all.
+                (None, Some(by)) if by.len() > MAX_LISTED_BARRIERS => format!(
+                    "per barrier, {} of mixed units (`mjsafe analyze`); min clearance {}",
+                    by.len(),
+                    metrics
+                        .number("min_clearance")
+                        .map_or("-".into(), |c| format!("{c:.3} m"))
+                ),
                 (None, Some(by)) => by
                     .iter()
                     .map(|(name, h)| format!("{h:.3} ({name})"))
@@ -448,3 +456,6 @@ fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
         }
     }
 }
+
+/// Most barriers the summary line lists one by one when their units differ.
+const MAX_LISTED_BARRIERS: usize = 6;

@@ -10,7 +10,8 @@
 //! - (c) two runs of a pair write byte-identical MCAP logs.
 //!
 //! A pair is a vehicle setup (each shipped scenario's `[vehicle]` with its delays, nominal and
-//! obstacles; a vehicle kind without a shipped scenario gets one made from `models/<kind>.xml`)
+//! obstacles, and a CommonRoad world's: recorded road users, the route nominal, polyline road
+//! edges; a vehicle kind without a shipped scenario gets one made from `models/<kind>.xml`)
 //! with a filter kind, whose parameters are the first of its candidate tables (the shipped
 //! scenarios' own, then [`EXTRA_TABLES`], then the kind's defaults) the pair accepts. A
 //! filter that refuses the vehicle when the episode is assembled is skipped; the test fails
@@ -90,6 +91,16 @@ fn bases() -> Vec<Base> {
             }
         })
         .collect();
+    // A CommonRoad world (docs/commonroad.md): a recorded road user (the pedestrian), the route
+    // nominal, polyline road edges, the built-in car model.
+    let xml = root().join("data/commonroad/OSC_PedestrianCollision-1_1_T-1.xml");
+    let loaded = scenario::load(&xml, &[]).unwrap();
+    bases.push(Base {
+        name: format!("commonroad {}", loaded.scenario.name),
+        own_filter: Some(inline(&loaded.scenario.filter)),
+        text: loaded.source_text,
+        path: xml,
+    });
     let kinds: Vec<String> = crate::vehicle_registry::registry()
         .vehicle_kinds()
         .into_iter()
@@ -107,7 +118,11 @@ fn bases() -> Vec<Base> {
 }
 
 fn vehicle_kind(base: &Base) -> String {
-    scenario::parse(&base.text, &base.name, &[]).unwrap().vehicle.kind
+    // (Parsed as from its path: a CommonRoad world reads its file beside it.)
+    scenario::parse(&base.text, &base.path.display().to_string(), &[])
+        .unwrap()
+        .vehicle
+        .kind
 }
 
 /// A setup for an MJCF vehicle kind from `models/<kind>.xml`: at rest at the origin, a constant
