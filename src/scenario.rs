@@ -132,6 +132,12 @@ pub struct GoalSpec {
     /// the heading (m; a CommonRoad goal: the car's centre, b ahead of the bicycle's rear axle).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub offset: Option<f64>,
+    /// The speed (the state named `speed`, m/s) must lie in [lo, hi] too, for `time_to_goal`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub speed: Option<[f64; 2]>,
+    /// The heading (rad, modulo 2π) must lie in [lo, hi] too, for `time_to_goal`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heading: Option<[f64; 2]>,
     /// Deadline (s, > 0): `distance_to_goal` counts only the states up to it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub by: Option<f64>,
@@ -1124,6 +1130,21 @@ fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
     if let Some(offset) = goal.offset {
         if !(offset.is_finite() && offset.abs() <= OBSTACLE_EXTENT) {
             return Err(s.field_error("goal.offset", format!("expected a distance (m), found {offset}")));
+        }
+    }
+    for (key, interval) in [("goal.speed", goal.speed), ("goal.heading", goal.heading)] {
+        if let Some([lo, hi]) = interval {
+            if !(lo.is_finite()
+                && hi.is_finite()
+                && lo <= hi
+                && lo.abs() <= OBSTACLE_EXTENT
+                && hi.abs() <= OBSTACLE_EXTENT)
+            {
+                return Err(s.field_error(
+                    key,
+                    format!("expected an interval [lo, hi] with lo <= hi, found [{lo}, {hi}]"),
+                ));
+            }
         }
     }
     if let Some(after) = goal.after {

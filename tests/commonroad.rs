@@ -274,7 +274,8 @@ fn close(a: f64, b: f64) -> bool {
 
 /// Every committed file's imported scenario starts the ego where commonroad-io puts the planning
 /// problem's initial state (its centre: the rear axle plus b along the heading), draws its road
-/// edges through lanelet bound vertices, and makes its goal the planning problem's: each rectangle's corners, each lanelet's polygon (left bound,
+/// edges through lanelet bound vertices, and makes its goal the planning problem's (with its
+/// velocity and orientation intervals): each rectangle's corners, each lanelet's polygon (left bound,
 /// right bound reversed), a lone circle's disc, the time interval × the time step.
 #[test]
 fn the_ego_and_the_goal_are_the_planning_problems() {
@@ -411,6 +412,29 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
                         "{name}: {g:?} vs {e:?}"
                     );
                 }
+            }
+        }
+        // The speed and heading intervals: the hull of the goal states' (when all have one).
+        for (json_key, key) in [("velocity", "speed"), ("orientation", "heading")] {
+            let intervals: Option<Vec<(f64, f64)>> = (problem["goal_states"].as_array().unwrap().iter())
+                .map(|g| {
+                    g[json_key]
+                        .as_array()
+                        .map(|i| (i[0].as_f64().unwrap(), i[1].as_f64().unwrap()))
+                })
+                .collect();
+            let expected = intervals.map(|all| {
+                let lo = all.iter().map(|i| i.0).fold(f64::INFINITY, f64::min);
+                let hi = all.iter().map(|i| i.1).fold(f64::NEG_INFINITY, f64::max);
+                (lo, hi)
+            });
+            let got = goal.get(key).map(|i| {
+                let i = i.as_array().unwrap();
+                (i[0].as_float().unwrap(), i[1].as_float().unwrap())
+            });
+            match (got, expected) {
+                (Some(g), Some(e)) => assert!(close(g.0, e.0) && close(g.1, e.1), "{name}: {key} {g:?} vs {e:?}"),
+                (g, e) => assert_eq!(g, e, "{name}: {key}"),
             }
         }
         let window = |key: &str| goal.get(key).map(|v| v.as_float().unwrap());

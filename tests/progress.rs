@@ -308,3 +308,32 @@ fn a_negated_objective_finds_runs_that_miss_their_goal() {
     let err = stderr(&o);
     assert!(err.contains("-no_such_metric") && err.lines().count() == 1, "{err}");
 }
+
+/// A goal's speed and heading intervals: (4.67) enters the goal disc at about 3 m/s heading
+/// along the path, so the goal is reached with intervals holding that state and not with an
+/// interval of speeds it never has (then absent, the reason naming the intervals).
+#[test]
+fn the_goal_speed_and_heading_intervals_decide_reaching_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let reach = |name: &str, sets: &[&str]| {
+        let log = dir.path().join(format!("{name}.mcap"));
+        let mut extra = Vec::new();
+        for s in sets {
+            extra.extend(["--set", s]);
+        }
+        run_ok(&scenario("bicycle_obstacle_gamma_m.toml"), &log, &extra);
+        analyze_json(&log)
+    };
+    let plain = reach("plain", &[]);
+    let within = reach("within", &["goal.speed=[1.0, 5.0]", "goal.heading=[-0.5, 0.5]"]);
+    assert!(plain["time_to_goal"].as_f64().is_some(), "{plain}");
+    assert_eq!(within["time_to_goal"], plain["time_to_goal"]);
+    let too_fast = reach("fast", &["goal.speed=[20.0, 30.0]"]);
+    assert!(too_fast["time_to_goal"].is_null(), "{too_fast}");
+    let why = too_fast["missing"]["time_to_goal"].as_str().unwrap();
+    assert!(why.contains("speed in [20, 30] m/s"), "{why}");
+    let turned = reach("turned", &["goal.heading=[3.0, 3.3]"]);
+    assert!(turned["time_to_goal"].is_null(), "{turned}");
+    // The spatial distance does not depend on the intervals.
+    assert_eq!(too_fast["distance_to_goal"], plain["distance_to_goal"]);
+}

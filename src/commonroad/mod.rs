@@ -271,6 +271,22 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
     }
     // CommonRoad's goal is for the car's centre, b ahead of the bicycle's rear axle.
     t.insert("offset".into(), v(VEHICLE.b));
+    // The velocity and orientation intervals, when every goal state has one (their hull).
+    let hull = |intervals: Vec<Option<(f64, f64)>>| -> Option<toml::Value> {
+        let all: Option<Vec<(f64, f64)>> = intervals.into_iter().collect();
+        let (lo, hi) = all?
+            .into_iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (l, h)| {
+                (a.min(l), b.max(h))
+            });
+        Some(toml::Value::Array(vec![v(lo), v(hi)]))
+    };
+    if let Some(speed) = hull(problem.goals.iter().map(|g| g.velocity).collect()) {
+        t.insert("speed".into(), speed);
+    }
+    if let Some(heading) = hull(problem.goals.iter().map(|g| g.orientation).collect()) {
+        t.insert("heading".into(), heading);
+    }
     if end > 0 {
         t.insert("by".into(), v(end as f64 * cr.time_step));
     }

@@ -332,7 +332,8 @@ pub struct RunInfo {
     /// them: metadata `<role>_kind`, `<role>_label`, `<role>_description`.
     pub kinds: Vec<KindInfo>,
     /// The scenario's `[goal]`: metadata `goal_position` ("x y") and `goal_radius`, or
-    /// `goal_polygons` (JSON), and `goal_after`, `goal_by`.
+    /// `goal_polygons` (JSON), and `goal_after`, `goal_by`, `goal_offset`, `goal_speed`,
+    /// `goal_heading` ("lo hi").
     pub goal: Option<crate::scenario::GoalSpec>,
     /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
     pub requirements: Vec<(String, String)>,
@@ -397,6 +398,12 @@ impl RunInfo {
             }
             if let Some(offset) = goal.offset {
                 metadata.insert("goal_offset".to_string(), format!("{offset}"));
+            }
+            if let Some([lo, hi]) = goal.speed {
+                metadata.insert("goal_speed".to_string(), format!("{lo} {hi}"));
+            }
+            if let Some([lo, hi]) = goal.heading {
+                metadata.insert("goal_heading".to_string(), format!("{lo} {hi}"));
             }
             if let Some(by) = goal.by {
                 metadata.insert("goal_by".to_string(), format!("{by}"));

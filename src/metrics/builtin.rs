@@ -205,7 +205,7 @@ pub static METRICS: &[Metric] = &[
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("time_to_goal", SECONDS, Shape::Number, &[Topic::State], new::<TimeToGoal>,
-            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not); absent when the vehicle never enters it, the closest approach under `missing`")
+            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not) and the speed and heading in the goal's intervals (`goal_speed`, `goal_heading`, if any); absent when the vehicle never enters it so, the closest approach under `missing`")
     },
     Metric {
         applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
@@ -840,6 +840,8 @@ struct GoalApproach {
     planar: Option<Option<[usize; 2]>>,
     /// The goal's point lies ahead along a heading the log's state does not have.
     no_heading: bool,
+    /// Why the goal's speed or heading interval could not be checked.
+    unchecked: Option<&'static str>,
     closest: Option<(f64, f64)>,
     closest_by: Option<(f64, f64)>,
     reached: Option<f64>,
@@ -866,7 +868,7 @@ impl GoalApproach {
             (x, y) = (x + offset * theta.cos(), y + offset * theta.sin());
         }
         let d = goal.distance([x, y]);
-        if d <= 0.0 && self.reached.is_none() {
+        if d <= 0.0 && self.reached.is_none() && self.state_within(goal, m) {
             self.reached = Some(t);
         }
         let closer = |c: Option<(f64, f64)>| c.is_none_or(|(closest, _)| d < closest);
@@ -876,6 +878,33 @@ impl GoalApproach {
         if goal.by.is_none_or(|by| t <= by + 1e-9) && closer(self.closest_by) {
             self.closest_by = Some((d, t));
         }
+    }
+
+    /// Whether the state's speed and heading lie in the goal's intervals (no interval: yes; a
+    /// state without a `speed` or a heading to check: no, and the metric says why).
+    fn state_within(&mut self, goal: &crate::metrics::Goal, m: &proto::State) -> bool {
+        if let Some([lo, hi]) = goal.speed {
+            let speed = m.names.iter().position(|n| n == "speed").and_then(|i| m.values.get(i));
+            match speed {
+                Some(v) if (lo - 1e-12..=hi + 1e-12).contains(v) => {}
+                Some(_) => return false,
+                None => {
+                    self.unchecked = Some("the goal's speed interval needs a state named `speed`");
+                    return false;
+                }
+            }
+        }
+        if let Some((interval, index)) = goal.heading {
+            match index.and_then(|i| m.values.get(i)) {
+                Some(theta) if crate::metrics::Goal::heading_within(interval, *theta) => {}
+                Some(_) => return false,
+                None => {
+                    self.unchecked = Some("the goal's heading interval needs the log's heading (`heading_index`)");
+                    return false;
+                }
+            }
+        }
+        true
     }
 
     /// Whether the run has the metric: a goal and a planar position (absent without one, with
@@ -923,6 +952,10 @@ impl Accumulate for TimeToGoal {
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
         if !self.0.planar("time_to_goal", run, missing) {
+            return Value::Number(None);
+        }
+        if let (None, Some(why)) = (self.0.reached, self.0.unchecked) {
+            missing.insert("time_to_goal".into(), why.into());
             return Value::Number(None);
         }
         if let (None, Some(goal), Some((d, t))) = (self.0.reached, &run.goal, self.0.closest) {

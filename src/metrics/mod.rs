@@ -59,6 +59,11 @@ pub struct Goal {
     /// The point that must enter lies this far ahead of the planar position along the heading
     /// (metadata `goal_offset`, with `heading_index`: its state index).
     pub offset: Option<(f64, Option<usize>)>,
+    /// Intervals the speed (the state named `speed`) and the heading (modulo 2π, the state at
+    /// `heading_index`) must lie in when the goal is reached (metadata `goal_speed`,
+    /// `goal_heading`); with the heading's state index.
+    pub speed: Option<[f64; 2]>,
+    pub heading: Option<([f64; 2], Option<usize>)>,
     pub by: Option<f64>,
 }
 
@@ -70,12 +75,25 @@ impl Goal {
         disc.into_iter().chain(polygons).fold(f64::INFINITY, f64::min)
     }
 
+    /// Whether `theta` lies in the heading interval [lo, hi] modulo 2π.
+    pub fn heading_within([lo, hi]: [f64; 2], theta: f64) -> bool {
+        let tau = std::f64::consts::TAU;
+        hi - lo >= tau || (theta - lo).rem_euclid(tau) <= hi - lo + 1e-12
+    }
+
     /// The region in words, for a reason: the disc's centre and radius, or the polygons.
     pub fn describe(&self) -> String {
-        match self.disc {
+        let mut text = match self.disc {
             Some(([x, y], r)) => format!("within {r} m of ({x}, {y})"),
             None => format!("inside its {} polygon(s)", self.polygons.len()),
+        };
+        if let Some([lo, hi]) = self.speed {
+            text.push_str(&format!(", speed in [{lo}, {hi}] m/s"));
         }
+        if let Some(([lo, hi], _)) = self.heading {
+            text.push_str(&format!(", heading in [{lo}, {hi}] rad"));
+        }
+        text
     }
 }
 
@@ -137,6 +155,11 @@ impl RunFacts {
                     polygons,
                     after: number("goal_after"),
                     offset: number("goal_offset").map(|offset| (offset, heading)),
+                    speed: metadata.get("goal_speed").and_then(|p| numbers::<2>(p)),
+                    heading: metadata
+                        .get("goal_heading")
+                        .and_then(|p| numbers::<2>(p))
+                        .map(|i| (i, heading)),
                     by: number("goal_by"),
                 })
             },
@@ -595,6 +618,8 @@ mod tests {
             polygons: vec![square, ell],
             after: None,
             offset: None,
+            speed: None,
+            heading: None,
             by: None,
         };
         assert_eq!(goal.distance([1.0, 1.0]), 0.0);
@@ -609,9 +634,16 @@ mod tests {
             polygons: Vec::new(),
             after: None,
             offset: None,
+            speed: None,
+            heading: None,
             by: None,
         };
         assert!((disc.distance([3.0, 4.0]) - 4.0).abs() < 1e-12);
+        // Headings modulo 2π: [−0.8, −0.6] holds −0.7 and −0.7 + 2π, not 0.
         assert_eq!(disc.distance([0.5, 0.0]), 0.0);
+        let tau = std::f64::consts::TAU;
+        assert!(Goal::heading_within([-0.8, -0.6], -0.7) && Goal::heading_within([-0.8, -0.6], -0.7 + tau));
+        assert!(!Goal::heading_within([-0.8, -0.6], 0.0) && !Goal::heading_within([-0.8, -0.6], -0.5));
+        assert!(Goal::heading_within([3.0, 3.3], -3.1));
     }
 }
