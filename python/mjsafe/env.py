@@ -101,7 +101,8 @@ class Env(_Base):  # type: ignore[misc, valid-type]
         self.goal_radius: float | None = None if goal is None else float(metadata["goal_radius"])
         if self._reward is None and (self.goal is None or self._planar is None):
             raise ValueError(
-                f"{self.path}: the scenario has no [goal] (or its vehicle is not planar): "
+                f"{self.path}: the scenario has no [goal] disc for the default reward (position and "
+                "radius; a region of polygons, e.g. a CommonRoad goal, has none) or its vehicle is not planar: "
                 "give reward=callable(observation, info)"
             )
         if _spaces is not None:

@@ -31,3 +31,19 @@ def test_bad_scenarios_are_one_clear_error():
         mjsafe.sweep(scenarios=[str(DATA / "*.nothing")])
     with pytest.raises(TypeError, match="scenarios"):
         mjsafe.sweep(scenarios=str(DATA / "a.xml"))
+
+
+def test_env_steps_a_commonroad_world():
+    # The default reward needs a goal disc; a CommonRoad goal is a region of polygons.
+    with pytest.raises(ValueError, match="no \\[goal\\] disc"):
+        mjsafe.Env(DATA / "ZAM_Tutorial-1_1_T-1.xml")
+    np = pytest.importorskip("numpy")
+    env = mjsafe.Env(DATA / "ZAM_Tutorial-1_1_T-1.xml", reward=lambda observation, info: 0.0)
+    observation, _ = env.reset(seed=0)
+    assert env.state_names == ["x1", "x2", "heading", "speed"]
+    start = observation.copy()
+    for _ in range(10):
+        observation, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+    assert not terminated and not truncated
+    # The planning problem's start moves at its speed (22 m/s) along x.
+    assert observation[0] > start[0] + 1.0
