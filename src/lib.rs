@@ -28,6 +28,7 @@ pub mod models;
 pub mod mujoco;
 pub mod nominal;
 pub mod params;
+pub mod planar;
 pub mod plant;
 pub mod plot;
 pub mod predictor;

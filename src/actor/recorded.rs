@@ -17,9 +17,7 @@ pub struct RecordedState {
     pub orientation: f64,
 }
 
-/// A natural cubic spline through (t_k, y_k): on [t_k, t_{k+1}] the value
-/// y_k + b_k u + c_k u² + d_k u³ with u = t − t_k (exact at the knots: u = 0 gives y_k), second
-/// derivative continuous and 0 at both ends.
+/// A natural cubic spline through (t_k, y_k) ([`crate::planar::natural_spline`]).
 #[derive(Debug, Clone, PartialEq)]
 struct Spline {
     /// Per piece (y, b, c, d).
@@ -27,49 +25,15 @@ struct Spline {
 }
 
 impl Spline {
-    /// The spline through `values` at `times` (strictly increasing, at least 2).
     fn new(times: &[f64], values: &[f64]) -> Spline {
-        let n = times.len();
-        let h: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-        let slope: Vec<f64> = (0..n - 1).map(|k| (values[k + 1] - values[k]) / h[k]).collect();
-        // Second derivatives M (M_0 = M_{n−1} = 0): h_{k−1} M_{k−1} + 2 (h_{k−1} + h_k) M_k
-        // + h_k M_{k+1} = 6 (slope_k − slope_{k−1}), by the Thomas algorithm.
-        let mut m = vec![0.0; n];
-        if n > 2 {
-            let inner = n - 2;
-            let (mut diag, mut rhs) = (vec![0.0; inner], vec![0.0; inner]);
-            for i in 0..inner {
-                let k = i + 1;
-                diag[i] = 2.0 * (h[k - 1] + h[k]);
-                rhs[i] = 6.0 * (slope[k] - slope[k - 1]);
-                if i > 0 {
-                    let w = h[k - 1] / diag[i - 1];
-                    diag[i] -= w * h[k - 1];
-                    rhs[i] -= w * rhs[i - 1];
-                }
-            }
-            for i in (0..inner).rev() {
-                let next = if i + 1 < inner { m[i + 2] } else { 0.0 };
-                m[i + 1] = (rhs[i] - h[i + 1] * next) / diag[i];
-            }
+        Spline {
+            pieces: crate::planar::natural_spline(times, values),
         }
-        let pieces = (0..n - 1)
-            .map(|k| {
-                let b = slope[k] - h[k] * (2.0 * m[k] + m[k + 1]) / 6.0;
-                [values[k], b, 0.5 * m[k], (m[k + 1] - m[k]) / (6.0 * h[k])]
-            })
-            .collect();
-        Spline { pieces }
     }
 
     /// Value, first and second derivative on piece `k` at u = t − t_k.
     fn at(&self, k: usize, u: f64) -> [f64; 3] {
-        let [y, b, c, d] = self.pieces[k];
-        [
-            y + u * (b + u * (c + u * d)),
-            b + u * (2.0 * c + 3.0 * u * d),
-            2.0 * c + 6.0 * u * d,
-        ]
+        crate::planar::cubic_at(&self.pieces[k], u)
     }
 }
 

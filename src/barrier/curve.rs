@@ -42,93 +42,14 @@ pub struct Nearest {
     pub distance: f64,
 }
 
-/// Natural cubic spline coefficients (value, slope, half curvature, sixth of its change per
-/// unit) of `values` at `s`.
-fn spline(s: &[f64], values: &[f64]) -> Vec<[f64; 4]> {
-    let n = s.len();
-    let h: Vec<f64> = s.windows(2).map(|w| w[1] - w[0]).collect();
-    let slope: Vec<f64> = (0..n - 1).map(|k| (values[k + 1] - values[k]) / h[k]).collect();
-    let mut m = vec![0.0; n];
-    if n > 2 {
-        let inner = n - 2;
-        let (mut diag, mut rhs) = (vec![0.0; inner], vec![0.0; inner]);
-        for i in 0..inner {
-            diag[i] = 2.0 * (h[i] + h[i + 1]);
-            rhs[i] = 6.0 * (slope[i + 1] - slope[i]);
-            if i > 0 {
-                let w = h[i] / diag[i - 1];
-                diag[i] -= w * h[i];
-                rhs[i] -= w * rhs[i - 1];
-            }
-        }
-        for i in (0..inner).rev() {
-            m[i + 1] = (rhs[i] - h[i + 1] * m[i + 2]) / diag[i];
-        }
-    }
-    (0..n - 1)
-        .map(|k| {
-            [
-                values[k],
-                slope[k] - h[k] * (2.0 * m[k] + m[k + 1]) / 6.0,
-                0.5 * m[k],
-                (m[k + 1] - m[k]) / (6.0 * h[k]),
-            ]
-        })
-        .collect()
-}
-
-/// The polyline's points every `step` of its length (both ends kept).
-fn resample(points: &[[f64; 2]], step: f64) -> Vec<[f64; 2]> {
-    let lengths: Vec<f64> = points
-        .windows(2)
-        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
-        .collect();
-    let total: f64 = lengths.iter().sum();
-    let count = ((total / step).ceil() as usize).clamp(1, MAX_SAMPLES - 1);
-    let mut out = Vec::with_capacity(count + 1);
-    let (mut k, mut walked) = (0, 0.0);
-    for i in 0..=count {
-        let target = total * i as f64 / count as f64;
-        while k + 1 < lengths.len() && walked + lengths[k] < target {
-            walked += lengths[k];
-            k += 1;
-        }
-        let f = if lengths[k] > 0.0 {
-            ((target - walked) / lengths[k]).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let (a, b) = (points[k], points[k + 1]);
-        out.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
-    }
-    out
-}
-
-/// The distance from p to the polyline.
-fn polyline_distance(points: &[[f64; 2]], p: [f64; 2]) -> f64 {
-    points
-        .windows(2)
-        .map(|w| {
-            let (a, b) = (w[0], w[1]);
-            let d = [b[0] - a[0], b[1] - a[1]];
-            let l2 = d[0] * d[0] + d[1] * d[1];
-            let f = if l2 > 0.0 {
-                (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            (p[0] - a[0] - f * d[0]).hypot(p[1] - a[1] - f * d[1])
-        })
-        .fold(f64::INFINITY, f64::min)
-}
-
 impl SmoothCurve {
     /// The smooth curve of `points` (at least 2, finite, of positive length).
     pub fn new(points: &[[f64; 2]]) -> Result<SmoothCurve, String> {
         if points.len() < 2 || points.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
             return Err("expected at least 2 points with finite coordinates".into());
         }
-        let samples = resample(points, SPACING);
+        let count = ((crate::planar::length(points) / SPACING).ceil() as usize).clamp(1, MAX_SAMPLES - 1);
+        let samples = crate::planar::resample(points, count + 1);
         let mut s = Vec::with_capacity(samples.len());
         let mut total = 0.0;
         for (k, p) in samples.iter().enumerate() {
@@ -143,8 +64,8 @@ impl SmoothCurve {
         let xs: Vec<f64> = samples.iter().map(|p| p[0]).collect();
         let ys: Vec<f64> = samples.iter().map(|p| p[1]).collect();
         let mut curve = SmoothCurve {
-            x: spline(&s, &xs),
-            y: spline(&s, &ys),
+            x: crate::planar::natural_spline(&s, &xs),
+            y: crate::planar::natural_spline(&s, &ys),
             s,
             deviation: 0.0,
         };
@@ -153,7 +74,7 @@ impl SmoothCurve {
         for k in 0..curve.x.len() {
             for j in 0..16 {
                 let at = curve.s[k] + (curve.s[k + 1] - curve.s[k]) * j as f64 / 16.0;
-                deviation = deviation.max(polyline_distance(points, curve.point_at(at)));
+                deviation = deviation.max(crate::planar::polyline_distance(points, curve.point_at(at)));
             }
         }
         for p in points {
@@ -181,13 +102,7 @@ impl SmoothCurve {
     /// Position, first and second derivative at s (straight beyond the ends).
     fn derivatives(&self, s: f64) -> [[f64; 2]; 3] {
         let last = self.s[self.s.len() - 1];
-        let at = |c: &[f64; 4], u: f64| {
-            [
-                c[0] + u * (c[1] + u * (c[2] + u * c[3])),
-                c[1] + u * (2.0 * c[2] + 3.0 * u * c[3]),
-                2.0 * c[2] + 6.0 * u * c[3],
-            ]
-        };
+        let at = crate::planar::cubic_at;
         let (inside, beyond) = if s < 0.0 {
             (0.0, s)
         } else if s > last {

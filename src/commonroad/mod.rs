@@ -247,14 +247,7 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
         t.insert("radius".into(), v(*radius));
     } else {
         let mut polygons: Vec<Vec<[f64; 2]>> = shapes.iter().map(|s| shape_polygon(s)).collect();
-        polygons.extend(lanelets.iter().filter_map(|id| cr.lanelet(*id)).map(|l| {
-            l.left
-                .points
-                .iter()
-                .chain(l.right.points.iter().rev())
-                .copied()
-                .collect()
-        }));
+        polygons.extend(lanelets.iter().filter_map(|id| cr.lanelet(*id)).map(route::polygon));
         if polygons.is_empty() {
             return None;
         }

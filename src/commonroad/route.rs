@@ -30,7 +30,7 @@ pub fn centre_line(l: &Lanelet) -> Vec<[f64; 2]> {
         return left.iter().zip(right).map(|(a, b)| mid(*a, *b)).collect();
     }
     let n = left.len().max(right.len());
-    let (left, right) = (resample(left, n), resample(right, n));
+    let (left, right) = (crate::planar::resample(left, n), crate::planar::resample(right, n));
     left.iter().zip(&right).map(|(a, b)| mid(*a, *b)).collect()
 }
 
@@ -38,64 +38,21 @@ fn mid(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
     [0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])]
 }
 
-/// The polyline's length (m).
-pub fn length(points: &[[f64; 2]]) -> f64 {
-    points
-        .windows(2)
-        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
-        .sum()
-}
+pub use crate::planar::length;
 
-/// `n` ≥ 2 points at equal arc-length fractions of the polyline.
-fn resample(points: &[[f64; 2]], n: usize) -> Vec<[f64; 2]> {
-    let total = length(points);
-    let mut out = Vec::with_capacity(n);
-    let (mut segment, mut walked) = (0, 0.0);
-    for k in 0..n {
-        let target = total * k as f64 / (n - 1) as f64;
-        while segment + 2 < points.len() {
-            let l = seg_len(points, segment);
-            if walked + l >= target {
-                break;
-            }
-            walked += l;
-            segment += 1;
-        }
-        let l = seg_len(points, segment);
-        let f = if l > 0.0 {
-            ((target - walked) / l).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let (a, b) = (points[segment], points[segment + 1]);
-        out.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
-    }
-    out
-}
-
-fn seg_len(points: &[[f64; 2]], k: usize) -> f64 {
-    (points[k + 1][0] - points[k][0]).hypot(points[k + 1][1] - points[k][1])
-}
-
-/// Whether `p` lies inside the lanelet's polygon (left bound, then the right bound reversed).
-pub fn contains(l: &Lanelet, p: [f64; 2]) -> bool {
-    let polygon: Vec<[f64; 2]> = l
-        .left
+/// The lanelet's polygon: its left bound, then its right bound reversed.
+pub fn polygon(l: &Lanelet) -> Vec<[f64; 2]> {
+    l.left
         .points
         .iter()
         .chain(l.right.points.iter().rev())
         .copied()
-        .collect();
-    let mut inside = false;
-    let mut j = polygon.len() - 1;
-    for i in 0..polygon.len() {
-        let (a, b) = (polygon[i], polygon[j]);
-        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0] {
-            inside = !inside;
-        }
-        j = i;
-    }
-    inside
+        .collect()
+}
+
+/// Whether `p` lies inside the lanelet's polygon.
+pub fn contains(l: &Lanelet, p: [f64; 2]) -> bool {
+    crate::planar::polygon_contains(&polygon(l), p)
 }
 
 /// The direction (rad) of the lanelet's centre line at its point nearest to `p`.

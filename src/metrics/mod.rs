@@ -99,27 +99,9 @@ impl Goal {
 
 /// The distance from `p` to a polygon (0 inside: even-odd rule), m.
 fn polygon_distance(polygon: &[[f64; 2]], p: [f64; 2]) -> f64 {
-    let n = polygon.len();
-    let mut inside = false;
-    let mut nearest = f64::INFINITY;
-    for i in 0..n {
-        let (a, b) = (polygon[i], polygon[(i + n - 1) % n]);
-        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0] {
-            inside = !inside;
-        }
-        let d = [b[0] - a[0], b[1] - a[1]];
-        let l2 = d[0] * d[0] + d[1] * d[1];
-        let f = if l2 > 0.0 {
-            (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / l2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        nearest = nearest.min((p[0] - a[0] - f * d[0]).hypot(p[1] - a[1] - f * d[1]));
-    }
-    if inside {
-        0.0
-    } else {
-        nearest
+    match crate::planar::polygon_contains(polygon, p) {
+        true => 0.0,
+        false => crate::planar::polygon_boundary_distance(polygon, p),
     }
 }
 

@@ -137,16 +137,7 @@ impl RouteFollowing {
         let path = &self.params.path;
         let (mut best, mut best_arc) = (f64::INFINITY, 0.0);
         for k in 0..path.len() - 1 {
-            let (a, b) = (path[k], path[k + 1]);
-            let d = [b[0] - a[0], b[1] - a[1]];
-            let l2 = d[0] * d[0] + d[1] * d[1];
-            let f = if l2 > 0.0 {
-                (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let q = [a[0] + f * d[0], a[1] + f * d[1]];
-            let dist = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+            let (f, dist) = crate::planar::project_on_segment(path[k], path[k + 1], p);
             if dist < best {
                 (best, best_arc) = (dist, self.arc[k] + f * (self.arc[k + 1] - self.arc[k]));
             }
