@@ -94,6 +94,27 @@ pub enum Cell {
     S(String),
 }
 
+/// The `/actors` columns: per road user its position, velocity, acceleration, heading and
+/// whether it is absent ([`table_row`]).
+fn actor_cells(m: &proto::Actors, c: &mut Vec<Cell>, name: &mut dyn FnMut(&dyn Fn() -> String, Kind)) {
+    for a in &m.actors {
+        for (field, v) in [
+            ("x", a.x),
+            ("y", a.y),
+            ("vx", a.vx),
+            ("vy", a.vy),
+            ("ax", a.ax),
+            ("ay", a.ay),
+            ("heading", a.heading),
+        ] {
+            name(&|| format!("{}.{field}", a.name), Kind::F64);
+            c.push(Cell::F(v));
+        }
+        name(&|| format!("{}.absent", a.name), Kind::Bool);
+        c.push(Cell::B(a.absent));
+    }
+}
+
 /// The row of a table topic's record (docs/log-format.md; the table of this module's docs):
 /// its cells into `cells` (cleared first; `time` first), and with `columns` their names and
 /// kinds. The one definition of the tables' columns: `mjsafe export`, the Python tables and a
@@ -159,24 +180,7 @@ pub fn table_row(
                 c.push(Cell::B(b.obstacle));
             }
         }
-        Observed::Actors(m) => {
-            for a in &m.actors {
-                for (field, v) in [
-                    ("x", a.x),
-                    ("y", a.y),
-                    ("vx", a.vx),
-                    ("vy", a.vy),
-                    ("ax", a.ax),
-                    ("ay", a.ay),
-                    ("heading", a.heading),
-                ] {
-                    name(&|| format!("{}.{field}", a.name), Kind::F64);
-                    c.push(Cell::F(v));
-                }
-                name(&|| format!("{}.absent", a.name), Kind::Bool);
-                c.push(Cell::B(a.absent));
-            }
-        }
+        Observed::Actors(m) => actor_cells(m, c, &mut name),
         Observed::Filter(m) => {
             name(&|| "active".into(), Kind::Bool);
             name(&|| "infeasible".into(), Kind::Bool);

@@ -456,6 +456,94 @@ pub fn step_value(range: &Range, k: u64) -> String {
     format!("{v:?}")
 }
 
+/// What a sweep file sets (paths joined to its directory).
+#[derive(Default)]
+struct FileParts {
+    scenario: Option<PathBuf>,
+    scenarios: Vec<PathBuf>,
+    name: Option<String>,
+    set: Vec<String>,
+    grids: Vec<Grid>,
+    ranges: Vec<Range>,
+    /// `[random]`: count and seed.
+    random: Option<(usize, u64)>,
+}
+
+/// Reads and checks the sweep file at `path` (`command_line_scenario`: the command line names
+/// the scenario too, which the file may not).
+fn read_sweep_file(path: &Path, command_line_scenario: bool) -> Result<FileParts, SweepError> {
+    let mut parts = FileParts::default();
+    let file = path.display().to_string();
+    let err = |message: String| SweepError::File {
+        file: file.clone(),
+        message,
+    };
+    let text = crate::files::read_text_limited(path, "sweep file", crate::files::SWEEP_FILE_LIMIT)?;
+    let parsed: SweepFile = toml::from_str(&text).map_err(|e| err(e.to_string().trim().replace('\n', " ")))?;
+    if let Some(s) = parsed.scenario {
+        if command_line_scenario {
+            return Err(err(format!(
+                "key `scenario`: the sweep file names the scenario ({s}) and so does the command line; give it once"
+            )));
+        }
+        parts.scenario = Some(path.parent().unwrap_or(Path::new("")).join(s));
+    }
+    if !parsed.scenarios.is_empty() {
+        let dir = path.parent().unwrap_or(Path::new(""));
+        let patterns: Vec<String> = (parsed.scenarios.iter())
+            .map(|p| dir.join(p).display().to_string())
+            .collect();
+        parts
+            .scenarios
+            .extend(expand_scenarios(&patterns).map_err(|e| err(format!("key `scenarios`: {e}")))?);
+    }
+    if let Some(problem) = parsed.name.as_deref().and_then(scenario::file_name_problem) {
+        return Err(err(format!("key `name`: {problem}")));
+    }
+    parts.name = parsed.name;
+    parts.set = parsed.set;
+    for (i, g) in parsed.grid.into_iter().enumerate() {
+        check_key(&g.key).map_err(|m| err(format!("key `grid[{i}].key`: {m}")))?;
+        if g.values.is_empty() {
+            return Err(err(format!("key `grid[{i}].values`: expected at least one value")));
+        }
+        let mut with = Vec::with_capacity(g.with.len());
+        for (j, c) in g.with.into_iter().enumerate() {
+            check_key(&c.key).map_err(|m| err(format!("key `grid[{i}].with[{j}].key`: {m}")))?;
+            let values = c.values.unwrap_or_else(|| g.values.clone());
+            if values.len() != g.values.len() {
+                return Err(err(format!(
+                    "key `grid[{i}].with[{j}].values`: expected one value per value of the grid ({}), found {}",
+                    g.values.len(),
+                    values.len()
+                )));
+            }
+            with.push(Companion {
+                key: c.key,
+                values: values.iter().map(|v| v.to_string()).collect(),
+            });
+        }
+        parts.grids.push(Grid {
+            key: g.key,
+            values: g.values.iter().map(|v| v.to_string()).collect(),
+            with,
+        });
+    }
+    for (i, r) in parsed.range.into_iter().enumerate() {
+        let range = Range {
+            key: r.key,
+            lo: r.lo,
+            hi: r.hi,
+            step: r.step,
+        };
+        check_key(&range.key).map_err(|m| err(format!("key `range[{i}].key`: {m}")))?;
+        check_range(&range).map_err(|m| err(format!("key `range[{i}]`: {m}")))?;
+        parts.ranges.push(range);
+    }
+    parts.random = parsed.random.map(|r| (r.count, r.seed));
+    Ok(parts)
+}
+
 impl SweepSpec {
     /// Builds the sweep from a sweep file and/or command-line arguments (the arguments add
     /// grids and ranges after the file's, and `--random`/`--seed` replace the file's).
@@ -469,74 +557,12 @@ impl SweepSpec {
         let mut random_count = None;
         let mut seed = None;
         if let Some(path) = &args.sweep_file {
-            let file = path.display().to_string();
-            let err = |message: String| SweepError::File {
-                file: file.clone(),
-                message,
-            };
-            let text = crate::files::read_text_limited(path, "sweep file", crate::files::SWEEP_FILE_LIMIT)?;
-            let parsed: SweepFile = toml::from_str(&text).map_err(|e| err(e.to_string().trim().replace('\n', " ")))?;
-            if let Some(s) = parsed.scenario {
-                if scenario_path.is_some() {
-                    return Err(err(format!(
-                        "key `scenario`: the sweep file names the scenario ({s}) and so does the command line; give it once"
-                    )));
-                }
-                scenario_path = Some(path.parent().unwrap_or(Path::new("")).join(s));
-            }
-            if !parsed.scenarios.is_empty() {
-                let dir = path.parent().unwrap_or(Path::new(""));
-                let patterns: Vec<String> = (parsed.scenarios.iter())
-                    .map(|p| dir.join(p).display().to_string())
-                    .collect();
-                scenario_files.extend(expand_scenarios(&patterns).map_err(|e| err(format!("key `scenarios`: {e}")))?);
-            }
-            if let Some(problem) = parsed.name.as_deref().and_then(scenario::file_name_problem) {
-                return Err(err(format!("key `name`: {problem}")));
-            }
-            name = parsed.name;
-            set = parsed.set;
-            for (i, g) in parsed.grid.into_iter().enumerate() {
-                check_key(&g.key).map_err(|m| err(format!("key `grid[{i}].key`: {m}")))?;
-                if g.values.is_empty() {
-                    return Err(err(format!("key `grid[{i}].values`: expected at least one value")));
-                }
-                let mut with = Vec::with_capacity(g.with.len());
-                for (j, c) in g.with.into_iter().enumerate() {
-                    check_key(&c.key).map_err(|m| err(format!("key `grid[{i}].with[{j}].key`: {m}")))?;
-                    let values = c.values.unwrap_or_else(|| g.values.clone());
-                    if values.len() != g.values.len() {
-                        return Err(err(format!(
-                            "key `grid[{i}].with[{j}].values`: expected one value per value of the grid ({}), found {}",
-                            g.values.len(),
-                            values.len()
-                        )));
-                    }
-                    with.push(Companion {
-                        key: c.key,
-                        values: values.iter().map(|v| v.to_string()).collect(),
-                    });
-                }
-                grids.push(Grid {
-                    key: g.key,
-                    values: g.values.iter().map(|v| v.to_string()).collect(),
-                    with,
-                });
-            }
-            for (i, r) in parsed.range.into_iter().enumerate() {
-                let range = Range {
-                    key: r.key,
-                    lo: r.lo,
-                    hi: r.hi,
-                    step: r.step,
-                };
-                check_key(&range.key).map_err(|m| err(format!("key `range[{i}].key`: {m}")))?;
-                check_range(&range).map_err(|m| err(format!("key `range[{i}]`: {m}")))?;
-                ranges.push(range);
-            }
-            if let Some(r) = parsed.random {
-                random_count = Some(r.count);
-                seed = Some(r.seed);
+            let parts = read_sweep_file(path, scenario_path.is_some())?;
+            scenario_path = scenario_path.or(parts.scenario);
+            scenario_files.extend(parts.scenarios);
+            (name, set, grids, ranges) = (parts.name, parts.set, parts.grids, parts.ranges);
+            if let Some((count, s)) = parts.random {
+                (random_count, seed) = (Some(count), Some(s));
             }
         }
         if let Some(first) = scenario_files.first() {

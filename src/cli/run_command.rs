@@ -205,16 +205,7 @@ pub(super) fn run_scenario(
         outln!(
             "{}: {}{}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
-            metrics.collision().map_or("no collision".to_string(), |c| format!(
-                "COLLISION at t = {:.3} s with {} ({})",
-                c.time,
-                c.with,
-                if c.depth.is_nan() {
-                    "depth not in the log".to_string()
-                } else {
-                    format!("depth {:.3} m", c.depth)
-                }
-            )),
+            collision_text(&metrics),
             // Safe by not moving is said next to "no collision".
             metrics.number("stall_time").map_or(String::new(), |t| format!(
                 ", but STALLED from t = {t:.2} s (held still by the filter)"
@@ -226,24 +217,7 @@ pub(super) fn run_scenario(
                     if n > 1 { "S" } else { "" }
                 ),
             },
-            // Barriers of different units have no one min h: each its own.
-            match (metrics.min_h(), metrics.min_h_by_barrier()) {
-                (Some(h), _) => format!("{h:.3}"),
-                // Many (a CommonRoad world's): the clearance, one unit for all.
-                (None, Some(by)) if by.len() > MAX_LISTED_BARRIERS => format!(
-                    "per barrier, {} of mixed units (`mjsafe analyze`); min clearance {}",
-                    by.len(),
-                    metrics
-                        .number("min_clearance")
-                        .map_or("-".into(), |c| format!("{c:.3} m"))
-                ),
-                (None, Some(by)) => by
-                    .iter()
-                    .map(|(name, h)| format!("{h:.3} ({name})"))
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                (None, None) => "-".into(),
-            },
+            min_h_text(&metrics),
             summary.steps,
             summary.simulated_time,
             // Two significant digits below 10x (a slow run is not "0x").
@@ -454,6 +428,43 @@ fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
         for line in cr.ignored_line().into_iter().chain(cr.notes()) {
             eprintln!("{}: {line}", file.display());
         }
+    }
+}
+
+/// The summary line's collision: none, or the first one's time, road user and depth.
+fn collision_text(metrics: &RunMetrics) -> String {
+    metrics.collision().map_or("no collision".to_string(), |c| {
+        format!(
+            "COLLISION at t = {:.3} s with {} ({})",
+            c.time,
+            c.with,
+            if c.depth.is_nan() {
+                "depth not in the log".to_string()
+            } else {
+                format!("depth {:.3} m", c.depth)
+            }
+        )
+    })
+}
+
+/// The summary line's min h: one number, or — the barriers' units differing — each barrier's,
+/// or with many (a CommonRoad world's) the min clearance, one unit for all.
+fn min_h_text(metrics: &RunMetrics) -> String {
+    match (metrics.min_h(), metrics.min_h_by_barrier()) {
+        (Some(h), _) => format!("{h:.3}"),
+        (None, Some(by)) if by.len() > MAX_LISTED_BARRIERS => format!(
+            "per barrier, {} of mixed units (`mjsafe analyze`); min clearance {}",
+            by.len(),
+            metrics
+                .number("min_clearance")
+                .map_or("-".into(), |c| format!("{c:.3} m"))
+        ),
+        (None, Some(by)) => by
+            .iter()
+            .map(|(name, h)| format!("{h:.3} ({name})"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        (None, None) => "-".into(),
     }
 }
 
