@@ -29,6 +29,7 @@
 
 use std::sync::{Arc, LazyLock, RwLock, RwLockReadGuard};
 
+use crate::actor::{self, ActorMotion, MotionContext, MotionError};
 pub use crate::filter::Params;
 use crate::filter::{self, FilterContext, ParamError, SafetyFilter};
 use crate::nominal::{self, NominalContext, NominalController};
@@ -39,6 +40,7 @@ pub(crate) type Check = Arc<dyn Fn(&str, &toml::Table) -> Result<toml::Table, Pa
 type BuildFilter = Arc<dyn Fn(&toml::Table, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync>;
 type BuildNominal =
     Arc<dyn Fn(&toml::Table, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync>;
+type BuildMotion = Arc<dyn Fn(&str, &toml::Table, &MotionContext<'_>) -> Result<ActorMotion, ParamError> + Send + Sync>;
 type Label = Arc<dyn Fn(&toml::Table, &str) -> Result<String, ParamError> + Send + Sync>;
 
 pub(crate) struct Kind<B> {
@@ -88,10 +90,12 @@ pub(crate) struct Checked<B> {
     pub(crate) build: B,
 }
 
-/// Every filter and nominal kind a scenario may name (vehicle kinds: `mjsafe::vehicle_registry`).
+/// Every filter, nominal and actor motion kind a scenario may name (vehicle kinds:
+/// `mjsafe::vehicle_registry`).
 pub struct Registry {
     filters: Vec<Kind<Checked<BuildFilter>>>,
     nominals: Vec<Kind<Checked<BuildNominal>>>,
+    motions: Vec<Kind<Checked<BuildMotion>>>,
 }
 
 /// P from a kind's table (its keys without `kind`), with serde's error at the inner key.
@@ -133,6 +137,7 @@ impl Registry {
         let mut r = Registry {
             filters: Vec::new(),
             nominals: Vec::new(),
+            motions: Vec::new(),
         };
         r.add_filter("none", filter::none::build)
             .label("no filter (nominal only)")
@@ -187,7 +192,72 @@ impl Registry {
         r.add_nominal("pts", nominal::build_pts)
             .label("PTS (5.87)")
             .description("prescribed-time stabiliser of the strict-feedback system (5.87)");
+        r.add_motion("straight", actor::straight::build_straight)
+            .label("straight line")
+            .description("along a direction with a piecewise-linear acceleration profile, optionally started by the vehicle coming close");
+        r.add_motion("waypoints", actor::straight::build_waypoints)
+            .label("polyline path")
+            .description("through waypoints with a piecewise-linear acceleration profile along the path");
+        r.add_motion("recorded", crate::commonroad::build_recorded)
+            .label("recorded trajectory")
+            .description("a CommonRoad road user's recorded states, interpolated by natural cubic splines");
         r
+    }
+
+    /// Registers (or replaces) the actor motion `kind` (`[obstacles.motion] kind = …`), built
+    /// from parameters P for one obstacle; its label and description follow ([`Describe`]).
+    /// The keys of P's `validate` errors and of the build's [`MotionError`]s are relative to the
+    /// motion's table (`radius` becomes `obstacles.3.motion.radius`).
+    pub fn add_motion<P: Params + 'static>(
+        &mut self,
+        kind: &str,
+        build: impl Fn(&P, &MotionContext<'_>) -> Result<ActorMotion, MotionError> + Send + Sync + 'static,
+    ) -> Describe<'_> {
+        let build: BuildMotion = Arc::new(move |section, table, ctx| {
+            build(&parse_params::<P>(section, table)?, ctx)
+                .map_err(|e| ParamError::new(format!("{section}.{}", e.key), e.message))
+        });
+        // `Params::validate`'s keys are relative to the motion's table (the obstacle's index
+        // is not known to it).
+        let check_params = check_of::<P>();
+        let check: Check = Arc::new(move |section: &str, table: &toml::Table| {
+            check_params(section, table).map_err(|e| match e.key.starts_with(section) {
+                true => e,
+                false => ParamError::new(format!("{section}.{}", e.key), e.message),
+            })
+        });
+        add(
+            &mut self.motions,
+            kind,
+            Checked {
+                check,
+                label: label_of::<P>("motion"),
+                build,
+            },
+        )
+    }
+
+    /// The actor motion kinds, in registration order.
+    pub fn motion_kinds(&self) -> Vec<&str> {
+        self.motions.iter().map(|k| k.name.as_str()).collect()
+    }
+
+    /// Checks one obstacle's `motion` parameters (keys under `section`, `obstacles.3.motion`);
+    /// returns them normalised (defaults filled in).
+    pub fn check_motion(&self, section: &str, kind: &str, params: &toml::Table) -> Result<toml::Table, ParamError> {
+        (find(&self.motions, section, kind)?.build.check)(section, params)
+    }
+
+    /// Builds the motion of one obstacle from its `motion` table (kind and parameters), its
+    /// keys under `section` (`obstacles.3.motion`).
+    pub fn build_motion(
+        &self,
+        section: &str,
+        kind: &str,
+        params: &toml::Table,
+        ctx: &MotionContext<'_>,
+    ) -> Result<ActorMotion, ParamError> {
+        (find(&self.motions, section, kind)?.build.build)(section, params, ctx)
     }
 
     /// Registers (or replaces) the filter `kind`, built from parameters P; its label and

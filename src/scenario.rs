@@ -400,10 +400,6 @@ pub struct ObstacleSpec {
     /// then its position at t = 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub motion: Option<MotionSpec>,
-    /// The id of the road user in `[commonroad] file` whose recorded states this obstacle follows
-    /// (instead of a `motion`; docs/commonroad.md).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub recorded: Option<u64>,
     /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
     /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
     /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
@@ -440,10 +436,11 @@ pub enum ObstacleShape {
 }
 
 impl ObstacleSpec {
-    /// The obstacle's heading (a moving box's: its motion's direction) and covering circles as
-    /// (offset from its centre in the world frame, radius): one circle of `radius` at the
-    /// centre, or a box's covering circles.
-    pub fn circles(&self) -> (f64, Vec<([f64; 2], f64)>) {
+    /// The obstacle's heading (a box's: the one its motion decides, `motion_heading`, e.g. a
+    /// straight motion's direction, else its `heading`) and covering circles as (offset from its
+    /// centre in the world frame, radius): one circle of `radius` at the centre, or a box's
+    /// covering circles.
+    pub fn circles(&self, motion_heading: Option<f64>) -> (f64, Vec<([f64; 2], f64)>) {
         match self.shape {
             None => (0.0, vec![([0.0, 0.0], self.radius.unwrap_or(0.0))]),
             Some(ObstacleShape::Box {
@@ -452,11 +449,7 @@ impl ObstacleSpec {
                 heading,
                 circles,
             }) => {
-                let heading = match &self.motion {
-                    // (a box moves along a straight line only: validate_motion)
-                    Some(m) => m.direction.map_or(0.0, |d| d[1].atan2(d[0])),
-                    None => heading.unwrap_or(0.0),
-                };
+                let heading = motion_heading.or(heading).unwrap_or(0.0);
                 let rectangle = crate::footprint::Rectangle {
                     length,
                     width,
@@ -475,65 +468,45 @@ impl ObstacleSpec {
     }
 }
 
-/// A moving obstacle's motion (`[obstacles.motion]`, docs/actors.md): a straight line from its
-/// `centre` along `direction`, with a piecewise-linear acceleration profile.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// A moving obstacle's motion (`[obstacles.motion]`, docs/actors.md): a registered motion
+/// kind and its parameters (`crate::registry::Registry::add_motion`). Without `kind`, a table
+/// with `waypoints` is `waypoints` and any other `straight` (the files written before motions
+/// had kinds).
+#[derive(Debug, Clone, PartialEq)]
 pub struct MotionSpec {
-    /// Direction of travel (any non-zero vector; only its direction is used). Either this or
-    /// `waypoints`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub direction: Option<[f64; 2]>,
-    /// A polyline path: the points the actor passes after its `centre`, in order (it goes on
-    /// along the last segment after the last point; at most 64).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub waypoints: Vec<[f64; 2]>,
-    /// Initial speed (m/s, ≥ `min_speed`).
-    #[serde(default)]
-    pub speed: f64,
-    /// Breakpoints [time (s), acceleration (m/s²)] of the acceleration along the direction:
-    /// linear between them, 0 before the first, the last value after the last (equal times make
-    /// a step; e.g. braking at 6 m/s² from t = 1 s: `[[1.0, 0.0], [1.0, -6.0]]`).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub acceleration: Vec<[f64; 2]>,
-    /// The speed braking stops at (m/s): the actor never goes slower or backwards.
-    #[serde(default)]
-    pub min_speed: f64,
-    /// The profile starts when the vehicle first comes within this distance (m) of the actor's
-    /// centre, its times counted from then (until then the actor keeps its initial speed).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub trigger_distance: Option<f64>,
-    /// Seeded uniform variations (± each amplitude) of the motion's parameters.
-    #[serde(default, skip_serializing_if = "MotionJitter::is_none")]
-    pub jitter: MotionJitter,
+    pub kind: String,
+    pub params: toml::Table,
 }
 
-/// ± amplitudes of a motion's seeded uniform variations (`[obstacles.motion.jitter]`), drawn
-/// from the scenario's `seed`, one draw per obstacle and parameter.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MotionJitter {
-    /// Initial speed (m/s; the result is kept ≥ `min_speed`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub speed: Option<f64>,
-    /// Every breakpoint time of the acceleration profile, shifted together (s; kept ≥ 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub time: Option<f64>,
-    /// Every acceleration of the profile, scaled together by 1 ± this fraction.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub acceleration: Option<f64>,
-    /// The trigger distance (m; kept > 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub trigger_distance: Option<f64>,
-    /// The start position, along the direction of travel (m).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub along: Option<f64>,
+impl MotionSpec {
+    /// A motion kind with its parameters (not yet checked).
+    pub fn new(kind: &str, params: toml::Table) -> MotionSpec {
+        MotionSpec {
+            kind: kind.to_string(),
+            params,
+        }
+    }
 }
 
-impl MotionJitter {
-    /// No variation at all.
-    pub fn is_none(&self) -> bool {
-        *self == MotionJitter::default()
+impl<'de> Deserialize<'de> for MotionSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let mut params = toml::Table::deserialize(deserializer)?;
+        match params.remove("kind") {
+            Some(toml::Value::String(kind)) => Ok(MotionSpec { kind, params }),
+            Some(other) => Err(D::Error::custom(format!(
+                "key `kind`: expected a string, found {}",
+                other.type_str()
+            ))),
+            None if params.contains_key("waypoints") => Ok(MotionSpec::new("waypoints", params)),
+            None => Ok(MotionSpec::new("straight", params)),
+        }
+    }
+}
+
+impl Serialize for MotionSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        KindSpec::new(&self.kind, self.params.clone()).serialize(serializer)
     }
 }
 
@@ -772,6 +745,13 @@ fn parse_with_world(
     scenario.filter.params = registry
         .check_filter(&scenario.filter.kind, &scenario.filter.params)
         .map_err(field)?;
+    for (i, o) in scenario.obstacles.iter_mut().enumerate() {
+        if let Some(m) = &mut o.motion {
+            m.params = registry
+                .check_motion(&format!("obstacles.{i}.motion"), &m.kind, &m.params)
+                .map_err(field)?;
+        }
+    }
     Ok((scenario, world))
 }
 
@@ -812,21 +792,6 @@ fn commonroad_world(
     let (cr, defaults) = crate::commonroad::defaults(&spec, dir).map_err(|(key, message)| field(key, message))?;
     crate::commonroad::fill(table, defaults, overrides);
     Ok(Some(cr))
-}
-
-/// Checks obstacle `i`'s `recorded = id`: a `[commonroad]` file with that dynamic road user, and
-/// no `motion` or `following` besides.
-fn check_recorded(s: &LoadedScenario, i: usize, o: &ObstacleSpec, id: u64) -> Result<(), ScenarioError> {
-    let key = format!("obstacles.{i}.recorded");
-    if o.motion.is_some() || o.following.is_some() {
-        return Err(s.field_error(&key, "a recorded road user has no `motion` or `following` besides"));
-    }
-    let Some(cr) = &s.commonroad else {
-        return Err(s.field_error(&key, "expected a `[commonroad] file` whose road user it names"));
-    };
-    crate::commonroad::recorded_motion(cr, id)
-        .map(|_| ())
-        .map_err(|e| s.field_error(&key, e))
 }
 
 /// The field a dotted override key names, spelled one way: array indices as numbers
@@ -1357,10 +1322,15 @@ fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Re
         .check(OBSTACLE_EXTENT)
         .map_err(|e| s.field_error(&format!("obstacles.{i}.shape.{}", e.key), e.message))?;
     match heading {
-        Some(_) if o.motion.is_some() => {
+        Some(_)
+            if motion_of(s, i)
+                .ok()
+                .flatten()
+                .is_some_and(|m| m.layout_heading().is_some()) =>
+        {
             return Err(s.field_error(
                 &format!("obstacles.{i}.shape.heading"),
-                "a moving box's heading follows its motion's direction: expected no `heading`",
+                "a box moving along a line follows its motion's direction: expected no `heading`",
             ));
         }
         Some(h) if !h.is_finite() => {
@@ -1374,104 +1344,31 @@ fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Re
     Ok(())
 }
 
-fn validate_motion(s: &LoadedScenario, i: usize, o: &ObstacleSpec, m: &MotionSpec) -> Result<(), ScenarioError> {
-    let jitters = [
-        ("speed", m.jitter.speed),
-        ("time", m.jitter.time),
-        ("acceleration", m.jitter.acceleration),
-        ("trigger_distance", m.jitter.trigger_distance),
-        ("along", m.jitter.along),
-    ];
-    for (key, value) in jitters {
-        if let Some(v) = value {
-            if !(v.is_finite() && (0.0..=OBSTACLE_EXTENT).contains(&v)) {
-                return Err(s.field_error(
-                    &format!("obstacles.{i}.motion.jitter.{key}"),
-                    format!("expected an amplitude >= 0, found {v}"),
-                ));
-            }
-        }
-    }
-    if m.direction.is_some() != m.waypoints.is_empty() {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.motion"),
-            "expected either a `direction` or `waypoints` (a path of at least one point after the centre), not both",
-        ));
-    }
-    if o.shape.is_some() && !m.waypoints.is_empty() {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.motion.waypoints"),
-            "a box moves along a straight `direction` only (its covering circles keep the heading it starts with)",
-        ));
-    }
-    if m.jitter.trigger_distance.is_some() && m.trigger_distance.is_none() {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.motion.jitter.trigger_distance"),
-            "expected a `trigger_distance` to vary",
-        ));
-    }
-    if let Some(v) = m.speed.is_finite().then_some(m.speed).filter(|v| v.abs() > 1e6) {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.motion.speed"),
-            format!("expected a speed within 1e6 m/s, found {v}"),
-        ));
-    }
-    crate::actor::ActorMotion::new(&m.straight(o.centre), m.trigger_distance)
+fn validate_motion(s: &LoadedScenario, i: usize) -> Result<(), ScenarioError> {
+    motion_of(s, i)
         .map(|_| ())
-        .map_err(|e| s.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))
+        .map_err(|e| s.field_error(&e.key, e.message))
 }
 
-impl MotionSpec {
-    /// The motion of obstacle `index` from `start` with its seeded variations drawn from
-    /// `seed`, and its trigger distance.
-    pub fn realised(&self, start: [f64; 2], seed: u64, index: usize) -> (crate::actor::StraightMotion, Option<f64>) {
-        use crate::random::{symmetric_unit, Stream};
-        let draw = |amplitude: Option<f64>, component: u64| {
-            amplitude.map_or(0.0, |a| {
-                a * symmetric_unit(seed, Stream::ActorMotion, index as u64, component)
-            })
-        };
-        let mut motion = self.straight(start);
-        motion.speed = (motion.speed + draw(self.jitter.speed, 0)).max(motion.min_speed);
-        let shift = draw(self.jitter.time, 1);
-        let scale = 1.0 + draw(self.jitter.acceleration, 2);
-        for [t, a] in &mut motion.acceleration {
-            *t = (*t + shift).max(0.0);
-            *a *= scale;
-        }
-        let along = draw(self.jitter.along, 3);
-        if along != 0.0 {
-            // Along the first segment's direction (the path's points move with the start).
-            let d = self
-                .waypoints
-                .first()
-                .map_or(motion.direction, |w| [w[0] - start[0], w[1] - start[1]]);
-            let norm = d[0].hypot(d[1]);
-            if norm > 0.0 {
-                let shift = [along * d[0] / norm, along * d[1] / norm];
-                motion.start = [start[0] + shift[0], start[1] + shift[1]];
-                for w in &mut motion.waypoints {
-                    *w = [w[0] + shift[0], w[1] + shift[1]];
-                }
-            }
-        }
-        let trigger = self
-            .trigger_distance
-            .map(|d| (d + draw(self.jitter.trigger_distance, 4)).max(1e-3));
-        (motion, trigger)
-    }
-
-    /// The straight-line motion from `start` (without the jitter).
-    pub fn straight(&self, start: [f64; 2]) -> crate::actor::StraightMotion {
-        crate::actor::StraightMotion {
-            start,
-            direction: self.direction.unwrap_or([0.0; 2]),
-            waypoints: self.waypoints.clone(),
-            speed: self.speed,
-            acceleration: self.acceleration.clone(),
-            min_speed: self.min_speed,
-        }
-    }
+/// Obstacle `i`'s motion built by its registered kind (None for an obstacle that stands), with
+/// its seeded variations; errors name the scenario key.
+pub fn motion_of(s: &LoadedScenario, i: usize) -> Result<Option<crate::actor::ActorMotion>, crate::params::ParamError> {
+    let sc = &s.scenario;
+    let o = &sc.obstacles[i];
+    let Some(m) = &o.motion else {
+        return Ok(None);
+    };
+    let ctx = crate::actor::MotionContext {
+        centre: o.centre,
+        seed: sc.seed,
+        index: i,
+        boxed: o.shape.is_some(),
+        commonroad: s.commonroad.as_deref(),
+    };
+    let section = format!("obstacles.{i}.motion");
+    crate::registry::registry()
+        .build_motion(&section, &m.kind, &m.params, &ctx)
+        .map(Some)
 }
 
 /// `barriers` and `obstacles`: shapes, extents, times, and one name each.
@@ -1550,11 +1447,8 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
                 format!("expected a time >= 0, found {}", o.appear_at),
             ));
         }
-        if let Some(m) = &o.motion {
-            validate_motion(s, i, o, m)?;
-        }
-        if let Some(id) = o.recorded {
-            check_recorded(s, i, o, id)?;
+        if o.motion.is_some() {
+            validate_motion(s, i)?;
         }
         if let Some(f) = &o.following {
             for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {

@@ -5,13 +5,13 @@
 
 use serde::{Deserialize, Serialize};
 
-use std::sync::Arc;
-
 use crate::barrier::{BarrierForm, Constraint};
 
 pub mod recorded;
+pub mod straight;
 
 pub use recorded::{RecordedMotion, RecordedState};
+pub use straight::{MotionJitter, PathParams, StraightActor, StraightMotion, Trajectory};
 
 /// Most breakpoints of an acceleration profile.
 pub const MAX_BREAKPOINTS: usize = 64;
@@ -71,32 +71,6 @@ impl ActorState {
     }
 }
 
-/// Motion from `start` along `direction` (or through `waypoints`) at `speed`, accelerating along
-/// the path by the profile a(t) through the breakpoints (t, a) (linear between them, 0 before
-/// the first, the last value after the last; equal times make a step), the speed held at
-/// `min_speed` where braking would take it below (no reversing).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StraightMotion {
-    pub start: [f64; 2],
-    /// Any non-zero vector; only its direction is used (ignored with `waypoints`).
-    pub direction: [f64; 2],
-    /// A polyline path instead: the points the actor passes after `start`, in order (it goes on
-    /// along the last segment's direction after the last); at most [`MAX_WAYPOINTS`].
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub waypoints: Vec<[f64; 2]>,
-    /// Initial speed ≥ 0 (m/s).
-    #[serde(default)]
-    pub speed: f64,
-    /// Breakpoints (t, a) of the acceleration profile, t non-decreasing (s, m/s²); the last
-    /// value holds after the last breakpoint.
-    #[serde(default)]
-    pub acceleration: Vec<[f64; 2]>,
-    /// The speed braking stops at (m/s, default 0).
-    #[serde(default)]
-    pub min_speed: f64,
-}
-
 /// A motion whose parameters cannot be used: the key and what was expected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{key}: {message}")]
@@ -105,276 +79,98 @@ pub struct MotionError {
     pub message: String,
 }
 
-fn motion_error(key: &'static str, message: impl Into<String>) -> MotionError {
+pub(crate) fn motion_error(key: &'static str, message: impl Into<String>) -> MotionError {
     MotionError {
         key,
         message: message.into(),
     }
 }
 
-/// One piece of the speed profile: from time `t` at arc length `s` and speed `v`, with
-/// acceleration a + j (τ − t) (or held at the minimum speed: a = j = 0).
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Piece {
-    t: f64,
-    s: f64,
-    v: f64,
-    a: f64,
-    j: f64,
-}
-
-impl Piece {
-    fn at(&self, t: f64) -> (f64, f64, f64) {
-        let d = t - self.t;
-        let a = self.a + self.j * d;
-        let v = self.v + self.a * d + 0.5 * self.j * d * d;
-        let s = self.s + self.v * d + 0.5 * self.a * d * d + self.j * d * d * d / 6.0;
-        (s, v, a)
-    }
-}
-
-/// A [`StraightMotion`] checked and integrated in closed form: its state at any time exactly.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Trajectory {
-    start: [f64; 2],
-    unit: [f64; 2],
-    /// The path's segments after the first (from `start` along `unit`): (arc length where it
-    /// starts, its start point, its unit direction); the last extends to +∞.
-    bends: Vec<(f64, [f64; 2], [f64; 2])>,
-    min_speed: f64,
-    /// In time order; the last extends to +∞.
-    pieces: Vec<Piece>,
-}
-
-impl Trajectory {
-    /// Checks `motion` (finite values, a non-zero direction, speeds ≥ 0 with the initial one
-    /// at least `min_speed`, at most [`MAX_BREAKPOINTS`] breakpoints in time order from t ≥ 0)
-    /// and integrates its speed profile.
-    pub fn new(motion: &StraightMotion) -> Result<Trajectory, MotionError> {
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        if !finite(&motion.start) {
-            return Err(motion_error("start", "expected two finite coordinates (m)"));
-        }
-        if motion.waypoints.len() > MAX_WAYPOINTS {
-            return Err(motion_error(
-                "waypoints",
-                format!(
-                    "expected at most {MAX_WAYPOINTS} points, found {}",
-                    motion.waypoints.len()
-                ),
-            ));
-        }
-        // The path's segments: each from the previous point, non-zero and finite.
-        let mut segments = Vec::with_capacity(motion.waypoints.len());
-        let mut from = motion.start;
-        for (k, w) in motion.waypoints.iter().enumerate() {
-            let d = [w[0] - from[0], w[1] - from[1]];
-            let length = d[0].hypot(d[1]);
-            if !(finite(w) && length.is_finite() && length > 1e-9) {
-                return Err(motion_error(
-                    "waypoints",
-                    format!("expected finite points, each apart from the one before it (point {k} is not)"),
-                ));
-            }
-            segments.push((from, [d[0] / length, d[1] / length], length));
-            from = *w;
-        }
-        let (direction, norm) = match segments.first() {
-            Some((_, unit, _)) => (*unit, 1.0),
-            None => (motion.direction, motion.direction[0].hypot(motion.direction[1])),
-        };
-        if !(norm.is_finite() && norm > 0.0) {
-            return Err(motion_error("direction", "expected a finite, non-zero vector"));
-        }
-        let mut bends = Vec::with_capacity(segments.len().saturating_sub(1));
-        let mut arc = 0.0;
-        for pair in segments.windows(2) {
-            arc += pair[0].2;
-            bends.push((arc, pair[1].0, pair[1].1));
-        }
-        if !(motion.min_speed.is_finite() && motion.min_speed >= 0.0) {
-            return Err(motion_error(
-                "min_speed",
-                format!("expected a speed >= 0 (m/s), found {}", motion.min_speed),
-            ));
-        }
-        if !(motion.speed.is_finite() && motion.speed >= motion.min_speed) {
-            return Err(motion_error(
-                "speed",
-                format!(
-                    "expected a speed >= min_speed = {} (m/s), found {}",
-                    motion.min_speed, motion.speed
-                ),
-            ));
-        }
-        if motion.acceleration.len() > MAX_BREAKPOINTS {
-            return Err(motion_error(
-                "acceleration",
-                format!(
-                    "expected at most {MAX_BREAKPOINTS} breakpoints, found {}",
-                    motion.acceleration.len()
-                ),
-            ));
-        }
-        let mut previous = 0.0;
-        for [t, a] in &motion.acceleration {
-            if !(t.is_finite() && a.is_finite() && *t >= previous) {
-                return Err(motion_error(
-                    "acceleration",
-                    "expected [time, acceleration] pairs, finite, with times >= 0 in non-decreasing order",
-                ));
-            }
-            previous = *t;
-        }
-        let unit = [direction[0] / norm, direction[1] / norm];
-        let mut trajectory = Trajectory {
-            start: motion.start,
-            unit,
-            bends,
-            min_speed: motion.min_speed,
-            pieces: Vec::with_capacity(3 * motion.acceleration.len() + 2),
-        };
-        // The profile's linear segments: 0 before the first breakpoint, the last value after
-        // the last.
-        let mut segments: Vec<(f64, f64, f64)> = Vec::with_capacity(motion.acceleration.len() + 1);
-        segments.push((0.0, 0.0, 0.0));
-        for pair in motion.acceleration.windows(2) {
-            let ([t0, a0], [t1, a1]) = (pair[0], pair[1]);
-            if t1 > t0 {
-                segments.push((t0, a0, (a1 - a0) / (t1 - t0)));
-            }
-        }
-        if let Some([t, a]) = motion.acceleration.last() {
-            segments.push((*t, *a, 0.0));
-        }
-        // Segment ends: the next segment's start.
-        let ends: Vec<f64> = segments
-            .iter()
-            .skip(1)
-            .map(|s| s.0)
-            .chain(std::iter::once(f64::INFINITY))
-            .collect();
-        let (mut s, mut v) = (0.0, motion.speed);
-        for (&(t0, a0, j), &t1) in segments.iter().zip(&ends) {
-            trajectory.integrate_segment(t0, t1, a0, j, &mut s, &mut v);
-        }
-        Ok(trajectory)
-    }
-
-    /// Appends the pieces of one profile segment [t0, t1) with a(t) = a0 + j (t − t0), from
-    /// arc length `s` and speed `v` (updated to the segment's end), holding the speed at the
-    /// minimum while the profile would take it lower.
-    fn integrate_segment(&mut self, t0: f64, t1: f64, a0: f64, j: f64, s: &mut f64, v: &mut f64) {
-        let mut t = t0;
-        while t < t1 {
-            let a_now = a0 + j * (t - t0);
-            let held = *v <= self.min_speed && (a_now < 0.0 || (a_now == 0.0 && j < 0.0));
-            if held {
-                // Held until a(t) turns positive (never within the segment unless j > 0).
-                let release = if j > 0.0 { t0 - a0 / j } else { f64::INFINITY };
-                let end = release.min(t1);
-                self.pieces.push(Piece {
-                    t,
-                    s: *s,
-                    v: self.min_speed,
-                    a: 0.0,
-                    j: 0.0,
-                });
-                if end.is_infinite() {
-                    return;
-                }
-                (*s, *v) = (*s + self.min_speed * (end - t), self.min_speed);
-                t = end;
-            } else {
-                let piece = Piece {
-                    t,
-                    s: *s,
-                    v: *v,
-                    a: a_now,
-                    j,
-                };
-                let stop = first_time_at_speed(&piece, self.min_speed);
-                let end = stop.min(t1);
-                self.pieces.push(piece);
-                if end.is_infinite() {
-                    return;
-                }
-                let (s_end, v_end, _) = piece.at(end);
-                (*s, *v) = (
-                    s_end,
-                    if end == stop {
-                        self.min_speed
-                    } else {
-                        v_end.max(self.min_speed)
-                    },
-                );
-                t = end;
-            }
-        }
-    }
-
-    /// The actor's true state at time t ≥ 0 (before 0: at the start, moving as at 0).
-    pub fn state_at(&self, t: f64) -> ActorState {
-        let (s, v, a) = self.profile_at(t);
-        self.at_arc(s, v, a)
-    }
-
-    /// Arc length, speed and acceleration along the path at time t.
-    fn profile_at(&self, t: f64) -> (f64, f64, f64) {
-        let index = self.pieces.partition_point(|p| p.t <= t).saturating_sub(1);
-        self.pieces[index].at(t)
-    }
-
-    /// The state at arc length s with speed v and acceleration a along the path (along a
-    /// polyline, the segment's tangent: the turn at a waypoint is instantaneous).
-    fn at_arc(&self, s: f64, v: f64, a: f64) -> ActorState {
-        let bend = self.bends.partition_point(|b| b.0 <= s);
-        let (s0, from, [ux, uy]) = match bend {
-            0 => (0.0, self.start, self.unit),
-            k => self.bends[k - 1],
-        };
-        let s = s - s0;
-        ActorState {
-            position: [from[0] + s * ux, from[1] + s * uy],
-            velocity: [v * ux, v * uy],
-            acceleration: [a * ux, a * uy],
-            heading: uy.atan2(ux),
-            ..ActorState::default()
-        }
-    }
-}
-
 /// How far away an actor that does not exist is parked (m).
 pub const PARKED: f64 = 1e7;
 
-/// An actor's true motion over a run: along a line or polyline ([`StraightActor`]) or through
-/// recorded states ([`RecordedMotion`], shared between the run's copies).
-#[derive(Debug, Clone, PartialEq)]
-pub enum ActorMotion {
-    Straight(StraightActor),
-    Recorded(Arc<RecordedMotion>),
+/// A kind of actor motion (`[obstacles.motion] kind = …`, docs/actors.md): the actor's true
+/// state at any time of the run. Each kind is its own module, registered as filters are
+/// ([`crate::registry::Registry::add_motion`]): `straight` and `waypoints` ([`straight`]),
+/// `recorded` (a CommonRoad recording, [`recorded`]).
+pub trait Motion: Send + Sync + std::fmt::Debug {
+    /// The actor's true state at time t, as far as the run has decided it.
+    fn state_at(&self, t: f64) -> ActorState;
+
+    /// Whether the actor exists at t (default: always).
+    fn exists_at(&self, _t: f64) -> bool {
+        true
+    }
+
+    /// The heading (rad) a box's covering circles are laid out at when the motion decides it (a
+    /// box moving along a line faces its direction); None: the shape's own `heading`.
+    fn layout_heading(&self) -> Option<f64> {
+        None
+    }
+
+    /// Fires the motion's trigger at t if the vehicle at `vehicle` sets it off; returns whether
+    /// it fired now (default: no trigger).
+    fn check_trigger(&mut self, _t: f64, _vehicle: [f64; 2]) -> bool {
+        false
+    }
+
+    /// When the trigger fired, if it has.
+    fn triggered_at(&self) -> Option<f64> {
+        None
+    }
+
+    /// Marks the trigger fired at `t` (a copy of the motion following the run's own).
+    fn set_triggered_at(&mut self, _t: f64) {}
+
+    /// A copy (the controller keeps its own, which follows the run's triggers).
+    fn clone_motion(&self) -> Box<dyn Motion>;
+}
+
+/// What a motion kind is built from besides its parameters: the obstacle it moves.
+#[derive(Debug, Clone, Copy)]
+pub struct MotionContext<'a> {
+    /// The obstacle's `centre` (m): where a motion along a path starts.
+    pub centre: [f64; 2],
+    /// The scenario's seed and the obstacle's index: the seeded variations' draws.
+    pub seed: u64,
+    pub index: usize,
+    /// Whether the obstacle is a box (`shape`), not a circle.
+    pub boxed: bool,
+    /// The scenario's CommonRoad file, if it names one (recorded road users).
+    pub commonroad: Option<&'a mjsafe_commonroad::CommonRoad>,
+}
+
+/// An actor's true motion over a run: one registered [`Motion`] kind.
+#[derive(Debug)]
+pub struct ActorMotion(Box<dyn Motion>);
+
+impl Clone for ActorMotion {
+    fn clone(&self) -> Self {
+        ActorMotion(self.0.clone_motion())
+    }
 }
 
 impl ActorMotion {
-    /// The motion along a line of `motion` ([`StraightActor::new`]).
-    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<ActorMotion, MotionError> {
-        Ok(ActorMotion::Straight(StraightActor::new(motion, trigger_distance)?))
+    /// The run's motion of one kind.
+    pub fn new(motion: impl Motion + 'static) -> ActorMotion {
+        ActorMotion(Box::new(motion))
     }
 
     /// The actor's true state at time t, as far as the run has decided it.
+    #[inline]
     pub fn state_at(&self, t: f64) -> ActorState {
-        match self {
-            ActorMotion::Straight(m) => m.state_at(t),
-            ActorMotion::Recorded(m) => m.state_at(t),
-        }
+        self.0.state_at(t)
     }
 
     /// Whether the actor exists at t (a recorded one: from its first recorded state to its last).
+    #[inline]
     pub fn exists_at(&self, t: f64) -> bool {
-        match self {
-            ActorMotion::Straight(_) => true,
-            ActorMotion::Recorded(m) => m.exists_at(t),
-        }
+        self.0.exists_at(t)
+    }
+
+    /// The heading a box's covering circles are laid out at, if the motion decides it.
+    pub fn layout_heading(&self) -> Option<f64> {
+        self.0.layout_heading()
     }
 
     /// Where the actor is at t for the barriers, the plant and the controller: its true state, or
@@ -391,134 +187,20 @@ impl ActorMotion {
         }
     }
 
-    /// Fires a trigger ([`StraightActor::check_trigger`]; a recording has none).
+    /// Fires the motion's trigger ([`Motion::check_trigger`]).
     pub fn check_trigger(&mut self, t: f64, vehicle: [f64; 2]) -> bool {
-        match self {
-            ActorMotion::Straight(m) => m.check_trigger(t, vehicle),
-            ActorMotion::Recorded(_) => false,
-        }
+        self.0.check_trigger(t, vehicle)
     }
 
     /// When the trigger fired, if it has.
     pub fn triggered_at(&self) -> Option<f64> {
-        match self {
-            ActorMotion::Straight(m) => m.triggered_at(),
-            ActorMotion::Recorded(_) => None,
-        }
+        self.0.triggered_at()
     }
 
     /// Marks the trigger fired at `t` (a copy of the motion following the run's own).
     pub fn set_triggered_at(&mut self, t: f64) {
-        if let ActorMotion::Straight(m) = self {
-            m.set_triggered_at(t);
-        }
+        self.0.set_triggered_at(t)
     }
-}
-
-/// An actor's true motion over a run: its [`Trajectory`], started at t = 0 or, with a trigger
-/// distance, when the vehicle first comes that close to the actor's centre (the profile's
-/// times then count from that moment; until it, the actor keeps its initial speed).
-#[derive(Debug, Clone, PartialEq)]
-pub struct StraightActor {
-    trajectory: Trajectory,
-    trigger_distance: Option<f64>,
-    /// When the trigger fired (None: not yet, or no trigger).
-    triggered_at: Option<f64>,
-    /// Initial speed along the unit direction, for the state before the trigger.
-    speed: f64,
-}
-
-impl StraightActor {
-    /// The motion of `motion`, started at once (`trigger_distance` None) or by the vehicle
-    /// coming within `trigger_distance` metres (> 0, finite) of the actor's centre.
-    pub fn new(motion: &StraightMotion, trigger_distance: Option<f64>) -> Result<StraightActor, MotionError> {
-        if let Some(d) = trigger_distance {
-            if !(d.is_finite() && d > 0.0) {
-                return Err(motion_error(
-                    "trigger_distance",
-                    format!("expected a distance > 0 (m), found {d}"),
-                ));
-            }
-        }
-        Ok(StraightActor {
-            trajectory: Trajectory::new(motion)?,
-            trigger_distance,
-            triggered_at: None,
-            speed: motion.speed,
-        })
-    }
-
-    /// The actor's true state at time t, as far as the run has decided it (an actor waiting
-    /// for its trigger moves on at its initial speed).
-    pub fn state_at(&self, t: f64) -> ActorState {
-        match (self.trigger_distance, self.triggered_at) {
-            (None, _) => self.trajectory.state_at(t),
-            (Some(_), None) => self.cruising(t),
-            (Some(_), Some(at)) if t < at => self.cruising(t),
-            (Some(_), Some(at)) => {
-                let (s, v, a) = self.trajectory.profile_at(t - at);
-                self.trajectory.at_arc(self.speed * at + s, v, a)
-            }
-        }
-    }
-
-    /// Before the trigger: the initial speed held from the start.
-    fn cruising(&self, t: f64) -> ActorState {
-        self.trajectory.at_arc(self.speed * t, self.speed, 0.0)
-    }
-
-    /// Fires the trigger at time t if the vehicle at `vehicle` is within its distance of the
-    /// actor's centre and it has not fired yet; returns whether it fired now.
-    pub fn check_trigger(&mut self, t: f64, vehicle: [f64; 2]) -> bool {
-        let Some(distance) = self.trigger_distance else {
-            return false;
-        };
-        if self.triggered_at.is_some() {
-            return false;
-        }
-        let o = self.cruising(t).position;
-        if (vehicle[0] - o[0]).hypot(vehicle[1] - o[1]) <= distance {
-            self.triggered_at = Some(t);
-            return true;
-        }
-        false
-    }
-
-    /// When the trigger fired, if it has.
-    pub fn triggered_at(&self) -> Option<f64> {
-        self.triggered_at
-    }
-
-    /// Marks the trigger fired at `t` (a copy of the motion following the run's own).
-    pub fn set_triggered_at(&mut self, t: f64) {
-        if self.trigger_distance.is_some() {
-            self.triggered_at = Some(t);
-        }
-    }
-}
-
-/// The first time ≥ piece.t at which the piece's speed falls to `v_min` while decreasing; +∞ if
-/// never.
-fn first_time_at_speed(p: &Piece, v_min: f64) -> f64 {
-    // v(d) = v + a d + ½ j d² = v_min, smallest d > 0 with v'(d) < 0.
-    let (c, b, a2) = (p.v - v_min, p.a, 0.5 * p.j);
-    let mut roots = [f64::INFINITY; 2];
-    if a2.abs() < 1e-15 {
-        if b < 0.0 {
-            roots[0] = -c / b;
-        }
-    } else {
-        let disc = b * b - 4.0 * a2 * c;
-        if disc >= 0.0 {
-            let q = disc.sqrt();
-            roots = [(-b - q) / (2.0 * a2), (-b + q) / (2.0 * a2)];
-        }
-    }
-    roots
-        .iter()
-        .filter(|d| d.is_finite() && **d > 1e-12 && p.a + p.j * **d <= 0.0)
-        .fold(f64::INFINITY, |m, d| m.min(*d))
-        + p.t
 }
 
 /// What the controller assumes of an actor's motion over a channel's delay (a scenario section
@@ -747,7 +429,7 @@ mod tests {
             acceleration: vec![[0.5, -2.0]],
             min_speed: 0.0,
         };
-        let mut motion = ActorMotion::new(&m, Some(5.0)).unwrap();
+        let mut motion = ActorMotion::new(StraightActor::new(&m, Some(5.0)).unwrap());
         assert_eq!(motion.state_at(3.0).position, [10.0, 3.0]);
         assert!(!motion.check_trigger(1.0, [0.0, 0.0]), "10 m away");
         assert!(motion.check_trigger(2.0, [10.0, -2.0]), "4 m away");
@@ -759,7 +441,7 @@ mod tests {
         let stopped = motion.state_at(10.0);
         assert!((stopped.position[1] - 2.75).abs() < 1e-12, "{stopped:?}");
         assert_eq!(stopped.velocity, [0.0, 0.0]);
-        assert!(ActorMotion::new(&m, Some(0.0)).is_err() && ActorMotion::new(&m, Some(f64::NAN)).is_err());
+        assert!(StraightActor::new(&m, Some(0.0)).is_err() && StraightActor::new(&m, Some(f64::NAN)).is_err());
     }
 
     #[test]

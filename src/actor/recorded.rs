@@ -4,7 +4,9 @@
 //! are the exact derivatives of the positions and headings it is at (the time-varying barrier
 //! terms ∂h/∂t and ö of (4.85) read them). It exists from its first recorded time to its last.
 
-use super::{motion_error, ActorState, MotionError};
+use std::sync::Arc;
+
+use super::{motion_error, ActorState, Motion, MotionError};
 
 /// Most states of one recording.
 pub const MAX_RECORDED_STATES: usize = 100_000;
@@ -151,6 +153,21 @@ impl RecordedMotion {
             bound = bound.max(vx.hypot(vy) + h * a);
         }
         bound
+    }
+}
+
+/// A recording shared between the run's copies of the motion (the truth and the controller's).
+impl Motion for Arc<RecordedMotion> {
+    fn state_at(&self, t: f64) -> ActorState {
+        RecordedMotion::state_at(self, t)
+    }
+
+    fn exists_at(&self, t: f64) -> bool {
+        RecordedMotion::exists_at(self, t)
+    }
+
+    fn clone_motion(&self) -> Box<dyn Motion> {
+        Box::new(Arc::clone(self))
     }
 }
 

@@ -479,7 +479,11 @@ fn obstacle(o: &mjsafe_commonroad::Obstacle) -> Option<Result<toml::Value, Strin
         }
     }
     if o.role == ObstacleRole::Dynamic {
-        t.insert("recorded".into(), toml::Value::Integer(o.id as i64));
+        let motion = table(&[
+            ("kind", toml::Value::String("recorded".into())),
+            ("id", toml::Value::Integer(o.id as i64)),
+        ]);
+        t.insert("motion".into(), motion);
     }
     Some(Ok(toml::Value::Table(t)))
 }
@@ -522,6 +526,33 @@ fn bounding_box(points: &[[f64; 2]]) -> (f64, f64, f64, [f64; 2]) {
         heading,
         [c * mid[0] - s * mid[1], s * mid[0] + c * mid[1]],
     )
+}
+
+/// `kind = "recorded"`'s parameters (`[obstacles.motion]`): the road user of `[commonroad] file`
+/// whose recorded states the obstacle follows.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordedParams {
+    /// Its `obstacle id` in the file.
+    pub id: u64,
+}
+
+impl crate::params::Params for RecordedParams {}
+
+/// `kind = "recorded"`: the road user `id` of the scenario's CommonRoad file along its recording
+/// (docs/commonroad.md).
+pub fn build_recorded(
+    p: &RecordedParams,
+    ctx: &crate::actor::MotionContext<'_>,
+) -> Result<crate::actor::ActorMotion, crate::actor::MotionError> {
+    let Some(cr) = ctx.commonroad else {
+        return Err(crate::actor::motion_error(
+            "id",
+            "expected a `[commonroad] file` whose road user it names",
+        ));
+    };
+    let motion = recorded_motion(cr, p.id).map_err(|e| crate::actor::motion_error("id", e))?;
+    Ok(crate::actor::ActorMotion::new(Arc::new(motion)))
 }
 
 /// The recorded motion of road user `id`: its states at their times (step × time step), the

@@ -225,12 +225,15 @@ fn model_with_obstacles(
                 0.5 * length,
                 0.5 * width,
                 0.5 * length.max(width),
-                yaw_quat(o.circles().0)
+                yaw_quat(
+                    o.circles(obstacle_motion(loaded, i)?.0.and_then(|m| m.layout_heading()))
+                        .0
+                )
             ),
         };
         let lead = hull.filter(|_| o.following.is_some());
         // A sphere's text, static or moving, is as it always was (logs unchanged).
-        let moving = o.motion.is_some() || o.recorded.is_some();
+        let moving = o.motion.is_some();
         geoms.push_str(&match (moving, lead) {
             (_, Some(hull)) => format!(
                 "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} pos=\"0 {} {}\" {look}/></body>\n",
@@ -912,7 +915,7 @@ pub(super) fn obstacles(
         };
         let name = o.name.clone().unwrap_or_else(|| obstacle_geom_name(i));
         let (motion, centre) = obstacle_motion(loaded, i)?;
-        let (box_heading, circles) = o.circles();
+        let (box_heading, circles) = o.circles(motion.as_ref().and_then(|m| m.layout_heading()));
         let single = sc.vehicle.footprint.is_none() && o.shape.is_none();
         let mut barriers = Vec::with_capacity(vehicle.len() * circles.len());
         let mut offsets = Vec::with_capacity(barriers.capacity());
@@ -979,25 +982,11 @@ fn obstacle_motion(
     loaded: &LoadedScenario,
     i: usize,
 ) -> Result<(Option<crate::actor::ActorMotion>, [f64; 2]), ScenarioError> {
-    let sc = &loaded.scenario;
-    let o = &sc.obstacles[i];
-    if let (Some(id), Some(cr)) = (o.recorded, &loaded.commonroad) {
-        let motion = crate::commonroad::recorded_motion(cr, id)
-            .map_err(|e| loaded.field_error(&format!("obstacles.{i}.recorded"), e))?;
-        let centre = motion.state_at(0.0).position;
-        return Ok((
-            Some(crate::actor::ActorMotion::Recorded(std::sync::Arc::new(motion))),
-            centre,
-        ));
-    }
-    let Some(m) = &o.motion else {
-        return Ok((None, o.centre));
-    };
-    let (motion, trigger) = m.realised(o.centre, sc.seed, i);
-    let motion = crate::actor::ActorMotion::new(&motion, trigger)
-        .map_err(|e| loaded.field_error(&format!("obstacles.{i}.motion.{}", e.key), e.message))?;
-    let centre = motion.state_at(0.0).position;
-    Ok((Some(motion), centre))
+    let motion = crate::scenario::motion_of(loaded, i).map_err(|e| loaded.field_error(&e.key, e.message))?;
+    let centre = motion
+        .as_ref()
+        .map_or(loaded.scenario.obstacles[i].centre, |m| m.state_at(0.0).position);
+    Ok((motion, centre))
 }
 
 /// Obstacle `i`, a lead to follow on the line (`following`): its headway barrier
@@ -1036,7 +1025,7 @@ fn lead(loaded: &LoadedScenario, model: &dyn Dynamics, i: usize, x0: &DVector<f6
     // half extent along x at its heading.
     let (rear, outline) = match o.shape {
         Some(crate::scenario::ObstacleShape::Box { length, width, .. }) => {
-            let heading = o.circles().0;
+            let heading = o.circles(motion.as_ref().and_then(|m| m.layout_heading())).0;
             let (s, c) = heading.sin_cos();
             (
                 0.5 * (length * c.abs() + width * s.abs()),
@@ -1103,7 +1092,7 @@ pub(super) fn plant(
             let obstacles = (sc.obstacles.iter().zip(barriers).enumerate())
                 .map(|(i, (o, &barriers))| {
                     let geom = model.require(ObjKind::Geom, &obstacle_geom_name(i))?;
-                    let mocap = match o.motion.is_some() || o.recorded.is_some() {
+                    let mocap = match o.motion.is_some() {
                         false => None,
                         true => {
                             let name = obstacle_body_name(i);
