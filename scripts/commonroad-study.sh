@@ -4,7 +4,10 @@
 # the goal region) under the nominal alone, the delay-free CBF-QP (2.16), the predictor CBF-QP
 # (4.34) and the gamma-m filter (4.67), the road users assumed at constant velocity; then (4.67)
 # with the road users assumed static, at constant acceleration and known exactly (oracle).
-# Two sweeps with no logs (`sweep --scenarios`); prints a Markdown table.
+# Two sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
+# scene with (4.67), each file's defaults: the scene at the car's closest approach to any road user
+# (`analyze --plot`'s `-closest.png`) for the highway (US101-5, 25 cars), an urban intersection
+# (Peach) and the crossing pedestrian, written to docs/figures/commonroad-{highway,intersection,pedestrian}.png.
 #   scripts/commonroad-study.sh [MJSAFE_BINARY] [OUT_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -60,3 +63,10 @@ print("|---|" + "---|" * len(columns))
 for s in scenarios:
     print(f"| {s} | " + " | ".join(cells.get((s, c), "") for c in columns) + " |")
 PY
+for pair in highway:USA_US101-5_1_T-1 intersection:USA_Peach-4_8_T-1 pedestrian:OSC_PedestrianCollision-1_1_T-1; do
+  kind="${pair%%:*}" file="${pair#*:}"
+  "$mjsafe" run "data/commonroad/$file.xml" --out "$out/$kind.mcap" >/dev/null 2>&1
+  "$mjsafe" analyze --plot "$out/plots" "$out/$kind.mcap" >/dev/null 2>&1
+  mkdir -p docs/figures
+  cp "$out/plots/$kind-closest.png" "docs/figures/commonroad-$kind.png"
+done

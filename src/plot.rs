@@ -125,7 +125,17 @@ struct Series {
     hull_radius: Option<f64>,
     /// Whether every barrier is an obstacle's (4.81): h in m².
     obstacle_barriers: bool,
+    /// Per road user (`/actors`), its (t, x, y, heading, absent).
+    poses: BTreeMap<String, Vec<ActorPose>>,
+    /// The vehicle's closest approach to any obstacle: (clearance, time, obstacle name), from
+    /// the `/barrier` obstacle entries (the least clearance; its first time).
+    closest: Option<(f64, f64, String)>,
+    /// The vehicle's footprint as `/scene` draws it (a cube, no hull cylinder), with its time.
+    footprints: Vec<(f64, BoxOutline)>,
 }
+
+/// A road user's logged pose: time, position, heading, whether it is absent.
+type ActorPose = (f64, f64, f64, f64, bool);
 
 impl RunVisitor for Series {
     fn metadata(&mut self, name: &str, entries: &BTreeMap<String, String>) -> Result<(), ReadError> {
@@ -146,6 +156,8 @@ impl RunVisitor for Series {
             }
             Record::Actors(m) => {
                 for a in m.actors {
+                    let pose = (m.time, a.x, a.y, a.heading, a.absent);
+                    self.poses.entry(a.name.clone()).or_default().push(pose);
                     self.actors.entry(a.name).or_default().push((m.time, a.x, a.y));
                 }
             }
@@ -154,6 +166,10 @@ impl RunVisitor for Series {
                     self.obstacle_barriers = !m.barriers.is_empty() && m.barriers.iter().all(|b| b.obstacle);
                 }
                 for b in m.barriers {
+                    if b.obstacle && self.closest.as_ref().is_none_or(|c| b.clearance < c.0) {
+                        let obstacle = b.name.split('/').next().unwrap_or_default().to_string();
+                        self.closest = Some((b.clearance, m.time, obstacle));
+                    }
                     self.barriers.entry(b.name).or_default().push((m.time, b.h));
                 }
             }
@@ -167,7 +183,7 @@ impl RunVisitor for Series {
                     self.applied.entry(c.clone()).or_default().push((m.time, *v));
                 }
             }
-            Record::Scene(_, m) => {
+            Record::Scene(time, m) => {
                 for e in m.entities {
                     if e.id == "reference_path" {
                         if let Some(line) = e.lines.first() {
@@ -185,6 +201,11 @@ impl RunVisitor for Series {
                     } else if e.id == "vehicle" {
                         if let Some(c) = e.cylinders.first() {
                             self.hull_radius = Some(c.size.unwrap_or_default().x / 2.0);
+                        } else if let Some(c) = e.cubes.first() {
+                            let (pose, size) = (c.pose.unwrap_or_default(), c.size.unwrap_or_default());
+                            let (p, q) = (pose.position.unwrap_or_default(), pose.orientation.unwrap_or_default());
+                            let outline = ((p.x, p.y), (size.x, size.y), 2.0 * q.z.atan2(q.w));
+                            self.footprints.push((time, outline));
                         }
                     } else if !e.id.starts_with("trail")
                         && !e.id.starts_with("prediction")
@@ -525,7 +546,102 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
+    if let Some(path) = plot_closest_approach(&series, log, &dir.join(format!("{stem}-closest.png")))? {
+        written.push(path);
+    }
     Ok(written)
+}
+
+/// Half the side of the closest-approach plot's square window about the vehicle (m).
+const CLOSEUP: f64 = 30.0;
+
+/// The scene at the vehicle's closest approach to any obstacle, for a log with road users
+/// (`/actors`): the road and lane lines, the vehicle's path and where it was then (its hull), and
+/// every road user present then in its outline (a box at its logged heading, or a circle),
+/// within ±[`CLOSEUP`] m of the vehicle; the closest one labelled with its clearance. None
+/// without road users or a closest approach.
+fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Option<PathBuf>, PlotError> {
+    let (Some((clearance, time, name)), false) = (&series.closest, series.poses.is_empty()) else {
+        return Ok(None);
+    };
+    let at = series.path_times.partition_point(|&s| s < time - 1e-9);
+    let Some(&(px, py)) = series.path.get(at) else {
+        return Ok(None);
+    };
+    // Each road user present at `time`: its outline there.
+    let mut outlines: Vec<(&str, Vec<(f64, f64)>)> = Vec::new();
+    for (actor, poses) in &series.poses {
+        let k = poses.partition_point(|p| p.0 < time - 1e-9);
+        let Some(&(_, x, y, heading, absent)) = poses.get(k).filter(|p| (p.0 - time).abs() < 1e-6) else {
+            continue;
+        };
+        if absent || (x - px).abs() > 2.0 * CLOSEUP || (y - py).abs() > 2.0 * CLOSEUP {
+            continue;
+        }
+        let outline = match (series.boxes.get(actor), series.obstacles.get(actor)) {
+            (Some(&(_, size, _)), _) => {
+                let corners = box_corners(((x, y), size, heading));
+                corners.iter().chain(corners.first()).copied().collect()
+            }
+            (None, Some(&(_, r))) => circle((x, y), r).collect(),
+            (None, None) => continue,
+        };
+        outlines.push((actor, outline));
+    }
+    let result = draw_png(path, &[log], |partial: &Path| -> DrawResult<()> {
+        let root = BitMapBackend::new(partial, (800, 800)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let caption = format!("closest approach: t = {time:.2} s, {name} at {clearance:.2} m");
+        let mut chart = ChartBuilder::on(&root)
+            .caption(caption, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(50)
+            .build_cartesian_2d((px - CLOSEUP)..(px + CLOSEUP), (py - CLOSEUP)..(py + CLOSEUP))?;
+        chart.configure_mesh().x_desc("x [m]").y_desc("y [m]").draw()?;
+        draw_scene_lines(&mut chart, &series.lines)?;
+        let path_style = PALETTE[0].stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(series.path.iter().copied(), path_style))?
+            .label("vehicle's path")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], path_style));
+        if let Some(r) = series.hull_radius {
+            chart.draw_series(LineSeries::new(circle((px, py), r), PALETTE[0].stroke_width(3)))?;
+        }
+        // The footprint as last drawn at or before `time` (the scene is drawn at the frame rate).
+        let drawn = series.footprints.partition_point(|f| f.0 <= time + 1e-9);
+        if let Some((_, outline)) = drawn.checked_sub(1).and_then(|k| series.footprints.get(k)) {
+            let corners = box_corners(*outline);
+            let closed = corners.iter().chain(corners.first()).copied();
+            chart.draw_series(LineSeries::new(closed, PALETTE[0].stroke_width(3)))?;
+        }
+        chart.draw_series([Cross::new((px, py), 6, PALETTE[0].stroke_width(3))])?;
+        let user_style = PALETTE[1].stroke_width(2);
+        for (k, (actor, outline)) in outlines.iter().enumerate() {
+            let style = match *actor == name.as_str() {
+                true => PALETTE[1].stroke_width(4),
+                false => user_style,
+            };
+            let drawn = chart.draw_series(LineSeries::new(outline.iter().copied(), style))?;
+            if k == 0 {
+                drawn
+                    .label("road users at that time")
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], user_style));
+            }
+            if *actor == name.as_str() {
+                let (x, y) = outline[0];
+                chart.draw_series([Text::new(actor.to_string(), (x, y), ("sans-serif", 16))])?;
+            }
+        }
+        (chart.configure_series_labels())
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        Ok(())
+    });
+    result.map_err(|e| draw_error(path, e))?;
+    Ok(Some(path.to_path_buf()))
 }
 
 /// A box obstacle's outline: centre, (length, width), heading.

@@ -230,3 +230,30 @@ fn plots_of_logs_of_one_name_are_refused() {
     assert!(stdout(&o).contains("run.mcap"), "the intact log's row: {}", stdout(&o));
     assert!(stderr(&o).contains("cut.mcap"), "{}", stderr(&o));
 }
+
+/// A log with road users gets the scene at the closest approach (`-closest.png`: the vehicle in
+/// blue, the road users in red, 800 × 800); a log without none.
+#[test]
+fn the_closest_approach_is_drawn_for_logs_with_road_users() {
+    let dir = tempfile::tempdir().unwrap();
+    let plots = dir.path().join("plots");
+    let (actors, plain) = (dir.path().join("ccrb.mcap"), dir.path().join("scalar.mcap"));
+    run_ok(
+        &scenario("ncap_ccrb.toml"),
+        &actors,
+        &["--set", "filter={kind=\"none\"}"],
+    );
+    run_ok(&scenario("scalar_tv_delay.toml"), &plain, &["--set", "duration=1.0"]);
+    for log in [&actors, &plain] {
+        let o = mjsafe(&["analyze", "--plot", plots.to_str().unwrap(), log.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", text(&o));
+    }
+    let closest = plots.join("ccrb-closest.png");
+    let (width, height, counts) = colour_counts(&closest, &[BLUE, RED]);
+    assert_eq!((width, height), (800, 800));
+    assert!(
+        counts[0] > 100 && counts[1] > 100,
+        "vehicle and road user drawn: {counts:?}"
+    );
+    assert!(!plots.join("scalar-closest.png").exists());
+}

@@ -278,7 +278,11 @@ impl Episode {
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(
                 hull_radius,
-                loaded.scenario.vehicle.footprint.map(|r| [r.length, r.width]),
+                loaded
+                    .scenario
+                    .vehicle
+                    .footprint
+                    .map(|r| ([r.length, r.width], r.offset)),
                 path,
                 scene_lines,
                 model.channel_names(),

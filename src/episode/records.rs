@@ -176,8 +176,9 @@ pub(super) struct SceneLine {
 /// What the Foxglove 3D view needs beyond the state.
 pub(super) struct SceneState {
     pub(super) hull_radius: f64,
-    /// The vehicle's footprint (length, width), drawn instead of the hull.
-    footprint: Option<[f64; 2]>,
+    /// The vehicle's footprint (length, width) and how far its centre lies ahead of the
+    /// planar position along the heading (m), drawn instead of the hull.
+    footprint: Option<([f64; 2], f64)>,
     /// A straight reference path (point, heading, distance the reference speed covers in the
     /// episode), drawn as a line over the stretch the vehicle can drive (so that viewers
     /// fitting their view to the scene show the episode, not a 400 m line).
@@ -216,7 +217,7 @@ pub(super) struct ActorView {
 impl SceneState {
     pub(super) fn new(
         hull_radius: f64,
-        footprint: Option<[f64; 2]>,
+        footprint: Option<([f64; 2], f64)>,
         path: Option<([f64; 2], f64, f64)>,
         lines: Vec<SceneLine>,
         channels: &[String],
@@ -338,7 +339,14 @@ impl Episode {
         if let Record::Scene(t, update) = &mut self.scene.vehicle {
             *t = time;
             match self.scene.footprint {
-                Some(size) => scene::footprint_vehicle_into(update, time, position, heading, size),
+                Some((size, 0.0)) => scene::footprint_vehicle_into(update, time, position, heading, size),
+                Some((size, offset)) => {
+                    let centre = [
+                        position[0] + offset * heading.cos(),
+                        position[1] + offset * heading.sin(),
+                    ];
+                    scene::footprint_vehicle_into(update, time, centre, heading, size)
+                }
                 None => scene::vehicle_into(update, time, position, heading, hull_radius),
             }
         }
