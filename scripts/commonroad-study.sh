@@ -50,6 +50,12 @@ for sweep, key in (("filters", "filter"), ("knowledge", "actor_knowledge.kind"))
             ttc = row.get("min_time_to_collision", "")
             if ttc:
                 cell += f", TTC {float(ttc):.1f} s"
+        # CommonRoad-CriMe's time headway and brake threat number (docs/metrics.md).
+        thw, btn = row.get("min_time_headway", ""), row.get("max_brake_threat_number", "")
+        if thw:
+            cell += f", THW {float(thw):.2f} s"
+        if btn:
+            cell += f", BTN {float(btn):.2f}"
         goal = row.get("time_to_goal", "")
         if row.get("distance_to_goal", "") != "":
             cell += f"; goal {float(goal):.1f} s" if goal else "; goal missed"

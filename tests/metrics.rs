@@ -94,8 +94,12 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
             }
         }
     }
-    // The runs have values for every metric between them (none is always null).
-    let runs = [&a, &b, &c, &d, &e].map(|log| common::analyze_json(std::path::Path::new(log)));
+    // The runs have values for every metric between them (none is always null), with CCRm for
+    // the headway metrics (a lead ahead in the path).
+    let ccrm = dir.path().join("ncap_ccrm.mcap");
+    run_ok(&root().join("scenarios/ncap_ccrm.toml"), &ccrm, &[]);
+    let ccrm = ccrm.to_str().unwrap().to_string();
+    let runs = [&a, &b, &c, &d, &e, &ccrm].map(|log| common::analyze_json(std::path::Path::new(log)));
     for metric in METRICS {
         assert!(
             runs.iter().any(|m| !m[metric.name].is_null()),

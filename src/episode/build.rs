@@ -1304,8 +1304,9 @@ pub(super) fn run_info(
         kinds,
         goal: sc.goal.clone(),
         requirements: requirements(loaded, timestep)?,
-        // Set by the episode, which holds the nominal.
+        // Set by the episode, which holds the nominal and the obstacles.
         reference_path: None,
+        extents: None,
     })
 }
 

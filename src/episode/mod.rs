@@ -68,6 +68,33 @@ enum Outline {
     Box { length: f64, width: f64, heading: f64 },
 }
 
+/// The vehicle's extent about its planar position [front, rear, half width] and each moving
+/// road user's [length, width] (`RunInfo::extents`); None without moving road users.
+fn extents(
+    loaded: &LoadedScenario,
+    hull_radius: f64,
+    obstacles: &[Obstacle],
+) -> Option<([f64; 3], std::collections::BTreeMap<String, [f64; 2]>)> {
+    let actors: std::collections::BTreeMap<String, [f64; 2]> = (obstacles.iter())
+        .filter(|o| o.motion.is_some())
+        .map(|o| {
+            let size = match o.outline {
+                Outline::Circle { radius } => [2.0 * radius, 2.0 * radius],
+                Outline::Box { length, width, .. } => [length, width],
+            };
+            (o.name.clone(), size)
+        })
+        .collect();
+    if actors.is_empty() {
+        return None;
+    }
+    let vehicle = match &loaded.scenario.vehicle.footprint {
+        Some(f) => [f.offset + 0.5 * f.length, 0.5 * f.length - f.offset, 0.5 * f.width],
+        None => [hull_radius; 3],
+    };
+    Some((vehicle, actors))
+}
+
 /// Result of a finished (or stopped) episode.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EpisodeSummary {
@@ -253,6 +280,7 @@ impl Episode {
         build::configure_control(loaded, &mut control, &barriers)?;
         let mut info = build::run_info(loaded, vehicle_params, &control, period)?;
         info.reference_path = reference_path.map(|p| (p.point, p.heading));
+        info.extents = extents(loaded, hull_radius, &obstacles);
         let (cost, log_budget) =
             build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
         let moving_names: Vec<String> = (obstacles.iter())

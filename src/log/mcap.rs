@@ -196,6 +196,7 @@ mod tests {
             goal: None,
             requirements: Vec::new(),
             reference_path: None,
+            extents: None,
         }
     }
 

@@ -340,6 +340,11 @@ pub struct RunInfo {
     /// The nominal's straight reference path (point, heading): metadata `reference_path`
     /// ("x y heading").
     pub reference_path: Option<([f64; 2], f64)>,
+    /// With road users (`/actors`): the vehicle's extent about its planar position along its
+    /// heading, [front, rear, half width] (m; metadata `vehicle_extent` "front rear half_width"),
+    /// and each road user's [length, width] (m; a circle's: its diameter twice; metadata
+    /// `actor_extents`, JSON), for the headway metrics.
+    pub extents: Option<([f64; 3], BTreeMap<String, [f64; 2]>)>,
 }
 
 /// A kind of the run as its registration describes it (`registry::Description`).
@@ -411,6 +416,11 @@ impl RunInfo {
         }
         if let Some(([x, y], heading)) = self.reference_path {
             metadata.insert("reference_path".to_string(), format!("{x} {y} {heading}"));
+        }
+        if let Some(([front, rear, half_width], actors)) = &self.extents {
+            metadata.insert("vehicle_extent".to_string(), format!("{front} {rear} {half_width}"));
+            let actors = serde_json::to_string(actors).unwrap_or_default();
+            metadata.insert("actor_extents".to_string(), actors);
         }
         for (name, formula) in &self.requirements {
             metadata.insert(format!("{REQUIREMENT_METADATA_PREFIX}{name}"), formula.clone());

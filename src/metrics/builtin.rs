@@ -174,6 +174,10 @@ pub static METRICS: &[Metric] = &[
         ..metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
         "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions")
     },
+    metric("min_time_headway", SECONDS, Shape::Number, &[Topic::State, Topic::Actors], new::<MinTimeHeadway>,
+        "CommonRoad-CriMe's time headway THW (measure/time/thw.py): at each `/state` time t with a lead — the nearest road user (`/actors`, present) ahead in the vehicle's path (in the frame of its heading at t, laterally within the vehicle's half width plus the road user's projected half width; CriMe: in the same lanelet), ahead of the vehicle's front (metadata `vehicle_extent`, `actor_extents`) — the time until the vehicle's front, on its logged trajectory, first reaches where the lead's rear was at t (along the heading at t; linear between `/state` samples); min over t; absent without a lead ever ahead, or when the front never reached such a point"),
+    metric("max_brake_threat_number", FRACTION, Shape::Number, &[Topic::State, Topic::Actors], new::<MaxBrakeThreat>,
+        "CommonRoad-CriMe's brake threat number BTN (measure/index/btn.py, Åsljung et al. 2017, (9)): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead"),
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
         "per moving obstacle (`/actors`), at its first `collision_start` at time t: ‖Δ(p − o)‖ / Δt, the relative speed of the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages; absent without a collision with a moving obstacle (reason `no collision` when the log has moving obstacles)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
@@ -252,6 +256,178 @@ pub static METRICS: &[Metric] = &[
 
 /// The name of the requirements' metric (`req.<name>` columns).
 pub const REQUIREMENTS: &str = "req";
+
+/// The maximum longitudinal deceleration the brake threat number divides by (m/s²):
+/// CommonRoad-CriMe's default `a_lon_max`, the a_max of CommonRoad's vehicle parameter sets.
+pub const A_LON_MAX: f64 = 11.5;
+
+/// The vehicle at a `/state` time: position, unit heading vector, speed, front point.
+#[derive(Debug, Clone, Copy)]
+struct Ego {
+    time: f64,
+    heading: [f64; 2],
+    speed: f64,
+    front: [f64; 2],
+}
+
+/// The lead at a time: the gap from the vehicle's front to its rear HW (m), and its velocity
+/// and acceleration along the vehicle's heading.
+#[derive(Debug, Clone, Copy)]
+struct Lead {
+    headway: f64,
+    velocity: f64,
+    acceleration: f64,
+}
+
+/// Pairs each `/state` with the `/actors` message of its time and finds the lead then (the
+/// headway metrics, after CommonRoad-CriMe's HW): the nearest present road user ahead of the
+/// vehicle's front and laterally within the vehicle's half width plus its own projected half
+/// width, in the frame of the vehicle's heading.
+#[derive(Default)]
+struct LeadTracker {
+    /// Position, heading and `speed` indices of `/state` (None: not yet seen; Some(None): none).
+    indices: Option<Option<([usize; 2], usize, usize)>>,
+    state: Option<(f64, [f64; 2], f64, f64)>,
+    actors: Option<proto::Actors>,
+    done: f64,
+    /// Whether any road user was ever ahead in the path.
+    saw_lead: bool,
+}
+
+impl LeadTracker {
+    /// The vehicle and its lead at a time both `/state` and `/actors` have reached (once per time).
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) -> Option<(Ego, Option<Lead>)> {
+        match record {
+            Observed::State(m) => {
+                let indices = *self.indices.get_or_insert_with(|| {
+                    let position = run.declared_planar.flatten()?;
+                    let speed = m.names.iter().position(|n| n == "speed")?;
+                    Some((position, run.heading_index?, speed))
+                });
+                let ([i, j], h, v) = indices?;
+                let value = |k: usize| m.values.get(k).copied();
+                self.state = Some((m.time, [value(i)?, value(j)?], value(h)?, value(v)?));
+            }
+            Observed::Actors(m) => self.actors = Some(m.clone()),
+            _ => return None,
+        }
+        let ((time, p, heading, speed), actors) = (self.state?, self.actors.as_ref()?);
+        if !same_time(time, actors.time) || (self.done > 0.0 && time <= self.done) {
+            return None;
+        }
+        self.done = time.max(f64::MIN_POSITIVE);
+        let [front, _, half_width] = run.vehicle_extent?;
+        let e = [heading.cos(), heading.sin()];
+        let ego = Ego {
+            time,
+            heading: e,
+            speed,
+            front: [p[0] + front * e[0], p[1] + front * e[1]],
+        };
+        let lead = (actors.actors.iter())
+            .filter(|a| !a.absent)
+            .filter_map(|a| {
+                let [length, width] = *run.actor_extents.get(&a.name)?;
+                let d = [a.x - p[0], a.y - p[1]];
+                let (along, across) = (d[0] * e[0] + d[1] * e[1], -d[0] * e[1] + d[1] * e[0]);
+                let (s, c) = (a.heading - heading).sin_cos();
+                let half_along = 0.5 * (length * c.abs() + width * s.abs());
+                let half_across = 0.5 * (length * s.abs() + width * c.abs());
+                let headway = along - half_along - front;
+                (across.abs() < half_width + half_across && headway > 0.0).then_some(Lead {
+                    headway,
+                    velocity: a.vx * e[0] + a.vy * e[1],
+                    acceleration: a.ax * e[0] + a.ay * e[1],
+                })
+            })
+            .min_by(|a, b| a.headway.total_cmp(&b.headway));
+        self.saw_lead |= lead.is_some();
+        Some((ego, lead))
+    }
+
+    /// Why a headway metric of a log with road users has no value.
+    fn reason(&self, run: &RunFacts) -> &'static str {
+        match (run.vehicle_extent, self.indices) {
+            (None, _) => {
+                "the log has no metadata `vehicle_extent` and `actor_extents` (logs written before the headway metrics)"
+            }
+            (_, Some(None)) => "needs a planar vehicle with a heading and a state named `speed`",
+            _ => "no road user was ever ahead in the vehicle's path",
+        }
+    }
+}
+
+/// The pending time headways: (t, heading at t, the lead's rear along it, the front's last
+/// distance to it and its time).
+#[derive(Default)]
+struct MinTimeHeadway {
+    leads: LeadTracker,
+    pending: Vec<(f64, [f64; 2], f64, f64, f64)>,
+    best: Option<f64>,
+}
+
+impl Accumulate for MinTimeHeadway {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let Some((ego, lead)) = self.leads.observe(record, run) else {
+            return;
+        };
+        let best = &mut self.best;
+        self.pending.retain_mut(|(t0, e0, rear, last_gap, last_time)| {
+            let gap = ego.front[0] * e0[0] + ego.front[1] * e0[1] - *rear;
+            if gap >= 0.0 {
+                // Linear between the samples on either side of the crossing.
+                let crossed = *last_time + (ego.time - *last_time) * (-*last_gap) / (gap - *last_gap);
+                *best = lower(*best, crossed - *t0);
+                return false;
+            }
+            (*last_gap, *last_time) = (gap, ego.time);
+            best.is_none_or(|b| ego.time - *t0 < b)
+        });
+        if let Some(lead) = lead {
+            let e = ego.heading;
+            let front = ego.front[0] * e[0] + ego.front[1] * e[1];
+            self.pending
+                .push((ego.time, e, front + lead.headway, -lead.headway, ego.time));
+        }
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if self.best.is_none() && self.leads.actors.is_some() {
+            let reason = match self.leads.saw_lead {
+                true => "the vehicle's front never reached where a lead had been",
+                false => self.leads.reason(run),
+            };
+            missing.insert("min_time_headway".into(), reason.into());
+        }
+        Value::Number(self.best)
+    }
+}
+
+#[derive(Default)]
+struct MaxBrakeThreat {
+    leads: LeadTracker,
+    best: Option<f64>,
+}
+
+impl Accumulate for MaxBrakeThreat {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        let Some((ego, Some(lead))) = self.leads.observe(record, run) else {
+            return;
+        };
+        let relative = lead.velocity - ego.speed;
+        // Closing in only (CriMe's formula also charges a lead moving away).
+        let required = match relative < 0.0 {
+            true => (lead.acceleration - relative * relative / (2.0 * lead.headway)).min(0.0),
+            false => 0.0,
+        };
+        self.best = Some(self.best.map_or(0.0, |b: f64| b.max(0.0)).max(required / -A_LON_MAX));
+    }
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        if self.best.is_none() && self.leads.actors.is_some() {
+            missing.insert("max_brake_threat_number".into(), self.leads.reason(run).into());
+        }
+        Value::Number(self.best)
+    }
+}
 
 /// `Some(min(current, x))`.
 fn lower(current: Option<f64>, x: f64) -> Option<f64> {

@@ -43,6 +43,12 @@ pub struct RunFacts {
     /// The nominal's straight reference path: a point and the heading ψ (metadata
     /// `reference_path`).
     pub reference_path: Option<([f64; 2], f64)>,
+    /// The state index of the vehicle's heading (metadata `heading_index`).
+    pub heading_index: Option<usize>,
+    /// The vehicle's extent about its planar position, [front, rear, half width] (m; metadata
+    /// `vehicle_extent`), and each road user's [length, width] (m; `actor_extents`).
+    pub vehicle_extent: Option<[f64; 3]>,
+    pub actor_extents: BTreeMap<String, [f64; 2]>,
     /// The requirements to evaluate, (name, formula): the run's (metadata
     /// `requirement.<name>`), then those an analysis adds (`analyze --require`).
     pub requirements: Vec<(String, String)>,
@@ -149,6 +155,12 @@ impl RunFacts {
                 .get("reference_path")
                 .and_then(|p| numbers::<3>(p))
                 .map(|[x, y, heading]| ([x, y], heading)),
+            heading_index: metadata.get("heading_index").and_then(|h| h.trim().parse().ok()),
+            vehicle_extent: metadata.get("vehicle_extent").and_then(|p| numbers::<3>(p)),
+            actor_extents: metadata
+                .get("actor_extents")
+                .and_then(|p| serde_json::from_str(p).ok())
+                .unwrap_or_default(),
             requirements: requirements::from_metadata(metadata),
         }
     }
