@@ -70,11 +70,7 @@ enum Outline {
 
 /// The vehicle's extent about its planar position [front, rear, half width] and each moving
 /// road user's [length, width] (`RunInfo::extents`); None without moving road users.
-fn extents(
-    loaded: &LoadedScenario,
-    hull_radius: f64,
-    obstacles: &[Obstacle],
-) -> Option<([f64; 3], std::collections::BTreeMap<String, [f64; 2]>)> {
+fn extents(loaded: &LoadedScenario, hull_radius: f64, obstacles: &[Obstacle]) -> Option<crate::log::Extents> {
     let actors: std::collections::BTreeMap<String, [f64; 2]> = (obstacles.iter())
         .filter(|o| o.motion.is_some())
         .map(|o| {
@@ -92,7 +88,7 @@ fn extents(
         Some(f) => [f.offset + 0.5 * f.length, 0.5 * f.length - f.offset, 0.5 * f.width],
         None => [hull_radius; 3],
     };
-    Some((vehicle, actors))
+    Some(crate::log::Extents { vehicle, actors })
 }
 
 /// Result of a finished (or stopped) episode.

@@ -344,7 +344,16 @@ pub struct RunInfo {
     /// heading, [front, rear, half width] (m; metadata `vehicle_extent` "front rear half_width"),
     /// and each road user's [length, width] (m; a circle's: its diameter twice; metadata
     /// `actor_extents`, JSON), for the headway metrics.
-    pub extents: Option<([f64; 3], BTreeMap<String, [f64; 2]>)>,
+    pub extents: Option<Extents>,
+}
+
+/// The extents the headway metrics need ([`RunInfo::extents`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Extents {
+    /// The vehicle's [front, rear, half width] about its planar position along its heading (m).
+    pub vehicle: [f64; 3],
+    /// Each road user's [length, width] (m).
+    pub actors: BTreeMap<String, [f64; 2]>,
 }
 
 /// A kind of the run as its registration describes it (`registry::Description`).
@@ -417,7 +426,11 @@ impl RunInfo {
         if let Some(([x, y], heading)) = self.reference_path {
             metadata.insert("reference_path".to_string(), format!("{x} {y} {heading}"));
         }
-        if let Some(([front, rear, half_width], actors)) = &self.extents {
+        if let Some(Extents {
+            vehicle: [front, rear, half_width],
+            actors,
+        }) = &self.extents
+        {
             metadata.insert("vehicle_extent".to_string(), format!("{front} {rear} {half_width}"));
             let actors = serde_json::to_string(actors).unwrap_or_default();
             metadata.insert("actor_extents".to_string(), actors);
