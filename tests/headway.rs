@@ -9,6 +9,9 @@ mod common;
 use common::*;
 use mjsafe::log::proto;
 
+/// Time, position, unit heading, speed, and the lead's (gap, velocity, acceleration) if ahead.
+type Sample = (f64, [f64; 2], [f64; 2], f64, Option<(f64, f64, f64)>);
+
 #[test]
 fn time_headway_and_brake_threat_match_a_brute_force_recomputation() {
     let dir = tempfile::tempdir().unwrap();
@@ -20,7 +23,7 @@ fn time_headway_and_brake_threat_match_a_brute_force_recomputation() {
     assert_eq!(states.len(), actors.len());
     let (front, half_width, target) = (2.3, 0.9, [4.02, 1.71]);
     // Per sample: time, position, heading, speed, and the target's gap and motion along the heading.
-    let mut samples = Vec::new();
+    let mut samples: Vec<Sample> = Vec::new();
     for (s, a) in states.iter().zip(&actors) {
         assert_eq!(s.time, a.time);
         let (p, theta, v) = ([s.values[0], s.values[1]], s.values[2], s.values[3]);
@@ -40,7 +43,8 @@ fn time_headway_and_brake_threat_match_a_brute_force_recomputation() {
         samples.push((s.time, p, e, v, lead));
     }
     // THW(t_i): the first crossing of the front past where the target's rear was at t_i.
-    let front_of = |(_, p, e, _, _): &(f64, [f64; 2], [f64; 2], f64, Option<(f64, f64, f64)>)| {
+    let front_of = |sample: &Sample| {
+        let (p, e) = (sample.1, sample.2);
         [p[0] + front * e[0], p[1] + front * e[1]]
     };
     let mut thw = f64::INFINITY;
