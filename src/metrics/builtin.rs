@@ -174,10 +174,17 @@ pub static METRICS: &[Metric] = &[
         ..metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
         "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions")
     },
-    metric("min_time_headway", SECONDS, Shape::Number, &[Topic::State, Topic::Actors], new::<MinTimeHeadway>,
-        "CommonRoad-CriMe's time headway THW (measure/time/thw.py): at each `/state` time t with a lead — the nearest road user (`/actors`, present) ahead in the vehicle's path (in the frame of its heading at t, laterally within the vehicle's half width plus the road user's projected half width; CriMe: in the same lanelet), ahead of the vehicle's front (metadata `vehicle_extent`, `actor_extents`) — the time until the vehicle's front, on its logged trajectory, first reaches where the lead's rear was at t (along the heading at t; linear between `/state` samples); min over t; absent without a lead ever ahead, or when the front never reached such a point"),
-    metric("max_brake_threat_number", FRACTION, Shape::Number, &[Topic::State, Topic::Actors], new::<MaxBrakeThreat>,
-        "CommonRoad-CriMe's brake threat number BTN (measure/index/btn.py, Åsljung et al. 2017, (9)): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead"),
+    Metric {
+        // Vehicles with a heading (a line's car following has no path to be ahead in).
+        applies: |run| run.heading_index.is_some(),
+        ..metric("min_time_headway", SECONDS, Shape::Number, &[Topic::State, Topic::Actors], new::<MinTimeHeadway>,
+        "CommonRoad-CriMe's time headway THW (measure/time/thw.py): at each `/state` time t with a lead — the nearest road user (`/actors`, present) ahead in the vehicle's path (in the frame of its heading at t, laterally within the vehicle's half width plus the road user's projected half width; CriMe: in the same lanelet), ahead of the vehicle's front (metadata `vehicle_extent`, `actor_extents`) — the time until the vehicle's front, on its logged trajectory, first reaches where the lead's rear was at t (along the heading at t; linear between `/state` samples); min over t; absent without a lead ever ahead, or when the front never reached such a point")
+    },
+    Metric {
+        applies: |run| run.heading_index.is_some(),
+        ..metric("max_brake_threat_number", FRACTION, Shape::Number, &[Topic::State, Topic::Actors], new::<MaxBrakeThreat>,
+        "CommonRoad-CriMe's brake threat number BTN (measure/index/btn.py, Åsljung et al. 2017, (9)): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead")
+    },
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
         "per moving obstacle (`/actors`), at its first `collision_start` at time t: ‖Δ(p − o)‖ / Δt, the relative speed of the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages; absent without a collision with a moving obstacle (reason `no collision` when the log has moving obstacles)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
@@ -391,7 +398,7 @@ impl Accumulate for MinTimeHeadway {
         }
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if self.best.is_none() && self.leads.actors.is_some() {
+        if self.best.is_none() && self.leads.actors.is_some() && run.heading_index.is_some() {
             let reason = match self.leads.saw_lead {
                 true => "the vehicle's front never reached where a lead had been",
                 false => self.leads.reason(run),
@@ -422,7 +429,7 @@ impl Accumulate for MaxBrakeThreat {
         self.best = Some(self.best.map_or(0.0, |b: f64| b.max(0.0)).max(required / -A_LON_MAX));
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if self.best.is_none() && self.leads.actors.is_some() {
+        if self.best.is_none() && self.leads.actors.is_some() && run.heading_index.is_some() {
             missing.insert("max_brake_threat_number".into(), self.leads.reason(run).into());
         }
         Value::Number(self.best)
