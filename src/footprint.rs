@@ -100,8 +100,50 @@ impl Rectangle {
 /// R(θ) c: a body-frame offset in the world frame.
 #[inline]
 pub fn rotate(offset: [f64; 2], heading: f64) -> [f64; 2] {
-    let (s, c) = heading.sin_cos();
+    let (s, c) = sin_cos(heading);
     [c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]]
+}
+
+/// sin_cos of the last angle asked for, remembered (one per thread and use: a tick evaluates
+/// every covering circle's barriers — h, ∇h, ∇²h, the point's velocity — at one heading, and a
+/// turning road user's circles at one turn, hundreds of times with many road users; the same
+/// values, bit for bit; docs/performance.md, "Recorded road users").
+pub struct SinCosMemo(std::cell::Cell<(u64, f64, f64)>);
+
+impl SinCosMemo {
+    /// Remembering nothing yet.
+    pub const fn new() -> SinCosMemo {
+        SinCosMemo(std::cell::Cell::new((u64::MAX, f64::NAN, f64::NAN)))
+    }
+
+    /// angle.sin_cos().
+    #[inline]
+    pub fn sin_cos(&self, angle: f64) -> (f64, f64) {
+        let (bits, s, c) = self.0.get();
+        if bits == angle.to_bits() {
+            return (s, c);
+        }
+        let (s, c) = angle.sin_cos();
+        self.0.set((angle.to_bits(), s, c));
+        (s, c)
+    }
+}
+
+impl Default for SinCosMemo {
+    fn default() -> Self {
+        SinCosMemo::new()
+    }
+}
+
+thread_local! {
+    /// The vehicle's heading of [`rotate`].
+    static HEADING: SinCosMemo = const { SinCosMemo::new() };
+}
+
+/// θ.sin_cos() for a body-frame rotation, remembered for the last θ ([`SinCosMemo`]).
+#[inline]
+pub fn sin_cos(angle: f64) -> (f64, f64) {
+    HEADING.with(|memo| memo.sin_cos(angle))
 }
 
 /// Whether two rectangles (centre, heading, length, width) overlap: the separating axis test

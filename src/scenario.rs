@@ -717,6 +717,20 @@ fn parse_with_world(
     for spec in overrides {
         apply_override(&mut table, spec)?;
     }
+    // Scenarios imported before motions had kinds name a recording as `recorded = ID`.
+    let obstacles = table
+        .get("obstacles")
+        .and_then(|o| o.as_array())
+        .map_or(&[][..], |o| o.as_slice());
+    if let Some((i, id)) = (obstacles.iter().enumerate()).find_map(|(i, o)| Some((i, o.get("recorded")?))) {
+        return Err(ScenarioError::Field {
+            file: file.to_string(),
+            key: format!("obstacles.{i}.recorded"),
+            message: format!(
+                "a recorded road user is now a motion kind: expected `motion = {{ kind = \"recorded\", id = {id} }}`"
+            ),
+        });
+    }
     let whole = toml::Value::Table(table);
     let mut scenario: Scenario = serde_path_to_error::deserialize(whole).map_err(|e| {
         let key = e.path().to_string();

@@ -18,6 +18,11 @@ pub const MAX_BREAKPOINTS: usize = 64;
 /// Most waypoints of a path.
 pub const MAX_WAYPOINTS: usize = 64;
 
+thread_local! {
+    /// The turn of [`ActorState::shifted`] (each of a road user's covering circles in turn).
+    static TURN: crate::footprint::SinCosMemo = const { crate::footprint::SinCosMemo::new() };
+}
+
 /// An actor's planar state at one time: position o (m), velocity ȯ (m/s), acceleration ö (m/s²),
 /// heading θ (rad), its turn since the heading its covering circles were laid out at (rad), yaw
 /// rate θ̇ (rad/s) and yaw acceleration θ̈ (rad/s²). A motion along a line keeps its heading
@@ -45,7 +50,7 @@ impl ActorState {
                 ..*self
             };
         }
-        let (s, c) = self.turn.sin_cos();
+        let (s, c) = TURN.with(|memo| memo.sin_cos(self.turn));
         let r = [c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]];
         let jr = [-r[1], r[0]];
         let (w, dw) = (self.yaw_rate, self.yaw_acceleration);
@@ -91,7 +96,7 @@ pub const PARKED: f64 = 1e7;
 
 /// A kind of actor motion (`[obstacles.motion] kind = …`, docs/actors.md): the actor's true
 /// state at any time of the run. Each kind is its own module, registered as filters are
-/// ([`crate::registry::Registry::add_motion`]): `straight` and `waypoints` ([`straight`]),
+/// (`Registry::add_motion` in `mjsafe::registry`): `straight` and `waypoints` ([`straight`]),
 /// `recorded` (a CommonRoad recording, [`recorded`]).
 pub trait Motion: Send + Sync + std::fmt::Debug {
     /// The actor's true state at time t, as far as the run has decided it.
