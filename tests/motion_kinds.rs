@@ -147,3 +147,17 @@ fn a_motion_without_kind_is_read_as_before() {
     let text = toml::to_string(&straight.scenario).unwrap();
     assert!(text.contains("kind = \"straight\""), "{text}");
 }
+
+#[test]
+fn a_scenario_imported_before_motion_kinds_names_the_replacement() {
+    let text = std::fs::read_to_string("scenarios/ncap_cpna.toml").unwrap();
+    let text = text.replace("[obstacles.motion]", "recorded = 431\n[obstacles.motion]");
+    let err = match mjsafe::embed::scenario_from_text(std::path::Path::new("old.toml"), text, &[]) {
+        Ok(_) => panic!("`recorded = 431` was accepted"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains("obstacles.0.recorded") && err.contains("motion = { kind = \"recorded\", id = 431 }"),
+        "{err}"
+    );
+}
