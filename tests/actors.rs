@@ -445,3 +445,27 @@ fn a_moving_box_s_logged_condition_is_the_derivative_of_its_logged_h() {
         assert!(median < 0.05, "{name}: median |logged − differences| = {median}");
     }
 }
+
+/// The relative impact speed exists for a standing obstacle too (issue "One verdict for a
+/// filter"): CCRs' target stands, so it is the car's own speed at the collision, here checked
+/// against the `speed` state logged then (the nominal alone holds 50 km/h into the target).
+#[test]
+fn a_standing_obstacle_has_an_impact_speed() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("ccrs.mcap");
+    let m = outcome("ncap_ccrs.toml", &log, &["filter={kind=\"none\"}"]);
+    assert!(collided(&m), "{m}");
+    let t = m["collision"]["time"].as_f64().unwrap();
+    let states = read_topic::<proto::State>(&log, "/state");
+    let at = states
+        .iter()
+        .find(|s| (s.time - t).abs() < 1e-9)
+        .expect("a state at the collision");
+    let speed = at.values[at.names.iter().position(|n| n == "speed").unwrap()];
+    let impact = m["impact_speed_by_actor"]["target"].as_f64().unwrap();
+    assert!(
+        (impact - speed).abs() < 1e-3 * speed,
+        "impact {impact} against the car's speed {speed}"
+    );
+    assert!((impact - 13.889).abs() < 0.05, "{impact}: 50 km/h");
+}

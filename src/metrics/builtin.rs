@@ -186,7 +186,7 @@ pub static METRICS: &[Metric] = &[
         "CommonRoad-CriMe's brake threat number BTN (measure/index/btn.py, Åsljung et al. 2017, (9)): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead")
     },
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
-        "per moving obstacle (`/actors`), at its first `collision_start` at time t: ‖Δ(p − o)‖ / Δt, the relative speed of the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages; absent without a collision with a moving obstacle (reason `no collision` when the log has moving obstacles)"),
+        "per obstacle, at its first `collision_start` at time t: the relative speed of the vehicle and the obstacle, ‖Δ(p − o)‖ / Δt for a moving one (`/actors`: the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages), ‖Δp‖ / Δt for a standing one (its velocity 0); absent without a collision (reason `no collision` when the log has moving obstacles)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
         "planar vehicles: v(0) − v(t_c), t_c the first `collision_start`, or v(0) − min v over the run without a collision; v at a `/state` message = distance to the next `/state` position / the time between them (forward difference); absent for vehicles without a planar position"),
     metric("vehicle_stopped", FRACTION, Shape::Count, &[Topic::State, Topic::Event], new::<VehicleStopped>,
@@ -1596,7 +1596,19 @@ impl Accumulate for ImpactSpeedByActor {
             }
             Observed::Event(m) if m.kind == "collision_start" => {
                 for p in m.participants.iter().filter(|p| *p != "vehicle") {
-                    let Some(&(t, x, y)) = self.latest.get(p) else { continue };
+                    let Some(&(t, x, y)) = self.latest.get(p) else {
+                        // A standing obstacle (never in `/actors`): its velocity is 0.
+                        if !self.impacts.iter().any(|i| &i.actor == p) {
+                            self.impacts.push(Impact {
+                                actor: p.clone(),
+                                time: m.time,
+                                actor_at: (f64::NAN, f64::NAN),
+                                actor_velocity: Some((0.0, 0.0)),
+                                vehicle_velocity: None,
+                            });
+                        }
+                        continue;
+                    };
                     if same_time(t, m.time) && !self.impacts.iter().any(|i| &i.actor == p) {
                         self.impacts.push(Impact {
                             actor: p.clone(),
