@@ -844,28 +844,54 @@ impl Accumulate for MinClearance {
 }
 
 /// `map[key] = min(map[key], x)`; the key is allocated at its first value.
-fn lower_keyed(map: &mut BTreeMap<String, f64>, key: &str, x: f64) {
-    match map.get_mut(key) {
-        Some(entry) => *entry = entry.min(x),
-        None => {
-            map.insert(key.to_string(), x);
-        }
+/// The least value per name of a `/barrier` entry, found by the entry's position among those a
+/// metric reads: every message lists the barriers in one order, so the name there is one
+/// comparison (a look-up by name only when it is not: hundreds of road users' barriers at
+/// every step; docs/performance.md).
+#[derive(Default)]
+struct LeastByName {
+    slots: Vec<(String, f64)>,
+    index: BTreeMap<String, usize>,
+}
+
+impl LeastByName {
+    /// The entry `key` at `position` of a message's entries has `x`.
+    fn observe(&mut self, position: usize, key: &str, x: f64) {
+        let slot = match self.slots.get(position) {
+            Some((name, _)) if name == key => position,
+            _ => match self.index.get(key) {
+                Some(&slot) => slot,
+                None => {
+                    self.index.insert(key.to_string(), self.slots.len());
+                    self.slots.push((key.to_string(), x));
+                    self.slots.len() - 1
+                }
+            },
+        };
+        let least = &mut self.slots[slot].1;
+        *least = least.min(x);
+    }
+
+    /// The values by name (emptied).
+    fn take(&mut self) -> Option<BTreeMap<String, f64>> {
+        self.index.clear();
+        (!self.slots.is_empty()).then(|| std::mem::take(&mut self.slots).into_iter().collect())
     }
 }
 
 #[derive(Default)]
-struct MinHByBarrier(BTreeMap<String, f64>);
+struct MinHByBarrier(LeastByName);
 
 impl Accumulate for MinHByBarrier {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Barrier(m) = record {
-            for b in m.barriers.iter().filter(|b| b.h.is_finite()) {
-                lower_keyed(&mut self.0, &b.name, b.h);
+            for (k, b) in m.barriers.iter().filter(|b| b.h.is_finite()).enumerate() {
+                self.0.observe(k, &b.name, b.h);
             }
         }
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+        Value::PerChannel(self.0.take())
     }
 }
 
@@ -900,18 +926,18 @@ impl Accumulate for MaxShortfallByBarrier {
 }
 
 #[derive(Default)]
-struct MinClearanceByObstacle(BTreeMap<String, f64>);
+struct MinClearanceByObstacle(LeastByName);
 
 impl Accumulate for MinClearanceByObstacle {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Barrier(m) = record {
-            for b in m.barriers.iter().filter(|b| b.obstacle) {
-                lower_keyed(&mut self.0, &b.name, b.clearance);
+            for (k, b) in m.barriers.iter().filter(|b| b.obstacle).enumerate() {
+                self.0.observe(k, &b.name, b.clearance);
             }
         }
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+        Value::PerChannel(self.0.take())
     }
 }
 
@@ -1426,18 +1452,19 @@ impl Accumulate for AtPrescribedTime {
 }
 
 #[derive(Default)]
-struct MinTtcByBarrier(BTreeMap<String, f64>);
+struct MinTtcByBarrier(LeastByName);
 
 impl Accumulate for MinTtcByBarrier {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Barrier(m) = record {
-            for b in (m.barriers.iter()).filter(|b| b.obstacle && b.known && !b.time_to_collision.is_nan()) {
-                lower_keyed(&mut self.0, &b.name, b.time_to_collision);
+            let known = (m.barriers.iter()).filter(|b| b.obstacle && b.known && !b.time_to_collision.is_nan());
+            for (k, b) in known.enumerate() {
+                self.0.observe(k, &b.name, b.time_to_collision);
             }
         }
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        Value::PerChannel((!self.0.is_empty()).then(|| std::mem::take(&mut self.0)))
+        Value::PerChannel(self.0.take())
     }
 }
 
