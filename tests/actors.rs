@@ -469,3 +469,37 @@ fn a_standing_obstacle_has_an_impact_speed() {
     );
     assert!((impact - 13.889).abs() < 0.05, "{impact}: 50 km/h");
 }
+
+/// 200 road users a kilometre away, driving along beside the test (CCRm with (4.67)), change no
+/// command: the issued and applied commands and the states are byte for byte those of the run
+/// without them (issue "Real traffic", part 8). They still cost (docs/performance.md): leaving
+/// them out of the QP is what this test guards.
+#[test]
+fn two_hundred_far_road_users_change_no_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let base = std::fs::read_to_string(root.join("scenarios/ncap_ccrm.toml"))
+        .unwrap()
+        .replace("\"../models/", &format!("\"{}/models/", root.display()));
+    let far: String = (0..200)
+        .map(|k| {
+            format!(
+                "\n[[obstacles]]\nname = \"far_{k}\"\ncentre = [{}, {}]\nradius = 1.0\n[obstacles.motion]\nkind = \"straight\"\ndirection = [1.0, 0.0]\nspeed = {}\n",
+                -500.0 + 10.0 * k as f64,
+                1000.0 + 5.0 * (k % 7) as f64,
+                10.0 + (k % 5) as f64
+            )
+        })
+        .collect();
+    let (near, with_far) = (dir.path().join("near.mcap"), dir.path().join("far.mcap"));
+    run_ok(&write(dir.path(), "near.toml", &base), &near, &[]);
+    run_ok(&write(dir.path(), "far.toml", &(base + &far)), &with_far, &[]);
+    let issued = |log: &Path| read_topic::<proto::IssuedCommand>(log, "/command/issued");
+    let applied = |log: &Path| read_topic::<proto::AppliedCommand>(log, "/command/applied");
+    let states = |log: &Path| read_topic::<proto::State>(log, "/state");
+    assert!(issued(&near).len() > 100);
+    assert!(issued(&near) == issued(&with_far), "the issued commands differ");
+    assert!(applied(&near) == applied(&with_far), "the applied commands differ");
+    assert!(states(&near) == states(&with_far), "the states differ");
+    assert_eq!(read_topic::<proto::Actors>(&with_far, "/actors")[0].actors.len(), 201);
+}
