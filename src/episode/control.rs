@@ -86,11 +86,13 @@ struct LawWorkspace {
     /// the controller assumes the actor at the evaluation time.
     moving: Vec<Option<Barrier>>,
     /// ẋ at zero input (the drift of the point a moving actor's barrier measures from, for
-    /// the relative-degree-2 motion terms), a column G_j of G, and per channel ∂q/∂x G_j.
+    /// the relative-degree-2 motion terms), the columns G_j of G one after another (both at the
+    /// evaluation state, computed once per [`LawWorkspace::constraints_into`] for all the
+    /// moving actors' barriers), and per channel ∂q/∂x G_j.
     drift: Vec<f64>,
     zero_input: Vec<f64>,
     unit_input: Vec<f64>,
-    column: Vec<f64>,
+    columns: Vec<f64>,
     point_input: Vec<[f64; 2]>,
     /// Per first-order row of a mixed-relative-degree barrier (after the one row per
     /// barrier in `constraints`), the barrier's index.
@@ -213,6 +215,8 @@ impl LawWorkspace {
         // degree barriers, in barrier order ([`LawWorkspace::first_order_of`]).
         let (rows, first_order_rows) = self.constraints.split_at_mut(count);
         let mut first_order = 0;
+        // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z.
+        let mut kinematics = false;
         for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
             let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
             match (&laws.actors.motions[k], &mut self.moving[k]) {
@@ -227,8 +231,16 @@ impl LawWorkspace {
                     }
                     let body = matches!(moved.shape, crate::barrier::Shape::BodyCircle { .. });
                     let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
-                    if rd2 {
+                    if rd2 && !kinematics {
                         laws.model.dynamics_into(z, &self.zero_input, &mut self.drift);
+                        let n = self.drift.len();
+                        for (j, column) in self.columns.chunks_exact_mut(n).enumerate() {
+                            self.unit_input.fill(0.0);
+                            self.unit_input[j] = 1.0;
+                            column.fill(0.0);
+                            laws.model.add_input_term(z, &self.unit_input, column);
+                        }
+                        kinematics = true;
                     }
                     // (At relative degree 1 the drift is stale and unused.)
                     let (q, q_drift) = moved.point_and_velocity(z, &self.drift).expect("a planar circle");
@@ -236,13 +248,9 @@ impl LawWorkspace {
                     // ∂q/∂x G_j: an input turns a body circle's point (docs/actors.md, "Footprints").
                     let inputs = match rd2 && body {
                         true => {
-                            for j in 0..self.point_input.len() {
-                                self.unit_input.fill(0.0);
-                                self.unit_input[j] = 1.0;
-                                self.column.fill(0.0);
-                                laws.model.add_input_term(z, &self.unit_input, &mut self.column);
-                                self.point_input[j] =
-                                    moved.point_and_velocity(z, &self.column).expect("a planar circle").1;
+                            let n = self.drift.len();
+                            for (j, column) in self.columns.chunks_exact(n).enumerate().take(self.point_input.len()) {
+                                self.point_input[j] = moved.point_and_velocity(z, column).expect("a planar circle").1;
                             }
                             &self.point_input[..]
                         }
@@ -415,7 +423,7 @@ impl ControlLoop {
                 drift: vec![0.0; n],
                 zero_input: vec![0.0; r],
                 unit_input: vec![0.0; r],
-                column: vec![0.0; n],
+                columns: vec![0.0; n * r],
                 point_input: vec![[0.0; 2]; r],
                 first_order_of: Vec::new(),
                 seen: Vec::new(),
