@@ -114,3 +114,74 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "{log:?}"
     );
 }
+
+/// The functions of `src/` (test modules left out) and their lengths in lines, by brace
+/// matching from each `fn` line (as ../shared/tools/long_functions.py counts them).
+fn function_lengths() -> Vec<(String, usize)> {
+    let mut found = Vec::new();
+    let mut stack = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("src")];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+                continue;
+            }
+            if path.extension().is_none_or(|e| e != "rs") || path.file_name().is_some_and(|n| n == "ffi.rs") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap();
+            let lines: Vec<&str> = code.lines().collect();
+            for (k, line) in lines.iter().enumerate() {
+                let trimmed = line.trim_start();
+                let after = [
+                    "pub(crate) ",
+                    "pub(super) ",
+                    "pub ",
+                    "const ",
+                    "unsafe ",
+                    "extern \"C\" ",
+                ]
+                .iter()
+                .fold(trimmed, |t, p| t.strip_prefix(p).unwrap_or(t));
+                let Some(name) = after.strip_prefix("fn ") else {
+                    continue;
+                };
+                if line.trim_end().ends_with(';') {
+                    continue;
+                }
+                let name: String = name.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+                let (mut depth, mut started) = (0i64, false);
+                for (e, body) in lines.iter().enumerate().skip(k) {
+                    depth += body.matches('{').count() as i64 - body.matches('}').count() as i64;
+                    started |= body.contains('{');
+                    if started && depth <= 0 {
+                        let file = path.strip_prefix(env!("CARGO_MANIFEST_DIR")).unwrap().display();
+                        found.push((format!("{file}::{name}"), e - k + 1));
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    found
+}
+
+/// No function of `src/` grows past 150 lines. The three that were longer before this guard
+/// existed may only shrink (issue "Keep the house in order" splits them).
+#[test]
+fn no_function_grows_past_150_lines() {
+    let known: [(&str, usize); 3] = [
+        ("src/stl/online.rs::step", 162),
+        ("src/falsify/guided.rs::run_guided", 183),
+        ("src/episode/control.rs::control_tick", 172),
+    ];
+    let lengths = function_lengths();
+    assert!(lengths.len() > 500, "the scan found the functions: {}", lengths.len());
+    let long: Vec<String> = (lengths.iter())
+        .filter(|(name, lines)| *lines > 150 && !known.iter().any(|(k, limit)| k == name && lines <= limit))
+        .map(|(name, lines)| format!("{name} ({lines} lines)"))
+        .collect();
+    assert!(long.is_empty(), "functions over 150 lines (split them): {long:?}");
+}
