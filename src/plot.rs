@@ -528,9 +528,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
             }
             for b in series.boxes.values() {
-                let corners = box_corners(*b);
-                let closed = corners.iter().chain(corners.first()).copied();
-                chart.draw_series(LineSeries::new(closed, PALETTE[1].stroke_width(3)))?;
+                chart.draw_series(LineSeries::new(closed_box(*b), PALETTE[1].stroke_width(3)))?;
             }
             chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
             draw_actor_paths(&mut chart, &series)?;
@@ -579,10 +577,7 @@ fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Opt
             continue;
         }
         let outline = match (series.boxes.get(actor), series.obstacles.get(actor)) {
-            (Some(&(_, size, _)), _) => {
-                let corners = box_corners(((x, y), size, heading));
-                corners.iter().chain(corners.first()).copied().collect()
-            }
+            (Some(&(_, size, _)), _) => closed_box(((x, y), size, heading)).collect(),
             (None, Some(&(_, r))) => circle((x, y), r).collect(),
             (None, None) => continue,
         };
@@ -611,9 +606,7 @@ fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Opt
         // The footprint as last drawn at or before `time` (the scene is drawn at the frame rate).
         let drawn = series.footprints.partition_point(|f| f.0 <= time + 1e-9);
         if let Some((_, outline)) = drawn.checked_sub(1).and_then(|k| series.footprints.get(k)) {
-            let corners = box_corners(*outline);
-            let closed = corners.iter().chain(corners.first()).copied();
-            chart.draw_series(LineSeries::new(closed, PALETTE[0].stroke_width(3)))?;
+            chart.draw_series(LineSeries::new(closed_box(*outline), PALETTE[0].stroke_width(3)))?;
         }
         chart.draw_series([Cross::new((px, py), 6, PALETTE[0].stroke_width(3))])?;
         let user_style = PALETTE[1].stroke_width(2);
@@ -646,6 +639,12 @@ fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Opt
 
 /// A box obstacle's outline: centre, (length, width), heading.
 type BoxOutline = ((f64, f64), (f64, f64), f64);
+
+/// A box's outline as a closed line: its corners and the first again.
+fn closed_box(outline: BoxOutline) -> impl Iterator<Item = (f64, f64)> + Clone {
+    let corners = box_corners(outline);
+    (0..=4).map(move |k| corners[k % 4])
+}
 
 /// The corners of a box obstacle, in order around it.
 fn box_corners(((x, y), (length, width), heading): BoxOutline) -> [(f64, f64); 4] {

@@ -8,9 +8,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 /// Top-level module → the top-level modules its non-test code names (`crate::<module>`).
-fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
-    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+/// Every `.rs` file under `src/`: its path relative to `src/` and its code without the file's
+/// test module (its last item; other items stay). Files of a module's tests
+/// (`#[cfg(test)] mod tests;` in `tests.rs`) are left out.
+fn rust_sources() -> Vec<(std::path::PathBuf, String)> {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut sources = Vec::new();
     let mut stack = vec![src.clone()];
     while let Some(dir) = stack.pop() {
         for entry in std::fs::read_dir(&dir).unwrap() {
@@ -19,31 +22,33 @@ fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
                 stack.push(path);
                 continue;
             }
-            if path.extension().is_none_or(|e| e != "rs") {
-                continue;
-            }
-            let relative = path.strip_prefix(&src).unwrap();
-            let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
-            let module = first.trim_end_matches(".rs").to_string();
-            if module == "lib" || module == "main" {
-                continue;
-            }
-            // A module's tests in a file of their own (`#[cfg(test)] mod tests;`) are test code.
-            if path.file_name().is_some_and(|n| n == "tests.rs") {
+            if path.extension().is_none_or(|e| e != "rs") || path.file_name().is_some_and(|n| n == "tests.rs") {
                 continue;
             }
             let text = std::fs::read_to_string(&path).unwrap();
-            // The file's test module (its last item) is left out; other items stay.
-            let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap();
-            let deps = graph.entry(module.clone()).or_default();
-            for (at, _) in code.match_indices("crate::") {
-                let name: String = code[at + 7..]
-                    .chars()
-                    .take_while(|c| c.is_ascii_lowercase() || *c == '_')
-                    .collect();
-                if !name.is_empty() && name != module {
-                    deps.insert(name);
-                }
+            let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap().to_string();
+            sources.push((path.strip_prefix(&src).unwrap().to_path_buf(), code));
+        }
+    }
+    sources
+}
+
+fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for (relative, code) in rust_sources() {
+        let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
+        let module = first.trim_end_matches(".rs").to_string();
+        if module == "lib" || module == "main" {
+            continue;
+        }
+        let deps = graph.entry(module.clone()).or_default();
+        for (at, _) in code.match_indices("crate::") {
+            let name: String = code[at + 7..]
+                .chars()
+                .take_while(|c| c.is_ascii_lowercase() || *c == '_')
+                .collect();
+            if !name.is_empty() && name != module {
+                deps.insert(name);
             }
         }
     }
@@ -119,48 +124,34 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
 /// matching from each `fn` line (as ../shared/tools/long_functions.py counts them).
 fn function_lengths() -> Vec<(String, usize)> {
     let mut found = Vec::new();
-    let mut stack = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("src")];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
+    for (relative, code) in rust_sources().iter().filter(|(p, _)| !p.ends_with("ffi.rs")) {
+        let lines: Vec<&str> = code.lines().collect();
+        for (k, line) in lines.iter().enumerate() {
+            let trimmed = line.trim_start();
+            let after = [
+                "pub(crate) ",
+                "pub(super) ",
+                "pub ",
+                "const ",
+                "unsafe ",
+                "extern \"C\" ",
+            ]
+            .iter()
+            .fold(trimmed, |t, p| t.strip_prefix(p).unwrap_or(t));
+            let Some(name) = after.strip_prefix("fn ") else {
+                continue;
+            };
+            if line.trim_end().ends_with(';') {
                 continue;
             }
-            if path.extension().is_none_or(|e| e != "rs") || path.file_name().is_some_and(|n| n == "ffi.rs") {
-                continue;
-            }
-            let text = std::fs::read_to_string(&path).unwrap();
-            let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap();
-            let lines: Vec<&str> = code.lines().collect();
-            for (k, line) in lines.iter().enumerate() {
-                let trimmed = line.trim_start();
-                let after = [
-                    "pub(crate) ",
-                    "pub(super) ",
-                    "pub ",
-                    "const ",
-                    "unsafe ",
-                    "extern \"C\" ",
-                ]
-                .iter()
-                .fold(trimmed, |t, p| t.strip_prefix(p).unwrap_or(t));
-                let Some(name) = after.strip_prefix("fn ") else {
-                    continue;
-                };
-                if line.trim_end().ends_with(';') {
-                    continue;
-                }
-                let name: String = name.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
-                let (mut depth, mut started) = (0i64, false);
-                for (e, body) in lines.iter().enumerate().skip(k) {
-                    depth += body.matches('{').count() as i64 - body.matches('}').count() as i64;
-                    started |= body.contains('{');
-                    if started && depth <= 0 {
-                        let file = path.strip_prefix(env!("CARGO_MANIFEST_DIR")).unwrap().display();
-                        found.push((format!("{file}::{name}"), e - k + 1));
-                        break;
-                    }
+            let name: String = name.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+            let (mut depth, mut started) = (0i64, false);
+            for (e, body) in lines.iter().enumerate().skip(k) {
+                depth += body.matches('{').count() as i64 - body.matches('}').count() as i64;
+                started |= body.contains('{');
+                if started && depth <= 0 {
+                    found.push((format!("src/{}::{name}", relative.display()), e - k + 1));
+                    break;
                 }
             }
         }

@@ -286,6 +286,10 @@ struct Lead {
     acceleration: f64,
 }
 
+/// A present road user of known extent: [length, width], position, velocity, acceleration,
+/// heading.
+type RoadUser = ([f64; 2], [f64; 2], [f64; 2], [f64; 2], f64);
+
 /// Pairs each `/state` with the `/actors` message of its time and finds the lead then (the
 /// headway metrics, after CommonRoad-CriMe's HW): the nearest present road user ahead of the
 /// vehicle's front and laterally within the vehicle's half width plus its own projected half
@@ -295,7 +299,10 @@ struct LeadTracker {
     /// Position, heading and `speed` indices of `/state` (None: not yet seen; Some(None): none).
     indices: Option<Option<([usize; 2], usize, usize)>>,
     state: Option<(f64, [f64; 2], f64, f64)>,
-    actors: Option<proto::Actors>,
+    /// The latest `/actors` time and its present road users of known extent: [length, width],
+    /// position, velocity, acceleration, heading (reused: no allocation per message).
+    actors_time: Option<f64>,
+    present: Vec<RoadUser>,
     done: f64,
     /// Whether any road user was ever ahead in the path.
     saw_lead: bool,
@@ -315,11 +322,21 @@ impl LeadTracker {
                 let value = |k: usize| m.values.get(k).copied();
                 self.state = Some((m.time, [value(i)?, value(j)?], value(h)?, value(v)?));
             }
-            Observed::Actors(m) => self.actors = Some(m.clone()),
+            Observed::Actors(m) => {
+                self.actors_time = Some(m.time);
+                self.present.clear();
+                for a in m.actors.iter().filter(|a| !a.absent) {
+                    let Some(&extent) = run.actor_extents.get(&a.name) else {
+                        continue;
+                    };
+                    self.present
+                        .push((extent, [a.x, a.y], [a.vx, a.vy], [a.ax, a.ay], a.heading));
+                }
+            }
             _ => return None,
         }
-        let ((time, p, heading, speed), actors) = (self.state?, self.actors.as_ref()?);
-        if !same_time(time, actors.time) || (self.done > 0.0 && time <= self.done) {
+        let ((time, p, heading, speed), actors_time) = (self.state?, self.actors_time?);
+        if !same_time(time, actors_time) || (self.done > 0.0 && time <= self.done) {
             return None;
         }
         self.done = time.max(f64::MIN_POSITIVE);
@@ -331,20 +348,18 @@ impl LeadTracker {
             speed,
             front: [p[0] + front * e[0], p[1] + front * e[1]],
         };
-        let lead = (actors.actors.iter())
-            .filter(|a| !a.absent)
-            .filter_map(|a| {
-                let [length, width] = *run.actor_extents.get(&a.name)?;
-                let d = [a.x - p[0], a.y - p[1]];
+        let lead = (self.present.iter())
+            .filter_map(|&([length, width], o, v, a, actor_heading)| {
+                let d = [o[0] - p[0], o[1] - p[1]];
                 let (along, across) = (d[0] * e[0] + d[1] * e[1], -d[0] * e[1] + d[1] * e[0]);
-                let (s, c) = (a.heading - heading).sin_cos();
+                let (s, c) = (actor_heading - heading).sin_cos();
                 let half_along = 0.5 * (length * c.abs() + width * s.abs());
                 let half_across = 0.5 * (length * s.abs() + width * c.abs());
                 let headway = along - half_along - front;
                 (across.abs() < half_width + half_across && headway > 0.0).then_some(Lead {
                     headway,
-                    velocity: a.vx * e[0] + a.vy * e[1],
-                    acceleration: a.ax * e[0] + a.ay * e[1],
+                    velocity: v[0] * e[0] + v[1] * e[1],
+                    acceleration: a[0] * e[0] + a[1] * e[1],
                 })
             })
             .min_by(|a, b| a.headway.total_cmp(&b.headway));
@@ -398,7 +413,7 @@ impl Accumulate for MinTimeHeadway {
         }
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if self.best.is_none() && self.leads.actors.is_some() && run.heading_index.is_some() {
+        if self.best.is_none() && self.leads.actors_time.is_some() && run.heading_index.is_some() {
             let reason = match self.leads.saw_lead {
                 true => "the vehicle's front never reached where a lead had been",
                 false => self.leads.reason(run),
@@ -429,7 +444,7 @@ impl Accumulate for MaxBrakeThreat {
         self.best = Some(self.best.map_or(0.0, |b: f64| b.max(0.0)).max(required / -A_LON_MAX));
     }
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if self.best.is_none() && self.leads.actors.is_some() && run.heading_index.is_some() {
+        if self.best.is_none() && self.leads.actors_time.is_some() && run.heading_index.is_some() {
             missing.insert("max_brake_threat_number".into(), self.leads.reason(run).into());
         }
         Value::Number(self.best)
