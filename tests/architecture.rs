@@ -159,12 +159,11 @@ fn function_lengths() -> Vec<(String, usize)> {
     found
 }
 
-/// No function of `src/` grows past 150 lines. The three that were longer before this guard
+/// No function of `src/` grows past 150 lines. The two that were longer before this guard
 /// existed may only shrink (issue "Keep the house in order" splits them).
 #[test]
 fn no_function_grows_past_150_lines() {
-    let known: [(&str, usize); 3] = [
-        ("src/stl/online.rs::step", 162),
+    let known: [(&str, usize); 2] = [
         ("src/falsify/guided.rs::run_guided", 183),
         ("src/episode/control.rs::control_tick", 172),
     ];

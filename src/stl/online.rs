@@ -376,24 +376,14 @@ impl Monitor {
             Op::Not => input.map(|(v, _)| -v),
             Op::Binary(c) => input.map(|(l, r)| c.robustness(l, r)),
             Op::Future { min, a, b, window } => {
-                let sign = if *min { -1.0 } else { 1.0 };
-                if let Some((v, _)) = input {
-                    // Values before the next output's window reach no window.
-                    while window.len() > 0 && window.first() < i + *a {
-                        window.pop();
-                    }
-                    if j >= i + *a {
-                        ok &= window.push(j, sign * v);
-                    }
-                }
-                if due && (s.received > i + *b || (done && i < s.received)) {
-                    while window.len() > 0 && window.first() < i + *a {
-                        window.pop();
-                    }
-                    Some(window.query().map_or(-sign * f64::INFINITY, |m| sign * m))
-                } else {
-                    None
-                }
+                let turn = Turn {
+                    i,
+                    j,
+                    received: s.received,
+                    due,
+                    done,
+                };
+                future_turn((*min, *a, *b), window, input, &turn, &mut ok)
             }
             Op::Past {
                 min,
@@ -427,33 +417,14 @@ impl Monitor {
                 *acc
             }),
             Op::Until { a, b, window, prefix } => {
-                let maintain = |window: &mut Window<UntilOp>, prefix: &mut Window<Max>, i: usize| -> bool {
-                    let mut ok = true;
-                    while window.len() > 0 && window.first() < i + *a {
-                        let index = window.first();
-                        if let Some((phi, _)) = window.pop() {
-                            ok &= prefix.push(index, -phi);
-                        }
-                    }
-                    while prefix.len() > 0 && prefix.first() < i {
-                        prefix.pop();
-                    }
-                    ok
+                let turn = Turn {
+                    i,
+                    j,
+                    received: s.received,
+                    due,
+                    done,
                 };
-                if let Some(pair) = input {
-                    ok &= window.push(j, pair);
-                    ok &= maintain(window, prefix, i);
-                }
-                if due && (s.received > i + *b || (done && i < s.received)) {
-                    ok &= maintain(window, prefix, i);
-                    Some(match window.query() {
-                        None => f64::NEG_INFINITY,
-                        Some(v) if *a == 0 => v.value,
-                        Some(v) => min(-prefix.query().unwrap_or(f64::NEG_INFINITY), v.value),
-                    })
-                } else {
-                    None
-                }
+                until_turn((*a, *b), (window, prefix), input, &turn, &mut ok)
             }
             Op::Since { a, b, recent, window } => input.map(|pair| {
                 ok &= recent.push(j, pair);
@@ -505,6 +476,88 @@ impl Monitor {
         }
         self.broken |= !ok;
     }
+}
+
+/// Where an operator stands in its turn ([`Monitor::step`]): output i is next, its operand's
+/// value j the latest, `received` of them so far; the output is `due` by its horizon; the
+/// operand is `done` (the run has ended).
+struct Turn {
+    i: usize,
+    j: usize,
+    received: usize,
+    due: bool,
+    done: bool,
+}
+
+impl Turn {
+    /// Whether output i can be given now: its window [i + a, i + b] is complete, or cut by the
+    /// end of the run.
+    fn window_complete(&self, b: usize) -> bool {
+        self.due && (self.received > self.i + b || (self.done && self.i < self.received))
+    }
+}
+
+/// F_[a,b] (max) or G_[a,b] (min: `sign` −1) over the operand's values in the window of output i.
+fn future_turn(
+    (is_min, a, b): (bool, usize, usize),
+    window: &mut Window<Max>,
+    input: Option<(f64, f64)>,
+    t: &Turn,
+    ok: &mut bool,
+) -> Option<f64> {
+    let sign = if is_min { -1.0 } else { 1.0 };
+    if let Some((v, _)) = input {
+        // Values before the next output's window reach no window.
+        while window.len() > 0 && window.first() < t.i + a {
+            window.pop();
+        }
+        if t.j >= t.i + a {
+            *ok &= window.push(t.j, sign * v);
+        }
+    }
+    if !t.window_complete(b) {
+        return None;
+    }
+    while window.len() > 0 && window.first() < t.i + a {
+        window.pop();
+    }
+    Some(window.query().map_or(-sign * f64::INFINITY, |m| sign * m))
+}
+
+/// φ U_[a,b] ψ at output i: the pairs (φ, ψ) in its window, and the running prefix of φ before it.
+fn until_turn(
+    (a, b): (usize, usize),
+    (window, prefix): (&mut Window<UntilOp>, &mut Window<Max>),
+    input: Option<(f64, f64)>,
+    t: &Turn,
+    ok: &mut bool,
+) -> Option<f64> {
+    let maintain = |window: &mut Window<UntilOp>, prefix: &mut Window<Max>| -> bool {
+        let mut ok = true;
+        while window.len() > 0 && window.first() < t.i + a {
+            let index = window.first();
+            if let Some((phi, _)) = window.pop() {
+                ok &= prefix.push(index, -phi);
+            }
+        }
+        while prefix.len() > 0 && prefix.first() < t.i {
+            prefix.pop();
+        }
+        ok
+    };
+    if let Some(pair) = input {
+        *ok &= window.push(t.j, pair);
+        *ok &= maintain(window, prefix);
+    }
+    if !t.window_complete(b) {
+        return None;
+    }
+    *ok &= maintain(window, prefix);
+    Some(match window.query() {
+        None => f64::NEG_INFINITY,
+        Some(v) if a == 0 => v.value,
+        Some(v) => min(-prefix.query().unwrap_or(f64::NEG_INFINITY), v.value),
+    })
 }
 
 /// Appends the slots of `node` (post-order); its index. `top`: only connectives above it.
