@@ -258,6 +258,7 @@ impl<'a> Running<'a> {
             simulated_time: steps as f64 * self.prepared.episode.timestep(),
             wall_seconds: self.run_seconds,
             error,
+            barrier_rows: self.prepared.episode.barrier_rows(),
         };
         let mut timing = RunTiming {
             assemble_seconds: self.prepared.assemble_seconds,

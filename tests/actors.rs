@@ -492,8 +492,27 @@ fn two_hundred_far_road_users_change_no_command() {
         })
         .collect();
     let (near, with_far) = (dir.path().join("near.mcap"), dir.path().join("far.mcap"));
-    run_ok(&write(dir.path(), "near.toml", &base), &near, &[]);
-    run_ok(&write(dir.path(), "far.toml", &(base + &far)), &with_far, &[]);
+    let rows = |stdout: String| -> serde_json::Value {
+        serde_json::from_str::<serde_json::Value>(&stdout).unwrap()["barrier_rows"].clone()
+    };
+    let near_rows = rows(run_ok(&write(dir.path(), "near.toml", &base), &near, &["--json"]));
+    let far_rows = rows(run_ok(
+        &write(dir.path(), "far.toml", &(base + &far)),
+        &with_far,
+        &["--json"],
+    ));
+    // The far road users are out of reach (docs/actors.md, "Out of reach"): not one of their
+    // rows is formed, and every one is left out at every evaluation.
+    assert_eq!(
+        far_rows["formed"], near_rows["formed"],
+        "{far_rows} against {near_rows}"
+    );
+    let (formed, left_out) = (
+        far_rows["formed"].as_u64().unwrap(),
+        far_rows["left_out"].as_u64().unwrap(),
+    );
+    let evaluations = left_out.saturating_sub(near_rows["left_out"].as_u64().unwrap()) / 200;
+    assert!(formed > 0 && evaluations > 100, "{far_rows} against {near_rows}");
     let issued = |log: &Path| read_topic::<proto::IssuedCommand>(log, "/command/issued");
     let applied = |log: &Path| read_topic::<proto::AppliedCommand>(log, "/command/applied");
     let states = |log: &Path| read_topic::<proto::State>(log, "/state");

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::{BarrierForm, Constraint};
 
+pub mod reach;
 pub mod recorded;
 pub mod straight;
 

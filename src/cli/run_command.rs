@@ -193,6 +193,12 @@ pub(super) fn run_scenario(
         if let Some(t) = metrics.number("stall_time") {
             value["stall_time"] = serde_json::json!(t);
         }
+        // Only for a run whose filter received barrier rows: how many, and how many of road
+        // users out of reach were left out.
+        let rows = summary.barrier_rows;
+        if rows.formed + rows.left_out > 0 {
+            value["barrier_rows"] = serde_json::json!(rows);
+        }
         // Only for a run with requirements: their robustness (null when absent: `missing`).
         if let Some(Value::PerChannel(values)) = metrics.value(REQUIREMENTS) {
             value["req"] = serde_json::json!(values);

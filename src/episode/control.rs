@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
+use super::reach::Reach;
 use crate::actor::{add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
@@ -73,6 +74,9 @@ struct TickWorkspace {
     spare_actor_positions: Vec<Vec<f64>>,
 }
 
+/// (time, state, the time the state is for) of a nominal input.
+type NominalPoint<'a> = (f64, &'a [f64], f64);
+
 /// Scratch space of the delay-free law and the per-channel filters.
 struct LawWorkspace {
     lie: LieWorkspace,
@@ -94,9 +98,16 @@ struct LawWorkspace {
     unit_input: Vec<f64>,
     columns: Vec<f64>,
     point_input: Vec<[f64; 2]>,
-    /// Per first-order row of a mixed-relative-degree barrier (after the one row per
-    /// barrier in `constraints`), the barrier's index.
-    first_order_of: Vec<usize>,
+    /// Per row of the last [`LawWorkspace::constraints_into`], the barrier it belongs to (rows
+    /// of road users out of reach are left out: [`Reach`]).
+    row_barrier: Vec<usize>,
+    /// Which road users are out of reach at an evaluation state.
+    reach: Reach,
+    /// Per channel, the largest |input| the filter's QPs planned, and whether it says.
+    planned: Vec<f64>,
+    says_planned: bool,
+    /// Whether the law of the current [`LawWorkspace::issued_law`] corrected u0.
+    law_corrected: bool,
     /// The moving actors as a nominal that reads them sees them (capacity: one per actor).
     seen: Vec<SeenActor>,
 }
@@ -133,8 +144,42 @@ impl LawWorkspace {
     /// per group of one delay D from the longest (each group's ω holds the later groups'
     /// commands), with u0 at the tick s − D that issues it (or at s for a nominal on
     /// predictions).
+    /// Made again with every row when an input it used exceeds the bound the rows it left out
+    /// were checked for ([`Reach`]).
     #[inline(always)]
     fn issued_law(
+        &mut self,
+        laws: &Laws<'_>,
+        filter: &mut dyn SafetyFilter,
+        queues: &[DelayQueue],
+        nominal_predicts: bool,
+        point: (f64, &[f64], &[usize]),
+        u: &mut [f64],
+    ) -> Result<(), FilterError> {
+        self.reach.begin_decision(u);
+        let mut attempt = 0;
+        loop {
+            filter.take_planned_inputs(&mut self.planned);
+            self.law_corrected = false;
+            self.issued_law_once(laws, filter, queues, nominal_predicts, point, u)?;
+            self.note_planned(filter);
+            // (A corrected u0 of a filter that does not say what it planned: made again with
+            // every row, as in channel_decision.)
+            let unknown = self.law_corrected && !self.says_planned;
+            let commands = point.2.iter().map(|&j| (j, if unknown { f64::NAN } else { u[j] }));
+            self.reach.note(commands);
+            if !self.reach.again(attempt) {
+                break;
+            }
+            self.reach.restore(u);
+            attempt += 1;
+        }
+        self.reach.enabled = true;
+        Ok(())
+    }
+
+    #[inline(always)]
+    fn issued_law_once(
         &mut self,
         laws: &Laws<'_>,
         filter: &mut dyn SafetyFilter,
@@ -152,6 +197,7 @@ impl LawWorkspace {
             let group = &free[start..end];
             let nominal_time = if nominal_predicts { s } else { s - d };
             self.nominal_into(laws, nominal_time, (z, s))?;
+            self.reach.note(self.nominal.iter().copied().enumerate());
             self.input.as_mut_slice().copy_from_slice(u);
             let input = LawInput {
                 time: s - d,
@@ -163,6 +209,7 @@ impl LawWorkspace {
             };
             filter.issued_law(&input, &mut self.input)?;
             for &j in group {
+                self.law_corrected |= self.input[j] != self.nominal[j];
                 u[j] = self.input[j];
             }
             end = start;
@@ -199,6 +246,68 @@ impl LawWorkspace {
             .map_err(FilterError::Other)
     }
 
+    /// Channel i's decision at tick t (rows and u0 at its evaluation point unless `shared` with
+    /// the previous channel's, which left `count` rows), made again with every row when an
+    /// input it used exceeds the bound the rows it left out were checked for ([`Reach`]).
+    fn channel_decision(
+        &mut self,
+        laws: &Laws<'_>,
+        filter: &mut dyn SafetyFilter,
+        (t, i, queues, timestep): (f64, usize, &[DelayQueue], f64),
+        (nominal_point, point): (NominalPoint<'_>, (&[f64], f64)),
+        (shared, count): (bool, &mut usize),
+    ) -> Result<Option<ChannelOutcome>, FilterError> {
+        let (nominal_time, nominal_state, state_time) = nominal_point;
+        self.reach.begin_decision(&[]);
+        filter.take_planned_inputs(&mut self.planned);
+        // ω (4.45): the later channels' commands come from the queues.
+        for (j, queue) in queues.iter().enumerate() {
+            self.reach.note(queue.issued().map(|(_, value)| (j, value)));
+        }
+        let mut decide = |law: &mut LawWorkspace, filter: &mut dyn SafetyFilter, again: bool| {
+            if !shared || again {
+                *count = law.channel_laws(laws, nominal_time, (nominal_state, state_time), point)?;
+            }
+            filter.filter_channel(&ChannelInput {
+                time: t,
+                channel: i,
+                state: point.0,
+                nominal: &law.nominal,
+                constraints: &law.constraints[..*count],
+                queues,
+                timestep,
+            })
+        };
+        let mut attempt = 0;
+        loop {
+            let outcome = decide(self, filter, attempt > 0)?;
+            self.reach.note(self.nominal.iter().copied().enumerate());
+            self.note_planned(filter);
+            // A decision that corrects u0 plans inputs (the QP's other channels, γm's
+            // fictitious σ (4.60)) that are checked when the filter says what they are; else,
+            // and for an infeasible QP's fallback, it is made again with every row. One that
+            // keeps u0 is the full QP's (every left-out row holds there).
+            let corrected =
+                outcome.is_some_and(|o| (o.active && !self.says_planned) || o.infeasible || o.unmet.is_some());
+            let command = outcome.map_or(self.nominal[i], |o| if corrected { f64::NAN } else { o.input });
+            self.reach.note(std::iter::once((i, command)));
+            if !self.reach.again(attempt) {
+                self.reach.enabled = true;
+                return Ok(outcome);
+            }
+            attempt += 1;
+        }
+    }
+
+    /// Notes the inputs the filter's QPs planned since `take_planned_inputs` was last called,
+    /// when it says ([`SafetyFilter::take_planned_inputs`]).
+    fn note_planned(&mut self, filter: &mut dyn SafetyFilter) {
+        self.says_planned = filter.take_planned_inputs(&mut self.planned);
+        if self.says_planned {
+            self.reach.note(self.planned.iter().copied().enumerate());
+        }
+    }
+
     #[inline(never)]
     fn constraints_out_of_line(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
         self.constraints_into(laws, form, z, at)
@@ -212,13 +321,25 @@ impl LawWorkspace {
     fn constraints_into(&mut self, laws: &Laws<'_>, form: BarrierForm, z: &[f64], at: f64) -> usize {
         let count = laws.barriers.len();
         // Rows 0..count: one per barrier; then the first-order rows of the mixed-relative-
-        // degree barriers, in barrier order ([`LawWorkspace::first_order_of`]).
+        // degree barriers, in barrier order; then those of road users out of reach are left
+        // out ([`LawWorkspace::compact_rows`]).
+        let r = self.nominal.len();
+        let culled = self
+            .reach
+            .mark(laws.model, form, z, r, |k| match &laws.actors.motions[k] {
+                Some(motion) => laws.actors.assumed(motion, k, at),
+                None => ActorState::default(),
+            });
         let (rows, first_order_rows) = self.constraints.split_at_mut(count);
         let mut first_order = 0;
         // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z.
         let mut kinematics = false;
         for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
             let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
+            if culled && self.reach.out[k] {
+                self.reach.attempt_rows[1] += 1 + u64::from(mixed);
+                continue;
+            }
             match (&laws.actors.motions[k], &mut self.moving[k]) {
                 (Some(motion), Some(moved)) => {
                     // The barrier's circle: the actor's centre plus its offset (a box's).
@@ -262,6 +383,7 @@ impl LawWorkspace {
                         self.lie.first_order_part_into(form, row);
                         let first = BarrierForm::RelativeDegree1 { alpha: 0.0 };
                         add_point_motion_terms(row, first, (q, q_drift, &[]), &actor);
+                        self.row_barrier[count + first_order] = k;
                         first_order += 1;
                     }
                 }
@@ -269,20 +391,46 @@ impl LawWorkspace {
                     self.lie.constraint_into(b, form, laws.model, z, c);
                     if let (true, Some(row)) = (mixed, first_order_rows.get_mut(first_order)) {
                         self.lie.first_order_part_into(form, row);
+                        self.row_barrier[count + first_order] = k;
                         first_order += 1;
                     }
                 }
             }
         }
-        count + first_order
+        self.compact_rows(count, first_order, culled)
+    }
+
+    /// Moves the rows of the barriers in reach to the front (each barrier's row, then the
+    /// first-order rows), with row_barrier the barrier of each; returns their number.
+    fn compact_rows(&mut self, count: usize, first_order: usize, culled: bool) -> usize {
+        if !culled {
+            for (k, slot) in self.row_barrier[..count].iter_mut().enumerate() {
+                *slot = k;
+            }
+            self.reach.attempt_rows[0] += (count + first_order) as u64;
+            return count + first_order;
+        }
+        let mut kept = 0;
+        for k in 0..count {
+            if !self.reach.out[k] {
+                self.constraints.swap(kept, k);
+                self.row_barrier[kept] = k;
+                kept += 1;
+            }
+        }
+        for row in count..count + first_order {
+            self.constraints.swap(kept, row);
+            self.row_barrier[kept] = self.row_barrier[row];
+            kept += 1;
+        }
+        self.reach.attempt_rows[0] += kept as u64;
+        kept
     }
 
     /// The barrier a constraint row belongs to: row k < the barriers' count is barrier k's
     /// condition, the later rows the first-order rows of the mixed-relative-degree barriers.
-    fn barrier_of_row(&self, row: usize, barriers: usize) -> usize {
-        row.checked_sub(barriers)
-            .and_then(|r| self.first_order_of.get(r).copied())
-            .unwrap_or(row)
+    fn barrier_of_row(&self, row: usize) -> usize {
+        self.row_barrier.get(row).copied().unwrap_or(row)
     }
 }
 
@@ -425,7 +573,11 @@ impl ControlLoop {
                 unit_input: vec![0.0; r],
                 columns: vec![0.0; n * r],
                 point_input: vec![[0.0; 2]; r],
-                first_order_of: Vec::new(),
+                row_barrier: Vec::new(),
+                reach: Reach::new(model.as_ref(), &queues),
+                planned: vec![0.0; r],
+                says_planned: false,
+                law_corrected: false,
                 seen: Vec::new(),
             },
             spare_states: Vec::new(),
@@ -566,9 +718,19 @@ impl ControlLoop {
         self.input_disturbance = Some(disturbance);
     }
 
+    /// The barrier rows formed and left out so far.
+    pub fn barrier_rows(&self) -> super::BarrierRows {
+        let reach = &self.work.law.reach;
+        super::BarrierRows {
+            formed: reach.rows_formed,
+            left_out: reach.rows_left_out,
+            redone: reach.redone,
+        }
+    }
+
     /// Makes a barrier known to the controller (outside the callback: sizes the scratch space).
     pub fn add_barrier(&mut self, barrier: Barrier) {
-        self.add_known(barrier, None);
+        self.add_known(barrier, None, None);
     }
 
     /// Makes a moving actor's barrier known (a planar circle about the actor's centre plus
@@ -580,7 +742,7 @@ impl ControlLoop {
             barrier.clone().move_actor([0.0; 2]),
             "a moving actor's barrier is a planar circle or a headway"
         );
-        self.add_known(barrier, Some(motion));
+        self.add_known(barrier, Some(motion), Some((offset, primary)));
         *self.actors.offsets.last_mut().expect("just added") = offset;
         *self.actors.primary.last_mut().expect("just added") = primary;
         // (len stays 0 outside a tick: reserve for every primary actor.)
@@ -588,7 +750,8 @@ impl ControlLoop {
         self.work.law.seen.reserve(primaries);
     }
 
-    fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>) {
+    fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>, road_user: Option<([f64; 2], bool)>) {
+        self.work.law.reach.add(&barrier, road_user);
         self.work.law.moving.push(motion.as_ref().map(|_| barrier.clone()));
         self.actors.motions.push(motion);
         self.actors.offsets.push([0.0; 2]);
@@ -598,11 +761,12 @@ impl ControlLoop {
         let form = self.filter.barrier_form();
         if barrier.mixed_relative_degree() && form.is_some_and(|f| f.real_rates().is_some()) {
             let law = &mut self.work.law;
-            law.first_order_of.push(self.known_barriers.len());
             law.constraints.push(Constraint::zeros(self.queues.len()));
+            law.row_barrier.push(0);
         }
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
+        self.work.law.row_barrier.push(0);
         // κ_j changed: the recursive chain computed with the old law no longer holds.
         self.work.predictor.invalidate_chain();
     }
@@ -781,27 +945,20 @@ impl ControlLoop {
             };
             // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
             let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
-            if !shared {
-                count = law.channel_laws(
-                    &laws,
-                    nominal_time,
-                    (nominal_state.as_slice(), state_time),
+            let outcome = law.channel_decision(
+                &laws,
+                filter.as_mut(),
+                (t, i, queues, *timestep),
+                (
+                    (nominal_time, nominal_state.as_slice(), state_time),
                     (eval_state.as_slice(), eval_time),
-                )?;
-            }
-            let outcome = filter.filter_channel(&ChannelInput {
-                time: t,
-                channel: i,
-                state: eval_state.as_slice(),
-                nominal: &law.nominal,
-                constraints: &law.constraints[..count],
-                queues,
-                timestep: *timestep,
-            })?;
+                ),
+                (shared, &mut count),
+            )?;
             tick.nominal[i] = law.nominal[i];
             tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
             tick.outcomes[i] = outcome.map(|mut o| {
-                o.unmet = o.unmet.map(|row| law.barrier_of_row(row, known_barriers.len()));
+                o.unmet = o.unmet.map(|row| law.barrier_of_row(row));
                 o
             });
             // A non-finite command (from a state at NaN or ±1e300) never reaches a queue.

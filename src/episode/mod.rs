@@ -5,6 +5,7 @@
 mod build;
 mod control;
 pub mod cost;
+mod reach;
 mod records;
 
 use std::path::PathBuf;
@@ -99,6 +100,19 @@ pub struct EpisodeSummary {
     pub wall_seconds: f64,
     /// Why the episode stopped before its end, if it did.
     pub error: Option<StopReason>,
+    /// The barrier rows the controller formed and left out (road users out of reach).
+    pub barrier_rows: BarrierRows,
+}
+
+/// Over a run: the barrier rows the controller formed for its filter's decisions and laws,
+/// the rows of road users out of reach it left out of them without forming them
+/// (docs/actors.md, "Out of reach"), and the decisions it made again (an input above the
+/// bound the left-out rows were checked for; the rows of the first attempt are not counted).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct BarrierRows {
+    pub formed: u64,
+    pub left_out: u64,
+    pub redone: u64,
 }
 
 /// Why an episode stopped before its last step (logged as an `/event`).
@@ -370,6 +384,11 @@ impl Episode {
         self.control.chain_audit()
     }
 
+    /// The barrier rows formed and left out so far ([`BarrierRows`]).
+    pub fn barrier_rows(&self) -> BarrierRows {
+        self.control.barrier_rows()
+    }
+
     /// The plant's current state x.
     pub fn plant_state(&self) -> DVector<f64> {
         self.plant.state()
@@ -435,6 +454,7 @@ impl Episode {
             simulated_time: steps as f64 * self.control.timestep(),
             wall_seconds: started.elapsed().as_secs_f64(),
             error,
+            barrier_rows: self.control.barrier_rows(),
         })
     }
 

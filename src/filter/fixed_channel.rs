@@ -183,6 +183,11 @@ impl SafetyFilter for FixedChannel {
 
     /// (4.44) itself at z: u_j = u0_j + ū_j (4.46) with s = max{φ, j} (4.43) and ω (4.45) the
     /// later channels' commands in `u`.
+    fn take_planned_inputs(&mut self, largest: &mut [f64]) -> bool {
+        self.qp.take_planned(largest);
+        true
+    }
+
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let FixedChannel { phi, omega, qp, .. } = self;
         input.per_free_channel(u, omega, |constraints, omega, j| {

@@ -120,6 +120,11 @@ impl SafetyFilter for GammaM {
 
     /// (4.67) itself at z: u_j = u0_j + ū_j of QP_k (4.62) with ω (4.64) the later channels'
     /// commands in `u` (k (4.68): the channels in `free` share one delay, so one k).
+    fn take_planned_inputs(&mut self, largest: &mut [f64]) -> bool {
+        self.qp.take_planned(largest);
+        true
+    }
+
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let GammaM {
             m,

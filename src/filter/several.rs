@@ -29,6 +29,9 @@ pub struct ChannelQp {
     solution: DVector<f64>,
     /// u0 + ū on the moved channels, ω on the later ones: the inputs the decision plans.
     planned: DVector<f64>,
+    /// Per channel, the largest |input| the solves since [`ChannelQp::take_planned`] planned,
+    /// fictitious ones included (γm's (u0 + v or ω) + σ).
+    largest_planned: Vec<f64>,
 }
 
 impl ChannelQp {
@@ -41,7 +44,25 @@ impl ChannelQp {
             origin: DVector::zeros(variables),
             solution: DVector::zeros(variables),
             planned: DVector::zeros(r),
+            largest_planned: vec![0.0; r],
         }
+    }
+
+    /// largest ← per channel, the largest |input| planned since the last call (then reset).
+    pub fn take_planned(&mut self, largest: &mut [f64]) {
+        for (out, planned) in largest.iter_mut().zip(&mut self.largest_planned) {
+            *out = std::mem::take(planned);
+        }
+    }
+
+    /// Channel j's input `value` was planned (NaN stays NaN: no bound holds).
+    fn plan(&mut self, j: usize, value: f64) {
+        let slot = &mut self.largest_planned[j];
+        *slot = if value.is_nan() {
+            f64::NAN
+        } else {
+            slot.max(value.abs())
+        };
     }
 
     /// For the fixed-channel filter (4.44) on r channels.
@@ -99,15 +120,21 @@ impl ChannelQp {
         s: usize,
         report: bool,
     ) -> ChannelOutcome {
+        let r = u0.len();
         if let [c] = constraints {
             let mut out = fixed_channel(c, u0, omega, i, s);
             // Active: the constraint is met with equality by construction; infeasible: v = 0.
             if out.infeasible {
                 (out.unmet, out.shortfall) = (Some(0), -out.mu);
             }
+            // ū_j (4.46) on the channels < s.
+            let b_used: f64 = (0..s).map(|j| c.b[j] * c.b[j]).sum();
+            let scale = if out.active { -out.mu / b_used } else { 0.0 };
+            for j in 0..r {
+                self.plan(j, if j < s { u0[j] + scale * c.b[j] } else { omega[j] });
+            }
             return out;
         }
-        let r = u0.len();
         for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
             reduced.a = c.a + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
             for j in 0..r {
@@ -117,6 +144,9 @@ impl ChannelQp {
         let reduced = &self.reduced[..constraints.len()];
         let (active, infeasible, mu) = self.qp.solve(reduced, u0, None, &mut self.solution);
         let mut out = ChannelOutcome::new(self.solution[i], active, infeasible, mu);
+        for j in 0..r {
+            self.plan(j, if j < s { self.solution[j] } else { omega[j] });
+        }
         if report {
             for j in 0..r {
                 self.planned[j] = if j < s { self.solution[j] } else { omega[j] };
@@ -178,6 +208,16 @@ impl ChannelQp {
         let used = k + 1;
         if let [c] = constraints {
             let mut out = gamma_m(c, u0, omega, i, k, m, gamma);
+            // w = −ζ/ξ β (4.62): v_j = −ζ/ξ b_j on the channels ≤ k, σ_j = −ζ/(ξ m) b_j.
+            let scale = if out.active {
+                -out.mu / gamma_m_xi(c, used, m)
+            } else {
+                0.0
+            };
+            for j in 0..r {
+                let real = if j < used { u0[j] + scale * c.b[j] } else { omega[j] };
+                self.plan(j, real + scale / m * c.b[j]);
+            }
             if report && (out.active || out.infeasible) {
                 // ū_j = −ζ/ξ b_j (4.62) on the channels ≤ k (0 if infeasible).
                 let scale = if out.active {
@@ -204,6 +244,10 @@ impl ChannelQp {
         self.origin.fill(0.0);
         let (active, infeasible, mu) = self.qp.solve(reduced, &self.origin, None, &mut self.solution);
         let mut out = ChannelOutcome::new(u0[i] + self.solution[i], active, infeasible, mu);
+        for j in 0..r {
+            let real = if j < used { u0[j] + self.solution[j] } else { omega[j] };
+            self.plan(j, real + self.solution[r + j] / root_m);
+        }
         if report {
             for j in 0..r {
                 self.planned[j] = if j < used { u0[j] + self.solution[j] } else { omega[j] };

@@ -1,0 +1,176 @@
+//! Reach: when a road user's barrier rows cannot matter (pure maths; docs/actors.md, "Out of
+//! reach"). A road user out of reach of the ego at an evaluation state costs no barrier row and
+//! enters no QP; this module decides it from bounds, without forming the rows.
+//!
+//! Every row of a pair of circles (an ego point q with the input reaching it, a road user's
+//! circle o, their radii summing to r) has, with d = q − o, h = ‖d‖² − r², q̇ = q̇₀ + K u and
+//! the input's part of q̈ at relative degree 2 J u (J = ∂q̇₀/∂x G):
+//! - relative degree 2 (4.85)/(4.86) with the motion terms of [`super::add_point_motion_terms`]:
+//!   a = 2‖q̇₀ − ȯ‖² + 2 d·(q̈₀ − ö) + 2 l1 d·(q̇₀ − ȯ) + l0 h, and
+//!   b = 2 (q̇₀ − ȯ)ᵀK + 2 dᵀ(J + λ1 K) (λ1 K only with mixed relative degree);
+//! - the first-order row of mixed relative degree, and relative degree 1 (4.7)/(4.8), with
+//!   rate c (λ1 or α): a = 2 d·(q̇₀ − ȯ) + c h, b = 2 dᵀK.
+//!
+//! With D ≤ ‖d‖ − r (a lower bound of the gap between the circles, from the road user's
+//! bounding circle), V ≥ ‖q̇₀ − ȯ‖, A ≥ ‖q̈₀ − ö‖, and for a set of admissible inputs (each
+//! channel within its bound U_j) W ≥ ‖K u‖ and B ≥ ‖J u‖ (Σ_j ‖K_j‖ U_j, Σ_j ‖J_j‖ U_j with K_j,
+//! J_j the columns): h ≥ ‖d‖ D (‖d‖ + r ≥ ‖d‖), so for every admissible u
+//! - a + b·u ≥ ‖d‖ (l0 D − 2 (A + |l1| V + B + λ1 W)) − 2 V W, which is ≥ 0 when the bracket is
+//!   ≥ 0 and D times it is ≥ 2 V W (‖d‖ ≥ D);
+//! - a + b·u ≥ ‖d‖ (c D − 2 (V + W)), ≥ 0 when the bracket is.
+//!
+//! Every row then holds for every admissible input: leaving it out of a QP whose solution is
+//! admissible changes nothing (a relaxation's solution that meets the left-out constraints is
+//! the full problem's).
+
+use crate::barrier::BarrierForm;
+
+/// Bounds of one road user against the ego at one evaluation state (every pair of its circles
+/// with the ego's points) and a set of admissible inputs: see the module docs for their
+/// meaning. All non-negative except `gap`, which may be negative (the circles may overlap).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ReachBounds {
+    /// D (m): the least gap ‖q − o‖ − r over the pairs.
+    pub gap: f64,
+    /// V (m/s): bounds ‖q̇₀ − ȯ‖.
+    pub speed: f64,
+    /// A (m/s²): bounds ‖q̈₀ − ö‖.
+    pub acceleration: f64,
+    /// W (m/s): bounds ‖K u‖, how far an admissible input moves an ego point's velocity.
+    pub input_speed: f64,
+    /// B (m/s²): bounds ‖J u‖, how far an admissible input moves an ego point's acceleration.
+    pub input_acceleration: f64,
+}
+
+/// Whether every barrier row of a road user with these bounds holds for every admissible
+/// input, in `form` (with its mixed-relative-degree first-order rows, when the form has real
+/// rates). False for a form whose rates give no margin (l0 ≤ 0, α ≤ 0), and for bounds that
+/// are not finite.
+pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
+    let ReachBounds {
+        gap,
+        speed,
+        acceleration,
+        input_speed,
+        input_acceleration,
+    } = *bounds;
+    if !(gap > 0.0
+        && [speed, acceleration, input_speed, input_acceleration]
+            .iter()
+            .all(|v| v.is_finite()))
+    {
+        return false;
+    }
+    let first_order = |rate: f64| rate > 0.0 && rate * gap - 2.0 * (speed + input_speed) >= 0.0;
+    match form {
+        BarrierForm::RelativeDegree1 { alpha } => first_order(alpha),
+        BarrierForm::RelativeDegree2 { l0, l1 } => {
+            let lambda1 = form.real_rates().map_or(0.0, |(lambda1, _)| lambda1);
+            let inputs = input_acceleration + lambda1 * input_speed;
+            let bracket = l0 * gap - 2.0 * (acceleration + l1.abs() * speed + inputs);
+            let second = l0 > 0.0 && bracket >= 0.0 && gap * bracket >= 2.0 * speed * input_speed;
+            // The first-order row ḣ + λ1 h ≥ 0 of a mixed-relative-degree barrier.
+            second && form.real_rates().is_none_or(|(lambda1, _)| first_order(lambda1))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::random::SplitMix64;
+
+    /// The rows of one pair, formed from the quantities the bounds bound (module docs).
+    #[allow(clippy::too_many_arguments)]
+    fn rows(
+        form: BarrierForm,
+        d: [f64; 2],
+        r: f64,
+        w: [f64; 2],
+        acc: [f64; 2],
+        k: [[f64; 2]; 2],
+        j: [[f64; 2]; 2],
+        u: [f64; 2],
+    ) -> Vec<f64> {
+        let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
+        let mul = |m: [[f64; 2]; 2], u: [f64; 2]| [m[0][0] * u[0] + m[0][1] * u[1], m[1][0] * u[0] + m[1][1] * u[1]];
+        let h = dot(d, d) - r * r;
+        let (ku, ju) = (mul(k, u), mul(j, u));
+        match form {
+            BarrierForm::RelativeDegree1 { alpha } => vec![2.0 * dot(d, w) + alpha * h + 2.0 * dot(d, ku)],
+            BarrierForm::RelativeDegree2 { l0, l1 } => {
+                let lambda1 = form.real_rates().map_or(0.0, |(l, _)| l);
+                let a = 2.0 * dot(w, w) + 2.0 * dot(d, acc) + 2.0 * l1 * dot(d, w) + l0 * h;
+                let b_u = 2.0 * dot(w, ku) + 2.0 * dot(d, ju) + lambda1 * 2.0 * dot(d, ku);
+                let mut out = vec![a + b_u];
+                if form.real_rates().is_some() {
+                    out.push(2.0 * dot(d, w) + lambda1 * h + 2.0 * dot(d, ku));
+                }
+                out
+            }
+        }
+    }
+
+    /// Random pairs and inputs within the bounds: whenever `rows_hold` says so, every row is
+    /// ≥ 0; and far enough away it does say so.
+    #[test]
+    fn rows_hold_only_where_every_row_is_met() {
+        let mut rng = SplitMix64(7);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let forms = [
+            BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 },
+            BarrierForm::RelativeDegree2 { l0: 1.0, l1: 0.5 },
+            BarrierForm::RelativeDegree1 { alpha: 2.0 },
+        ];
+        let (mut certified, mut checked) = (0, 0);
+        for _ in 0..20000 {
+            let form = forms[(uniform(0.0, 3.0) as usize).min(2)];
+            let r = uniform(0.5, 3.0);
+            let distance = r + uniform(-1.0, 200.0);
+            let angle = uniform(0.0, std::f64::consts::TAU);
+            let d = [distance * angle.cos(), distance * angle.sin()];
+            let mut vector = |scale: f64| [uniform(-scale, scale), uniform(-scale, scale)];
+            let (w, acc) = (vector(20.0), vector(8.0));
+            let (k, j) = ([vector(3.0), vector(3.0)], [vector(5.0), vector(5.0)]);
+            // Admissible: |u_j| ≤ U_j; the row is checked at a random admissible input.
+            let bound = [uniform(0.0, 4.0), uniform(0.0, 4.0)];
+            let u = [bound[0] * uniform(-1.0, 1.0), bound[1] * uniform(-1.0, 1.0)];
+            let norm = |v: [f64; 2]| v[0].hypot(v[1]);
+            let columns = |m: [[f64; 2]; 2]| norm([m[0][0], m[1][0]]) * bound[0] + norm([m[0][1], m[1][1]]) * bound[1];
+            let bounds = ReachBounds {
+                gap: distance - r,
+                speed: norm(w),
+                acceleration: norm(acc),
+                input_speed: columns(k),
+                input_acceleration: columns(j),
+            };
+            if rows_hold(&bounds, form) {
+                certified += 1;
+                for row in rows(form, d, r, w, acc, k, j, u) {
+                    assert!(row >= 0.0, "{bounds:?} {form:?}: a row {row} < 0");
+                }
+            }
+            checked += 1;
+        }
+        assert!(certified > checked / 4, "only {certified} of {checked} pairs certified");
+    }
+
+    #[test]
+    fn overlapping_or_marginless_pairs_are_never_out_of_reach() {
+        let far = ReachBounds {
+            gap: 1e6,
+            ..Default::default()
+        };
+        let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
+        assert!(rows_hold(&far, form));
+        assert!(!rows_hold(&far, BarrierForm::RelativeDegree2 { l0: 0.0, l1: 4.0 }));
+        assert!(!rows_hold(&far, BarrierForm::RelativeDegree1 { alpha: 0.0 }));
+        let unbounded = ReachBounds {
+            input_speed: f64::NAN,
+            ..far
+        };
+        assert!(!rows_hold(&unbounded, form));
+        let touching = ReachBounds { gap: 0.0, ..far };
+        assert!(!rows_hold(&touching, form));
+    }
+}

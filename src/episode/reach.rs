@@ -1,0 +1,353 @@
+//! The adapter of [`crate::actor::reach`] to the control loop: at each evaluation state, which
+//! road users' barrier rows the controller leaves out (docs/actors.md, "Out of reach").
+//!
+//! The ego's points (a footprint's covering circles, or the planar position) are measured once
+//! per evaluation from two probe barriers each (h = ‖q − o‖² with o = q − e_x and o = q − e_y,
+//! whose Lie derivatives give q̇₀, q̈₀ and the rows of K and J exactly); a road user's bounds then
+//! cost one distance per ego point. The admissible inputs are, per channel j, |u_j| ≤ 2 M_j with
+//! M_j the largest |u_j| of the channel's recent commands and nominal inputs (M_j forgets
+//! slowly); a decision whose command or nominal input exceeds M_j on some channel is made again
+//! with every row (control.rs), so a left-out row is met by every decision's command and u0.
+
+use crate::actor::reach::{rows_hold, ReachBounds};
+use crate::actor::ActorState;
+use crate::barrier::{Barrier, BarrierForm, LieWorkspace, Shape};
+use crate::delay::DelayQueue;
+use crate::dynamics::Dynamics;
+
+/// The factor M keeps of itself at each decision ([`Reach::end_decision`]).
+const FORGET: f64 = 0.999;
+
+/// One road user: its barriers (consecutive known barriers from its primary), the largest
+/// distance of its circles from its centre, and whether its rows may be left out at all.
+struct Group {
+    first: usize,
+    end: usize,
+    spread: f64,
+    cullable: bool,
+}
+
+/// What one ego point does at the evaluation state (module docs).
+#[derive(Clone, Copy, Default)]
+struct PointMotion {
+    position: [f64; 2],
+    velocity: [f64; 2],
+    acceleration: [f64; 2],
+    /// ‖K_j‖ and ‖J_j‖ per input channel (up to four).
+    velocity_gains: [f64; 4],
+    acceleration_gains: [f64; 4],
+}
+
+/// Which road users are out of reach, per evaluation.
+pub(super) struct Reach {
+    groups: Vec<Group>,
+    /// Per known barrier: its ego point (an index into `probes`), None for barriers never left
+    /// out (not a moving road user's circle).
+    point_of: Vec<Option<usize>>,
+    radius: Vec<f64>,
+    /// One probe barrier per ego point (radius 0, centre set per evaluation).
+    probes: Vec<Barrier>,
+    points: Vec<PointMotion>,
+    lie: LieWorkspace,
+    /// Per known barrier: left out at the last evaluation.
+    pub(super) out: Vec<bool>,
+    /// M_j per channel: the largest recent |u_j| of a command or nominal input.
+    largest_input: Vec<f64>,
+    /// M_j when the current decision began.
+    bound: Vec<f64>,
+    /// Whether rows may be left out (false while a decision is made again with every row).
+    pub(super) enabled: bool,
+    /// Rows formed and left out over the run by the decisions that stand (the run's summary
+    /// reports them), and by the current decision's attempt.
+    pub(super) rows_left_out: u64,
+    pub(super) rows_formed: u64,
+    pub(super) attempt_rows: [u64; 2],
+    /// Decisions made again with every row (a command or nominal input above M).
+    pub(super) redone: u64,
+    /// Whether the last [`Reach::mark`] left rows out.
+    culled_last: bool,
+    /// Whether an input of the current decision exceeded its channel's M_j, and the commands
+    /// it started from.
+    exceeded: bool,
+    /// Whether the current decision used an input it does not say (noted as NaN).
+    unknown: bool,
+    saved: Vec<f64>,
+}
+
+impl Reach {
+    /// For `model`, with M starting at the largest initial input in `queues`.
+    pub(super) fn new(model: &dyn Dynamics, queues: &[DelayQueue]) -> Reach {
+        let largest_input: Vec<f64> = queues
+            .iter()
+            .map(|q| q.issued().map(|(_, value)| value.abs()).fold(0.0, f64::max))
+            .collect();
+        Reach {
+            groups: Vec::new(),
+            point_of: Vec::new(),
+            radius: Vec::new(),
+            probes: Vec::new(),
+            points: Vec::new(),
+            lie: LieWorkspace::new(model),
+            out: Vec::new(),
+            bound: largest_input.clone(),
+            largest_input,
+            enabled: true,
+            culled_last: false,
+            exceeded: false,
+            unknown: false,
+            saved: vec![0.0; queues.len()],
+            rows_left_out: 0,
+            rows_formed: 0,
+            attempt_rows: [0; 2],
+            redone: 0,
+        }
+    }
+
+    /// Registers the next known barrier: a moving road user's (`offset` from its centre,
+    /// `primary` for its first) or not (`None`).
+    pub(super) fn add(&mut self, barrier: &Barrier, road_user: Option<([f64; 2], bool)>) {
+        let index = self.point_of.len();
+        self.out.push(false);
+        let point = road_user.and_then(|_| self.ego_point(barrier));
+        self.point_of.push(point);
+        self.radius.push(match &barrier.shape {
+            Shape::Ball { radius, .. } | Shape::BodyCircle { radius, .. } => *radius,
+            _ => f64::NAN,
+        });
+        let Some((offset, primary)) = road_user else {
+            return;
+        };
+        let spread = offset[0].hypot(offset[1]);
+        match (primary, self.groups.last_mut()) {
+            (false, Some(group)) if group.end == index => {
+                group.end += 1;
+                group.spread = group.spread.max(spread);
+                group.cullable &= point.is_some();
+            }
+            _ => self.groups.push(Group {
+                first: index,
+                end: index + 1,
+                spread,
+                cullable: point.is_some(),
+            }),
+        }
+    }
+
+    /// The probe of the ego point a road user's barrier measures from (a new one for a new
+    /// point); None for a barrier whose rows are never left out (a headway, an inner circle).
+    fn ego_point(&mut self, barrier: &Barrier) -> Option<usize> {
+        let probe = match &barrier.shape {
+            Shape::Ball {
+                indices, inside: false, ..
+            } if indices.len() == 2 => Shape::Ball {
+                indices: indices.clone(),
+                centre: vec![0.0; 2],
+                radius: 0.0,
+                inside: false,
+            },
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                inside: false,
+                ..
+            } => Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre: [0.0; 2],
+                radius: 0.0,
+                inside: false,
+            },
+            _ => return None,
+        };
+        let same = |b: &Barrier| match (&b.shape, &probe) {
+            (Shape::Ball { indices: i, .. }, Shape::Ball { indices: j, .. }) => i == j,
+            (
+                Shape::BodyCircle {
+                    position: p,
+                    heading: h,
+                    offset: o,
+                    ..
+                },
+                Shape::BodyCircle {
+                    position: q,
+                    heading: g,
+                    offset: c,
+                    ..
+                },
+            ) => (p, h, o) == (q, g, c),
+            _ => false,
+        };
+        if let Some(i) = self.probes.iter().position(same) {
+            return Some(i);
+        }
+        let mut probe_barrier = barrier.clone();
+        probe_barrier.shape = probe;
+        self.probes.push(probe_barrier);
+        self.points.push(PointMotion::default());
+        Some(self.probes.len() - 1)
+    }
+
+    /// out ← which barriers are out of reach at z (the state at time `at`), in `form`, with each
+    /// road user where `assumed(k)` puts the centre of the one whose primary barrier is k; `r`
+    /// input channels. Returns whether any is.
+    pub(super) fn mark(
+        &mut self,
+        model: &dyn Dynamics,
+        form: BarrierForm,
+        z: &[f64],
+        r: usize,
+        assumed: impl Fn(usize) -> ActorState,
+    ) -> bool {
+        self.out.fill(false);
+        self.culled_last = false;
+        // (Up to four input channels: the probes keep their rows on the stack.)
+        if !self.enabled || r > 4 || !self.groups.iter().any(|g| g.cullable) {
+            return false;
+        }
+        self.measure_points(model, z);
+        // W and B of each ego point for |u_j| ≤ 2 M_j.
+        let admissible = |gains: &[f64; 4]| gains.iter().zip(&self.bound).map(|(g, m)| 2.0 * g * m).sum::<f64>();
+        let mut any = false;
+        // The nearest road user left out: kept when every row would be (a filter with known
+        // barriers always decides).
+        let mut nearest: Option<(f64, usize, usize)> = None;
+        for group in self.groups.iter().filter(|g| g.cullable) {
+            let actor = assumed(group.first);
+            let norm = |v: [f64; 2]| v[0].hypot(v[1]);
+            let rho = group.spread;
+            let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
+            // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
+            let (turning_speed, turning_acceleration) = (w * rho, (dw + w * w) * rho);
+            let relative = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
+            let mut bounds = ReachBounds {
+                gap: f64::INFINITY,
+                ..Default::default()
+            };
+            for k in group.first..group.end {
+                let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
+                    continue;
+                };
+                let distance = norm([p.position[0] - actor.position[0], p.position[1] - actor.position[1]]);
+                bounds.gap = bounds.gap.min(distance - rho - self.radius[k]);
+                let speed = relative(p.velocity, actor.velocity) + turning_speed;
+                let acceleration = relative(p.acceleration, actor.acceleration) + turning_acceleration;
+                bounds.speed = bounds.speed.max(speed);
+                bounds.acceleration = bounds.acceleration.max(acceleration);
+                bounds.input_speed = bounds.input_speed.max(admissible(&p.velocity_gains));
+                bounds.input_acceleration = bounds.input_acceleration.max(admissible(&p.acceleration_gains));
+            }
+            if rows_hold(&bounds, form) {
+                self.out[group.first..group.end].fill(true);
+                any = true;
+                if nearest.is_none_or(|(gap, ..)| bounds.gap < gap) {
+                    nearest = Some((bounds.gap, group.first, group.end));
+                }
+            }
+        }
+        if let (true, Some((_, first, end))) = (self.out.iter().all(|&out| out), nearest) {
+            self.out[first..end].fill(false);
+            any = self.out.iter().any(|&out| out);
+        }
+        self.culled_last = any;
+        any
+    }
+
+    /// A decision begins: its left-out rows are checked for the M_j of now; keeps `inputs` (the
+    /// commands it starts from) for [`Reach::restore`].
+    pub(super) fn begin_decision(&mut self, inputs: &[f64]) {
+        (self.exceeded, self.unknown) = (false, false);
+        self.attempt_rows = [0; 2];
+        self.bound.copy_from_slice(&self.largest_input);
+        self.saved[..inputs.len()].copy_from_slice(inputs);
+        self.note(inputs.iter().copied().enumerate());
+        // M_j forgets slowly (halving over about 700 decisions, a few tenths of a second of
+        // ticks): the bound follows the inputs now, and a decision above it is made again.
+        for m in &mut self.largest_input {
+            *m *= FORGET;
+        }
+    }
+
+    /// The decision used these inputs, (channel, value): u0 and its commands.
+    pub(super) fn note(&mut self, inputs: impl Iterator<Item = (usize, f64)>) {
+        for (j, value) in inputs {
+            let magnitude = value.abs();
+            self.unknown |= magnitude.is_nan();
+            self.exceeded |= magnitude.is_nan() || magnitude > self.bound[j];
+            self.largest_input[j] = self.largest_input[j].max(magnitude);
+        }
+    }
+
+    /// Whether the decision, which used the inputs noted since [`Reach::begin_decision`], must
+    /// be made again (it left rows out and an input exceeded its channel's bound): with the
+    /// bound grown to those inputs (`attempt` 0 and 1, finite inputs), else with every row
+    /// (culling disabled until the caller sets `enabled` again).
+    pub(super) fn again(&mut self, attempt: usize) -> bool {
+        let again = self.culled_last && self.exceeded;
+        let [formed, left_out] = std::mem::take(&mut self.attempt_rows);
+        if again {
+            self.redone += 1;
+            self.exceeded = false;
+            if attempt < 2 && !std::mem::take(&mut self.unknown) {
+                self.bound.copy_from_slice(&self.largest_input);
+            } else {
+                self.enabled = false;
+            }
+        } else {
+            self.rows_formed += formed;
+            self.rows_left_out += left_out;
+        }
+        again
+    }
+
+    /// inputs ← what [`Reach::begin_decision`] kept.
+    pub(super) fn restore(&self, inputs: &mut [f64]) {
+        inputs.copy_from_slice(&self.saved[..inputs.len()]);
+    }
+
+    /// points ← each ego point's position, |q̇₀|, |q̈₀|, ‖K‖ and ‖J‖ (Frobenius norms) at z, from
+    /// its probe's Lie derivatives with the centre one metre behind q along x, then along y:
+    /// L_f h = 2 d·q̇₀, L_f²h = 2‖q̇₀‖² + 2 d·q̈₀, L_G h = 2 dᵀK, L_G L_f h = 2 q̇₀ᵀK + 2 dᵀJ.
+    fn measure_points(&mut self, model: &dyn Dynamics, z: &[f64]) {
+        let r = model.input_dim();
+        for (probe, point) in self.probes.iter_mut().zip(&mut self.points) {
+            // (q alone: the velocity along z is not used.)
+            let Some((q, _)) = probe.point_and_velocity(z, z) else {
+                continue;
+            };
+            let mut axis = [([0.0; 2], 0.0, [0.0; 4], [0.0; 4]); 2];
+            for (e, out) in axis.iter_mut().enumerate() {
+                let mut centre = q;
+                centre[e] -= 1.0;
+                probe.move_actor(centre);
+                self.lie.evaluate(probe, model, z);
+                let lie = &self.lie.lie;
+                out.1 = lie.lf2_h;
+                out.0[e] = lie.lf_h;
+                for j in 0..r.min(4) {
+                    out.2[j] = lie.lg_h[j] / 2.0;
+                    out.3[j] = lie.lg_lf_h[j] / 2.0;
+                }
+            }
+            let velocity = [axis[0].0[0] / 2.0, axis[1].0[1] / 2.0];
+            let speed_squared = velocity[0] * velocity[0] + velocity[1] * velocity[1];
+            // (L_G L_f h along e: 2 q̇₀ᵀK_j + 2 J_ej, so J_ej = that / 2 − q̇₀·K_j.)
+            let acceleration = [axis[0].1 / 2.0 - speed_squared, axis[1].1 / 2.0 - speed_squared];
+            let (mut velocity_gains, mut acceleration_gains) = ([0.0; 4], [0.0; 4]);
+            for j in 0..r.min(4) {
+                let (kx, ky) = (axis[0].2[j], axis[1].2[j]);
+                let v_k = velocity[0] * kx + velocity[1] * ky;
+                velocity_gains[j] = kx.hypot(ky);
+                acceleration_gains[j] = (axis[0].3[j] - v_k).hypot(axis[1].3[j] - v_k);
+            }
+            *point = PointMotion {
+                position: q,
+                velocity,
+                acceleration,
+                velocity_gains,
+                acceleration_gains,
+            };
+        }
+    }
+}
