@@ -621,6 +621,10 @@ pub struct LieWorkspace {
     jacobian: DMatrix<f64>,
     grad_h: DVector<f64>,
     grad_lf_h: DVector<f64>,
+    /// The state f, G and ∂f/∂x were last formed at by [`LieWorkspace::evaluate`] (they depend
+    /// on the state alone: every barrier evaluated at one state shares them); NaN when they
+    /// are not (NaN equals nothing).
+    terms_at: Vec<f64>,
     /// The derivatives at the last evaluated state.
     pub lie: LieDerivatives,
 }
@@ -635,6 +639,7 @@ impl LieWorkspace {
             jacobian: DMatrix::zeros(n, n),
             grad_h: DVector::zeros(n),
             grad_lf_h: DVector::zeros(n),
+            terms_at: vec![f64::NAN; n],
             lie: LieDerivatives {
                 h: 0.0,
                 lf_h: 0.0,
@@ -650,10 +655,15 @@ impl LieWorkspace {
         if self.planar_ball_in_closed_form(barrier, model, x) || self.half_space_in_closed_form(barrier, model, x) {
             return;
         }
-        // Slice fills (a memset), not nalgebra's element iterator.
-        self.g.as_mut_slice().fill(0.0);
-        self.jacobian.as_mut_slice().fill(0.0);
-        model.lie_terms_into(x, self.f.as_mut_slice(), &mut self.g, &mut self.jacobian);
+        // f, G and ∂f/∂x once per state (bit for bit what forming them again gives).
+        if self.terms_at != x {
+            // Slice fills (a memset), not nalgebra's element iterator.
+            self.g.as_mut_slice().fill(0.0);
+            self.jacobian.as_mut_slice().fill(0.0);
+            model.lie_terms_into(x, self.f.as_mut_slice(), &mut self.g, &mut self.jacobian);
+            self.terms_at.clear();
+            self.terms_at.extend_from_slice(x);
+        }
         barrier.gradient_into(x, self.grad_h.as_mut_slice());
         // ∇(L_f h) = ∇²h f + (∂f/∂x)ᵀ ∇h.
         transpose_times(&self.jacobian, self.grad_h.as_slice(), self.grad_lf_h.as_mut_slice());
@@ -858,6 +868,8 @@ impl LieWorkspace {
     /// lie.h, lie.lf_h, lie.lg_h as [`LieWorkspace::evaluate`] forms them, from f and G alone
     /// (relative degree 1, (4.7)/(4.8), needs no ∂f/∂x); the second-order terms are left stale.
     fn first_order(&mut self, barrier: &Barrier, model: &dyn Dynamics, x: &[f64]) {
+        // (f and G formed here without ∂f/∂x: the next evaluate forms all three again.)
+        self.terms_at.fill(f64::NAN);
         self.g.as_mut_slice().fill(0.0);
         model.drift_into(x, self.f.as_mut_slice());
         model.input_matrix_into(x, &mut self.g);

@@ -28,6 +28,31 @@ pub struct SmoothCurve {
     x: Vec<[f64; 4]>,
     y: Vec<[f64; 4]>,
     deviation: f64,
+    /// Which curve this is, for [`SmoothCurve::nearest`]'s memo (not part of its value).
+    id: CurveId,
+}
+
+/// A curve's identity (a clone shares it; equal for any two curves: not part of the value).
+#[derive(Debug, Clone, Copy)]
+struct CurveId(u64);
+
+impl PartialEq for CurveId {
+    fn eq(&self, _: &CurveId) -> bool {
+        true
+    }
+}
+
+impl CurveId {
+    fn next() -> CurveId {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        CurveId(NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+    }
+}
+
+thread_local! {
+    /// The last nearest point found on this thread, with its curve and query point: a barrier's
+    /// h, ∇h and ∇²h ask for the same one in turn.
+    static LAST_NEAREST: std::cell::Cell<Option<(u64, [u64; 2], Nearest)>> = const { std::cell::Cell::new(None) };
 }
 
 /// The nearest point of a curve to q: its parameter, position, unit tangent, left normal,
@@ -68,6 +93,7 @@ impl SmoothCurve {
             y: crate::planar::natural_spline(&s, &ys),
             s,
             deviation: 0.0,
+            id: CurveId::next(),
         };
         // δ: both ways, 16 points per piece and every polyline point.
         let mut deviation: f64 = 0.0;
@@ -128,6 +154,19 @@ impl SmoothCurve {
     /// The nearest point of the curve (extended straight beyond its ends) to q: the nearest
     /// sample first, then Newton's method on (c(s) − q)·c'(s) = 0.
     pub fn nearest(&self, q: [f64; 2]) -> Nearest {
+        let key = (self.id.0, [q[0].to_bits(), q[1].to_bits()]);
+        if let Some((id, at, found)) = LAST_NEAREST.get() {
+            if (id, at) == key {
+                return found;
+            }
+        }
+        let found = self.search_nearest(q);
+        LAST_NEAREST.set(Some((key.0, key.1, found)));
+        found
+    }
+
+    /// [`SmoothCurve::nearest`] without the memo.
+    fn search_nearest(&self, q: [f64; 2]) -> Nearest {
         let mut best = (f64::INFINITY, 0.0);
         for (k, &s) in self.s.iter().enumerate() {
             let p = match k < self.x.len() {

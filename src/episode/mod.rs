@@ -161,9 +161,10 @@ pub struct Episode {
     constraint: barrier::Constraint,
     /// The obstacles' barriers, for the plant's contact check (each obstacle's in a row).
     obstacle_barriers: Vec<Barrier>,
-    /// Per-step scratch: penetration depth per obstacle, ẋ for the logged velocity.
+    /// Per-step scratch: penetration depth per obstacle, ẋ for the logged velocity and the
+    /// barriers' motion terms.
     depths: Vec<Option<f64>>,
-    xdot: Vec<f64>,
+    kinematics: records::StepKinematics,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
     records: RecordBuffers,
     /// The run's estimated cost, and the error of a log over the log budget (taken by
@@ -311,7 +312,7 @@ impl Episode {
             lie: barrier::LieWorkspace::new(model.as_ref()),
             constraint: barrier::Constraint::zeros(model.input_dim()),
             depths: Vec::new(),
-            xdot: vec![0.0; model.state_dim()],
+            kinematics: records::StepKinematics::new(model.state_dim(), model.input_dim()),
             records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(

@@ -547,10 +547,12 @@ impl Episode {
                     .map(move |(b, &offset)| (b, o.known, true, actor.map(|a| a.shifted(offset))))
             })
             .chain(self.barriers.iter().map(|b| (b, true, false, None)));
-        // World velocity of the planar position (for time-to-collision): ṗ from the model.
+        // World velocity of the planar position (for time-to-collision): ṗ from the model; ẋ at
+        // zero input and G's columns once per step, formed when a body circle first needs them.
+        self.kinematics.at(model, x.as_slice(), applied.as_slice());
         let velocity = model.planar_position().map(|[i, j]| {
-            model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
-            [self.xdot[i], self.xdot[j]]
+            let xdot = self.kinematics.applied();
+            [xdot[i], xdot[j]]
         });
         let Record::Barrier(record) = &mut self.records.barrier else {
             unreachable!("records.barrier holds a barrier record")
@@ -579,7 +581,7 @@ impl Episode {
                 if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
                     match &b.shape {
                         crate::barrier::Shape::BodyCircle { .. } => {
-                            let body = BodyTerms::new(model, b, x.as_slice(), &mut self.xdot);
+                            let body = BodyTerms::new(b, x.as_slice(), self.kinematics.drift_and_columns(model));
                             crate::actor::add_point_motion_terms(
                                 constraint_data,
                                 form,
@@ -610,8 +612,7 @@ impl Episode {
                 ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
                 // A body circle's point q, moving at q̇ (with the applied input).
                 (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
-                    model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
-                    match b.point_and_velocity(x.as_slice(), &self.xdot) {
+                    match b.point_and_velocity(x.as_slice(), self.kinematics.applied()) {
                         Some((q, q_dot)) => {
                             let relative =
                                 actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
@@ -689,20 +690,66 @@ struct BodyTerms {
 }
 
 impl BodyTerms {
-    fn new(model: &dyn crate::dynamics::Dynamics, b: &Barrier, x: &[f64], xdot: &mut [f64]) -> BodyTerms {
-        let r = model.input_dim();
-        let mut unit = [0.0; 4];
-        model.dynamics_into(x, &unit[..r.min(4)], xdot);
-        let (q, q_drift) = b.point_and_velocity(x, xdot).expect("a body circle");
+    /// From ẋ at zero input and the columns G_j of G at x ([`StepKinematics`]).
+    fn new(b: &Barrier, x: &[f64], (drift, columns): (&[f64], &[f64])) -> BodyTerms {
+        let (q, q_drift) = b.point_and_velocity(x, drift).expect("a body circle");
         let mut q_input = [[0.0; 2]; 4];
-        for (j, out) in q_input.iter_mut().enumerate().take(r) {
-            unit = [0.0; 4];
-            unit[j] = 1.0;
-            xdot.fill(0.0);
-            model.add_input_term(x, &unit[..r], xdot);
-            *out = b.point_and_velocity(x, xdot).expect("a body circle").1;
+        for (out, column) in q_input.iter_mut().zip(columns.chunks_exact(drift.len())) {
+            *out = b.point_and_velocity(x, column).expect("a body circle").1;
         }
         BodyTerms { q, q_drift, q_input }
+    }
+}
+
+/// What the model gives at one step's state, formed once for every barrier: ẋ with the
+/// applied input, and (when a body circle first asks) ẋ at zero input and G's columns (up to
+/// four).
+pub(super) struct StepKinematics {
+    applied: Vec<f64>,
+    drift: Vec<f64>,
+    columns: Vec<f64>,
+    /// The state and applied input, and whether drift and columns are formed at them.
+    x: Vec<f64>,
+    drift_formed: bool,
+}
+
+impl StepKinematics {
+    pub(super) fn new(n: usize, r: usize) -> StepKinematics {
+        StepKinematics {
+            applied: vec![0.0; n],
+            drift: vec![0.0; n],
+            columns: vec![0.0; n * r.min(4)],
+            x: vec![0.0; n],
+            drift_formed: false,
+        }
+    }
+
+    /// ẋ(x, u) for this step's state and applied input.
+    fn at(&mut self, model: &dyn crate::dynamics::Dynamics, x: &[f64], u: &[f64]) {
+        model.dynamics_into(x, u, &mut self.applied);
+        self.x.copy_from_slice(x);
+        self.drift_formed = false;
+    }
+
+    fn applied(&self) -> &[f64] {
+        &self.applied
+    }
+
+    /// (ẋ at zero input, G's columns one after another) at this step's state.
+    fn drift_and_columns(&mut self, model: &dyn crate::dynamics::Dynamics) -> (&[f64], &[f64]) {
+        if !self.drift_formed {
+            let r = model.input_dim().min(4);
+            let mut unit = [0.0; 4];
+            model.dynamics_into(&self.x, &unit[..r], &mut self.drift);
+            for (j, column) in self.columns.chunks_exact_mut(self.drift.len()).enumerate() {
+                unit = [0.0; 4];
+                unit[j] = 1.0;
+                column.fill(0.0);
+                model.add_input_term(&self.x, &unit[..r], column);
+            }
+            self.drift_formed = true;
+        }
+        (&self.drift, &self.columns)
     }
 }
 
