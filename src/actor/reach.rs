@@ -19,6 +19,14 @@
 //!   ≥ 0 and D times it is ≥ 2 V W (‖d‖ ≥ D);
 //! - a + b·u ≥ ‖d‖ (c D − 2 (V + W)), ≥ 0 when the bracket is.
 //!
+//! A road user moving away or alongside gives more: with C ≤ d·(q̇₀ − ȯ) (the closing term,
+//! negative only for a pair that may approach), 2 l1 d·(q̇₀ − ȯ) ≥ 2 l1 C (l1 ≥ 0) instead of
+//! −2 l1 ‖d‖ V, so
+//! - a + b·u ≥ ‖d‖ (l0 D − 2 (A + B + λ1 W)) + 2 l1 C − 2 V W: every row holds when the bracket
+//!   is ≥ 0 and D times it plus 2 l1 C is ≥ 2 V W;
+//! - a + b·u ≥ ‖d‖ (c D − 2 W) + 2 C: when the bracket is ≥ 0 and D times it plus 2 C is ≥ 0.
+//! Either certificate suffices.
+//!
 //! Every row then holds for every admissible input: leaving it out of a QP whose solution is
 //! admissible changes nothing (a relaxation's solution that meets the left-out constraints is
 //! the full problem's).
@@ -36,6 +44,8 @@ pub struct ReachBounds {
     pub speed: f64,
     /// A (m/s²): bounds ‖q̈₀ − ö‖.
     pub acceleration: f64,
+    /// C (m²/s): at most d·(q̇₀ − ȯ) (negative when a pair may be closing).
+    pub closing: f64,
     /// W (m/s): bounds ‖K u‖, how far an admissible input moves an ego point's velocity.
     pub input_speed: f64,
     /// B (m/s²): bounds ‖J u‖, how far an admissible input moves an ego point's acceleration.
@@ -51,24 +61,35 @@ pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
         gap,
         speed,
         acceleration,
+        closing,
         input_speed,
         input_acceleration,
     } = *bounds;
     if !(gap > 0.0
-        && [speed, acceleration, input_speed, input_acceleration]
+        && [speed, acceleration, closing, input_speed, input_acceleration]
             .iter()
             .all(|v| v.is_finite()))
     {
         return false;
     }
-    let first_order = |rate: f64| rate > 0.0 && rate * gap - 2.0 * (speed + input_speed) >= 0.0;
+    let first_order = |rate: f64| {
+        let directional = rate * gap - 2.0 * input_speed;
+        rate > 0.0
+            && (rate * gap - 2.0 * (speed + input_speed) >= 0.0
+                || (directional >= 0.0 && gap * directional + 2.0 * closing >= 0.0))
+    };
     match form {
         BarrierForm::RelativeDegree1 { alpha } => first_order(alpha),
         BarrierForm::RelativeDegree2 { l0, l1 } => {
             let lambda1 = form.real_rates().map_or(0.0, |(lambda1, _)| lambda1);
             let inputs = input_acceleration + lambda1 * input_speed;
             let bracket = l0 * gap - 2.0 * (acceleration + l1.abs() * speed + inputs);
-            let second = l0 > 0.0 && bracket >= 0.0 && gap * bracket >= 2.0 * speed * input_speed;
+            let directional = l0 * gap - 2.0 * (acceleration + inputs);
+            let second = l0 > 0.0
+                && ((bracket >= 0.0 && gap * bracket >= 2.0 * speed * input_speed)
+                    || (l1 >= 0.0
+                        && directional >= 0.0
+                        && gap * directional + 2.0 * l1 * closing >= 2.0 * speed * input_speed));
             // The first-order row ḣ + λ1 h ≥ 0 of a mixed-relative-degree barrier.
             second && form.real_rates().is_none_or(|(lambda1, _)| first_order(lambda1))
         }
@@ -137,10 +158,12 @@ mod tests {
             let u = [bound[0] * uniform(-1.0, 1.0), bound[1] * uniform(-1.0, 1.0)];
             let norm = |v: [f64; 2]| v[0].hypot(v[1]);
             let columns = |m: [[f64; 2]; 2]| norm([m[0][0], m[1][0]]) * bound[0] + norm([m[0][1], m[1][1]]) * bound[1];
+            let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
             let bounds = ReachBounds {
                 gap: distance - r,
                 speed: norm(w),
                 acceleration: norm(acc),
+                closing: dot(d, w) - uniform(0.0, 5.0),
                 input_speed: columns(k),
                 input_acceleration: columns(j),
             };

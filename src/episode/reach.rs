@@ -223,14 +223,20 @@ impl Reach {
             let relative = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
             let mut bounds = ReachBounds {
                 gap: f64::INFINITY,
+                closing: f64::INFINITY,
                 ..Default::default()
             };
             for k in group.first..group.end {
                 let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
                     continue;
                 };
-                let distance = norm([p.position[0] - actor.position[0], p.position[1] - actor.position[1]]);
+                let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
+                let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
+                let distance = norm(d);
                 bounds.gap = bounds.gap.min(distance - rho - self.radius[k]);
+                // d·w for a circle at c: (d_c − Rc)·(w_c − θ̇ J R c) ≥ d_c·w_c − ‖d_c‖ θ̇ρ − ρ‖w_c‖ − θ̇ρ².
+                let closing = d[0] * w[0] + d[1] * w[1] - (distance + rho) * turning_speed - rho * norm(w);
+                bounds.closing = bounds.closing.min(closing);
                 let speed = relative(p.velocity, actor.velocity) + turning_speed;
                 let acceleration = relative(p.acceleration, actor.acceleration) + turning_acceleration;
                 bounds.speed = bounds.speed.max(speed);
