@@ -26,6 +26,7 @@ pub mod metrics;
 pub mod models;
 #[allow(unsafe_code)]
 pub mod mujoco;
+pub mod ncap;
 pub mod nominal;
 pub mod params;
 pub mod planar;

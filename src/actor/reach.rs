@@ -25,6 +25,7 @@
 //! - a + b·u ≥ ‖d‖ (l0 D − 2 (A + B + λ1 W)) + 2 l1 C − 2 V W: every row holds when the bracket
 //!   is ≥ 0 and D times it plus 2 l1 C is ≥ 2 V W;
 //! - a + b·u ≥ ‖d‖ (c D − 2 W) + 2 C: when the bracket is ≥ 0 and D times it plus 2 C is ≥ 0.
+//!
 //! Either certificate suffices.
 //!
 //! Every row then holds for every admissible input: leaving it out of a QP whose solution is
