@@ -156,6 +156,9 @@ impl LawWorkspace {
         point: (f64, &[f64], &[usize]),
         u: &mut [f64],
     ) -> Result<(), FilterError> {
+        if !self.reach.active() {
+            return self.issued_law_once(laws, filter, queues, nominal_predicts, point, u);
+        }
         self.reach.begin_decision(u);
         let mut attempt = 0;
         loop {
@@ -258,11 +261,14 @@ impl LawWorkspace {
         (shared, count): (bool, &mut usize),
     ) -> Result<Option<ChannelOutcome>, FilterError> {
         let (nominal_time, nominal_state, state_time) = nominal_point;
-        self.reach.begin_decision(&[]);
-        filter.take_planned_inputs(&mut self.planned);
-        // ω (4.45): the later channels' commands come from the queues.
-        for (j, queue) in queues.iter().enumerate() {
-            self.reach.note(queue.issued().map(|(_, value)| (j, value)));
+        let active = self.reach.active();
+        if active {
+            self.reach.begin_decision(&[]);
+            filter.take_planned_inputs(&mut self.planned);
+            // ω (4.45): the later channels' commands come from the queues.
+            for (j, queue) in queues.iter().enumerate() {
+                self.reach.note(queue.issued().map(|(_, value)| (j, value)));
+            }
         }
         let mut decide = |law: &mut LawWorkspace, filter: &mut dyn SafetyFilter, again: bool| {
             if !shared || again {
@@ -278,6 +284,9 @@ impl LawWorkspace {
                 timestep,
             })
         };
+        if !active {
+            return decide(self, filter, false);
+        }
         let mut attempt = 0;
         loop {
             let outcome = decide(self, filter, attempt > 0)?;
@@ -337,7 +346,7 @@ impl LawWorkspace {
         for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
             let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
             if culled && self.reach.out[k] {
-                self.reach.attempt_rows[1] += 1 + u64::from(mixed);
+                self.reach.count_rows(0, 1 + u64::from(mixed));
                 continue;
             }
             match (&laws.actors.motions[k], &mut self.moving[k]) {
@@ -407,7 +416,7 @@ impl LawWorkspace {
             for (k, slot) in self.row_barrier[..count].iter_mut().enumerate() {
                 *slot = k;
             }
-            self.reach.attempt_rows[0] += (count + first_order) as u64;
+            self.reach.count_rows((count + first_order) as u64, 0);
             return count + first_order;
         }
         let mut kept = 0;
@@ -423,7 +432,7 @@ impl LawWorkspace {
             self.row_barrier[kept] = self.row_barrier[row];
             kept += 1;
         }
-        self.reach.attempt_rows[0] += kept as u64;
+        self.reach.count_rows(kept as u64, 0);
         kept
     }
 

@@ -61,11 +61,12 @@ pub(super) struct Reach {
     /// reports them), and by the current decision's attempt.
     pub(super) rows_left_out: u64,
     pub(super) rows_formed: u64,
-    pub(super) attempt_rows: [u64; 2],
+    attempt_rows: [u64; 2],
     /// Decisions made again with every row (a command or nominal input above M).
     pub(super) redone: u64,
-    /// Whether the last [`Reach::mark`] left rows out.
+    /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
+    active: bool,
     /// Whether an input of the current decision exceeded its channel's M_j, and the commands
     /// it started from.
     exceeded: bool,
@@ -93,6 +94,7 @@ impl Reach {
             largest_input,
             enabled: true,
             culled_last: false,
+            active: false,
             exceeded: false,
             unknown: false,
             saved: vec![0.0; queues.len()],
@@ -115,6 +117,7 @@ impl Reach {
             _ => f64::NAN,
         });
         let Some((offset, primary)) = road_user else {
+            self.refresh_active();
             return;
         };
         let spread = offset[0].hypot(offset[1]);
@@ -131,6 +134,32 @@ impl Reach {
                 cullable: point.is_some(),
             }),
         }
+        self.refresh_active();
+    }
+
+    /// active ← whether a decision could ever leave rows out: a road user that may be, and
+    /// some other row to keep (the nearest road user is kept when every row would go).
+    fn refresh_active(&mut self) {
+        let cullable = self.groups.iter().filter(|g| g.cullable).count();
+        let in_cullable: usize = self.groups.iter().filter(|g| g.cullable).map(|g| g.end - g.first).sum();
+        self.active = cullable >= 2 || (cullable == 1 && in_cullable < self.point_of.len());
+    }
+
+    /// Rows formed and left out by the current attempt (counted for the run when the decision
+    /// stands; at once when no decision is ever made again).
+    pub(super) fn count_rows(&mut self, formed: u64, left_out: u64) {
+        if self.active {
+            self.attempt_rows[0] += formed;
+            self.attempt_rows[1] += left_out;
+        } else {
+            self.rows_formed += formed;
+            self.rows_left_out += left_out;
+        }
+    }
+
+    /// Whether some road user's rows may be left out (else decisions need no bookkeeping).
+    pub(super) fn active(&self) -> bool {
+        self.active
     }
 
     /// The probe of the ego point a road user's barrier measures from (a new one for a new
@@ -203,7 +232,7 @@ impl Reach {
         self.out.fill(false);
         self.culled_last = false;
         // (Up to four input channels: the probes keep their rows on the stack.)
-        if !self.enabled || r > 4 || !self.groups.iter().any(|g| g.cullable) {
+        if !self.enabled || r > 4 || !self.active {
             return false;
         }
         self.measure_points(model, z);
