@@ -48,6 +48,8 @@ pub(super) struct Reach {
     /// One probe barrier per ego point (radius 0, centre set per evaluation).
     probes: Vec<Barrier>,
     points: Vec<PointMotion>,
+    /// The state `points` were measured at (NaN: none; NaN equals nothing).
+    measured_at: Vec<f64>,
     lie: LieWorkspace,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
@@ -88,6 +90,7 @@ impl Reach {
             radius: Vec::new(),
             probes: Vec::new(),
             points: Vec::new(),
+            measured_at: vec![f64::NAN; model.state_dim()],
             lie: LieWorkspace::new(model),
             out: Vec::new(),
             bound: largest_input.clone(),
@@ -215,6 +218,7 @@ impl Reach {
         probe_barrier.shape = probe;
         self.probes.push(probe_barrier);
         self.points.push(PointMotion::default());
+        self.measured_at.fill(f64::NAN);
         Some(self.probes.len() - 1)
     }
 
@@ -345,6 +349,12 @@ impl Reach {
     /// its probe's Lie derivatives with the centre one metre behind q along x, then along y:
     /// L_f h = 2 d·q̇₀, L_f²h = 2‖q̇₀‖² + 2 d·q̈₀, L_G h = 2 dᵀK, L_G L_f h = 2 q̇₀ᵀK + 2 dᵀJ.
     fn measure_points(&mut self, model: &dyn Dynamics, z: &[f64]) {
+        // (A decision made again, or the next channel's at the same point, asks again.)
+        if self.measured_at == z {
+            return;
+        }
+        self.measured_at.clear();
+        self.measured_at.extend_from_slice(z);
         let r = model.input_dim();
         for (probe, point) in self.probes.iter_mut().zip(&mut self.points) {
             // (q alone: the velocity along z is not used.)
