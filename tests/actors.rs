@@ -481,43 +481,55 @@ fn two_hundred_far_road_users_change_no_command() {
     let base = std::fs::read_to_string(root.join("scenarios/ncap_ccrm.toml"))
         .unwrap()
         .replace("\"../models/", &format!("\"{}/models/", root.display()));
-    let far: String = (0..200)
-        .map(|k| {
-            format!(
-                "\n[[obstacles]]\nname = \"far_{k}\"\ncentre = [{}, {}]\nradius = 1.0\n[obstacles.motion]\nkind = \"straight\"\ndirection = [1.0, 0.0]\nspeed = {}\n",
-                -500.0 + 10.0 * k as f64,
-                1000.0 + 5.0 * (k % 7) as f64,
-                10.0 + (k % 5) as f64
-            )
-        })
-        .collect();
-    let (near, with_far) = (dir.path().join("near.mcap"), dir.path().join("far.mcap"));
+    let far = |count: usize| -> String {
+        (0..count)
+            .map(|k| {
+                format!(
+                    "\n[[obstacles]]\nname = \"far_{k}\"\ncentre = [{}, {}]\nradius = 1.0\n[obstacles.motion]\nkind = \"straight\"\ndirection = [1.0, 0.0]\nspeed = {}\n",
+                    -500.0 + 10.0 * k as f64,
+                    1000.0 + 5.0 * (k % 7) as f64,
+                    10.0 + (k % 5) as f64
+                )
+            })
+            .collect()
+    };
+    let (near, one_far, with_far) = (
+        dir.path().join("near.mcap"),
+        dir.path().join("one.mcap"),
+        dir.path().join("far.mcap"),
+    );
     let rows = |stdout: String| -> serde_json::Value {
         serde_json::from_str::<serde_json::Value>(&stdout).unwrap()["barrier_rows"].clone()
     };
-    let near_rows = rows(run_ok(&write(dir.path(), "near.toml", &base), &near, &["--json"]));
+    run_ok(&write(dir.path(), "near.toml", &base), &near, &[]);
+    let one_rows = rows(run_ok(
+        &write(dir.path(), "one.toml", &(base.clone() + &far(1))),
+        &one_far,
+        &["--json"],
+    ));
     let far_rows = rows(run_ok(
-        &write(dir.path(), "far.toml", &(base + &far)),
+        &write(dir.path(), "far.toml", &(base + &far(200))),
         &with_far,
         &["--json"],
     ));
-    // The far road users are out of reach (docs/actors.md, "Out of reach"): not one of their
-    // rows is formed, and every one is left out at every evaluation.
-    assert_eq!(
-        far_rows["formed"], near_rows["formed"],
-        "{far_rows} against {near_rows}"
+    // The far road users are out of reach (docs/actors.md, "Out of reach"): 199 more of them
+    // form not one more row, and each is left out at every evaluation.
+    assert_eq!(far_rows["formed"], one_rows["formed"], "{far_rows} against {one_rows}");
+    let left_out = |r: &serde_json::Value| r["left_out"].as_u64().unwrap();
+    let evaluations = (left_out(&far_rows) - left_out(&one_rows)) / 199;
+    assert!(
+        far_rows["formed"].as_u64().unwrap() > 0 && evaluations > 100,
+        "{far_rows} against {one_rows}"
     );
-    let (formed, left_out) = (
-        far_rows["formed"].as_u64().unwrap(),
-        far_rows["left_out"].as_u64().unwrap(),
-    );
-    let evaluations = left_out.saturating_sub(near_rows["left_out"].as_u64().unwrap()) / 200;
-    assert!(formed > 0 && evaluations > 100, "{far_rows} against {near_rows}");
     let issued = |log: &Path| read_topic::<proto::IssuedCommand>(log, "/command/issued");
     let applied = |log: &Path| read_topic::<proto::AppliedCommand>(log, "/command/applied");
     let states = |log: &Path| read_topic::<proto::State>(log, "/state");
     assert!(issued(&near).len() > 100);
     assert!(issued(&near) == issued(&with_far), "the issued commands differ");
+    assert!(
+        issued(&near) == issued(&one_far),
+        "the issued commands differ with one far road user"
+    );
     assert!(applied(&near) == applied(&with_far), "the applied commands differ");
     assert!(states(&near) == states(&with_far), "the states differ");
     assert_eq!(read_topic::<proto::Actors>(&with_far, "/actors")[0].actors.len(), 201);

@@ -45,6 +45,8 @@ pub(super) struct Reach {
     /// out (not a moving road user's circle).
     point_of: Vec<Option<usize>>,
     radius: Vec<f64>,
+    /// Per known barrier: its circle's offset from its road user's centre.
+    offsets: Vec<[f64; 2]>,
     /// One probe barrier per ego point (radius 0, centre set per evaluation).
     probes: Vec<Barrier>,
     points: Vec<PointMotion>,
@@ -88,6 +90,7 @@ impl Reach {
             groups: Vec::new(),
             point_of: Vec::new(),
             radius: Vec::new(),
+            offsets: Vec::new(),
             probes: Vec::new(),
             points: Vec::new(),
             measured_at: vec![f64::NAN; model.state_dim()],
@@ -119,6 +122,7 @@ impl Reach {
             Shape::Ball { radius, .. } | Shape::BodyCircle { radius, .. } => *radius,
             _ => f64::NAN,
         });
+        self.offsets.push(road_user.map_or([0.0; 2], |(offset, _)| offset));
         let Some((offset, primary)) = road_user else {
             self.refresh_active();
             return;
@@ -248,7 +252,8 @@ impl Reach {
         let mut nearest: Option<(f64, usize, usize)> = None;
         for group in self.groups.iter().filter(|g| g.cullable) {
             let actor = assumed(group.first);
-            let norm = |v: [f64; 2]| v[0].hypot(v[1]);
+            // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
+            let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
             let rho = group.spread;
             let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
             // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
@@ -279,10 +284,30 @@ impl Reach {
             }
             if rows_hold(&bounds, form) {
                 self.out[group.first..group.end].fill(true);
-                any = true;
-                if nearest.is_none_or(|(gap, ..)| bounds.gap < gap) {
-                    nearest = Some((bounds.gap, group.first, group.end));
+            } else {
+                // Pair by pair: each circle where the road user's state puts it, exactly.
+                for k in group.first..group.end {
+                    let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
+                        continue;
+                    };
+                    let circle = actor.shifted(self.offsets[k]);
+                    let d = [p.position[0] - circle.position[0], p.position[1] - circle.position[1]];
+                    let w = [p.velocity[0] - circle.velocity[0], p.velocity[1] - circle.velocity[1]];
+                    let pair = ReachBounds {
+                        gap: norm(d) - self.radius[k],
+                        speed: norm(w),
+                        acceleration: relative(p.acceleration, circle.acceleration),
+                        closing: d[0] * w[0] + d[1] * w[1],
+                        input_speed: admissible(&p.velocity_gains),
+                        input_acceleration: admissible(&p.acceleration_gains),
+                    };
+                    self.out[k] = rows_hold(&pair, form);
                 }
+            }
+            any |= self.out[group.first..group.end].iter().any(|&out| out);
+            let all_out = self.out[group.first..group.end].iter().all(|&out| out);
+            if all_out && nearest.is_none_or(|(gap, ..)| bounds.gap < gap) {
+                nearest = Some((bounds.gap, group.first, group.end));
             }
         }
         if let (true, Some((_, first, end))) = (self.out.iter().all(|&out| out), nearest) {
