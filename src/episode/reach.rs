@@ -252,6 +252,9 @@ impl Reach {
         let mut nearest: Option<(f64, usize, usize)> = None;
         for group in self.groups.iter().filter(|g| g.cullable) {
             let actor = assumed(group.first);
+            // Every barrier of a road user sees one state while it exists; one that does not
+            // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
+            let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
             // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
             let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
             let rho = group.spread;
@@ -282,7 +285,7 @@ impl Reach {
                 bounds.input_speed = bounds.input_speed.max(admissible(&p.velocity_gains));
                 bounds.input_acceleration = bounds.input_acceleration.max(admissible(&p.acceleration_gains));
             }
-            if rows_hold(&bounds, form) {
+            if shared && rows_hold(&bounds, form) {
                 self.out[group.first..group.end].fill(true);
             } else {
                 // Pair by pair: each circle where the road user's state puts it, exactly.
@@ -290,7 +293,10 @@ impl Reach {
                     let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
                         continue;
                     };
-                    let circle = actor.shifted(self.offsets[k]);
+                    let circle = match shared {
+                        true => actor.shifted(self.offsets[k]),
+                        false => assumed(k).shifted(self.offsets[k]),
+                    };
                     let d = [p.position[0] - circle.position[0], p.position[1] - circle.position[1]];
                     let w = [p.velocity[0] - circle.velocity[0], p.velocity[1] - circle.velocity[1]];
                     let pair = ReachBounds {
