@@ -58,6 +58,11 @@ pub struct ReachBounds {
 /// rates). False for a form whose rates give no margin (l0 ≤ 0, α ≤ 0), and for bounds that
 /// are not finite.
 pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
+    rows_hold_given(bounds, form, form.real_rates())
+}
+
+/// [`rows_hold`] with the form's [`BarrierForm::real_rates`] already computed (`rates`).
+pub fn rows_hold_given(bounds: &ReachBounds, form: BarrierForm, rates: Option<(f64, f64)>) -> bool {
     let ReachBounds {
         gap,
         speed,
@@ -82,7 +87,7 @@ pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
     match form {
         BarrierForm::RelativeDegree1 { alpha } => first_order(alpha),
         BarrierForm::RelativeDegree2 { l0, l1 } => {
-            let lambda1 = form.real_rates().map_or(0.0, |(lambda1, _)| lambda1);
+            let lambda1 = rates.map_or(0.0, |(lambda1, _)| lambda1);
             let inputs = input_acceleration + lambda1 * input_speed;
             let bracket = l0 * gap - 2.0 * (acceleration + l1.abs() * speed + inputs);
             let directional = l0 * gap - 2.0 * (acceleration + inputs);
@@ -92,7 +97,7 @@ pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
                         && directional >= 0.0
                         && gap * directional + 2.0 * l1 * closing >= 2.0 * speed * input_speed));
             // The first-order row ḣ + λ1 h ≥ 0 of a mixed-relative-degree barrier.
-            second && form.real_rates().is_none_or(|(lambda1, _)| first_order(lambda1))
+            second && rates.is_none_or(|(lambda1, _)| first_order(lambda1))
         }
     }
 }

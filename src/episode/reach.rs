@@ -9,7 +9,7 @@
 //! slowly); a decision whose command or nominal input exceeds M_j on some channel is made again
 //! with every row (control.rs), so a left-out row is met by every decision's command and u0.
 
-use crate::actor::reach::{rows_hold, ReachBounds};
+use crate::actor::reach::{rows_hold_given, ReachBounds};
 use crate::actor::ActorState;
 use crate::barrier::{Barrier, BarrierForm, LieWorkspace, Shape};
 use crate::delay::DelayQueue;
@@ -52,6 +52,9 @@ pub(super) struct Reach {
     points: Vec<PointMotion>,
     /// The state `points` were measured at (NaN: none; NaN equals nothing).
     measured_at: Vec<f64>,
+    /// Per ego point, W and B for the current bound, and its distance to the road user tested.
+    input_reach: Vec<[f64; 2]>,
+    distances: Vec<f64>,
     lie: LieWorkspace,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
@@ -94,6 +97,8 @@ impl Reach {
             probes: Vec::new(),
             points: Vec::new(),
             measured_at: vec![f64::NAN; model.state_dim()],
+            input_reach: Vec::new(),
+            distances: Vec::new(),
             lie: LieWorkspace::new(model),
             out: Vec::new(),
             bound: largest_input.clone(),
@@ -222,6 +227,8 @@ impl Reach {
         probe_barrier.shape = probe;
         self.probes.push(probe_barrier);
         self.points.push(PointMotion::default());
+        self.input_reach.push([0.0; 2]);
+        self.distances.push(0.0);
         self.measured_at.fill(f64::NAN);
         Some(self.probes.len() - 1)
     }
@@ -246,6 +253,10 @@ impl Reach {
         self.measure_points(model, z);
         // W and B of each ego point for |u_j| ≤ 2 M_j.
         let admissible = |gains: &[f64; 4]| gains.iter().zip(&self.bound).map(|(g, m)| 2.0 * g * m).sum::<f64>();
+        for (reach, p) in self.input_reach.iter_mut().zip(&self.points) {
+            *reach = [admissible(&p.velocity_gains), admissible(&p.acceleration_gains)];
+        }
+        let rates = form.real_rates();
         let mut any = false;
         // The nearest road user left out: kept when every row would be (a filter with known
         // barriers always decides).
@@ -267,25 +278,27 @@ impl Reach {
                 closing: f64::INFINITY,
                 ..Default::default()
             };
-            for k in group.first..group.end {
-                let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
-                    continue;
-                };
+            // Per ego point (every one: a superset of the group's, so the bounds still hold).
+            for (i, p) in self.points.iter().enumerate() {
                 let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
                 let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
                 let distance = norm(d);
-                bounds.gap = bounds.gap.min(distance - rho - self.radius[k]);
+                self.distances[i] = distance;
                 // d·w for a circle at c: (d_c − Rc)·(w_c − θ̇ J R c) ≥ d_c·w_c − ‖d_c‖ θ̇ρ − ρ‖w_c‖ − θ̇ρ².
                 let closing = d[0] * w[0] + d[1] * w[1] - (distance + rho) * turning_speed - rho * norm(w);
                 bounds.closing = bounds.closing.min(closing);
-                let speed = relative(p.velocity, actor.velocity) + turning_speed;
+                bounds.speed = bounds.speed.max(norm(w) + turning_speed);
                 let acceleration = relative(p.acceleration, actor.acceleration) + turning_acceleration;
-                bounds.speed = bounds.speed.max(speed);
                 bounds.acceleration = bounds.acceleration.max(acceleration);
-                bounds.input_speed = bounds.input_speed.max(admissible(&p.velocity_gains));
-                bounds.input_acceleration = bounds.input_acceleration.max(admissible(&p.acceleration_gains));
+                bounds.input_speed = bounds.input_speed.max(self.input_reach[i][0]);
+                bounds.input_acceleration = bounds.input_acceleration.max(self.input_reach[i][1]);
             }
-            if shared && rows_hold(&bounds, form) {
+            for k in group.first..group.end {
+                if let Some(i) = self.point_of[k] {
+                    bounds.gap = bounds.gap.min(self.distances[i] - rho - self.radius[k]);
+                }
+            }
+            if shared && rows_hold_given(&bounds, form, rates) {
                 self.out[group.first..group.end].fill(true);
             } else {
                 // Pair by pair: each circle where the road user's state puts it, exactly.
@@ -299,15 +312,16 @@ impl Reach {
                     };
                     let d = [p.position[0] - circle.position[0], p.position[1] - circle.position[1]];
                     let w = [p.velocity[0] - circle.velocity[0], p.velocity[1] - circle.velocity[1]];
+                    let [input_speed, input_acceleration] = self.input_reach[self.point_of[k].unwrap_or(0)];
                     let pair = ReachBounds {
                         gap: norm(d) - self.radius[k],
                         speed: norm(w),
                         acceleration: relative(p.acceleration, circle.acceleration),
                         closing: d[0] * w[0] + d[1] * w[1],
-                        input_speed: admissible(&p.velocity_gains),
-                        input_acceleration: admissible(&p.acceleration_gains),
+                        input_speed,
+                        input_acceleration,
                     };
-                    self.out[k] = rows_hold(&pair, form);
+                    self.out[k] = rows_hold_given(&pair, form, rates);
                 }
             }
             any |= self.out[group.first..group.end].iter().any(|&out| out);
