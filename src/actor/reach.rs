@@ -32,6 +32,7 @@
 //! admissible changes nothing (a relaxation's solution that meets the left-out constraints is
 //! the full problem's).
 
+use crate::actor::ActorState;
 use crate::barrier::BarrierForm;
 
 /// Bounds of one road user against the ego at one evaluation state (every pair of its circles
@@ -98,6 +99,59 @@ pub fn rows_hold_given(bounds: &ReachBounds, form: BarrierForm, rates: Option<(f
                         && gap * directional + 2.0 * l1 * closing >= 2.0 * speed * input_speed));
             // The first-order row ḣ + λ1 h ≥ 0 of a mixed-relative-degree barrier.
             second && rates.is_none_or(|(lambda1, _)| first_order(lambda1))
+        }
+    }
+}
+
+/// What an ego point does at a state (module docs): q, q̇₀, q̈₀, and per input channel
+/// K_j = ∂q̇/∂u_j and J_j (the input's part of q̈ at relative degree 2).
+#[derive(Debug, Clone, Copy)]
+pub struct PointKinematics<'a> {
+    pub position: [f64; 2],
+    pub velocity: [f64; 2],
+    pub acceleration: [f64; 2],
+    pub velocity_columns: &'a [[f64; 2]],
+    pub acceleration_columns: &'a [[f64; 2]],
+}
+
+/// a + b·u of the barrier h = ‖q − o‖² − r² between an ego point and a road user's circle
+/// (`circle`: its position, velocity and acceleration), in `form` at the input `u`, the motion
+/// terms included: the rows of the module docs formed from the point's kinematics (with
+/// `mixed_rate` λ1, b gains 2λ1 dᵀK: the mixed-relative-degree condition).
+pub fn pair_condition(
+    form: BarrierForm,
+    mixed_rate: Option<f64>,
+    point: &PointKinematics<'_>,
+    circle: &ActorState,
+    radius: f64,
+    u: &[f64],
+) -> f64 {
+    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
+    let d = [
+        point.position[0] - circle.position[0],
+        point.position[1] - circle.position[1],
+    ];
+    let w = [
+        point.velocity[0] - circle.velocity[0],
+        point.velocity[1] - circle.velocity[1],
+    ];
+    let h = dot(d, d) - radius * radius;
+    let columns = point.velocity_columns.iter().zip(point.acceleration_columns).zip(u);
+    match form {
+        BarrierForm::RelativeDegree1 { alpha } => {
+            2.0 * dot(d, w) + alpha * h + columns.map(|((k, _), u)| 2.0 * dot(d, *k) * u).sum::<f64>()
+        }
+        BarrierForm::RelativeDegree2 { l0, l1 } => {
+            let relative_acceleration = [
+                point.acceleration[0] - circle.acceleration[0],
+                point.acceleration[1] - circle.acceleration[1],
+            ];
+            let a = 2.0 * dot(w, w) + 2.0 * dot(d, relative_acceleration) + 2.0 * l1 * dot(d, w) + l0 * h;
+            let lambda1 = mixed_rate.unwrap_or(0.0);
+            let b_u: f64 = columns
+                .map(|((k, j), u)| (2.0 * dot(w, *k) + 2.0 * dot(d, *j) + 2.0 * lambda1 * dot(d, *k)) * u)
+                .sum();
+            a + b_u
         }
     }
 }

@@ -165,6 +165,8 @@ pub struct Episode {
     /// barriers' motion terms.
     depths: Vec<Option<f64>>,
     kinematics: records::StepKinematics,
+    /// The ego points road users' barriers measure from, for their logged conditions.
+    ego_points: reach::EgoPoints,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
     records: RecordBuffers,
     /// The run's estimated cost, and the error of a log over the log budget (taken by
@@ -312,7 +314,8 @@ impl Episode {
             lie: barrier::LieWorkspace::new(model.as_ref()),
             constraint: barrier::Constraint::zeros(model.input_dim()),
             depths: Vec::new(),
-            kinematics: records::StepKinematics::new(model.state_dim(), model.input_dim()),
+            kinematics: records::StepKinematics::new(model.state_dim()),
+            ego_points: reach::EgoPoints::new(model.as_ref()),
             records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(

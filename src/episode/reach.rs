@@ -29,13 +29,29 @@ struct Group {
 
 /// What one ego point does at the evaluation state (module docs).
 #[derive(Clone, Copy, Default)]
-struct PointMotion {
-    position: [f64; 2],
-    velocity: [f64; 2],
-    acceleration: [f64; 2],
-    /// ‖K_j‖ and ‖J_j‖ per input channel (up to four).
+pub(super) struct PointMotion {
+    /// q, q̇₀ and q̈₀ (the drift's velocity and acceleration of the point).
+    pub(super) position: [f64; 2],
+    pub(super) velocity: [f64; 2],
+    pub(super) acceleration: [f64; 2],
+    /// K_j = ∂q̇/∂u_j and J_j (the input's part of q̈ at relative degree 2) per input channel
+    /// (up to four), and their norms.
+    pub(super) velocity_columns: [[f64; 2]; 4],
+    pub(super) acceleration_columns: [[f64; 2]; 4],
     velocity_gains: [f64; 4],
     acceleration_gains: [f64; 4],
+}
+
+/// The ego's points (a footprint's covering circles, or the planar position) that barriers
+/// around road users measure from, and what each does at the last state measured: two probe
+/// barriers each (module docs).
+pub(super) struct EgoPoints {
+    /// One probe barrier per ego point (radius 0, centre set per measurement).
+    probes: Vec<Barrier>,
+    points: Vec<PointMotion>,
+    /// The state `points` were measured at (NaN: none; NaN equals nothing).
+    measured_at: Vec<f64>,
+    lie: LieWorkspace,
 }
 
 /// Which road users are out of reach, per evaluation.
@@ -47,15 +63,10 @@ pub(super) struct Reach {
     radius: Vec<f64>,
     /// Per known barrier: its circle's offset from its road user's centre.
     offsets: Vec<[f64; 2]>,
-    /// One probe barrier per ego point (radius 0, centre set per evaluation).
-    probes: Vec<Barrier>,
-    points: Vec<PointMotion>,
-    /// The state `points` were measured at (NaN: none; NaN equals nothing).
-    measured_at: Vec<f64>,
+    ego: EgoPoints,
     /// Per ego point, W and B for the current bound, and its distance to the road user tested.
     input_reach: Vec<[f64; 2]>,
     distances: Vec<f64>,
-    lie: LieWorkspace,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
     /// M_j per channel: the largest recent |u_j| of a command or nominal input.
@@ -94,12 +105,9 @@ impl Reach {
             point_of: Vec::new(),
             radius: Vec::new(),
             offsets: Vec::new(),
-            probes: Vec::new(),
-            points: Vec::new(),
-            measured_at: vec![f64::NAN; model.state_dim()],
+            ego: EgoPoints::new(model),
             input_reach: Vec::new(),
             distances: Vec::new(),
-            lie: LieWorkspace::new(model),
             out: Vec::new(),
             bound: largest_input.clone(),
             largest_input,
@@ -121,7 +129,9 @@ impl Reach {
     pub(super) fn add(&mut self, barrier: &Barrier, road_user: Option<([f64; 2], bool)>) {
         let index = self.point_of.len();
         self.out.push(false);
-        let point = road_user.and_then(|_| self.ego_point(barrier));
+        let point = road_user.and_then(|_| self.ego.index_of(barrier));
+        self.input_reach.resize(self.ego.len(), [0.0; 2]);
+        self.distances.resize(self.ego.len(), 0.0);
         self.point_of.push(point);
         self.radius.push(match &barrier.shape {
             Shape::Ball { radius, .. } | Shape::BodyCircle { radius, .. } => *radius,
@@ -174,65 +184,6 @@ impl Reach {
         self.active
     }
 
-    /// The probe of the ego point a road user's barrier measures from (a new one for a new
-    /// point); None for a barrier whose rows are never left out (a headway, an inner circle).
-    fn ego_point(&mut self, barrier: &Barrier) -> Option<usize> {
-        let probe = match &barrier.shape {
-            Shape::Ball {
-                indices, inside: false, ..
-            } if indices.len() == 2 => Shape::Ball {
-                indices: indices.clone(),
-                centre: vec![0.0; 2],
-                radius: 0.0,
-                inside: false,
-            },
-            &Shape::BodyCircle {
-                position,
-                heading,
-                offset,
-                inside: false,
-                ..
-            } => Shape::BodyCircle {
-                position,
-                heading,
-                offset,
-                centre: [0.0; 2],
-                radius: 0.0,
-                inside: false,
-            },
-            _ => return None,
-        };
-        let same = |b: &Barrier| match (&b.shape, &probe) {
-            (Shape::Ball { indices: i, .. }, Shape::Ball { indices: j, .. }) => i == j,
-            (
-                Shape::BodyCircle {
-                    position: p,
-                    heading: h,
-                    offset: o,
-                    ..
-                },
-                Shape::BodyCircle {
-                    position: q,
-                    heading: g,
-                    offset: c,
-                    ..
-                },
-            ) => (p, h, o) == (q, g, c),
-            _ => false,
-        };
-        if let Some(i) = self.probes.iter().position(same) {
-            return Some(i);
-        }
-        let mut probe_barrier = barrier.clone();
-        probe_barrier.shape = probe;
-        self.probes.push(probe_barrier);
-        self.points.push(PointMotion::default());
-        self.input_reach.push([0.0; 2]);
-        self.distances.push(0.0);
-        self.measured_at.fill(f64::NAN);
-        Some(self.probes.len() - 1)
-    }
-
     /// out ← which barriers are out of reach at z (the state at time `at`), in `form`, with each
     /// road user where `assumed(k)` puts the centre of the one whose primary barrier is k; `r`
     /// input channels. Returns whether any is.
@@ -250,10 +201,10 @@ impl Reach {
         if !self.enabled || r > 4 || !self.active {
             return false;
         }
-        self.measure_points(model, z);
+        self.ego.measure(model, z);
         // W and B of each ego point for |u_j| ≤ 2 M_j.
         let admissible = |gains: &[f64; 4]| gains.iter().zip(&self.bound).map(|(g, m)| 2.0 * g * m).sum::<f64>();
-        for (reach, p) in self.input_reach.iter_mut().zip(&self.points) {
+        for (reach, p) in self.input_reach.iter_mut().zip(&self.ego.points) {
             *reach = [admissible(&p.velocity_gains), admissible(&p.acceleration_gains)];
         }
         let rates = form.real_rates();
@@ -279,7 +230,7 @@ impl Reach {
                 ..Default::default()
             };
             // Per ego point (every one: a superset of the group's, so the bounds still hold).
-            for (i, p) in self.points.iter().enumerate() {
+            for (i, p) in self.ego.points.iter().enumerate() {
                 let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
                 let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
                 let distance = norm(d);
@@ -303,7 +254,7 @@ impl Reach {
             } else {
                 // Pair by pair: each circle where the road user's state puts it, exactly.
                 for k in group.first..group.end {
-                    let Some(p) = self.point_of[k].map(|i| &self.points[i]) else {
+                    let Some(p) = self.point_of[k].map(|i| &self.ego.points[i]) else {
                         continue;
                     };
                     let circle = match shared {
@@ -389,11 +340,89 @@ impl Reach {
     pub(super) fn restore(&self, inputs: &mut [f64]) {
         inputs.copy_from_slice(&self.saved[..inputs.len()]);
     }
+}
+
+impl EgoPoints {
+    pub(super) fn new(model: &dyn Dynamics) -> EgoPoints {
+        EgoPoints {
+            probes: Vec::new(),
+            points: Vec::new(),
+            measured_at: vec![f64::NAN; model.state_dim()],
+            lie: LieWorkspace::new(model),
+        }
+    }
+
+    /// How many points there are.
+    pub(super) fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Point i as last measured.
+    pub(super) fn point(&self, i: usize) -> &PointMotion {
+        &self.points[i]
+    }
+
+    /// The probe of the ego point a road user's barrier measures from (a new one for a new
+    /// point); None for a barrier whose rows are never left out (a headway, an inner circle).
+    pub(super) fn index_of(&mut self, barrier: &Barrier) -> Option<usize> {
+        let probe = match &barrier.shape {
+            Shape::Ball {
+                indices, inside: false, ..
+            } if indices.len() == 2 => Shape::Ball {
+                indices: indices.clone(),
+                centre: vec![0.0; 2],
+                radius: 0.0,
+                inside: false,
+            },
+            &Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                inside: false,
+                ..
+            } => Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                centre: [0.0; 2],
+                radius: 0.0,
+                inside: false,
+            },
+            _ => return None,
+        };
+        let same = |b: &Barrier| match (&b.shape, &probe) {
+            (Shape::Ball { indices: i, .. }, Shape::Ball { indices: j, .. }) => i == j,
+            (
+                Shape::BodyCircle {
+                    position: p,
+                    heading: h,
+                    offset: o,
+                    ..
+                },
+                Shape::BodyCircle {
+                    position: q,
+                    heading: g,
+                    offset: c,
+                    ..
+                },
+            ) => (p, h, o) == (q, g, c),
+            _ => false,
+        };
+        if let Some(i) = self.probes.iter().position(same) {
+            return Some(i);
+        }
+        let mut probe_barrier = barrier.clone();
+        probe_barrier.shape = probe;
+        self.probes.push(probe_barrier);
+        self.points.push(PointMotion::default());
+        self.measured_at.fill(f64::NAN);
+        Some(self.probes.len() - 1)
+    }
 
     /// points ← each ego point's position, |q̇₀|, |q̈₀|, ‖K‖ and ‖J‖ (Frobenius norms) at z, from
     /// its probe's Lie derivatives with the centre one metre behind q along x, then along y:
     /// L_f h = 2 d·q̇₀, L_f²h = 2‖q̇₀‖² + 2 d·q̈₀, L_G h = 2 dᵀK, L_G L_f h = 2 q̇₀ᵀK + 2 dᵀJ.
-    fn measure_points(&mut self, model: &dyn Dynamics, z: &[f64]) {
+    pub(super) fn measure(&mut self, model: &dyn Dynamics, z: &[f64]) {
         // (A decision made again, or the next channel's at the same point, asks again.)
         if self.measured_at == z {
             return;
@@ -424,20 +453,110 @@ impl Reach {
             let speed_squared = velocity[0] * velocity[0] + velocity[1] * velocity[1];
             // (L_G L_f h along e: 2 q̇₀ᵀK_j + 2 J_ej, so J_ej = that / 2 − q̇₀·K_j.)
             let acceleration = [axis[0].1 / 2.0 - speed_squared, axis[1].1 / 2.0 - speed_squared];
-            let (mut velocity_gains, mut acceleration_gains) = ([0.0; 4], [0.0; 4]);
-            for j in 0..r.min(4) {
-                let (kx, ky) = (axis[0].2[j], axis[1].2[j]);
-                let v_k = velocity[0] * kx + velocity[1] * ky;
-                velocity_gains[j] = kx.hypot(ky);
-                acceleration_gains[j] = (axis[0].3[j] - v_k).hypot(axis[1].3[j] - v_k);
-            }
-            *point = PointMotion {
+            let mut point_motion = PointMotion {
                 position: q,
                 velocity,
                 acceleration,
-                velocity_gains,
-                acceleration_gains,
+                ..PointMotion::default()
             };
+            for j in 0..r.min(4) {
+                let (kx, ky) = (axis[0].2[j], axis[1].2[j]);
+                let v_k = velocity[0] * kx + velocity[1] * ky;
+                let (jx, jy) = (axis[0].3[j] - v_k, axis[1].3[j] - v_k);
+                point_motion.velocity_columns[j] = [kx, ky];
+                point_motion.acceleration_columns[j] = [jx, jy];
+                point_motion.velocity_gains[j] = kx.hypot(ky);
+                point_motion.acceleration_gains[j] = jx.hypot(jy);
+            }
+            *point = point_motion;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::actor::add_point_motion_terms;
+    use crate::barrier::Constraint;
+    use crate::dynamics::BicycleModel;
+    use crate::random::SplitMix64;
+
+    /// The closed form of a pair's condition from the measured ego point
+    /// ([`crate::actor::reach::pair_condition`]) against the general path: the Lie derivatives
+    /// of the body circle with the road user frozen, plus its motion terms, with q̇₀ and K from
+    /// the model's f and G (what the controller forms), on random bicycle states and road users.
+    #[test]
+    fn a_pairs_condition_from_the_point_equals_the_general_path() {
+        let model = BicycleModel::new(2.6);
+        let mut rng = SplitMix64(11);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let mut ego = EgoPoints::new(&model);
+        let mut lie = LieWorkspace::new(&model);
+        let (mut worst, mut checked) = (0.0_f64, 0);
+        for trial in 0..400 {
+            let offset = [uniform(-1.0, 4.0), uniform(-0.9, 0.9)];
+            let mut barrier = Barrier::body_circle("pair", ([0, 1], 2), offset, [0.0; 2], uniform(0.5, 3.0));
+            let i = ego.index_of(&barrier).expect("a body circle");
+            let x = [
+                uniform(-50.0, 50.0),
+                uniform(-50.0, 50.0),
+                uniform(-3.0, 3.0),
+                uniform(-5.0, 30.0),
+            ];
+            let circle = ActorState {
+                position: [x[0] + uniform(-30.0, 30.0), x[1] + uniform(-30.0, 30.0)],
+                velocity: [uniform(-20.0, 20.0), uniform(-20.0, 20.0)],
+                acceleration: [uniform(-5.0, 5.0), uniform(-5.0, 5.0)],
+                ..ActorState::default()
+            };
+            barrier.move_actor(circle.position);
+            let u = [uniform(-0.5, 0.5), uniform(-6.0, 6.0)];
+            let form = match trial % 3 {
+                0 => BarrierForm::RelativeDegree1 { alpha: 2.0 },
+                1 => BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 },
+                _ => BarrierForm::RelativeDegree2 { l0: 1.0, l1: 3.0 },
+            };
+            // The general path, as the controller forms it (control.rs).
+            let mut general = Constraint::zeros(2);
+            lie.constraint_into(&barrier, form, &model, &x, &mut general);
+            let mut drift = [0.0; 4];
+            model.dynamics_into(&x, &[0.0, 0.0], &mut drift);
+            let (q, q_drift) = barrier.point_and_velocity(&x, &drift).unwrap();
+            let mut inputs = [[0.0; 2]; 2];
+            for (j, input) in inputs.iter_mut().enumerate() {
+                let (mut unit, mut column) = ([0.0; 2], [0.0; 4]);
+                unit[j] = 1.0;
+                model.add_input_term(&x, &unit, &mut column);
+                *input = barrier.point_and_velocity(&x, &column).unwrap().1;
+            }
+            let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
+            let q_drift = if rd2 { q_drift } else { [0.0; 2] };
+            let q_input: &[[f64; 2]] = if rd2 { &inputs } else { &[] };
+            add_point_motion_terms(&mut general, form, (q, q_drift, q_input), &circle);
+            let expected = general.value(&nalgebra::DVector::from_column_slice(&u));
+            // The closed form from the probes.
+            ego.measure(&model, &x);
+            let p = &ego.points[i];
+            let point = crate::actor::reach::PointKinematics {
+                position: p.position,
+                velocity: p.velocity,
+                acceleration: p.acceleration,
+                velocity_columns: &p.velocity_columns[..2],
+                acceleration_columns: &p.acceleration_columns[..2],
+            };
+            let mixed = barrier
+                .mixed_relative_degree()
+                .then(|| form.real_rates().map(|r| r.0))
+                .flatten();
+            let radius = match barrier.shape {
+                Shape::BodyCircle { radius, .. } => radius,
+                _ => unreachable!(),
+            };
+            let closed = crate::actor::reach::pair_condition(form, mixed, &point, &circle, radius, &u);
+            let error = (closed - expected).abs() / (1.0 + expected.abs());
+            worst = worst.max(error);
+            checked += 1;
+        }
+        assert!(checked == 400 && worst < 1e-10, "worst relative difference {worst:e}");
     }
 }

@@ -568,9 +568,16 @@ impl Episode {
                 })
                 .collect();
         }
-        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
+        let (lie, constraint_data, ego) = (&mut self.lie, &mut self.constraint, &mut self.ego_points);
         for ((b, known, obstacle, actor), value) in entries.zip(record.barriers.iter_mut()) {
             let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
+                // A road user's circle against an ego point: the closed form of the pair's
+                // condition from the point's kinematics, measured once per step.
+                if let (Some(circle), Some(i)) = (&actor, ego.index_of(b)) {
+                    ego.measure(model, x.as_slice());
+                    let value = pair_condition_at(ego.point(i), form, b, circle, applied.as_slice());
+                    return (value, form.relative_degree());
+                }
                 lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
                 // A moving actor: h(x, t) gains the terms of its true motion.
                 if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
@@ -579,18 +586,7 @@ impl Episode {
                 // (ṗ: at relative degree 2 no input reaches the position, so the velocity
                 // with the applied input is the drift.)
                 if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
-                    match &b.shape {
-                        crate::barrier::Shape::BodyCircle { .. } => {
-                            let body = BodyTerms::new(b, x.as_slice(), self.kinematics.drift_and_columns(model));
-                            crate::actor::add_point_motion_terms(
-                                constraint_data,
-                                form,
-                                (body.q, body.q_drift, &body.q_input[..model.input_dim().min(4)]),
-                                actor,
-                            );
-                        }
-                        _ => crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor),
-                    }
+                    crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor);
                 }
                 (constraint_data.value(applied), form.relative_degree())
             });
@@ -681,76 +677,52 @@ pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
     Record::Scene(time, update)
 }
 
-/// A body circle's point q = p + R(θ) c, its drift ∂q/∂x f and ∂q/∂x G_j per channel (up to
-/// four), for the motion terms of a moving actor ([`crate::actor::add_point_motion_terms`]).
-struct BodyTerms {
-    q: [f64; 2],
-    q_drift: [f64; 2],
-    q_input: [[f64; 2]; 4],
-}
-
-impl BodyTerms {
-    /// From ẋ at zero input and the columns G_j of G at x ([`StepKinematics`]).
-    fn new(b: &Barrier, x: &[f64], (drift, columns): (&[f64], &[f64])) -> BodyTerms {
-        let (q, q_drift) = b.point_and_velocity(x, drift).expect("a body circle");
-        let mut q_input = [[0.0; 2]; 4];
-        for (out, column) in q_input.iter_mut().zip(columns.chunks_exact(drift.len())) {
-            *out = b.point_and_velocity(x, column).expect("a body circle").1;
-        }
-        BodyTerms { q, q_drift, q_input }
-    }
-}
-
-/// What the model gives at one step's state, formed once for every barrier: ẋ with the
-/// applied input, and (when a body circle first asks) ẋ at zero input and G's columns (up to
-/// four).
+/// ẋ with the applied input at one step's state, formed once for every barrier.
 pub(super) struct StepKinematics {
     applied: Vec<f64>,
-    drift: Vec<f64>,
-    columns: Vec<f64>,
-    /// The state and applied input, and whether drift and columns are formed at them.
-    x: Vec<f64>,
-    drift_formed: bool,
 }
 
 impl StepKinematics {
-    pub(super) fn new(n: usize, r: usize) -> StepKinematics {
-        StepKinematics {
-            applied: vec![0.0; n],
-            drift: vec![0.0; n],
-            columns: vec![0.0; n * r.min(4)],
-            x: vec![0.0; n],
-            drift_formed: false,
-        }
+    pub(super) fn new(n: usize) -> StepKinematics {
+        StepKinematics { applied: vec![0.0; n] }
     }
 
     /// ẋ(x, u) for this step's state and applied input.
     fn at(&mut self, model: &dyn crate::dynamics::Dynamics, x: &[f64], u: &[f64]) {
         model.dynamics_into(x, u, &mut self.applied);
-        self.x.copy_from_slice(x);
-        self.drift_formed = false;
     }
 
     fn applied(&self) -> &[f64] {
         &self.applied
     }
+}
 
-    /// (ẋ at zero input, G's columns one after another) at this step's state.
-    fn drift_and_columns(&mut self, model: &dyn crate::dynamics::Dynamics) -> (&[f64], &[f64]) {
-        if !self.drift_formed {
-            let r = model.input_dim().min(4);
-            let mut unit = [0.0; 4];
-            model.dynamics_into(&self.x, &unit[..r], &mut self.drift);
-            for (j, column) in self.columns.chunks_exact_mut(self.drift.len()).enumerate() {
-                unit = [0.0; 4];
-                unit[j] = 1.0;
-                column.fill(0.0);
-                model.add_input_term(&self.x, &unit[..r], column);
-            }
-            self.drift_formed = true;
-        }
-        (&self.drift, &self.columns)
-    }
+/// a + b·u of a road user's circle (its state `circle`) against the ego point of `b` (`point`,
+/// measured at the state), in `form`, at the input `u` ([`crate::actor::reach::pair_condition`]).
+fn pair_condition_at(
+    point: &super::reach::PointMotion,
+    form: crate::barrier::BarrierForm,
+    b: &Barrier,
+    circle: &crate::actor::ActorState,
+    u: &[f64],
+) -> f64 {
+    let r = u.len().min(4);
+    let kinematics = crate::actor::reach::PointKinematics {
+        position: point.position,
+        velocity: point.velocity,
+        acceleration: point.acceleration,
+        velocity_columns: &point.velocity_columns[..r],
+        acceleration_columns: &point.acceleration_columns[..r],
+    };
+    let mixed_rate = match b.mixed_relative_degree() {
+        true => form.real_rates().map(|(lambda1, _)| lambda1),
+        false => None,
+    };
+    let radius = match &b.shape {
+        crate::barrier::Shape::Ball { radius, .. } | crate::barrier::Shape::BodyCircle { radius, .. } => *radius,
+        _ => 0.0,
+    };
+    crate::actor::reach::pair_condition(form, mixed_rate, &kinematics, circle, radius, u)
 }
 
 #[cfg(test)]
