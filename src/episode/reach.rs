@@ -4,10 +4,12 @@
 //! The ego's points (a footprint's covering circles, or the planar position) are measured once
 //! per evaluation from two probe barriers each (h = ‖q − o‖² with o = q − e_x and o = q − e_y,
 //! whose Lie derivatives give q̇₀, q̈₀ and the rows of K and J exactly); a road user's bounds then
-//! cost one distance per ego point. The admissible inputs are, per channel j, |u_j| ≤ 2 M_j with
-//! M_j the largest |u_j| of the channel's recent commands and nominal inputs (M_j forgets
-//! slowly); a decision whose command or nominal input exceeds M_j on some channel is made again
-//! with every row (control.rs), so a left-out row is met by every decision's command and u0.
+//! cost one distance per ego point (and, for one in reach as a whole, one test per circle). The
+//! admissible inputs are, per channel j, |u_j| ≤ 2 M_j with M_j the largest |u_j| of the
+//! channel's recent commands, nominal inputs and planned inputs (M_j forgets slowly); a decision
+//! that used an input above M_j on some channel is made again, with the bound grown to it and
+//! then with every row (control.rs), so every left-out row is met by every input a decision
+//! plans: the decision is the one with every row.
 
 use crate::actor::reach::{rows_hold_given, ReachBounds};
 use crate::actor::ActorState;
@@ -15,7 +17,7 @@ use crate::barrier::{Barrier, BarrierForm, LieWorkspace, Shape};
 use crate::delay::DelayQueue;
 use crate::dynamics::Dynamics;
 
-/// The factor M keeps of itself at each decision ([`Reach::end_decision`]).
+/// The factor M_j keeps of itself at each decision ([`Reach::begin_decision`]).
 const FORGET: f64 = 0.999;
 
 /// One road user: its barriers (consecutive known barriers from its primary), the largest
@@ -57,7 +59,7 @@ pub(super) struct EgoPoints {
 /// Which road users are out of reach, per evaluation.
 pub(super) struct Reach {
     groups: Vec<Group>,
-    /// Per known barrier: its ego point (an index into `probes`), None for barriers never left
+    /// Per known barrier: its ego point (an index into `ego`), None for barriers never left
     /// out (not a moving road user's circle).
     point_of: Vec<Option<usize>>,
     radius: Vec<f64>,
