@@ -73,6 +73,20 @@ pub struct CbfQp {
     limits: Option<(Vec<f64>, Vec<f64>)>,
     input: DVector<f64>,
     qp: QpWorkspace,
+    /// Per channel, the largest |u_j| of the QP solutions since the last
+    /// [`SafetyFilter::take_planned_inputs`].
+    largest_planned: Vec<f64>,
+}
+
+/// largest_j ← max(largest_j, |u_j|) (NaN stays NaN: no bound holds).
+fn note_planned(largest: &mut [f64], u: &DVector<f64>) {
+    for (slot, value) in largest.iter_mut().zip(u.iter()) {
+        *slot = if value.is_nan() || slot.is_nan() {
+            f64::NAN
+        } else {
+            slot.max(value.abs())
+        };
+    }
 }
 
 /// The filter of a `kind = "cbf_qp"` table (limits checked against the channels).
@@ -101,6 +115,7 @@ pub fn build(p: &CbfQpParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilte
         limits,
         input: DVector::zeros(r),
         qp: QpWorkspace::with_capacity(r, ctx.barriers.len()),
+        largest_planned: vec![0.0; r],
     }))
 }
 
@@ -123,6 +138,7 @@ impl SafetyFilter for CbfQp {
             Some(&mut self.qp),
             &mut self.input,
         );
+        note_planned(&mut self.largest_planned, &self.input);
         let mut outcome = ChannelOutcome::new(self.input[input.channel], active, infeasible, mu);
         if infeasible {
             (outcome.unmet, outcome.shortfall) = worst_shortfall(input.constraints, &self.input);
@@ -133,6 +149,15 @@ impl SafetyFilter for CbfQp {
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let limits = self.limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
         delay_free_qp(input.constraints, input.nominal, limits, Some(&mut self.qp), u);
+        note_planned(&mut self.largest_planned, u);
         Ok(())
+    }
+
+    /// The whole input vector of every QP solved (one QP over every channel).
+    fn take_planned_inputs(&mut self, largest: &mut [f64]) -> bool {
+        for (out, planned) in largest.iter_mut().zip(&mut self.largest_planned) {
+            *out = std::mem::take(planned);
+        }
+        true
     }
 }
