@@ -300,6 +300,10 @@ pub struct ControlSpec {
     /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
     #[serde(default = "default_chain_tolerance")]
     pub chain_tolerance: f64,
+    /// Road users out of reach form no barrier row (docs/actors.md, "Out of reach"); `false`
+    /// forms every row at every evaluation (the same commands, at their full cost).
+    #[serde(default = "default_leave_out_of_reach", skip_serializing_if = "is_true")]
+    pub leave_out_of_reach: bool,
 }
 
 impl Default for ControlSpec {
@@ -309,8 +313,17 @@ impl Default for ControlSpec {
             predictor_step: None,
             history: default_history(),
             chain_tolerance: default_chain_tolerance(),
+            leave_out_of_reach: default_leave_out_of_reach(),
         }
     }
+}
+
+fn default_leave_out_of_reach() -> bool {
+    true
+}
+
+fn is_true(value: &bool) -> bool {
+    *value
 }
 
 fn default_history() -> f64 {

@@ -476,3 +476,64 @@ fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
     run(&counterexample, &log, &[]);
     assert!(common::analyze_json(&log)["min_clearance"].as_f64().unwrap() < 0.0);
 }
+
+/// Road users out of reach leave no row and change nothing (docs/actors.md, "Out of reach"):
+/// on US101-5 (25 recorded cars in a jam, road edges on) under (4.67) and under the CBF-QP, the
+/// run that leaves them out and the run that forms every row (`control.leave_out_of_reach =
+/// false`) issue the same commands bit for bit, drive the same states and log the same
+/// barriers, while the first forms fewer rows.
+#[test]
+fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_US101-5_1_T-1.xml");
+    for filter in ["", "filter={kind=\"cbf_qp\", l0=1.0, l1=2.0}"] {
+        let sets = |every_row: bool| -> Vec<String> {
+            let mut sets = vec!["--json".to_string(), "--set".into(), "duration=5.0".into()];
+            if !filter.is_empty() {
+                sets.extend(["--set".into(), filter.into()]);
+            }
+            if every_row {
+                sets.extend(["--set".into(), "control.leave_out_of_reach=false".into()]);
+            }
+            sets
+        };
+        let logs = [dir.path().join("left_out.mcap"), dir.path().join("every_row.mcap")];
+        let rows: Vec<serde_json::Value> = [false, true]
+            .iter()
+            .zip(&logs)
+            .map(|(&every_row, log)| {
+                let sets = sets(every_row);
+                let extra: Vec<&str> = sets.iter().map(String::as_str).collect();
+                let out = run(&xml, log, &extra);
+                serde_json::from_str::<serde_json::Value>(&out).unwrap()["barrier_rows"].clone()
+            })
+            .collect();
+        let count = |r: &serde_json::Value, key: &str| r[key].as_u64().unwrap();
+        assert!(
+            count(&rows[0], "left_out") > 0 && count(&rows[1], "left_out") == 0,
+            "{rows:?}"
+        );
+        assert!(
+            count(&rows[0], "formed") < count(&rows[1], "formed"),
+            "{filter}: {rows:?}"
+        );
+        let issued = |log: &Path| common::read_topic::<proto::IssuedCommand>(log, "/command/issued");
+        let states = |log: &Path| common::read_topic::<proto::State>(log, "/state");
+        // (As bytes: a barrier's time to collision may be NaN, which equals nothing.)
+        let barriers = |log: &Path| -> Vec<Vec<u8>> {
+            let messages = common::read_topic::<proto::Barrier>(log, "/barrier");
+            messages.iter().map(prost::Message::encode_to_vec).collect()
+        };
+        assert!(issued(&logs[0]).len() > 400);
+        assert!(
+            issued(&logs[0]) == issued(&logs[1]),
+            "{filter}: the issued commands differ"
+        );
+        assert!(states(&logs[0]) == states(&logs[1]), "{filter}: the states differ");
+        assert!(
+            barriers(&logs[0]) == barriers(&logs[1]),
+            "{filter}: the barriers differ"
+        );
+    }
+}

@@ -1168,6 +1168,7 @@ pub(super) fn configure_control(
             .into());
     }
     control.set_chain_tolerance(tolerance);
+    control.set_leave_out_of_reach(sc.control.leave_out_of_reach);
     if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
         let (seed, bound, hold) = (sc.seed, *bound, *hold);
         let r = control.queues().len();

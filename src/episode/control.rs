@@ -830,6 +830,11 @@ impl ControlLoop {
         self.work.predictor.set_chain_reuse(Some(tolerance));
     }
 
+    /// Whether road users out of reach form no barrier row (`control.leave_out_of_reach`).
+    pub fn set_leave_out_of_reach(&mut self, leave_out: bool) {
+        self.work.law.reach.set_allowed(leave_out);
+    }
+
     /// Recomputes every reused recursive chain over its whole window too, and keeps the
     /// largest difference (doubles the predictor cost: for measurements, not for runs).
     pub fn audit_chain_reuse(&mut self) {

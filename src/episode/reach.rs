@@ -87,6 +87,7 @@ pub(super) struct Reach {
     /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
     active: bool,
+    allowed: bool,
     /// Whether an input of the current decision exceeded its channel's M_j, and the commands
     /// it started from.
     exceeded: bool,
@@ -116,6 +117,7 @@ impl Reach {
             enabled: true,
             culled_last: false,
             active: false,
+            allowed: true,
             exceeded: false,
             unknown: false,
             saved: vec![0.0; queues.len()],
@@ -166,7 +168,13 @@ impl Reach {
     fn refresh_active(&mut self) {
         let cullable = self.groups.iter().filter(|g| g.cullable).count();
         let in_cullable: usize = self.groups.iter().filter(|g| g.cullable).map(|g| g.end - g.first).sum();
-        self.active = cullable >= 2 || (cullable == 1 && in_cullable < self.point_of.len());
+        self.active = self.allowed && (cullable >= 2 || (cullable == 1 && in_cullable < self.point_of.len()));
+    }
+
+    /// Whether rows may be left out at all (`control.leave_out_of_reach`).
+    pub(super) fn set_allowed(&mut self, allowed: bool) {
+        self.allowed = allowed;
+        self.refresh_active();
     }
 
     /// Rows formed and left out by the current attempt (counted for the run when the decision
