@@ -101,6 +101,8 @@ struct LawWorkspace {
     /// Per row of the last [`LawWorkspace::constraints_into`], the barrier it belongs to (rows
     /// of road users out of reach are left out: [`Reach`]).
     row_barrier: Vec<usize>,
+    /// Whether the barriers' rows are out of their order 0..count (an evaluation left rows out).
+    rows_moved: bool,
     /// Which road users are out of reach at an evaluation state.
     reach: Reach,
     /// Per channel, the largest |input| the filter's QPs planned, and whether it says.
@@ -413,12 +415,16 @@ impl LawWorkspace {
     /// first-order rows), with row_barrier the barrier of each; returns their number.
     fn compact_rows(&mut self, count: usize, first_order: usize, culled: bool) -> usize {
         if !culled {
-            for (k, slot) in self.row_barrier[..count].iter_mut().enumerate() {
-                *slot = k;
+            // (Barrier k's row is row k again once an evaluation left rows out.)
+            if std::mem::take(&mut self.rows_moved) {
+                for (k, slot) in self.row_barrier[..count].iter_mut().enumerate() {
+                    *slot = k;
+                }
             }
             self.reach.count_rows((count + first_order) as u64, 0);
             return count + first_order;
         }
+        self.rows_moved = true;
         let mut kept = 0;
         for k in 0..count {
             if !self.reach.out[k] {
@@ -583,6 +589,7 @@ impl ControlLoop {
                 columns: vec![0.0; n * r],
                 point_input: vec![[0.0; 2]; r],
                 row_barrier: Vec::new(),
+                rows_moved: true,
                 reach: Reach::new(model.as_ref(), &queues),
                 planned: vec![0.0; r],
                 says_planned: false,
@@ -776,6 +783,7 @@ impl ControlLoop {
         self.known_barriers.push(barrier);
         self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
         self.work.law.row_barrier.push(0);
+        self.work.law.rows_moved = true;
         // κ_j changed: the recursive chain computed with the old law no longer holds.
         self.work.predictor.invalidate_chain();
     }

@@ -161,10 +161,10 @@ pub struct Episode {
     constraint: barrier::Constraint,
     /// The obstacles' barriers, for the plant's contact check (each obstacle's in a row).
     obstacle_barriers: Vec<Barrier>,
-    /// Per-step scratch: penetration depth per obstacle, ẋ for the logged velocity and the
-    /// barriers' motion terms.
+    /// Per-step scratch: penetration depth per obstacle, ẋ with the applied input (the
+    /// velocities of time to collision).
     depths: Vec<Option<f64>>,
-    kinematics: records::StepKinematics,
+    xdot: Vec<f64>,
     /// The ego points road users' barriers measure from, for their logged conditions.
     ego_points: reach::EgoPoints,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
@@ -314,7 +314,7 @@ impl Episode {
             lie: barrier::LieWorkspace::new(model.as_ref()),
             constraint: barrier::Constraint::zeros(model.input_dim()),
             depths: Vec::new(),
-            kinematics: records::StepKinematics::new(model.state_dim()),
+            xdot: vec![0.0; model.state_dim()],
             ego_points: reach::EgoPoints::new(model.as_ref()),
             records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),

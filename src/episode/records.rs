@@ -547,12 +547,11 @@ impl Episode {
                     .map(move |(b, &offset)| (b, o.known, true, actor.map(|a| a.shifted(offset))))
             })
             .chain(self.barriers.iter().map(|b| (b, true, false, None)));
-        // World velocity of the planar position (for time-to-collision): ṗ from the model; ẋ at
-        // zero input and G's columns once per step, formed when a body circle first needs them.
-        self.kinematics.at(model, x.as_slice(), applied.as_slice());
+        // World velocity of the planar position (for time-to-collision): ṗ from the model, ẋ
+        // formed once per step (a body circle's point velocity reads it too).
         let velocity = model.planar_position().map(|[i, j]| {
-            let xdot = self.kinematics.applied();
-            [xdot[i], xdot[j]]
+            model.dynamics_into(x.as_slice(), applied.as_slice(), &mut self.xdot);
+            [self.xdot[i], self.xdot[j]]
         });
         let Record::Barrier(record) = &mut self.records.barrier else {
             unreachable!("records.barrier holds a barrier record")
@@ -608,7 +607,7 @@ impl Episode {
                 ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
                 // A body circle's point q, moving at q̇ (with the applied input).
                 (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
-                    match b.point_and_velocity(x.as_slice(), self.kinematics.applied()) {
+                    match b.point_and_velocity(x.as_slice(), &self.xdot) {
                         Some((q, q_dot)) => {
                             let relative =
                                 actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
@@ -675,26 +674,6 @@ pub(super) fn obstacle_scene(time: f64, o: &Obstacle) -> Record {
         }
     };
     Record::Scene(time, update)
-}
-
-/// ẋ with the applied input at one step's state, formed once for every barrier.
-pub(super) struct StepKinematics {
-    applied: Vec<f64>,
-}
-
-impl StepKinematics {
-    pub(super) fn new(n: usize) -> StepKinematics {
-        StepKinematics { applied: vec![0.0; n] }
-    }
-
-    /// ẋ(x, u) for this step's state and applied input.
-    fn at(&mut self, model: &dyn crate::dynamics::Dynamics, x: &[f64], u: &[f64]) {
-        model.dynamics_into(x, u, &mut self.applied);
-    }
-
-    fn applied(&self) -> &[f64] {
-        &self.applied
-    }
 }
 
 /// a + b·u of a road user's circle (its state `circle`) against the ego point of `b` (`point`,
