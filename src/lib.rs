@@ -39,6 +39,7 @@ pub mod registry;
 pub mod road;
 pub mod run;
 pub mod scenario;
+pub mod scorecard;
 pub mod sensing;
 pub mod signals;
 pub mod stl;

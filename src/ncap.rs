@@ -10,6 +10,11 @@
 //!   calculator (its look-up gives no bands): they get no colour, with that reason.
 //! - Points per colour in the standard range: green 1, yellow 0.75, orange 0.5, brown 0.25, red 0
 //!   (`TestPoint.predicted_score`); in the extended range anything but red is 1.
+//! - The relative impact speed is rounded half up to 2 decimals (km/h) before its colour is
+//!   looked up (`test_info.py`, `compute_stage_score`: `round_half_up(raw_value, 2)`).
+//! - A test's standard-range score is the mean of its points (a point without a colour counts
+//!   0, as the calculator's grey cells do) times its weight (`data_model.py`, `TOTAL_SCORES`):
+//!   [`Test::standard_weight`]; scores are shown rounded half up to 3 decimals.
 //! - The gate (`crash_avoidance/compute_score.py`, `check_general_requirements_rules`): every
 //!   frontal-collision score is zeroed when a CCRs standard-range point at ≤ 20 km/h, or the CPNA
 //!   point at 75 % impact location and 10 km/h, is not green.
@@ -56,6 +61,68 @@ pub enum NoColour {
     NoImpactSpeed(f64),
 }
 
+/// The Euro NCAP frontal-collision tests mjsafe encodes (docs/scorecard.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+pub enum Test {
+    /// Car-to-Car Rear stationary.
+    #[serde(rename = "CCRs")]
+    Ccrs,
+    /// Car-to-Car Rear moving.
+    #[serde(rename = "CCRm")]
+    Ccrm,
+    /// Car-to-Car Rear braking.
+    #[serde(rename = "CCRb")]
+    Ccrb,
+    /// Car-to-Pedestrian Nearside Adult (day).
+    #[serde(rename = "CPNA")]
+    Cpna,
+    /// Car-to-Pedestrian Farside Adult (day).
+    #[serde(rename = "CPFA")]
+    Cpfa,
+}
+
+impl Test {
+    /// The most points the test's standard range gives (`TOTAL_SCORES[test]["Standard"]`).
+    pub fn standard_weight(self) -> f64 {
+        match self {
+            Test::Ccrs => 1.2,
+            Test::Ccrm => 2.4,
+            Test::Ccrb => 1.6,
+            Test::Cpna | Test::Cpfa => 0.5,
+        }
+    }
+}
+
+impl fmt::Display for Test {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Test::Ccrs => "CCRs",
+            Test::Ccrm => "CCRm",
+            Test::Ccrb => "CCRb",
+            Test::Cpna => "CPNA",
+            Test::Cpfa => "CPFA",
+        })
+    }
+}
+
+/// `x` rounded half up to `decimals` decimals as the calculator's `numeric.round_half_up`
+/// (Excel's `ROUND`): first to max(9, decimals + 4) decimals, absorbing binary noise (2.675,
+/// stored just below, rounds to 2.68), then to `decimals`, ties away from zero.
+pub fn round_half_up(x: f64, decimals: i32) -> f64 {
+    let scale = 10f64.powi(decimals);
+    let guard = 10f64.powi(9.max(decimals + 4) - decimals);
+    let guarded = (x * scale * guard).round() / guard;
+    guarded.round() / scale
+}
+
+/// A test's standard-range score: the mean of its points times its weight (0 without points).
+pub fn test_score(test: Test, points: &[f64]) -> f64 {
+    if points.is_empty() {
+        return 0.0;
+    }
+    points.iter().sum::<f64>() / points.len() as f64 * test.standard_weight()
+}
+
 /// The upper ends (km/h) of the bands of one row, each band (previous end, this end], with the
 /// last band unbounded.
 fn bands(car_speed_kmh: f64) -> Option<&'static [(Colour, f64)]> {
@@ -97,6 +164,7 @@ pub fn colour(car_speed_kmh: f64, relative_impact_kmh: f64) -> Result<Colour, No
     if relative_impact_kmh.is_nan() {
         return Err(NoColour::NoImpactSpeed(relative_impact_kmh));
     }
+    let relative_impact_kmh = round_half_up(relative_impact_kmh, 2);
     let band = bands.iter().find(|(_, upper)| relative_impact_kmh <= *upper);
     Ok(band.map_or(Colour::Red, |(colour, _)| *colour))
 }
@@ -157,6 +225,31 @@ mod tests {
         assert_eq!(colour(45.0, 3.0), Err(NoColour::NoRow(45.0)));
         assert!(matches!(colour(50.0, f64::NAN), Err(NoColour::NoImpactSpeed(_))));
         assert!(colour(35.0, 0.0).unwrap_err().to_string().contains("35 km/h"));
+    }
+
+    #[test]
+    fn impact_speeds_are_rounded_to_two_decimals_before_the_bands() {
+        assert_eq!(round_half_up(10.004, 2), 10.0);
+        assert_eq!(round_half_up(10.005, 2), 10.01);
+        assert_eq!(round_half_up(2.675, 2), 2.68);
+        assert_eq!(round_half_up(-0.004, 2), 0.0);
+        assert_eq!(round_half_up(0.0125, 3), 0.013);
+        // 10.004 km/h rounds to the boundary, which belongs to the band below.
+        assert_eq!(colour(50.0, 10.004), Ok(Colour::Yellow));
+        assert_eq!(colour(50.0, 10.005), Ok(Colour::Orange));
+        assert_eq!(colour(10.0, 0.004), Ok(Colour::Green));
+    }
+
+    #[test]
+    fn a_tests_score_is_its_mean_points_times_its_weight() {
+        assert_eq!(test_score(Test::Ccrm, &[1.0, 0.5]), 0.75 * 2.4);
+        assert_eq!(test_score(Test::Cpna, &[0.25]), 0.125);
+        assert_eq!(test_score(Test::Ccrs, &[]), 0.0);
+        let total: f64 = [Test::Ccrs, Test::Ccrm, Test::Ccrb, Test::Cpna, Test::Cpfa]
+            .iter()
+            .map(|t| t.standard_weight())
+            .sum();
+        assert!((total - 6.2).abs() < 1e-12);
     }
 
     #[test]

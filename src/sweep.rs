@@ -139,9 +139,10 @@ struct SweepFile {
     random: Option<RandomEntry>,
 }
 
+/// A `[[grid]]` entry of a sweep file (or of a scorecard suite's item).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct GridEntry {
+pub(crate) struct GridEntry {
     key: String,
     values: Vec<toml::Value>,
     #[serde(default)]
@@ -150,7 +151,7 @@ struct GridEntry {
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct CompanionEntry {
+pub(crate) struct CompanionEntry {
     key: String,
     /// One per value of the grid; absent: the grid's own values.
     values: Option<Vec<toml::Value>>,
@@ -413,7 +414,7 @@ pub fn parse_shard(arg: &str) -> Result<Shard, SweepError> {
 }
 
 /// FNV-1a 64-bit hash, as 16 hex digits.
-fn fnv1a(bytes: &[u8]) -> String {
+pub(crate) fn fnv1a(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in bytes {
         h ^= u64::from(*b);
@@ -469,6 +470,43 @@ struct FileParts {
     random: Option<(usize, u64)>,
 }
 
+/// `[[grid]]` entries checked (keys, at least one value, one companion value per value); an
+/// error names the key (`grid[1].with[0].values`) and what was expected.
+pub(crate) fn grids_of(entries: Vec<GridEntry>) -> Result<Vec<Grid>, (String, String)> {
+    let mut grids = Vec::with_capacity(entries.len());
+    for (i, g) in entries.into_iter().enumerate() {
+        check_key(&g.key).map_err(|m| (format!("grid[{i}].key"), m))?;
+        if g.values.is_empty() {
+            return Err((format!("grid[{i}].values"), "expected at least one value".into()));
+        }
+        let mut with = Vec::with_capacity(g.with.len());
+        for (j, c) in g.with.into_iter().enumerate() {
+            check_key(&c.key).map_err(|m| (format!("grid[{i}].with[{j}].key"), m))?;
+            let values = c.values.unwrap_or_else(|| g.values.clone());
+            if values.len() != g.values.len() {
+                return Err((
+                    format!("grid[{i}].with[{j}].values"),
+                    format!(
+                        "expected one value per value of the grid ({}), found {}",
+                        g.values.len(),
+                        values.len()
+                    ),
+                ));
+            }
+            with.push(Companion {
+                key: c.key,
+                values: values.iter().map(|v| v.to_string()).collect(),
+            });
+        }
+        grids.push(Grid {
+            key: g.key,
+            values: g.values.iter().map(|v| v.to_string()).collect(),
+            with,
+        });
+    }
+    Ok(grids)
+}
+
 /// Reads and checks the sweep file at `path` (`command_line_scenario`: the command line names
 /// the scenario too, which the file may not).
 fn read_sweep_file(path: &Path, command_line_scenario: bool) -> Result<FileParts, SweepError> {
@@ -502,33 +540,7 @@ fn read_sweep_file(path: &Path, command_line_scenario: bool) -> Result<FileParts
     }
     parts.name = parsed.name;
     parts.set = parsed.set;
-    for (i, g) in parsed.grid.into_iter().enumerate() {
-        check_key(&g.key).map_err(|m| err(format!("key `grid[{i}].key`: {m}")))?;
-        if g.values.is_empty() {
-            return Err(err(format!("key `grid[{i}].values`: expected at least one value")));
-        }
-        let mut with = Vec::with_capacity(g.with.len());
-        for (j, c) in g.with.into_iter().enumerate() {
-            check_key(&c.key).map_err(|m| err(format!("key `grid[{i}].with[{j}].key`: {m}")))?;
-            let values = c.values.unwrap_or_else(|| g.values.clone());
-            if values.len() != g.values.len() {
-                return Err(err(format!(
-                    "key `grid[{i}].with[{j}].values`: expected one value per value of the grid ({}), found {}",
-                    g.values.len(),
-                    values.len()
-                )));
-            }
-            with.push(Companion {
-                key: c.key,
-                values: values.iter().map(|v| v.to_string()).collect(),
-            });
-        }
-        parts.grids.push(Grid {
-            key: g.key,
-            values: g.values.iter().map(|v| v.to_string()).collect(),
-            with,
-        });
-    }
+    parts.grids = grids_of(parsed.grid).map_err(|(key, m)| err(format!("key `{key}`: {m}")))?;
     for (i, r) in parsed.range.into_iter().enumerate() {
         let range = Range {
             key: r.key,
@@ -872,43 +884,17 @@ pub fn execute(
             reason: source,
         })?;
     }
-    let next = AtomicUsize::new(0);
-    let mut rows: Vec<Option<Row>> = vec![None; indices.len()];
-    std::thread::scope(|scope| -> Result<(), SweepError> {
-        let (tx, rx) = mpsc::channel::<(usize, Row)>();
-        for worker in 0..threads.clamp(1, indices.len().max(1)) {
-            let tx = tx.clone();
-            let next = &next;
-            std::thread::Builder::new()
-                .name(format!("sweep-{worker}"))
-                .stack_size(16 << 20)
-                .spawn_scoped(scope, move || loop {
-                    // After Ctrl-C / SIGTERM the running episodes stop; start no new ones.
-                    if crate::episode::stop_requested() {
-                        break;
-                    }
-                    let position = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&index) = indices.get(position) else {
-                        break;
-                    };
-                    let mut row = execute_run(spec, &spec.run(index), dir, keep);
-                    row.interrupted = row.error.is_some() && crate::episode::stop_requested();
-                    if tx.send((position, row)).is_err() {
-                        break;
-                    }
-                })
-                .map_err(|source| SweepError::Io {
-                    path: "(worker thread)".into(),
-                    reason: source,
-                })?;
-        }
-        drop(tx);
-        for (position, row) in rx {
-            done(&row);
-            rows[position] = Some(row);
-        }
-        Ok(())
-    })?;
+    let rows = in_parallel(
+        indices.len(),
+        threads,
+        "sweep",
+        |position| {
+            let mut row = execute_run(spec, &spec.run(indices[position]), dir, keep);
+            row.interrupted = row.error.is_some() && crate::episode::stop_requested();
+            row
+        },
+        |_, row| done(row),
+    )?;
     Ok(rows
         .into_iter()
         .zip(indices)
@@ -928,6 +914,51 @@ pub fn execute(
             })
         })
         .collect())
+}
+
+/// Calls `work(0..count)` on `threads` threads named `<name>-<k>` (each pulls the next
+/// position from a shared counter), calling `done` on the calling thread as each finishes;
+/// results come back by position. After [`crate::episode::request_stop`] no new work starts:
+/// its positions are `None`.
+pub fn in_parallel<R: Send>(
+    count: usize,
+    threads: usize,
+    name: &str,
+    work: impl Fn(usize) -> R + Sync,
+    mut done: impl FnMut(usize, &R),
+) -> Result<Vec<Option<R>>, SweepError> {
+    let next = AtomicUsize::new(0);
+    let mut results: Vec<Option<R>> = (0..count).map(|_| None).collect();
+    std::thread::scope(|scope| -> Result<(), SweepError> {
+        let (tx, rx) = mpsc::channel::<(usize, R)>();
+        for worker in 0..threads.clamp(1, count.max(1)) {
+            let (tx, next, work) = (tx.clone(), &next, &work);
+            std::thread::Builder::new()
+                .name(format!("{name}-{worker}"))
+                .stack_size(16 << 20)
+                .spawn_scoped(scope, move || loop {
+                    // After Ctrl-C / SIGTERM the running episodes stop; start no new ones.
+                    if crate::episode::stop_requested() {
+                        break;
+                    }
+                    let position = next.fetch_add(1, Ordering::Relaxed);
+                    if position >= count || tx.send((position, work(position))).is_err() {
+                        break;
+                    }
+                })
+                .map_err(|source| SweepError::Io {
+                    path: "(worker thread)".into(),
+                    reason: source,
+                })?;
+        }
+        drop(tx);
+        for (position, result) in rx {
+            done(position, &result);
+            results[position] = Some(result);
+        }
+        Ok(())
+    })?;
+    Ok(results)
 }
 
 /// The runs executed at once for `--threads` (`requested`): at least 1; none given, every core.

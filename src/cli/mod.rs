@@ -59,6 +59,8 @@ pub mod exit {
     pub const COLLISION: u8 = 4;
     /// `run --fail-on-violation`: a requirement's robustness is negative.
     pub const VIOLATION: u8 = 5;
+    /// `scorecard --fail-below`: some filter's overall score is below the threshold.
+    pub const BELOW: u8 = 6;
     /// Interrupted by Ctrl-C / SIGTERM (128 + SIGINT).
     pub const INTERRUPTED: u8 = 130;
     /// stdout was a closed pipe (128 + SIGPIPE), e.g. `mjsafe info LOG | head`.
@@ -78,6 +80,7 @@ Exit codes:
        candidate failed (evaluations written, their rows hold the error)
   4    --fail-on-collision: the run, or some run of the sweep, collided
   5    run --fail-on-violation: a requirement is violated (robustness < 0)
+  6    scorecard --fail-below: some filter's overall score is below the threshold
   130  interrupted (Ctrl-C, SIGTERM): logs finished as incomplete
   141  stdout was a closed pipe"
     };
@@ -140,6 +143,7 @@ mod import_command;
 mod log_commands;
 mod man_command;
 mod run_command;
+mod scorecard_command;
 mod sweep_command;
 
 use analyze_command::*;
@@ -149,6 +153,7 @@ use import_command::*;
 use log_commands::*;
 use man_command::*;
 use run_command::*;
+use scorecard_command::*;
 use sweep_command::*;
 
 #[derive(Debug, Parser)]
@@ -193,6 +198,10 @@ pub enum Command {
     /// writes one log per run and summary.csv / summary.json (see docs/sweeps.md).
     #[command(after_help = sweep_examples!())]
     Sweep(SweepCommand),
+    /// Score safety filters over a suite (`--suite standard`): the dissertation's examples,
+    /// Euro NCAP's tests scored as Euro NCAP scores them, car following, margins; one table
+    /// (items by filters) and scorecard.json (see docs/scorecard.md).
+    Scorecard(ScorecardCommand),
     /// Search the --range box for a run that violates safety: CMA-ES minimises an analysis
     /// metric (default min_h) and stops at the first violation (metric < threshold). Writes
     /// the counterexample as a scenario file plus its log, every evaluation (CSV, JSON) and a
@@ -248,6 +257,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Replay(command) => command.execute(),
         Command::Analyze(command) => command.execute(),
         Command::Sweep(command) => command.execute(),
+        Command::Scorecard(command) => command.execute(),
         Command::Falsify(args) => args.execute(),
         Command::Export(command) => command.execute(),
         Command::PlotSweep(command) => command.execute(),

@@ -1,0 +1,97 @@
+//! `mjsafe scorecard`: every filter over a suite; one table, `scorecard.json` (docs/scorecard.md).
+
+use super::*;
+use crate::scorecard::{self, Suite};
+
+/// `mjsafe scorecard`: score safety filters over a suite of items.
+#[derive(Debug, clap::Args)]
+pub struct ScorecardCommand {
+    /// A filter to score: a preset of the suite (`gamma_m`, `cbf_qp`, …) or a TOML inline
+    /// table '{ kind = "…", … }'; it replaces each item's own filter (repeatable, one column each).
+    #[arg(long = "filter", value_name = "NAME|TABLE", required = true)]
+    filters: Vec<String>,
+    /// The suite: `standard`, `quick` (suites/NAME.toml) or a suite file.
+    #[arg(long, value_name = "standard|quick|FILE", default_value = "standard")]
+    suite: String,
+    /// Directory of scorecard.json.
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Runs executed at once (default: all cores).
+    #[arg(long, value_name = "K")]
+    threads: Option<usize>,
+    /// Exit with 6 when some filter's overall score is below SCORE percent.
+    #[arg(long, value_name = "SCORE")]
+    fail_below: Option<f64>,
+    /// Print scorecard.json on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+impl ScorecardCommand {
+    pub(super) fn execute(&self) -> Result<ExitCode> {
+        if let Some(s) = self.fail_below {
+            if !(0.0..=100.0).contains(&s) {
+                bail!("--fail-below {s}: expected a percentage in [0, 100]");
+            }
+        }
+        let path = scorecard::suite::resolve(&self.suite)?;
+        let suite = Suite::load(&path)?;
+        let mut filters = Vec::with_capacity(self.filters.len());
+        for arg in &self.filters {
+            let choice = scorecard::choose_filter(arg, &suite).map_err(anyhow::Error::msg)?;
+            if filters.iter().any(|f: &scorecard::FilterChoice| f.name == choice.name) {
+                bail!("--filter {arg}: given twice");
+            }
+            filters.push(choice);
+        }
+        let threads = sweep::threads(self.threads)?;
+        let target = self.out.join("scorecard.json");
+        crate::files::check_output(
+            &target,
+            "scorecard",
+            crate::files::Replace::IfStartsWith(b"{"),
+            &[&path],
+        )?;
+        let _graceful = episode::GracefulStop::begin();
+        let terminal = std::io::stderr().is_terminal();
+        let card = scorecard::run_suite(&suite, &mut filters, threads, |p| {
+            if terminal {
+                eprint!("\r{}/{} runs", p.done, p.total);
+                if p.done == p.total {
+                    eprintln!();
+                }
+            }
+        })?;
+        std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
+        crate::files::write_atomically(
+            &target,
+            "scorecard",
+            crate::files::Replace::IfStartsWith(b"{"),
+            &[&path],
+            card.to_json().as_bytes(),
+        )?;
+        if self.json {
+            out!("{}", card.to_json());
+        } else {
+            outln!("{}", card.table());
+            outln!(
+                "{} runs in {:.1} s; {}{}",
+                card.runs,
+                card.wall_seconds,
+                target.display(),
+                if card.complete {
+                    ""
+                } else {
+                    " (incomplete: interrupted)"
+                }
+            );
+        }
+        if !card.complete {
+            return Ok(ExitCode::from(exit::INTERRUPTED));
+        }
+        let below = self
+            .fail_below
+            .is_some_and(|s| card.overall.iter().any(|o| o.is_none_or(|o| 100.0 * o < s)));
+        Ok(ExitCode::from(if below { exit::BELOW } else { exit::DONE }))
+    }
+}

@@ -1,0 +1,495 @@
+//! `mjsafe scorecard`: one verdict per filter over a suite (docs/scorecard.md). Every run goes
+//! through the one run path ([`crate::run`], analysed in memory); the filter replaces the
+//! scenario's own; the Euro NCAP items are scored as Euro NCAP's 2026 calculator scores
+//! ([`crate::ncap`]), gate included.
+
+pub mod score;
+pub mod suite;
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+
+use serde::Serialize;
+
+use crate::ncap::{self, Colour};
+use crate::run::{self, Keep};
+use crate::scenario;
+use crate::sweep::{self, SweepError};
+pub use score::{Cell, Point, RunResult, Status};
+pub use suite::{Item, Scoring, Suite, SuiteError};
+
+/// A filter the scorecard scores: its column name and its spec (a TOML inline table).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FilterChoice {
+    pub name: String,
+    pub spec: String,
+    /// The filter's label from its runs (equation number), once one has run.
+    pub label: Option<String>,
+}
+
+/// `--filter NAME` (a preset of the suite) or `--filter '{ kind = "…", … }'`.
+pub fn choose_filter(arg: &str, suite: &Suite) -> Result<FilterChoice, String> {
+    let trimmed = arg.trim();
+    if trimmed.starts_with('{') {
+        let value: toml::Table = toml::from_str(&format!("filter = {trimmed}"))
+            .map_err(|e| format!("--filter {arg}: expected a TOML inline table: {}", e.message()))?;
+        let spec = value.get("filter").map(suite::inline).unwrap_or_default();
+        return Ok(FilterChoice {
+            name: trimmed.to_string(),
+            spec,
+            label: None,
+        });
+    }
+    match suite.filters.get(trimmed) {
+        Some(spec) => Ok(FilterChoice {
+            name: trimmed.to_string(),
+            spec: spec.clone(),
+            label: None,
+        }),
+        None => Err(format!(
+            "--filter {arg}: expected a preset of {} ({}) or an inline table '{{ kind = \"…\", … }}'",
+            suite.file,
+            suite.filters.keys().cloned().collect::<Vec<_>>().join(", ")
+        )),
+    }
+}
+
+/// An item's row of the scorecard: one cell per filter.
+#[derive(Debug, Clone, Serialize)]
+pub struct ItemCard {
+    pub name: String,
+    pub section: String,
+    pub scoring: Scoring,
+    pub claim: Option<String>,
+    pub scenario: String,
+    pub cells: Vec<Cell>,
+}
+
+/// The gate of the Euro NCAP frontal-collision scores for one filter.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NcapTotal {
+    /// Sum of the test scores (after the gate), Euro NCAP points.
+    pub score: f64,
+    /// Sum of the weights of the tests in the suite.
+    pub max: f64,
+    /// Whether the gate passed; absent when the suite lacks its points (`gate_reason`).
+    pub gate_passed: Option<bool>,
+    pub gate_reason: Option<String>,
+}
+
+/// The whole scorecard (`scorecard.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Scorecard {
+    pub mjsafe_version: String,
+    pub suite: SuiteRef,
+    pub filters: Vec<FilterChoice>,
+    pub items: Vec<ItemCard>,
+    /// Per filter: the Euro NCAP total (absent without Euro NCAP items).
+    pub ncap: Vec<Option<NcapTotal>>,
+    /// Per filter: the mean over items of score / max (pass 1, fail 0), items without one left out.
+    pub overall: Vec<Option<f64>>,
+    /// False when interrupted: some cells are `not_run`.
+    pub complete: bool,
+    pub runs: usize,
+    pub wall_seconds: f64,
+}
+
+/// Which suite made a scorecard.
+#[derive(Debug, Clone, Serialize)]
+pub struct SuiteRef {
+    pub name: String,
+    pub file: String,
+    pub fnv1a: String,
+}
+
+/// One unit of work: a run of an item, or a margin item's whole bisection (its runs depend on
+/// each other).
+enum Job<'a> {
+    Run {
+        column: usize,
+        item: usize,
+        run: sweep::Run,
+    },
+    Margin {
+        column: usize,
+        item: usize,
+        filter: &'a str,
+    },
+}
+
+enum JobResult {
+    Run(Box<RunResult>),
+    Margin(score::Bisection),
+}
+
+/// Runs the item's scenario with `overrides` through the one run path, analysed in memory.
+pub fn run_once(item: &Item, overrides: Vec<String>, parameters: Vec<(String, String)>) -> RunResult {
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        let loaded = scenario::load(&item.scenario, &overrides).map_err(|e| e.to_string())?;
+        run::run(&loaded, Keep::Metrics(&item.name), Vec::new()).map_err(|e| e.to_string())
+    }));
+    let (metrics, error) = match outcome {
+        Ok(Ok(o)) => (o.metrics, o.summary.error.map(|e| e.to_string())),
+        Ok(Err(e)) => (None, Some(e)),
+        Err(payload) => (
+            None,
+            Some(format!("the run panicked: {}", panic_text(payload.as_ref()))),
+        ),
+    };
+    RunResult {
+        overrides,
+        parameters,
+        metrics,
+        error: error.map(|e| crate::message::shorten_numbers(&e)),
+        not_run: false,
+    }
+}
+
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    (payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".into())
+}
+
+/// Bisects a margin item (its scoring is [`Scoring::Margin`]) for the filter override `filter`.
+fn bisect(item: &Item, filter: &str) -> score::Bisection {
+    let Scoring::Margin {
+        key,
+        safe,
+        toward,
+        tolerance,
+        ..
+    } = &item.score
+    else {
+        unreachable!("bisect is called for margin items")
+    };
+    let direction = (toward - safe).signum();
+    // Values on the tolerance's lattice from `safe` (a delay stays a multiple of the timestep
+    // when the tolerance is one); k steps of `tolerance`, at most span / tolerance ≤ 1e9.
+    let last = ((toward - safe).abs() / tolerance + 1e-9).floor() as u64;
+    let at = |k: u64| {
+        let value = crate::ncap::round_half_up(safe + direction * k as f64 * tolerance, 12);
+        let mut overrides = item.set.clone();
+        overrides.push(filter.to_string());
+        overrides.push(format!("{key}={value}"));
+        (value, run_once(item, overrides, vec![(key.clone(), value.to_string())]))
+    };
+    let clear = |r: &RunResult| {
+        r.metrics
+            .as_ref()
+            .and_then(|m| m.value("collision"))
+            .is_some_and(|v| matches!(v, crate::metrics::Value::Collision(None)))
+            && r.error.is_none()
+    };
+    let mut steps = Vec::new();
+    let (first, whole) = (at(0), at(last));
+    let (first_clear, whole_clear) = (clear(&first.1), clear(&whole.1));
+    steps.push(first);
+    steps.push(whole);
+    if first_clear && !whole_clear {
+        // Invariant: clear at lo, not at hi; halves each step (at most 30 for 1e9 steps).
+        let (mut lo, mut hi) = (0, last);
+        while hi - lo > 1 && !crate::episode::stop_requested() {
+            let mid = lo + (hi - lo) / 2;
+            let step = at(mid);
+            if clear(&step.1) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+            steps.push(step);
+        }
+    }
+    score::Bisection { steps }
+}
+
+/// Whether `scenario` with `overrides` loads and assembles (model, filter, predictors): the
+/// error of the first that fails.
+pub fn assembles(scenario: &std::path::Path, overrides: &[String]) -> Result<(), String> {
+    let loaded = scenario::load(scenario, overrides).map_err(|e| e.to_string())?;
+    let prepared = run::Prepared::new(&loaded, Keep::Nothing).map_err(|e| e.to_string())?;
+    prepared.abandon();
+    Ok(())
+}
+
+/// What [`run_suite`] reports as it goes.
+pub struct Progress {
+    pub done: usize,
+    pub total: usize,
+}
+
+/// Scores every filter of `filters` on every item of `suite`, `threads` runs at once.
+pub fn run_suite(
+    suite: &Suite,
+    filters: &mut [FilterChoice],
+    threads: usize,
+    mut progress: impl FnMut(Progress),
+) -> Result<Scorecard, SweepError> {
+    let started = std::time::Instant::now();
+    let overrides: Vec<String> = filters.iter().map(|f| format!("filter={}", f.spec)).collect();
+    // A filter that cannot drive an item's vehicle: the scenario refuses it (the item itself
+    // assembles with its own filter: the suite checked it).
+    let mut not_applicable: Vec<Vec<Option<String>>> = vec![vec![None; suite.items.len()]; filters.len()];
+    let mut jobs = Vec::new();
+    for (column, filter) in overrides.iter().enumerate() {
+        for (i, item) in suite.items.iter().enumerate() {
+            let mut set = item.set.clone();
+            set.push(filter.clone());
+            if let Err(reason) = assembles(&item.scenario, &set) {
+                not_applicable[column][i] = Some(reason);
+                continue;
+            }
+            match item.score {
+                Scoring::Margin { .. } => jobs.push(Job::Margin {
+                    column,
+                    item: i,
+                    filter,
+                }),
+                _ => {
+                    let spec = item.sweep(filter);
+                    jobs.extend((0..spec.runs).map(|k| Job::Run {
+                        column,
+                        item: i,
+                        run: spec.run(k),
+                    }));
+                }
+            }
+        }
+    }
+    let total = jobs.len();
+    let mut finished = 0;
+    let results = sweep::in_parallel(
+        total,
+        threads,
+        "scorecard",
+        |position| match &jobs[position] {
+            Job::Run { item, run, .. } => JobResult::Run(Box::new(run_once(
+                &suite.items[*item],
+                run.overrides.clone(),
+                run.parameters.clone(),
+            ))),
+            Job::Margin { item, filter, .. } => JobResult::Margin(bisect(&suite.items[*item], filter)),
+        },
+        |_, _| {
+            finished += 1;
+            progress(Progress { done: finished, total });
+        },
+    )?;
+    // Gather each (filter, item)'s results in job order.
+    let mut runs: Vec<Vec<Vec<RunResult>>> = vec![vec![Vec::new(); suite.items.len()]; filters.len()];
+    let mut margins: Vec<Vec<Option<score::Bisection>>> = vec![vec![None; suite.items.len()]; filters.len()];
+    let mut complete = true;
+    for (job, result) in jobs.iter().zip(results) {
+        match (job, result) {
+            (Job::Run { column, item, .. }, Some(JobResult::Run(r))) => runs[*column][*item].push(*r),
+            (Job::Margin { column, item, .. }, Some(JobResult::Margin(b))) => margins[*column][*item] = Some(b),
+            (Job::Run { column, item, run }, _) => {
+                complete = false;
+                runs[*column][*item].push(RunResult {
+                    overrides: run.overrides.clone(),
+                    parameters: run.parameters.clone(),
+                    metrics: None,
+                    error: None,
+                    not_run: true,
+                });
+            }
+            (Job::Margin { .. }, _) => complete = false,
+        }
+    }
+    for (column, filter) in filters.iter_mut().enumerate() {
+        filter.label = (runs[column].iter().flatten())
+            .chain(
+                margins[column]
+                    .iter()
+                    .flatten()
+                    .flat_map(|b| b.steps.iter().map(|(_, r)| r)),
+            )
+            .find_map(|r| r.metrics.as_ref().and_then(|m| m.filter_label.clone()));
+    }
+    let items: Vec<ItemCard> = (suite.items.iter().enumerate())
+        .map(|(i, item)| ItemCard {
+            name: item.name.clone(),
+            section: item.section.clone(),
+            scoring: item.score.clone(),
+            claim: item.claim.clone(),
+            scenario: item.scenario.display().to_string(),
+            cells: (0..filters.len())
+                .map(|column| {
+                    let scenario = item.scenario.display().to_string();
+                    if let Some(reason) = &not_applicable[column][i] {
+                        return Cell::without_score(
+                            Status::NotApplicable,
+                            reason.clone(),
+                            0,
+                            score::command(&scenario, &[overrides[column].clone()]),
+                        );
+                    }
+                    match &item.score {
+                        Scoring::Margin { .. } => match &margins[column][i] {
+                            Some(b) => score::margin_cell(&item.score, &scenario, b),
+                            None => Cell::without_score(
+                                Status::NotRun,
+                                "not run: the scorecard was interrupted".into(),
+                                0,
+                                String::new(),
+                            ),
+                        },
+                        _ => score::cell(item, &runs[column][i]),
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+    let mut card = Scorecard {
+        mjsafe_version: env!("CARGO_PKG_VERSION").into(),
+        suite: SuiteRef {
+            name: suite.name.clone(),
+            file: suite.file.clone(),
+            fnv1a: suite.fnv1a.clone(),
+        },
+        filters: filters.to_vec(),
+        items,
+        ncap: Vec::new(),
+        overall: Vec::new(),
+        complete,
+        runs: total,
+        wall_seconds: 0.0,
+    };
+    card.ncap = (0..filters.len()).map(|c| apply_gate(&mut card.items, c)).collect();
+    card.overall = (0..filters.len()).map(|c| overall(&card.items, c)).collect();
+    card.wall_seconds = started.elapsed().as_secs_f64();
+    Ok(card)
+}
+
+/// The mean of the items' fractions for filter `column`.
+fn overall(items: &[ItemCard], column: usize) -> Option<f64> {
+    let fractions: Vec<f64> = items.iter().filter_map(|i| i.cells[column].fraction()).collect();
+    (!fractions.is_empty()).then(|| fractions.iter().sum::<f64>() / fractions.len() as f64)
+}
+
+/// Euro NCAP's gate for filter `column` ([`ncap::gate_passes`]): when it fails, every Euro NCAP
+/// item's score becomes 0 (its reason says why). Returns the total.
+fn apply_gate(items: &mut [ItemCard], column: usize) -> Option<NcapTotal> {
+    let test_of = |i: &ItemCard| match &i.scoring {
+        Scoring::Ncap { test, .. } => Some(*test),
+        _ => None,
+    };
+    if !items.iter().any(|i| test_of(i).is_some()) {
+        return None;
+    }
+    let points_of = |test: ncap::Test| -> Vec<&Point> {
+        (items.iter())
+            .filter(|i| test_of(i) == Some(test))
+            .flat_map(|i| i.cells[column].points.iter())
+            .collect()
+    };
+    let ccrs: Vec<&Point> = points_of(ncap::Test::Ccrs)
+        .into_iter()
+        .filter(|p| p.car_speed_kmh <= 20.0)
+        .collect();
+    let cpna = points_of(ncap::Test::Cpna)
+        .into_iter()
+        .find(|p| p.car_speed_kmh == 10.0 && p.impact_location_percent == 75.0);
+    let (gate_passed, gate_reason) = match (ccrs.is_empty(), cpna) {
+        (true, _) => (None, Some("the suite has no CCRs point at <= 20 km/h".to_string())),
+        (_, None) => (
+            None,
+            Some("the suite has no CPNA point at 75 % and 10 km/h".to_string()),
+        ),
+        (false, Some(cpna)) => {
+            // A point without a colour is not green (the calculator: any non-green fails).
+            let colours: Vec<Colour> = ccrs.iter().map(|p| p.colour.unwrap_or(Colour::Red)).collect();
+            let passed = ncap::gate_passes(&colours, cpna.colour.unwrap_or(Colour::Red));
+            let reason = (!passed).then(|| {
+                let failing: Vec<String> = (ccrs.iter())
+                    .filter(|p| p.colour != Some(Colour::Green))
+                    .map(|p| format!("CCRs {} km/h at {} %", p.car_speed_kmh, p.impact_location_percent))
+                    .chain((cpna.colour != Some(Colour::Green)).then(|| "CPNA 10 km/h at 75 %".to_string()))
+                    .collect();
+                format!("not green: {}", failing.join(", "))
+            });
+            (Some(passed), reason)
+        }
+    };
+    let mut total = NcapTotal {
+        score: 0.0,
+        max: 0.0,
+        gate_passed,
+        gate_reason: gate_reason.clone(),
+    };
+    for item in items.iter_mut() {
+        let Some(test) = test_of(item) else { continue };
+        total.max += test.standard_weight();
+        let cell = &mut item.cells[column];
+        if gate_passed == Some(false) && cell.score.is_some() {
+            cell.score = Some(0.0);
+            cell.detail = format!("0 (gate failed) {}", cell.detail);
+            cell.reason = gate_reason
+                .clone()
+                .map(|r| format!("Euro NCAP's gate zeroes every test: {r}"));
+        }
+        total.score += cell.score.unwrap_or(0.0);
+    }
+    total.score = ncap::round_half_up(total.score, 3);
+    total.max = ncap::round_half_up(total.max, 3);
+    Some(total)
+}
+
+impl Scorecard {
+    /// The table people read: rows the items, columns the filters.
+    pub fn table(&self) -> String {
+        let mut rows = vec![std::iter::once("item".to_string())
+            .chain(self.filters.iter().map(|f| f.name.clone()))
+            .collect::<Vec<_>>()];
+        let mut section = "";
+        for item in &self.items {
+            if item.section != section {
+                section = &item.section;
+                rows.push(vec![format!("[{section}]")]);
+            }
+            rows.push(
+                std::iter::once(item.name.clone())
+                    .chain(item.cells.iter().map(|c| match (&c.status, &c.reason) {
+                        (Status::NotApplicable | Status::Error | Status::NotRun, Some(r)) => {
+                            format!("{}: {}", c.detail, r.lines().next().unwrap_or_default())
+                        }
+                        _ => c.detail.clone(),
+                    }))
+                    .collect(),
+            );
+        }
+        if self.ncap.iter().any(Option::is_some) {
+            rows.push(
+                std::iter::once("Euro NCAP total".to_string())
+                    .chain(self.ncap.iter().map(|t| match t {
+                        Some(t) => format!(
+                            "{:.3}/{:.3} pts, gate {}",
+                            t.score,
+                            t.max,
+                            match t.gate_passed {
+                                Some(true) => "passed",
+                                Some(false) => "FAILED",
+                                None => "not evaluated",
+                            }
+                        ),
+                        None => "-".into(),
+                    }))
+                    .collect(),
+            );
+        }
+        rows.push(
+            std::iter::once("overall".to_string())
+                .chain(
+                    self.overall
+                        .iter()
+                        .map(|o| o.map_or("-".into(), |o| format!("{:.1} %", 100.0 * o))),
+                )
+                .collect(),
+        );
+        crate::table::align_columns(&rows)
+    }
+
+    /// The JSON of `scorecard.json`.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a scorecard serializes") + "\n"
+    }
+}

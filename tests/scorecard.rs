@@ -1,0 +1,197 @@
+//! `mjsafe scorecard` through the real binary: the quick suite for several filters, every Euro
+//! NCAP score recomputed by an independent Python implementation (tests/ncap_check.py), the
+//! gate, a margin checked by direct runs, filters that do not apply, and bad suites.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::*;
+
+fn scorecard(dir: &Path, args: &[&str]) -> (std::process::Output, serde_json::Value) {
+    let out = dir.join("card");
+    let mut all = vec!["scorecard", "--out", out.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let o = mjsafe(&all);
+    let json = std::fs::read_to_string(out.join("scorecard.json"))
+        .ok()
+        .map_or(serde_json::Value::Null, |t| serde_json::from_str(&t).unwrap());
+    (o, json)
+}
+
+fn ncap_check(card: &Path) -> String {
+    let o = Command::new(python())
+        .arg(root().join("tests/ncap_check.py"))
+        .arg(card)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "ncap_check.py: {}", text(&o));
+    stdout(&o)
+}
+
+fn cell<'a>(card: &'a serde_json::Value, item: &str, column: usize) -> &'a serde_json::Value {
+    let items = card["items"].as_array().unwrap();
+    &items.iter().find(|i| i["name"] == item).unwrap()["cells"][column]
+}
+
+#[test]
+fn the_quick_suite_scores_each_filter_and_python_recomputes_every_euro_ncap_score() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = root().join("suites/quick.toml");
+    let (o, card) = scorecard(
+        dir.path(),
+        &[
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            "gamma_m",
+            "--filter",
+            "{ kind = \"none\" }",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let table = stdout(&o);
+    // One column per filter, the rows the items.
+    let header = table.lines().next().unwrap();
+    assert!(
+        header.contains("gamma_m") && header.contains("{ kind = \"none\" }"),
+        "{table}"
+    );
+    for item in ["bicycle_obstacle", "CCRs", "CPNA", "sensor_latency", "Euro NCAP total"] {
+        assert!(table.lines().any(|l| l.starts_with(item)), "{item} missing:\n{table}");
+    }
+    assert_eq!(card["filters"].as_array().unwrap().len(), 2);
+    assert_eq!(card["suite"]["name"], "quick");
+    assert!(card["suite"]["fnv1a"].as_str().unwrap().len() == 16);
+    assert_eq!(card["complete"], true);
+    // (4.67) avoids the Ch. 4 obstacle; without a filter the nominal hits it.
+    assert_eq!(cell(&card, "bicycle_obstacle", 0)["status"], "pass");
+    assert_eq!(cell(&card, "bicycle_obstacle", 1)["status"], "fail");
+    // Without a filter every CCRs point hits the standing target: red, and the gate zeroes
+    // every Euro NCAP score; (4.67) is green everywhere and keeps its points.
+    let none = cell(&card, "CCRs", 1);
+    assert!(none["points"].as_array().unwrap().iter().all(|p| p["colour"] == "red"));
+    assert!(none["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|p| p["relative_impact_kmh"].as_f64().unwrap() > 5.0));
+    assert_eq!(card["ncap"][1]["gate_passed"], false);
+    assert_eq!(card["ncap"][1]["score"], 0.0);
+    assert_eq!(card["ncap"][0]["gate_passed"], true);
+    assert_eq!(card["ncap"][0]["score"], 1.7);
+    // Each point's command reproduces it.
+    assert!(none["points"][0]["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("mjsafe run "));
+    let checked = ncap_check(&dir.path().join("card/scorecard.json"));
+    assert!(checked.starts_with("ok 22 points"), "{checked}");
+    // --fail-below: the filterless column is below any positive threshold.
+    let (o, _) = scorecard(
+        dir.path(),
+        &[
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            "{ kind = \"none\" }",
+            "--fail-below",
+            "50",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(6), "{}", text(&o));
+}
+
+#[test]
+fn a_margin_is_clear_at_its_value_and_not_one_tolerance_beyond() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write(
+        dir.path(),
+        "margin.toml",
+        &format!(
+            "[filters]\ngamma_m = {{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }}\n\
+             [[item]]\nname = \"latency\"\nscenario = \"{}\"\n\
+             score = {{ kind = \"margin\", key = \"sensing.latency\", safe = 0.0, toward = 0.8, tolerance = 0.02, unit = \"s\" }}\n",
+            scenario("bicycle_obstacle_gamma_m.toml").display()
+        ),
+    );
+    let (o, card) = scorecard(dir.path(), &["--suite", suite.to_str().unwrap(), "--filter", "gamma_m"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let margin = cell(&card, "latency", 0)["score"].as_f64().unwrap();
+    assert!(margin > 0.0 && margin < 0.8, "{margin}");
+    // Independent of the bisection: one run at the margin stays clear, one a tolerance beyond
+    // collides.
+    for (latency, clear) in [(margin, true), (margin + 0.02, false)] {
+        let summary = run_ok(
+            &scenario("bicycle_obstacle_gamma_m.toml"),
+            &dir.path().join("m.mcap"),
+            &["--json", "--set", &format!("sensing.latency={latency:.3}")],
+        );
+        let j: serde_json::Value = serde_json::from_str(&summary).unwrap();
+        assert_eq!(j["collision"].is_null(), clear, "latency {latency}: {summary}");
+    }
+}
+
+#[test]
+fn a_filter_the_scenario_refuses_is_not_applicable_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write(
+        dir.path(),
+        "na.toml",
+        &format!(
+            "[[item]]\nname = \"scalar\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
+            scenario("scalar_tv_delay.toml").display()
+        ),
+    );
+    let (o, card) = scorecard(
+        dir.path(),
+        &[
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            "{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let c = cell(&card, "scalar", 0);
+    assert_eq!(c["status"], "not_applicable", "{c}");
+    assert!(c["reason"].as_str().unwrap().contains("filter"), "{c}");
+    assert!(stdout(&o).contains("n/a: "), "{}", stdout(&o));
+}
+
+#[test]
+fn bad_suites_and_filters_get_one_line_with_the_file_and_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let ok_item = format!(
+        "[[item]]\nname = \"a\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
+        scenario("bicycle_obstacle_gamma_m.toml").display()
+    );
+    let cases = [
+        ("unknown.toml", format!("{ok_item}colour = 1\n"), "unknown field `colour`"),
+        ("kind.toml", ok_item.replace("\"clear\"", "\"fast\""), "unknown variant `fast`"),
+        ("missing.toml", ok_item.replace("bicycle_obstacle_gamma_m", "nope"), "item[0] (a).scenario"),
+        ("filter.toml", ok_item.replace("score =", "set = [\"filter.m=3\"]\nscore ="), "item[0] (a).set[0]"),
+        (
+            "ncap.toml",
+            ok_item.replace(
+                "{ kind = \"clear\" }",
+                "{ kind = \"ncap\", test = \"CCRs\", target = \"t\", speed_key = \"x\", location_key = \"y\", locations = [] }",
+            ),
+            "item[0] (a).score.speed_key",
+        ),
+    ];
+    for (name, text_of_suite, needle) in cases {
+        let suite = write(dir.path(), name, &text_of_suite);
+        let (o, _) = scorecard(
+            dir.path(),
+            &["--suite", suite.to_str().unwrap(), "--filter", "{ kind = \"none\" }"],
+        );
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{name}: {err}");
+    }
+    let (o, _) = scorecard(dir.path(), &["--suite", "quick", "--filter", "no_such_preset"]);
+    assert!(stderr(&o).contains("expected a preset of"), "{}", stderr(&o));
+}
