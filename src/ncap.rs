@@ -198,7 +198,7 @@ mod tests {
         let cases = [
             (10.0, 0.0, Colour::Green),
             (10.0, -1.0, Colour::Green),
-            (10.0, 1e-9, Colour::Red),
+            (10.0, 0.005, Colour::Red),
             (20.0, 5.0, Colour::Red),
             (30.0, 0.0, Colour::Green),
             (30.0, 10.0, Colour::Brown),
