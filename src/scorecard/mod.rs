@@ -132,7 +132,7 @@ pub fn run_once(item: &Item, overrides: Vec<String>, parameters: Vec<(String, St
         Ok(Err(e)) => (None, Some(e)),
         Err(payload) => (
             None,
-            Some(format!("the run panicked: {}", panic_text(payload.as_ref()))),
+            Some(format!("the run panicked: {}", sweep::panic_message(payload.as_ref()))),
         ),
     };
     RunResult {
@@ -142,12 +142,6 @@ pub fn run_once(item: &Item, overrides: Vec<String>, parameters: Vec<(String, St
         error: error.map(|e| crate::message::shorten_numbers(&e)),
         not_run: false,
     }
-}
-
-fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
-    (payload.downcast_ref::<&str>().map(|s| s.to_string()))
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "panic".into())
 }
 
 /// Bisects a margin item (its scoring is [`Scoring::Margin`]) for the filter override `filter`.
@@ -173,13 +167,7 @@ fn bisect(item: &Item, filter: &str) -> score::Bisection {
         overrides.push(format!("{key}={value}"));
         (value, run_once(item, overrides, vec![(key.clone(), value.to_string())]))
     };
-    let clear = |r: &RunResult| {
-        r.metrics
-            .as_ref()
-            .and_then(|m| m.value("collision"))
-            .is_some_and(|v| matches!(v, crate::metrics::Value::Collision(None)))
-            && r.error.is_none()
-    };
+    let clear = |r: &RunResult| r.collided() == Some(false) && r.error.is_none();
     let mut steps = Vec::new();
     let (first, whole) = (at(0), at(last));
     let (first_clear, whole_clear) = (clear(&first.1), clear(&whole.1));

@@ -22,7 +22,8 @@ pub struct RunResult {
 }
 
 impl RunResult {
-    fn collided(&self) -> Option<bool> {
+    /// Whether the run collided (none without metrics).
+    pub(crate) fn collided(&self) -> Option<bool> {
         match self.metrics.as_ref()?.value("collision")? {
             Value::Collision(c) => Some(c.is_some()),
             _ => None,
