@@ -195,3 +195,115 @@ fn bad_suites_and_filters_get_one_line_with_the_file_and_the_key() {
     let (o, _) = scorecard(dir.path(), &["--suite", "quick", "--filter", "no_such_preset"]);
     assert!(stderr(&o).contains("expected a preset of"), "{}", stderr(&o));
 }
+
+#[test]
+fn a_falsification_item_reports_its_worst_counterexample_and_the_command_reproduces_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write(
+        dir.path(),
+        "falsify.toml",
+        &format!(
+            "[[item]]\nname = \"search\"\nscenario = \"{}\"\n\
+             score = {{ kind = \"falsify\", ranges = [\"vehicle.initial_state.0=-26..-16\", \"delays.acceleration=0.5..2.0:0.1\"], \
+             baseline = [\"delays.steering=0.0\", \"delays.acceleration=0.0\", 'filter={{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }}'], budget = 16, seed = 1 }}\n",
+            scenario("bicycle_obstacle_gamma_m.toml").display()
+        ),
+    );
+    let (o, card) = scorecard(
+        dir.path(),
+        &[
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let c = cell(&card, "search", 0);
+    // The delay-free CBF-QP under delays of 0.5 s and more: the search finds a violation.
+    assert_eq!(c["status"], "fail", "{c}");
+    let search = &c["search"];
+    assert_eq!(search["evaluations"], 16);
+    let worst = search["worst"].as_f64().unwrap();
+    assert!(worst < 0.0, "{c}");
+    let first = search["runs_to_first_violation"].as_u64().unwrap() as usize;
+    // best_so_far is the running minimum of the qualified objectives: at the end, the worst.
+    let best: Vec<Option<f64>> = serde_json::from_value(search["best_so_far"].clone()).unwrap();
+    assert_eq!(best.len(), 16);
+    assert_eq!(best.last().unwrap().unwrap(), worst);
+    assert!(best[first - 1].unwrap() < 0.0);
+    // The cell's command is the worst counterexample's; its log was kept, and an independent
+    // run of those overrides gives the same min h.
+    let command = c["command"].as_str().unwrap();
+    let sets: Vec<String> = command
+        .split(" --set ")
+        .skip(1)
+        .map(|s| s.trim_matches('\'').to_string())
+        .collect();
+    let mut args = vec!["--json".to_string()];
+    for s in &sets {
+        args.push("--set".into());
+        args.push(s.clone());
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let summary = run_ok(
+        &scenario("bicycle_obstacle_gamma_m.toml"),
+        &dir.path().join("w.mcap"),
+        &args,
+    );
+    let j: serde_json::Value = serde_json::from_str(&summary).unwrap();
+    assert_eq!(j["min_h"].as_f64().unwrap(), worst, "{summary}");
+    let log = dir.path().join("card").join(c["log"].as_str().unwrap());
+    assert!(log.is_file(), "{}", log.display());
+    let o = mjsafe(&["analyze", log.to_str().unwrap(), "--csv"]);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+#[test]
+fn compare_reports_what_got_worse_and_exits_6() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = write(
+        dir.path(),
+        "c.toml",
+        &format!(
+            "[[item]]\nname = \"obstacle\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
+            scenario("bicycle_obstacle_gamma_m.toml").display()
+        ),
+    );
+    let mut cards = Vec::new();
+    for (name, filter) in [
+        ("a", "{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }"),
+        ("b", "{ kind = \"none\" }"),
+    ] {
+        let out = dir.path().join(name);
+        let o = mjsafe(&[
+            "scorecard",
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            filter,
+            "--out",
+            out.to_str().unwrap(),
+            "--keep-logs",
+            "none",
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(!out.join("logs").exists());
+        cards.push(out.join("scorecard.json"));
+    }
+    let [a, b] = [cards[0].to_str().unwrap(), cards[1].to_str().unwrap()];
+    let o = mjsafe(&["scorecard", "--compare", a, b]);
+    assert_eq!(o.status.code(), Some(6), "{}", text(&o));
+    let report = stdout(&o);
+    let row = report.lines().find(|l| l.contains("obstacle")).unwrap();
+    assert!(
+        row.contains("WORSE") && row.contains("pass") && row.contains("FAIL"),
+        "{report}"
+    );
+    assert!(report.contains("1 worse, 0 better, 0 the same"), "{report}");
+    let o = mjsafe(&["scorecard", "--compare", a, a]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let o = mjsafe(&["scorecard", "--compare", a, suite.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("expected a scorecard.json"), "{}", stderr(&o));
+}

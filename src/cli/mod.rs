@@ -59,7 +59,8 @@ pub mod exit {
     pub const COLLISION: u8 = 4;
     /// `run --fail-on-violation`: a requirement's robustness is negative.
     pub const VIOLATION: u8 = 5;
-    /// `scorecard --fail-below`: some filter's overall score is below the threshold.
+    /// `scorecard --fail-below`: some filter's overall score is below the threshold;
+    /// `scorecard --compare`: some item is worse in the second scorecard.
     pub const BELOW: u8 = 6;
     /// Interrupted by Ctrl-C / SIGTERM (128 + SIGINT).
     pub const INTERRUPTED: u8 = 130;
@@ -80,7 +81,8 @@ Exit codes:
        candidate failed (evaluations written, their rows hold the error)
   4    --fail-on-collision: the run, or some run of the sweep, collided
   5    run --fail-on-violation: a requirement is violated (robustness < 0)
-  6    scorecard --fail-below: some filter's overall score is below the threshold
+  6    scorecard --fail-below: some filter's overall score is below the threshold;
+       scorecard --compare: some item is worse in the second scorecard
   130  interrupted (Ctrl-C, SIGTERM): logs finished as incomplete
   141  stdout was a closed pipe"
     };

@@ -8,20 +8,28 @@ use crate::scorecard::{self, Suite};
 pub struct ScorecardCommand {
     /// A filter to score: a preset of the suite (`gamma_m`, `cbf_qp`, …) or a TOML inline
     /// table '{ kind = "…", … }'; it replaces each item's own filter (repeatable, one column each).
-    #[arg(long = "filter", value_name = "NAME|TABLE", required = true)]
+    #[arg(long = "filter", value_name = "NAME|TABLE", required_unless_present = "compare")]
     filters: Vec<String>,
     /// The suite: `standard`, `quick` (suites/NAME.toml) or a suite file.
     #[arg(long, value_name = "standard|quick|FILE", default_value = "standard")]
     suite: String,
-    /// Directory of scorecard.json.
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    /// Directory of scorecard.json (and logs/).
+    #[arg(long, value_name = "DIR", required_unless_present = "compare")]
+    out: Option<PathBuf>,
+    /// Compare two scorecards item by item instead of running a suite: what got worse or
+    /// better from A to B (exit 6 when something got worse).
+    #[arg(long, num_args = 2, value_names = ["A/scorecard.json", "B/scorecard.json"], conflicts_with_all = ["filters", "out", "fail_below"])]
+    compare: Option<Vec<PathBuf>>,
     /// Runs executed at once (default: all cores).
     #[arg(long, value_name = "K")]
     threads: Option<usize>,
     /// Exit with 6 when some filter's overall score is below SCORE percent.
     #[arg(long, value_name = "SCORE")]
     fail_below: Option<f64>,
+    /// Which runs keep an MCAP log under DIR/logs/: `failing` (each cell's failing run, run
+    /// again with its log), `all` (every run of a grid item too) or `none`.
+    #[arg(long, value_enum, value_name = "WHICH", default_value = "failing")]
+    keep_logs: scorecard::KeepLogs,
     /// Print scorecard.json on stdout instead of the table.
     #[arg(long)]
     json: bool,
@@ -29,6 +37,10 @@ pub struct ScorecardCommand {
 
 impl ScorecardCommand {
     pub(super) fn execute(&self) -> Result<ExitCode> {
+        if let Some(files) = &self.compare {
+            return compare(&files[0], &files[1]);
+        }
+        let out = self.out.as_ref().context("--out DIR: required")?;
         if let Some(s) = self.fail_below {
             if !(0.0..=100.0).contains(&s) {
                 bail!("--fail-below {s}: expected a percentage in [0, 100]");
@@ -45,7 +57,7 @@ impl ScorecardCommand {
             filters.push(choice);
         }
         let threads = sweep::threads(self.threads)?;
-        let target = self.out.join("scorecard.json");
+        let target = out.join("scorecard.json");
         crate::files::check_output(
             &target,
             "scorecard",
@@ -54,7 +66,11 @@ impl ScorecardCommand {
         )?;
         let _graceful = episode::GracefulStop::begin();
         let terminal = std::io::stderr().is_terminal();
-        let card = scorecard::run_suite(&suite, &mut filters, threads, |p| {
+        let logs = scorecard::LogPolicy {
+            which: self.keep_logs,
+            dir: out.clone(),
+        };
+        let card = scorecard::run_suite(&suite, &mut filters, threads, &logs, |p| {
             if terminal {
                 eprint!("\r{}/{} runs", p.done, p.total);
                 if p.done == p.total {
@@ -62,7 +78,7 @@ impl ScorecardCommand {
                 }
             }
         })?;
-        std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         crate::files::write_atomically(
             &target,
             "scorecard",
@@ -94,4 +110,22 @@ impl ScorecardCommand {
             .is_some_and(|s| card.overall.iter().any(|o| o.is_none_or(|o| 100.0 * o < s)));
         Ok(ExitCode::from(if below { exit::BELOW } else { exit::DONE }))
     }
+}
+
+/// `--compare A B`: the regression report of two scorecards.
+fn compare(a: &Path, b: &Path) -> Result<ExitCode> {
+    let read = |path: &Path| -> Result<serde_json::Value> {
+        let text = crate::files::read_text_limited(path, "scorecard", crate::files::SWEEP_FILE_LIMIT)?;
+        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: expected a scorecard.json: {e}", path.display()))
+    };
+    let (va, vb) = (read(a)?, read(b)?);
+    let (na, nb) = (a.display().to_string(), b.display().to_string());
+    let comparison = scorecard::compare::compare(&va, &vb, (&na, &nb)).map_err(anyhow::Error::msg)?;
+    outln!("A: {na}\nB: {nb}");
+    outln!("{}", comparison.table());
+    Ok(ExitCode::from(if comparison.worse() > 0 {
+        exit::BELOW
+    } else {
+        exit::DONE
+    }))
 }

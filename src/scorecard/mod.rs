@@ -3,6 +3,7 @@
 //! scenario's own; the Euro NCAP items are scored as Euro NCAP's 2026 calculator scores
 //! ([`crate::ncap`]), gate included.
 
+pub mod compare;
 pub mod score;
 pub mod suite;
 
@@ -114,18 +115,86 @@ enum Job<'a> {
         item: usize,
         filter: &'a str,
     },
+    /// A falsification item's whole search (run on one thread: the jobs fill the cores).
+    Falsify {
+        column: usize,
+        item: usize,
+        filter: &'a str,
+    },
 }
 
 enum JobResult {
     Run(Box<RunResult>),
     Margin(score::Bisection),
+    Falsify(Box<Result<crate::falsify::Search, String>>),
 }
 
-/// Runs the item's scenario with `overrides` through the one run path, analysed in memory.
-pub fn run_once(item: &Item, overrides: Vec<String>, parameters: Vec<(String, String)>) -> RunResult {
+/// Which runs keep their MCAP log (`--keep-logs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum KeepLogs {
+    /// No log: every run analysed in memory.
+    None,
+    /// The failing run of each cell (a collision, a goal missed, the worst Euro NCAP point when
+    /// it is not green, a margin's first unclear run, a search's worst counterexample), run
+    /// again with its log.
+    Failing,
+    /// Every run of a grid item, and the failing run of a margin or falsification item.
+    All,
+}
+
+/// Where the logs go and which runs keep one.
+#[derive(Debug, Clone)]
+pub struct LogPolicy {
+    pub which: KeepLogs,
+    /// The scorecard's directory (the logs go under `logs/`).
+    pub dir: std::path::PathBuf,
+}
+
+impl LogPolicy {
+    /// `logs/<column>-<filter>/<item>[/<run>].mcap`, relative to the scorecard's directory.
+    fn relative(&self, column: usize, filter: &str, item: &str, run: Option<usize>) -> String {
+        let slug = |s: &str| -> String {
+            let kept: String = (s.chars())
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .take(48)
+                .collect();
+            kept.trim_matches('_').to_string()
+        };
+        let filter = format!("{}-{}", column + 1, slug(filter));
+        match run {
+            Some(k) => format!("logs/{filter}/{}/{k}.mcap", slug(item)),
+            None => format!("logs/{filter}/{}.mcap", slug(item)),
+        }
+    }
+}
+
+/// Runs the item's scenario with `overrides` through the one run path, analysed in memory, or
+/// into the MCAP log `log` (its parent directory made) and analysed from it.
+pub fn run_once(
+    item: &Item,
+    overrides: Vec<String>,
+    parameters: Vec<(String, String)>,
+    log: Option<&std::path::Path>,
+) -> RunResult {
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         let loaded = scenario::load(&item.scenario, &overrides).map_err(|e| e.to_string())?;
-        run::run(&loaded, Keep::Metrics(&item.name), Vec::new()).map_err(|e| e.to_string())
+        let keep = match log {
+            Some(path) => {
+                if let Some(parent) = path.parent() {
+                    std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
+                }
+                Keep::Log(path)
+            }
+            None => Keep::Metrics(&item.name),
+        };
+        run::run(&loaded, keep, Vec::new()).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match outcome {
         Ok(Ok(o)) => (o.metrics, o.summary.error.map(|e| e.to_string())),
@@ -165,7 +234,10 @@ fn bisect(item: &Item, filter: &str) -> score::Bisection {
         let mut overrides = item.set.clone();
         overrides.push(filter.to_string());
         overrides.push(format!("{key}={value}"));
-        (value, run_once(item, overrides, vec![(key.clone(), value.to_string())]))
+        (
+            value,
+            run_once(item, overrides, vec![(key.clone(), value.to_string())], None),
+        )
     };
     let clear = |r: &RunResult| r.collided() == Some(false) && r.error.is_none();
     let mut steps = Vec::new();
@@ -190,6 +262,52 @@ fn bisect(item: &Item, filter: &str) -> score::Bisection {
     score::Bisection { steps }
 }
 
+/// The overrides every candidate of a falsification item starts from: the item's, then the
+/// filter's.
+fn falsify_set(item: &Item, filter: &str) -> Vec<String> {
+    let mut set = item.set.clone();
+    set.push(filter.to_string());
+    set
+}
+
+/// Runs a falsification item's search (its scoring is [`Scoring::Falsify`]) for the filter
+/// override `filter`, on this thread.
+fn search(item: &Item, filter: &str) -> Result<crate::falsify::Search, String> {
+    let Scoring::Falsify {
+        ranges,
+        baseline,
+        budget,
+        seed,
+        method,
+        objective,
+        threshold,
+        baseline_threshold,
+        baseline_no_stall,
+    } = &item.score
+    else {
+        unreachable!("search is called for falsification items")
+    };
+    let request = crate::falsify::Request {
+        scenario: item.scenario.clone(),
+        ranges: ranges.clone(),
+        set: falsify_set(item, filter),
+        objective: objective.clone(),
+        threshold: *threshold,
+        budget: *budget,
+        seed: *seed,
+        threads: Some(1),
+        worst: true,
+        baseline_threshold: *baseline_threshold,
+        baseline: baseline.clone(),
+        baseline_no_stall: *baseline_no_stall,
+        baseline_reaches_goal: false,
+        method: *method,
+        counterexamples: 1,
+    };
+    let (problem, _) = request.problem().map_err(|e| e.to_string())?;
+    crate::falsify::search(&problem, *method, |_| {}).map_err(|e| e.to_string())
+}
+
 /// Whether `scenario` with `overrides` loads and assembles (model, filter, predictors): the
 /// error of the first that fails.
 pub fn assembles(scenario: &std::path::Path, overrides: &[String]) -> Result<(), String> {
@@ -210,6 +328,7 @@ pub fn run_suite(
     suite: &Suite,
     filters: &mut [FilterChoice],
     threads: usize,
+    logs: &LogPolicy,
     mut progress: impl FnMut(Progress),
 ) -> Result<Scorecard, SweepError> {
     let started = std::time::Instant::now();
@@ -232,6 +351,11 @@ pub fn run_suite(
                     item: i,
                     filter,
                 }),
+                Scoring::Falsify { .. } => jobs.push(Job::Falsify {
+                    column,
+                    item: i,
+                    filter,
+                }),
                 _ => {
                     let spec = item.sweep(filter);
                     jobs.extend((0..spec.runs).map(|k| Job::Run {
@@ -250,12 +374,21 @@ pub fn run_suite(
         threads,
         "scorecard",
         |position| match &jobs[position] {
-            Job::Run { item, run, .. } => JobResult::Run(Box::new(run_once(
-                &suite.items[*item],
-                run.overrides.clone(),
-                run.parameters.clone(),
-            ))),
+            Job::Run { column, item, run } => {
+                let item = &suite.items[*item];
+                let log = (logs.which == KeepLogs::All).then(|| {
+                    logs.dir
+                        .join(logs.relative(*column, &filters[*column].name, &item.name, Some(run.index)))
+                });
+                JobResult::Run(Box::new(run_once(
+                    item,
+                    run.overrides.clone(),
+                    run.parameters.clone(),
+                    log.as_deref(),
+                )))
+            }
             Job::Margin { item, filter, .. } => JobResult::Margin(bisect(&suite.items[*item], filter)),
+            Job::Falsify { item, filter, .. } => JobResult::Falsify(Box::new(search(&suite.items[*item], filter))),
         },
         |_, _| {
             finished += 1;
@@ -265,11 +398,14 @@ pub fn run_suite(
     // Gather each (filter, item)'s results in job order.
     let mut runs: Vec<Vec<Vec<RunResult>>> = vec![vec![Vec::new(); suite.items.len()]; filters.len()];
     let mut margins: Vec<Vec<Option<score::Bisection>>> = vec![vec![None; suite.items.len()]; filters.len()];
+    let mut searches: Vec<Vec<Option<Result<crate::falsify::Search, String>>>> =
+        vec![vec![None; suite.items.len()]; filters.len()];
     let mut complete = true;
     for (job, result) in jobs.iter().zip(results) {
         match (job, result) {
             (Job::Run { column, item, .. }, Some(JobResult::Run(r))) => runs[*column][*item].push(*r),
             (Job::Margin { column, item, .. }, Some(JobResult::Margin(b))) => margins[*column][*item] = Some(b),
+            (Job::Falsify { column, item, .. }, Some(JobResult::Falsify(s))) => searches[*column][*item] = Some(*s),
             (Job::Run { column, item, run }, _) => {
                 complete = false;
                 runs[*column][*item].push(RunResult {
@@ -280,7 +416,7 @@ pub fn run_suite(
                     not_run: true,
                 });
             }
-            (Job::Margin { .. }, _) => complete = false,
+            (Job::Margin { .. } | Job::Falsify { .. }, _) => complete = false,
         }
     }
     for (column, filter) in filters.iter_mut().enumerate() {
@@ -321,6 +457,17 @@ pub fn run_suite(
                                 String::new(),
                             ),
                         },
+                        Scoring::Falsify { .. } => match &searches[column][i] {
+                            Some(s) => {
+                                score::falsify_cell(&item.score, &scenario, &falsify_set(item, &overrides[column]), s)
+                            }
+                            None => Cell::without_score(
+                                Status::NotRun,
+                                "not run: the scorecard was interrupted".into(),
+                                0,
+                                String::new(),
+                            ),
+                        },
                         _ => score::cell(item, &runs[column][i]),
                     }
                 })
@@ -339,13 +486,52 @@ pub fn run_suite(
         ncap: Vec::new(),
         overall: Vec::new(),
         complete,
-        runs: total,
+        // Runs made, a margin's bisection and a search counted run by run.
+        runs: 0,
         wall_seconds: 0.0,
     };
+    if logs.which != KeepLogs::None {
+        keep_failing_logs(suite, &mut card, logs, threads)?;
+    }
+    card.runs = card.items.iter().flat_map(|i| i.cells.iter().map(|c| c.runs)).sum();
     card.ncap = (0..filters.len()).map(|c| apply_gate(&mut card.items, c)).collect();
     card.overall = (0..filters.len()).map(|c| overall(&card.items, c)).collect();
     card.wall_seconds = started.elapsed().as_secs_f64();
     Ok(card)
+}
+
+/// Runs each cell's failing run again into its log (with [`KeepLogs::All`], a grid item's
+/// runs have theirs already: the failing run's is pointed to).
+fn keep_failing_logs(suite: &Suite, card: &mut Scorecard, logs: &LogPolicy, threads: usize) -> Result<(), SweepError> {
+    let mut wanted = Vec::new();
+    for (i, item) in card.items.iter().enumerate() {
+        for (column, cell) in item.cells.iter().enumerate() {
+            if let Some(overrides) = &cell.failing_run {
+                wanted.push((i, column, overrides.clone()));
+            }
+        }
+    }
+    let results = sweep::in_parallel(
+        wanted.len(),
+        threads,
+        "scorecard-logs",
+        |k| {
+            let (i, column, overrides) = &wanted[k];
+            let relative = logs.relative(*column, &card.filters[*column].name, &suite.items[*i].name, None);
+            let run = run_once(
+                &suite.items[*i],
+                overrides.clone(),
+                Vec::new(),
+                Some(&logs.dir.join(&relative)),
+            );
+            run.metrics.is_some().then_some(relative)
+        },
+        |_, _| {},
+    )?;
+    for ((i, column, _), relative) in wanted.iter().zip(results) {
+        card.items[*i].cells[*column].log = relative.flatten();
+    }
+    Ok(())
 }
 
 /// The mean of the items' fractions for filter `column`.

@@ -94,6 +94,9 @@ pub struct Point {
     pub reason: Option<String>,
     /// The command that reproduces this run.
     pub command: String,
+    /// Its overrides.
+    #[serde(skip)]
+    pub overrides: Vec<String>,
 }
 
 /// One item scored for one filter.
@@ -112,8 +115,48 @@ pub struct Cell {
     pub runs: usize,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub points: Vec<Point>,
+    /// A margin item's bisection, in the order run.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub steps: Vec<MarginStep>,
+    /// A falsification item's search.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub search: Option<SearchOutcome>,
     /// Reproduces the item's first failing run (else its first run).
     pub command: String,
+    /// The overrides of the failing run `command` reproduces (none when nothing failed).
+    #[serde(skip)]
+    pub failing_run: Option<Vec<String>>,
+    /// The MCAP log of that run (`--keep-logs`), relative to the scorecard's directory.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub log: Option<String>,
+}
+
+/// One run of a margin item's bisection.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MarginStep {
+    /// The value of the item's key.
+    pub value: f64,
+    /// Whether the run stayed clear (absent when it has no metrics).
+    pub clear: Option<bool>,
+}
+
+/// What a falsification item's search found.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SearchOutcome {
+    pub method: String,
+    pub objective: String,
+    pub threshold: f64,
+    pub evaluations: usize,
+    /// Candidates whose baseline was safe (all of them without a baseline).
+    pub qualified: usize,
+    pub violations: usize,
+    /// Evaluations up to and including the first qualified violation.
+    pub runs_to_first_violation: Option<usize>,
+    /// The lowest objective among the qualified violations.
+    pub worst: Option<f64>,
+    /// The lowest objective of a qualified candidate after each evaluation (absent before the
+    /// first qualified one): the convergence the report draws.
+    pub best_so_far: Vec<Option<f64>>,
 }
 
 impl Cell {
@@ -144,7 +187,11 @@ impl Cell {
             reason: Some(reason),
             runs,
             points: Vec::new(),
+            steps: Vec::new(),
+            search: None,
             command,
+            failing_run: None,
+            log: None,
         }
     }
 }
@@ -190,6 +237,7 @@ pub fn cell(item: &Item, runs: &[RunResult]) -> Cell {
             ncap_cell(*test, target, (speed_key, location_key, &located), scenario, runs)
         }
         Scoring::Margin { .. } => unreachable!("a margin item is scored by its bisection"),
+        Scoring::Falsify { .. } => unreachable!("a falsification item is scored by its search"),
     }
 }
 
@@ -220,7 +268,11 @@ fn clear_cell(scenario: &str, runs: &[RunResult], first_command: String) -> Cell
         reason: None,
         runs: runs.len(),
         points: Vec::new(),
+        steps: Vec::new(),
+        search: None,
         command: failing.map_or(first_command, |r| command(scenario, &r.overrides)),
+        failing_run: failing.map(|r| r.overrides.clone()),
+        log: None,
     }
 }
 
@@ -263,7 +315,11 @@ fn progress_cell(max_stall: f64, scenario: &str, runs: &[RunResult], first_comma
         reason: worst.as_ref().map(|(_, why)| why.clone()),
         runs: runs.len(),
         points: Vec::new(),
+        steps: Vec::new(),
+        search: None,
+        failing_run: worst.as_ref().map(|(r, _)| r.overrides.clone()),
         command: worst.map_or(first_command, |(r, _)| command(scenario, &r.overrides)),
+        log: None,
     }
 }
 
@@ -323,6 +379,7 @@ fn ncap_cell(
                 .map_or(0.0, |&c| ncap::points(c, ncap::Range::Standard)),
             reason: coloured.err(),
             command: command(scenario, &r.overrides),
+            overrides: r.overrides.clone(),
         });
     }
     let values: Vec<f64> = points.iter().map(|p| p.points).collect();
@@ -362,7 +419,14 @@ fn ncap_cell(
         reason: (uncoloured > 0).then(|| points.iter().find_map(|p| p.reason.clone()).unwrap_or_default()),
         runs: runs.len(),
         command: worst.map_or(String::new(), |p| p.command.clone()),
+        // The worst point fails when it is not green.
+        failing_run: worst
+            .filter(|p| p.colour != Some(Colour::Green))
+            .map(|p| p.overrides.clone()),
+        log: None,
         points,
+        steps: Vec::new(),
+        search: None,
     }
 }
 
@@ -442,6 +506,110 @@ pub fn margin_cell(scoring: &Scoring, scenario: &str, bisection: &Bisection) -> 
         reason: reason.or_else(|| (span == 0.0).then(|| "empty range".into())),
         runs,
         points: Vec::new(),
+        steps: (bisection.steps.iter())
+            .map(|(value, r)| MarginStep {
+                value: *value,
+                clear: r.collided().map(|c| !c),
+            })
+            .collect(),
+        search: None,
         command: failing.map_or(String::new(), |(_, r)| command(scenario, &r.overrides)),
+        failing_run: (bisection.steps.iter())
+            .find(|(_, r)| !clear(r))
+            .map(|(_, r)| r.overrides.clone()),
+        log: None,
+    }
+}
+
+/// The cell of a falsification item: pass when its search found no qualified violation.
+/// `set` is every override of its candidates before their own (the filter's included).
+pub fn falsify_cell(
+    scoring: &Scoring,
+    scenario: &str,
+    set: &[String],
+    search: &Result<crate::falsify::Search, String>,
+) -> Cell {
+    let Scoring::Falsify {
+        objective, threshold, ..
+    } = scoring
+    else {
+        unreachable!("a falsify cell of a falsify item")
+    };
+    let search = match search {
+        Ok(s) => s,
+        Err(e) => return Cell::without_score(Status::Error, e.clone(), 0, command(scenario, set)),
+    };
+    let evaluations = search.evaluations.len();
+    if search.interrupted {
+        return Cell::without_score(
+            Status::NotRun,
+            "not run: the scorecard was interrupted".into(),
+            evaluations,
+            command(scenario, set),
+        );
+    }
+    let overrides_of = |e: &crate::falsify::Evaluation| -> Vec<String> {
+        (set.iter().cloned())
+            .chain(e.parameters.iter().map(|(k, v)| format!("{k}={v}")))
+            .collect()
+    };
+    let mut best: Option<f64> = None;
+    let best_so_far = (search.evaluations.iter())
+        .map(|e| {
+            if let (true, Some(o)) = (e.qualified, e.objective) {
+                best = Some(best.map_or(o, |b: f64| b.min(o)));
+            }
+            best
+        })
+        .collect();
+    let qualified = search.evaluations.iter().filter(|e| e.qualified).count();
+    let errors = search.evaluations.iter().filter(|e| e.error.is_some()).count();
+    let worst = search.worst_violation();
+    if qualified == 0 {
+        // Nothing qualified: the search proved nothing, so the item has no score.
+        return Cell::without_score(
+            Status::Error,
+            format!("no candidate qualified in {evaluations} runs ({errors} failed to run): the search proved nothing"),
+            evaluations,
+            command(scenario, set),
+        );
+    }
+    let outcome = SearchOutcome {
+        method: search.method.name().into(),
+        objective: objective.clone(),
+        threshold: *threshold,
+        evaluations,
+        qualified,
+        violations: search.evaluations.iter().filter(|e| e.violation).count(),
+        runs_to_first_violation: search.runs_to_first_violation(),
+        worst: worst.and_then(|e| e.objective),
+        best_so_far,
+    };
+    let detail = match (outcome.runs_to_first_violation, outcome.worst) {
+        (Some(first), worst) => format!(
+            "FAIL: found at run {first}/{evaluations}, worst {}",
+            worst.map_or("-".into(), |w| format!("{w:.4}"))
+        ),
+        (None, _) => format!("pass: none in {evaluations} runs ({qualified} qualified)"),
+    };
+    Cell {
+        status: if worst.is_some() { Status::Fail } else { Status::Pass },
+        score: Some(if worst.is_some() { 0.0 } else { 1.0 }),
+        max: Some(1.0),
+        unit: "pass".into(),
+        figure: Some(Figure {
+            name: "runs to the first qualified violation".into(),
+            value: outcome.runs_to_first_violation.map(|n| n as f64),
+            unit: "runs".into(),
+        }),
+        detail,
+        reason: (errors > 0).then(|| format!("{errors} of {evaluations} candidates failed to run")),
+        runs: evaluations,
+        points: Vec::new(),
+        steps: Vec::new(),
+        command: worst.map_or(command(scenario, set), |e| command(scenario, &overrides_of(e))),
+        failing_run: worst.map(overrides_of),
+        log: None,
+        search: Some(outcome),
     }
 }

@@ -54,6 +54,38 @@ pub enum Scoring {
         unit: String,
         at_least: Option<f64>,
     },
+    /// A falsification search (`mjsafe falsify`) over the box `ranges` (`KEY=LO..HI[:STEP]`)
+    /// with a fixed `budget`, `seed` and `method`: passes when no qualified violation (the
+    /// `objective` below `threshold` where the `baseline` overrides stay at or above
+    /// `baseline_threshold`) is found; the figures are the runs to the first one and the worst.
+    Falsify {
+        ranges: Vec<String>,
+        #[serde(default)]
+        baseline: Vec<String>,
+        budget: usize,
+        seed: u64,
+        #[serde(default = "guided")]
+        method: crate::falsify::Method,
+        #[serde(default = "min_h")]
+        objective: String,
+        #[serde(default)]
+        threshold: f64,
+        #[serde(default)]
+        baseline_threshold: f64,
+        #[serde(default)]
+        baseline_no_stall: bool,
+    },
+}
+
+/// Most candidates a falsification item may evaluate.
+pub const MAX_FALSIFY_BUDGET: usize = 10_000;
+
+fn guided() -> crate::falsify::Method {
+    crate::falsify::Method::Guided
+}
+
+fn min_h() -> String {
+    "min_h".into()
 }
 
 /// One item of a suite, resolved.
@@ -312,6 +344,55 @@ fn check_scoring(score: &Scoring, grids: &[Grid], runs: usize) -> Result<(), (St
             }
             if at_least.is_some_and(|a| !a.is_finite()) {
                 return bad("at_least", "expected a finite number".into());
+            }
+            Ok(())
+        }
+        Scoring::Falsify {
+            ranges,
+            baseline,
+            budget,
+            objective,
+            threshold,
+            baseline_threshold,
+            baseline_no_stall,
+            ..
+        } => {
+            if runs != 1 {
+                return bad(
+                    "kind",
+                    "a falsification item searches its ranges: it takes no grid".into(),
+                );
+            }
+            if ranges.is_empty() {
+                return bad("ranges", "expected at least one range KEY=LO..HI[:STEP]".into());
+            }
+            for (j, r) in ranges.iter().enumerate() {
+                let range = sweep::parse_range(r).map_err(|e| (format!(".score.ranges[{j}]"), e.to_string()))?;
+                if range.key == "filter" || range.key.starts_with("filter.") {
+                    return bad(
+                        "ranges",
+                        "the scorecard sets `filter` (one per column); leave it out".into(),
+                    );
+                }
+            }
+            for (j, b) in baseline.iter().enumerate() {
+                scenario::check_override(b).map_err(|e| (format!(".score.baseline[{j}]"), e.to_string()))?;
+            }
+            if !(1..=MAX_FALSIFY_BUDGET).contains(budget) {
+                return bad(
+                    "budget",
+                    format!("expected 1 to {MAX_FALSIFY_BUDGET} runs, found {budget}"),
+                );
+            }
+            crate::falsify::check_objective(objective).map_err(|e| (".score.objective".to_string(), e.to_string()))?;
+            if !(threshold.is_finite() && baseline_threshold.is_finite()) {
+                return bad("threshold", "expected finite thresholds".into());
+            }
+            if *baseline_no_stall && baseline.is_empty() {
+                return bad(
+                    "baseline_no_stall",
+                    "a requirement of the baseline: give `baseline` overrides".into(),
+                );
             }
             Ok(())
         }
