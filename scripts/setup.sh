@@ -26,6 +26,8 @@ if [ "$want_test" = 1 ]; then
     || need_apt+=(slurm-wlm)
   [ -x /usr/sbin/munged ] || need_apt+=(munge)
   command -v groff >/dev/null 2>&1 || need_apt+=(groff-base)   # tests/cli.rs renders the man page
+  # tests/scorecard.rs opens report.html in a real headless browser (Playwright drives it).
+  [ -x /usr/bin/chromium ] || need_apt+=(chromium)
 fi
 if [ ${#need_apt[@]} -gt 0 ]; then
   echo "setup: installing Debian packages: ${need_apt[*]}"
@@ -64,11 +66,11 @@ if [ "$want_test" = 1 ]; then
     echo "setup: creating Python venv for the test readers at $venv"
     python3 -m venv "$venv"
   fi
-  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy, gymnasium, rtamt' >/dev/null 2>&1 \
+  if ! "$venv/bin/python" -c 'import mcap, mcap_protobuf, yaml, pandas, pytest, cvxpy, gymnasium, rtamt, playwright' >/dev/null 2>&1 \
     || [ ! -x "$venv/bin/maturin" ] \
     || [ "$("$venv/bin/python" -m pip show rerun-sdk 2>/dev/null | sed -n 's/^Version: //p')" != 0.36.3 ] \
     || [ ! -x "$venv/bin/rerun" ]; then
-    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML, pandas), the rerun CLI (rerun-sdk), maturin, pytest, cvxpy and rtamt into $venv"
+    echo "setup: installing Python readers (mcap, mcap-protobuf-support, PyYAML, pandas), the rerun CLI (rerun-sdk), maturin, pytest, cvxpy, rtamt and playwright into $venv"
     "$venv/bin/pip" install -q --disable-pip-version-check -r scripts/requirements-test.txt
   fi
   # No usage data from the rerun CLI the tests run (it would try the network).

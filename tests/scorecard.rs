@@ -1,6 +1,7 @@
 //! `mjsafe scorecard` through the real binary: the quick suite for several filters, every Euro
 //! NCAP score recomputed by an independent Python implementation (tests/ncap_check.py), the
-//! gate, a margin checked by direct runs, filters that do not apply, and bad suites.
+//! gate, a margin checked by direct runs, filters that do not apply, bad suites, falsification
+//! items, kept logs, `--compare`, and report.html in a real browser (tests/report_check.py).
 
 mod common;
 
@@ -88,6 +89,20 @@ fn the_quick_suite_scores_each_filter_and_python_recomputes_every_euro_ncap_scor
         .starts_with("mjsafe run "));
     let checked = ncap_check(&dir.path().join("card/scorecard.json"));
     assert!(checked.starts_with("ok 22 points"), "{checked}");
+    // report.html in a real browser (Debian's chromium driven by Playwright): it loads with no
+    // console error and no request beyond itself, one column per filter, failing items first,
+    // every figure drawn.
+    let o = Command::new(python())
+        .arg(root().join("tests/report_check.py"))
+        .arg(dir.path().join("card/report.html"))
+        .arg("2")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "report_check.py: {}", text(&o));
+    assert!(stdout(&o).starts_with("ok: "), "{}", stdout(&o));
+    // The falsification-free quick suite draws a figure per item and Euro NCAP grid per filter.
+    let figures: usize = stdout(&o).split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!(figures >= 4, "{}", stdout(&o));
     // --fail-below: the filterless column is below any positive threshold.
     let (o, _) = scorecard(
         dir.path(),

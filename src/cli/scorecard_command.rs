@@ -64,6 +64,12 @@ impl ScorecardCommand {
             crate::files::Replace::IfStartsWith(b"{"),
             &[&path],
         )?;
+        crate::files::check_output(
+            &out.join("report.html"),
+            "scorecard report",
+            crate::files::Replace::IfStartsWith(b"<!DOCTYPE html>"),
+            &[&path],
+        )?;
         let _graceful = episode::GracefulStop::begin();
         let terminal = std::io::stderr().is_terminal();
         let logs = scorecard::LogPolicy {
@@ -86,15 +92,24 @@ impl ScorecardCommand {
             &[&path],
             card.to_json().as_bytes(),
         )?;
+        let report = out.join("report.html");
+        crate::files::write_atomically(
+            &report,
+            "scorecard report",
+            crate::files::Replace::IfStartsWith(b"<!DOCTYPE html>"),
+            &[&path],
+            scorecard::report::html(&card).as_bytes(),
+        )?;
         if self.json {
             out!("{}", card.to_json());
         } else {
             outln!("{}", card.table());
             outln!(
-                "{} runs in {:.1} s; {}{}",
+                "{} runs in {:.1} s; {} and {}{}",
                 card.runs,
                 card.wall_seconds,
                 target.display(),
+                report.display(),
                 if card.complete {
                     ""
                 } else {

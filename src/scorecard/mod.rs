@@ -4,6 +4,7 @@
 //! ([`crate::ncap`]), gate included.
 
 pub mod compare;
+pub mod report;
 pub mod score;
 pub mod suite;
 
