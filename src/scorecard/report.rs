@@ -248,9 +248,9 @@ fn item_section(page: &mut String, card: &Scorecard, item: &ItemCard) {
     }
     page.push_str("<table><tr><th>filter</th><th>result</th><th>reproduce</th></tr>\n");
     for (column, cell) in item.cells.iter().enumerate() {
-        let _ = write!(
+        let _ = writeln!(
             page,
-            "<tr><td><span class=\"key\" style=\"background:{}\"></span>{}</td><td class=\"{}\">{}{}</td><td><code>{}</code>{}</td></tr>\n",
+            "<tr><td><span class=\"key\" style=\"background:{}\"></span>{}</td><td class=\"{}\">{}{}</td><td><code>{}</code>{}</td></tr>",
             filter_colour(column),
             esc(&card.filters[column].name),
             status_class(cell.status),
