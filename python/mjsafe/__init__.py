@@ -43,6 +43,7 @@ __all__ = [
     "run",
     "sweep",
     "falsify",
+    "scorecard",
     "read_log",
     "RunResult",
     "FalsifyResult",
@@ -494,6 +495,86 @@ def falsify(
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
         raw = _core.falsify(*args, tmp, search_line, require, method, counterexamples)
         return FalsifyResult(raw, None)
+
+_SCORECARD_COLUMNS = [
+    "section", "item", "filter", "status", "score", "max", "unit", "figure", "figure_value",
+    "figure_unit", "detail", "reason", "runs", "command", "log",
+]
+
+
+def scorecard(
+    filters: Sequence[str | Mapping[str, Any]],
+    suite: str | os.PathLike[str] = "standard",
+    threads: int | None = None,
+    *,
+    out: str | os.PathLike[str] | None = None,
+    keep_logs: str = "failing",
+) -> pd.DataFrame:
+    """Scores filters over a suite, as ``mjsafe scorecard`` (docs/scorecard.md): each filter
+    replaces every item's own; a filter registered with :func:`register_filter` is scored like
+    a built-in.
+
+    Args:
+        filters: one column each: a preset of the suite (``"gamma_m"``, ``"cbf_qp"``, …), a
+            filter table as a dict (``{"kind": "my_filter", "l0": 4.0}``) or as TOML inline
+            table text.
+        suite: ``"standard"``, ``"quick"`` or a suite file.
+        threads: runs at once (default: every core).
+        out: a directory for scorecard.json, report.html and the kept logs; None writes
+            nothing and keeps no log.
+        keep_logs: ``"failing"`` (each cell's failing run), ``"all"`` or ``"none"``
+            (``--keep-logs``; only with ``out``).
+
+    Returns:
+        One row per (item, filter), in the suite's order: section, item, filter, status
+        (pass, fail, scored, not_applicable, error, not_run), score, max, unit, the figure
+        behind the score (figure, figure_value, figure_unit), detail (the table's cell),
+        reason, runs, command (reproduces the failing run), log. ``df.attrs["scorecard"]``
+        holds all of scorecard.json (Euro NCAP points and totals, margins' bisections,
+        searches); ``df.pivot(index="item", columns="filter", values="detail")`` is the
+        command line's table.
+
+    Raises:
+        TypeError: an argument of the wrong Python type.
+        ValueError: a bad suite, filter or output (the command line's error line).
+    """
+    if isinstance(filters, (str, bytes)) or not isinstance(filters, Sequence):
+        raise _type_error("scorecard", "filters", "a list of preset names, dicts or inline tables", filters)
+    specs = []
+    for f in filters:
+        if isinstance(f, str):
+            specs.append(f)
+        elif isinstance(f, _MappingABC):
+            specs.append(_core.toml_value(dict(f)))
+        else:
+            raise _type_error("scorecard", "filters", "a list of str or dict", f)
+    if not isinstance(suite, (str, os.PathLike)):
+        raise _type_error("scorecard", "suite", "str or os.PathLike", suite)
+    keep = _str("scorecard", "keep_logs", keep_logs)
+    text = _core.scorecard(
+        specs,
+        os.fspath(suite),
+        _int("scorecard", "threads", threads, 0, optional=True),
+        _path("scorecard", "out", out, optional=True),
+        keep,
+    )
+    card = json.loads(text)
+    rows = []
+    for item in card["items"]:
+        for column, cell in enumerate(item["cells"]):
+            figure = cell.get("figure") or {}
+            rows.append({
+                "section": item["section"], "item": item["name"], "filter": card["filters"][column]["name"],
+                "status": cell["status"], "score": cell.get("score"), "max": cell.get("max"),
+                "unit": cell.get("unit"), "figure": figure.get("name"), "figure_value": figure.get("value"),
+                "figure_unit": figure.get("unit"), "detail": cell.get("detail"), "reason": cell.get("reason"),
+                "runs": cell.get("runs"), "command": cell.get("command"), "log": cell.get("log"),
+            })
+    frame = pd.DataFrame(rows, columns=_SCORECARD_COLUMNS)
+    for column in ("score", "max", "figure_value"):
+        frame[column] = pd.to_numeric(frame[column])
+    frame.attrs["scorecard"] = card
+    return frame
 
 
 from mjsafe.env import Env  # noqa: E402  (it reads RunResult from this module)

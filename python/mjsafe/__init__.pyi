@@ -85,6 +85,14 @@ def falsify(
     method: str = "guided",
     counterexamples: int = 1,
 ) -> FalsifyResult: ...
+def scorecard(
+    filters: Sequence[str | Mapping[str, Any]],
+    suite: _Path = "standard",
+    threads: int | None = None,
+    *,
+    out: _Path | None = None,
+    keep_logs: str = "failing",
+) -> pd.DataFrame: ...
 def register_filter(kind: str, cls: type) -> None: ...
 def register_nominal(kind: str, cls: type) -> None: ...
 

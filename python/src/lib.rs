@@ -598,6 +598,42 @@ fn falsify<'py>(
     Ok(dict)
 }
 
+/// A scorecard: `mjsafe scorecard` (with `out`: scorecard.json, report.html and the kept logs
+/// there; without: nothing written); scorecard.json's text.
+#[pyfunction]
+#[pyo3(signature = (filters, suite, threads=None, out=None, keep_logs="failing"))]
+fn scorecard(
+    py: Python<'_>,
+    filters: Vec<String>,
+    suite: String,
+    threads: Option<usize>,
+    out: Option<PathBuf>,
+    keep_logs: &str,
+) -> PyResult<String> {
+    use mjsafe::scorecard::{self, KeepLogs, Request};
+    let keep_logs = match keep_logs {
+        "none" => KeepLogs::None,
+        "failing" => KeepLogs::Failing,
+        "all" => KeepLogs::All,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "mjsafe.scorecard(): keep_logs: expected 'none', 'failing' or 'all', found '{other}'"
+            )))
+        }
+    };
+    interruptible(py, move || {
+        let request = Request {
+            suite: &suite,
+            filters: &filters,
+            threads,
+            keep_logs,
+            out: out.as_deref(),
+        };
+        let card = scorecard::score(&request, |_| {}).map_err(bad)?;
+        Ok(card.to_json())
+    })
+}
+
 /// The TOML value text `set` makes of a Python value (what `--set KEY=` would be given).
 #[pyfunction]
 fn toml_value(value: &Bound<'_, PyAny>) -> PyResult<String> {
@@ -612,6 +648,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(log_tables, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(falsify, m)?)?;
+    m.add_function(wrap_pyfunction!(scorecard, m)?)?;
     m.add_function(wrap_pyfunction!(toml_value, m)?)?;
     m.add_class::<stepper::Stepper>()?;
     m.add_function(wrap_pyfunction!(kinds::register_filter, m)?)?;

@@ -1,7 +1,7 @@
 //! `mjsafe scorecard`: every filter over a suite; one table, `scorecard.json` (docs/scorecard.md).
 
 use super::*;
-use crate::scorecard::{self, Suite};
+use crate::scorecard;
 
 /// `mjsafe scorecard`: score safety filters over a suite of items.
 #[derive(Debug, clap::Args)]
@@ -46,37 +46,16 @@ impl ScorecardCommand {
                 bail!("--fail-below {s}: expected a percentage in [0, 100]");
             }
         }
-        let path = scorecard::suite::resolve(&self.suite)?;
-        let suite = Suite::load(&path)?;
-        let mut filters = Vec::with_capacity(self.filters.len());
-        for arg in &self.filters {
-            let choice = scorecard::choose_filter(arg, &suite).map_err(anyhow::Error::msg)?;
-            if filters.iter().any(|f: &scorecard::FilterChoice| f.name == choice.name) {
-                bail!("--filter {arg}: given twice");
-            }
-            filters.push(choice);
-        }
-        let threads = sweep::threads(self.threads)?;
-        let target = out.join("scorecard.json");
-        crate::files::check_output(
-            &target,
-            "scorecard",
-            crate::files::Replace::IfStartsWith(b"{"),
-            &[&path],
-        )?;
-        crate::files::check_output(
-            &out.join("report.html"),
-            "scorecard report",
-            crate::files::Replace::IfStartsWith(b"<!DOCTYPE html>"),
-            &[&path],
-        )?;
         let _graceful = episode::GracefulStop::begin();
         let terminal = std::io::stderr().is_terminal();
-        let logs = scorecard::LogPolicy {
-            which: self.keep_logs,
-            dir: out.clone(),
+        let request = scorecard::Request {
+            suite: &self.suite,
+            filters: &self.filters,
+            threads: self.threads,
+            keep_logs: self.keep_logs,
+            out: Some(out),
         };
-        let card = scorecard::run_suite(&suite, &mut filters, threads, &logs, |p| {
+        let card = scorecard::score(&request, |p| {
             if terminal {
                 eprint!("\r{}/{} runs", p.done, p.total);
                 if p.done == p.total {
@@ -84,22 +63,7 @@ impl ScorecardCommand {
                 }
             }
         })?;
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-        crate::files::write_atomically(
-            &target,
-            "scorecard",
-            crate::files::Replace::IfStartsWith(b"{"),
-            &[&path],
-            card.to_json().as_bytes(),
-        )?;
-        let report = out.join("report.html");
-        crate::files::write_atomically(
-            &report,
-            "scorecard report",
-            crate::files::Replace::IfStartsWith(b"<!DOCTYPE html>"),
-            &[&path],
-            scorecard::report::html(&card).as_bytes(),
-        )?;
+        let (target, report) = (out.join("scorecard.json"), out.join("report.html"));
         if self.json {
             out!("{}", card.to_json());
         } else {

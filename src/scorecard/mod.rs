@@ -35,8 +35,10 @@ pub fn choose_filter(arg: &str, suite: &Suite) -> Result<FilterChoice, String> {
         let value: toml::Table = toml::from_str(&format!("filter = {trimmed}"))
             .map_err(|e| format!("--filter {arg}: expected a TOML inline table: {}", e.message()))?;
         let spec = value.get("filter").map(suite::inline).unwrap_or_default();
+        // Named by its table written out one way, so that `{kind="none"}` and `{ kind = "none" }`
+        // (or Python's dict) are one column.
         return Ok(FilterChoice {
-            name: trimmed.to_string(),
+            name: spec.clone(),
             spec,
             label: None,
         });
@@ -128,6 +130,106 @@ enum JobResult {
     Run(Box<RunResult>),
     Margin(score::Bisection),
     Falsify(Box<Result<crate::falsify::Search, String>>),
+}
+
+/// Why a scorecard could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ScorecardError {
+    #[error(transparent)]
+    Suite(#[from] SuiteError),
+    /// A filter argument: the argument and what was expected.
+    #[error("{0}")]
+    Filter(String),
+    #[error(transparent)]
+    Sweep(#[from] SweepError),
+    #[error(transparent)]
+    Output(#[from] crate::files::FileError),
+    #[error("{path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
+}
+
+/// What `mjsafe scorecard` (and Python's `mjsafe.scorecard`) is asked.
+#[derive(Debug, Clone)]
+pub struct Request<'a> {
+    /// `standard`, `quick` or a suite file.
+    pub suite: &'a str,
+    /// Presets of the suite or inline tables, one column each.
+    pub filters: &'a [String],
+    /// Runs at once (None: every core).
+    pub threads: Option<usize>,
+    pub keep_logs: KeepLogs,
+    /// The directory of scorecard.json, report.html and logs/ (None: nothing written, no logs).
+    pub out: Option<&'a std::path::Path>,
+}
+
+const JSON_START: &[u8] = b"{";
+const HTML_START: &[u8] = b"<!DOCTYPE html>";
+
+/// Makes the scorecard `request` asks for: the suite loaded, the filters chosen, every run made
+/// (`progress` told after each), and with `out` scorecard.json, report.html and the logs
+/// written there (checked before the first run: a clobbered foreign file is refused).
+pub fn score(request: &Request<'_>, progress: impl FnMut(Progress)) -> Result<Scorecard, ScorecardError> {
+    use crate::files::{check_output, write_atomically, Replace};
+    let path = suite::resolve(request.suite)?;
+    let suite = Suite::load(&path)?;
+    let mut filters: Vec<FilterChoice> = Vec::with_capacity(request.filters.len());
+    if request.filters.is_empty() {
+        return Err(ScorecardError::Filter("--filter: expected at least one filter".into()));
+    }
+    for arg in request.filters {
+        let choice = choose_filter(arg, &suite).map_err(ScorecardError::Filter)?;
+        if filters.iter().any(|f| f.name == choice.name) {
+            return Err(ScorecardError::Filter(format!("--filter {arg}: given twice")));
+        }
+        filters.push(choice);
+    }
+    let threads = sweep::threads(request.threads)?;
+    if let Some(out) = request.out {
+        check_output(
+            &out.join("scorecard.json"),
+            "scorecard",
+            Replace::IfStartsWith(JSON_START),
+            &[&path],
+        )?;
+        check_output(
+            &out.join("report.html"),
+            "scorecard report",
+            Replace::IfStartsWith(HTML_START),
+            &[&path],
+        )?;
+    }
+    let logs = LogPolicy {
+        which: if request.out.is_some() {
+            request.keep_logs
+        } else {
+            KeepLogs::None
+        },
+        dir: request.out.map(std::path::Path::to_path_buf).unwrap_or_default(),
+    };
+    let card = run_suite(&suite, &mut filters, threads, &logs, progress)?;
+    if let Some(out) = request.out {
+        std::fs::create_dir_all(out).map_err(|reason| ScorecardError::Io {
+            path: out.display().to_string(),
+            reason,
+        })?;
+        let json = card.to_json();
+        write_atomically(
+            &out.join("scorecard.json"),
+            "scorecard",
+            Replace::IfStartsWith(JSON_START),
+            &[&path],
+            json.as_bytes(),
+        )?;
+        let html = report::html(&card);
+        write_atomically(
+            &out.join("report.html"),
+            "scorecard report",
+            Replace::IfStartsWith(HTML_START),
+            &[&path],
+            html.as_bytes(),
+        )?;
+    }
+    Ok(card)
 }
 
 /// Which runs keep their MCAP log (`--keep-logs`).
