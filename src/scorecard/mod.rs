@@ -436,9 +436,75 @@ pub fn run_suite(
 ) -> Result<Scorecard, SweepError> {
     let started = std::time::Instant::now();
     let overrides: Vec<String> = filters.iter().map(|f| format!("filter={}", f.spec)).collect();
-    // A filter that cannot drive an item's vehicle: the scenario refuses it (the item itself
-    // assembles with its own filter: the suite checked it).
-    let mut not_applicable: Vec<Vec<Option<String>>> = vec![vec![None; suite.items.len()]; filters.len()];
+    let (jobs, not_applicable) = plan(suite, &overrides);
+    let total = jobs.len();
+    let mut finished = 0;
+    let results = sweep::in_parallel(
+        total,
+        threads,
+        "scorecard",
+        |position| match &jobs[position] {
+            Job::Run { column, item, run } => {
+                let item = &suite.items[*item];
+                let log = (logs.which == KeepLogs::All).then(|| {
+                    logs.dir
+                        .join(logs.relative(*column, &filters[*column].name, &item.name, Some(run.index)))
+                });
+                JobResult::Run(Box::new(run_once(
+                    item,
+                    run.overrides.clone(),
+                    run.parameters.clone(),
+                    log.as_deref(),
+                )))
+            }
+            Job::Margin { item, filter, .. } => JobResult::Margin(bisect(&suite.items[*item], filter)),
+            Job::Falsify { item, filter, .. } => JobResult::Falsify(Box::new(search(&suite.items[*item], filter))),
+        },
+        |_, _| {
+            finished += 1;
+            progress(Progress { done: finished, total });
+        },
+    )?;
+    let gathered = Gathered::of(&jobs, results, suite.items.len(), filters.len());
+    for (column, filter) in filters.iter_mut().enumerate() {
+        filter.label = gathered.filter_label(column);
+    }
+    let items = (suite.items.iter().enumerate())
+        .map(|(i, item)| item_card(item, i, &overrides, &not_applicable, &gathered))
+        .collect();
+    let mut card = Scorecard {
+        mjsafe_version: env!("CARGO_PKG_VERSION").into(),
+        suite: SuiteRef {
+            name: suite.name.clone(),
+            file: suite.file.clone(),
+            fnv1a: suite.fnv1a.clone(),
+        },
+        filters: filters.to_vec(),
+        items,
+        ncap: Vec::new(),
+        overall: Vec::new(),
+        complete: gathered.complete,
+        // Runs made, a margin's bisection and a search counted run by run.
+        runs: 0,
+        wall_seconds: 0.0,
+    };
+    if logs.which != KeepLogs::None {
+        keep_failing_logs(suite, &mut card, logs, threads)?;
+    }
+    card.runs = card.items.iter().flat_map(|i| i.cells.iter().map(|c| c.runs)).sum();
+    card.ncap = (0..filters.len()).map(|c| apply_gate(&mut card.items, c)).collect();
+    card.overall = (0..filters.len()).map(|c| overall(&card.items, c)).collect();
+    card.wall_seconds = started.elapsed().as_secs_f64();
+    Ok(card)
+}
+
+/// [column][item]: why the filter does not apply to the item (none: it does).
+type NotApplicable = Vec<Vec<Option<String>>>;
+
+/// The jobs of every (filter, item) pair, and the pairs whose scenario refuses the filter (the
+/// item itself assembles with its own filter: the suite checked it).
+fn plan<'a>(suite: &Suite, overrides: &'a [String]) -> (Vec<Job<'a>>, NotApplicable) {
+    let mut not_applicable = vec![vec![None; suite.items.len()]; overrides.len()];
     let mut jobs = Vec::new();
     for (column, filter) in overrides.iter().enumerate() {
         for (i, item) in suite.items.iter().enumerate() {
@@ -470,137 +536,102 @@ pub fn run_suite(
             }
         }
     }
-    let total = jobs.len();
-    let mut finished = 0;
-    let results = sweep::in_parallel(
-        total,
-        threads,
-        "scorecard",
-        |position| match &jobs[position] {
-            Job::Run { column, item, run } => {
-                let item = &suite.items[*item];
-                let log = (logs.which == KeepLogs::All).then(|| {
-                    logs.dir
-                        .join(logs.relative(*column, &filters[*column].name, &item.name, Some(run.index)))
-                });
-                JobResult::Run(Box::new(run_once(
-                    item,
-                    run.overrides.clone(),
-                    run.parameters.clone(),
-                    log.as_deref(),
-                )))
+    (jobs, not_applicable)
+}
+
+/// Each (filter, item)'s results, [column][item], in job order.
+struct Gathered {
+    runs: Vec<Vec<Vec<RunResult>>>,
+    margins: Vec<Vec<Option<score::Bisection>>>,
+    searches: Vec<Vec<Option<Result<crate::falsify::Search, String>>>>,
+    /// False when some job never ran (interrupted).
+    complete: bool,
+}
+
+impl Gathered {
+    fn of(jobs: &[Job<'_>], results: Vec<Option<JobResult>>, items: usize, columns: usize) -> Gathered {
+        let mut g = Gathered {
+            runs: vec![vec![Vec::new(); items]; columns],
+            margins: vec![vec![None; items]; columns],
+            searches: vec![vec![None; items]; columns],
+            complete: true,
+        };
+        for (job, result) in jobs.iter().zip(results) {
+            match (job, result) {
+                (Job::Run { column, item, .. }, Some(JobResult::Run(r))) => g.runs[*column][*item].push(*r),
+                (Job::Margin { column, item, .. }, Some(JobResult::Margin(b))) => g.margins[*column][*item] = Some(b),
+                (Job::Falsify { column, item, .. }, Some(JobResult::Falsify(s))) => {
+                    g.searches[*column][*item] = Some(*s)
+                }
+                (Job::Run { column, item, run }, _) => {
+                    g.complete = false;
+                    g.runs[*column][*item].push(RunResult {
+                        overrides: run.overrides.clone(),
+                        parameters: run.parameters.clone(),
+                        metrics: None,
+                        error: None,
+                        not_run: true,
+                    });
+                }
+                (Job::Margin { .. } | Job::Falsify { .. }, _) => g.complete = false,
             }
-            Job::Margin { item, filter, .. } => JobResult::Margin(bisect(&suite.items[*item], filter)),
-            Job::Falsify { item, filter, .. } => JobResult::Falsify(Box::new(search(&suite.items[*item], filter))),
-        },
-        |_, _| {
-            finished += 1;
-            progress(Progress { done: finished, total });
-        },
-    )?;
-    // Gather each (filter, item)'s results in job order.
-    let mut runs: Vec<Vec<Vec<RunResult>>> = vec![vec![Vec::new(); suite.items.len()]; filters.len()];
-    let mut margins: Vec<Vec<Option<score::Bisection>>> = vec![vec![None; suite.items.len()]; filters.len()];
-    let mut searches: Vec<Vec<Option<Result<crate::falsify::Search, String>>>> =
-        vec![vec![None; suite.items.len()]; filters.len()];
-    let mut complete = true;
-    for (job, result) in jobs.iter().zip(results) {
-        match (job, result) {
-            (Job::Run { column, item, .. }, Some(JobResult::Run(r))) => runs[*column][*item].push(*r),
-            (Job::Margin { column, item, .. }, Some(JobResult::Margin(b))) => margins[*column][*item] = Some(b),
-            (Job::Falsify { column, item, .. }, Some(JobResult::Falsify(s))) => searches[*column][*item] = Some(*s),
-            (Job::Run { column, item, run }, _) => {
-                complete = false;
-                runs[*column][*item].push(RunResult {
-                    overrides: run.overrides.clone(),
-                    parameters: run.parameters.clone(),
-                    metrics: None,
-                    error: None,
-                    not_run: true,
-                });
-            }
-            (Job::Margin { .. } | Job::Falsify { .. }, _) => complete = false,
         }
+        g
     }
-    for (column, filter) in filters.iter_mut().enumerate() {
-        filter.label = (runs[column].iter().flatten())
+
+    /// The filter's label (equation number) from the first of its runs that has one.
+    fn filter_label(&self, column: usize) -> Option<String> {
+        (self.runs[column].iter().flatten())
             .chain(
-                margins[column]
+                self.margins[column]
                     .iter()
                     .flatten()
                     .flat_map(|b| b.steps.iter().map(|(_, r)| r)),
             )
-            .find_map(|r| r.metrics.as_ref().and_then(|m| m.filter_label.clone()));
+            .find_map(|r| r.metrics.as_ref().and_then(|m| m.filter_label.clone()))
     }
-    let items: Vec<ItemCard> = (suite.items.iter().enumerate())
-        .map(|(i, item)| ItemCard {
-            name: item.name.clone(),
-            section: item.section.clone(),
-            scoring: item.score.clone(),
-            claim: item.claim.clone(),
-            scenario: item.scenario.display().to_string(),
-            cells: (0..filters.len())
-                .map(|column| {
-                    let scenario = item.scenario.display().to_string();
-                    if let Some(reason) = &not_applicable[column][i] {
-                        return Cell::without_score(
-                            Status::NotApplicable,
-                            reason.clone(),
-                            0,
-                            score::command(&scenario, &[overrides[column].clone()]),
-                        );
-                    }
-                    match &item.score {
-                        Scoring::Margin { .. } => match &margins[column][i] {
-                            Some(b) => score::margin_cell(&item.score, &scenario, b),
-                            None => Cell::without_score(
-                                Status::NotRun,
-                                "not run: the scorecard was interrupted".into(),
-                                0,
-                                String::new(),
-                            ),
-                        },
-                        Scoring::Falsify { .. } => match &searches[column][i] {
-                            Some(s) => {
-                                score::falsify_cell(&item.score, &scenario, &falsify_set(item, &overrides[column]), s)
-                            }
-                            None => Cell::without_score(
-                                Status::NotRun,
-                                "not run: the scorecard was interrupted".into(),
-                                0,
-                                String::new(),
-                            ),
-                        },
-                        _ => score::cell(item, &runs[column][i]),
-                    }
-                })
-                .collect(),
+}
+
+/// Item `i`'s row: one cell per filter column.
+fn item_card(item: &Item, i: usize, overrides: &[String], not_applicable: &NotApplicable, g: &Gathered) -> ItemCard {
+    let scenario = item.scenario.display().to_string();
+    let interrupted = || {
+        Cell::without_score(
+            Status::NotRun,
+            "not run: the scorecard was interrupted".into(),
+            0,
+            String::new(),
+        )
+    };
+    let cells = (0..overrides.len())
+        .map(|column| {
+            if let Some(reason) = &not_applicable[column][i] {
+                return Cell::without_score(
+                    Status::NotApplicable,
+                    reason.clone(),
+                    0,
+                    score::command(&scenario, &[overrides[column].clone()]),
+                );
+            }
+            match &item.score {
+                Scoring::Margin { .. } => g.margins[column][i]
+                    .as_ref()
+                    .map_or_else(interrupted, |b| score::margin_cell(&item.score, &scenario, b)),
+                Scoring::Falsify { .. } => g.searches[column][i].as_ref().map_or_else(interrupted, |s| {
+                    score::falsify_cell(&item.score, &scenario, &falsify_set(item, &overrides[column]), s)
+                }),
+                _ => score::cell(item, &g.runs[column][i]),
+            }
         })
         .collect();
-    let mut card = Scorecard {
-        mjsafe_version: env!("CARGO_PKG_VERSION").into(),
-        suite: SuiteRef {
-            name: suite.name.clone(),
-            file: suite.file.clone(),
-            fnv1a: suite.fnv1a.clone(),
-        },
-        filters: filters.to_vec(),
-        items,
-        ncap: Vec::new(),
-        overall: Vec::new(),
-        complete,
-        // Runs made, a margin's bisection and a search counted run by run.
-        runs: 0,
-        wall_seconds: 0.0,
-    };
-    if logs.which != KeepLogs::None {
-        keep_failing_logs(suite, &mut card, logs, threads)?;
+    ItemCard {
+        name: item.name.clone(),
+        section: item.section.clone(),
+        scoring: item.score.clone(),
+        claim: item.claim.clone(),
+        scenario,
+        cells,
     }
-    card.runs = card.items.iter().flat_map(|i| i.cells.iter().map(|c| c.runs)).sum();
-    card.ncap = (0..filters.len()).map(|c| apply_gate(&mut card.items, c)).collect();
-    card.overall = (0..filters.len()).map(|c| overall(&card.items, c)).collect();
-    card.wall_seconds = started.elapsed().as_secs_f64();
-    Ok(card)
 }
 
 /// Runs each cell's failing run again into its log (with [`KeepLogs::All`], a grid item's
