@@ -983,8 +983,8 @@ pub fn evaluations_csv_text(searches: &[&Search], problem: &Problem) -> String {
 }
 
 /// Best score so far against evaluations, one line per search, with the zero line below which
-/// a candidate violates.
-pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score: &str) -> Result<(), FalsifyError> {
+/// a candidate violates: a PNG or an SVG, as `path`'s extension says.
+pub fn convergence_figure(path: &Path, searches: &[&Search], objective: &str, score: &str) -> Result<(), FalsifyError> {
     let curves: Vec<(String, Vec<(f64, f64)>)> = searches
         .iter()
         .map(|s| {
@@ -998,7 +998,7 @@ pub fn convergence_png(path: &Path, searches: &[&Search], objective: &str, score
             (s.method.name().to_string(), points)
         })
         .collect();
-    crate::plot::line_chart_png(
+    crate::plot::line_chart_figure(
         path,
         &format!("Falsification: best {objective} so far (violation below 0)"),
         ("evaluations (runs)", &format!("best score so far: {score}")),
@@ -1156,6 +1156,8 @@ struct Outputs {
     csv: PathBuf,
     json: PathBuf,
     png: PathBuf,
+    /// The same figure as SVG.
+    svg: PathBuf,
 }
 
 impl Outputs {
@@ -1174,6 +1176,7 @@ impl Outputs {
             csv: dir.join("evaluations.csv"),
             json: dir.join("evaluations.json"),
             png: dir.join("convergence.png"),
+            svg: dir.join("convergence.svg"),
         }
     }
 
@@ -1185,6 +1188,7 @@ impl Outputs {
             (&self.csv, "falsification evaluations", CSV_START),
             (&self.json, "falsification evaluations", JSON_START),
             (&self.png, "PNG plot", crate::plot::PNG_MAGIC),
+            (&self.svg, "SVG plot", crate::plot::SVG_MAGIC),
         ];
         let scenarios = self
             .counterexamples
@@ -1323,7 +1327,8 @@ pub fn falsify(
         } else {
             format!("m − T, baseline safe (m = {})", problem.objective)
         };
-        convergence_png(&png, &refs, &problem.objective, &score)?;
+        convergence_figure(&png, &refs, &problem.objective, &score)?;
+        convergence_figure(&outputs.svg, &refs, &problem.objective, &score)?;
         Some(png)
     } else {
         None

@@ -1,19 +1,22 @@
-//! PNG plots of a run, from its MCAP log alone (`mjsafe analyze --plot DIR`):
-//! - `<name>-barriers.png`: h(t) of every barrier, with the zero line;
-//! - `<name>-inputs.png`: issued vs applied input per channel;
-//! - `<name>-trajectory.png`: the planar path with the obstacles, the road (edges solid, lane
+//! Figures of a run, from its MCAP log alone (`mjsafe analyze --plot DIR [--plot-format svg]`):
+//! - `<name>-barriers.png|svg`: h(t) of every barrier on a symmetric-log axis (a margin of
+//!   0.02 m² and 250 m² read on one axis), the unsafe side shaded, events marked;
+//! - `<name>-inputs.png|svg`: issued vs applied input per channel, events marked;
+//! - `<name>-trajectory.png|svg`: the planar path with the obstacles, the road (edges solid, lane
 //!   markings dashed), the half-space barriers on the plane (where h = 0) and the reference path.
 //!
-//! With several logs, also overlays of the runs (`overlay-trajectory.png`, `overlay-barriers.png`,
-//! `overlay-inputs.png`: one line per run, named by its filter's equation number), and
+//! With several logs, also overlays of the runs (`overlay-trajectory`, `overlay-barriers`,
+//! `overlay-inputs`: one colour per run, named by its filter's equation number), and
 //! [`plot_sweep`] draws a metric of a sweep summary against one swept key.
 //!
-//! Text is drawn with DejaVu Sans, embedded in the binary (assets/fonts, with its licence):
-//! no system font is needed.
+//! Every figure is drawn once, as SVG; PNG is that SVG rasterised with antialiasing (resvg).
+//! Text is laid out with DejaVu Sans, embedded in the binary (assets/fonts, with its licence):
+//! no system font is needed, and the PNG renders with it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use plotters::coord::ranged1d::{KeyPointHint, Ranged, ValueFormatter};
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
@@ -132,6 +135,16 @@ struct Series {
     closest: Option<(f64, f64, String)>,
     /// The vehicle's footprint as `/scene` draws it (a cube, no hull cylinder), with its time.
     footprints: Vec<(f64, BoxOutline)>,
+    /// The events marked on time axes (`/event`): (time, what) of each collision, the stall and
+    /// each road user's appearance.
+    events: Vec<(f64, String)>,
+}
+
+impl Series {
+    /// The events as marks in `colour`.
+    fn marks(&self, colour: RGBColor) -> Vec<Event> {
+        self.events.iter().map(|(t, what)| (*t, what.clone(), colour)).collect()
+    }
 }
 
 /// A road user's logged pose: time, position, heading, whether it is absent.
@@ -171,6 +184,21 @@ impl RunVisitor for Series {
                         self.closest = Some((b.clearance, m.time, obstacle));
                     }
                     self.barriers.entry(b.name).or_default().push((m.time, b.h));
+                }
+            }
+            Record::Event(e) => {
+                let with = e.participants.iter().find(|p| p.as_str() != "vehicle").cloned();
+                let what = match e.kind.as_str() {
+                    "collision_start" => Some(format!(
+                        "collision{}",
+                        with.map_or(String::new(), |w| format!(" ({w})"))
+                    )),
+                    "stall" => Some("stall".to_string()),
+                    "obstacle_appeared" => Some(format!("{} appears", with.unwrap_or_else(|| "obstacle".into()))),
+                    _ => None,
+                };
+                if let Some(what) = what {
+                    self.events.push((e.time, what));
                 }
             }
             Record::Issued(m) => {
@@ -279,88 +307,351 @@ fn plot_aspect((width, height): (u32, u32), margin: u32, x_label: u32, y_label: 
 /// One line of a chart: legend label, (t, value) points, style.
 type Line<'a> = (String, &'a [(f64, f64)], ShapeStyle);
 
-/// Time-series chart of named series into `area`.
-fn time_chart(
-    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    title: &str,
-    y_desc: &str,
-    series: &[Line<'_>],
-    zero_line: bool,
-) -> DrawResult<()> {
-    line_chart(area, title, "t [s]", y_desc, series, zero_line)
+/// A mark on a time axis: its time, what happened (a collision, a stall, a road user
+/// appearing) and its colour (the run's).
+type Event = (f64, String, RGBColor);
+
+/// The legend's width for `labels` (about 8 px per character at its 15 px font), so that it
+/// sits beside the plot, off the data.
+fn legend_width<'a>(labels: impl Iterator<Item = &'a str>) -> u32 {
+    let longest = labels.map(|l| l.chars().count()).max().unwrap_or(0) as u32;
+    (48 + 8 * longest).clamp(120, 440)
 }
 
-/// Chart of named series into `area` (x and y axis descriptions given).
-fn line_chart(
-    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    title: &str,
-    x_desc: &str,
-    y_desc: &str,
-    series: &[Line<'_>],
-    zero_line: bool,
-) -> DrawResult<()> {
-    let all = series.iter().flat_map(|(_, s, _)| s.iter().copied());
-    let ((x0, x1), (mut y0, mut y1)) = bounds(all);
-    if zero_line {
-        y0 = y0.min(0.0);
-        y1 = y1.max(0.0);
+/// The legend in its own area beside the plot: a line sample and the label per entry.
+fn draw_legend(area: &Area<'_>, entries: &[(String, ShapeStyle)], top: i32) -> DrawResult<()> {
+    let font = ("sans-serif", 15).into_font();
+    for (k, (label, style)) in entries.iter().enumerate() {
+        let y = top + 22 * k as i32;
+        area.draw(&PathElement::new(vec![(6, y), (32, y)], *style))?;
+        area.draw(&Text::new(label.clone(), (38, y - 8), font.clone()))?;
     }
-    let mut chart = ChartBuilder::on(area)
+    Ok(())
+}
+
+/// Splits `area` into the plot and, at its right, the legend of `entries`; draws the legend.
+fn with_legend<'a>(area: &Area<'a>, entries: &[(String, ShapeStyle)]) -> DrawResult<Area<'a>> {
+    if entries.is_empty() {
+        return Ok(area.clone());
+    }
+    let width = area.dim_in_pixel().0;
+    let legend = legend_width(entries.iter().map(|e| e.0.as_str())).min(width / 2);
+    let (plot, side) = area.split_horizontally(width - legend);
+    draw_legend(&side, entries, 48)?;
+    Ok(plot)
+}
+
+/// Time-series chart of named series into `area`, the events marked.
+fn time_chart(area: &Area<'_>, title: &str, y_desc: &str, series: &[Line<'_>], events: &[Event]) -> DrawResult<()> {
+    let entries: Vec<(String, ShapeStyle)> = series.iter().map(|(n, _, s)| (n.clone(), *s)).collect();
+    let plot = with_legend(area, &entries)?;
+    let all = series.iter().flat_map(|(_, s, _)| s.iter().copied());
+    let ((x0, x1), (y0, y1)) = bounds(all);
+    let mut chart = ChartBuilder::on(&plot)
         .caption(title, ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(36)
-        .y_label_area_size(60)
+        .y_label_area_size(70)
         .build_cartesian_2d(x0..x1, y0..y1)?;
     chart
         .configure_mesh()
-        .x_desc(x_desc)
+        .x_desc("t [s]")
         .y_desc(y_desc)
+        .y_label_formatter(&|v| tick_label(*v))
         .light_line_style(WHITE.mix(0.0))
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 15))
         .draw()?;
-    if zero_line {
-        chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(2)))?;
+    for (_, points, style) in series {
+        chart.draw_series(LineSeries::new(points.iter().copied(), *style))?;
     }
-    for (name, points, style) in series {
-        let style = *style;
-        chart
-            .draw_series(LineSeries::new(points.iter().copied(), style))?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()?;
+    mark_events(&mut chart, events, (y0, y1), (x0, x1))?;
     Ok(())
+}
+
+/// Vertical dashed lines at the events' times, labelled at the top (staggered so that close
+/// events do not print over each other).
+fn mark_events<X, DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, X>>,
+    events: &[Event],
+    (y0, y1): (f64, f64),
+    (x0, x1): (f64, f64),
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    X: Ranged<ValueType = f64>,
+{
+    let mut last_right = f64::NEG_INFINITY;
+    let mut row = 0;
+    for (t, what, colour) in events.iter().filter(|e| (x0..=x1).contains(&e.0)) {
+        let style = colour.stroke_width(1);
+        chart.draw_series(DashedLineSeries::new([(*t, y0), (*t, y1)], 5, 4, style))?;
+        // Roughly 7 px per character of the 13 px label over a plot about 800 px wide.
+        let width = (x1 - x0) * 7.0 * what.chars().count() as f64 / 800.0;
+        row = if *t < last_right { (row + 1) % 5 } else { 0 };
+        last_right = last_right.max(t + width);
+        let font = ("sans-serif", 13).into_font().color(colour);
+        let label = EmptyElement::at((*t, y1)) + Text::new(what.clone(), (4, 4 + 15 * row), font);
+        chart.draw_series(std::iter::once(label))?;
+    }
+    Ok(())
+}
+
+/// h(t) of named series on a symmetric-log axis ([`symlog_chart`]).
+fn h_chart(area: &Area<'_>, title: &str, y_desc: &str, series: &[Line<'_>], events: &[Event]) -> DrawResult<()> {
+    symlog_chart(area, title, ("t [s]", y_desc), series, events)
+}
+
+/// Named series on a symmetric-log y axis ([`SymLog`]): a margin of 0.02 m² and 250 m² read
+/// on one axis; the unsafe side (y < 0) shaded, the zero line drawn, the events marked, the
+/// legend beside the plot.
+fn symlog_chart(
+    area: &Area<'_>,
+    title: &str,
+    (x_desc, y_desc): (&str, &str),
+    series: &[Line<'_>],
+    events: &[Event],
+) -> DrawResult<()> {
+    let entries: Vec<(String, ShapeStyle)> = series.iter().map(|(n, _, s)| (n.clone(), *s)).collect();
+    let plot = with_legend(area, &entries)?;
+    let all = series.iter().flat_map(|(_, s, _)| s.iter().copied());
+    let ((x0, x1), (y0, y1)) = bounds(all.clone());
+    // The data's own extremes (bounds pads linearly), with 0 always in view.
+    let lowest = all.clone().map(|p| p.1).filter(|v| v.is_finite()).fold(0.0, f64::min);
+    let highest = all.map(|p| p.1).filter(|v| v.is_finite()).fold(0.0, f64::max);
+    let _ = (y0, y1);
+    let axis = SymLog::over(lowest, highest).padded(0.05);
+    let (lo, hi) = (axis.lo, axis.hi);
+    let mut chart = ChartBuilder::on(&plot)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, axis)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(format!("{y_desc}, symlog (linear within ±{})", tick_label(axis.c)))
+        .light_line_style(WHITE.mix(0.0))
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 15))
+        .draw()?;
+    if lo < 0.0 {
+        chart.draw_series(std::iter::once(Rectangle::new(
+            [(x0, lo), (x1, 0.0)],
+            RED.mix(0.08).filled(),
+        )))?;
+    }
+    chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(2)))?;
+    for (_, points, style) in series {
+        chart.draw_series(LineSeries::new(points.iter().copied(), *style))?;
+    }
+    mark_events(&mut chart, events, (lo, hi), (x0, x1))?;
+    Ok(())
+}
+
+/// A tick label: round values plainly, tiny and huge ones in scientific notation.
+fn tick_label(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else if v.abs() >= 1e5 || v.abs() < 1e-3 {
+        format!("{v:.0e}")
+    } else {
+        let text = format!("{:.4}", v);
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
+/// A symmetric-log axis (`symlog`): linear within ±`c`, logarithmic beyond, so that a margin
+/// of 0.02 m² and a value of 250 m² both read on one axis. Ticks: 0 and ±1, 2, 5 × 10^k from
+/// `c` on (fewer when crowded).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SymLog {
+    pub(crate) lo: f64,
+    pub(crate) hi: f64,
+    /// The linear half-width about 0.
+    pub(crate) c: f64,
+}
+
+impl SymLog {
+    /// The axis over [lo, hi], its linear part 10⁻⁴ of the largest magnitude rounded down to a
+    /// power of ten.
+    pub(crate) fn over(lo: f64, hi: f64) -> SymLog {
+        let largest = lo.abs().max(hi.abs());
+        let c = if largest > 0.0 {
+            10f64.powf((largest * 1e-4).log10().floor())
+        } else {
+            1.0
+        };
+        SymLog { lo, hi, c }
+    }
+
+    /// sign(v) · log10(1 + |v| / c).
+    pub(crate) fn forward(&self, v: f64) -> f64 {
+        v.signum() * (1.0 + v.abs() / self.c).log10()
+    }
+
+    /// The value whose [`SymLog::forward`] is `t`.
+    pub(crate) fn inverse(&self, t: f64) -> f64 {
+        t.signum() * self.c * (10f64.powf(t.abs()) - 1.0)
+    }
+
+    /// The axis widened by `fraction` of its transformed span at each end.
+    fn padded(self, fraction: f64) -> SymLog {
+        let (a, b) = (self.forward(self.lo), self.forward(self.hi));
+        let pad = fraction * (b - a).max(0.1);
+        SymLog {
+            lo: self.inverse(a - pad),
+            hi: self.inverse(b + pad),
+            c: self.c,
+        }
+    }
+}
+
+impl Ranged for SymLog {
+    type FormatOption = plotters::coord::ranged1d::NoDefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
+        let (a, b) = (self.forward(self.lo), self.forward(self.hi));
+        let f = (self.forward(*value) - a) / (b - a);
+        limit.0 + (f * f64::from(limit.1 - limit.0)).round() as i32
+    }
+
+    fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
+        let most = hint.max_num_points().max(3);
+        let decades = |mantissas: &[f64], every: i32| -> Vec<f64> {
+            let mut points = vec![0.0];
+            let first = self.c.log10().floor() as i32;
+            for e in (first..=first + 40).filter(|e| (e - first) % every == 0) {
+                for m in mantissas {
+                    let v = m * 10f64.powi(e);
+                    points.push(v);
+                    points.push(-v);
+                }
+            }
+            points.retain(|v| (self.lo..=self.hi).contains(v));
+            points.sort_by(f64::total_cmp);
+            points
+        };
+        let mut every = 1;
+        loop {
+            for mantissas in [&[1.0, 2.0, 5.0][..], &[1.0][..]] {
+                let points = decades(mantissas, every);
+                if points.len() <= most || every > 40 {
+                    return points;
+                }
+            }
+            every += 1;
+        }
+    }
+
+    fn range(&self) -> std::ops::Range<f64> {
+        self.lo..self.hi
+    }
+}
+
+impl ValueFormatter<f64> for SymLog {
+    fn format(value: &f64) -> String {
+        tick_label(*value)
+    }
 }
 
 /// The start of every PNG file: an existing file that does not start so is never replaced.
 pub(crate) const PNG_MAGIC: &[u8] = b"\x89PNG";
+/// The start of every SVG file mjsafe draws.
+pub(crate) const SVG_MAGIC: &[u8] = b"<svg";
 
-/// Draws a PNG into a hidden `.partial.png` sibling (plotters picks the format by extension)
-/// and renames it to `path` when complete: never a half-drawn plot under the final name, never
-/// over a non-regular file, the log itself or a file that is not a PNG.
-fn draw_png(
-    path: &Path,
-    inputs: &[&Path],
-    draw: impl FnOnce(&Path) -> DrawResult<()>,
-) -> Result<(), Box<dyn std::error::Error>> {
-    crate::files::check_output(path, "PNG plot", crate::files::Replace::IfStartsWith(PNG_MAGIC), inputs)?;
-    // The plots are PNG: another extension would name a PNG as something else.
-    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
-        return Err(format!("{}: expected a .png file name (plots are PNG)", path.display()).into());
+/// What every figure is drawn on: an SVG document, rasterised for PNG ([`draw_figure`]).
+type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+
+/// The file formats of figures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// Antialiased PNG (the SVG rasterised by resvg, text in the embedded DejaVu Sans).
+    Png,
+    /// SVG: vector, text as text (DejaVu Sans, falling back to the reader's sans-serif).
+    Svg,
+}
+
+impl Format {
+    /// The file extension.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Format::Png => "png",
+            Format::Svg => "svg",
+        }
     }
+
+    /// The format a file name's extension names (`.png`, `.svg`).
+    pub fn of(path: &Path) -> Option<Format> {
+        match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
+            "png" => Some(Format::Png),
+            "svg" => Some(Format::Svg),
+            _ => None,
+        }
+    }
+
+    fn magic(self) -> &'static [u8] {
+        match self {
+            Format::Png => PNG_MAGIC,
+            Format::Svg => SVG_MAGIC,
+        }
+    }
+}
+
+/// Draws a figure of `size` pixels as SVG and writes it to `path` as its extension says (SVG,
+/// or PNG rasterised with antialiasing), atomically: never a half-drawn figure under the final
+/// name, never over a non-regular file, an input or a file of another kind.
+fn draw_figure(
+    path: &Path,
+    size: (u32, u32),
+    inputs: &[&Path],
+    draw: impl FnOnce(&Area<'_>) -> DrawResult<()>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let format = Format::of(path).ok_or_else(|| format!("{}: expected a .png or .svg file name", path.display()))?;
+    let replace = crate::files::Replace::IfStartsWith(format.magic());
+    crate::files::check_output(path, "plot", replace, inputs)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: cannot create its directory: {e}", path.display()))?;
     }
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("plot.png");
-    let partial = path.with_file_name(format!(".{}.partial.png", name.trim_end_matches(".png")));
-    let drawn = draw(&partial).and_then(|()| std::fs::rename(&partial, path).map_err(|e| e.into()));
-    if drawn.is_err() {
-        let _ = std::fs::remove_file(&partial);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
+        root.fill(&WHITE)?;
+        draw(&root)?;
+        root.present()?;
     }
-    drawn
+    let svg = with_font_family(&svg);
+    let bytes = match format {
+        Format::Svg => svg.into_bytes(),
+        Format::Png => rasterise(&svg)?,
+    };
+    crate::files::write_atomically(path, "plot", replace, inputs, &bytes)?;
+    Ok(())
+}
+
+/// plotters names the registered font `sans-serif`: the SVG asks for DejaVu Sans first (the
+/// font the text was measured with), the reader's sans-serif after it.
+fn with_font_family(svg: &str) -> String {
+    svg.replace("font-family=\"sans-serif\"", "font-family=\"DejaVu Sans, sans-serif\"")
+}
+
+/// The SVG as an antialiased PNG of the same pixel size, its text in the embedded font.
+fn rasterise(svg: &str) -> Result<Vec<u8>, Box<dyn std::error::Error>> {
+    use resvg::{tiny_skia, usvg};
+    let mut fonts = usvg::fontdb::Database::new();
+    fonts.load_font_data(FONT.to_vec());
+    fonts.set_sans_serif_family("DejaVu Sans");
+    let options = usvg::Options {
+        fontdb: std::sync::Arc::new(fonts),
+        ..usvg::Options::default()
+    };
+    let tree = usvg::Tree::from_str(svg, &options)?;
+    let size = tree.size().to_int_size();
+    let mut pixmap = tiny_skia::Pixmap::new(size.width(), size.height()).ok_or("the figure has no area")?;
+    pixmap.fill(tiny_skia::Color::WHITE);
+    resvg::render(&tree, tiny_skia::Transform::default(), &mut pixmap.as_mut());
+    Ok(pixmap.encode_png()?)
 }
 
 /// The error of a failed drawing of `path`.
@@ -375,9 +666,9 @@ fn draw_error(path: &Path, e: Box<dyn std::error::Error>) -> PlotError {
     PlotError::Draw { file, message }
 }
 
-/// One PNG chart of named (x, y) series with the zero line (e.g. a search's best score
+/// One chart (PNG or SVG, by `path`'s extension) on a symmetric-log y axis of named (x, y) series with the zero line (e.g. a search's best score
 /// against runs): written as the other plots are (never half-drawn under its final name).
-pub fn line_chart_png(
+pub fn line_chart_figure(
     path: &Path,
     title: &str,
     axes: (&str, &str),
@@ -395,18 +686,16 @@ pub fn line_chart_png(
             )
         })
         .collect();
-    draw_png(path, &[], |partial: &Path| -> DrawResult<()> {
-        let root = BitMapBackend::new(partial, (900, 560)).into_drawing_area();
-        root.fill(&WHITE)?;
-        line_chart(&root, title, axes.0, axes.1, &lines, true)?;
-        root.present()?;
+    draw_figure(path, (900, 560), &[], |root: &Area<'_>| -> DrawResult<()> {
+        symlog_chart(root, title, axes, &lines, &[])?;
         Ok(())
     })
     .map_err(|e| draw_error(path, e))
 }
 
 /// Writes the plots of `log` into `dir`; returns the files written.
-pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
+pub fn plot_log(log: &Path, dir: &Path, format: Format) -> Result<Vec<PathBuf>, PlotError> {
+    let ext = format.extension();
     register_embedded_font()?;
     // No plot of part of a run shown as if it were the run: damage is an error.
     let mut series = Series::default();
@@ -419,7 +708,7 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     let mut written = Vec::new();
 
     if !series.barriers.is_empty() {
-        let path = dir.join(format!("{stem}-barriers.png"));
+        let path = dir.join(format!("{stem}-barriers.{ext}"));
         let lines: Vec<Line<'_>> = series
             .barriers
             .iter()
@@ -432,17 +721,14 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                 )
             })
             .collect();
-        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
-            root.fill(&WHITE)?;
-            time_chart(
-                &root,
+        let result = draw_figure(&path, (1000, 500), &[log], |root: &Area<'_>| -> DrawResult<()> {
+            h_chart(
+                root,
                 "barrier functions h(t) (safe: h ≥ 0)",
                 &h_unit(series.obstacle_barriers),
                 &lines,
-                true,
+                &series.marks(BLACK),
             )?;
-            root.present()?;
             Ok(())
         });
         result.map_err(|e| draw_error(&path, e))?;
@@ -450,41 +736,43 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
     }
 
     if !series.issued.is_empty() {
-        let path = dir.join(format!("{stem}-inputs.png"));
+        let path = dir.join(format!("{stem}-inputs.{ext}"));
         let channels: Vec<&String> = series.issued.keys().collect();
-        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1000, 320 * channels.len() as u32)).into_drawing_area();
-            root.fill(&WHITE)?;
-            for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
-                let mut lines = vec![(
-                    format!("issued {channel}"),
-                    series.issued[*channel].as_slice(),
-                    PALETTE[0].stroke_width(2),
-                )];
-                if let Some(applied) = series.applied.get(*channel) {
-                    lines.push((
-                        format!("applied {channel}"),
-                        applied.as_slice(),
-                        PALETTE[1].stroke_width(2),
-                    ));
+        let result = draw_figure(
+            &path,
+            (1000, 320 * channels.len() as u32),
+            &[log],
+            |root: &Area<'_>| -> DrawResult<()> {
+                for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
+                    let mut lines = vec![(
+                        format!("issued {channel}"),
+                        series.issued[*channel].as_slice(),
+                        PALETTE[0].stroke_width(2),
+                    )];
+                    if let Some(applied) = series.applied.get(*channel) {
+                        lines.push((
+                            format!("applied {channel}"),
+                            applied.as_slice(),
+                            PALETTE[1].stroke_width(2),
+                        ));
+                    }
+                    time_chart(
+                        area,
+                        &format!("{channel}: issued vs applied (delayed)"),
+                        &channel_unit(channel),
+                        &lines,
+                        &series.marks(BLACK),
+                    )?;
                 }
-                time_chart(
-                    area,
-                    &format!("{channel}: issued vs applied (delayed)"),
-                    &channel_unit(channel),
-                    &lines,
-                    false,
-                )?;
-            }
-            root.present()?;
-            Ok(())
-        });
+                Ok(())
+            },
+        );
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
 
     if !series.path.is_empty() {
-        let path = dir.join(format!("{stem}-trajectory.png"));
+        let path = dir.join(format!("{stem}-trajectory.{ext}"));
         let circles = series
             .obstacles
             .values()
@@ -506,10 +794,8 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
             (y0 + y1) / 2.0,
             ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
         );
-        let result = draw_png(&path, &[log], |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1000, 500)).into_drawing_area();
-            root.fill(&WHITE)?;
-            let mut chart = ChartBuilder::on(&root)
+        let result = draw_figure(&path, (1000, 500), &[log], |root: &Area<'_>| -> DrawResult<()> {
+            let mut chart = ChartBuilder::on(root)
                 .caption("trajectory, obstacles, road and reference path", ("sans-serif", 22))
                 .margin(12)
                 .x_label_area_size(36)
@@ -538,13 +824,12 @@ pub fn plot_log(log: &Path, dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
                     .border_style(BLACK)
                     .draw()?;
             }
-            root.present()?;
             Ok(())
         });
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
-    if let Some(path) = plot_closest_approach(&series, log, &dir.join(format!("{stem}-closest.png")))? {
+    if let Some(path) = plot_closest_approach(&series, log, &dir.join(format!("{stem}-closest.{ext}")))? {
         written.push(path);
     }
     Ok(written)
@@ -583,11 +868,9 @@ fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Opt
         };
         outlines.push((actor, outline));
     }
-    let result = draw_png(path, &[log], |partial: &Path| -> DrawResult<()> {
-        let root = BitMapBackend::new(partial, (800, 800)).into_drawing_area();
-        root.fill(&WHITE)?;
+    let result = draw_figure(path, (800, 800), &[log], |root: &Area<'_>| -> DrawResult<()> {
         let caption = format!("closest approach: t = {time:.2} s, {name} at {clearance:.2} m");
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption(caption, ("sans-serif", 22))
             .margin(12)
             .x_label_area_size(36)
@@ -630,7 +913,6 @@ fn plot_closest_approach(series: &Series, log: &Path, path: &Path) -> Result<Opt
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()?;
-        root.present()?;
         Ok(())
     });
     result.map_err(|e| draw_error(path, e))?;
@@ -737,7 +1019,8 @@ struct Run {
 /// `overlay-inputs.png`): one line per run, named by its filter (run metadata; the file stem
 /// is added when two runs would share a label), the obstacles with the barrier radius
 /// r = obstacle + hull radius drawn around them, units on the axes. Returns the files written.
-pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotError> {
+pub fn plot_overlay(logs: &[PathBuf], dir: &Path, format: Format) -> Result<Vec<PathBuf>, PlotError> {
+    let ext = format.extension();
     register_embedded_font()?;
     let mut runs = Vec::new();
     for log in logs {
@@ -765,16 +1048,29 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
     let color = |i: usize| PALETTE[i % PALETTE.len()];
     let mut written = Vec::new();
 
+    // Every run's events in its colour (the legend's); one every run shares, once in black.
+    let mut events: Vec<Event> = Vec::new();
+    for (i, run) in runs.iter().enumerate() {
+        for (t, what) in &run.series.events {
+            let shared = runs.iter().all(|r| r.series.events.contains(&(*t, what.clone())));
+            match (shared, events.iter().any(|e| e.0 == *t && &e.1 == what)) {
+                (true, true) => {}
+                (true, false) => events.push((*t, what.clone(), BLACK)),
+                (false, _) => events.push((*t, what.clone(), color(i))),
+            }
+        }
+    }
+    events.sort_by(|a, b| a.0.total_cmp(&b.0));
     // Trajectories, obstacles and the barrier radius around them.
     if runs.iter().any(|r| !r.series.path.is_empty()) {
-        let path = dir.join("overlay-trajectory.png");
+        let path = dir.join(format!("overlay-trajectory.{ext}"));
         overlay_trajectories(&runs, &path, &inputs)?;
         written.push(path);
     }
 
     // h(t) of every run.
     if runs.iter().any(|r| !r.series.barriers.is_empty()) {
-        let path = dir.join("overlay-barriers.png");
+        let path = dir.join(format!("overlay-barriers.{ext}"));
         let mut lines: Vec<Line<'_>> = Vec::new();
         for (i, run) in runs.iter().enumerate() {
             let several = run.series.barriers.len() > 1;
@@ -788,11 +1084,8 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
             }
         }
         let unit = h_unit(runs.iter().all(|r| r.series.obstacle_barriers));
-        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
-            root.fill(&WHITE)?;
-            time_chart(&root, "barrier function h(t) (safe: h ≥ 0)", &unit, &lines, true)?;
-            root.present()?;
+        let result = draw_figure(&path, (1200, 600), &inputs, |root: &Area<'_>| -> DrawResult<()> {
+            h_chart(root, "barrier function h(t) (safe: h ≥ 0)", &unit, &lines, &events)?;
             Ok(())
         });
         result.map_err(|e| draw_error(&path, e))?;
@@ -804,30 +1097,32 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path) -> Result<Vec<PathBuf>, PlotEr
     channels.sort();
     channels.dedup();
     if !channels.is_empty() {
-        let path = dir.join("overlay-inputs.png");
-        let result = draw_png(&path, &inputs, |partial: &Path| -> DrawResult<()> {
-            let root = BitMapBackend::new(partial, (1200, 380 * channels.len() as u32)).into_drawing_area();
-            root.fill(&WHITE)?;
-            for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
-                let lines: Vec<Line<'_>> = runs
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, run)| {
-                        let points = run.series.issued.get(channel)?;
-                        Some((run.label.clone(), points.as_slice(), color(i).stroke_width(3)))
-                    })
-                    .collect();
-                time_chart(
-                    area,
-                    &format!("input {channel}, as issued by the filter (applied after its delay)"),
-                    &channel_unit(channel),
-                    &lines,
-                    false,
-                )?;
-            }
-            root.present()?;
-            Ok(())
-        });
+        let path = dir.join(format!("overlay-inputs.{ext}"));
+        let result = draw_figure(
+            &path,
+            (1200, 380 * channels.len() as u32),
+            &inputs,
+            |root: &Area<'_>| -> DrawResult<()> {
+                for (area, channel) in root.split_evenly((channels.len(), 1)).iter().zip(&channels) {
+                    let lines: Vec<Line<'_>> = runs
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, run)| {
+                            let points = run.series.issued.get(channel)?;
+                            Some((run.label.clone(), points.as_slice(), color(i).stroke_width(3)))
+                        })
+                        .collect();
+                    time_chart(
+                        area,
+                        &format!("input {channel}, as issued by the filter (applied after its delay)"),
+                        &channel_unit(channel),
+                        &lines,
+                        &events,
+                    )?;
+                }
+                Ok(())
+            },
+        );
         result.map_err(|e| draw_error(&path, e))?;
         written.push(path);
     }
@@ -876,10 +1171,8 @@ fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(
         (y0 + y1) / 2.0,
         ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
     );
-    let result = draw_png(path, inputs, |partial: &Path| -> DrawResult<()> {
-        let root = BitMapBackend::new(partial, (1200, 600)).into_drawing_area();
-        root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
+    let result = draw_figure(path, (1200, 600), inputs, |root: &Area<'_>| -> DrawResult<()> {
+        let mut chart = ChartBuilder::on(root)
             .caption("trajectories", ("sans-serif", 24))
             .margin(14)
             .x_label_area_size(44)
@@ -940,7 +1233,6 @@ fn overlay_trajectories(runs: &[Run], path: &Path, inputs: &[&Path]) -> Result<(
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
-        root.present()?;
         Ok(())
     });
     result.map_err(|e| draw_error(path, e))
@@ -1111,10 +1403,8 @@ pub fn plot_sweep(
         Some("" | "1" | "steps" | "ticks" | "predictions") | None => metric.to_string(),
         Some(unit) => format!("{metric}  [{unit}]"),
     };
-    let result = draw_png(out, &[file], |partial: &Path| -> DrawResult<()> {
-        let root = BitMapBackend::new(partial, (1000, 560)).into_drawing_area();
-        root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
+    let result = draw_figure(out, (1000, 560), &[file], |root: &Area<'_>| -> DrawResult<()> {
+        let mut chart = ChartBuilder::on(root)
             .caption(format!("{metric} against {key} ({})", s.name), ("sans-serif", 22))
             .margin(14)
             .x_label_area_size(44)
@@ -1159,7 +1449,6 @@ pub fn plot_sweep(
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
-        root.present()?;
         Ok(())
     });
     result.map_err(|e| draw_error(out, e))?;

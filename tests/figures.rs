@@ -90,6 +90,55 @@ fn three_filters_compared_and_overlaid() {
         assert!(w == 1200 && h >= 600, "{f}: {w}x{h}");
         assert!(counts.iter().all(|&n| n > 200), "{f}: {counts:?}");
     }
+    // The same overlays as SVG, read back independently (tests/figure_check.py): each run's
+    // curve with its legend label, the axes' labels with units, and a y axis (symlog) that
+    // covers the lowest h of the three runs, where the curves reach it.
+    let svg = dir.path().join("svg");
+    let mut args = vec![
+        "analyze",
+        "--brief",
+        "--plot",
+        svg.to_str().unwrap(),
+        "--plot-format",
+        "svg",
+    ];
+    args.extend(logs.iter().map(String::as_str));
+    let o = mjsafe(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut json = vec!["analyze", "--json"];
+    json.extend(logs.iter().map(String::as_str));
+    let metrics: serde_json::Value = serde_json::from_str(&stdout(&mjsafe(&json))).unwrap();
+    let lowest = (metrics.as_array().unwrap().iter())
+        .map(|m| m["min_h"].as_f64().unwrap())
+        .fold(f64::INFINITY, f64::min);
+    assert!(lowest < -1.0, "{lowest}");
+    let check = |file: &str, extra: &[&str]| {
+        let o = Command::new(python())
+            .arg(root().join("tests/figure_check.py"))
+            .arg(svg.join(file))
+            .args([
+                "--legend",
+                "delay-free CBF-QP (4.9)–(4.11)",
+                "--legend",
+                "predictor CBF-QP (4.34)",
+                "--legend",
+                "γm filter (4.67), m = 50",
+                "--axis",
+                "t [s]",
+            ])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{file}: {}", text(&o));
+    };
+    check(
+        "overlay-barriers.svg",
+        &["--axis", "[m²]", "--axis", "symlog", "--covers", &lowest.to_string()],
+    );
+    check("overlay-inputs.svg", &["--axis", "[m/s²]", "--axis", "tan δ"]);
+    assert!(std::fs::read(svg.join("overlay-trajectory.svg"))
+        .unwrap()
+        .starts_with(b"<svg"));
     // Two logs of one run: told apart by their file stems in the legend (no error).
     let o = mjsafe(&[
         "analyze",
@@ -155,7 +204,7 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
     assert!(sweep
         .join("max_correction.steering-vs-delays.acceleration.png")
         .exists());
-    // The plot is PNG: another extension is refused; a missing directory is made.
+    // The plot is PNG or SVG, by its extension: another is refused; a missing directory is made.
     let plot_to = |out: &Path| {
         mjsafe(&[
             "plot-sweep",
@@ -166,10 +215,17 @@ fn a_sweep_metric_is_plotted_against_a_swept_key() {
             out.to_str().unwrap(),
         ])
     };
-    let o = plot_to(&sweep.join("plot.svg"));
+    let o = plot_to(&sweep.join("plot.jpg"));
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("expected a .png file name"), "{}", stderr(&o));
-    assert!(!sweep.join("plot.svg").exists());
+    assert!(
+        stderr(&o).contains("expected a .png or .svg file name"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!sweep.join("plot.jpg").exists());
+    let o = plot_to(&sweep.join("plot.svg"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read(sweep.join("plot.svg")).unwrap().starts_with(b"<svg"));
     let nested = sweep.join("plots/min_h/delays.png");
     let o = plot_to(&nested);
     assert!(o.status.success(), "{}", stderr(&o));

@@ -216,12 +216,12 @@ pub(super) fn analyze_command(
     files: &[PathBuf],
     format: Format,
     mode: AnalyzeMode,
-    plot: Option<&Path>,
+    plot: Option<(&Path, crate::plot::Format)>,
     recover: bool,
     requirements: &[(String, String)],
 ) -> Result<ExitCode> {
     let plots_failed = match plot {
-        Some(dir) => plot_logs(files, dir)?,
+        Some((dir, plot_format)) => plot_logs(files, dir, plot_format)?,
         None => false,
     };
     let code = match mode {
@@ -235,7 +235,7 @@ pub(super) fn analyze_command(
 /// `analyze --plot DIR`: each log's plots and, for several logs, the overlays; each written
 /// plot on stderr. Ok(true) when a plot could not be drawn (an error line for it), after the
 /// others are written; Err for a directory or names that cannot take them.
-pub(super) fn plot_logs(files: &[PathBuf], dir: &Path) -> Result<bool> {
+pub(super) fn plot_logs(files: &[PathBuf], dir: &Path, plot_format: crate::plot::Format) -> Result<bool> {
     let mut failed = false;
     if dir.exists() && !dir.is_dir() {
         bail!(
@@ -278,10 +278,10 @@ pub(super) fn plot_logs(files: &[PathBuf], dir: &Path) -> Result<bool> {
         }
     };
     for file in files {
-        failed |= !report(crate::plot::plot_log(file, dir));
+        failed |= !report(crate::plot::plot_log(file, dir, plot_format));
     }
     if files.len() > 1 && !failed {
-        failed |= !report(crate::plot::plot_overlay(files, dir));
+        failed |= !report(crate::plot::plot_overlay(files, dir, plot_format));
     }
     Ok(failed)
 }
@@ -317,6 +317,15 @@ pub struct AnalyzeCommand {
     /// run named by its filter's equation number.
     #[arg(long, value_name = "DIR", conflicts_with = "merge")]
     plot: Option<PathBuf>,
+    /// The plots' format: `png` (antialiased) or `svg` (vector, for papers).
+    #[arg(
+        long = "plot-format",
+        value_enum,
+        value_name = "png|svg",
+        default_value = "png",
+        requires = "plot"
+    )]
+    plot_format: crate::plot::Format,
     /// On a damaged log, still report the metrics of what was read before the damage (the
     /// chunks that passed their CRC), marked incomplete; the exit status is still non-zero.
     #[arg(long, conflicts_with = "merge")]
@@ -341,6 +350,7 @@ impl AnalyzeCommand {
             plot,
             recover,
             require,
+            plot_format,
         } = self;
         let requirements = (require.iter())
             .map(|flag| scenario::parse_require_flag(flag).map_err(|e| anyhow::anyhow!("--require {flag}: {e}")))
@@ -359,7 +369,14 @@ impl AnalyzeCommand {
             (_, true) => AnalyzeMode::Merge(out),
             _ => AnalyzeMode::Metrics,
         };
-        analyze_command(&files, format, mode, plot.as_deref(), recover, &requirements)
+        analyze_command(
+            &files,
+            format,
+            mode,
+            plot.as_deref().map(|d| (d, plot_format)),
+            recover,
+            &requirements,
+        )
     }
 }
 
