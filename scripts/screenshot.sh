@@ -14,6 +14,8 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 "$bin" run scenarios/bicycle_obstacle_gamma_m.toml --out "$work/episode.mcap" >/dev/null
 "$bin" replay "$work/episode.mcap" --rrd "$work/episode.rrd" >/dev/null
-export CI=1 WGPU_BACKEND=vulkan
+# RUST_LOG=error: the viewer's info and warning notifications (software rasteriser, gRPC port,
+# loading) would be drawn as toasts over the plots.
+export CI=1 WGPU_BACKEND=vulkan RUST_LOG=error
 "$venv/bin/rerun" --headless "$work/episode.rrd" --screenshot-to docs/replay.png --window-size 1200x700
 echo "wrote docs/replay.png"

@@ -313,3 +313,51 @@ fn the_closest_approach_is_drawn_for_logs_with_road_users() {
     );
     assert!(!plots.join("scalar-closest.png").exists());
 }
+
+/// The Foxglove layout (docs/foxglove-layout.json) follows the figures' rules: every panel the
+/// layout places has its configuration, every plotted path is a topic of the log format, and a
+/// plot of h zooms about the boundary so that the 0.024 m² margin of (4.67) reads apart from 0
+/// and from a violation.
+#[test]
+fn the_foxglove_layout_shows_h_near_its_boundary() {
+    let layout: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root().join("docs/foxglove-layout.json")).unwrap()).unwrap();
+    let configs = layout["configById"].as_object().unwrap();
+    fn panels(node: &serde_json::Value, out: &mut Vec<String>) {
+        match node {
+            serde_json::Value::String(id) => out.push(id.clone()),
+            serde_json::Value::Object(o) => {
+                for key in ["first", "second"] {
+                    if let Some(child) = o.get(key) {
+                        panels(child, out);
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut placed = Vec::new();
+    panels(&layout["layout"], &mut placed);
+    assert!(placed.len() >= 5, "{placed:?}");
+    for id in &placed {
+        assert!(configs.contains_key(id), "{id} is placed but has no configuration");
+    }
+    let topics = ["/barrier", "/command/issued", "/command/applied", "/prediction"];
+    let mut zoomed = false;
+    for (id, config) in configs.iter().filter(|(id, _)| id.starts_with("Plot!")) {
+        for path in config["paths"].as_array().unwrap() {
+            let value = path["value"].as_str().unwrap();
+            assert!(
+                topics.iter().any(|t| value.starts_with(&format!("{t}."))),
+                "{id}: {value} is not a topic of the log format"
+            );
+        }
+        let (lo, hi) = (config["minYValue"].as_f64(), config["maxYValue"].as_f64());
+        if let (Some(lo), Some(hi)) = (lo, hi) {
+            let plots_h = config["paths"][0]["value"].as_str().unwrap().ends_with(".h");
+            // 0.024 m² at least a twentieth of the height above 0, a violation visible below.
+            zoomed |= plots_h && lo < 0.0 && hi > 0.0 && 0.024 / (hi - lo) >= 0.02;
+        }
+    }
+    assert!(zoomed, "no plot of h zoomed about 0");
+}

@@ -63,6 +63,7 @@ fn live_recording_equals_the_replay_of_its_log() {
         "/world/collisions",
         "/world/prediction/steering",
         "/plots/barrier/obstacle_0",
+        "/plots/barrier_symlog/obstacle_0",
         "/plots/input/steering/issued",
         "/plots/input/steering/applied",
         "/plots/command/acceleration",

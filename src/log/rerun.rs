@@ -11,7 +11,8 @@
 //! - `world/prediction/<channel>`: the predicted position p_i(t) of each `/prediction`, at its
 //!   issue time t.
 //! - `world/collisions`: the vehicle position at every `collision_start` event.
-//! - `plots/barrier/<name>`: h and the constraint a + b·u; `plots/input/<channel>`: issued and
+//! - `plots/barrier/<name>`: h and the constraint a + b·u (`plots/barrier_symlog/<name>`: h on
+//!   a symmetric-log scale, the margin near 0 readable); `plots/input/<channel>`: issued and
 //!   applied input; `plots/command/<channel>`: nominal and filtered; `plots/filter`: active,
 //!   infeasible; `plots/prediction/<channel>`: prediction error.
 //! - `events`: every `/event` as a text log entry.
@@ -211,11 +212,23 @@ fn entity_strips(entity: &SceneEntity) -> (Vec<Vec<[f32; 2]>>, Vec<::rerun::Colo
     (strips, colors, radii)
 }
 
+/// The linear half-width of the `plots/barrier_symlog` series (h's unit): a margin of 0.02 m²
+/// reads as 0.48 there, 250 m² as 4.4, a violation of −0.01 m² as −0.30.
+pub const SYMLOG_C: f64 = 0.01;
+
+/// h on the symmetric-log scale of `plots/barrier_symlog` (the figures' axis, [`SYMLOG_C`]).
+fn symlog(h: f64) -> f64 {
+    h.signum() * (1.0 + h.abs() / SYMLOG_C).log10()
+}
+
 /// The blueprint: the 2D world view on the left, the time series and the events on the right.
 pub fn blueprint() -> Blueprint {
     let plots = Vertical::new([
         TimeSeriesView::new("barriers: h, constraint")
             .with_origin("plots/barrier")
+            .into(),
+        TimeSeriesView::new(format!("h near 0: sign(h)·log10(1 + |h|/{SYMLOG_C}) (unsafe below 0)"))
+            .with_origin("plots/barrier_symlog")
             .into(),
         TimeSeriesView::new("input: issued vs applied")
             .with_origin("plots/input")
@@ -447,6 +460,13 @@ impl RerunSink {
                         &["h", "constraint"],
                         &[b.h, b.constraint],
                     )?;
+                    // The margin near 0 readable beside h = 250 m² (the raw view runs 0–1000).
+                    self.series(
+                        stream,
+                        path(&["plots", "barrier_symlog", &b.name]),
+                        &["h (symlog)"],
+                        &[symlog(b.h)],
+                    )?;
                 }
             }
             Record::Filter(m) => {
@@ -468,11 +488,12 @@ impl RerunSink {
                     if let (Some(x), Some(y)) = (m.predicted.get(i), m.predicted.get(j)) {
                         // The prediction made at `issued_at`, shown at that time.
                         self.set_time(stream, m.issued_at);
+                        // No text label: the channels' predictions sit within centimetres of
+                        // each other and their labels printed over each other; each channel
+                        // has its own colour and its entity path names it on hover.
                         stream.log(
                             path(&["world", "prediction", &m.channel]),
-                            &::rerun::Points2D::new([[*x as f32, *y as f32]])
-                                .with_radii([POINT_RADIUS])
-                                .with_labels([m.channel.clone()]),
+                            &::rerun::Points2D::new([[*x as f32, *y as f32]]).with_radii([POINT_RADIUS]),
                         )?;
                     }
                 }
@@ -573,6 +594,23 @@ impl Drop for RerunSink {
 
 #[cfg(test)]
 mod tests {
+
+    /// The symlog view separates the 0.024 m² margin of (4.67) from 0 and from a violation of
+    /// −0.01 m², while 250 m² stays on the same scale.
+    #[test]
+    fn the_symlog_series_reads_the_margin_near_zero() {
+        use super::symlog;
+        assert_eq!(symlog(0.0), 0.0);
+        assert!(
+            symlog(0.024) > 0.5 && symlog(-0.01) < -0.3,
+            "{} {}",
+            symlog(0.024),
+            symlog(-0.01)
+        );
+        assert!(symlog(250.0) < 4.5 && symlog(1000.0) < 5.1);
+        assert_eq!(symlog(-3.0), -symlog(3.0));
+    }
+
     use super::*;
 
     #[test]
