@@ -190,6 +190,18 @@ impl Request {
         }
         // The scenario and every override are checked once before the search starts.
         let base = crate::scenario::load(&scenario, &set)?;
+        // `--objective req.NAME`: NAME is a requirement of the runs, and every requirement's
+        // signals exist (one short run), before the budget is spent.
+        if let Some(name) = metric_and_sign(&objective).0.strip_prefix("req.") {
+            let names: Vec<&str> = base.scenario.requirements.iter().map(|r| r.name.as_str()).collect();
+            if !names.contains(&name) {
+                return Err(spec(format!(
+                    "--objective {objective}: no requirement `{name}` (the runs' requirements: {}; add one with --require {name}=FORMULA)",
+                    if names.is_empty() { "none".to_string() } else { names.join(", ") }
+                )));
+            }
+        }
+        crate::run::check_requirement_signals(&base).map_err(|e| spec(format!("{}: {e}", scenario.display())))?;
         for (given, flag) in [
             (baseline_no_stall, "--baseline-no-stall"),
             (baseline_reaches_goal, "--baseline-reaches-goal"),

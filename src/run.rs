@@ -303,6 +303,30 @@ impl LogOfRecord {
     }
 }
 
+/// Checks a scenario's requirements against the signals its runs have, before a run: one step
+/// of it, analysed in memory; a requirement that names no signal of the run is an error naming
+/// the requirement and the signal (with the closest signal there is).
+pub fn check_requirement_signals(loaded: &LoadedScenario) -> Result<(), String> {
+    if loaded.scenario.requirements.is_empty() {
+        return Ok(());
+    }
+    let mut probe = loaded.clone();
+    // A short run (every signal topic logs at t = 0): its first half second at most.
+    probe.scenario.duration = loaded.scenario.duration.min(0.5);
+    let outcome = run(&probe, Keep::Metrics("(requirement check)"), Vec::new()).map_err(|e| e.to_string())?;
+    let Some(metrics) = outcome.metrics else { return Ok(()) };
+    for requirement in &loaded.scenario.requirements {
+        let column = format!("req.{}", requirement.name);
+        let reason = (metrics.missing.iter())
+            .find(|(k, _)| **k == column || **k == "req")
+            .map(|(_, r)| r.clone());
+        if let Some(reason) = reason.filter(|r| r.contains("signal `")) {
+            return Err(format!("requirement `{}`: {reason}", requirement.name));
+        }
+    }
+    Ok(())
+}
+
 /// Runs `loaded` into `keep` and `further` sinks: [`Prepared::new`] then [`Prepared::run`].
 pub fn run(loaded: &LoadedScenario, keep: Keep<'_>, further: Vec<Box<dyn Sink + '_>>) -> Result<Outcome, RunError> {
     Prepared::new(loaded, keep)?.run(further)

@@ -726,6 +726,18 @@ fn parse_with_world(
             )
             .replace("` as i128", "`"),
     })?;
+    // A sweep file names its scenario and sweeps it: it is `mjsafe sweep`'s, not a scenario.
+    if ["scenario", "scenarios"].iter().any(|k| table.contains_key(*k))
+        && ["grid", "range", "random"].iter().any(|k| table.contains_key(*k))
+    {
+        return Err(ScenarioError::Field {
+            file: file.to_string(),
+            key: "scenario".into(),
+            message: format!(
+                "this is a sweep file (it names a scenario and sweeps it), not a scenario: run it with `mjsafe sweep --sweep {file}`"
+            ),
+        });
+    }
     let world = commonroad_world(&mut table, file, overrides)?;
     for spec in overrides {
         apply_override(&mut table, spec)?;

@@ -321,8 +321,13 @@ pub fn resolve_name(name: &str, columns: &BTreeMap<Topic, Columns>) -> Result<So
                 .flat_map(|c| c.iter().map(|(n, _)| n.as_str()))
                 .filter(|n| *n != "time" && *n != "step")
                 .collect();
+            let closest = (known.iter())
+                .map(|k| (strsim::jaro_winkler(name, k), *k))
+                .filter(|(score, _)| *score >= 0.8)
+                .max_by(|a, b| a.0.total_cmp(&b.0));
             Err(format!(
-                "unknown signal `{name}`; the signals of this run: {}",
+                "unknown signal `{name}`{}; the signals of this run: {}",
+                closest.map_or(String::new(), |(_, k)| format!(" (did you mean `{k}`?)")),
                 known.join(", ")
             ))
         }

@@ -556,6 +556,21 @@ fn read_sweep_file(path: &Path, command_line_scenario: bool) -> Result<FileParts
     Ok(parts)
 }
 
+/// A `--set` on a key the sweep sweeps (or on a table holding it, or inside it) would override
+/// the axis in every run and leave its column lying: refused, naming both.
+fn set_sweeps_nothing(set: &[String], swept: &[&str]) -> Result<(), SweepError> {
+    let within = |inner: &str, outer: &str| inner == outer || inner.starts_with(&format!("{outer}."));
+    for spec in set {
+        let key = spec.split('=').next().unwrap_or_default().trim();
+        if let Some(axis) = swept.iter().find(|s| within(s, key) || within(key, s)) {
+            return Err(SweepError::Spec(format!(
+                "--set {spec}: the sweep sweeps `{axis}`, and the --set would override that axis in every run; drop the --set, or change the axis's values"
+            )));
+        }
+    }
+    Ok(())
+}
+
 impl SweepSpec {
     /// Builds the sweep from a sweep file and/or command-line arguments (the arguments add
     /// grids and ranges after the file's, and `--random`/`--seed` replace the file's).
@@ -604,11 +619,13 @@ impl SweepSpec {
             .iter()
             .flat_map(|g| std::iter::once(g.key.as_str()).chain(g.with.iter().map(|c| c.key.as_str())))
             .chain(ranges.iter().map(|r| r.key.as_str()));
-        if let Some(key) = swept_twice(keys) {
+        let keys: Vec<&str> = keys.collect();
+        if let Some(key) = swept_twice(keys.iter().copied()) {
             return Err(SweepError::Spec(format!(
                 "`{key}` is swept twice (each key takes one --grid or one --range)"
             )));
         }
+        set_sweeps_nothing(&args.set, &keys)?;
         let random = random_of(random_count, seed, ranges)?;
         if grids.is_empty() && random.is_none() {
             return Err(SweepError::Spec(

@@ -48,31 +48,55 @@ fn instantiate(cls: &Py<PyAny>, params: &toml::Table, section: &str) -> Result<P
     })
 }
 
-/// The filter's `barrier_form` attribute: None, {"alpha": a} or {"l0": …, "l1": …}.
+/// The filter's `barrier_form` attribute: None, {"alpha": a} or {"l0": …, "l1": …}. A class
+/// without the attribute is refused: it would receive no constraints and pass the nominal
+/// through without a word. Errors name the class's attribute.
 fn read_form(object: &Bound<'_, PyAny>) -> Result<Option<BarrierForm>, ParamError> {
-    let expected = "filter: expected `barrier_form` to be None, {\"alpha\": a} or {\"l0\": l0, \"l1\": l1}";
+    let class = object
+        .get_type()
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "the filter class".into());
+    let expected = format!(
+        "`{class}.barrier_form`: expected None, {{\"alpha\": a}} (relative degree 1) or {{\"l0\": l0, \"l1\": l1}} (relative degree 2)"
+    );
     let Ok(value) = object.getattr("barrier_form") else {
-        return Ok(None);
+        return Err(ParamError::new(
+            "filter",
+            format!("`{class}` has no `barrier_form`: it would receive no constraints and pass the nominal through; declare barrier_form = {{\"l0\": …, \"l1\": …}} or {{\"alpha\": …}}, or barrier_form = None to receive none"),
+        ));
     };
     if value.is_none() {
         return Ok(None);
     }
     let dict = value
         .cast::<PyDict>()
-        .map_err(|_| ParamError::new("filter", expected))?;
+        .map_err(|_| ParamError::new("filter", expected.clone()))?;
     let get = |key: &str| -> Result<Option<f64>, ParamError> {
-        match dict.get_item(key).map_err(|_| ParamError::new("filter", expected))? {
+        match dict
+            .get_item(key)
+            .map_err(|_| ParamError::new("filter", expected.clone()))?
+        {
             Some(v) => v
                 .extract::<f64>()
                 .map(Some)
-                .map_err(|_| ParamError::new("filter", expected)),
+                .map_err(|_| ParamError::new("filter", expected.clone())),
             None => Ok(None),
         }
     };
-    if dict.len() > 2 {
-        return Err(ParamError::new("filter", expected));
+    let known = ["alpha", "l0", "l1"];
+    if let Some(unknown) = dict.keys().iter().find_map(|k| {
+        let k = k.extract::<String>().unwrap_or_default();
+        (!known.contains(&k.as_str())).then_some(k)
+    }) {
+        return Err(ParamError::new(
+            "filter",
+            format!("{expected}, found the key `{unknown}`"),
+        ));
     }
-    mjsafe::filter::barrier_form(get("alpha")?, get("l0")?, get("l1")?).map(Some)
+    mjsafe::filter::barrier_form(get("alpha")?, get("l0")?, get("l1")?)
+        .map(Some)
+        .map_err(|e| ParamError::new("filter", format!("`{class}.barrier_form`: {}", e.message)))
 }
 
 /// A filter written in Python: `filter_channel(t, channel, state, nominal, constraints)` of an

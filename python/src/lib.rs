@@ -391,6 +391,9 @@ fn run<'py>(
     let overrides = overrides_and_requirements(set, require)?;
     let result = interruptible(py, move || -> Result<_, PyErr> {
         let loaded = mjsafe::scenario::load(&path, &overrides).map_err(bad)?;
+        // A requirement naming no signal of the run: said before the run, not after it.
+        mjsafe::run::check_requirement_signals(&loaded)
+            .map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
         let keep = match &out {
             Some(log) => Keep::Log(log),
             None => Keep::Metrics(IN_MEMORY),

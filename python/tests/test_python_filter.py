@@ -315,3 +315,30 @@ def test_an_exception_or_a_bad_return_in_issued_law_stops_the_run():
 
     with pytest.raises(TypeError, match="issued_law"):
         mjsafe.register_filter("not_a_law", NotALaw)
+
+
+def test_a_filter_without_barrier_form_is_refused_and_a_typo_names_the_attribute():
+    class NoForm:
+        def __init__(self, params):
+            pass
+
+        def filter_channel(self, t, channel, state, nominal, constraints):
+            return float(nominal[channel])
+
+    mjsafe.register_filter("no_form", NoForm)
+    # Before: it ran without a word, received no constraint and collided (min h −35.6).
+    with pytest.raises(ValueError, match=r"`NoForm` has no `barrier_form`: it would receive no constraints"):
+        mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "no_form"}})
+
+    class Typo(DelayFreeCbfQp):
+        def __init__(self, params):
+            self.barrier_form = {"lo": 4.0, "l1": 4.0}
+
+    mjsafe.register_filter("typo_form", Typo)
+    with pytest.raises(ValueError, match=r"`Typo.barrier_form`: .*found the key `lo`"):
+        mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "typo_form"}})
+
+
+def test_a_requirement_on_an_unknown_signal_is_refused_before_the_run():
+    with pytest.raises(ValueError, match=r"did you mean `obstacle_0.clearance`"):
+        mjsafe.run(scenario("bicycle_obstacle.toml"), require={"brakes": "always (obstacle_0.clearence < 3)"})

@@ -154,6 +154,8 @@ pub(super) fn run_scenario(
     report: RunOutput,
 ) -> Result<ExitCode> {
     let loaded = scenario::load(path, overrides)?;
+    // A requirement naming no signal of the run: said before the run, not after it.
+    crate::run::check_requirement_signals(&loaded).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     print_commonroad_notes(&loaded);
     let inputs = loaded.inputs();
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();

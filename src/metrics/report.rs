@@ -17,14 +17,27 @@ pub fn table(runs: &[RunMetrics]) -> String {
         "" | "steps" | "ticks" => m.table.unwrap_or(m.name).to_string(),
         unit => format!("{} [{unit}]", m.table.unwrap_or(m.name)),
     }));
+    // Each requirement's robustness (`req.NAME`, `--require`): its own column.
+    let flat: Vec<FlatMetrics> = runs.iter().map(FlatMetrics::from).collect();
+    let requirements: Vec<String> = (FlatMetrics::columns(&flat).into_iter())
+        .filter(|c| c.starts_with("req."))
+        .collect();
+    header.extend(requirements.iter().cloned());
     header.push("status".into());
     let mut rows = vec![header];
-    for r in runs {
+    for (r, f) in runs.iter().zip(&flat) {
         let mut row = vec![r.file.clone(), r.scenario.clone()];
         for (i, m) in &shown {
             row.push(match &r.values[*i] {
                 Value::Collision(None) if !r.missing.contains_key(m.name) => "none".into(),
                 value => value.display(),
+            });
+        }
+        for c in &requirements {
+            row.push(match f.cell(c) {
+                Cell::Num(Some(v)) if v < 0.0 => format!("{v:.4} VIOLATED"),
+                Cell::Num(Some(v)) => format!("{v:.4}"),
+                _ => "-".into(),
             });
         }
         row.push(match (&r.error, r.complete, r.warnings.len()) {

@@ -1,0 +1,116 @@
+//! Mistakes a new user makes, caught before the run with one line that says where (issue "A
+//! researcher's first hour"): each replayed from the shell through the real binary.
+
+mod common;
+
+use common::*;
+
+#[test]
+fn a_requirement_on_an_unknown_signal_stops_before_the_run_with_did_you_mean() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("r.mcap");
+    let o = mjsafe(&[
+        "run",
+        scenario("bicycle_obstacle_gamma_m.toml").to_str().unwrap(),
+        "--require",
+        "brakes=always (obstacle_0.clearence < 3 implies speed < 5)",
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    // Before: the whole episode ran, then "not evaluated (unknown signal …)", exit 0.
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let err = stderr(&o);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(
+            "requirement `brakes`: unknown signal `obstacle_0.clearence` (did you mean `obstacle_0.clearance`?)"
+        ),
+        "{err}"
+    );
+    assert!(!log.exists(), "no log of a run that never started");
+    // The same requirement spelled right runs and is reported; analyze --require shows it in
+    // the table.
+    let o = mjsafe(&[
+        "run",
+        scenario("bicycle_obstacle_gamma_m.toml").to_str().unwrap(),
+        "--require",
+        "brakes=always (obstacle_0.clearance > -1)",
+        "--out",
+        log.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(stdout(&o).contains("requirement brakes: satisfied"), "{}", stdout(&o));
+    let o = mjsafe(&["analyze", log.to_str().unwrap(), "--require", "slow=always (speed < 1)"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let table = stdout(&o);
+    let header = table.lines().next().unwrap();
+    assert!(header.contains("req.brakes") && header.contains("req.slow"), "{table}");
+    assert!(table.lines().nth(1).unwrap().contains("VIOLATED"), "{table}");
+}
+
+#[test]
+fn falsify_names_a_missing_requirement_or_its_unknown_signal() {
+    let dir = tempfile::tempdir().unwrap();
+    let base: [String; 10] = [
+        "falsify".into(),
+        scenario("bicycle_obstacle_gamma_m.toml").to_str().unwrap().to_string(),
+        "--range".into(),
+        "delays.acceleration=0.5..2.0:0.1".into(),
+        "--budget".into(),
+        "4".into(),
+        "--out".into(),
+        dir.path().join("f").to_str().unwrap().to_string(),
+        "--objective".into(),
+        "req.brakes".into(),
+    ];
+    let with = |extra: &[&str]| {
+        let mut args: Vec<&str> = base.iter().map(String::as_str).collect();
+        args.extend_from_slice(extra);
+        mjsafe(&args)
+    };
+    let o = with(&[]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(stderr(&o).contains("no requirement `brakes`"), "{}", stderr(&o));
+    let o = with(&["--require", "brakes=always (obstacle_0.clearence > 0)"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(
+        stderr(&o).contains("unknown signal `obstacle_0.clearence` (did you mean"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn a_sweep_file_given_to_run_and_a_set_on_a_swept_key_are_refused() {
+    let sweep = scenario("ncap_ccrm.sweep.toml");
+    let o = mjsafe(&["run", sweep.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    // Before: "unknown field `scenario`".
+    assert!(stderr(&o).contains("this is a sweep file"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("mjsafe sweep --sweep"), "{}", stderr(&o));
+    // Before: the --set silently replaced the axis's value in all 110 runs.
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        sweep.to_str().unwrap(),
+        "--set",
+        "actor_knowledge.kind='constant_velocity'",
+        "--no-logs",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(
+        stderr(&o).contains("the sweep sweeps `actor_knowledge.kind`"),
+        "{}",
+        stderr(&o)
+    );
+    // A table holding the swept key is refused too; a key the sweep does not sweep is fine.
+    let o = mjsafe(&[
+        "sweep",
+        "--sweep",
+        sweep.to_str().unwrap(),
+        "--set",
+        "actor_knowledge={kind='static'}",
+        "--no-logs",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+}
