@@ -114,3 +114,31 @@ fn a_sweep_file_given_to_run_and_a_set_on_a_swept_key_are_refused() {
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
 }
+
+#[test]
+fn falsify_says_when_no_candidate_qualified_and_so_nothing_was_proved() {
+    let dir = tempfile::tempdir().unwrap();
+    // A baseline threshold no run reaches: no candidate ever qualifies.
+    let o = mjsafe(&[
+        "falsify",
+        scenario("bicycle_obstacle_gamma_m.toml").to_str().unwrap(),
+        "--range",
+        "delays.acceleration=0.5..0.7:0.1",
+        "--baseline",
+        "obstacles.0.centre.1=0.0",
+        "--baseline-threshold",
+        "1000",
+        "--budget",
+        "4",
+        "--out",
+        dir.path().join("f").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = stdout(&o);
+    // Before: "no counterexample within 4 runs", as if the box had been searched.
+    assert!(out.contains("4 runs, 0 qualified"), "{out}");
+    assert!(
+        out.contains("no counterexample, and none of the 4 candidates qualified: this proves nothing about the box"),
+        "{out}"
+    );
+}

@@ -180,10 +180,16 @@ pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random
     .context("falsify")?;
     for s in &report.searches {
         let best = s.best();
+        let qualified = s.evaluations.iter().filter(|e| e.qualified).count();
         outln!(
-            "{}: {} runs, {}; best {} = {}{}",
+            "{}: {} runs, {qualified} qualified{}, {}; best {} = {}{}",
             s.method.name(),
             s.evaluations.len(),
+            if problem.baseline.is_empty() {
+                " (no baseline: every candidate with a metric)"
+            } else {
+                " (baseline safe and making the progress asked)"
+            },
             s.runs_to_first_violation()
                 .map_or("no violation".to_string(), |n| format!("first violation at run {n}")),
             problem.objective,
@@ -222,9 +228,16 @@ pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random
         );
     }
     if report.counterexamples.is_empty() {
+        let runs = report.searches[0].evaluations.len();
+        let qualified = report.searches[0].evaluations.iter().filter(|e| e.qualified).count();
+        // A search in which nothing qualified never tested the filter: it proves nothing.
+        let what = if qualified == 0 {
+            format!("no counterexample, and none of the {runs} candidates qualified: this proves nothing about the box")
+        } else {
+            format!("no counterexample within {runs} runs ({qualified} qualified)")
+        };
         outln!(
-            "no counterexample within {} runs | evaluations: {}, {}",
-            report.searches[0].evaluations.len(),
+            "{what} | evaluations: {}, {}",
             report.evaluations_csv.display(),
             report.evaluations_json.display()
         );
