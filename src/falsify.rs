@@ -930,6 +930,7 @@ pub fn counterexample_text(
         "# from {} with every override applied\n",
         problem.scenario.display()
     ));
+    text.push_str(&crate::scenario::load_lines(&scenario));
     text.push_str(&body);
     Ok(text)
 }

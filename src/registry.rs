@@ -48,6 +48,8 @@ pub(crate) struct Kind<B> {
     /// Its label (with the equation number it implements) and one line on what it is.
     pub(crate) label: String,
     pub(crate) description: String,
+    /// The file that registered it, for kinds that are not built in ([`Describe::origin`]).
+    pub(crate) origin: Option<String>,
     pub(crate) build: B,
 }
 
@@ -67,6 +69,7 @@ pub struct Description {
 pub struct Describe<'a> {
     label: &'a mut String,
     description: &'a mut String,
+    origin: &'a mut Option<String>,
 }
 
 impl Describe<'_> {
@@ -79,6 +82,13 @@ impl Describe<'_> {
     /// One line on what the kind is.
     pub fn description(self, description: &str) -> Self {
         *self.description = description.to_string();
+        self
+    }
+
+    /// The file that registers the kind when it is not built in (a Python module): what a
+    /// counterexample of a run with it says to load.
+    pub fn origin(self, file: &str) -> Self {
+        *self.origin = Some(file.to_string());
         self
     }
 }
@@ -308,6 +318,16 @@ impl Registry {
         describe(find(&self.nominals, "nominal", kind)?, params)
     }
 
+    /// The file that registered filter kind `kind`, when it is not built in.
+    pub fn filter_origin(&self, kind: &str) -> Option<&str> {
+        self.filters.iter().find(|k| k.name == kind)?.origin.as_deref()
+    }
+
+    /// The file that registered nominal kind `kind`, when it is not built in.
+    pub fn nominal_origin(&self, kind: &str) -> Option<&str> {
+        self.nominals.iter().find(|k| k.name == kind)?.origin.as_deref()
+    }
+
     /// The filter kinds, in registration order.
     pub fn filter_kinds(&self) -> Vec<&str> {
         self.filters.iter().map(|k| k.name.as_str()).collect()
@@ -364,6 +384,7 @@ pub(crate) fn add<'a, B>(kinds: &'a mut Vec<Kind<B>>, name: &str, build: B) -> D
         name: name.to_string(),
         label: name.to_string(),
         description: String::new(),
+        origin: None,
         build,
     };
     let index = match kinds.iter().position(|k| k.name == name) {
@@ -380,6 +401,7 @@ pub(crate) fn add<'a, B>(kinds: &'a mut Vec<Kind<B>>, name: &str, build: B) -> D
     Describe {
         label: &mut kind.label,
         description: &mut kind.description,
+        origin: &mut kind.origin,
     }
 }
 

@@ -684,11 +684,61 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, Scenari
     from_text(path, text, overrides)
 }
 
+/// The comment that names a file to load for a kind that is not built in (written into a
+/// counterexample, read back when the kind is unknown).
+const LOAD_COMMENT: &str = "# mjsafe-load: ";
+
+/// Comment lines for a scenario file: for each of `scenario`'s filter and nominal kinds that a
+/// Python module registered, which file to load and how (`python -m mjsafe --load FILE …`).
+pub fn load_lines(scenario: &Scenario) -> String {
+    let registry = crate::registry::registry();
+    let origins = [
+        (
+            "filter",
+            &scenario.filter.kind,
+            registry.filter_origin(&scenario.filter.kind),
+        ),
+        (
+            "nominal",
+            &scenario.nominal.kind,
+            registry.nominal_origin(&scenario.nominal.kind),
+        ),
+    ];
+    let mut lines = String::new();
+    for (section, kind, origin) in origins {
+        if let Some(file) = origin {
+            lines.push_str(&format!(
+                "# {section} kind `{kind}` is written in Python: run this file with `python -m mjsafe --load {file} run <this file>`\n{LOAD_COMMENT}{file}\n"
+            ));
+        }
+    }
+    lines
+}
+
+/// An unknown kind in a file that names the Python files of its kinds says what to load.
+fn with_load_hint(error: ScenarioError, text: &str) -> ScenarioError {
+    let files: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix(LOAD_COMMENT)).collect();
+    match error {
+        ScenarioError::Field { file, key, message } if message.contains("unknown kind") && !files.is_empty() => {
+            let loads: Vec<String> = files.iter().map(|f| format!("--load {f}")).collect();
+            ScenarioError::Field {
+                file,
+                key,
+                message: format!(
+                    "{message}; the file says the kind is written in Python: run it with `python -m mjsafe {} run …`",
+                    loads.join(" ")
+                ),
+            }
+        }
+        other => other,
+    }
+}
+
 /// A scenario from its text, as if read from `path` (which names it in errors and anchors the
 /// relative model path), with overrides applied and validated.
 pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
     let file = path.display().to_string();
-    let (scenario, commonroad) = parse_with_world(&text, &file, overrides)?;
+    let (scenario, commonroad) = parse_with_world(&text, &file, overrides).map_err(|e| with_load_hint(e, &text))?;
     let loaded = LoadedScenario {
         scenario,
         path: path.to_path_buf(),
@@ -696,7 +746,7 @@ pub fn from_text(path: &Path, text: String, overrides: &[String]) -> Result<Load
         overrides: overrides.to_vec(),
         commonroad,
     };
-    validate(&loaded)?;
+    validate(&loaded).map_err(|e| with_load_hint(e, &loaded.source_text))?;
     Ok(loaded)
 }
 

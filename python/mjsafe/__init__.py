@@ -365,6 +365,7 @@ def sweep(
     out: str | os.PathLike[str] | None = None,
     require: Mapping[str, str] | None = None,
     scenarios: Sequence[str | os.PathLike[str]] | None = None,
+    sweep_file: str | os.PathLike[str] | None = None,
 ) -> pd.DataFrame:
     """A parameter sweep, as ``mjsafe sweep``: the grid's cartesian product, times ``draws``
     seeded random draws of the ``random`` ranges, run in parallel.
@@ -383,6 +384,9 @@ def sweep(
         scenarios: CommonRoad files or patterns (``--scenarios``, e.g.
             ``["data/commonroad/*.xml"]``), the swept key ``commonroad.file``
             (docs/commonroad.md); instead of ``path``.
+        sweep_file: a sweep file (``--sweep``: its scenario, ``set``, grids with their ``with``
+            companions, ranges and ``[random]``); ``path`` may then be None, and the other
+            arguments add to it as the command line's flags do.
 
     Returns:
         The summary, one row per run: the columns of summary.csv (index, log, the swept keys,
@@ -397,7 +401,7 @@ def sweep(
         raise _type_error("sweep", "scenarios", "a list of str or os.PathLike, or None", scenarios)
     files = None if scenarios is None else [_path("sweep", "scenarios", f) for f in scenarios]
     text = _core.sweep(
-        _path("sweep", "path", path, optional=scenarios is not None),
+        _path("sweep", "path", path, optional=scenarios is not None or sweep_file is not None),
         _mapping("sweep", "grid", grid, "a dict of dotted keys to lists of values"),
         _mapping("sweep", "random", random, _RANGES),
         _int("sweep", "draws", draws, 0),
@@ -407,6 +411,7 @@ def sweep(
         _path("sweep", "out", out, optional=True),
         _mapping("sweep", "require", require, _REQUIRE),
         files,
+        _path("sweep", "sweep_file", sweep_file, optional=True),
     )
     return _read_csv(io.StringIO(text))
 

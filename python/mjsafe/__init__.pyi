@@ -63,6 +63,7 @@ def sweep(
     out: _Path | None = None,
     require: Mapping[str, str] | None = None,
     scenarios: Sequence[_Path] | None = None,
+    sweep_file: _Path | None = None,
 ) -> pd.DataFrame: ...
 def falsify(
     path: _Path,

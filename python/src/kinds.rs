@@ -48,6 +48,23 @@ fn instantiate(cls: &Py<PyAny>, params: &toml::Table, section: &str) -> Result<P
     })
 }
 
+/// The file that defines `class` (where its `method` was compiled), absolute: what a
+/// counterexample or a summary of a run with the kind says to load.
+fn class_file(class: &Bound<'_, PyAny>, method: &str) -> Option<String> {
+    let file: String = class
+        .getattr(method)
+        .ok()?
+        .getattr("__code__")
+        .ok()?
+        .getattr("co_filename")
+        .ok()?
+        .extract()
+        .ok()?;
+    let path = std::path::Path::new(&file);
+    path.is_file()
+        .then(|| std::fs::canonicalize(path).map_or(file.clone(), |p| p.display().to_string()))
+}
+
 /// The filter's `barrier_form` attribute: None, {"alpha": a} or {"l0": …, "l1": …}. A class
 /// without the attribute is refused: it would receive no constraints and pass the nominal
 /// through without a word. Errors name the class's attribute.
@@ -403,11 +420,18 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
     }
     let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
     let name = kind.to_string();
+    let origin = class_file(class, "filter_channel");
     mjsafe::registry::register(move |r| {
         let described = r.add_filter(&name.clone(), move |p: &AnyParams, _: &FilterContext| {
             build_filter(&name, &cls, &asarray, p)
         });
-        let described = described.description("a filter written in Python (mjsafe.register_filter)");
+        let mut described = described.description(&match &origin {
+            Some(file) => format!("a filter written in Python (mjsafe.register_filter) in {file}"),
+            None => "a filter written in Python (mjsafe.register_filter)".into(),
+        });
+        if let Some(file) = &origin {
+            described = described.origin(file);
+        }
         if let Some(label) = &label {
             described.label(label);
         }
@@ -485,6 +509,7 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
     };
     let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
     let name = kind.to_string();
+    let origin = class_file(class, "input");
     mjsafe::registry::register(move |r| {
         let described = r.add_nominal(&name.clone(), move |p: &AnyParams, _: &NominalContext| {
             let object = instantiate(&cls, &p.0, "nominal")?;
@@ -494,7 +519,13 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
                 asarray: Python::attach(|py| asarray.clone_ref(py)),
             }) as Box<dyn NominalController>)
         });
-        let described = described.description("a nominal controller written in Python (mjsafe.register_nominal)");
+        let mut described = described.description(&match &origin {
+            Some(file) => format!("a nominal controller written in Python (mjsafe.register_nominal) in {file}"),
+            None => "a nominal controller written in Python (mjsafe.register_nominal)".into(),
+        });
+        if let Some(file) = &origin {
+            described = described.origin(file);
+        }
         if let Some(label) = &label {
             described.label(label);
         }

@@ -454,7 +454,7 @@ fn log_tables<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict
 /// A sweep: `mjsafe sweep` (with `out`: its logs and summary files there; without: every run
 /// analysed in memory, `--no-logs`, nothing written); the summary as CSV text.
 #[pyfunction]
-#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None, require=None, scenarios=None))]
+#[pyo3(signature = (path, grid=None, random=None, draws=0, seed=0, set=None, threads=None, out=None, require=None, scenarios=None, sweep_file=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep<'py>(
     py: Python<'py>,
@@ -468,18 +468,21 @@ fn sweep<'py>(
     out: Option<PathBuf>,
     require: Option<&Bound<'py, PyAny>>,
     scenarios: Option<Vec<String>>,
+    sweep_file: Option<PathBuf>,
 ) -> PyResult<String> {
     use mjsafe::sweep::{self, Summary, SweepArgs, SweepSpec};
+    let from_file = sweep_file.is_some();
     let scenarios = sweep::expand_scenarios(&scenarios.unwrap_or_default())
         .map_err(|e| PyValueError::new_err(format!("mjsafe.sweep: scenarios: {e}")))?;
     let args = SweepArgs {
         scenario: path,
         scenarios,
-        sweep_file: None,
+        sweep_file,
         set: overrides_and_requirements(set, require)?,
         grids: grids(grid)?,
+        // A sweep file's own `[random]` stands unless draws are given here.
         random: (draws > 0).then_some(draws),
-        seed: Some(seed),
+        seed: (!from_file || draws > 0).then_some(seed),
         ranges: ranges(random, "random")?,
     };
     interruptible(py, move || {
@@ -637,6 +640,16 @@ fn scorecard(
     })
 }
 
+/// The mjsafe command line in this process (`python -m mjsafe`): `args` with the program's name
+/// first; its exit status. The kinds registered from Python in this process are known to it.
+#[pyfunction]
+fn cli(py: Python<'_>, args: Vec<String>) -> u8 {
+    let code = py.detach(move || mjsafe::cli::run_with_args(args));
+    (0..=u8::MAX)
+        .find(|k| std::process::ExitCode::from(*k) == code)
+        .unwrap_or(1)
+}
+
 /// The TOML value text `set` makes of a Python value (what `--set KEY=` would be given).
 #[pyfunction]
 fn toml_value(value: &Bound<'_, PyAny>) -> PyResult<String> {
@@ -652,6 +665,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(falsify, m)?)?;
     m.add_function(wrap_pyfunction!(scorecard, m)?)?;
+    m.add_function(wrap_pyfunction!(cli, m)?)?;
     m.add_function(wrap_pyfunction!(toml_value, m)?)?;
     m.add_class::<stepper::Stepper>()?;
     m.add_function(wrap_pyfunction!(kinds::register_filter, m)?)?;

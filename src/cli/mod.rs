@@ -238,8 +238,26 @@ pub enum Command {
 
 /// Parses arguments, runs the command, returns the process exit code.
 pub fn run() -> ExitCode {
+    run_with_args(std::env::args_os())
+}
+
+/// The command line given as `args` (the program's name first), in this process: what the
+/// binary does, and what Python's `python -m mjsafe` runs after loading the user's modules
+/// (their kinds registered in this process's registry).
+pub fn run_with_args<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
     install_stop_handler();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(e) => {
+            // clap's own rendering (usage, --help, --version) and its exit status.
+            let _ = e.print();
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(exit::ERROR));
+        }
+    };
     episode::set_max_steps(cli.max_steps);
     episode::cost::set_max_work(cli.max_work);
     episode::cost::set_max_log_bytes(cli.max_log_size);
