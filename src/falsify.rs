@@ -92,8 +92,11 @@ pub struct Problem {
     pub ranges: Vec<Range>,
     /// The metric minimised (a column of `analyze --csv`).
     pub objective: String,
-    /// A candidate violates when its metric is below this.
+    /// A candidate violates when its metric is below this, by more than `tolerance`.
     pub threshold: f64,
+    /// How far below the threshold a metric must be to count as a violation (round-off
+    /// grazes of 1e-6 do not; [`DEFAULT_TOLERANCE`]).
+    pub tolerance: f64,
     /// The baseline is safe (the candidate qualified) when its metric is at least this.
     pub baseline_threshold: f64,
     /// Overrides of the reference configuration (applied after the candidate's); empty: none.
@@ -124,6 +127,8 @@ pub struct Request {
     pub set: Vec<String>,
     pub objective: String,
     pub threshold: f64,
+    /// `--tolerance`.
+    pub tolerance: f64,
     pub budget: usize,
     pub seed: u64,
     /// None: every core.
@@ -150,6 +155,7 @@ impl Request {
             set,
             objective,
             threshold,
+            tolerance,
             budget,
             seed,
             threads,
@@ -175,6 +181,11 @@ impl Request {
         if !threshold.is_finite() {
             return Err(spec(format!(
                 "--threshold: expected a finite number, found {threshold}"
+            )));
+        }
+        if !(tolerance.is_finite() && tolerance >= 0.0) {
+            return Err(spec(format!(
+                "--tolerance: expected a finite number >= 0 (in the objective's unit), found {tolerance}"
             )));
         }
         if !baseline_threshold.is_finite() {
@@ -249,6 +260,7 @@ impl Request {
             ranges,
             objective,
             threshold,
+            tolerance,
             baseline_threshold,
             baseline,
             budget,
@@ -360,6 +372,11 @@ pub struct Evaluation {
     #[serde(skip)]
     pub point: Vec<f64>,
 }
+
+/// The default `--tolerance`: a candidate violates when its objective is this far below the
+/// threshold (1e-4 of the objective's unit: 0.1 mm² of min h); `--tolerance 0` counts every
+/// graze.
+pub const DEFAULT_TOLERANCE: f64 = 1e-4;
 
 /// Most failure modes `--counterexamples` may ask for.
 pub const MAX_COUNTEREXAMPLES: usize = 100;
@@ -684,7 +701,8 @@ impl Evaluator<'_> {
                 }
             }
         }
-        evaluation.violation = evaluation.qualified && objective < threshold;
+        // A violation lies beyond the tolerance: a round-off graze is not a failure.
+        evaluation.violation = evaluation.qualified && objective < threshold - self.problem.tolerance;
         evaluation
     }
 }

@@ -142,3 +142,41 @@ fn falsify_says_when_no_candidate_qualified_and_so_nothing_was_proved() {
         "{out}"
     );
 }
+
+/// A violation lies beyond `--tolerance` (default 1e-4 of the objective's unit): a graze is
+/// not a counterexample unless asked for with `--tolerance 0`.
+#[test]
+fn a_graze_within_the_tolerance_is_not_a_violation() {
+    let dir = tempfile::tempdir().unwrap();
+    // The γm bicycle as committed: min h = 0.024 m². A threshold 5e-5 above its min h makes it
+    // a graze of 5e-5 (within the tolerance), and 2e-4 above it a violation.
+    let search = |threshold: f64, tolerance: Option<&str>, name: &str| {
+        let threshold = format!("{}", 0.024274766 + threshold);
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "falsify",
+            "--range",
+            "seed=0..1:1",
+            "--budget",
+            "1",
+            "--method",
+            "random",
+            "--threshold",
+            &threshold,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(t) = tolerance {
+            args.extend_from_slice(&["--tolerance", t]);
+        }
+        let s = scenario("bicycle_obstacle_gamma_m.toml");
+        let mut all = vec![args[0], s.to_str().unwrap()];
+        all.extend_from_slice(&args[1..]);
+        let o = mjsafe(&all);
+        assert!(o.status.success(), "{}", text(&o));
+        stdout(&o)
+    };
+    assert!(search(5e-5, None, "graze").contains("no counterexample"));
+    assert!(search(5e-5, Some("0"), "strict").contains("violation: index 0"));
+    assert!(search(2e-4, None, "beyond").contains("violation: index 0"));
+}

@@ -436,6 +436,7 @@ def falsify(
     require: Mapping[str, str] | None = None,
     method: str = "guided",
     counterexamples: int = 1,
+    tolerance: float = 1e-4,
 ) -> FalsifyResult:
     """A falsification search, as ``mjsafe falsify``: CMA-ES over the ``ranges`` box for a run
     whose ``objective`` falls below ``threshold``.
@@ -456,6 +457,8 @@ def falsify(
             ``objective="req.<name>"`` minimises one's robustness.
         method: ``"guided"`` (default), ``"cmaes"`` or ``"random"`` (``--method``).
         counterexamples: up to this many distinct failure modes (``--counterexamples``).
+        tolerance: how far below ``threshold`` counts as a violation (``--tolerance``, in the
+            objective's unit; a round-off graze is not a failure; 0 counts every one).
 
     Raises:
         TypeError: an argument of the wrong Python type (``budget="many"``, ``ranges`` not a
@@ -481,6 +484,7 @@ def falsify(
     require = _mapping(f, "require", require, _REQUIRE)
     method = _str(f, "method", method)
     counterexamples = _int(f, "counterexamples", counterexamples, 0)
+    tolerance = _float(f, "tolerance", tolerance)
     call = ", ".join(
         [repr(path), f"ranges={dict(ranges)!r}"]
         + [f"{k}={v!r}" for k, v in [("baseline", baseline), ("set", set), ("require", require)] if v is not None]
@@ -488,6 +492,7 @@ def falsify(
         + (["worst=True"] if worst else [])
         + ([f"method={method!r}"] if method != "guided" else [])
         + ([f"counterexamples={counterexamples!r}"] if counterexamples != 1 else [])
+        + ([f"tolerance={tolerance!r}"] if tolerance != 1e-4 else [])
     )
     search_line = f"mjsafe.falsify({call})"
     args = (
@@ -495,10 +500,10 @@ def falsify(
         baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads,
     )
     if out is not None:
-        raw = _core.falsify(*args, out, search_line, require, method, counterexamples)
+        raw = _core.falsify(*args, out, search_line, require, method, counterexamples, tolerance)
         return FalsifyResult(raw, out)
     with tempfile.TemporaryDirectory(prefix="mjsafe-falsify-") as tmp:
-        raw = _core.falsify(*args, tmp, search_line, require, method, counterexamples)
+        raw = _core.falsify(*args, tmp, search_line, require, method, counterexamples, tolerance)
         return FalsifyResult(raw, None)
 
 _SCORECARD_COLUMNS = [

@@ -85,6 +85,7 @@ def falsify(
     require: Mapping[str, str] | None = None,
     method: str = "guided",
     counterexamples: int = 1,
+    tolerance: float = 1e-4,
 ) -> FalsifyResult: ...
 def scorecard(
     filters: Sequence[str | Mapping[str, Any]],

@@ -511,7 +511,7 @@ fn sweep<'py>(
 #[pyo3(signature = (
     path, ranges_, baseline, budget, seed, objective, threshold, worst, set,
     baseline_threshold, baseline_no_stall, baseline_reaches_goal, compare_random, threads, out,
-    search_line, require=None, method="guided", counterexamples=1
+    search_line, require=None, method="guided", counterexamples=1, tolerance=mjsafe::falsify::DEFAULT_TOLERANCE
 ))]
 #[allow(clippy::too_many_arguments)]
 fn falsify<'py>(
@@ -535,6 +535,7 @@ fn falsify<'py>(
     require: Option<&Bound<'py, PyAny>>,
     method: &str,
     counterexamples: usize,
+    tolerance: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
     let method = mjsafe::falsify::Method::from_flag(method).ok_or_else(|| {
         PyValueError::new_err(format!(
@@ -547,6 +548,7 @@ fn falsify<'py>(
         set: overrides_and_requirements(set, require)?,
         objective,
         threshold,
+        tolerance,
         budget,
         seed,
         threads,

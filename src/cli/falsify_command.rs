@@ -24,9 +24,13 @@ pub struct FalsifyArgs {
     /// that end more than 5 m from the goal.
     #[arg(long, default_value = "min_h", allow_hyphen_values = true)]
     pub objective: String,
-    /// A candidate violates when the objective is below this.
+    /// A candidate violates when the objective is below this, by more than --tolerance.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub threshold: f64,
+    /// How far below the threshold counts as a violation, in the objective's unit: a round-off
+    /// graze (min h = −2e−6) is not a failure; 0 counts every one.
+    #[arg(long, value_name = "T", default_value_t = crate::falsify::DEFAULT_TOLERANCE)]
+    pub tolerance: f64,
     /// Most runs (rounded up to whole CMA-ES generations).
     #[arg(long, value_name = "N", default_value_t = 200)]
     pub budget: usize,
@@ -119,6 +123,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         require,
         objective,
         threshold,
+        tolerance,
         budget,
         seed,
         threads,
@@ -141,6 +146,7 @@ fn falsify_command(args: FalsifyArgs) -> Result<ExitCode> {
         set: overrides,
         objective,
         threshold,
+        tolerance,
         budget,
         seed,
         threads,

@@ -396,6 +396,7 @@ fn search(item: &Item, filter: &str) -> Result<crate::falsify::Search, String> {
         set: falsify_set(item, filter),
         objective: objective.clone(),
         threshold: *threshold,
+        tolerance: crate::falsify::DEFAULT_TOLERANCE,
         budget: *budget,
         seed: *seed,
         threads: Some(1),
