@@ -368,6 +368,10 @@ pub struct Evaluation {
     /// How the candidate's run fails: what it first collided with, else the barrier of its
     /// lowest h (`min_h_by_barrier`); absent without a barrier.
     pub failure_mode: Option<String>,
+    /// Seconds of h < 0 within the delay after an obstacle appeared
+    /// (`delay_attributed_violation_time` > 0): a violation no filter with that delay could
+    /// avoid, flagged (it still counts).
+    pub within_delay: Option<f64>,
     /// The candidate's point in the box, each range mapped to [0, 1].
     #[serde(skip)]
     pub point: Vec<f64>,
@@ -660,12 +664,14 @@ impl Evaluator<'_> {
             severity: Severity::default(),
             error: None,
             failure_mode: None,
+            within_delay: None,
             point: unit.to_vec(),
         };
         let objective = match self.metric(candidate.clone()) {
             Ok((v, severity, metrics)) => {
                 evaluation.severity = severity;
                 evaluation.failure_mode = failure_mode(&metrics);
+                evaluation.within_delay = metrics.number("delay_attributed_violation_time").filter(|t| *t > 0.0);
                 v
             }
             Err(e) => {
@@ -1056,6 +1062,7 @@ mod tests {
             severity: Severity::default(),
             error: None,
             failure_mode: Some(mode.into()),
+            within_delay: None,
             point: point.to_vec(),
         }
     }

@@ -180,3 +180,39 @@ fn a_graze_within_the_tolerance_is_not_a_violation() {
     assert!(search(5e-5, Some("0"), "strict").contains("violation: index 0"));
     assert!(search(2e-4, None, "beyond").contains("violation: index 0"));
 }
+
+/// The README's falsify example without a baseline: its first violation is an obstacle that
+/// appears too close to avoid within the delay; the search says so.
+#[test]
+fn a_violation_within_the_delay_after_an_obstacle_appears_is_flagged() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f");
+    let o = mjsafe(&[
+        "falsify",
+        scenario("bicycle_obstacle_gamma_m.toml").to_str().unwrap(),
+        "--range",
+        "vehicle.initial_state.0=-26..-16",
+        "--range",
+        "obstacles.0.centre.1=-3..3",
+        "--range",
+        "delays.acceleration=0.5..2.0:0.1",
+        "--budget",
+        "60",
+        "--seed",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let said = stdout(&o);
+    assert!(said.contains("within the delay after an obstacle appeared"), "{said}");
+    // The flag is the run's own metric: the counterexample's log says the same.
+    let metrics: serde_json::Value = serde_json::from_str(&stdout(&mjsafe(&[
+        "analyze",
+        "--json",
+        out.join("counterexample.mcap").to_str().unwrap(),
+    ])))
+    .unwrap();
+    let within = metrics[0]["delay_attributed_violation_time"].as_f64().unwrap();
+    assert!(within > 0.0, "{metrics}");
+}

@@ -222,6 +222,11 @@ pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random
             e.severity.describe(),
             e.failure_mode.as_ref().map_or(String::new(), |m| format!(", {m}"))
         );
+        if let Some(t) = e.within_delay {
+            outln!(
+                "note: h < 0 for {t:.3} s within the delay after an obstacle appeared: no filter with this delay could avoid that part (it still counts; add a baseline to count only the filter's own failures)"
+            );
+        }
         outln!(
             "counterexample: {} ({})",
             c.scenario.display(),

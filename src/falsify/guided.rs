@@ -440,6 +440,7 @@ mod tests {
             severity: Default::default(),
             error: None,
             failure_mode: None,
+            within_delay: None,
             point: point.to_vec(),
         }
     }
