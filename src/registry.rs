@@ -328,6 +328,19 @@ impl Registry {
         self.nominals.iter().find(|k| k.name == kind)?.origin.as_deref()
     }
 
+    /// Every filter and nominal kind that names the file registering it, with that file.
+    pub fn origins(&self) -> Vec<(&str, &str)> {
+        let filters = self
+            .filters
+            .iter()
+            .filter_map(|k| Some((k.name.as_str(), k.origin.as_deref()?)));
+        let nominals = self
+            .nominals
+            .iter()
+            .filter_map(|k| Some((k.name.as_str(), k.origin.as_deref()?)));
+        filters.chain(nominals).collect()
+    }
+
     /// The filter kinds, in registration order.
     pub fn filter_kinds(&self) -> Vec<&str> {
         self.filters.iter().map(|k| k.name.as_str()).collect()

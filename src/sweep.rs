@@ -1021,6 +1021,27 @@ fn summary_files(dir: &Path, shard: Option<Shard>) -> [(PathBuf, &'static [u8]);
     ]
 }
 
+/// The registered kinds with a defining file (Python's) that the sweep's overrides or grid
+/// values name (as a quoted kind, `kind="…"`), each with its file.
+fn python_kinds(spec: &SweepSpec) -> BTreeMap<String, String> {
+    let text: Vec<&str> = (spec.set.iter())
+        .chain(
+            spec.grids
+                .iter()
+                .flat_map(|g| g.values.iter().chain(g.with.iter().flat_map(|c| c.values.iter()))),
+        )
+        .map(String::as_str)
+        .collect();
+    let registry = crate::registry::registry();
+    (registry.origins().into_iter())
+        .filter(|(kind, _)| {
+            text.iter()
+                .any(|t| t.contains(&format!("\"{kind}\"")) || t.contains(&format!("'{kind}'")))
+        })
+        .map(|(kind, file)| (kind.to_string(), file.to_string()))
+        .collect()
+}
+
 /// A sweep summary: the sweep, which shard (none: all runs), and one row per run by index.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -1029,6 +1050,10 @@ pub struct Summary {
     pub shard: Option<Shard>,
     /// Sweep keys in column order.
     pub parameters: Vec<String>,
+    /// The kinds the sweep names that a Python module registered, with the file that defines
+    /// each (what `python -m mjsafe --load FILE` needs to run it again).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub python_kinds: BTreeMap<String, String>,
     pub runs: Vec<Row>,
 }
 
@@ -1040,6 +1065,7 @@ impl Summary {
             sweep: spec.clone(),
             shard,
             parameters: spec.keys(),
+            python_kinds: python_kinds(spec),
             runs,
         }
     }
@@ -1205,6 +1231,7 @@ impl Summary {
             sweep: first.sweep.clone(),
             shard: None,
             parameters: first.parameters.clone(),
+            python_kinds: first.python_kinds.clone(),
             runs: rows.into_values().map(|(_, r)| r).collect(),
         };
         Ok((merged, missing))

@@ -98,6 +98,8 @@ def test_a_sweep_file_over_a_python_filter_gives_one_summary_from_the_shell_and_
     '''))
     shell("--load", module, "sweep", "--sweep", str(sweep_file), "--out", str(tmp_path / "s"), "--no-logs")
     from_shell = pd.read_csv(tmp_path / "s" / "summary.csv")
+    # The summary records which file defined the Python kind it sweeps.
+    assert json.loads((tmp_path / "s" / "summary.json").read_text())["python_kinds"] == {"shell_cbf_qp": module}
     mjsafe.register_filter("shell_cbf_qp", _load(module).ShellCbfQp)
     from_python = mjsafe.sweep(sweep_file=str(sweep_file))
     assert len(from_shell) == len(from_python) == 2
