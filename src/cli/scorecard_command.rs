@@ -55,12 +55,17 @@ impl ScorecardCommand {
             keep_logs: self.keep_logs,
             out: Some(out),
         };
+        let mut reported = 0;
         let card = scorecard::score(&request, |p| {
             if terminal {
-                eprint!("\r{}/{} runs", p.done, p.total);
+                eprint!("\r{}/{} jobs", p.done, p.total);
                 if p.done == p.total {
                     eprintln!();
                 }
+            } else if p.done * 10 >= (reported + 1) * p.total {
+                // A log file or CI: a line at each tenth, not a carriage return per run.
+                reported = p.done * 10 / p.total.max(1);
+                eprintln!("scorecard: {}/{} jobs", p.done, p.total);
             }
         })?;
         let (target, report) = (out.join("scorecard.json"), out.join("report.html"));
