@@ -414,11 +414,10 @@ fn symlog_chart(
     let entries: Vec<(String, ShapeStyle)> = series.iter().map(|(n, _, s)| (n.clone(), *s)).collect();
     let plot = with_legend(area, &entries)?;
     let all = series.iter().flat_map(|(_, s, _)| s.iter().copied());
-    let ((x0, x1), (y0, y1)) = bounds(all.clone());
+    let ((x0, x1), _) = bounds(all.clone());
     // The data's own extremes (bounds pads linearly), with 0 always in view.
     let lowest = all.clone().map(|p| p.1).filter(|v| v.is_finite()).fold(0.0, f64::min);
     let highest = all.map(|p| p.1).filter(|v| v.is_finite()).fold(0.0, f64::max);
-    let _ = (y0, y1);
     let axis = SymLog::over(lowest, highest).padded(0.05);
     let (lo, hi) = (axis.lo, axis.hi);
     let mut chart = ChartBuilder::on(&plot)
@@ -449,8 +448,10 @@ fn symlog_chart(
     Ok(())
 }
 
+pub use crate::log::symlog;
+
 /// A tick label: round values plainly, tiny and huge ones in scientific notation.
-fn tick_label(v: f64) -> String {
+pub fn tick_label(v: f64) -> String {
     if v == 0.0 {
         "0".into()
     } else if v.abs() >= 1e5 || v.abs() < 1e-3 {
@@ -487,7 +488,7 @@ impl SymLog {
 
     /// sign(v) · log10(1 + |v| / c).
     pub(crate) fn forward(&self, v: f64) -> f64 {
-        v.signum() * (1.0 + v.abs() / self.c).log10()
+        symlog(v, self.c)
     }
 
     /// The value whose [`SymLog::forward`] is `t`.

@@ -24,6 +24,14 @@ pub const DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mjsa
 /// Schema version of the log contract in docs/log-format.md.
 pub const LOG_FORMAT_VERSION: &str = "1";
 
+/// The symmetric-log transform sign(v) · log10(1 + |v| / c): linear within ±c, logarithmic
+/// beyond, so that a margin near 0 and a value of 250 read on one scale. The one definition
+/// behind rerun's near-zero h series, the figures' axis (`plot::SymLog`) and the scorecard
+/// report's.
+pub fn symlog(v: f64, c: f64) -> f64 {
+    v.signum() * (1.0 + v.abs() / c).log10()
+}
+
 /// One thing to log, with its topic fixed by its kind.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Record {

@@ -218,7 +218,7 @@ pub const SYMLOG_C: f64 = 0.01;
 
 /// h on the symmetric-log scale of `plots/barrier_symlog` (the figures' axis, [`SYMLOG_C`]).
 fn symlog(h: f64) -> f64 {
-    h.signum() * (1.0 + h.abs() / SYMLOG_C).log10()
+    crate::log::symlog(h, SYMLOG_C)
 }
 
 /// The blueprint: the 2D world view on the left, the time series and the events on the right.

@@ -365,14 +365,6 @@ fn bisect(item: &Item, filter: &str) -> score::Bisection {
     score::Bisection { steps }
 }
 
-/// The overrides every candidate of a falsification item starts from: the item's, then the
-/// filter's.
-fn falsify_set(item: &Item, filter: &str) -> Vec<String> {
-    let mut set = item.set.clone();
-    set.push(filter.to_string());
-    set
-}
-
 /// Runs a falsification item's search (its scoring is [`Scoring::Falsify`]) for the filter
 /// override `filter`, on this thread.
 fn search(item: &Item, filter: &str) -> Result<crate::falsify::Search, String> {
@@ -393,7 +385,7 @@ fn search(item: &Item, filter: &str) -> Result<crate::falsify::Search, String> {
     let request = crate::falsify::Request {
         scenario: item.scenario.clone(),
         ranges: ranges.clone(),
-        set: falsify_set(item, filter),
+        set: item.with_filter(filter),
         objective: objective.clone(),
         threshold: *threshold,
         tolerance: crate::falsify::DEFAULT_TOLERANCE,
@@ -509,9 +501,7 @@ fn plan<'a>(suite: &Suite, overrides: &'a [String]) -> (Vec<Job<'a>>, NotApplica
     let mut jobs = Vec::new();
     for (column, filter) in overrides.iter().enumerate() {
         for (i, item) in suite.items.iter().enumerate() {
-            let mut set = item.set.clone();
-            set.push(filter.clone());
-            if let Err(reason) = assembles(&item.scenario, &set) {
+            if let Err(reason) = assembles(&item.scenario, &item.with_filter(filter)) {
                 not_applicable[column][i] = Some(reason);
                 continue;
             }
@@ -619,7 +609,7 @@ fn item_card(item: &Item, i: usize, overrides: &[String], not_applicable: &NotAp
                     .as_ref()
                     .map_or_else(interrupted, |b| score::margin_cell(&item.score, &scenario, b)),
                 Scoring::Falsify { .. } => g.searches[column][i].as_ref().map_or_else(interrupted, |s| {
-                    score::falsify_cell(&item.score, &scenario, &falsify_set(item, &overrides[column]), s)
+                    score::falsify_cell(&item.score, &scenario, &item.with_filter(&overrides[column]), s)
                 }),
                 _ => score::cell(item, &g.runs[column][i]),
             }

@@ -8,6 +8,7 @@ use std::fmt::Write;
 
 use super::{ItemCard, Scorecard, Scoring, Status};
 use crate::ncap::Colour;
+use crate::plot::{symlog, tick_label};
 
 /// One colour per filter column (Okabe–Ito), repeated past eight.
 const FILTER_COLOURS: [&str; 8] = [
@@ -440,7 +441,7 @@ fn bars(
             "<line x1=\"{0}\" x2=\"{0}\" y1=\"{top}\" y2=\"{bottom}\" stroke=\"#ddd\"/><text x=\"{0}\" y=\"{1}\" text-anchor=\"middle\">{2}</text>",
             x(t),
             bottom + 14.0,
-            format_tick(t)
+            tick_label(t)
         );
     }
     let _ = write!(
@@ -530,16 +531,6 @@ fn format_value(v: f64) -> String {
     format!("{v:.digits$}")
 }
 
-fn format_tick(t: f64) -> String {
-    if t == 0.0 {
-        "0".into()
-    } else if t.abs() >= 1000.0 || t.abs() < 0.01 {
-        format!("{t:.0e}")
-    } else {
-        format!("{}", (t * 1000.0).round() / 1000.0)
-    }
-}
-
 /// A margin per filter: the bar is the margin, the dots the bisection's runs (filled: clear,
 /// open: collided), by their distance from the safe end.
 fn margin_figure(card: &Scorecard, item: &ItemCard, key: &str, unit: &str) -> Option<String> {
@@ -570,12 +561,6 @@ fn margin_figure(card: &Scorecard, item: &ItemCard, key: &str, unit: &str) -> Op
             item.name
         ),
     ))
-}
-
-/// Symmetric-log transform: linear within ±c, logarithmic beyond (so a margin of 0.01 and a
-/// value of 250 both read on one axis).
-fn symlog(v: f64, c: f64) -> f64 {
-    v.signum() * (1.0 + v.abs() / c).log10()
 }
 
 /// A falsification item's convergence per filter: the lowest qualified objective after each
@@ -620,7 +605,7 @@ fn search_figure(card: &Scorecard, item: &ItemCard, objective: &str, threshold: 
             y(t),
             left - 6.0,
             y(t) + 4.0,
-            format_tick(t)
+            tick_label(t)
         );
     }
     let _ = write!(

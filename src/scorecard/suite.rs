@@ -400,10 +400,16 @@ fn check_scoring(score: &Scoring, grids: &[Grid], runs: usize) -> Result<(), (St
 }
 
 impl Item {
-    /// The item's runs as a sweep, the filter's override (`filter={ … }`) after the item's own.
-    pub fn sweep(&self, filter_override: &str) -> SweepSpec {
+    /// The item's overrides, then the filter's (`filter={ … }`).
+    pub fn with_filter(&self, filter_override: &str) -> Vec<String> {
         let mut set = self.set.clone();
         set.push(filter_override.to_string());
+        set
+    }
+
+    /// The item's runs as a sweep, the filter's override (`filter={ … }`) after the item's own.
+    pub fn sweep(&self, filter_override: &str) -> SweepSpec {
+        let set = self.with_filter(filter_override);
         let runs = self.grids.iter().map(|g| g.values.len()).product();
         SweepSpec {
             name: self.name.clone(),
