@@ -496,6 +496,11 @@ impl DelayQueue {
         self.history.iter().copied()
     }
 
+    /// The input applied before the first issued command arrives ((4.79)/(4.80)).
+    pub fn initial_input(&self) -> f64 {
+        self.initial_input
+    }
+
     pub fn channel(&self) -> &str {
         &self.channel
     }

@@ -30,6 +30,11 @@ pub trait Dynamics: Send + Sync {
     fn heading_index(&self) -> Option<usize> {
         None
     }
+    /// The model's scalar parameters by name (SI units), e.g. the bicycle's
+    /// `wheelbase` (m): what a filter written elsewhere (Python) reads instead of hard-coding.
+    fn parameters(&self) -> Vec<(&'static str, f64)> {
+        Vec::new()
+    }
     /// Index of the position of a vehicle that moves along a line (the 1-D double integrator):
     /// the Foxglove scene draws it along the world x axis.
     fn line_position(&self) -> Option<usize> {
@@ -139,6 +144,10 @@ impl BicycleModel {
 impl Dynamics for BicycleModel {
     fn state_names(&self) -> &[String] {
         &self.state_names
+    }
+    /// L (m).
+    fn parameters(&self) -> Vec<(&'static str, f64)> {
+        vec![("wheelbase", self.wheelbase)]
     }
     fn channel_names(&self) -> &[String] {
         &self.channel_names
@@ -596,6 +605,17 @@ impl LongitudinalModel {
 impl Dynamics for LongitudinalModel {
     fn state_names(&self) -> &[String] {
         &self.state_names
+    }
+    /// m (kg), f0 (N), f1 (N s/m), f2 (N s²/m²), v_L (m/s).
+    fn parameters(&self) -> Vec<(&'static str, f64)> {
+        let [f0, f1, f2] = self.resistance;
+        vec![
+            ("mass", self.mass),
+            ("f0", f0),
+            ("f1", f1),
+            ("f2", f2),
+            ("lead_speed", self.lead_speed),
+        ]
     }
     fn channel_names(&self) -> &[String] {
         &self.channel_names

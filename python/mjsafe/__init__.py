@@ -588,3 +588,4 @@ def scorecard(
 
 
 from mjsafe.env import Env  # noqa: E402  (it reads RunResult from this module)
+from mjsafe import filter  # noqa: E402,A004  (the TypedDicts of a Python filter's keyword arguments)

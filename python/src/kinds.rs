@@ -8,9 +8,10 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 
-use mjsafe::barrier::{BarrierForm, Constraint};
+use mjsafe::barrier::{BarrierForm, Constraint, Shape};
 use mjsafe::filter::{
     delay_free_qp, ChannelInput, ChannelOutcome, FilterContext, FilterError, LawInput, ParamError, SafetyFilter,
+    SeenBarriers,
 };
 use mjsafe::nominal::{NominalContext, NominalController, SeenActor};
 
@@ -116,6 +117,9 @@ fn read_form(object: &Bound<'_, PyAny>) -> Result<Option<BarrierForm>, ParamErro
         .map_err(|e| ParamError::new("filter", format!("`{class}.barrier_form`: {}", e.message)))
 }
 
+/// The optional keyword arguments of `filter_channel` and `issued_law`.
+const KEYWORDS: [&str; 4] = ["queues", "timestep", "barriers", "vehicle"];
+
 /// A filter written in Python: `filter_channel(t, channel, state, nominal, constraints)` of an
 /// instance of the registered class (docs/python.md, "Filters in Python").
 pub struct PythonFilter {
@@ -124,10 +128,12 @@ pub struct PythonFilter {
     form: Option<BarrierForm>,
     uses_prediction: bool,
     asarray: Py<PyAny>,
-    /// Whether `filter_channel` takes the keyword arguments `queues` and `timestep` (named,
-    /// or through `**kwargs`).
-    takes_queues: bool,
-    takes_timestep: bool,
+    /// Which of [`KEYWORDS`] `filter_channel` and `issued_law` take (named, or through
+    /// `**kwargs`).
+    channel_takes: [bool; 4],
+    law_takes: [bool; 4],
+    /// The `vehicle` keyword argument: the same dict at every call of the run.
+    vehicle: Py<PyDict>,
     /// Whether the instance has an `issued_law` (else the predictors assume the trait's
     /// default, the delay-free CBF-QP).
     has_law: bool,
@@ -187,7 +193,7 @@ fn law_values(
 }
 
 /// Which of `names` the method accepts as keyword arguments (by name, or through `**kwargs`).
-fn accepts(method: &Bound<'_, PyAny>, names: [&str; 2]) -> PyResult<[bool; 2]> {
+fn accepts<const N: usize>(method: &Bound<'_, PyAny>, names: [&str; N]) -> PyResult<[bool; N]> {
     let py = method.py();
     let inspect = py.import("inspect")?;
     let parameters = inspect.call_method1("signature", (method,))?.getattr("parameters")?;
@@ -264,27 +270,18 @@ impl SafetyFilter for PythonFilter {
                     constraints,
                 );
                 let kwargs = PyDict::new(py);
-                if self.takes_queues {
-                    // Per channel: its name, its delay at t and the commands issued that may
-                    // still apply, as an array of (issue time, value) rows (read-only copies).
-                    let queues = PyList::empty(py);
-                    for q in input.queues {
-                        let queue = PyDict::new(py);
-                        queue.set_item("channel", q.channel())?;
-                        let delay = q.constant_delay().unwrap_or_else(|| q.profile().delay(input.time));
-                        queue.set_item("delay", delay)?;
-                        let rows = PyList::empty(py);
-                        for (time, value) in q.issued() {
-                            rows.append(PyList::new(py, [time, value])?)?;
-                        }
-                        let issued = asarray.call1((rows,))?.call_method1("reshape", (-1, 2))?;
-                        queue.set_item("issued", issued)?;
-                        queues.append(queue)?;
-                    }
-                    kwargs.set_item("queues", queues)?;
+                let [queues, timestep, barriers, vehicle] = self.channel_takes;
+                if queues {
+                    kwargs.set_item("queues", queue_list(py, asarray, input.queues, input.time)?)?;
                 }
-                if self.takes_timestep {
+                if timestep {
                     kwargs.set_item("timestep", input.timestep)?;
+                }
+                if barriers {
+                    kwargs.set_item("barriers", barrier_list(py, &input.barriers)?)?;
+                }
+                if vehicle {
+                    kwargs.set_item("vehicle", self.vehicle.bind(py))?;
                 }
                 self.object.bind(py).call_method("filter_channel", args, Some(&kwargs))
             };
@@ -323,7 +320,15 @@ impl SafetyFilter for PythonFilter {
                     PyList::new(py, input.free)?,
                     array(u.as_slice())?,
                 );
-                self.object.bind(py).call_method1("issued_law", args)
+                let kwargs = PyDict::new(py);
+                let [_, _, barriers, vehicle] = self.law_takes;
+                if barriers {
+                    kwargs.set_item("barriers", barrier_list(py, &input.barriers)?)?;
+                }
+                if vehicle {
+                    kwargs.set_item("vehicle", self.vehicle.bind(py))?;
+                }
+                self.object.bind(py).call_method("issued_law", args, Some(&kwargs))
             };
             match call() {
                 Ok(result) => law_values(&result, input.free, input.nominal, u)
@@ -341,12 +346,181 @@ impl SafetyFilter for PythonFilter {
     }
 }
 
+/// Per channel: its name, its delay at t, the input applied before the first command arrives,
+/// and the commands issued that may still apply, as an array of (issue time, value) rows
+/// (read-only copies).
+fn queue_list<'py>(
+    py: Python<'py>,
+    asarray: &Bound<'py, PyAny>,
+    queues: &[mjsafe::delay::DelayQueue],
+    time: f64,
+) -> PyResult<Bound<'py, PyList>> {
+    let list = PyList::empty(py);
+    for q in queues {
+        let queue = PyDict::new(py);
+        queue.set_item("channel", q.channel())?;
+        let delay = q.constant_delay().unwrap_or_else(|| q.profile().delay(time));
+        queue.set_item("delay", delay)?;
+        queue.set_item("initial", q.initial_input())?;
+        let rows = PyList::empty(py);
+        for (time, value) in q.issued() {
+            rows.append(PyList::new(py, [time, value])?)?;
+        }
+        let issued = asarray.call1((rows,))?.call_method1("reshape", (-1, 2))?;
+        queue.set_item("issued", issued)?;
+        list.append(queue)?;
+    }
+    Ok(list)
+}
+
+/// Every barrier the controller knows at this decision, as a dict (docs/python.md, "What a
+/// filter sees"): its name, the obstacle it belongs to, its shape's geometry with a moving
+/// actor's circle where the controller assumes it at the evaluation time, and the indices of
+/// its constraint rows.
+fn barrier_list<'py>(py: Python<'py>, seen: &SeenBarriers<'_>) -> PyResult<Bound<'py, PyList>> {
+    let mut rows: Vec<Vec<usize>> = vec![Vec::new(); seen.known.len()];
+    for (row, &k) in seen.rows.iter().enumerate() {
+        if let Some(of) = rows.get_mut(k) {
+            of.push(row);
+        }
+    }
+    let list = PyList::empty(py);
+    for (k, (barrier, rows)) in seen.known.iter().zip(rows).enumerate() {
+        let d = PyDict::new(py);
+        d.set_item("name", &barrier.name)?;
+        let obstacle = barrier.name.split_once('/').map_or(barrier.name.as_str(), |(o, _)| o);
+        d.set_item("obstacle", obstacle)?;
+        let actor = seen.assumed_actor(k);
+        d.set_item("moving", actor.is_some())?;
+        let centre = |c: &[f64]| -> Vec<f64> { actor.map_or_else(|| c.to_vec(), |a| a.position.to_vec()) };
+        match &barrier.shape {
+            Shape::Ball {
+                indices,
+                centre: c,
+                radius,
+                inside,
+            } => {
+                d.set_item("shape", "ball")?;
+                d.set_item("indices", indices.clone())?;
+                d.set_item("centre", centre(c))?;
+                d.set_item("radius", radius)?;
+                d.set_item("inside", inside)?;
+            }
+            Shape::HalfSpace { coefficients, offset } => {
+                d.set_item("shape", "half_space")?;
+                d.set_item("coefficients", coefficients.clone())?;
+                d.set_item("offset", offset)?;
+            }
+            Shape::Quadratic { q, c, d: constant } => {
+                d.set_item("shape", "quadratic")?;
+                d.set_item("q", q.clone())?;
+                d.set_item("c", c.clone())?;
+                d.set_item("d", constant)?;
+            }
+            Shape::BodyCircle {
+                offset,
+                centre: c,
+                radius,
+                inside,
+                ..
+            } => {
+                d.set_item("shape", "body_circle")?;
+                d.set_item("offset", offset.to_vec())?;
+                d.set_item("centre", centre(c))?;
+                d.set_item("radius", radius)?;
+                d.set_item("inside", inside)?;
+            }
+            Shape::BodyHalfSpace {
+                offset,
+                normal,
+                distance,
+                ..
+            } => {
+                d.set_item("shape", "body_half_space")?;
+                d.set_item("offset", offset.to_vec())?;
+                d.set_item("normal", normal.to_vec())?;
+                d.set_item("distance", distance)?;
+            }
+            Shape::BodyCurve {
+                offset,
+                curve,
+                side,
+                margin,
+                ..
+            } => {
+                d.set_item("shape", "body_curve")?;
+                d.set_item("offset", offset.to_vec())?;
+                d.set_item("points", curve.samples().iter().map(|p| p.to_vec()).collect::<Vec<_>>())?;
+                d.set_item("side", side)?;
+                d.set_item("margin", margin)?;
+            }
+            Shape::Headway {
+                lead,
+                rear,
+                standstill,
+                time_headway,
+                ..
+            } => {
+                d.set_item("shape", "headway")?;
+                d.set_item("lead", actor.map_or(*lead, |a| a.position[0]))?;
+                d.set_item("rear", rear)?;
+                d.set_item("standstill", standstill)?;
+                d.set_item("time_headway", time_headway)?;
+            }
+        }
+        if let Some(a) = actor {
+            d.set_item("velocity", a.velocity.to_vec())?;
+            d.set_item("acceleration", a.acceleration.to_vec())?;
+        }
+        d.set_item("rows", rows)?;
+        list.append(d)?;
+    }
+    Ok(list)
+}
+
+/// The `vehicle` keyword argument: what the filter is built knowing of the vehicle.
+fn vehicle_dict<'py>(py: Python<'py>, ctx: &FilterContext<'_>) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("kind", ctx.vehicle_kind)?;
+    d.set_item("states", ctx.model.state_names().to_vec())?;
+    d.set_item("channels", ctx.model.channel_names().to_vec())?;
+    let parameters = PyDict::new(py);
+    for (name, value) in ctx.model.parameters() {
+        parameters.set_item(name, value)?;
+    }
+    d.set_item("parameters", parameters)?;
+    d.set_item("hull_radius", ctx.hull_radius)?;
+    let footprint = match &ctx.footprint {
+        None => None,
+        Some(rectangle) => {
+            let f = PyDict::new(py);
+            f.set_item("length", rectangle.length)?;
+            f.set_item("width", rectangle.width)?;
+            f.set_item("offset", rectangle.offset)?;
+            let circles = PyList::empty(py);
+            for c in rectangle.circles() {
+                let circle = PyDict::new(py);
+                circle.set_item("offset", c.offset.to_vec())?;
+                circle.set_item("radius", c.radius)?;
+                circles.append(circle)?;
+            }
+            f.set_item("circles", circles)?;
+            Some(f)
+        }
+    };
+    d.set_item("footprint", footprint)?;
+    d.set_item("initial_state", ctx.initial_state.as_slice().to_vec())?;
+    d.set_item("timestep", ctx.timestep)?;
+    Ok(d)
+}
+
 /// Builds the registered class with the scenario's parameters and reads its attributes.
 fn build_filter(
     kind: &str,
     cls: &Py<PyAny>,
     asarray: &Py<PyAny>,
     params: &AnyParams,
+    ctx: &FilterContext<'_>,
 ) -> Result<Box<dyn SafetyFilter>, ParamError> {
     let object = instantiate(cls, &params.0, "filter")?;
     Python::attach(|py| {
@@ -361,27 +535,32 @@ fn build_filter(
         let method = bound
             .getattr("filter_channel")
             .map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
-        let [takes_queues, takes_timestep] =
-            accepts(&method, ["queues", "timestep"]).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
-        let has_law = match bound.getattr("issued_law") {
-            Ok(law) if law.is_none() => false,
-            Ok(law) if law.is_callable() => true,
+        let channel_takes =
+            accepts(&method, KEYWORDS).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
+        let (has_law, law_takes) = match bound.getattr("issued_law") {
+            Ok(law) if law.is_none() => (false, [false; 4]),
+            Ok(law) if law.is_callable() => (
+                true,
+                accepts(&law, KEYWORDS).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?,
+            ),
             Ok(_) => {
                 return Err(ParamError::new(
                     "filter",
                     "expected `issued_law` to be a method (or None)",
                 ))
             }
-            Err(_) => false,
+            Err(_) => (false, [false; 4]),
         };
+        let vehicle = vehicle_dict(py, ctx).map_err(|e| ParamError::new("filter", exception_line(py, &e)))?;
         Ok(Box::new(PythonFilter {
             kind: kind.to_string(),
             object: object.clone_ref(py),
             form,
             uses_prediction,
             asarray: asarray.clone_ref(py),
-            takes_queues,
-            takes_timestep,
+            channel_takes,
+            law_takes,
+            vehicle: vehicle.unbind(),
             has_law,
             law_failed: None,
         }) as Box<dyn SafetyFilter>)
@@ -422,8 +601,8 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
     let name = kind.to_string();
     let origin = class_file(class, "filter_channel");
     mjsafe::registry::register(move |r| {
-        let described = r.add_filter(&name.clone(), move |p: &AnyParams, _: &FilterContext| {
-            build_filter(&name, &cls, &asarray, p)
+        let described = r.add_filter(&name.clone(), move |p: &AnyParams, ctx: &FilterContext| {
+            build_filter(&name, &cls, &asarray, p, ctx)
         });
         let mut described = described.description(&match &origin {
             Some(file) => format!("a filter written in Python (mjsafe.register_filter) in {file}"),

@@ -342,3 +342,110 @@ def test_a_filter_without_barrier_form_is_refused_and_a_typo_names_the_attribute
 def test_a_requirement_on_an_unknown_signal_is_refused_before_the_run():
     with pytest.raises(ValueError, match=r"did you mean `obstacle_0.clearance`"):
         mjsafe.run(scenario("bicycle_obstacle.toml"), require={"brakes": "always (obstacle_0.clearence < 3)"})
+
+
+def bicycle_rows(state, barriers, wheelbase, l0, l1):
+    """(a, b) of ḧ + l1 ḣ + l0 h ≥ 0 (4.85)/(4.86) for h = ‖p − c‖² − r² (4.81) of each planar
+    ball, on the bicycle (4.78), written out here: an independent computation of the rows."""
+    x1, x2, th, v = state
+    ahead, left = np.array([np.cos(th), np.sin(th)]), np.array([-np.sin(th), np.cos(th)])
+    rows = []
+    for b in barriers:
+        d = np.array([x1, x2]) - np.array(b["centre"])
+        h, hdot = d @ d - b["radius"] ** 2, 2 * v * (d @ ahead)
+        rows.append((2 * v * v + l1 * hdot + l0 * h, np.array([2 * v * v / wheelbase * (d @ left), 2 * (d @ ahead)])))
+    return rows
+
+
+class SeesGeometry:
+    """Passes the nominal, recording the constraints, barriers and vehicle of each call."""
+
+    barrier_form = {"l0": 4.0, "l1": 4.0}
+    uses_prediction = True
+    seen = []
+
+    def __init__(self, params):
+        pass
+
+    def filter_channel(self, t, channel, state, nominal, constraints, barriers, vehicle, **rest):
+        SeesGeometry.seen.append((t, channel, state.copy(), [(a, b.copy()) for a, b in constraints],
+                                  barriers, vehicle, rest))
+        return None
+
+
+def test_a_filter_gets_the_geometry_its_constraints_come_from():
+    """The rows handed to the filter are (4.85)/(4.86) of the circle the `barriers` dict describes,
+    recomputed here from that geometry and the `vehicle`'s wheelbase; moving the obstacle moves
+    both."""
+    mjsafe.register_filter("sees_geometry", SeesGeometry)
+    for centre in ([-3.0, 0.5], [2.0, -1.0]):
+        SeesGeometry.seen.clear()
+        r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={
+            "filter": {"kind": "sees_geometry"}, "duration": 3.5, "obstacles.0.centre": centre})
+        assert r.error is None, r.error
+        before = [s for s in SeesGeometry.seen if s[0] < 2.75 - 1e-9]
+        assert before and all(s[3] == [] and s[4] == [] for s in before)   # not yet known
+        after = [s for s in SeesGeometry.seen if s[0] >= 2.75 - 1e-9]
+        assert len(after) == 2 * 75
+        for t, channel, state, constraints, barriers, vehicle, rest in after:
+            assert rest == {"queues": rest["queues"], "timestep": 0.002}
+            [b] = barriers
+            assert b["name"] == b["obstacle"] == "obstacle_0" and b["shape"] == "ball" and not b["moving"]
+            assert b["centre"] == centre and b["radius"] == 6.0 and b["rows"] == [0] and b["indices"] == [0, 1]
+            [(a, bb)] = bicycle_rows(state, barriers, vehicle["parameters"]["wheelbase"], 4.0, 4.0)
+            [(a_given, b_given)] = constraints
+            assert abs(a - a_given) < 1e-9 * max(1.0, abs(a)) and np.allclose(bb, b_given, rtol=1e-12, atol=1e-12)
+    assert vehicle == {"kind": "bicycle", "states": ["x1", "x2", "heading", "speed"],
+                       "channels": ["steering", "acceleration"], "parameters": {"wheelbase": 6.0},
+                       "hull_radius": 3.0, "footprint": None, "initial_state": [-20.0, 0.0, 0.0, 3.0],
+                       "timestep": 0.002}
+
+
+def test_a_moving_road_user_is_where_the_controller_assumes_it_at_each_prediction():
+    """CCRm: the target drives at 5.556 m/s. Channel i is evaluated at its prediction t + D_i, so
+    its covering circles are 5.556 (D_acceleration − D_steering) m further on for the
+    acceleration channel; the vehicle's footprint and the circles' rows come along."""
+    mjsafe.register_filter("sees_geometry", SeesGeometry)
+    SeesGeometry.seen.clear()
+    r = mjsafe.run(scenario("ncap_ccrm.toml"), set={"filter": {"kind": "sees_geometry"}, "duration": 0.5})
+    assert r.error is None, r.error
+    by_tick = {}
+    for t, channel, state, constraints, barriers, vehicle, _ in SeesGeometry.seen:
+        by_tick.setdefault(t, {})[channel] = (constraints, barriers)
+    footprint = vehicle["footprint"]
+    assert (footprint["length"], footprint["width"]) == (4.6, 1.8) and len(footprint["circles"]) == 3
+    assert vehicle["parameters"] == {"wheelbase": 6.0}
+    checked = 0
+    for t, channels in by_tick.items():
+        (_, steering), (constraints, acceleration) = channels[0], channels[1]
+        assert len(acceleration) == 9    # 3 vehicle circles × 3 target circles
+        for s, a in zip(steering, acceleration):
+            assert s["moving"] and a["obstacle"] == "target" and a["name"].startswith("target/")
+            assert a["velocity"] == pytest.approx([5.556, 0.0])
+            assert a["centre"][0] - s["centre"][0] == pytest.approx(5.556 * (0.5 - 0.2), abs=1e-9)
+            assert a["offset"] in [c["offset"] for c in footprint["circles"]]
+        rows = sorted(r for b in acceleration for r in b["rows"])
+        assert rows == list(range(len(constraints)))
+        checked += 1
+    assert checked == 50
+
+
+class InitialInput:
+    barrier_form = None
+    seen = []
+
+    def __init__(self, params):
+        pass
+
+    def filter_channel(self, t, channel, state, nominal, constraints, queues):
+        InitialInput.seen.append([q["initial"] for q in queues])
+        return None
+
+
+def test_the_queues_say_the_input_applied_before_the_first_command():
+    mjsafe.register_filter("initial_input", InitialInput)
+    InitialInput.seen.clear()
+    r = mjsafe.run(scenario("bicycle_obstacle.toml"), set={
+        "filter": {"kind": "initial_input"}, "duration": 0.1, "initial_input.acceleration": 0.25})
+    assert r.error is None, r.error
+    assert InitialInput.seen and all(s == [0.0, 0.25] for s in InitialInput.seen)

@@ -146,6 +146,12 @@ impl SmoothCurve {
         ]
     }
 
+    /// The curve's samples (where its cubic pieces meet), from s = 0 to its end: points on the
+    /// curve, which lies within [`SmoothCurve::deviation`] of the polyline it was built from.
+    pub fn samples(&self) -> Vec<[f64; 2]> {
+        self.s.iter().map(|&s| self.point_at(s)).collect()
+    }
+
     /// The curve's point at s.
     pub fn point_at(&self, s: f64) -> [f64; 2] {
         self.derivatives(s)[0]

@@ -614,7 +614,7 @@ pub(super) fn filter(
     queues: &[DelayQueue],
     barriers: &[Barrier],
     nominal: &dyn NominalController,
-    timestep: f64,
+    (timestep, hull_radius): (f64, f64),
 ) -> Result<Box<dyn SafetyFilter>, EpisodeError> {
     let sc = &loaded.scenario;
     let kind = &sc.vehicle.kind;
@@ -626,6 +626,8 @@ pub(super) fn filter(
         barriers,
         nominal,
         timestep,
+        hull_radius,
+        footprint: sc.vehicle.footprint,
     };
     crate::registry::registry()
         .build_filter(&sc.filter.kind, &sc.filter.params, &ctx)

@@ -17,7 +17,7 @@ use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
-use crate::filter::{ChannelInput, ChannelOutcome, FilterError, LawInput, SafetyFilter, TICK_TOLERANCE};
+use crate::filter::{ChannelInput, ChannelOutcome, FilterError, LawInput, SafetyFilter, SeenBarriers, TICK_TOLERANCE};
 use crate::nominal::{NominalController, SeenActor};
 use crate::plant::Controller;
 use crate::predictor::{self, Prediction, PredictorContext, PredictorWorkspace, Structure};
@@ -204,6 +204,7 @@ impl LawWorkspace {
             self.nominal_into(laws, nominal_time, (z, s))?;
             self.reach.note(self.nominal.iter().copied().enumerate());
             self.input.as_mut_slice().copy_from_slice(u);
+            let assumed = |k: usize| laws.actors.assumed_circle(k, s);
             let input = LawInput {
                 time: s - d,
                 prediction_time: s,
@@ -211,6 +212,7 @@ impl LawWorkspace {
                 nominal: &self.nominal,
                 constraints: &self.constraints[..count],
                 free: group,
+                barriers: SeenBarriers::new(laws.barriers, &self.row_barrier[..count], &assumed),
             };
             filter.issued_law(&input, &mut self.input)?;
             for &j in group {
@@ -272,6 +274,7 @@ impl LawWorkspace {
                 self.reach.note(queue.issued().map(|(_, value)| (j, value)));
             }
         }
+        let assumed = |k: usize| laws.actors.assumed_circle(k, point.1);
         let mut decide = |law: &mut LawWorkspace, filter: &mut dyn SafetyFilter, again: bool| {
             if !shared || again {
                 *count = law.channel_laws(laws, nominal_time, (nominal_state, state_time), point)?;
@@ -284,6 +287,7 @@ impl LawWorkspace {
                 constraints: &law.constraints[..*count],
                 queues,
                 timestep,
+                barriers: SeenBarriers::new(laws.barriers, &law.row_barrier[..*count], &assumed),
             })
         };
         if !active {
@@ -471,6 +475,13 @@ impl KnownActors {
         let at = at.max(self.now);
         self.knowledge
             .predict(&self.observed[k], self.now, at, |t| motion.where_at(t, k))
+    }
+
+    /// For known barrier k of a moving actor, the state of its circle's centre where the
+    /// controller assumes it at `at` (what its constraint rows are computed with).
+    fn assumed_circle(&self, k: usize, at: f64) -> Option<ActorState> {
+        let motion = self.motions.get(k)?.as_ref()?;
+        Some(self.assumed(motion, k, at).shifted(self.offsets[k]))
     }
 
     /// observed ← every actor's state at the tick time t.

@@ -255,7 +255,7 @@ impl Episode {
             &queues.assumed,
             &every_barrier,
             nominal.as_ref(),
-            timestep,
+            (timestep, parts.hull_radius),
         )?;
         build::check_mixed_relative_degree(loaded, filter.barrier_form(), &every_barrier)?;
         let reference_path = nominal.reference_path();

@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
+use crate::actor::ActorState;
 use crate::barrier::{Barrier, BarrierForm, Constraint};
 use crate::delay::{DelayError, DelayQueue};
 use crate::dynamics::Dynamics;
@@ -84,13 +85,64 @@ pub struct ChannelInput<'a> {
     pub state: &'a [f64],
     /// u0 (every channel) at the nominal's evaluation state.
     pub nominal: &'a DVector<f64>,
-    /// One per known barrier at `state`, in the form of [`SafetyFilter::barrier_form`] (empty
-    /// without a form).
+    /// The known barriers' conditions at `state` in the form of
+    /// [`SafetyFilter::barrier_form`] (empty without a form): one row per barrier in reach
+    /// (see `barriers.rows`).
     pub constraints: &'a [Constraint],
     /// Every channel's delay queue: delays D_j, φ_j, and the commands already issued.
     pub queues: &'a [DelayQueue],
     /// The plant step h (s).
     pub timestep: f64,
+    /// The barriers behind `constraints`, as the controller sees them at the evaluation time.
+    pub barriers: SeenBarriers<'a>,
+}
+
+/// What a moving barrier's actor is assumed to be at the evaluation time: None for a barrier
+/// that does not move.
+pub type AssumedActor<'a> = &'a dyn Fn(usize) -> Option<ActorState>;
+
+fn no_actor(_: usize) -> Option<ActorState> {
+    None
+}
+
+/// The barriers the controller knows at a decision, as it sees them at the evaluation time:
+/// which barrier each constraint row belongs to, and a moving actor's barrier where the
+/// controller assumes the actor then (what the rows were computed with, [`crate::actor`]'s
+/// `actor_knowledge`). A barrier without a row at this decision (a road user out of reach, or
+/// a filter without a barrier form) is still known.
+#[derive(Clone, Copy)]
+pub struct SeenBarriers<'a> {
+    /// Every known barrier as built: the scenario's, the road's edges, then the obstacles'
+    /// (a moving actor's centred where it was when built).
+    pub known: &'a [Barrier],
+    /// Per constraint row (in the order of `constraints`), the index in `known` of its barrier
+    /// (a mixed-relative-degree barrier has a second, first-order row).
+    pub rows: &'a [usize],
+    assumed: AssumedActor<'a>,
+}
+
+impl<'a> SeenBarriers<'a> {
+    /// The view of `known` with the rows' barriers and the moving actors' assumed states.
+    pub fn new(known: &'a [Barrier], rows: &'a [usize], assumed: AssumedActor<'a>) -> SeenBarriers<'a> {
+        SeenBarriers { known, rows, assumed }
+    }
+
+    /// No barrier (a decision made outside an episode).
+    pub fn none() -> SeenBarriers<'static> {
+        const NONE: AssumedActor<'static> = &no_actor;
+        SeenBarriers {
+            known: &[],
+            rows: &[],
+            assumed: NONE,
+        }
+    }
+
+    /// For barrier k of a moving actor, the state the controller assumes of its circle's
+    /// centre at the evaluation time (position, velocity, acceleration; a box's covering circle
+    /// turned with the box); None for a barrier that does not move.
+    pub fn assumed_actor(&self, k: usize) -> Option<ActorState> {
+        (self.assumed)(k)
+    }
 }
 
 impl ChannelInput<'_> {
@@ -118,10 +170,13 @@ pub struct LawInput<'a> {
     pub state: &'a [f64],
     /// u0 (every channel) at z, at the time the filter evaluates it at that tick.
     pub nominal: &'a DVector<f64>,
-    /// One per known barrier at z, in the form of [`SafetyFilter::barrier_form`].
+    /// The known barriers' conditions at z in the form of [`SafetyFilter::barrier_form`]:
+    /// one row per barrier in reach (see `barriers.rows`).
     pub constraints: &'a [Constraint],
     /// The channels whose commands the law gives (in channel order, one delay).
     pub free: &'a [usize],
+    /// The barriers behind `constraints`, as the controller sees them at `prediction_time`.
+    pub barriers: SeenBarriers<'a>,
 }
 
 impl LawInput<'_> {
@@ -199,6 +254,11 @@ pub struct FilterContext<'a> {
     pub initial_state: &'a DVector<f64>,
     /// The scenario's barriers, then its obstacles' barriers (hull radius included).
     pub barriers: &'a [Barrier],
+    /// The radius of the vehicle's hull (m), what the circle barriers add to an obstacle's.
+    pub hull_radius: f64,
+    /// The vehicle's footprint, if the scenario gives one (its covering circles are then the
+    /// vehicle's side of the circle barriers, [`crate::footprint`]).
+    pub footprint: Option<crate::footprint::Rectangle>,
     /// The nominal controller.
     pub nominal: &'a dyn NominalController,
     /// The plant step h (s).

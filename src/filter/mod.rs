@@ -23,8 +23,8 @@ pub mod qp;
 pub mod several;
 
 pub use api::{
-    barrier_form, delay_free_qp, ChannelInput, FilterContext, FilterError, LawInput, ParamError, Params, SafetyFilter,
-    TICK_TOLERANCE,
+    barrier_form, delay_free_qp, AssumedActor, ChannelInput, FilterContext, FilterError, LawInput, ParamError, Params,
+    SafetyFilter, SeenBarriers, TICK_TOLERANCE,
 };
 use nalgebra::DVector;
 
