@@ -29,6 +29,7 @@ import numbers
 import operator
 import os
 import tempfile
+import warnings
 from collections.abc import Mapping as _MappingABC
 from typing import Any, Mapping, Sequence
 
@@ -231,6 +232,11 @@ class FalsifyResult:
         logs: each counterexample's log (with ``out=``); ``log`` the first's, or None.
         out: the directory of the search's outputs (with ``out=``), or None.
         interrupted: whether the search was stopped before its end.
+        runs: how many candidates ran (``len(evaluations)``).
+        qualified: how many of them qualified — the baseline safe (and progressing where
+            asked), so a violation there is the filter's: what the search tested.
+        proves_nothing: no counterexample and no candidate qualified: the search never
+            tested the filter, and says nothing about the box (a ``UserWarning`` says so).
     """
 
     def __init__(self, raw: dict[str, Any], out: str | None) -> None:
@@ -244,10 +250,20 @@ class FalsifyResult:
         self.logs: list[str] = raw["logs"] if out is not None else []
         self.log: str | None = self.logs[0] if self.logs else None
         self.interrupted: bool = raw["interrupted"]
+        self.runs: int = len(self.evaluations)
+        qualified = self.evaluations.get("qualified", pd.Series(dtype=bool))
+        self.qualified: int = int(qualified.astype(str).str.lower().eq("true").sum())
+        self.proves_nothing: bool = not self.counterexamples and self.qualified == 0
+        if self.proves_nothing:
+            warnings.warn(
+                f"falsify: no counterexample, and none of the {self.runs} candidates qualified "
+                "(no baseline run was safe, and progressing where asked): this proves nothing about the box",
+                stacklevel=3,
+            )
 
     def __repr__(self) -> str:
         return (
-            f"FalsifyResult({len(self.evaluations)} evaluations, "
+            f"FalsifyResult({self.runs} runs, {self.qualified} qualified, "
             f"counterexamples={self.counterexamples!r})"
         )
 

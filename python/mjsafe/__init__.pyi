@@ -42,6 +42,9 @@ class FalsifyResult:
     log: str | None
     out: str | None
     interrupted: bool
+    runs: int
+    qualified: int
+    proves_nothing: bool
 
 def run(
     path: _Path,

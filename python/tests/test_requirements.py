@@ -119,7 +119,8 @@ def test_scenario_requirements_cli_gate_and_analyze_require(tmp_path):
     violated = cli("run", str(path), "--out", str(tmp_path / "v.mcap"), "--require", "fast=eventually[0,5] speed > 3.5",
                    "--fail-on-violation", ok=False)
     assert violated.returncode == 5, violated.stderr
-    assert "violated: fast (-0.5000)" in violated.stderr
+    # It never went faster than 3.5 m/s within [0, 5] s: certain when the window closed.
+    assert "violated: fast (-0.5000 at t = 5.000 s)" in violated.stderr
     unknown = cli("run", str(path), "--out", str(tmp_path / "u.mcap"), "--require", "typo=always speeed > 0",
                   "--fail-on-violation", ok=False)
     assert unknown.returncode == 1 and "unknown signal `speeed`" in unknown.stderr
@@ -179,3 +180,21 @@ def test_sweep_reports_each_requirement_as_a_column():
         alone = mjsafe.run(GAMMA_M, set={"duration": 6.0, "delays.steering": steering}, require={"clear": "always obstacle_0.h >= 0"})
         assert value == alone.metrics["req"]["clear"]
         assert value == pytest.approx(alone.metrics["min_h"], abs=1e-12)  # always h >= 0 is min h
+
+
+def test_a_violated_requirement_says_when_it_first_failed(tmp_path):
+    """`req_violated_at`: for `always h >= 0`, the first sample at which h < 0 — found here in
+    the log's /barrier table with pandas, and the collision MuJoCo's contacts report (the
+    circles' h < 0 is the hulls' contact); for `eventually[0, 2] ψ` never met, 2 s; a
+    satisfied requirement has none, with its reason."""
+    r = mjsafe.run(BICYCLE, tables=True, require={
+        "clear": "always obstacle_0.h >= 0", "quick": "eventually[0, 2] speed > 10", "slow": "always speed < 100"})
+    barrier = r.tables()["/barrier"]
+    first = barrier.loc[barrier["obstacle_0.h"] < 0, "time"].iloc[0]
+    at = r.metrics["req_violated_at"]
+    assert at["clear"] == pytest.approx(first, abs=1e-9)
+    assert at["clear"] == pytest.approx(r.collision["time"], abs=2e-3)
+    assert at["quick"] == pytest.approx(2.0, abs=1e-9)
+    assert "slow" not in at and r.metrics["missing"]["req_violated_at.slow"] == "not violated (ρ ≥ 0)"
+    shell = cli("run", BICYCLE, "--out", str(tmp_path / "r.mcap"), "--require", "clear=always obstacle_0.h >= 0").stdout
+    assert f"requirement clear: VIOLATED at t = {first:.3f} s" in shell, shell

@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 import mjsafe
 from conftest import cli, scenario
@@ -163,3 +164,17 @@ def test_falsify_counterexamples_are_the_cli_failure_modes_each_with_its_log(tmp
     # Random search, by name.
     uniform = mjsafe.falsify(GAMMA_M, ranges=rare, baseline=baseline, budget=16, seed=1, method="random")
     assert set(uniform.evaluations["method"]) == {"random search"}
+
+
+def test_falsify_says_how_many_qualified_and_when_it_proved_nothing():
+    """A baseline threshold no run reaches: no candidate qualifies, so finding nothing proves
+    nothing — the result says so (as the shell's "none of the N candidates qualified"), with a
+    warning the user cannot miss; a search with qualified candidates counts them."""
+    with pytest.warns(UserWarning, match="none of the 4 candidates qualified.*proves nothing about the box"):
+        found = mjsafe.falsify(GAMMA_M, ranges={"delays.acceleration": (0.5, 0.7, 0.1)},
+                               baseline={"obstacles.0.centre.1": 0.0}, baseline_threshold=1000.0, budget=4)
+    assert (found.runs, found.qualified, found.proves_nothing) == (4, 0, True)
+    assert not found.counterexamples and "4 runs, 0 qualified" in repr(found)
+    tested = mjsafe.falsify(GAMMA_M, ranges={"delays.acceleration": (0.5, 0.7, 0.1)},
+                            baseline={"obstacles.0.centre.1": 0.0}, baseline_threshold=-1000.0, budget=4)
+    assert tested.qualified == tested.runs == len(tested.evaluations) and not tested.proves_nothing

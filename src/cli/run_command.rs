@@ -1,7 +1,7 @@
 //! `mjsafe run` and `mjsafe replay`: one scenario into its log (and rerun), a log back into rerun.
 
 use super::*;
-use crate::metrics::builtin::REQUIREMENTS;
+use crate::metrics::builtin::{REQUIREMENTS, REQUIREMENT_VIOLATED_AT};
 use crate::metrics::Value;
 
 /// Rerun outputs of `mjsafe run` (with the `rerun` feature); none given: nothing is built or sent.
@@ -205,6 +205,9 @@ pub(super) fn run_scenario(
         if let Some(Value::PerChannel(values)) = metrics.value(REQUIREMENTS) {
             value["req"] = serde_json::json!(values);
         }
+        if let Some(Value::PerChannel(Some(times))) = metrics.value(REQUIREMENT_VIOLATED_AT) {
+            value[REQUIREMENT_VIOLATED_AT] = serde_json::json!(times);
+        }
         if !metrics.warnings.is_empty() {
             value["warnings"] = serde_json::json!(metrics.warnings);
         }
@@ -241,13 +244,16 @@ pub(super) fn run_scenario(
     }
     let requirements = requirement_values(&loaded, &metrics);
     if !report.json {
-        for (name, value) in &requirements {
-            match value {
-                Ok(r) => outln!(
+        for (name, value, at) in &requirements {
+            match (value, at) {
+                (Ok(r), Some(at)) if *r < 0.0 => {
+                    outln!("requirement {name}: VIOLATED at t = {at:.3} s (robustness {r:.4})")
+                }
+                (Ok(r), _) => outln!(
                     "requirement {name}: {} (robustness {r:.4})",
                     if *r < 0.0 { "VIOLATED" } else { "satisfied" }
                 ),
-                Err(reason) => outln!("requirement {name}: not evaluated ({reason})"),
+                (Err(reason), _) => outln!("requirement {name}: not evaluated ({reason})"),
             }
         }
     }
@@ -270,16 +276,17 @@ pub(super) fn run_scenario(
         }
     }
     if report.fail_on_violation {
-        if let Some((name, Err(reason))) = requirements.iter().find(|(_, v)| v.is_err()) {
+        if let Some((name, Err(reason), _)) = requirements.iter().find(|(_, v, _)| v.is_err()) {
             eprintln!("error: --fail-on-violation: requirement {name} cannot be evaluated: {reason}");
             return Ok(ExitCode::from(exit::ERROR));
         }
         let violated: Vec<String> = (requirements.iter())
-            .filter_map(|(name, v)| {
+            .filter_map(|(name, v, at)| {
+                let at = at.map(|t| format!(" at t = {t:.3} s")).unwrap_or_default();
                 v.as_ref()
                     .ok()
                     .filter(|r| **r < 0.0)
-                    .map(|r| format!("{name} ({r:.4})"))
+                    .map(|r| format!("{name} ({r:.4}{at})"))
             })
             .collect();
         if !violated.is_empty() {
@@ -290,12 +297,17 @@ pub(super) fn run_scenario(
     Ok(ExitCode::SUCCESS)
 }
 
-/// Each requirement of the run, in the scenario's order: its robustness, or why it has none.
-fn requirement_values(loaded: &scenario::LoadedScenario, metrics: &RunMetrics) -> Vec<(String, Result<f64, String>)> {
-    let values = match metrics.value(REQUIREMENTS) {
+/// A requirement's name, its robustness (or why it has none) and, violated, when it failed.
+type RequirementValue = (String, Result<f64, String>, Option<f64>);
+
+/// Each requirement of the run, in the scenario's order: its robustness, or why it has none,
+/// and the time it first failed.
+fn requirement_values(loaded: &scenario::LoadedScenario, metrics: &RunMetrics) -> Vec<RequirementValue> {
+    let per_name = |metric: &str| match metrics.value(metric) {
         Some(Value::PerChannel(Some(values))) => Some(values),
         _ => None,
     };
+    let (values, times) = (per_name(REQUIREMENTS), per_name(REQUIREMENT_VIOLATED_AT));
     (loaded.scenario.requirements.iter())
         .map(|r| {
             let column = format!("{REQUIREMENTS}.{}", r.name);
@@ -306,7 +318,8 @@ fn requirement_values(loaded: &scenario::LoadedScenario, metrics: &RunMetrics) -
                     .cloned()
                     .unwrap_or_else(|| "no value".into())
             });
-            (r.name.clone(), value)
+            let at = times.and_then(|t| t.get(&r.name).copied());
+            (r.name.clone(), value, at)
         })
         .collect()
 }

@@ -259,10 +259,19 @@ pub static METRICS: &[Metric] = &[
         ..metric(REQUIREMENTS, "signal units", Shape::PerBarrier, &[Topic::State], new::<super::requirements::RequirementsAccumulator>,
             "per requirement (scenario `[[requirements]]`, `--require NAME=FORMULA`): the robustness ρ(φ, 0) of its STL formula over the run's signals, in the unit of the signals its atoms compare (docs/requirements.md); < 0: violated, > 0: satisfied; absent with its reason when a signal is unknown or has no value")
     },
+    Metric {
+        metadata: &["timestep"],
+        applies: |run| !run.requirements.is_empty(),
+        ..metric(REQUIREMENT_VIOLATED_AT, SECONDS, Shape::PerBarrier, &[Topic::State], new::<super::requirements::ViolationTimes>,
+            "per violated requirement: when it first certainly failed — the time of the earliest sample after which no continuation of the run could satisfy it (for `always ψ`, the first time ψ fails; for `eventually[0, T] ψ` never met, T); absent with `not violated` for a satisfied one (docs/requirements.md)")
+    },
 ];
 
 /// The name of the requirements' metric (`req.<name>` columns).
 pub const REQUIREMENTS: &str = "req";
+
+/// The name of the requirements' violation-time metric (`req_violated_at.<name>` columns).
+pub const REQUIREMENT_VIOLATED_AT: &str = "req_violated_at";
 
 /// The maximum longitudinal deceleration the brake threat number divides by (m/s²):
 /// CommonRoad-CriMe's default `a_lon_max`, the a_max of CommonRoad's vehicle parameter sets.

@@ -334,8 +334,10 @@ impl Accumulators {
             facts.requirements.retain(|(n, _)| *n != name);
             facts.requirements.push((name, formula));
         }
-        let req = builtin::METRICS.iter().position(|m| m.name == builtin::REQUIREMENTS);
-        if let Some(req) = req.filter(|_| !facts.requirements.is_empty()) {
+        let signal_readers = [builtin::REQUIREMENTS, builtin::REQUIREMENT_VIOLATED_AT];
+        for (req, _) in (builtin::METRICS.iter().enumerate())
+            .filter(|(_, m)| signal_readers.contains(&m.name) && !facts.requirements.is_empty())
+        {
             for topic in crate::signals::SIGNAL_TOPICS {
                 let readers = &mut self.readers[topic as usize];
                 if !readers.contains(&req) {
@@ -557,7 +559,7 @@ pub fn reference_table() -> String {
         let keyed = |column: &str, key: &str| match m.shape {
             _ if column.is_empty() => String::new(),
             Shape::PerChannel | Shape::Prediction => format!("{column}.<channel>"),
-            Shape::PerBarrier if m.name == builtin::REQUIREMENTS => format!("{column}.<name>"),
+            Shape::PerBarrier if m.name.starts_with(builtin::REQUIREMENTS) => format!("{column}.<name>"),
             Shape::PerBarrier => format!("{column}.<barrier>"),
             Shape::AtPrescribedTime if key == "state_residuals" => format!("{column}.<i>"),
             _ => column.to_string(),

@@ -34,9 +34,15 @@ pub fn table(runs: &[RunMetrics]) -> String {
             });
         }
         for c in &requirements {
-            row.push(match f.cell(c) {
-                Cell::Num(Some(v)) if v < 0.0 => format!("{v:.4} VIOLATED"),
-                Cell::Num(Some(v)) => format!("{v:.4}"),
+            let at = format!(
+                "{}{}",
+                builtin::REQUIREMENT_VIOLATED_AT,
+                &c[builtin::REQUIREMENTS.len()..]
+            );
+            row.push(match (f.cell(c), f.cell(&at)) {
+                (Cell::Num(Some(v)), Cell::Num(Some(t))) if v < 0.0 => format!("{v:.4} VIOLATED at {t:.3} s"),
+                (Cell::Num(Some(v)), _) if v < 0.0 => format!("{v:.4} VIOLATED"),
+                (Cell::Num(Some(v)), _) => format!("{v:.4}"),
                 _ => "-".into(),
             });
         }

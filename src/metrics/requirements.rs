@@ -53,10 +53,17 @@ enum How {
     Offline(Vec<Vec<f64>>),
 }
 
+/// Most samples per signal kept for a requirement's violation time (8 MB a signal): longer
+/// runs report the time absent with this reason.
+pub const MAX_KEPT_SAMPLES: usize = 1 << 20;
+
 /// The `req` metric's accumulator: the signals of every requirement of the run, sampled on the
 /// step grid, into each requirement's monitor.
 #[derive(Default)]
 pub struct RequirementsAccumulator {
+    /// Whether every requirement keeps its signals (evaluated offline, at most
+    /// [`MAX_KEPT_SAMPLES`]) for [`ViolationTimes`].
+    keep: bool,
     started: bool,
     tracked: Vec<Tracked>,
     /// Requirements whose formula does not parse (a log written by another version), with why.
@@ -111,7 +118,7 @@ impl RequirementsAccumulator {
                 Err("no `timestep` in the run metadata".to_string())
             } else if let Err(e) = formula.check_step(self.step) {
                 Err(e.to_string())
-            } else if formula.online() {
+            } else if formula.online() && !self.keep {
                 stl::Monitor::new(&formula, self.step)
                     .map(How::Online)
                     .map_err(|e| e.to_string())
@@ -175,6 +182,13 @@ impl RequirementsAccumulator {
             match &mut t.how {
                 How::Online(monitor) => monitor.push(&t.sample),
                 How::Offline(signals) => {
+                    if self.keep && self.samples >= MAX_KEPT_SAMPLES as u64 {
+                        t.absent = Some(format!(
+                            "the run has more than {MAX_KEPT_SAMPLES} samples, the most kept to find when a requirement fails"
+                        ));
+                        *signals = Vec::new();
+                        continue;
+                    }
                     for (signal, v) in signals.iter_mut().zip(&t.sample) {
                         signal.push(*v);
                     }
@@ -238,13 +252,7 @@ impl Accumulate for RequirementsAccumulator {
     }
 
     fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
-        if !self.started {
-            self.start(run);
-        }
-        if self.has_state {
-            self.push_sample();
-            self.has_state = false;
-        }
+        self.finish(run);
         let mut values = BTreeMap::new();
         for t in &mut self.tracked {
             let value = match (&t.absent, &mut t.how) {
@@ -274,16 +282,86 @@ impl Accumulate for RequirementsAccumulator {
                 }
             }
         }
-        for (name, reason) in &self.unparsed {
-            missing.insert(format!("req.{name}"), reason.clone());
+        self.note_unevaluated("req", missing);
+        Value::PerChannel((!values.is_empty()).then_some(values))
+    }
+}
+
+impl RequirementsAccumulator {
+    /// Closes the last sample (the run has ended).
+    fn finish(&mut self, run: &RunFacts) {
+        if !self.started {
+            self.start(run);
         }
-        if self.samples == 0 && !self.tracked.is_empty() {
+        if self.has_state {
+            self.push_sample();
+            self.has_state = false;
+        }
+    }
+
+    /// `<column>.<name>` of the requirements not evaluated at all: a formula that does not
+    /// parse, or a log without a state.
+    fn note_unevaluated(&self, column: &str, missing: &mut BTreeMap<String, String>) {
+        for (name, reason) in &self.unparsed {
+            missing.insert(format!("{column}.{name}"), reason.clone());
+        }
+        if self.samples == 0 {
             for t in &self.tracked {
                 missing
-                    .entry(format!("req.{}", t.name))
+                    .entry(format!("{column}.{}", t.name))
                     .or_insert_with(|| "no /state message in the log".into());
             }
         }
+    }
+}
+
+/// The `req_violated_at` metric's accumulator: per violated requirement, when it first
+/// certainly failed ([`stl::violation_time`]): its signals kept (at most
+/// [`MAX_KEPT_SAMPLES`] each) and evaluated when the run ends.
+pub struct ViolationTimes(RequirementsAccumulator);
+
+impl Default for ViolationTimes {
+    fn default() -> ViolationTimes {
+        ViolationTimes(RequirementsAccumulator {
+            keep: true,
+            ..RequirementsAccumulator::default()
+        })
+    }
+}
+
+impl Accumulate for ViolationTimes {
+    fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
+        self.0.observe(record, run);
+    }
+
+    fn value(&mut self, run: &RunFacts, missing: &mut BTreeMap<String, String>) -> Value {
+        let column = super::builtin::REQUIREMENT_VIOLATED_AT;
+        let acc = &mut self.0;
+        acc.finish(run);
+        let mut values = BTreeMap::new();
+        for t in &acc.tracked {
+            let key = format!("{column}.{}", t.name);
+            let time = match (&t.absent, &t.how) {
+                (Some(reason), _) => Err(reason.clone()),
+                (None, How::Offline(signals)) => {
+                    let views: Vec<&[f64]> = signals.iter().map(Vec::as_slice).collect();
+                    stl::violation_time(&t.formula, &views, acc.step).map_err(|e| e.to_string())
+                }
+                (None, How::Online(_)) => Err("its signals were not kept".into()),
+            };
+            match time {
+                Ok(Some(time)) => {
+                    values.insert(t.name.clone(), time);
+                }
+                Ok(None) => {
+                    missing.insert(key, "not violated (ρ ≥ 0)".into());
+                }
+                Err(reason) => {
+                    missing.insert(key, reason);
+                }
+            }
+        }
+        acc.note_unevaluated(column, missing);
         Value::PerChannel((!values.is_empty()).then_some(values))
     }
 }
@@ -373,6 +451,30 @@ mod tests {
         assert_eq!(values["active"], -0.5, "inactive over [0, 0.5]");
         assert_eq!(values["late"], 0.5);
         assert!((values["x"] - 0.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_violated_requirement_says_when_it_failed() {
+        // x1 = k h, h = 0.1 s, 11 samples; wall.h = 1 − x1 (held: 0.1 at t = 1).
+        let facts = facts(&[
+            ("x", "always x1 < 0.45"),
+            ("window", "eventually[0, 0.3] x1 > 5"),
+            ("reaction", "always (x1 > 0.15 implies eventually[0, 0.2] active > 0.5)"),
+            ("met", "always wall.h >= 0"),
+        ]);
+        let mut acc = ViolationTimes::default();
+        feed(&mut acc.0, &facts, 11, u64::MAX);
+        let mut missing = BTreeMap::new();
+        let Value::PerChannel(Some(times)) = acc.value(&facts, &mut missing) else {
+            panic!("no values: {missing:?}")
+        };
+        // x1 first ≥ 0.45 at t = 0.5; the window [0, 0.3] closes without x1 > 5 at 0.3;
+        // x1 > 0.15 at t = 0.2 asks for `active` by 0.4, which comes at 0.6: known at 0.4.
+        assert!((times["x"] - 0.5).abs() < 1e-12, "{times:?}");
+        assert!((times["window"] - 0.3).abs() < 1e-12, "{times:?}");
+        assert!((times["reaction"] - 0.4).abs() < 1e-12, "{times:?}");
+        assert!(!times.contains_key("met"));
+        assert_eq!(missing["req_violated_at.met"], "not violated (ρ ≥ 0)");
     }
 
     #[test]

@@ -22,6 +22,89 @@ pub fn robustness(f: &Formula, values: &[&[f64]], step: f64) -> Result<f64, StlE
         .ok_or_else(|| StlError::Signals("no samples".into()))
 }
 
+/// When `f` is first certainly violated: the time of the earliest sample k such that every
+/// continuation of samples 0…k gives ρ(φ, 0) < 0 — the upper end of ρ(φ, 0)'s range with the
+/// later samples unknown is negative (for `always ψ`, the first time ψ fails; for
+/// `eventually[0, 5] ψ` never met, 5 s). None when ρ(φ, 0) ≥ 0 (or NaN). With more samples
+/// known the range only narrows, so the earliest k is found by bisection.
+pub fn violation_time(f: &Formula, values: &[&[f64]], step: f64) -> Result<Option<f64>, StlError> {
+    let n = check_values(f, values)?;
+    f.check_step(step)?;
+    let upper = |known: usize| -> Result<f64, StlError> { Ok(bounds(f, &f.root, values, (n, known), step)?.1[0]) };
+    // (NaN: no value, so no violation.)
+    let rho = eval(f, &f.root, values, n, step)?[0];
+    if rho.is_nan() || rho >= 0.0 {
+        return Ok(None);
+    }
+    // The least number of known samples m with upper(m) < 0: upper(hi) < 0 ≤ upper(lo).
+    let (mut lo, mut hi) = (0, n);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if upper(mid)? < 0.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    Ok(Some((hi - 1) as f64 * step))
+}
+
+/// Per sample, the range [lower, upper] of ρ(node, i) over every continuation of the first
+/// `known` samples (the later ones unknown: an atom there is anything).
+fn bounds(
+    f: &Formula,
+    node: &Node,
+    values: &[&[f64]],
+    (n, known): (usize, usize),
+    step: f64,
+) -> Result<(Vec<f64>, Vec<f64>), StlError> {
+    let sub = |c: &Node| bounds(f, c, values, (n, known), step);
+    Ok(match node {
+        Node::Compare(..) if known < n => {
+            let (mut lower, mut upper) = match known {
+                0 => (Vec::new(), Vec::new()),
+                _ => {
+                    let head: Vec<&[f64]> = values.iter().map(|v| &v[..known]).collect();
+                    let x = eval(f, node, &head, known, step)?;
+                    (x.clone(), x)
+                }
+            };
+            lower.resize(n, f64::NEG_INFINITY);
+            upper.resize(n, f64::INFINITY);
+            (lower, upper)
+        }
+        Node::Constant(_) | Node::Compare(..) => {
+            let x = eval(f, node, values, n, step)?;
+            (x.clone(), x)
+        }
+        Node::Not(c) => {
+            let (lower, upper) = sub(c)?;
+            (upper.iter().map(|v| -v).collect(), lower.iter().map(|v| -v).collect())
+        }
+        Node::Binary(c, l, r) => {
+            let ((ll, lu), (rl, ru)) = (sub(l)?, sub(r)?);
+            (0..n).map(|i| c.bounds([ll[i], lu[i]], [rl[i], ru[i]])).unzip()
+        }
+        Node::Temporal(p, i, c) => {
+            let steps = f.steps(node, i, step)?;
+            let (lower, upper) = sub(c)?;
+            (temporal(*p, steps, &lower), temporal(*p, steps, &upper))
+        }
+        Node::Until(i, l, r) | Node::Since(i, l, r) => {
+            let steps = f.steps(node, i, step)?;
+            let ((ll, lu), (rl, ru)) = (sub(l)?, sub(r)?);
+            let op = |phi: &[f64], psi: &[f64]| match (node, steps) {
+                (Node::Until(..), None) => until_unbounded(phi, psi),
+                (Node::Until(..), Some(s)) => until_bounded(phi, psi, s.a, s.b.unwrap_or(usize::MAX)),
+                (_, None) => since_unbounded(phi, psi),
+                (_, Some(s)) => since_bounded(phi, psi, s.a, s.b.unwrap_or(usize::MAX)),
+            };
+            // Both are monotone in each operand: the ends of the ranges give the range's ends.
+            (op(&ll, &rl), op(&lu, &ru))
+        }
+    })
+}
+
 /// The common length of the signals, checked against the formula.
 fn check_values(f: &Formula, values: &[&[f64]]) -> Result<usize, StlError> {
     if f.signals.is_empty() {

@@ -66,7 +66,7 @@ mod online;
 mod parse;
 mod window;
 
-pub use eval::{robustness, robustness_signal};
+pub use eval::{robustness, robustness_signal, violation_time};
 pub use online::Monitor;
 pub use parse::parse;
 
@@ -187,6 +187,35 @@ impl Connective {
             Connective::Implies => max(-l, r),
             Connective::Iff => -(l - r).abs(),
             Connective::Xor => (l - r).abs(),
+        }
+    }
+
+    /// The range of [`Connective::robustness`] over l in `l` = [lower, upper] and r in `r`.
+    fn bounds(self, l: [f64; 2], r: [f64; 2]) -> (f64, f64) {
+        match self {
+            Connective::And => (min(l[0], r[0]), min(l[1], r[1])),
+            Connective::Or => (max(l[0], r[0]), max(l[1], r[1])),
+            Connective::Implies => (max(-l[1], r[0]), max(-l[0], r[1])),
+            // Known operands: the value itself (∞ − ∞ included).
+            Connective::Iff | Connective::Xor if l[0] == l[1] && r[0] == r[1] => {
+                let v = self.robustness(l[0], r[0]);
+                (v, v)
+            }
+            Connective::Iff | Connective::Xor => {
+                // |l − r| over l − r in [l0 − r1, l1 − r0] (unknown where ∞ − ∞).
+                let (a, b) = (l[0] - r[1], l[1] - r[0]);
+                let (low, high) = if a.is_nan() || b.is_nan() {
+                    (0.0, f64::INFINITY)
+                } else if a <= 0.0 && b >= 0.0 {
+                    (0.0, a.abs().max(b.abs()))
+                } else {
+                    (a.abs().min(b.abs()), a.abs().max(b.abs()))
+                };
+                match self {
+                    Connective::Iff => (-high, -low),
+                    _ => (low, high),
+                }
+            }
         }
     }
 }
@@ -991,6 +1020,90 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The trace with every sample from `from` on replaced by `fill(rng)`.
+    fn continued(t: &[Vec<f64>], from: usize, rng: &mut SplitMix64, fill: fn(&mut SplitMix64) -> f64) -> Vec<Vec<f64>> {
+        t.iter()
+            .map(|s| {
+                s.iter()
+                    .enumerate()
+                    .map(|(i, &v)| if i < from { v } else { fill(rng) })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_violation_time_is_certain_and_the_earliest_for_monotone_formulas() {
+        // Sound on any formula: at the time found, no continuation of the samples up to it
+        // (random ones, extremes included) satisfies the formula. Earliest on formulas that
+        // only grow with their signals (atoms `name > c` under and/or/always/eventually/
+        // until): continued by +10⁹ from the sample found, the run satisfies it.
+        let mut rng = SplitMix64(23);
+        let step = 0.5;
+        let mut violated = 0;
+        for case in 0..3000 {
+            let monotone = case % 2 == 0;
+            let text = if monotone {
+                fn grow(rng: &mut SplitMix64, depth: usize) -> String {
+                    let w = |rng: &mut SplitMix64| {
+                        let a = rng.below(4);
+                        [
+                            format!("[{}, {}]", a as f64 * 0.5, (a + rng.below(4)) as f64 * 0.5),
+                            String::new(),
+                        ][rng.below(2)]
+                        .clone()
+                    };
+                    match if depth == 0 { 0 } else { rng.below(6) } {
+                        0 => format!("{} > {}", pick(rng, &NAMES), pick(rng, &["0", "0.5", "-1", "1"])),
+                        1 => format!("({} and {})", grow(rng, depth - 1), grow(rng, depth - 1)),
+                        2 => format!("({} or {})", grow(rng, depth - 1), grow(rng, depth - 1)),
+                        3 => format!("always{} ({})", w(rng), grow(rng, depth - 1)),
+                        4 => format!("eventually{} ({})", w(rng), grow(rng, depth - 1)),
+                        _ => format!("({} until{} {})", grow(rng, depth - 1), w(rng), grow(rng, depth - 1)),
+                    }
+                }
+                grow(&mut rng, 3)
+            } else {
+                formula(&mut rng, 3, true, true, step, 3)
+            };
+            let f = p(&text);
+            let n = 1 + rng.below(20);
+            let t = continued(&trace(&mut rng, n, false), n, &mut rng, |_| 0.0);
+            let values = columns(&f, &t);
+            let Some(at) = violation_time(&f, &values, step).unwrap() else {
+                let rho = robustness(&f, &values, step).unwrap();
+                assert!(rho.is_nan() || rho >= 0.0, "{text}: violated without a time");
+                continue;
+            };
+            violated += 1;
+            let k = (at / step).round() as usize;
+            assert!(k < n && robustness(&f, &values, step).unwrap() < 0.0, "{text}: {at}");
+            for _ in 0..20 {
+                let other = continued(&t, k + 1, &mut rng, |rng| match rng.below(10) {
+                    0 => INF,
+                    1 => -INF,
+                    _ => (rng.next_f64() - 0.5) * 8.0,
+                });
+                let rho = robustness(&f, &columns(&f, &other), step).unwrap();
+                assert!(
+                    rho < 0.0 || rho.is_nan(),
+                    "{text}: certain at {at} s, yet {rho} on {other:?}"
+                );
+            }
+            // (At the first sample there is nothing earlier: a formula no run of n samples
+            // satisfies is certain from it.)
+            if monotone && k > 0 {
+                let best = continued(&t, k, &mut rng, |_| 1e9);
+                let rho = robustness(&f, &columns(&f, &best), step).unwrap();
+                assert!(
+                    rho >= 0.0,
+                    "{text}: not yet certain before {at} s, yet {rho} on {best:?}"
+                );
+            }
+        }
+        assert!(violated > 500, "{violated}");
     }
 
     fn online_value(f: &Formula, values: &[&[f64]], step: f64) -> f64 {
