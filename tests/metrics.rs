@@ -15,14 +15,19 @@ use mjsafe::metrics::Shape;
 /// the controller assumes static).
 fn logs(dir: &std::path::Path) -> [String; 5] {
     let runs: [(&str, &str, &[&str]); 5] = [
-        // A requirement (docs/requirements.md): the `req` metric.
+        // A requirement (docs/requirements.md) met: the `req` metric.
         (
             "scenarios",
             "bicycle_obstacle_gamma_m",
             &["--require", "clear=always obstacle_0.h >= 0"],
         ),
         ("scenarios", "red_light", &[]),
-        ("scenarios", "bicycle_obstacle", &[]),
+        // It collides: the requirement is violated (`req_violated_at`).
+        (
+            "scenarios",
+            "bicycle_obstacle",
+            &["--require", "clear=always obstacle_0.h >= 0"],
+        ),
         ("scenarios", "bicycle_obstacle_nodelay", &[]),
         ("tests/data", "crossing_walker", STATIC_WALKER),
     ];
@@ -126,9 +131,10 @@ fn every_declared_metric_reaches_json_csv_compare_table_and_docs() {
     }
 
     // --compare: every column with its declared unit.
-    // (Two logs per comparison: the prescribed-time run, then the moving obstacle's.)
+    // (Two logs per comparison: the prescribed-time run, the violated requirement's, then the
+    // moving obstacle's.)
     let mut rows = Vec::new();
-    for other in [&b, &e] {
+    for other in [&b, &c, &e] {
         let o = mjsafe(&["analyze", "--compare", "--json", &a, other]);
         assert!(o.status.success());
         let compare: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
