@@ -132,7 +132,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         r.add_mjcf_vehicle("dubins", bind)
             .label("Dubins car")
             .description("constant speed, steered by its turn rate");
-    });
+    })?;
 
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dubins/dubins_obstacle.toml");
     let runs: [(&str, &[&str]); 3] = [

@@ -107,7 +107,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         r.add_filter("robust_cbf", build)
             .label("robust CBF-QP (margin on h)")
             .description("the CBF-QP at the current state with a constant margin subtracted from h");
-    });
+    })?;
 
     let scenarios = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
     let runs: [(&str, &str, &[&str]); 4] = [

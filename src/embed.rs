@@ -33,7 +33,7 @@ use std::path::Path;
 pub use crate::analyze::RunMetrics;
 pub use crate::episode::{Episode, EpisodeSummary, StopReason};
 pub use crate::log::Sink;
-pub use crate::registry::{register, registry, Params, Registry};
+pub use crate::registry::{register, registry, AlreadyRegistered, Params, Registry};
 pub use crate::scenario::{from_text as scenario_from_text, load as load_scenario, LoadedScenario};
 
 pub use crate::run::{Keep, Outcome, Prepared, RunError, RunTiming};

@@ -24,7 +24,8 @@
 //!     // What legends, `analyze --brief` and the run metadata call it.
 //!     .label("my filter (eq. 7)")
 //!     .description("the CBF-QP with my margin");
-//! });
+//! })
+//! .expect("`my_filter` is not a kind of mjsafe's");
 //! ```
 
 use std::sync::{Arc, LazyLock, RwLock, RwLockReadGuard};
@@ -43,6 +44,7 @@ type BuildNominal =
 type BuildMotion = Arc<dyn Fn(&str, &toml::Table, &MotionContext<'_>) -> Result<ActorMotion, ParamError> + Send + Sync>;
 type Label = Arc<dyn Fn(&toml::Table, &str) -> Result<String, ParamError> + Send + Sync>;
 
+#[derive(Clone)]
 pub(crate) struct Kind<B> {
     pub(crate) name: String,
     /// Its label (with the equation number it implements) and one line on what it is.
@@ -94,6 +96,7 @@ impl Describe<'_> {
 }
 
 /// A kind (filter, nominal, vehicle): its parameter check, its label and its constructor.
+#[derive(Clone)]
 pub(crate) struct Checked<B> {
     pub(crate) check: Check,
     pub(crate) label: Label,
@@ -102,10 +105,73 @@ pub(crate) struct Checked<B> {
 
 /// Every filter, nominal and actor motion kind a scenario may name (vehicle kinds:
 /// `mjsafe::vehicle_registry`).
+#[derive(Clone)]
 pub struct Registry {
     filters: Vec<Kind<Checked<BuildFilter>>>,
     nominals: Vec<Kind<Checked<BuildNominal>>>,
     motions: Vec<Kind<Checked<BuildMotion>>>,
+    guard: Guard,
+}
+
+/// A kind registered under a name already taken, without [`Registry::replacing`]: the
+/// registration is refused and the registry stays as it was, so a scenario naming a built-in
+/// never runs someone else's code under the built-in's name.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{section} kind `{kind}` is already registered ({what}); say that the registration replaces it (Rust: `r.replacing()`, Python: `replace=True`)")]
+pub struct AlreadyRegistered {
+    /// `filter`, `nominal`, `motion` or `vehicle`.
+    pub section: &'static str,
+    pub kind: String,
+    /// The kind registered under that name: its label, and where it comes from.
+    pub what: String,
+}
+
+/// What one [`register`] call may replace, and what it tried to replace without saying so.
+#[derive(Clone, Default)]
+pub(crate) struct Guard {
+    pub(crate) replacing: bool,
+    conflicts: Vec<AlreadyRegistered>,
+}
+
+impl Guard {
+    /// Notes a registration of `name` in `section` over an existing kind, unless replacing.
+    pub(crate) fn check<B>(&mut self, kinds: &[Kind<B>], section: &'static str, name: &str) {
+        if self.replacing {
+            return;
+        }
+        if let Some(kind) = kinds.iter().find(|k| k.name == name) {
+            self.conflicts.push(AlreadyRegistered {
+                section,
+                kind: name.to_string(),
+                what: match &kind.origin {
+                    None => format!("built in: {}", kind.label),
+                    Some(file) => format!("{}, from {file}", kind.label),
+                },
+            });
+        }
+    }
+}
+
+/// Runs `add_kinds` on the registry behind `lock`; a kind that takes a name already taken
+/// without `replacing` leaves the registry as it was and is the error.
+pub(crate) fn register_guarded<R: Clone>(
+    lock: &RwLock<R>,
+    guard: fn(&mut R) -> &mut Guard,
+    add_kinds: impl FnOnce(&mut R),
+) -> Result<(), AlreadyRegistered> {
+    let mut registry = lock.write().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let before = registry.clone();
+    add_kinds(&mut registry);
+    let g = guard(&mut *registry);
+    g.replacing = false;
+    let conflict = std::mem::take(&mut g.conflicts).into_iter().next();
+    match conflict {
+        None => Ok(()),
+        Some(conflict) => {
+            *registry = before;
+            Err(conflict)
+        }
+    }
 }
 
 /// P from a kind's table (its keys without `kind`), with serde's error at the inner key.
@@ -148,6 +214,7 @@ impl Registry {
             filters: Vec::new(),
             nominals: Vec::new(),
             motions: Vec::new(),
+            guard: Guard::default(),
         };
         r.add_filter("none", filter::none::build)
             .label("no filter (nominal only)")
@@ -214,7 +281,7 @@ impl Registry {
         r
     }
 
-    /// Registers (or replaces) the actor motion `kind` (`[obstacles.motion] kind = …`), built
+    /// Registers the actor motion `kind` (`[obstacles.motion] kind = …`), built
     /// from parameters P for one obstacle; its label and description follow ([`Describe`]).
     /// The keys of P's `validate` errors and of the build's [`MotionError`]s are relative to the
     /// motion's table (`radius` becomes `obstacles.3.motion.radius`).
@@ -236,6 +303,7 @@ impl Registry {
                 false => ParamError::new(format!("{section}.{}", e.key), e.message),
             })
         });
+        self.guard.check(&self.motions, "motion", kind);
         add(
             &mut self.motions,
             kind,
@@ -245,6 +313,24 @@ impl Registry {
                 build,
             },
         )
+    }
+
+    /// The registrations that follow in this [`register`] call replace kinds of the same name
+    /// (a kind registered under a taken name is otherwise refused: [`AlreadyRegistered`]).
+    pub fn replacing(&mut self) -> &mut Registry {
+        self.guard.replacing = true;
+        self
+    }
+
+    /// Whether a filter, nominal or motion kind (`section`) of this name is registered.
+    pub fn has_kind(&self, section: &str, kind: &str) -> bool {
+        let has = |names: Vec<&str>| names.contains(&kind);
+        match section {
+            "filter" => has(self.filter_kinds()),
+            "nominal" => has(self.nominal_kinds()),
+            "motion" => has(self.motion_kinds()),
+            _ => false,
+        }
     }
 
     /// The actor motion kinds, in registration order.
@@ -270,7 +356,7 @@ impl Registry {
         (find(&self.motions, section, kind)?.build.build)(section, params, ctx)
     }
 
-    /// Registers (or replaces) the filter `kind`, built from parameters P; its label and
+    /// Registers the filter `kind`, built from parameters P; its label and
     /// description follow ([`Describe`]).
     pub fn add_filter<P: Params + 'static>(
         &mut self,
@@ -278,6 +364,7 @@ impl Registry {
         build: impl Fn(&P, &FilterContext) -> Result<Box<dyn SafetyFilter>, ParamError> + Send + Sync + 'static,
     ) -> Describe<'_> {
         let build: BuildFilter = Arc::new(move |table, ctx| build(&parse_params::<P>("filter", table)?, ctx));
+        self.guard.check(&self.filters, "filter", kind);
         add(
             &mut self.filters,
             kind,
@@ -289,7 +376,7 @@ impl Registry {
         )
     }
 
-    /// Registers (or replaces) the nominal controller `kind`, built from parameters P; its
+    /// Registers the nominal controller `kind`, built from parameters P; its
     /// label and description follow ([`Describe`]).
     pub fn add_nominal<P: Params + 'static>(
         &mut self,
@@ -297,6 +384,7 @@ impl Registry {
         build: impl Fn(&P, &NominalContext) -> Result<Box<dyn NominalController>, ParamError> + Send + Sync + 'static,
     ) -> Describe<'_> {
         let build: BuildNominal = Arc::new(move |table, ctx| build(&parse_params::<P>("nominal", table)?, ctx));
+        self.guard.check(&self.nominals, "nominal", kind);
         add(
             &mut self.nominals,
             kind,
@@ -436,7 +524,8 @@ pub fn registry() -> RwLockReadGuard<'static, Registry> {
 }
 
 /// Adds kinds to the process's registry; call before loading the scenarios that name them.
-pub fn register(add_kinds: impl FnOnce(&mut Registry)) {
-    let mut registry = REGISTRY.write().unwrap_or_else(|poisoned| poisoned.into_inner());
-    add_kinds(&mut registry);
+/// A kind under a name already registered (a built-in's, say) is refused and nothing of the
+/// call is kept, unless the call says it replaces ([`Registry::replacing`]).
+pub fn register(add_kinds: impl FnOnce(&mut Registry)) -> Result<(), AlreadyRegistered> {
+    register_guarded(&REGISTRY, |r| &mut r.guard, add_kinds)
 }

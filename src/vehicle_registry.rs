@@ -23,7 +23,8 @@
 //!     // What the run metadata (`vehicle_label`, `vehicle_description`) says it is.
 //!     .label("decay ẋ = −r x + u")
 //!     .description("a scalar first-order decay");
-//! });
+//! })
+//! .expect("`decay` is not a vehicle kind of mjsafe's");
 //! ```
 //!
 //! A kind's parameters are checked when the episode is built (the scenario schema reaches no
@@ -38,7 +39,10 @@ use serde::{Deserialize, Serialize};
 use crate::dynamics::{self, Dynamics};
 use crate::mujoco::{MjError, Model};
 pub use crate::params::{ParamError, Params};
-use crate::registry::{add, check_of, describe, find, label_of, parse_params, Checked, Describe, Description, Kind};
+use crate::registry::{
+    add, check_of, describe, find, label_of, parse_params, register_guarded, AlreadyRegistered, Checked, Describe,
+    Description, Guard, Kind,
+};
 use crate::scenario::VehicleSpec;
 use crate::vehicle::{
     MujocoBicycle, MujocoCar, MujocoDoubleIntegrator, MujocoLongitudinal, MujocoUnicycle, MujocoVehicle,
@@ -196,14 +200,19 @@ impl Params for LongitudinalParams {
 }
 
 /// Every vehicle kind a scenario may name.
+#[derive(Clone)]
 pub struct VehicleRegistry {
     vehicles: Vec<Kind<Checked<VehicleBinding>>>,
+    guard: Guard,
 }
 
 impl VehicleRegistry {
     /// The built-in vehicles (one closure each).
     pub fn builtin() -> VehicleRegistry {
-        let mut r = VehicleRegistry { vehicles: Vec::new() };
+        let mut r = VehicleRegistry {
+            vehicles: Vec::new(),
+            guard: Guard::default(),
+        };
         r.add_mjcf_vehicle("bicycle", |model| Ok(Box::new(MujocoBicycle::bind(model)?)))
             .label("kinematic bicycle (4.78)")
             .description("x = (x1, x2, heading, speed), u = (tan δ, acceleration), MuJoCo slide/hinge joints");
@@ -257,7 +266,7 @@ impl VehicleRegistry {
         r
     }
 
-    /// Registers (or replaces) the vehicle `kind` with an MJCF model, bound by `bind`; its
+    /// Registers the vehicle `kind` with an MJCF model, bound by `bind`; its
     /// `[vehicle]` table has no keys of its own ([`NoParams`]).
     pub fn add_mjcf_vehicle(
         &mut self,
@@ -269,10 +278,11 @@ impl VehicleRegistry {
             label: label_of::<NoParams>("vehicle"),
             build: VehicleBinding::Mjcf(Arc::new(bind)),
         };
+        self.guard.check(&self.vehicles, "vehicle", kind);
         add(&mut self.vehicles, kind, build)
     }
 
-    /// Registers (or replaces) the vehicle `kind` without MJCF (ODE plant only), built from
+    /// Registers the vehicle `kind` without MJCF (ODE plant only), built from
     /// parameters P: its `[vehicle]` table's own keys (P = [`NoParams`] for none).
     pub fn add_analytic_vehicle<P: Params + 'static>(
         &mut self,
@@ -285,7 +295,15 @@ impl VehicleRegistry {
             label: label_of::<P>("vehicle"),
             build: binding,
         };
+        self.guard.check(&self.vehicles, "vehicle", kind);
         add(&mut self.vehicles, kind, build)
+    }
+
+    /// The registrations that follow in this [`register`] call replace kinds of the same name
+    /// (otherwise refused: [`AlreadyRegistered`]).
+    pub fn replacing(&mut self) -> &mut VehicleRegistry {
+        self.guard.replacing = true;
+        self
     }
 
     /// The label and description of the vehicle `kind` with its (checked) own keys.
@@ -343,8 +361,9 @@ pub fn registry() -> RwLockReadGuard<'static, VehicleRegistry> {
     VEHICLES.read().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// Adds vehicle kinds; call before building the episodes that name them.
-pub fn register(add_kinds: impl FnOnce(&mut VehicleRegistry)) {
-    let mut registry = VEHICLES.write().unwrap_or_else(|poisoned| poisoned.into_inner());
-    add_kinds(&mut registry);
+/// Adds vehicle kinds; call before building the episodes that name them. A kind under a name
+/// already registered is refused and nothing of the call is kept, unless the call says it
+/// replaces ([`VehicleRegistry::replacing`]).
+pub fn register(add_kinds: impl FnOnce(&mut VehicleRegistry)) -> Result<(), AlreadyRegistered> {
+    register_guarded(&VEHICLES, |r| &mut r.guard, add_kinds)
 }

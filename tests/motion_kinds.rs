@@ -59,10 +59,12 @@ fn build_circling(p: &CirclingParams, ctx: &MotionContext<'_>) -> Result<ActorMo
     }))
 }
 
+/// Registers `circling` (again for each test of this process: the same kind, replaced).
 fn register() {
     mjsafe::registry::register(|r| {
-        r.add_motion("circling", build_circling).label("circling");
-    });
+        r.replacing().add_motion("circling", build_circling).label("circling");
+    })
+    .expect("a replacing registration is never refused");
 }
 
 #[test]

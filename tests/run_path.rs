@@ -99,7 +99,8 @@ fn a_users_filter_carries_its_own_label_into_the_log_and_the_analysis() {
         )
         .label("my passthrough (eq. 7)")
         .description("the nominal input, as a user's kind");
-    });
+    })
+    .expect("a new kind");
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("labelled.mcap");
     let loaded = embed::load_scenario(
@@ -196,4 +197,43 @@ fn a_run_stepped_from_outside_is_the_same_run() {
         messages.last().unwrap(),
         "stopped by its caller after 250 of 1000 steps"
     );
+}
+
+/// A kind registered under a built-in's name is refused (and the built-in stays what a
+/// scenario naming it runs) unless the registration says it replaces it; a refused call keeps
+/// none of its kinds.
+#[test]
+fn a_kind_under_a_taken_name_is_refused_unless_it_says_it_replaces() {
+    #[derive(serde::Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Nothing {}
+    impl mjsafe::registry::Params for Nothing {}
+    let none = |_: &Nothing, ctx: &mjsafe::filter::FilterContext| mjsafe::filter::none::build(&Default::default(), ctx);
+    let refused = embed::register(|r| {
+        r.add_filter("kept_out_with_gamma_m", none).label("never registered");
+        r.add_filter("gamma_m", none).label("not (4.67)");
+    })
+    .unwrap_err();
+    assert_eq!((refused.section, refused.kind.as_str()), ("filter", "gamma_m"));
+    assert!(refused.what.contains("built in: γm filter (4.67)"), "{}", refused.what);
+    assert!(refused.to_string().contains("replacing()"), "{refused}");
+    let registry = embed::registry();
+    assert!(!registry.has_kind("filter", "kept_out_with_gamma_m"));
+    let params: toml::Table = toml::from_str("l0 = 4.0\nl1 = 4.0\nm = 50.0").unwrap();
+    let label = registry.describe_filter("gamma_m", &params).unwrap().label;
+    drop(registry);
+    assert!(label.starts_with("γm filter (4.67)"), "{label}");
+    // Said: replaced (under a name of its own here, to leave the built-in to the other tests).
+    embed::register(|r| {
+        r.add_filter("replaced_twice", none).label("first");
+    })
+    .unwrap();
+    embed::register(|r| {
+        r.replacing().add_filter("replaced_twice", none).label("second");
+    })
+    .unwrap();
+    let described = embed::registry()
+        .describe_filter("replaced_twice", &toml::Table::new())
+        .unwrap();
+    assert_eq!(described.label, "second");
 }

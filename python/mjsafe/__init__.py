@@ -305,7 +305,7 @@ def run(
     return RunResult(raw)
 
 
-def register_filter(kind: str, cls: type) -> None:
+def register_filter(kind: str, cls: type, replace: bool = False) -> None:
     """Registers a safety filter written in Python as the filter ``kind`` of this process.
 
     ``cls(params)`` is built for each run with the scenario's ``[filter]`` table (without
@@ -333,16 +333,23 @@ def register_filter(kind: str, cls: type) -> None:
     order (e.g. ``solution[free]``), or None (the nominal). An exception or another return
     stops the run with an error event, as in ``filter_channel``.
 
+    A ``kind`` already registered — a built-in's (``"gamma_m"``) or another class's — is
+    refused unless ``replace=True``; registering the same class again (a notebook cell run
+    again, a module reloaded: the same ``__module__`` and ``__qualname__``) replaces it. A class
+    without ``label`` that replaces a built-in is labelled ``"<kind> (Python module.Class)"``.
+
     Raises:
         TypeError: ``kind`` not a str, ``cls`` not a class, a class without
             ``filter_channel``, or an ``issued_law`` that is not a method.
-        ValueError: a kind that is not letters, digits and ``_``.
+        ValueError: a kind that is not letters, digits and ``_``, or one already registered
+            (without ``replace=True``).
     """
     _class("register_filter", kind, cls)
-    _core.register_filter(kind, cls)
+    _bool("register_filter", "replace", replace)
+    _core.register_filter(kind, cls, replace)
 
 
-def register_nominal(kind: str, cls: type) -> None:
+def register_nominal(kind: str, cls: type, replace: bool = False) -> None:
     """Registers a nominal controller written in Python as the nominal ``kind`` of this process.
 
     ``cls(params)`` is built for each run with the scenario's ``[nominal]`` table (without
@@ -351,12 +358,17 @@ def register_nominal(kind: str, cls: type) -> None:
     on the class is optional. An exception, or a result that is not one number per channel,
     stops the run with an error event carrying the message (``RunResult.error``).
 
+    A ``kind`` already registered is refused unless ``replace=True``, as in
+    ``register_filter``.
+
     Raises:
         TypeError: ``kind`` not a str, ``cls`` not a class, or a class without ``input``.
-        ValueError: a kind that is not letters, digits and ``_``.
+        ValueError: a kind that is not letters, digits and ``_``, or one already registered
+            (without ``replace=True``).
     """
     _class("register_nominal", kind, cls)
-    _core.register_nominal(kind, cls)
+    _bool("register_nominal", "replace", replace)
+    _core.register_nominal(kind, cls, replace)
 
 
 def read_log(path: str | os.PathLike[str]) -> LogData:

@@ -567,10 +567,53 @@ fn build_filter(
     })
 }
 
-/// `mjsafe.register_filter(kind, cls)`: the kind works in scenario files and `set` dicts, in
-/// `run`, `sweep` and `falsify` (in this process).
+/// Per (section, kind), the Python class (`module.qualname`) registered under it from Python.
+static PYTHON_KINDS: std::sync::Mutex<std::collections::BTreeMap<(&str, String), String>> =
+    std::sync::Mutex::new(std::collections::BTreeMap::new());
+
+/// `module.qualname` of a class: what tells a re-run of its definition (a notebook cell, a
+/// module reloaded) from another class.
+fn class_identity(class: &Bound<'_, PyAny>) -> String {
+    let text = |name: &str| -> String {
+        class
+            .getattr(name)
+            .and_then(|v| v.extract::<String>())
+            .unwrap_or_default()
+    };
+    format!("{}.{}", text("__module__"), text("__qualname__"))
+}
+
+/// Whether registering `identity` as the `section` kind `kind` replaces what is there: asked
+/// for, or the same class registered again from Python.
+fn replaces(section: &'static str, kind: &str, identity: &str, replace: bool) -> bool {
+    let kinds = PYTHON_KINDS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    replace || kinds.get(&(section, kind.to_string())).is_some_and(|i| i == identity)
+}
+
+/// Notes a registration done, for [`replaces`].
+fn registered(section: &'static str, kind: &str, identity: String) {
+    let mut kinds = PYTHON_KINDS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    kinds.insert((section, kind.to_string()), identity);
+}
+
+/// The label of a Python class without its own that replaces a built-in: the kind's name and
+/// whose it is, so a log never passes it off as the built-in.
+fn replacing_label(section: &str, kind: &str, identity: &str) -> Option<String> {
+    let registry = mjsafe::registry::registry();
+    let builtin = registry.has_kind(section, kind)
+        && match section {
+            "filter" => registry.filter_origin(kind).is_none(),
+            _ => registry.nominal_origin(kind).is_none(),
+        };
+    builtin.then(|| format!("{kind} (Python {identity})"))
+}
+
+/// `mjsafe.register_filter(kind, cls, replace=False)`: the kind works in scenario files and
+/// `set` dicts, in `run`, `sweep` and `falsify` (in this process). A kind already registered
+/// (a built-in's, or another class's) is refused unless `replace`.
 #[pyfunction]
-pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<()> {
+#[pyo3(signature = (kind, cls, replace = false))]
+pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>, replace: bool) -> PyResult<()> {
     if kind.is_empty() || !kind.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
         return Err(PyValueError::new_err(format!(
             "register_filter: expected a kind of letters, digits and `_`, found {kind:?}"
@@ -582,12 +625,14 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
             "register_filter: expected a class with a method filter_channel(self, t, channel, state, nominal, constraints)",
         ));
     }
+    let identity = class_identity(class);
+    let replace = replaces("filter", kind, &identity, replace);
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
                 .map_err(|_| PyTypeError::new_err("register_filter: expected `label` to be a str"))?,
         ),
-        _ => None,
+        _ => replacing_label("filter", kind, &identity),
     };
     if let Ok(law) = class.getattr("issued_law") {
         if !law.is_none() && !law.is_callable() {
@@ -601,6 +646,9 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
     let name = kind.to_string();
     let origin = class_file(class, "filter_channel");
     mjsafe::registry::register(move |r| {
+        if replace {
+            r.replacing();
+        }
         let described = r.add_filter(&name.clone(), move |p: &AnyParams, ctx: &FilterContext| {
             build_filter(&name, &cls, &asarray, p, ctx)
         });
@@ -614,7 +662,9 @@ pub fn register_filter(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<(
         if let Some(label) = &label {
             described.label(label);
         }
-    });
+    })
+    .map_err(|e| PyValueError::new_err(format!("register_filter: {e}")))?;
+    registered("filter", kind, identity);
     Ok(())
 }
 
@@ -664,10 +714,12 @@ impl NominalController for PythonNominal {
     }
 }
 
-/// `mjsafe.register_nominal(kind, cls)`: `cls(params)` with the scenario's `[nominal]` table,
-/// whose `input(t, state)` gives u0 (one value per channel).
+/// `mjsafe.register_nominal(kind, cls, replace=False)`: `cls(params)` with the scenario's
+/// `[nominal]` table, whose `input(t, state)` gives u0 (one value per channel). A kind already
+/// registered is refused unless `replace`, as for filters.
 #[pyfunction]
-pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<()> {
+#[pyo3(signature = (kind, cls, replace = false))]
+pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>, replace: bool) -> PyResult<()> {
     if kind.is_empty() || !kind.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
         return Err(PyValueError::new_err(format!(
             "register_nominal: expected a kind of letters, digits and `_`, found {kind:?}"
@@ -679,17 +731,22 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
             "register_nominal: expected a class with a method input(self, t, state)",
         ));
     }
+    let identity = class_identity(class);
+    let replace = replaces("nominal", kind, &identity, replace);
     let label = match class.getattr("label") {
         Ok(l) if !l.is_none() => Some(
             l.extract::<String>()
                 .map_err(|_| PyTypeError::new_err("register_nominal: expected `label` to be a str"))?,
         ),
-        _ => None,
+        _ => replacing_label("nominal", kind, &identity),
     };
     let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
     let name = kind.to_string();
     let origin = class_file(class, "input");
     mjsafe::registry::register(move |r| {
+        if replace {
+            r.replacing();
+        }
         let described = r.add_nominal(&name.clone(), move |p: &AnyParams, _: &NominalContext| {
             let object = instantiate(&cls, &p.0, "nominal")?;
             Ok(Box::new(PythonNominal {
@@ -708,6 +765,8 @@ pub fn register_nominal(py: Python<'_>, kind: &str, cls: Py<PyAny>) -> PyResult<
         if let Some(label) = &label {
             described.label(label);
         }
-    });
+    })
+    .map_err(|e| PyValueError::new_err(format!("register_nominal: {e}")))?;
+    registered("nominal", kind, identity);
     Ok(())
 }

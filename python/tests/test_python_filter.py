@@ -1,6 +1,9 @@
 """Safety filters written in Python (mjsafe.register_filter): the delay-free CBF-QP (4.9) in
 numpy against the built-in `cbf_qp`, exceptions, bad classes, and a sweep of a Python kind."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -30,9 +33,9 @@ class DelayFreeCbfQp:
 
 
 def test_a_numpy_cbf_qp_reproduces_the_built_in_min_h():
-    mjsafe.register_filter("numpy_cbf_qp", DelayFreeCbfQp)
+    mjsafe.register_filter("tested_numpy_cbf_qp", DelayFreeCbfQp)
     built_in = mjsafe.run(scenario("bicycle_obstacle.toml"))
-    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "numpy_cbf_qp", "l0": 4.0, "l1": 4.0}})
+    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={"filter": {"kind": "tested_numpy_cbf_qp", "l0": 4.0, "l1": 4.0}})
     assert built_in.metrics["filter_label"] != ours.metrics["filter_label"]
     assert ours.metrics["filter_label"] == "numpy CBF-QP (4.9)"
     assert ours.error is None
@@ -91,11 +94,11 @@ def test_a_bad_barrier_form_or_return_value_is_one_clear_error():
 
 
 def test_a_python_kind_sweeps_on_several_threads():
-    mjsafe.register_filter("numpy_cbf_qp", DelayFreeCbfQp)
+    mjsafe.register_filter("tested_numpy_cbf_qp", DelayFreeCbfQp)
     rows = mjsafe.sweep(
         scenario("bicycle_obstacle.toml"),
         grid={"delays.steering": [0.0, 0.1, 0.2]},
-        set={"filter": {"kind": "numpy_cbf_qp", "l0": 4.0, "l1": 4.0}},
+        set={"filter": {"kind": "tested_numpy_cbf_qp", "l0": 4.0, "l1": 4.0}},
         threads=2,
     )
     built = mjsafe.sweep(
@@ -122,9 +125,9 @@ class Hold:
 
 
 def test_a_python_nominal_reproduces_the_built_in_constant_input():
-    mjsafe.register_nominal("hold", Hold)
+    mjsafe.register_nominal("tested_hold", Hold)
     s = {"filter": {"kind": "gamma_m", "l0": 4.0, "l1": 4.0, "m": 50.0}}
-    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={**s, "nominal": {"kind": "hold", "input": [0.05, 0.3]}})
+    ours = mjsafe.run(scenario("bicycle_obstacle.toml"), set={**s, "nominal": {"kind": "tested_hold", "input": [0.05, 0.3]}})
     built_in = mjsafe.run(scenario("bicycle_obstacle.toml"), set={**s, "nominal": {"kind": "constant", "input": [0.05, 0.3]}})
     assert ours.error is None
     assert ours.min_h == built_in.min_h
@@ -244,14 +247,14 @@ def test_the_predictors_assume_the_python_filter_s_issued_law():
     # predictors assume, for the commands not yet issued in their window, the law the filter
     # really issues. From the obstacle's appearance (2.75 s) the margin QP differs from the
     # delay-free CBF-QP (the default law), so only the filter that says so predicts exactly.
-    mjsafe.register_filter("margin_qp", MarginQp)
+    mjsafe.register_filter("tested_margin_qp", MarginQp)
     mjsafe.register_filter("margin_qp_law", MarginQpWithLaw)
     s = {"plant": "ode", "duration": 6.0}
     MarginQpWithLaw.calls = 0
     exact = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"),
                        set={**s, "filter": {"kind": "margin_qp_law", "margin": 2.0}}, tables=True)
     default = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"),
-                         set={**s, "filter": {"kind": "margin_qp", "margin": 2.0}}, tables=True)
+                         set={**s, "filter": {"kind": "tested_margin_qp", "margin": 2.0}}, tables=True)
     assert exact.error is None and default.error is None, (exact.error, default.error)
     assert MarginQpWithLaw.calls > 100
     # The commands issued are the same law's, so the two runs differ only in their predictions.
@@ -449,3 +452,56 @@ def test_the_queues_say_the_input_applied_before_the_first_command():
         "filter": {"kind": "initial_input"}, "duration": 0.1, "initial_input.acceleration": 0.25})
     assert r.error is None, r.error
     assert InitialInput.seen and all(s == [0.0, 0.25] for s in InitialInput.seen)
+
+
+class Imposter:
+    """Passes the nominal through: not (4.67)."""
+
+    barrier_form = None
+
+    def __init__(self, params):
+        pass
+
+    def filter_channel(self, t, channel, state, nominal, constraints):
+        return None
+
+
+def test_a_kind_that_names_a_built_in_is_refused_unless_it_says_it_replaces():
+    """Registering "gamma_m" once silently replaced (4.67) for the rest of the process: a run of
+    the γm scenario then collided (min h −35.6) under the label "gamma_m". Now it is refused
+    and the built-in runs as before; another class under a taken Python kind too; the same
+    class again (a notebook cell re-run) replaces it."""
+    before = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"), set={"duration": 5.0})
+    with pytest.raises(ValueError, match=r"filter kind `gamma_m` is already registered \(built in: γm filter \(4\.67\)\).*replace=True"):
+        mjsafe.register_filter("gamma_m", Imposter)
+    after = mjsafe.run(scenario("bicycle_obstacle_gamma_m.toml"), set={"duration": 5.0})
+    assert after.min_h == before.min_h > 0 and after.metrics["filter_label"].startswith("γm filter (4.67)")
+    with pytest.raises(ValueError, match="nominal kind `path_lqr` is already registered"):
+        mjsafe.register_nominal("path_lqr", Hold)
+    mjsafe.register_filter("imposter_once", Imposter)
+    mjsafe.register_filter("imposter_once", Imposter)          # the same class again: fine
+    with pytest.raises(ValueError, match=r"`imposter_once` is already registered \(imposter_once, from .*test_python_filter\.py\)"):
+        mjsafe.register_filter("imposter_once", SeesQueues)
+    mjsafe.register_filter("imposter_once", SeesQueues, replace=True)
+    with pytest.raises(TypeError, match="replace"):
+        mjsafe.register_filter("imposter_once", SeesQueues, replace="yes")
+
+
+def test_a_built_in_replaced_on_purpose_says_whose_filter_ran():
+    """With replace=True the kind runs the class, and the run's label says it is not the
+    built-in (in a process of its own: the built-in cannot come back in this one)."""
+    code = (
+        "import mjsafe\n"
+        "class Imposter:\n"
+        "    barrier_form = None\n"
+        "    def __init__(self, params): pass\n"
+        "    def filter_channel(self, t, channel, state, nominal, constraints): return None\n"
+        "mjsafe.register_filter('gamma_m', Imposter, replace=True)\n"
+        f"r = mjsafe.run({str(scenario('bicycle_obstacle_gamma_m.toml'))!r}, set={{'duration': 5.0}})\n"
+        "print(r.metrics['filter_label'], '|', r.min_h < 0)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    label, collided = (part.strip() for part in done.stdout.split("|"))
+    assert label == "gamma_m (Python __main__.Imposter)"
+    assert collided == "True"
