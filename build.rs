@@ -90,6 +90,15 @@ fn main() {
         shim.include(dir);
     }
     shim.compile("mjsafe_load_xml");
+    // mj_step / mj_forward behind setjmp, and the mju_error handler that jumps back
+    // (src/mujoco/guard.c): a MuJoCo error ends the run, not the process.
+    println!("cargo:rerun-if-changed=src/mujoco/guard.c");
+    let mut guard = cc::Build::new();
+    guard.file("src/mujoco/guard.c").std("c11").warnings(true);
+    if let Some(dir) = &include_dir {
+        guard.include(dir);
+    }
+    guard.compile("mjsafe_guard");
     println!("cargo:rustc-link-lib=dylib=mujoco");
 
     let out_dir = std::env::var("OUT_DIR").expect("cargo sets OUT_DIR");

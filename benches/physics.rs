@@ -56,7 +56,7 @@ fn physics(c: &mut Criterion) {
                 for _ in 0..iters {
                     let mut episode = Episode::new(&loaded).expect("episode");
                     let started = Instant::now();
-                    episode.replay_actuation(&actuation);
+                    episode.replay_actuation(&actuation).expect("the recorded run replays");
                     total += started.elapsed();
                 }
                 total

@@ -194,7 +194,7 @@ pub fn run(
         for _ in 0..repeats {
             let mut episode = Episode::new(&loaded)?;
             let started = Instant::now();
-            episode.replay_actuation(&actuation);
+            episode.replay_actuation(&actuation)?;
             bare.push(started.elapsed().as_secs_f64());
             replay_deviation = (episode.plant_state() - &recorded_final_state).norm();
 

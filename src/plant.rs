@@ -37,7 +37,7 @@ pub trait Plant: Send {
     /// One step driven by `actuation` (from [`Plant::actuation`]) with no controller: replaying
     /// a run's actuation is the bare physics loop of the benchmarks (same model, same steps,
     /// same contacts).
-    fn step_with_actuation(&mut self, actuation: &[f64]);
+    fn step_with_actuation(&mut self, actuation: &[f64]) -> Result<(), MjError>;
     /// Places moving obstacle `index` (its index among all obstacles) at `position` for the
     /// next step. The ODE plant reads the barriers it is given instead: nothing to do.
     /// (`turn`: its rotation since the start, rad; a box turns with it.)
@@ -150,9 +150,9 @@ impl Plant for MujocoPlant {
     fn take_warning(&mut self) -> Option<PhysicsWarning> {
         self.sim.take_warning()
     }
-    fn step_with_actuation(&mut self, actuation: &[f64]) {
+    fn step_with_actuation(&mut self, actuation: &[f64]) -> Result<(), MjError> {
         self.sim.set_ctrl(actuation);
-        self.sim.step_without_hook();
+        self.sim.step_without_hook()
     }
     /// Sets the obstacle's mocap body (at z = 0): the next `mj_step`'s collision sees it there.
     fn move_obstacle(&mut self, index: usize, position: [f64; 2], turn: f64) {
@@ -261,7 +261,7 @@ impl Plant for OdePlant {
     fn actuation(&self) -> Vec<f64> {
         self.last_input.clone()
     }
-    fn step_with_actuation(&mut self, actuation: &[f64]) {
+    fn step_with_actuation(&mut self, actuation: &[f64]) -> Result<(), MjError> {
         let (h, x) = (self.timestep, &self.x);
         let (model, disturbance) = (self.dynamics.as_ref(), self.disturbance.as_ref());
         let step_time = self.step as f64 * h;
@@ -276,6 +276,7 @@ impl Plant for OdePlant {
         let next = x + (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (h / 6.0);
         self.step_start = std::mem::replace(&mut self.x, next);
         self.step += 1;
+        Ok(())
     }
     fn move_obstacle(&mut self, _index: usize, _position: [f64; 2], _turn: f64) {}
     /// Geometric: the overlap of the vehicle's hull circle with each obstacle, at the state

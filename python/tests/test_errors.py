@@ -7,7 +7,7 @@ import re
 import pytest
 
 import mjsafe
-from conftest import cli_error, scenario
+from conftest import ROOT, cli_error, scenario
 
 BICYCLE = scenario("bicycle_obstacle.toml")
 MISSING = scenario("no_such_scenario.toml")
@@ -204,3 +204,18 @@ def test_a_right_type_with_a_bad_value_is_a_value_error_with_the_cli_s_line(tmp_
                "falsify", BICYCLE, "--range", "nope=0.0..1.0", "--out", str(tmp_path / "never"))
     with pytest.raises(ValueError, match="letters, digits"):
         mjsafe.register_nominal("no-dashes", Passes)
+
+
+def test_a_mujoco_error_ends_the_run_not_the_interpreter():
+    """MuJoCo raising an error inside a step (tests/data/pebbles.xml: contacts overflow its
+    stack at t ≈ 6.3 s) used to end the process; now the run stops with MuJoCo's message, and
+    the interpreter, the next run and a sweep's other runs go on."""
+    path = str(ROOT / "tests" / "data" / "mujoco_error.toml")
+    stopped = mjsafe.run(path)
+    assert stopped.error is not None and "MuJoCo stopped the step" in stopped.error and "Stack overflow" in stopped.error
+    assert stopped.metrics["complete"] is False and 6.0 < stopped.simulated_time < 6.6
+    clear = mjsafe.run(path, set={"vehicle.initial_state.1": 30.0})
+    assert clear.error is None and clear.simulated_time == 8.0
+    summary = mjsafe.sweep(path, grid={"vehicle.initial_state.1": [30.0, 0.0, -30.0]}, threads=2)
+    assert summary["error"].isna().tolist() == [True, False, True]
+    assert "Stack overflow" in summary["error"][1]

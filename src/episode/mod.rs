@@ -412,7 +412,7 @@ impl Episode {
     /// Steps the plant through a recorded actuation with no controller, sink or check: the
     /// bare physics loop over this episode's model, on the same trajectory (and contacts) as
     /// the recorded run (benchmarks compare the pipeline against it).
-    pub fn replay_actuation(&mut self, actuation: &[Vec<f64>]) {
+    pub fn replay_actuation(&mut self, actuation: &[Vec<f64>]) -> Result<(), EpisodeError> {
         let h = self.control.timestep();
         let position = self.control.model().planar_position();
         let moving = self.obstacles.iter().any(|o| o.motion.is_some());
@@ -431,8 +431,9 @@ impl Episode {
                     }
                 }
             }
-            self.plant.step_with_actuation(a);
+            self.plant.step_with_actuation(a)?;
         }
+        Ok(())
     }
 
     /// Runs to the end (or to the first error inside the run, which is logged as an `/event`

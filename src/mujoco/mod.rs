@@ -48,6 +48,9 @@ pub enum MjError {
     CallbackPanicked { time: f64, message: String },
     #[error("MuJoCo warning during the step at t = {time}: {message}")]
     Unstable { time: f64, message: String },
+    /// `mju_error` during a step or a forward pass: the run's `mjData` is discarded.
+    #[error("MuJoCo stopped the step at t = {time:.3} s with an error: {message}")]
+    Runtime { time: f64, message: String },
 }
 
 /// Checks that the linked library is MuJoCo 2.2.2.
@@ -144,6 +147,21 @@ unsafe extern "C" {
         error: *mut std::os::raw::c_char,
         error_sz: std::os::raw::c_int,
     ) -> *mut ffi::mjModel;
+    /// `mj_step` (`forward` 0) or `mj_forward` (1) behind `setjmp` (src/mujoco/guard.c): 1
+    /// when MuJoCo raised an error, its message in `error`; the data is then unusable.
+    fn mjsafe_guarded(
+        m: *const ffi::mjModel,
+        d: *mut ffi::mjData,
+        forward: std::os::raw::c_int,
+        error: *mut std::os::raw::c_char,
+        error_sz: std::os::raw::c_int,
+    ) -> std::os::raw::c_int;
+    /// The `mju_user_error` handler: jumps back to [`mjsafe_guarded`] (or, outside it or with
+    /// a Rust frame in between, calls [`mjsafe_fatal_error`]).
+    fn mjsafe_error_handler(message: *const std::os::raw::c_char);
+    /// Around the control callback: no jump skips its Rust frames.
+    fn mjsafe_enter_rust();
+    fn mjsafe_leave_rust();
 }
 
 /// How many compiled models a thread keeps for texts compiled again ([`COMPILED`]).
@@ -667,6 +685,9 @@ fn slice_mut<'a>(p: *mut f64, len: usize) -> &'a mut [f64] {
 /// Simulation data (`mjData`) for one model, freed on drop.
 pub struct Data {
     ptr: NonNull<ffi::mjData>,
+    /// MuJoCo's error of a guarded call on it: the data is unusable (deleted when dropped,
+    /// never reused).
+    failed: Option<String>,
     nq: usize,
     nv: usize,
     nu: usize,
@@ -716,6 +737,7 @@ impl Data {
             nu: model.nu(),
             na: model.na(),
             sizes,
+            failed: None,
         })
     }
 
@@ -811,6 +833,11 @@ pub struct PhysicsWarning {
 
 impl Drop for Data {
     fn drop(&mut self) {
+        if self.failed.is_some() {
+            // SAFETY: owned, and never used again.
+            unsafe { ffi::mj_deleteData(self.ptr.as_ptr()) };
+            return;
+        }
         let spare = SpareData {
             sizes: self.sizes,
             ptr: self.ptr,
@@ -868,7 +895,7 @@ fn install_callback() {
         unsafe {
             ffi::mjcb_control = Some(control_trampoline);
             ffi::mju_user_warning = Some(warning_handler);
-            ffi::mju_user_error = Some(error_handler);
+            ffi::mju_user_error = Some(mjsafe_error_handler);
         }
     });
 }
@@ -894,12 +921,14 @@ unsafe extern "C" fn warning_handler(message: *const std::os::raw::c_char) {
     });
 }
 
-/// `mju_user_error`: MuJoCo 2.2.2's `mju_error` returns to its caller when this handler
-/// returns (and without a handler prints, waits for Enter and exits), so the handler never
-/// returns: it prints one error line, removes the `.partial` outputs, and exits with 1.
+/// MuJoCo's error outside a guarded step or forward pass ([`mjsafe_guarded`]: `mj_makeData`,
+/// say), where no run can be ended alone. MuJoCo 2.2.2's `mju_error` returns to its caller
+/// when the handler returns (and without a handler prints, waits for Enter and exits), so this
+/// never returns: it prints one error line, removes the `.partial` outputs, and exits with 1.
 /// The model compiler installs its own (thread-local) handler, so XML and compile errors
 /// still come back as [`MjError::Load`].
-unsafe extern "C" fn error_handler(message: *const std::os::raw::c_char) {
+#[unsafe(no_mangle)]
+unsafe extern "C" fn mjsafe_fatal_error(message: *const std::os::raw::c_char) {
     let _ = catch_unwind(|| {
         // SAFETY: MuJoCo passes a NUL-terminated message.
         let text = unsafe { CStr::from_ptr(message) }.to_string_lossy().trim().to_string();
@@ -909,8 +938,39 @@ unsafe extern "C" fn error_handler(message: *const std::os::raw::c_char) {
     std::process::exit(1);
 }
 
+/// Runs `mj_step` (or `mj_forward`) of `data` behind [`mjsafe_guarded`]: MuJoCo's error comes
+/// back as its message, and `data` is marked unusable.
+fn guarded(model: &Model, data: &mut Data, forward: bool) -> Result<(), String> {
+    if let Some(message) = &data.failed {
+        return Err(format!("{message} (an earlier call; the data is unusable)"));
+    }
+    let mut error = [0 as std::os::raw::c_char; 1024];
+    // SAFETY: live model and data of that model; `error` holds 1024 bytes.
+    let failed = unsafe {
+        mjsafe_guarded(
+            model.ptr.as_ptr(),
+            data.ptr.as_ptr(),
+            forward.into(),
+            error.as_mut_ptr(),
+            error.len() as std::os::raw::c_int,
+        )
+    };
+    if failed == 0 {
+        return Ok(());
+    }
+    // SAFETY: the shim wrote a NUL-terminated message into `error`.
+    let message = unsafe { CStr::from_ptr(error.as_ptr()) }
+        .to_string_lossy()
+        .trim()
+        .to_string();
+    data.failed = Some(message.clone());
+    Err(message)
+}
+
 /// The process-wide `mjcb_control`: dispatches to the current thread's hook; catches panics.
 unsafe extern "C" fn control_trampoline(_m: *const ffi::mjModel, d: *mut ffi::mjData) {
+    // SAFETY: plain thread-local counters of the shim (no MuJoCo error jumps over this frame).
+    unsafe { mjsafe_enter_rust() };
     let result = catch_unwind(AssertUnwindSafe(|| {
         ACTIVE.with(|cell| {
             let mut active = cell.borrow_mut();
@@ -950,6 +1010,8 @@ unsafe extern "C" fn control_trampoline(_m: *const ffi::mjModel, d: *mut ffi::mj
             .unwrap_or_else(|| "non-string panic payload".to_string());
         CAUGHT_PANIC.with(|m| *m.borrow_mut() = Some(message));
     }
+    // SAFETY: as above.
+    unsafe { mjsafe_leave_rust() };
 }
 
 /// A model with its data: the thing that steps.
@@ -1000,8 +1062,8 @@ impl Simulation {
             slice_mut(v.d.qvel, v.nv).copy_from_slice(qvel);
             slice_mut(v.d.act, v.na).copy_from_slice(act);
         }
-        // SAFETY: live model and data of that model.
-        unsafe { ffi::mj_forward(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+        // A MuJoCo error here marks the data unusable: the next step reports it.
+        let _ = guarded(&self.model, &mut self.data, true);
     }
 
     /// One `mj_step`, with `hook` receiving every control callback of the step.
@@ -1027,10 +1089,16 @@ impl Simulation {
                 na: self.data.na,
             })
         });
-        // SAFETY: live model and data of that model.
-        unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+        let stepped = guarded(&self.model, &mut self.data, false);
         ACTIVE.with(|cell| *cell.borrow_mut() = None);
         self.step += 1;
+        if let Err(message) = stepped {
+            CAUGHT_PANIC.with(|m| m.borrow_mut().take());
+            return Err(MjError::Runtime {
+                time: start_time,
+                message,
+            });
+        }
         if let Some(message) = CAUGHT_PANIC.with(|m| m.borrow_mut().take()) {
             return Err(MjError::CallbackPanicked {
                 time: start_time,
@@ -1143,16 +1211,16 @@ impl Simulation {
 
     /// One `mj_step` with no hook: the control callback returns at once and `ctrl` keeps its
     /// value (the bare physics loop benchmarks compare against).
-    pub fn step_without_hook(&mut self) {
-        // SAFETY: live model and data of that model.
-        unsafe { ffi::mj_step(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+    pub fn step_without_hook(&mut self) -> Result<(), MjError> {
+        let time = self.data.time();
         self.step += 1;
+        guarded(&self.model, &mut self.data, false).map_err(|message| MjError::Runtime { time, message })
     }
 
-    /// Calls `mj_forward` (fires the callback only if a hook is active: never here).
+    /// Calls `mj_forward` (fires the callback only if a hook is active: never here). A MuJoCo
+    /// error marks the data unusable: the next step reports it.
     pub fn forward(&mut self) {
-        // SAFETY: live model and data of that model.
-        unsafe { ffi::mj_forward(self.model.ptr.as_ptr(), self.data.ptr.as_ptr()) };
+        let _ = guarded(&self.model, &mut self.data, true);
     }
 }
 
@@ -1197,7 +1265,7 @@ mod tests {
         let mut sim = Simulation::new(model).unwrap();
         sim.set_ctrl(&[1.5]);
         for _ in 0..200 {
-            sim.step_without_hook();
+            sim.step_without_hook().unwrap();
         }
         assert!(!sim.data().contacts().is_empty(), "the ball rests on the floor");
         (sim.data().qpos().to_vec(), sim.data().qvel().to_vec())
@@ -1230,12 +1298,12 @@ mod tests {
             model.require(ObjKind::Geom, "actor").unwrap(),
         );
         let mut sim = Simulation::new(model).unwrap();
-        sim.step_without_hook();
+        sim.step_without_hook().unwrap();
         assert_eq!(sim.geom_xpos(geom), [10.0, 0.0, 0.0]);
         assert!(sim.data().contacts().is_empty());
         // Moved into the probe: that step's kinematics and contacts have it there.
         sim.set_mocap_pos(0, [1.5, 0.25, 0.0]);
-        sim.step_without_hook();
+        sim.step_without_hook().unwrap();
         assert_eq!(sim.geom_xpos(geom), [1.5, 0.25, 0.0]);
         let contacts = sim.data().contacts();
         let touch = contacts
@@ -1246,7 +1314,7 @@ mod tests {
         assert!((-touch.dist - expected).abs() < 1e-9, "{touch:?}");
         // And out again.
         sim.set_mocap_pos(0, [-5.0, 0.0, 0.0]);
-        sim.step_without_hook();
+        sim.step_without_hook().unwrap();
         assert_eq!(sim.geom_xpos(geom), [-5.0, 0.0, 0.0]);
         assert!(sim.data().contacts().is_empty());
     }
