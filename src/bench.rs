@@ -20,9 +20,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::analyze;
-use crate::episode::{Episode, EpisodeError};
+use crate::episode::EpisodeError;
 use crate::log::LogError;
-use crate::run::{Keep, Outcome, RunError};
+use crate::run::{Keep, Outcome, Prepared, RunError};
 use crate::scenario::{self, LoadedScenario, ScenarioError};
 
 #[derive(Debug, thiserror::Error)]
@@ -160,9 +160,10 @@ pub fn run(
         }
         let loaded = scenario::load(scenario_path, &overrides)?;
         // An untimed, audited run records the actuation the bare loop replays.
-        let mut probe = Episode::new(&loaded)?;
+        let mut prepared = Prepared::new(&loaded, Keep::Nothing)?;
         // The logged repeats write a log each: over the log budget, refused before any run.
-        probe.check_log_budget()?;
+        prepared.check_log_budget()?;
+        let mut probe = prepared.into_episode();
         let (steps, predictor_step) = (probe.steps(), probe.predictor_step());
         let chain_tolerance = loaded.scenario.control.chain_tolerance;
         let log_path = log_dir.join(format!(
@@ -192,7 +193,7 @@ pub fn run(
         let mut metrics = None;
         let mut analysed = Vec::new();
         for _ in 0..repeats {
-            let mut episode = Episode::new(&loaded)?;
+            let mut episode = Prepared::new(&loaded, Keep::Nothing)?.into_episode();
             let started = Instant::now();
             episode.replay_actuation(&actuation)?;
             bare.push(started.elapsed().as_secs_f64());

@@ -761,7 +761,7 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
     for overrides in [&centre, &with_baseline] {
         let loaded =
             crate::scenario::load(&problem.scenario, overrides).map_err(|e| FalsifyError::Spec(e.to_string()))?;
-        crate::episode::Episode::new(&loaded).map_err(|e| FalsifyError::Spec(e.to_string()))?;
+        crate::run::Prepared::check(&loaded).map_err(|e| FalsifyError::Spec(e.to_string()))?;
     }
     let evaluator = Evaluator {
         problem,

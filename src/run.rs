@@ -132,6 +132,24 @@ impl Prepared {
         })
     }
 
+    /// Assembles `loaded` as a run would and drops it: every check that needs the model and
+    /// the kinds (falsification's pre-flight of a box's centre).
+    pub fn check(loaded: &LoadedScenario) -> Result<(), RunError> {
+        Prepared::new(loaded, Keep::Nothing).map(drop)
+    }
+
+    /// Refuses, before anything runs, a run whose log would exceed the log budget
+    /// (`--max-log-size`): what a later logged run of the same scenario would be refused for.
+    pub fn check_log_budget(&mut self) -> Result<(), RunError> {
+        Ok(self.episode.check_log_budget()?)
+    }
+
+    /// The assembled episode, for a caller that drives it itself: the benchmarks' probe (an
+    /// audited run recording its actuation) and bare physics loop (that actuation replayed).
+    pub fn into_episode(self) -> Episode {
+        self.episode
+    }
+
     /// What the run is (the log's run metadata).
     pub fn info(&self) -> &RunInfo {
         self.episode.info()

@@ -782,23 +782,23 @@ pub(crate) fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "panic".into())
 }
 
-/// What a sweep keeps of each run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Keep {
-    /// Its log in the sweep directory, analysed once written.
-    Logs,
-    /// Only its metrics, analysed while it runs ([`execute_analysed`]): the same metrics its
-    /// log would give, without writing, compressing and reading one.
-    Metrics,
+/// Runs one run of the sweep — logged into `logs` (the sweep directory) if given, else only
+/// its metrics, analysed while it runs — and analyses it ([`crate::run::Keep`] per run). Never
+/// fails: a failure is the row's `error`.
+pub fn execute_run(spec: &SweepSpec, run: &Run, logs: Option<&Path>) -> Row {
+    match logs {
+        Some(dir) => execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index)),
+        None => execute_analysed(Path::new(&spec.scenario), run, &format!("run {}", run.index)),
+    }
 }
 
-/// Runs one run of the sweep (into `dir` when it keeps logs) and analyses it. Never fails: a
-/// failure is the row's `error`.
-pub fn execute_run(spec: &SweepSpec, run: &Run, dir: &Path, keep: Keep) -> Row {
-    match keep {
-        Keep::Logs => execute_logged(Path::new(&spec.scenario), run, dir, spec.log_name(run.index)),
-        Keep::Metrics => execute_analysed(Path::new(&spec.scenario), run, &format!("run {}", run.index)),
-    }
+/// Why a sweep run has no outcome, kept typed until its row is written.
+#[derive(Debug, thiserror::Error)]
+enum RunFailure {
+    #[error(transparent)]
+    Scenario(#[from] scenario::ScenarioError),
+    #[error(transparent)]
+    Run(#[from] crate::run::RunError),
 }
 
 /// A run's row before it runs.
@@ -845,9 +845,9 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
     if mcap::check_target(&log_path, &[]).is_ok() {
         let _ = std::fs::remove_file(&log_path);
     }
-    let outcome = catch_unwind(AssertUnwindSafe(|| {
-        let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
-        crate::run::run(&loaded, crate::run::Keep::Log(&log_path), Vec::new()).map_err(|e| e.to_string())
+    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<_, RunFailure> {
+        let loaded = scenario::load(scenario_path, &run.overrides)?;
+        Ok(crate::run::run(&loaded, crate::run::Keep::Log(&log_path), Vec::new())?)
     }));
     if log_path.exists() {
         row.log = Some(log_name);
@@ -858,7 +858,7 @@ pub fn execute_logged(scenario_path: &Path, run: &Run, dir: &Path, log_name: Str
 /// The row of a run that ended with `outcome` (its metrics, or why it has none).
 fn settle_outcome(
     mut row: Row,
-    outcome: std::thread::Result<Result<crate::run::Outcome, String>>,
+    outcome: std::thread::Result<Result<crate::run::Outcome, RunFailure>>,
     incomplete: &str,
 ) -> Row {
     let error = match outcome {
@@ -866,7 +866,7 @@ fn settle_outcome(
             row.metrics = outcome.metrics.as_ref().map(FlatMetrics::from);
             outcome.summary.error.map(|e| e.to_string())
         }
-        Ok(Err(e)) => Some(e),
+        Ok(Err(e)) => Some(e.to_string()),
         Err(payload) => Some(panicked(payload.as_ref())),
     };
     settle(row, error, incomplete)
@@ -877,26 +877,27 @@ fn settle_outcome(
 /// without writing, compressing and reading the log. `name` stands for the log in the metrics
 /// and errors. Never fails: a failure is the row's `error`.
 pub fn execute_analysed(scenario_path: &Path, run: &Run, name: &str) -> Row {
-    let outcome = catch_unwind(AssertUnwindSafe(|| {
-        let loaded = scenario::load(scenario_path, &run.overrides).map_err(|e| e.to_string())?;
-        crate::run::run(&loaded, crate::run::Keep::Metrics(name), Vec::new()).map_err(|e| e.to_string())
+    let outcome = catch_unwind(AssertUnwindSafe(|| -> Result<_, RunFailure> {
+        let loaded = scenario::load(scenario_path, &run.overrides)?;
+        Ok(crate::run::run(&loaded, crate::run::Keep::Metrics(name), Vec::new())?)
     }));
     settle_outcome(row_of(run), outcome, "the run is incomplete")
 }
 
 /// Runs `indices` of the sweep on `threads` threads (each pulls the next index from a shared
-/// counter), keeping what `keep` says, calling `done` on the calling thread as each run finishes. Rows come back in the
-/// order of `indices`, whatever the thread count. After [`crate::episode::request_stop`] no
-/// new run starts; the runs not started are rows with that error.
+/// counter), logged into `logs` if given ([`execute_run`]), calling `done` on the calling
+/// thread as each run finishes. Rows come back in the order of `indices`, whatever the thread
+/// count. After [`crate::episode::request_stop`] no new run starts; the runs not started are
+/// rows with that error.
 pub fn execute(
     spec: &SweepSpec,
     indices: &[usize],
-    dir: &Path,
-    (threads, keep): (usize, Keep),
+    logs: Option<&Path>,
+    threads: usize,
     mut done: impl FnMut(&Row),
 ) -> Result<Vec<Row>, SweepError> {
-    // Runs analysed in memory write nothing there.
-    if keep == Keep::Logs {
+    // Runs analysed in memory write nothing.
+    if let Some(dir) = logs {
         std::fs::create_dir_all(dir).map_err(|source| SweepError::Io {
             path: dir.display().to_string(),
             reason: source,
@@ -907,7 +908,7 @@ pub fn execute(
         threads,
         "sweep",
         |position| {
-            let mut row = execute_run(spec, &spec.run(indices[position]), dir, keep);
+            let mut row = execute_run(spec, &spec.run(indices[position]), logs);
             row.interrupted = row.error.is_some() && crate::episode::stop_requested();
             row
         },

@@ -1,6 +1,8 @@
 //! The dependency rules of docs/ARCHITECTURE.md, checked on the sources: no import cycle
 //! between top-level modules, pure maths never reaches the MuJoCo bindings or the log, the
-//! scenario schema and the analysis need no MuJoCo type, sinks never read through the analysis.
+//! scenario schema and the analysis need no MuJoCo type, sinks never read through the analysis;
+//! no function over 150 lines; episodes assembled only on the run path. Each guard is also run
+//! on a planted violation, which it must report.
 //! A file's test module (`#[cfg(test)] mod tests`, inline or a `tests.rs`) is left out: it may
 //! use the counting allocator of `mujoco`.
 
@@ -34,8 +36,13 @@ fn rust_sources() -> Vec<(std::path::PathBuf, String)> {
 }
 
 fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
+    dependencies_of(rust_sources())
+}
+
+/// [`dependencies`] of the given sources (path relative to `src/`, code).
+fn dependencies_of(sources: Vec<(std::path::PathBuf, String)>) -> BTreeMap<String, BTreeSet<String>> {
     let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for (relative, code) in rust_sources() {
+    for (relative, code) in sources {
         let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
         let module = first.trim_end_matches(".rs").to_string();
         if module == "lib" || module == "main" {
@@ -81,9 +88,9 @@ fn no_import_cycle_between_top_level_modules() {
     }
 }
 
-#[test]
-fn pure_maths_schema_and_analysis_keep_their_distance() {
-    let graph = dependencies();
+/// The layer rules `graph` breaks, one line each.
+fn layer_violations(graph: &BTreeMap<String, BTreeSet<String>>) -> Vec<String> {
+    let mut broken = Vec::new();
     for maths in [
         "dynamics",
         "barrier",
@@ -98,33 +105,57 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
         "filter",
         "stl",
     ] {
-        let reached = reaches(&graph, maths);
+        let reached = reaches(graph, maths);
         for forbidden in [
             "mujoco", "log", "episode", "plant", "vehicle", "analyze", "metrics", "run",
         ] {
-            assert!(!reached.contains(forbidden), "{maths} reaches {forbidden}: {reached:?}");
+            if reached.contains(forbidden) {
+                broken.push(format!("{maths} reaches {forbidden}"));
+            }
         }
     }
     for schema_or_analysis in ["scenario", "analyze", "metrics", "table", "params", "message"] {
-        let reached = reaches(&graph, schema_or_analysis);
-        assert!(
-            !reached.contains("mujoco"),
-            "{schema_or_analysis} reaches mujoco: {reached:?}"
-        );
+        if reaches(graph, schema_or_analysis).contains("mujoco") {
+            broken.push(format!("{schema_or_analysis} reaches mujoco"));
+        }
     }
     // Sinks only observe: the log never reads through the analysis or the metrics.
-    let log = reaches(&graph, "log");
-    assert!(
-        !log.contains("analyze") && !log.contains("metrics") && !log.contains("run"),
-        "{log:?}"
+    let log = reaches(graph, "log");
+    for forbidden in ["analyze", "metrics", "run"] {
+        if log.contains(forbidden) {
+            broken.push(format!("log reaches {forbidden}"));
+        }
+    }
+    broken
+}
+
+#[test]
+fn pure_maths_schema_and_analysis_keep_their_distance() {
+    let broken = layer_violations(&dependencies());
+    assert!(broken.is_empty(), "layer rules broken: {broken:?}");
+    // The guard sees planted violations: a barrier reaching MuJoCo through the plant, a sink
+    // reading the metrics.
+    let planted = dependencies_of(vec![
+        ("barrier.rs".into(), "use crate::plant::Plant;".into()),
+        ("plant.rs".into(), "use crate::mujoco::Model;".into()),
+        ("log/mod.rs".into(), "use crate::metrics::RunFacts;".into()),
+    ]);
+    assert_eq!(
+        layer_violations(&planted),
+        ["barrier reaches mujoco", "barrier reaches plant", "log reaches metrics"]
     );
 }
 
 /// The functions of `src/` (test modules left out) and their lengths in lines, by brace
 /// matching from each `fn` line (as ../shared/tools/long_functions.py counts them).
 fn function_lengths() -> Vec<(String, usize)> {
+    function_lengths_of(&rust_sources())
+}
+
+/// [`function_lengths`] of the given sources (path relative to `src/`, code).
+fn function_lengths_of(sources: &[(std::path::PathBuf, String)]) -> Vec<(String, usize)> {
     let mut found = Vec::new();
-    for (relative, code) in rust_sources().iter().filter(|(p, _)| !p.ends_with("ffi.rs")) {
+    for (relative, code) in sources.iter().filter(|(p, _)| !p.ends_with("ffi.rs")) {
         let lines: Vec<&str> = code.lines().collect();
         for (k, line) in lines.iter().enumerate() {
             let trimmed = line.trim_start();
@@ -167,11 +198,64 @@ fn no_function_grows_past_150_lines() {
         ("src/falsify/guided.rs::run_guided", 183),
         ("src/episode/control.rs::control_tick", 165),
     ];
+    let too_long = |lengths: &[(String, usize)]| -> Vec<String> {
+        (lengths.iter())
+            .filter(|(name, lines)| *lines > 150 && !known.iter().any(|(k, limit)| k == name && lines <= limit))
+            .map(|(name, lines)| format!("{name} ({lines} lines)"))
+            .collect()
+    };
     let lengths = function_lengths();
     assert!(lengths.len() > 500, "the scan found the functions: {}", lengths.len());
-    let long: Vec<String> = (lengths.iter())
-        .filter(|(name, lines)| *lines > 150 && !known.iter().any(|(k, limit)| k == name && lines <= limit))
-        .map(|(name, lines)| format!("{name} ({lines} lines)"))
-        .collect();
+    let long = too_long(&lengths);
     assert!(long.is_empty(), "functions over 150 lines (split them): {long:?}");
+    // The guard sees a planted violation: a function of 151 lines, and a known one grown.
+    let body = |name: &str, lines: usize| format!("pub fn {name}() {{\n{}}}\n", "    x();\n".repeat(lines - 2));
+    let planted = vec![
+        ("planted.rs".into(), body("grown_long", 151)),
+        ("planted.rs".into(), body("just_fits", 150)),
+        ("falsify/guided.rs".into(), body("run_guided", 184)),
+    ];
+    assert_eq!(
+        too_long(&function_lengths_of(&planted)),
+        [
+            "src/planted.rs::grown_long (151 lines)",
+            "src/falsify/guided.rs::run_guided (184 lines)"
+        ]
+    );
+}
+
+/// The files of `sources` (relative to `src/`) that assemble an episode (`Episode::new`)
+/// outside the run path: everything runs through `run::Prepared` (src/run.rs), which the
+/// episode module itself serves.
+fn episodes_outside_the_run_path(sources: &[(std::path::PathBuf, String)]) -> Vec<String> {
+    (sources.iter())
+        .filter(|(path, code)| {
+            code.contains("Episode::new(") && !(path.starts_with("run.rs") || path.starts_with("episode"))
+        })
+        .map(|(path, _)| format!("src/{}", path.display()))
+        .collect()
+}
+
+/// One run path: bench's probe and falsify's pre-flight assemble through `run::Prepared`, and
+/// so does every other command; the Python package too.
+#[test]
+fn episodes_are_assembled_only_on_the_run_path() {
+    let mut sources = rust_sources();
+    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/src");
+    for entry in std::fs::read_dir(&python).unwrap() {
+        let path = entry.unwrap().path();
+        let code = std::fs::read_to_string(&path).unwrap();
+        sources.push((Path::new("../python/src").join(path.file_name().unwrap()), code));
+    }
+    let outside = episodes_outside_the_run_path(&sources);
+    assert!(
+        outside.is_empty(),
+        "Episode::new outside the run path (use run::Prepared): {outside:?}"
+    );
+    // The guard sees a planted violation.
+    let planted = vec![
+        ("bench.rs".into(), "let mut probe = Episode::new(&loaded)?;".to_string()),
+        ("run.rs".into(), "let mut episode = Episode::new(loaded)?;".to_string()),
+    ];
+    assert_eq!(episodes_outside_the_run_path(&planted), ["src/bench.rs"]);
 }

@@ -488,18 +488,14 @@ fn sweep<'py>(
     interruptible(py, move || {
         let spec = SweepSpec::build(&args).map_err(bad)?;
         let threads = sweep::threads(threads).map_err(bad)?;
-        let (dir, keep) = match &out {
-            Some(dir) => {
-                sweep::check_out_dir(dir).map_err(bad)?;
-                Summary::check_outputs(dir, None).map_err(bad)?;
-                (dir.as_path(), sweep::Keep::Logs)
-            }
-            None => (Path::new(""), sweep::Keep::Metrics),
-        };
+        if let Some(dir) = &out {
+            sweep::check_out_dir(dir).map_err(bad)?;
+            Summary::check_outputs(dir, None).map_err(bad)?;
+        }
         let indices = spec.indices(None);
-        let rows = sweep::execute(&spec, &indices, dir, (threads, keep), |_| {}).map_err(failed)?;
+        let rows = sweep::execute(&spec, &indices, out.as_deref(), threads, |_| {}).map_err(failed)?;
         let summary = Summary::new(&spec, None, rows);
-        if out.is_some() {
+        if let Some(dir) = &out {
             summary.write(dir, &[]).map_err(failed)?;
         }
         Ok(summary.to_csv())

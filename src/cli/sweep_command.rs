@@ -51,7 +51,8 @@ pub(super) struct SweepOptions {
     progress: bool,
     dry_run: bool,
     fail_on_collision: bool,
-    keep: sweep::Keep,
+    /// Whether each run writes its log into the sweep directory (else only its metrics).
+    logs: bool,
 }
 
 pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<ExitCode> {
@@ -66,9 +67,9 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
     if options.dry_run {
         for &i in &indices {
             let run = spec.run(i);
-            let log = match options.keep {
-                sweep::Keep::Logs => dir.join(spec.log_name(i)).display().to_string(),
-                sweep::Keep::Metrics => "(no log)".into(),
+            let log = match options.logs {
+                true => dir.join(spec.log_name(i)).display().to_string(),
+                false => "(no log)".into(),
             };
             outln!("{i}  {log}  {}", run.overrides.join(" "));
         }
@@ -87,10 +88,9 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
         started: Instant::now(),
     };
     progress.show();
-    let rows = sweep::execute(&spec, &indices, &dir, (threads, options.keep), |row| {
-        progress.update(row)
-    })
-    .with_context(|| format!("running the sweep into {}", dir.display()))?;
+    let logs = options.logs.then_some(dir.as_path());
+    let rows = sweep::execute(&spec, &indices, logs, threads, |row| progress.update(row))
+        .with_context(|| format!("running the sweep into {}", dir.display()))?;
     progress.finish();
     let summary = Summary::new(&spec, shard, rows);
     let (json, csv) = summary
@@ -113,9 +113,9 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
         progress.started.elapsed().as_secs_f64(),
         threads.min(indices.len().max(1)),
         failures,
-        match options.keep {
-            sweep::Keep::Logs => format!("logs in {}", dir.display()),
-            sweep::Keep::Metrics => "no logs kept".into(),
+        match options.logs {
+            true => format!("logs in {}", dir.display()),
+            false => "no logs kept".into(),
         },
         csv.display(),
         json.display()
@@ -289,11 +289,7 @@ impl SweepCommand {
             progress,
             dry_run,
             fail_on_collision,
-            keep: if no_logs {
-                sweep::Keep::Metrics
-            } else {
-                sweep::Keep::Logs
-            },
+            logs: !no_logs,
         };
         run_sweep(&args, &options)
     }
