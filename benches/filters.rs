@@ -63,7 +63,7 @@ fn bicycle_filters(c: &mut Criterion) {
         })
     });
     group.bench_function("cbf_qp", |b| {
-        b.iter(|| filter::cbf_qp(black_box(&constraint), black_box(&u0)))
+        b.iter(|| filter::cbf_qp_closed_form(black_box(&constraint), black_box(&u0)))
     });
     let mut input = u0.clone();
     group.bench_function("cbf_qp_in_place", |b| {
@@ -73,11 +73,11 @@ fn bicycle_filters(c: &mut Criterion) {
         })
     });
     group.bench_function("fixed_channel", |b| {
-        b.iter(|| filter::fixed_channel(black_box(&constraint), black_box(&u0), black_box(&omega), 0, 1))
+        b.iter(|| filter::fixed_channel_one_barrier(black_box(&constraint), black_box(&u0), black_box(&omega), 0, 1))
     });
     group.bench_function("gamma_m", |b| {
         b.iter(|| {
-            filter::gamma_m(
+            filter::gamma_m_one_barrier(
                 black_box(&constraint),
                 black_box(&u0),
                 black_box(&omega),

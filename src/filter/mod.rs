@@ -2,10 +2,14 @@
 //! on (x(t), or a prediction p_i(t)); the relative-degree-2 form enters through (a, b)
 //! ((4.85)/(4.86)).
 //!
-//! - [`cbf_qp()`]: the delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form; applied
+//! - [`cbf_qp_closed_form()`]: the delay-free CBF-QP (4.6)–(4.11) (= (2.13)–(2.15)) in closed form; applied
 //!   per channel at p_i it is the full-consistency filter (4.34)–(4.37).
-//! - [`fixed_channel()`]: the fixed-channel robust filter (4.39)–(4.47).
-//! - [`gamma_m()`]: the variable-channel γm filter (4.60)–(4.68).
+//! - [`fixed_channel_one_barrier()`]: the fixed-channel robust filter (4.39)–(4.47) for one barrier.
+//! - [`gamma_m_one_barrier()`]: the variable-channel γm filter (4.60)–(4.68) for one barrier.
+//!
+//! The registered kinds are the modules of the same stems ([`cbf_qp`], [`fixed_channel`],
+//! [`gamma_m`]: parameters, checks, several barriers), so a function never shares a module's
+//! name.
 //!
 //! Channel indices are positions in delay order (D_1 ≤ … ≤ D_r), 0-based here.
 
@@ -47,7 +51,7 @@ pub struct FilterOutcome {
 const DEGENERATE_B: f64 = 1e-12;
 
 /// Closed-form solution (4.9) of min ‖v‖² s.t. a + b (u0 + v) ≥ 0, applied as (4.11).
-pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome {
+pub fn cbf_qp_closed_form(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome {
     let mut input = nominal.clone();
     let (active, infeasible, mu) = cbf_qp_in_place(constraint, &mut input);
     FilterOutcome {
@@ -58,7 +62,7 @@ pub fn cbf_qp(constraint: &Constraint, nominal: &DVector<f64>) -> FilterOutcome 
     }
 }
 
-/// [`cbf_qp()`] without allocation: `input` holds u0 on entry and u on return. Returns
+/// [`cbf_qp_closed_form()`] without allocation: `input` holds u0 on entry and u on return. Returns
 /// (active, infeasible, μ) as in [`FilterOutcome`].
 ///
 /// On slices (the recursive predictors call it at every step of their window): the same
@@ -132,7 +136,13 @@ impl ChannelOutcome {
 /// Fixed-channel robust filter (4.44)–(4.47) for channel `i`: the first `s` = max{φ, i+1}
 /// channels enforce the barrier; the already-issued inputs ω_j of the later channels (arriving
 /// with u_i) enter as known disturbances. `omega[j]` is read for j ≥ s.
-pub fn fixed_channel(c: &Constraint, u0: &DVector<f64>, omega: &DVector<f64>, i: usize, s: usize) -> ChannelOutcome {
+pub fn fixed_channel_one_barrier(
+    c: &Constraint,
+    u0: &DVector<f64>,
+    omega: &DVector<f64>,
+    i: usize,
+    s: usize,
+) -> ChannelOutcome {
     let r = u0.len();
     // μ_s (4.47).
     let mu = c.a + (0..s).map(|j| c.b[j] * u0[j]).sum::<f64>() + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
@@ -210,7 +220,7 @@ pub(crate) fn gamma_m_xi(c: &Constraint, used: usize, m: f64) -> f64 {
 /// Variable-channel γm filter (4.60)–(4.68) for channel `i`: QP_k with k the last channel
 /// with the same delay as i (4.68); channels after k enter with their already-issued inputs
 /// ω (4.64); slack penalty m ≥ 1, γ ≥ 1 (γ = (m+1)/m by default, Remark 4.5).
-pub fn gamma_m(
+pub fn gamma_m_one_barrier(
     c: &Constraint,
     u0: &DVector<f64>,
     omega: &DVector<f64>,
@@ -245,7 +255,7 @@ mod tests {
 
     #[test]
     fn inactive_when_the_nominal_is_safe() {
-        let out = cbf_qp(&constraint(1.0, &[1.0, 0.0]), &DVector::from_column_slice(&[0.5, 2.0]));
+        let out = cbf_qp_closed_form(&constraint(1.0, &[1.0, 0.0]), &DVector::from_column_slice(&[0.5, 2.0]));
         assert!(!out.active);
         assert_eq!(out.input, DVector::from_column_slice(&[0.5, 2.0]));
     }
@@ -254,7 +264,7 @@ mod tests {
     fn active_solution_lands_on_the_constraint_with_minimal_correction() {
         let c = constraint(-3.0, &[1.0, 2.0]);
         let u0 = DVector::from_column_slice(&[0.0, 0.0]);
-        let out = cbf_qp(&c, &u0);
+        let out = cbf_qp_closed_form(&c, &u0);
         assert!(out.active);
         assert!(c.value(&out.input).abs() < 1e-12);
         // The correction is parallel to b (KKT): v = 3/5 (1, 2).
@@ -265,9 +275,9 @@ mod tests {
     fn fixed_channel_with_all_channels_and_no_disturbance_is_the_delay_free_qp() {
         let c = constraint(-3.0, &[1.0, 2.0]);
         let u0 = DVector::from_column_slice(&[0.5, -0.2]);
-        let full = cbf_qp(&c, &u0);
+        let full = cbf_qp_closed_form(&c, &u0);
         for i in 0..2 {
-            let out = fixed_channel(&c, &u0, &DVector::zeros(2), i, 2);
+            let out = fixed_channel_one_barrier(&c, &u0, &DVector::zeros(2), i, 2);
             assert!((out.input - full.input[i]).abs() < 1e-12);
         }
     }
@@ -278,7 +288,7 @@ mod tests {
         let c = constraint(-1.0, &[2.0, 1.0]);
         let u0 = DVector::from_column_slice(&[0.0, 5.0]);
         let omega = DVector::from_column_slice(&[0.0, -3.0]);
-        let out = fixed_channel(&c, &u0, &omega, 0, 1);
+        let out = fixed_channel_one_barrier(&c, &u0, &omega, 0, 1);
         // μ_1 = −1 + 0 + (−3) = −4; ū_0 = 4·2/4 = 2.
         assert!((out.mu + 4.0).abs() < 1e-12 && (out.input - 2.0).abs() < 1e-12);
         assert!((c.a + c.b[0] * out.input + c.b[1] * omega[1]).abs() < 1e-12);
@@ -289,15 +299,15 @@ mod tests {
         // With i = r and γ = (m+1)/m, ū = −γ z b / (‖b‖² (1 + 1/m)) = −z b/‖b‖²: (4.9).
         let c = constraint(-3.0, &[1.0, 2.0]);
         let u0 = DVector::from_column_slice(&[0.5, -0.2]);
-        let full = cbf_qp(&c, &u0);
+        let full = cbf_qp_closed_form(&c, &u0);
         let m = 50.0;
         for i in 0..2 {
-            let out = gamma_m(&c, &u0, &DVector::zeros(2), i, 1, m, (m + 1.0) / m);
+            let out = gamma_m_one_barrier(&c, &u0, &DVector::zeros(2), i, 1, m, (m + 1.0) / m);
             assert!((out.input - full.input[i]).abs() < 1e-12, "{out:?} vs {full:?}");
         }
         // Channel 0 alone (QP_1): constraint uses its own channel plus the issued ω_1.
         let omega = DVector::from_column_slice(&[0.0, 1.0]);
-        let out = gamma_m(&c, &u0, &omega, 0, 0, m, (m + 1.0) / m);
+        let out = gamma_m_one_barrier(&c, &u0, &omega, 0, 0, m, (m + 1.0) / m);
         let z = c.a + c.b[0] * u0[0];
         let zeta = (m + 1.0) / m * z + c.b[1] * omega[1];
         let xi = 1.0 + 5.0 / m;
@@ -348,7 +358,7 @@ mod tests {
 
     #[test]
     fn zero_b_with_violation_is_reported_infeasible() {
-        let out = cbf_qp(&constraint(-1.0, &[0.0]), &DVector::from_column_slice(&[3.0]));
+        let out = cbf_qp_closed_form(&constraint(-1.0, &[0.0]), &DVector::from_column_slice(&[3.0]));
         assert!(out.infeasible && !out.active);
     }
 }

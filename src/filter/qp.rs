@@ -540,7 +540,7 @@ fn clarabel_solve(constraints: &[Constraint], u0: &DVector<f64>, limits: Option<
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::filter::cbf_qp;
+    use crate::filter::cbf_qp_closed_form;
     use crate::mujoco::counting_alloc::{allocations, count_allocations};
     use crate::random::SplitMix64;
 
@@ -612,7 +612,7 @@ mod tests {
         let c = constraint(-3.0, &[1.0, 2.0]);
         let u0 = DVector::from_column_slice(&[0.5, -0.2]);
         let qp = cbf_qp_multi(std::slice::from_ref(&c), &u0, None);
-        let closed = cbf_qp(&c, &u0);
+        let closed = cbf_qp_closed_form(&c, &u0);
         assert!((&qp.input - &closed.input).norm() < 1e-6, "{qp:?}");
         assert!(qp.active && !qp.infeasible);
     }

@@ -12,7 +12,7 @@ use nalgebra::DVector;
 
 use crate::barrier::Constraint;
 use crate::filter::qp::QpWorkspace;
-use crate::filter::{fixed_channel, gamma_m, gamma_m_xi, gamma_m_zeta, ChannelOutcome};
+use crate::filter::{fixed_channel_one_barrier, gamma_m_one_barrier, gamma_m_xi, gamma_m_zeta, ChannelOutcome};
 
 /// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
 const SHORTFALL_TOLERANCE: f64 = 1e-9;
@@ -122,7 +122,7 @@ impl ChannelQp {
     ) -> ChannelOutcome {
         let r = u0.len();
         if let [c] = constraints {
-            let mut out = fixed_channel(c, u0, omega, i, s);
+            let mut out = fixed_channel_one_barrier(c, u0, omega, i, s);
             // Active: the constraint is met with equality by construction; infeasible: v = 0.
             if out.infeasible {
                 (out.unmet, out.shortfall) = (Some(0), -out.mu);
@@ -207,7 +207,7 @@ impl ChannelQp {
         let r = u0.len();
         let used = k + 1;
         if let [c] = constraints {
-            let mut out = gamma_m(c, u0, omega, i, k, m, gamma);
+            let mut out = gamma_m_one_barrier(c, u0, omega, i, k, m, gamma);
             // w = −ζ/ξ β (4.62): v_j = −ζ/ξ b_j on the channels ≤ k, σ_j = −ζ/(ξ m) b_j.
             let scale = if out.active {
                 -out.mu / gamma_m_xi(c, used, m)
