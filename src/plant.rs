@@ -46,6 +46,8 @@ pub trait Plant: Send {
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>);
     /// A warning of the physics engine, raised since the last call, after which the physics
     /// is not the model's (each kind once; see [`Simulation::take_warning`]).
+    /// Per channel, the [lowest, highest] input the plant applies (±∞: no limit).
+    fn input_limits(&self) -> Vec<[f64; 2]>;
     fn take_warning(&mut self) -> Option<PhysicsWarning> {
         None
     }
@@ -124,6 +126,9 @@ impl ControlHook for CallbackAdapter<'_> {
 }
 
 impl Plant for MujocoPlant {
+    fn input_limits(&self) -> Vec<[f64; 2]> {
+        self.vehicle.input_limits()
+    }
     fn timestep(&self) -> f64 {
         self.sim.model().timestep()
     }
@@ -224,6 +229,10 @@ impl OdePlant {
 }
 
 impl Plant for OdePlant {
+    /// The analytic model applies any input.
+    fn input_limits(&self) -> Vec<[f64; 2]> {
+        vec![[f64::NEG_INFINITY, f64::INFINITY]; self.dynamics.input_dim()]
+    }
     fn timestep(&self) -> f64 {
         self.timestep
     }

@@ -30,6 +30,11 @@ pub trait MujocoVehicle: Send {
     /// Maps the applied input u (one value per channel) to MuJoCo's `ctrl`, given the data at
     /// the current (possibly RK4 trial) state. Writes only ctrl.
     fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]);
+    /// Per channel, the [lowest, highest] input the vehicle can apply (what it clamps an
+    /// applied input to); ±∞ where it has no limit (the default: none).
+    fn input_limits(&self) -> Vec<[f64; 2]> {
+        vec![[f64::NEG_INFINITY, f64::INFINITY]; self.dynamics().input_dim()]
+    }
 }
 
 fn hull(model: &Model) -> Result<(usize, f64), MjError> {
@@ -242,6 +247,13 @@ impl MujocoCar {
 impl MujocoVehicle for MujocoCar {
     fn dynamics(&self) -> Arc<dyn Dynamics> {
         self.model.clone()
+    }
+    /// u1 = tan δ within ±tan(the steering hinges' range), as [`MujocoCar`] clamps it; the
+    /// acceleration is bounded only through the wheels' torque limits and the tyres (no
+    /// single number: unbounded here).
+    fn input_limits(&self) -> Vec<[f64; 2]> {
+        let steer = self.max_steer.tan();
+        vec![[-steer, steer], [f64::NEG_INFINITY, f64::INFINITY]]
     }
     fn hull_radius(&self) -> f64 {
         self.hull_radius

@@ -108,7 +108,10 @@ class Env(_Base):  # type: ignore[misc, valid-type]
         if _spaces is not None:
             n, r = len(self.state_names), len(self.channels)
             self.observation_space = _spaces.Box(-np.inf, np.inf, (n,), np.float64)
-            self.action_space = _spaces.Box(-np.inf, np.inf, (r if self._drive else 0,), np.float64)
+            # The vehicle's input limits where it has them (the car's steering), else ±∞.
+            limits = np.array(described["input_limits"], dtype=np.float64).reshape(r, 2)
+            low, high = (limits[:, 0], limits[:, 1]) if self._drive else (np.zeros(0), np.zeros(0))
+            self.action_space = _spaces.Box(low, high, (len(low),), np.float64)
 
     def _start(self, seed: int | None, log: str | None) -> Any:
         overrides = dict(self._set)

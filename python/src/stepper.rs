@@ -179,6 +179,10 @@ impl Stepper {
         }
         dict.set_item("metadata", metadata)?;
         dict.set_item("planar_position", e.info().planar_position.map(|p| p.to_vec()))?;
+        dict.set_item(
+            "input_limits",
+            e.input_limits().iter().map(|l| l.to_vec()).collect::<Vec<_>>(),
+        )?;
         Ok(dict)
     }
 

@@ -195,3 +195,22 @@ def test_python_filter_in_the_loop():
     env.reset()
     steps = drive(env, [0.5, -0.5])
     assert all(s[4]["issued"]["filtered"] == [0.1, -0.1] for s in steps)
+
+
+def test_the_action_space_follows_the_vehicle_s_input_limits():
+    """The car's steering input u1 = tan δ is bounded by its steering hinges (models/car.xml's
+    range, read here with an XML parser); its acceleration and both bicycle inputs have no
+    limit (±∞)."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(scenario("../models/car.xml")).getroot()
+    ranges = {j.get("name"): [float(v) for v in j.get("range").split()] for j in root.iter("joint")
+              if j.get("name", "").startswith("steer_")}
+    steer = min(min(abs(lo), abs(hi)) for lo, hi in ranges.values())
+    car = mjsafe.Env(scenario("car_obstacle_gamma_m.toml"), reward=lambda obs, info: 0.0)
+    space = car.action_space
+    assert space.low[0] == pytest.approx(-math.tan(steer), abs=1e-12) and space.high[0] == pytest.approx(math.tan(steer), abs=1e-12)
+    assert space.low[1] == -np.inf and space.high[1] == np.inf
+    bicycle = mjsafe.Env(scenario("bicycle_obstacle.toml"))
+    assert np.isinf(bicycle.action_space.low).all() and np.isinf(bicycle.action_space.high).all()
+    car.close(); bicycle.close()

@@ -393,6 +393,12 @@ impl Episode {
         self.control.barrier_rows()
     }
 
+    /// Per channel, the [lowest, highest] input the plant applies (±∞: no limit; the car's
+    /// steering is bounded by its hinges).
+    pub fn input_limits(&self) -> Vec<[f64; 2]> {
+        self.plant.input_limits()
+    }
+
     /// The plant's current state x.
     pub fn plant_state(&self) -> DVector<f64> {
         self.plant.state()
