@@ -909,6 +909,7 @@ impl ControlLoop {
             spare_actor_positions,
             ..
         } = work;
+        // Sense: the road users as observed at t (x(t) is in `state`).
         actors.observe(t);
         let laws = Laws {
             model: model.as_ref(),
@@ -919,128 +920,45 @@ impl ControlLoop {
         };
         // Predict only for a controller that uses predictions; otherwise every channel
         // evaluates at x(t) and nothing is pending for consistency checks.
-        let (filter_predicts, nominal_predicts) = (filter.uses_prediction(), nominal.uses_prediction());
-        let structure = if filter_predicts || nominal_predicts {
+        let predicts = (filter.uses_prediction(), nominal.uses_prediction());
+        let structure = if predicts.0 || predicts.1 {
             &*structure
         } else {
             &Structure::None
         };
-        {
-            let context = PredictorContext {
-                model: model.as_ref(),
-                queues,
-                timestep: *predictor_step,
-                control_period: *control_period,
-            };
-            // κ_j for commands not yet issued inside a recursive predictor's window: the law
-            // the filter issues ((4.25) needs it), at the predicted z = x(s), per group of one
-            // delay D from the longest (each group's ω holds the later groups' commands), with
-            // u0 at the tick s − D that issues it (or at s for a nominal on predictions).
-            let mut law_error = None;
-            let mut kappa = |s: f64, z: &[f64], free: &[usize], u: &mut [f64]| {
-                if let Err(e) = law.issued_law(&laws, filter.as_mut(), queues, nominal_predicts, (s, z, free), u) {
-                    law_error.get_or_insert(e);
-                }
-            };
-            context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
-            if let Some(audit) = chain_audit {
-                let ChainAudit {
-                    workspace,
-                    predictions: recomputed,
-                    ..
-                } = audit;
-                context.predict_into(structure, t, state.as_slice(), &mut kappa, workspace, recomputed)?;
-                for (p, q) in predictions.iter().zip(recomputed.iter()) {
-                    if p.reused_chain {
-                        audit.reused += 1;
-                        let difference = (&p.state - &q.state).amax();
-                        audit.max_difference = audit.max_difference.max(difference);
-                    }
-                }
-            }
-            if let Some(e) = law_error {
-                return Err(e);
-            }
-        }
-
-        let mut count = 0;
-        for (i, p) in predictions.iter().enumerate() {
-            let (eval_state, eval_time) = if filter_predicts {
-                (&p.state, p.target_time)
-            } else {
-                (&*state, t)
-            };
-            // (u0's time, and its state with the time that state is for.)
-            let (nominal_time, nominal_state, state_time) = if nominal_predicts {
-                (p.target_time, &p.state, p.target_time)
-            } else {
-                (t, eval_state, eval_time)
-            };
-            // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
-            let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
-            let outcome = law.channel_decision(
-                &laws,
-                filter.as_mut(),
-                (t, i, queues, *timestep),
-                (
-                    (nominal_time, nominal_state.as_slice(), state_time),
-                    (eval_state.as_slice(), eval_time),
-                ),
-                (shared, &mut count),
-            )?;
-            tick.nominal[i] = law.nominal[i];
-            tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
-            tick.outcomes[i] = outcome.map(|mut o| {
-                o.unmet = o.unmet.map(|row| law.barrier_of_row(row));
-                o
-            });
-            // A non-finite command (from a state at NaN or ±1e300) never reaches a queue.
-            if !tick.issued[i].is_finite() {
-                return Err(FilterError::Other(format!(
-                    "the command of channel `{}` at t = {t} s is not finite ({}), at the state {:?}",
-                    model.channel_names()[i],
-                    tick.issued[i],
-                    eval_state.as_slice()
-                )));
-            }
-        }
-        // Every command goes to the controller's queue and, if the actuators have their own, to it.
-        for queues in std::iter::once(queues).chain(actuators.as_mut()) {
+        let context = PredictorContext {
+            model: model.as_ref(),
+            queues,
+            timestep: *predictor_step,
+            control_period: *control_period,
+        };
+        predict_stage(
+            (&laws, filter.as_mut(), law),
+            (&context, structure, predicts.1),
+            (t, state),
+            (predictor, predictions),
+            chain_audit.as_mut(),
+        )?;
+        decide_stage(
+            (&laws, filter.as_mut(), law),
+            (t, state, predictions),
+            (queues, *timestep, predicts),
+            tick,
+        )?;
+        // Delay queues: every command goes to the controller's queue and, if the actuators
+        // have their own, to it.
+        for queues in std::iter::once(&mut *queues).chain(actuators.as_mut()) {
             for (queue, &u) in queues.iter_mut().zip(tick.issued.iter()) {
                 queue.push(t, u)?;
                 queue.discard_before(t);
             }
         }
-        for p in predictions.iter() {
-            if p.target_time > t + TICK_TOLERANCE * *timestep {
-                let mut copy = |from: &[f64]| {
-                    let mut state = spare_states.pop().unwrap_or_else(|| p.state.clone());
-                    state.copy_from_slice(from);
-                    state
-                };
-                let partial_step = predictor.partial_step().map(|(start, state)| (start, copy(state)));
-                // Where the controller assumes each moving actor at the target time.
-                let mut assumed = spare_actor_positions.pop().unwrap_or_default();
-                assumed.clear();
-                for (k, m) in laws.actors.motions.iter().enumerate() {
-                    if let (Some(m), true) = (m, laws.actors.primary[k]) {
-                        assumed.extend_from_slice(&laws.actors.assumed(m, k, p.target_time).position);
-                    }
-                }
-                pending[p.channel].push_back(Pending {
-                    actors: assumed,
-                    prediction: Prediction {
-                        channel: p.channel,
-                        issued_at: p.issued_at,
-                        target_time: p.target_time,
-                        state: copy(p.state.as_slice()),
-                        reused_chain: p.reused_chain,
-                        chain_mismatch: p.chain_mismatch,
-                    },
-                    partial_step,
-                });
-            }
-        }
+        keep_pending(
+            (t, *timestep, laws.actors),
+            (predictions, predictor),
+            (spare_states, spare_actor_positions),
+            pending,
+        );
         tick.time = t;
         *tick_ready = true;
         Ok(())
@@ -1138,6 +1056,138 @@ impl ControlLoop {
         self.work.spare_states.push(consistency.prediction.state);
         self.work.spare_states.push(consistency.realized);
         self.work.spare_actor_positions.push(consistency.actors_predicted);
+    }
+}
+
+/// The predict stage: every channel's prediction p_i(t) from x(t) on `structure`, the
+/// recursive windows assuming for the commands not yet issued the law the filter issues
+/// ((4.25) needs it: κ_j at the predicted z = x(s), per group of one delay D from the longest,
+/// each group's ω holding the later groups' commands, with u0 at the tick s − D that issues it,
+/// or at s for a nominal on predictions); with an audit, each reused chain against its
+/// whole-window recomputation.
+fn predict_stage(
+    (laws, filter, law): (&Laws<'_>, &mut dyn SafetyFilter, &mut LawWorkspace),
+    (context, structure, nominal_predicts): (&PredictorContext<'_>, &Structure, bool),
+    (t, state): (f64, &DVector<f64>),
+    (predictor, predictions): (&mut PredictorWorkspace, &mut Vec<Prediction>),
+    chain_audit: Option<&mut ChainAudit>,
+) -> Result<(), FilterError> {
+    let mut law_error = None;
+    let mut kappa = |s: f64, z: &[f64], free: &[usize], u: &mut [f64]| {
+        if let Err(e) = law.issued_law(laws, filter, context.queues, nominal_predicts, (s, z, free), u) {
+            law_error.get_or_insert(e);
+        }
+    };
+    context.predict_into(structure, t, state.as_slice(), &mut kappa, predictor, predictions)?;
+    if let Some(audit) = chain_audit {
+        let ChainAudit {
+            workspace,
+            predictions: recomputed,
+            ..
+        } = audit;
+        context.predict_into(structure, t, state.as_slice(), &mut kappa, workspace, recomputed)?;
+        for (p, q) in predictions.iter().zip(recomputed.iter()) {
+            if p.reused_chain {
+                audit.reused += 1;
+                let difference = (&p.state - &q.state).amax();
+                audit.max_difference = audit.max_difference.max(difference);
+            }
+        }
+    }
+    law_error.map_or(Ok(()), Err)
+}
+
+/// The laws stage: per channel, u0 and the filter's decision at the channel's evaluation point
+/// (its prediction if the filter predicts, else x(t)), into `tick`; a non-finite command never
+/// reaches a queue (the tick stops with an error).
+fn decide_stage(
+    (laws, filter, law): (&Laws<'_>, &mut dyn SafetyFilter, &mut LawWorkspace),
+    (t, state, predictions): (f64, &DVector<f64>, &[Prediction]),
+    (queues, timestep, (filter_predicts, nominal_predicts)): (&[DelayQueue], f64, (bool, bool)),
+    tick: &mut Tick,
+) -> Result<(), FilterError> {
+    let mut count = 0;
+    for (i, p) in predictions.iter().enumerate() {
+        let (eval_state, eval_time) = if filter_predicts {
+            (&p.state, p.target_time)
+        } else {
+            (state, t)
+        };
+        // (u0's time, and its state with the time that state is for.)
+        let (nominal_time, nominal_state, state_time) = if nominal_predicts {
+            (p.target_time, &p.state, p.target_time)
+        } else {
+            (t, eval_state, eval_time)
+        };
+        // Channels at one point (one shared prediction (2.19), or none) share u0 and (a, b).
+        let shared = i > 0 && (!(filter_predicts || nominal_predicts) || same_point(&predictions[i - 1], p));
+        let outcome = law.channel_decision(
+            laws,
+            filter,
+            (t, i, queues, timestep),
+            (
+                (nominal_time, nominal_state.as_slice(), state_time),
+                (eval_state.as_slice(), eval_time),
+            ),
+            (shared, &mut count),
+        )?;
+        tick.nominal[i] = law.nominal[i];
+        tick.issued[i] = outcome.map_or(law.nominal[i], |o| o.input);
+        tick.outcomes[i] = outcome.map(|mut o| {
+            o.unmet = o.unmet.map(|row| law.barrier_of_row(row));
+            o
+        });
+        // A non-finite command (from a state at NaN or ±1e300) never reaches a queue.
+        if !tick.issued[i].is_finite() {
+            return Err(FilterError::Other(format!(
+                "the command of channel `{}` at t = {t} s is not finite ({}), at the state {:?}",
+                laws.model.channel_names()[i],
+                tick.issued[i],
+                eval_state.as_slice()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Keeps each prediction whose target time is still ahead, with where the controller assumes
+/// the moving actors then, for its consistency check when the plant gets there (storage from
+/// the spares: no allocation once warm).
+fn keep_pending(
+    (t, timestep, actors): (f64, f64, &KnownActors),
+    (predictions, predictor): (&[Prediction], &PredictorWorkspace),
+    (spare_states, spare_actor_positions): (&mut Vec<DVector<f64>>, &mut Vec<Vec<f64>>),
+    pending: &mut [VecDeque<Pending>],
+) {
+    for p in predictions.iter() {
+        if p.target_time > t + TICK_TOLERANCE * timestep {
+            let mut copy = |from: &[f64]| {
+                let mut state = spare_states.pop().unwrap_or_else(|| p.state.clone());
+                state.copy_from_slice(from);
+                state
+            };
+            let partial_step = predictor.partial_step().map(|(start, state)| (start, copy(state)));
+            // Where the controller assumes each moving actor at the target time.
+            let mut assumed = spare_actor_positions.pop().unwrap_or_default();
+            assumed.clear();
+            for (k, m) in actors.motions.iter().enumerate() {
+                if let (Some(m), true) = (m, actors.primary[k]) {
+                    assumed.extend_from_slice(&actors.assumed(m, k, p.target_time).position);
+                }
+            }
+            pending[p.channel].push_back(Pending {
+                actors: assumed,
+                prediction: Prediction {
+                    channel: p.channel,
+                    issued_at: p.issued_at,
+                    target_time: p.target_time,
+                    state: copy(p.state.as_slice()),
+                    reused_chain: p.reused_chain,
+                    chain_mismatch: p.chain_mismatch,
+                },
+                partial_step,
+            });
+        }
     }
 }
 

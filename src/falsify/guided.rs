@@ -256,35 +256,16 @@ pub(super) fn run_guided(
     };
     let evaluate = |units: Vec<Vec<f64>>| evaluator.evaluate_all(pool, units);
     let mut generation = 0;
-    // Records a generation (in canonical order) into the search and the memory; with more than
-    // one failure mode asked for, the candidates near a new violation stop ending brackets (the
-    // next bracket looks elsewhere). Returns whether the generation found a violation.
     let record = |found: &mut Search,
                   memory: &mut Memory,
                   generation: &mut usize,
                   batch: Vec<Evaluation>,
                   lineage: Option<usize>,
                   progress: &mut dyn FnMut(&Search)| {
-        let start = found.evaluations.len();
-        append(found, problem.seed, *generation, batch);
-        for e in &found.evaluations[start..] {
-            memory.used.push(false);
-            memory.lineage.push(lineage);
-            memory.classes.push(class_of(e, problem.threshold));
-        }
-        let new_violations: Vec<&Evaluation> = found.evaluations[start..].iter().filter(|e| e.violation).collect();
-        if problem.counterexamples > 1 {
-            for v in &new_violations {
-                for (i, e) in found.evaluations.iter().enumerate() {
-                    if e.box_distance(v) < super::MODE_SEPARATION {
-                        memory.used[i] = true;
-                    }
-                }
-            }
-        }
+        let violated = memory.record(problem, found, (*generation, batch, lineage));
         *generation += 1;
         progress(found);
-        !new_violations.is_empty()
+        violated
     };
     let remaining = |found: &Search| problem.budget.saturating_sub(found.evaluations.len());
 
@@ -300,17 +281,7 @@ pub(super) fn run_guided(
         } else {
             lambda.div_ceil(2)
         };
-        let count = first.min(remaining(found));
-        let mut units = vec![vec![0.0; d]; count];
-        for i in 0..d {
-            let mut strata: Vec<usize> = (0..count).collect();
-            for k in (1..count).rev() {
-                strata.swap(k, generator.below(k + 1));
-            }
-            for (unit, stratum) in units.iter_mut().zip(strata) {
-                unit[i] = (stratum as f64 + generator.next_f64()) / count as f64;
-            }
-        }
+        let units = latin_hypercube(&mut generator, first.min(remaining(found)), d);
         let batch = evaluate(units);
         record(found, &mut memory, &mut generation, batch, None, progress);
     }
@@ -347,18 +318,8 @@ pub(super) fn run_guided(
                     lineages
                 });
                 memory.bracketed.insert((s, u));
-                let count = BRACKET_POINTS.min(remaining(found));
-                let units: Vec<Vec<f64>> = (1..=count)
-                    .map(|k| {
-                        let t = k as f64 / (count + 1) as f64;
-                        (0..d)
-                            .map(|i| {
-                                let (a, b) = (found.evaluations[s].point[i], found.evaluations[u].point[i]);
-                                a + t * (b - a)
-                            })
-                            .collect()
-                    })
-                    .collect();
+                let (a, b) = (&found.evaluations[s].point, &found.evaluations[u].point);
+                let units = between(a, b, BRACKET_POINTS.min(remaining(found)));
                 bracket_evaluations += units.len();
                 let batch = evaluate(units);
                 let violated = record(found, &mut memory, &mut generation, batch, Some(lineage), progress);
@@ -420,6 +381,63 @@ pub(super) fn run_guided(
         }
     }
     Ok(())
+}
+
+/// `count` points of the unit box in a Latin hypercube: along each coordinate, one in each of
+/// `count` equal strata (the strata shuffled per coordinate, the point uniform in its stratum).
+fn latin_hypercube(generator: &mut SplitMix64, count: usize, d: usize) -> Vec<Vec<f64>> {
+    let mut units = vec![vec![0.0; d]; count];
+    for i in 0..d {
+        let mut strata: Vec<usize> = (0..count).collect();
+        for k in (1..count).rev() {
+            strata.swap(k, generator.below(k + 1));
+        }
+        for (unit, stratum) in units.iter_mut().zip(strata) {
+            unit[i] = (stratum as f64 + generator.next_f64()) / count as f64;
+        }
+    }
+    units
+}
+
+/// `count` points evenly spaced strictly between `a` and `b` (a bracket's probes).
+fn between(a: &[f64], b: &[f64], count: usize) -> Vec<Vec<f64>> {
+    (1..=count)
+        .map(|k| {
+            let t = k as f64 / (count + 1) as f64;
+            a.iter().zip(b).map(|(a, b)| a + t * (b - a)).collect()
+        })
+        .collect()
+}
+
+impl Memory {
+    /// Records a generation (in canonical order) into the search and the memory; with more
+    /// than one failure mode asked for, the candidates near a new violation stop ending
+    /// brackets (the next bracket looks elsewhere). Returns whether it found a violation.
+    fn record(
+        &mut self,
+        problem: &Problem,
+        found: &mut Search,
+        (generation, batch, lineage): (usize, Vec<Evaluation>, Option<usize>),
+    ) -> bool {
+        let start = found.evaluations.len();
+        append(found, problem.seed, generation, batch);
+        for e in &found.evaluations[start..] {
+            self.used.push(false);
+            self.lineage.push(lineage);
+            self.classes.push(class_of(e, problem.threshold));
+        }
+        let new_violations: Vec<&Evaluation> = found.evaluations[start..].iter().filter(|e| e.violation).collect();
+        if problem.counterexamples > 1 {
+            for v in &new_violations {
+                for (i, e) in found.evaluations.iter().enumerate() {
+                    if e.box_distance(v) < super::MODE_SEPARATION {
+                        self.used[i] = true;
+                    }
+                }
+            }
+        }
+        !new_violations.is_empty()
+    }
 }
 
 #[cfg(test)]
