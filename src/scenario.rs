@@ -579,20 +579,9 @@ pub struct ActuatorDynamicsSpec {
     pub max: Option<f64>,
 }
 
-/// The sensor the controller reads (`[sensing]`), see [`crate::sensing`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SensingSpec {
-    /// Age of every reading (seconds, a whole multiple of the timestep; default 0).
-    #[serde(default)]
-    pub latency: f64,
-    /// Standard deviation of the seeded Gaussian noise per state component (default: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub noise_std: Option<Vec<f64>>,
-    /// Constant offset per state component (default: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub bias: Option<Vec<f64>>,
-}
+/// The sensor the controller reads (`[sensing]`): its spec, checks and build are
+/// [`crate::sensing`]'s.
+pub use crate::sensing::SensingSpec;
 
 /// The distribution of the extra latency.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -1283,39 +1272,10 @@ fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioErro
         }
     }
     if let Some(sensing) = &sc.sensing {
-        if !(sensing.latency.is_finite() && sensing.latency >= 0.0) {
-            return Err(s.field_error(
-                "sensing.latency",
-                format!("expected a latency >= 0 seconds, found {}", sensing.latency),
-            ));
-        }
         let n = sc.vehicle.initial_state.len();
-        for (name, values, non_negative) in [("noise_std", &sensing.noise_std, true), ("bias", &sensing.bias, false)] {
-            let Some(values) = values else { continue };
-            if values.len() != n {
-                return Err(s.field_error(
-                    &format!("sensing.{name}"),
-                    format!(
-                        "expected one value per state component ({n}, as vehicle.initial_state), found {}",
-                        values.len()
-                    ),
-                ));
-            }
-            if values
-                .iter()
-                .any(|v| !v.is_finite() || (non_negative && *v < 0.0) || v.abs() > STATE_EXTENT)
-            {
-                let expected = if non_negative {
-                    "finite numbers >= 0"
-                } else {
-                    "finite numbers"
-                };
-                return Err(s.field_error(
-                    &format!("sensing.{name}"),
-                    format!("expected {expected} within ±{STATE_EXTENT:e}"),
-                ));
-            }
-        }
+        sensing
+            .validate(n, sc.duration, STATE_EXTENT)
+            .map_err(|e| s.field_error(&e.key, e.message))?;
     }
     Ok(())
 }

@@ -21,13 +21,8 @@ use crate::plant::{MujocoObstacle, MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
 use crate::scenario::{ActuationSpec, DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
-use crate::sensing::Sensor;
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
-
-/// Most values the sensor's ring of past true states may hold ((latency/h + 1) × state size):
-/// 10⁷ doubles, 80 MB.
-pub const MAX_SENSOR_HISTORY: usize = 10_000_000;
 
 /// Most samples of a time-varying delay over the run for its largest value (`max_delay`).
 const MAX_DELAY_SAMPLES: usize = 1_000_000;
@@ -1182,53 +1177,8 @@ pub(super) fn configure_control(
         control.add_barrier(barrier.clone());
     }
     if let Some(sensing) = &sc.sensing {
-        let steps = sensing.latency / timestep;
-        if (steps - steps.round()).abs() > 1e-6 {
-            return Err(loaded
-                .field_error(
-                    "sensing.latency",
-                    format!(
-                        "expected a whole multiple of the timestep {timestep} s, found {}",
-                        sensing.latency
-                    ),
-                )
-                .into());
-        }
-        let n = control.model().state_dim();
-        // The sensor keeps a ring of latency/h + 1 past true states: bounded before it is made.
-        if sensing.latency > sc.duration {
-            return Err(loaded
-                .field_error(
-                    "sensing.latency",
-                    format!(
-                        "expected at most the run's duration {} s (a reading older than the run is x(0) throughout), found {}",
-                        sc.duration, sensing.latency
-                    ),
-                )
-                .into());
-        }
-        if (steps + 1.0) * n as f64 > MAX_SENSOR_HISTORY as f64 {
-            return Err(loaded
-                .field_error(
-                    "sensing.latency",
-                    format!(
-                        "{} s is {} steps of {timestep} s: the sensor's ring of past states would hold {:.4e} values, more than the limit of {MAX_SENSOR_HISTORY:e} (expected a latency of at most {} steps)",
-                        sensing.latency,
-                        steps.round(),
-                        (steps.round() + 1.0) * n as f64,
-                        MAX_SENSOR_HISTORY / n.max(1) - 1
-                    ),
-                )
-                .into());
-        }
-        let or_zeros = |v: &Option<Vec<f64>>| v.clone().unwrap_or_else(|| vec![0.0; n]);
-        control.set_sensor(Sensor::new(
-            n,
-            steps.round() as usize,
-            or_zeros(&sensing.noise_std),
-            or_zeros(&sensing.bias),
-            sc.seed,
-        ));
+        let sensor = sensing.build(control.model().state_dim(), timestep, sc.seed);
+        control.set_sensor(sensor.map_err(|e| param_error(loaded, e))?);
     }
     let actuators = control
         .model()
