@@ -561,23 +561,9 @@ pub struct ActuationSpec {
     pub drop_probability: f64,
 }
 
-/// One channel's actuator dynamics (`[actuator_dynamics.<channel>]`), see [`crate::actuator`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ActuatorDynamicsSpec {
-    /// First-order lag τ (seconds, >= 0; 0: none).
-    #[serde(default)]
-    pub time_constant: f64,
-    /// Largest |da/dt| (input units per second, > 0; absent: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rate_limit: Option<f64>,
-    /// Smallest input the actuator produces (absent: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub min: Option<f64>,
-    /// Largest input the actuator produces (absent: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub max: Option<f64>,
-}
+/// One channel's actuator dynamics (`[actuator_dynamics.<channel>]`): its spec, checks and
+/// build are [`crate::actuator`]'s.
+pub use crate::actuator::ActuatorDynamicsSpec;
 
 /// The sensor the controller reads (`[sensing]`): its spec, checks and build are
 /// [`crate::sensing`]'s.
@@ -1245,31 +1231,7 @@ fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioErro
         }
     }
     for (channel, a) in &sc.actuator_dynamics {
-        let key = format!("actuator_dynamics.{channel}");
-        if !(a.time_constant.is_finite() && a.time_constant >= 0.0) {
-            return Err(s.field_error(
-                &format!("{key}.time_constant"),
-                format!("expected a lag >= 0 seconds, found {}", a.time_constant),
-            ));
-        }
-        if let Some(rate) = a.rate_limit {
-            if !positive_finite(rate) {
-                return Err(s.field_error(
-                    &format!("{key}.rate_limit"),
-                    format!("expected a positive rate (input units per second), found {rate}"),
-                ));
-            }
-        }
-        for (name, bound) in [("min", a.min), ("max", a.max)] {
-            if bound.is_some_and(|b| !b.is_finite()) {
-                return Err(s.field_error(&format!("{key}.{name}"), "expected a finite number"));
-            }
-        }
-        if let (Some(lo), Some(hi)) = (a.min, a.max) {
-            if lo > hi {
-                return Err(s.field_error(&format!("{key}.max"), format!("expected max >= min ({lo}), found {hi}")));
-            }
-        }
+        a.validate(channel).map_err(|e| s.field_error(&e.key, e.message))?;
     }
     if let Some(sensing) = &sc.sensing {
         let n = sc.vehicle.initial_state.len();

@@ -8,7 +8,6 @@ use nalgebra::DVector;
 
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
-use crate::actuator::{Actuator, ActuatorLimits};
 use crate::barrier::{Barrier, BarrierForm};
 use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
 use crate::dynamics::Dynamics;
@@ -1185,15 +1184,8 @@ pub(super) fn configure_control(
         .channel_names()
         .iter()
         .map(|channel| {
-            sc.actuator_dynamics.get(channel).map(|spec| {
-                let limits = ActuatorLimits {
-                    time_constant: spec.time_constant,
-                    rate_limit: spec.rate_limit.unwrap_or(f64::INFINITY),
-                    min: spec.min.unwrap_or(f64::NEG_INFINITY),
-                    max: spec.max.unwrap_or(f64::INFINITY),
-                };
-                Actuator::new(limits, sc.initial_input.get(channel).copied().unwrap_or(0.0))
-            })
+            (sc.actuator_dynamics.get(channel))
+                .map(|spec| spec.build(sc.initial_input.get(channel).copied().unwrap_or(0.0)))
         })
         .collect();
     control.set_actuator_dynamics(actuators);
