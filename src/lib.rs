@@ -20,6 +20,7 @@ pub mod falsify;
 pub mod files;
 pub mod filter;
 pub mod footprint;
+pub mod goal;
 pub mod log;
 pub mod message;
 pub mod metrics;

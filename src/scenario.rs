@@ -109,44 +109,8 @@ pub struct RequirementSpec {
     pub formula: String,
 }
 
-/// The `[goal]` table: a region the planar position should enter — a disc (`position`,
-/// `radius`) or polygons (their union; a CommonRoad goal's rectangles, polygons and lanelets) —
-/// optionally within a time window (`after`, `by`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GoalSpec {
-    /// Centre of the disc (planar position, m).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub position: Option<[f64; 2]>,
-    /// Radius of the disc (m, > 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub radius: Option<f64>,
-    /// The region as polygons instead (each at least 3 points, m; at most
-    /// [`MAX_GOAL_POLYGONS`] of at most [`MAX_GOAL_POINTS`] points).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub polygons: Vec<Vec<[f64; 2]>>,
-    /// Start of the time window (s, ≥ 0): states before it do not count.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub after: Option<f64>,
-    /// The point that must enter the region lies this far ahead of the planar position along
-    /// the heading (m; a CommonRoad goal: the car's centre, b ahead of the bicycle's rear axle).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub offset: Option<f64>,
-    /// The speed (the state named `speed`, m/s) must lie in [lo, hi] too, for `time_to_goal`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub speed: Option<[f64; 2]>,
-    /// The heading (rad, modulo 2π) must lie in [lo, hi] too, for `time_to_goal`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub heading: Option<[f64; 2]>,
-    /// Deadline (s, > 0): `distance_to_goal` counts only the states up to it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub by: Option<f64>,
-}
-
-/// Most polygons of a goal region, and most points of one.
-pub const MAX_GOAL_POLYGONS: usize = 64;
-/// Most points of one goal polygon.
-pub const MAX_GOAL_POINTS: usize = 10_000;
+/// The `[goal]` table: its spec and checks are [`crate::goal`]'s.
+pub use crate::goal::{GoalSpec, MAX_GOAL_POINTS, MAX_GOAL_POLYGONS};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -1112,84 +1076,14 @@ fn validate_requirements(s: &LoadedScenario) -> Result<(), ScenarioError> {
     Ok(())
 }
 
-/// `goal`: a finite centre, a positive radius and deadline (planarity is checked with the model).
+/// `goal`: its own checks ([`GoalSpec::validate`]; planarity is checked with the model).
 fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    let Some(goal) = &s.scenario.goal else {
-        return Ok(());
-    };
-    let point_ok = |p: &[f64; 2]| p.iter().all(|v| v.is_finite() && v.abs() <= OBSTACLE_EXTENT);
-    match (goal.position, goal.radius, goal.polygons.is_empty()) {
-        (Some(position), Some(radius), true) => {
-            if !point_ok(&position) {
-                return Err(s.field_error(
-                    "goal.position",
-                    format!("expected two finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
-                ));
-            }
-            if !positive_finite(radius) || radius > OBSTACLE_EXTENT {
-                return Err(s.field_error("goal.radius", format!("expected a positive radius (m), found {radius}")));
-            }
-        }
-        (None, None, false) => {
-            if goal.polygons.len() > MAX_GOAL_POLYGONS {
-                return Err(s.field_error(
-                    "goal.polygons",
-                    format!(
-                        "expected at most {MAX_GOAL_POLYGONS} polygons, found {}",
-                        goal.polygons.len()
-                    ),
-                ));
-            }
-            for (i, polygon) in goal.polygons.iter().enumerate() {
-                if !(3..=MAX_GOAL_POINTS).contains(&polygon.len()) || !polygon.iter().all(point_ok) {
-                    return Err(s.field_error(
-                        &format!("goal.polygons.{i}"),
-                        format!("expected 3 to {MAX_GOAL_POINTS} points with finite coordinates within ±{OBSTACLE_EXTENT:e} m"),
-                    ));
-                }
-            }
-        }
-        _ => {
-            return Err(s.field_error(
-                "goal",
-                "expected a disc (`position` and `radius`) or `polygons`, one of the two",
-            ))
-        }
+    match &s.scenario.goal {
+        Some(goal) => goal
+            .validate(OBSTACLE_EXTENT)
+            .map_err(|e| s.field_error(&e.key, e.message)),
+        None => Ok(()),
     }
-    if let Some(offset) = goal.offset {
-        if !(offset.is_finite() && offset.abs() <= OBSTACLE_EXTENT) {
-            return Err(s.field_error("goal.offset", format!("expected a distance (m), found {offset}")));
-        }
-    }
-    for (key, interval) in [("goal.speed", goal.speed), ("goal.heading", goal.heading)] {
-        if let Some([lo, hi]) = interval {
-            if !(lo.is_finite()
-                && hi.is_finite()
-                && lo <= hi
-                && lo.abs() <= OBSTACLE_EXTENT
-                && hi.abs() <= OBSTACLE_EXTENT)
-            {
-                return Err(s.field_error(
-                    key,
-                    format!("expected an interval [lo, hi] with lo <= hi, found [{lo}, {hi}]"),
-                ));
-            }
-        }
-    }
-    if let Some(after) = goal.after {
-        if !(after.is_finite() && after >= 0.0) {
-            return Err(s.field_error("goal.after", format!("expected a time >= 0 (s), found {after}")));
-        }
-    }
-    if let Some(by) = goal.by {
-        if !positive_finite(by) || goal.after.is_some_and(|after| by < after) {
-            return Err(s.field_error(
-                "goal.by",
-                format!("expected a positive time (s), not before `after`, found {by}"),
-            ));
-        }
-    }
-    Ok(())
 }
 
 /// `actuation`, `actuator_dynamics` and `sensing`: ranges, and extents within the run.
