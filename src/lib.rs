@@ -37,6 +37,7 @@ pub mod predictor;
 pub mod prescribed_time;
 pub mod random;
 pub mod registry;
+pub mod requirement;
 pub mod road;
 pub mod run;
 pub mod scenario;

@@ -100,14 +100,10 @@ pub struct Scenario {
     pub commonroad: Option<crate::commonroad::CommonRoadSpec>,
 }
 
-/// One `[[requirements]]` entry: a name (the `req.<name>` metric) and an STL formula over the
-/// run's signals (docs/requirements.md).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RequirementSpec {
-    pub name: String,
-    pub formula: String,
-}
+/// The `[[requirements]]` section: its spec and checks are [`crate::requirement`]'s.
+pub use crate::requirement::{
+    check_requirement_name, parse_require_flag, RequirementSpec, MAX_REQUIREMENTS, MAX_REQUIREMENT_NAME,
+};
 
 /// The `[goal]` table: its spec and checks are [`crate::goal`]'s.
 pub use crate::goal::{GoalSpec, MAX_GOAL_POINTS, MAX_GOAL_POLYGONS};
@@ -1020,60 +1016,9 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     validate_requirements(s)
 }
 
-/// The longest requirement name (a metric column `req.<name>`).
-pub const MAX_REQUIREMENT_NAME: usize = 64;
-
-/// A requirement's name: letters, digits, `_` and `-`, at most [`MAX_REQUIREMENT_NAME`]
-/// characters.
-pub fn check_requirement_name(name: &str) -> Result<(), String> {
-    let ok = !name.is_empty()
-        && name.len() <= MAX_REQUIREMENT_NAME
-        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
-    if ok {
-        Ok(())
-    } else {
-        Err(format!(
-            "expected a name of 1 to {MAX_REQUIREMENT_NAME} letters, digits, `_` or `-` (the metric `req.<name>`), found {name:?}"
-        ))
-    }
-}
-
-/// `NAME=FORMULA` of `--require`: the name and the formula's text, both checked.
-pub fn parse_require_flag(text: &str) -> Result<(String, String), String> {
-    let Some((name, formula)) = text.split_once('=') else {
-        return Err(format!("expected NAME=FORMULA, found {text:?}"));
-    };
-    let name = name.trim();
-    check_requirement_name(name)?;
-    crate::stl::parse(formula).map_err(|e| e.to_string())?;
-    Ok((name.to_string(), formula.trim().to_string()))
-}
-
-/// At most this many requirements per run (each is a metric column and a monitor).
-pub const MAX_REQUIREMENTS: usize = 64;
-
-/// `requirements`: distinct names a metric column can carry, formulas that parse, bounds that
-/// are whole numbers of the plant step (checked with the model: `stl::Formula::check_step`).
+/// `requirements`: their own checks ([`crate::requirement::validate`]).
 fn validate_requirements(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    let list = &s.scenario.requirements;
-    if list.len() > MAX_REQUIREMENTS {
-        return Err(s.field_error(
-            "requirements",
-            format!("expected at most {MAX_REQUIREMENTS} requirements, found {}", list.len()),
-        ));
-    }
-    for (i, r) in list.iter().enumerate() {
-        check_requirement_name(&r.name).map_err(|e| s.field_error(&format!("requirements[{i}].name"), e))?;
-        if list[..i].iter().any(|other| other.name == r.name) {
-            return Err(s.field_error(
-                &format!("requirements[{i}].name"),
-                format!("`{}` is already the name of an earlier requirement", r.name),
-            ));
-        }
-        crate::stl::parse(&r.formula)
-            .map_err(|e| s.field_error(&format!("requirements[{i}].formula"), e.to_string()))?;
-    }
-    Ok(())
+    crate::requirement::validate(&s.scenario.requirements).map_err(|e| s.field_error(&e.key, e.message))
 }
 
 /// `goal`: its own checks ([`GoalSpec::validate`]; planarity is checked with the model).
