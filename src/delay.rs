@@ -11,6 +11,8 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
+use crate::params::ParamError;
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DelayError {
     #[error("delay of channel `{channel}` is {delay} s: it must be finite and >= 0")]
@@ -372,6 +374,88 @@ pub enum ExtraLatency {
         std: f64,
         max: f64,
     },
+}
+
+/// One channel's stochastic actuation (`[actuation.<channel>]`): the section's spec, checks
+/// and build.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActuationSpec {
+    /// Extra latency ε_k ≥ 0 of each command (seconds), seeded by `seed`.
+    #[serde(default)]
+    pub extra_latency: Option<ExtraLatencySpec>,
+    /// Probability that a command is dropped (never arrives; the actuator holds the last one
+    /// that did), in [0, 1).
+    #[serde(default)]
+    pub drop_probability: f64,
+}
+
+/// The distribution of the extra latency.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "distribution", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ExtraLatencySpec {
+    /// Uniform on [0, max].
+    Uniform { max: f64 },
+    /// Normal(mean, std) truncated to [0, max].
+    TruncatedNormal { mean: f64, std: f64, max: f64 },
+}
+
+impl ActuationSpec {
+    /// The checks of channel `channel`'s table when the scenario loads: a drop probability in
+    /// [0, 1), an extra latency of at most the run's `duration` (a command that late never
+    /// arrives). Keys are the scenario's (`actuation.<channel>.drop_probability`).
+    pub fn validate(&self, channel: &str, duration: f64) -> Result<(), ParamError> {
+        let (a, key) = (self, format!("actuation.{channel}"));
+        if !(a.drop_probability.is_finite() && (0.0..1.0).contains(&a.drop_probability)) {
+            return Err(ParamError::new(
+                format!("{key}.drop_probability"),
+                format!("expected a probability in [0, 1), found {}", a.drop_probability),
+            ));
+        }
+        let ok = match a.extra_latency {
+            None => true,
+            Some(ExtraLatencySpec::Uniform { max }) => max.is_finite() && max >= 0.0,
+            Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
+                mean.is_finite() && (std.is_finite() && std > 0.0) && max.is_finite() && max >= 0.0
+            }
+        };
+        if !ok {
+            return Err(ParamError::new(
+                format!("{key}.extra_latency"),
+                "expected max >= 0 seconds (and for truncated_normal a finite mean and std > 0)",
+            ));
+        }
+        let bound = match a.extra_latency {
+            Some(ExtraLatencySpec::Uniform { max }) | Some(ExtraLatencySpec::TruncatedNormal { max, .. }) => max,
+            None => 0.0,
+        };
+        if bound > duration {
+            return Err(ParamError::new(
+                format!("{key}.extra_latency.max"),
+                format!(
+                    "expected at most the run's duration {} s (a command that late never arrives), found {bound}",
+                    duration
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The channel's seeded actuation (`seed`, its index among the channels).
+    pub fn build(&self, seed: u64, channel_index: usize) -> Actuation {
+        Actuation {
+            extra_latency: match self.extra_latency {
+                None => ExtraLatency::None,
+                Some(ExtraLatencySpec::Uniform { max }) => ExtraLatency::Uniform { max },
+                Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
+                    ExtraLatency::TruncatedNormal { mean, std, max }
+                }
+            },
+            drop_probability: self.drop_probability,
+            seed,
+            channel_index: channel_index as u64,
+        }
+    }
 }
 
 impl Actuation {

@@ -508,18 +508,9 @@ pub enum PlantKind {
     Ode,
 }
 
-/// One channel's stochastic actuation (`[actuation.<channel>]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ActuationSpec {
-    /// Extra latency ε_k ≥ 0 of each command (seconds), seeded by `seed`.
-    #[serde(default)]
-    pub extra_latency: Option<ExtraLatencySpec>,
-    /// Probability that a command is dropped (never arrives; the actuator holds the last one
-    /// that did), in [0, 1).
-    #[serde(default)]
-    pub drop_probability: f64,
-}
+/// One channel's stochastic actuation (`[actuation.<channel>]`): its spec, checks and build
+/// are [`crate::delay`]'s.
+pub use crate::delay::{ActuationSpec, ExtraLatencySpec};
 
 /// One channel's actuator dynamics (`[actuator_dynamics.<channel>]`): its spec, checks and
 /// build are [`crate::actuator`]'s.
@@ -528,16 +519,6 @@ pub use crate::actuator::ActuatorDynamicsSpec;
 /// The sensor the controller reads (`[sensing]`): its spec, checks and build are
 /// [`crate::sensing`]'s.
 pub use crate::sensing::SensingSpec;
-
-/// The distribution of the extra latency.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "distribution", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ExtraLatencySpec {
-    /// Uniform on [0, max].
-    Uniform { max: f64 },
-    /// Normal(mean, std) truncated to [0, max].
-    TruncatedNormal { mean: f64, std: f64, max: f64 },
-}
 
 /// MuJoCo's numerical integrator (`vehicle.integrator`, the model's `<option integrator>`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -1035,39 +1016,8 @@ fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
 fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
     for (channel, a) in &sc.actuation {
-        let key = format!("actuation.{channel}");
-        if !(a.drop_probability.is_finite() && (0.0..1.0).contains(&a.drop_probability)) {
-            return Err(s.field_error(
-                &format!("{key}.drop_probability"),
-                format!("expected a probability in [0, 1), found {}", a.drop_probability),
-            ));
-        }
-        let ok = match a.extra_latency {
-            None => true,
-            Some(ExtraLatencySpec::Uniform { max }) => max.is_finite() && max >= 0.0,
-            Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
-                mean.is_finite() && positive_finite(std) && max.is_finite() && max >= 0.0
-            }
-        };
-        if !ok {
-            return Err(s.field_error(
-                &format!("{key}.extra_latency"),
-                "expected max >= 0 seconds (and for truncated_normal a finite mean and std > 0)",
-            ));
-        }
-        let bound = match a.extra_latency {
-            Some(ExtraLatencySpec::Uniform { max }) | Some(ExtraLatencySpec::TruncatedNormal { max, .. }) => max,
-            None => 0.0,
-        };
-        if bound > sc.duration {
-            return Err(s.field_error(
-                &format!("{key}.extra_latency.max"),
-                format!(
-                    "expected at most the run's duration {} s (a command that late never arrives), found {bound}",
-                    sc.duration
-                ),
-            ));
-        }
+        a.validate(channel, sc.duration)
+            .map_err(|e| s.field_error(&e.key, e.message))?;
     }
     for (channel, a) in &sc.actuator_dynamics {
         a.validate(channel).map_err(|e| s.field_error(&e.key, e.message))?;

@@ -9,7 +9,7 @@ use nalgebra::DVector;
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
 use crate::barrier::{Barrier, BarrierForm};
-use crate::delay::{Actuation, DelayProfile, DelayQueue, ExtraLatency};
+use crate::delay::{DelayProfile, DelayQueue};
 use crate::dynamics::Dynamics;
 use crate::filter::linear_delays;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
@@ -19,7 +19,7 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoObstacle, MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{ActuationSpec, DisturbanceSpec, ExtraLatencySpec, Integrator, LoadedScenario, ScenarioError};
+use crate::scenario::{DisturbanceSpec, Integrator, LoadedScenario, ScenarioError};
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
@@ -536,7 +536,7 @@ pub(super) fn queues(
                 truth,
                 initial,
                 timestep,
-                actuation(spec, sc.seed, index),
+                spec.build(sc.seed, index),
             )),
             None if sc.assumed_delays.contains_key(channel) => Some(
                 DelayQueue::with_profile(channel, truth, initial, timestep)
@@ -565,22 +565,6 @@ pub(super) fn queues(
         structure,
         actuators,
     })
-}
-
-/// A channel's seeded stochastic actuation from its `[actuation.<channel>]` table.
-fn actuation(spec: &ActuationSpec, seed: u64, channel_index: usize) -> Actuation {
-    Actuation {
-        extra_latency: match spec.extra_latency {
-            None => ExtraLatency::None,
-            Some(ExtraLatencySpec::Uniform { max }) => ExtraLatency::Uniform { max },
-            Some(ExtraLatencySpec::TruncatedNormal { mean, std, max }) => {
-                ExtraLatency::TruncatedNormal { mean, std, max }
-            }
-        },
-        drop_probability: spec.drop_probability,
-        seed,
-        channel_index: channel_index as u64,
-    }
 }
 
 /// The nominal controller of the scenario's `nominal` table (registry kind).
