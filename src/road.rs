@@ -12,6 +12,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::barrier::{Barrier, Shape};
+use crate::params::ParamError;
 
 /// Most edges of a road, and most lane markings.
 pub const MAX_ROAD_ITEMS: usize = 64;
@@ -26,6 +27,74 @@ pub struct RoadSpec {
     /// `[[road.lanes]]`: lane markings, drawn dashed; not barriers.
     #[serde(default)]
     pub lanes: Vec<Marking>,
+}
+
+impl RoadSpec {
+    /// The checks of the section when the scenario loads: at most [`MAX_ROAD_ITEMS`] edges and
+    /// lanes; polyline edges of 2 to [`MAX_EDGE_POINTS`] finite points within ±`extent` m that
+    /// make a smooth curve; lines and arcs within ±`extent`; unique, non-empty lane names. Keys
+    /// are the scenario's (`road.edges.2.points`).
+    pub fn validate(&self, extent: f64) -> Result<(), ParamError> {
+        let road = self;
+        for (section, count) in [("road.edges", road.edges.len()), ("road.lanes", road.lanes.len())] {
+            if count > MAX_ROAD_ITEMS {
+                return Err(ParamError::new(
+                    section,
+                    format!("expected at most {MAX_ROAD_ITEMS} entries, found {count}"),
+                ));
+            }
+        }
+        for (i, edge) in road.edges.iter().enumerate() {
+            if let Edge::Polyline { points, .. } = edge {
+                let finite = points
+                    .iter()
+                    .all(|p| p.iter().all(|v| v.is_finite() && v.abs() <= extent));
+                if !(2..=MAX_EDGE_POINTS).contains(&points.len()) || !finite {
+                    return Err(ParamError::new(
+                        format!("road.edges.{i}.points"),
+                        format!(
+                            "expected 2 to {} points with finite coordinates within ±{extent:e} m",
+                            MAX_EDGE_POINTS
+                        ),
+                    ));
+                }
+                crate::barrier::curve::SmoothCurve::new(points)
+                    .map_err(|e| ParamError::new(format!("road.edges.{i}.points"), e))?;
+            }
+        }
+        let edges = road.edges.iter().filter_map(|e| match e {
+            Edge::Line { point, direction, .. } => Some((Some((*point, *direction)), None)),
+            Edge::Arc { centre, radius, .. } => Some((None, Some((*centre, *radius)))),
+            Edge::Polyline { .. } => None,
+        });
+        let lanes = road.lanes.iter().map(|m| match m {
+            Marking::Line { point, direction, .. } => (Some((*point, *direction)), None),
+            Marking::Arc { centre, radius, .. } => (None, Some((*centre, *radius))),
+        });
+        let keyed = edges
+            .enumerate()
+            .map(|(i, g)| (format!("road.edges.{i}"), g))
+            .chain(lanes.enumerate().map(|(i, g)| (format!("road.lanes.{i}"), g)));
+        for (key, (line, circle)) in keyed {
+            if let Some((field, message)) = curve_problem(line, circle, extent) {
+                return Err(ParamError::new(format!("{key}.{field}"), message));
+            }
+        }
+        let mut lanes = std::collections::BTreeMap::new();
+        for (i, marking) in road.lanes.iter().enumerate() {
+            let name = marking.name(i);
+            let key = format!("road.lanes.{i}.name");
+            if name.trim().is_empty() {
+                return Err(ParamError::new(key.clone(), "expected a name that is not empty"));
+            }
+            if let Some(other) = lanes.insert(name.clone(), i) {
+                return Err(ParamError::new(key.clone(),
+                format!("`{name}` is already the name of road.lanes.{other}; names must be unique (they key the drawn entities)"),
+            ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// On which side of a directed line edge the road lies.

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::barrier::Shape;
 use crate::delay::DelayProfile;
-use crate::road::{Edge, Marking, RoadSpec, MAX_ROAD_ITEMS};
+use crate::road::RoadSpec;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -1305,73 +1305,14 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
     Ok(())
 }
 
-/// `road`: at most [`MAX_ROAD_ITEMS`] edges and lane markings, each a line with a non-zero
-/// direction or a circle with a positive radius, within ±[`OBSTACLE_EXTENT`] m; lane markings'
-/// names unique. (The vehicle starting on the road is checked with its hull, when the episode
-/// is built.)
+/// `road`: its own checks ([`RoadSpec::validate`]).
 fn validate_road(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    let Some(road) = &s.scenario.road else {
-        return Ok(());
-    };
-    for (section, count) in [("road.edges", road.edges.len()), ("road.lanes", road.lanes.len())] {
-        if count > MAX_ROAD_ITEMS {
-            return Err(s.field_error(
-                section,
-                format!("expected at most {MAX_ROAD_ITEMS} entries, found {count}"),
-            ));
-        }
+    match &s.scenario.road {
+        Some(road) => road
+            .validate(OBSTACLE_EXTENT)
+            .map_err(|e| s.field_error(&e.key, e.message)),
+        None => Ok(()),
     }
-    for (i, edge) in road.edges.iter().enumerate() {
-        if let Edge::Polyline { points, .. } = edge {
-            let finite = points
-                .iter()
-                .all(|p| p.iter().all(|v| v.is_finite() && v.abs() <= OBSTACLE_EXTENT));
-            if !(2..=crate::road::MAX_EDGE_POINTS).contains(&points.len()) || !finite {
-                return Err(s.field_error(
-                    &format!("road.edges.{i}.points"),
-                    format!(
-                        "expected 2 to {} points with finite coordinates within ±{OBSTACLE_EXTENT:e} m",
-                        crate::road::MAX_EDGE_POINTS
-                    ),
-                ));
-            }
-            crate::barrier::curve::SmoothCurve::new(points)
-                .map_err(|e| s.field_error(&format!("road.edges.{i}.points"), e))?;
-        }
-    }
-    let edges = road.edges.iter().filter_map(|e| match e {
-        Edge::Line { point, direction, .. } => Some((Some((*point, *direction)), None)),
-        Edge::Arc { centre, radius, .. } => Some((None, Some((*centre, *radius)))),
-        Edge::Polyline { .. } => None,
-    });
-    let lanes = road.lanes.iter().map(|m| match m {
-        Marking::Line { point, direction, .. } => (Some((*point, *direction)), None),
-        Marking::Arc { centre, radius, .. } => (None, Some((*centre, *radius))),
-    });
-    let keyed = edges
-        .enumerate()
-        .map(|(i, g)| (format!("road.edges.{i}"), g))
-        .chain(lanes.enumerate().map(|(i, g)| (format!("road.lanes.{i}"), g)));
-    for (key, (line, circle)) in keyed {
-        if let Some((field, message)) = crate::road::curve_problem(line, circle, OBSTACLE_EXTENT) {
-            return Err(s.field_error(&format!("{key}.{field}"), message));
-        }
-    }
-    let mut lanes = std::collections::BTreeMap::new();
-    for (i, marking) in road.lanes.iter().enumerate() {
-        let name = marking.name(i);
-        let key = format!("road.lanes.{i}.name");
-        if name.trim().is_empty() {
-            return Err(s.field_error(&key, "expected a name that is not empty"));
-        }
-        if let Some(other) = lanes.insert(name.clone(), i) {
-            return Err(s.field_error(
-                &key,
-                format!("`{name}` is already the name of road.lanes.{other}; names must be unique (they key the drawn entities)"),
-            ));
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]
