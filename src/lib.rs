@@ -12,6 +12,7 @@ pub mod bench;
 pub mod cli;
 pub mod commonroad;
 pub mod delay;
+pub mod disturbance;
 pub mod dynamics;
 pub mod embed;
 pub mod episode;

@@ -205,8 +205,8 @@ pub struct OdePlant {
     last_input: Vec<f64>,
 }
 
-/// An additive disturbance w(t) on ẋ (e.g. B_ω ω(t) of (3.24)).
-pub type Disturbance = Box<dyn Fn(f64) -> DVector<f64> + Send>;
+/// An additive disturbance w(t) on ẋ (e.g. B_ω ω(t) of (3.24); [`crate::disturbance`]).
+pub type Disturbance = crate::disturbance::StateDisturbance;
 
 impl OdePlant {
     pub fn new(dynamics: Arc<dyn Dynamics>, x0: DVector<f64>, timestep: f64) -> OdePlant {

@@ -108,18 +108,8 @@ pub use crate::requirement::{
 /// The `[goal]` table: its spec and checks are [`crate::goal`]'s.
 pub use crate::goal::{GoalSpec, MAX_GOAL_POINTS, MAX_GOAL_POLYGONS};
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum DisturbanceSpec {
-    /// (3.49)/(3.50): ω1 = sin(0.4πt)/√2, ω2 = sgn(ω1)/√2, entering every state (B_ω = I).
-    Example349,
-    /// A bounded random disturbance ‖ω‖ ≤ `bound` entering with the inputs (Z = G in (4.12)),
-    /// piecewise constant over `hold` seconds, seeded. Both plants.
-    RandomInput { bound: f64, hold: f64 },
-    /// A bounded random disturbance ‖ω‖ ≤ `bound` on every state (B_ω = I in (3.24)),
-    /// piecewise constant over `hold` seconds, seeded. ODE plant.
-    RandomState { bound: f64, hold: f64 },
-}
+/// The `[disturbance]` table: its spec, checks and signals are [`crate::disturbance`]'s.
+pub use crate::disturbance::DisturbanceSpec;
 
 /// The `[vehicle]` table: what every vehicle has, and the keys of the kind's own (e.g. `a`, `b`
 /// of `linear`), which the kind's registered parameter type checks when the episode is built
@@ -1056,19 +1046,8 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
             ));
         }
     }
-    match &sc.disturbance {
-        Some(DisturbanceSpec::RandomInput { bound, hold }) | Some(DisturbanceSpec::RandomState { bound, hold })
-            if !(bound.is_finite() && *bound >= 0.0 && positive_finite(*hold)) =>
-        {
-            return Err(s.field_error(
-                "disturbance",
-                format!("expected bound >= 0 and hold > 0, found bound = {bound}, hold = {hold}"),
-            ));
-        }
-        Some(DisturbanceSpec::Example349) | Some(DisturbanceSpec::RandomState { .. }) if sc.plant != PlantKind::Ode => {
-            return Err(s.field_error("disturbance", "this disturbance acts on the state of the ODE plant: expected plant = \"ode\" (or kind = \"random_input\")"));
-        }
-        _ => {}
+    if let Some(disturbance) = &sc.disturbance {
+        (disturbance.validate(sc.plant == PlantKind::Ode)).map_err(|e| s.field_error(&e.key, e.message))?;
     }
     if let Some(p) = &sc.vehicle.initial_perturbation {
         if p.len() != sc.vehicle.initial_state.len()

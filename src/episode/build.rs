@@ -11,7 +11,6 @@ use super::{EpisodeError, Obstacle};
 use crate::barrier::{Barrier, BarrierForm};
 use crate::delay::{DelayProfile, DelayQueue};
 use crate::dynamics::Dynamics;
-use crate::filter::linear_delays;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
 use crate::log::{KindInfo, RunInfo};
 use crate::mujoco::{self, Model, ObjKind, Simulation};
@@ -19,7 +18,7 @@ use crate::nominal::{NominalContext, NominalController};
 use crate::plant::{MujocoObstacle, MujocoPlant, OdePlant, Plant, PlantKind};
 use crate::predictor::Structure;
 use crate::random::{self, Stream};
-use crate::scenario::{DisturbanceSpec, Integrator, LoadedScenario, ScenarioError};
+use crate::scenario::{Integrator, LoadedScenario, ScenarioError};
 use crate::vehicle;
 use crate::vehicle_registry::VehicleBinding;
 
@@ -1101,16 +1100,12 @@ pub(super) fn plant(
         PlantKind::Ode => {
             let n = parts.dynamics.state_dim();
             let plant = OdePlant::new(parts.dynamics, x0.clone(), parts.timestep);
-            Box::new(match &sc.disturbance {
-                Some(DisturbanceSpec::Example349) => plant.with_disturbance(Box::new(linear_delays::disturbance_3_49)),
-                Some(DisturbanceSpec::RandomState { bound, hold }) => {
-                    let (seed, bound, hold) = (sc.seed, *bound, *hold);
-                    plant.with_disturbance(Box::new(move |t| {
-                        random_vector(seed, Stream::StateDisturbance, bound, hold, t, n)
-                    }))
-                }
-                Some(DisturbanceSpec::RandomInput { .. }) | None => plant,
-            })
+            Box::new(
+                match sc.disturbance.as_ref().and_then(|d| d.state_disturbance(sc.seed, n)) {
+                    Some(disturbance) => plant.with_disturbance(disturbance),
+                    None => plant,
+                },
+            )
         }
     })
 }
@@ -1149,12 +1144,9 @@ pub(super) fn configure_control(
     }
     control.set_chain_tolerance(tolerance);
     control.set_leave_out_of_reach(sc.control.leave_out_of_reach);
-    if let Some(DisturbanceSpec::RandomInput { bound, hold }) = &sc.disturbance {
-        let (seed, bound, hold) = (sc.seed, *bound, *hold);
-        let r = control.queues().len();
-        control.set_input_disturbance(Box::new(move |t, channel| {
-            random_component(seed, Stream::InputDisturbance, bound, hold, t, r, channel)
-        }));
+    let r = control.queues().len();
+    if let Some(disturbance) = sc.disturbance.as_ref().and_then(|d| d.input_disturbance(sc.seed, r)) {
+        control.set_input_disturbance(disturbance);
     }
     for barrier in barriers {
         control.add_barrier(barrier.clone());
@@ -1345,19 +1337,4 @@ pub(super) fn check_cost(
 /// Steps of an episode of the scenario's duration.
 pub(super) fn steps(loaded: &LoadedScenario, timestep: f64) -> u64 {
     (loaded.scenario.duration / timestep - TICK_TOLERANCE).ceil() as u64
-}
-
-/// A random vector with ‖ω‖ ≤ `bound`, constant on each interval [k·hold, (k+1)·hold).
-fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize) -> DVector<f64> {
-    DVector::from_iterator(
-        dim,
-        (0..dim).map(|i| random_component(seed, stream, bound, hold, t, dim, i)),
-    )
-}
-
-/// Component i of [`random_vector`] (no allocation: the input disturbance is sampled in the
-/// control callback).
-fn random_component(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize, i: usize) -> f64 {
-    let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
-    bound / (dim as f64).sqrt() * random::symmetric_unit(seed, stream, interval, i as u64)
 }

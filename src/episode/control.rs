@@ -551,8 +551,8 @@ pub struct ControlLoop {
     actuated: Option<Vec<f64>>,
 }
 
-/// ω_i(t) added to channel i's applied input.
-pub type InputDisturbance = Box<dyn Fn(f64, usize) -> f64 + Send>;
+/// ω_i(t) added to channel i's applied input ([`crate::disturbance`]).
+pub use crate::disturbance::InputDisturbance;
 
 /// Every recursive prediction recomputed over its whole window next to the reused chain, and
 /// the largest difference seen (what `control.chain_tolerance` costs; benchmarks report it).
