@@ -148,14 +148,11 @@ unsafe extern "C" {
         error_sz: std::os::raw::c_int,
     ) -> *mut ffi::mjModel;
     /// `mj_step` (`forward` 0) or `mj_forward` (1) behind `setjmp` (src/mujoco/guard.c): 1
-    /// when MuJoCo raised an error, its message in `error`; the data is then unusable.
-    fn mjsafe_guarded(
-        m: *const ffi::mjModel,
-        d: *mut ffi::mjData,
-        forward: std::os::raw::c_int,
-        error: *mut std::os::raw::c_char,
-        error_sz: std::os::raw::c_int,
-    ) -> std::os::raw::c_int;
+    /// when MuJoCo raised an error ([`mjsafe_error_message`]); the data is then unusable.
+    fn mjsafe_guarded(m: *const ffi::mjModel, d: *mut ffi::mjData, forward: std::os::raw::c_int)
+        -> std::os::raw::c_int;
+    /// The message of this thread's last error caught by [`mjsafe_guarded`].
+    fn mjsafe_error_message() -> *const std::os::raw::c_char;
     /// The `mju_user_error` handler: jumps back to [`mjsafe_guarded`] (or, outside it or with
     /// a Rust frame in between, calls [`mjsafe_fatal_error`]).
     fn mjsafe_error_handler(message: *const std::os::raw::c_char);
@@ -944,22 +941,13 @@ fn guarded(model: &Model, data: &mut Data, forward: bool) -> Result<(), String> 
     if let Some(message) = &data.failed {
         return Err(format!("{message} (an earlier call; the data is unusable)"));
     }
-    let mut error = [0 as std::os::raw::c_char; 1024];
-    // SAFETY: live model and data of that model; `error` holds 1024 bytes.
-    let failed = unsafe {
-        mjsafe_guarded(
-            model.ptr.as_ptr(),
-            data.ptr.as_ptr(),
-            forward.into(),
-            error.as_mut_ptr(),
-            error.len() as std::os::raw::c_int,
-        )
-    };
+    // SAFETY: live model and data of that model.
+    let failed = unsafe { mjsafe_guarded(model.ptr.as_ptr(), data.ptr.as_ptr(), forward.into()) };
     if failed == 0 {
         return Ok(());
     }
-    // SAFETY: the shim wrote a NUL-terminated message into `error`.
-    let message = unsafe { CStr::from_ptr(error.as_ptr()) }
+    // SAFETY: the shim's per-thread NUL-terminated message of the error just caught.
+    let message = unsafe { CStr::from_ptr(mjsafe_error_message()) }
         .to_string_lossy()
         .trim()
         .to_string();
