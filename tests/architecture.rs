@@ -9,14 +9,17 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// Top-level module → the top-level modules its non-test code names (`crate::<module>`).
-/// Every `.rs` file under `src/`: its path relative to `src/` and its code without the file's
-/// test module (its last item; other items stay). Files of a module's tests
-/// (`#[cfg(test)] mod tests;` in `tests.rs`) are left out.
+/// The source roots of the layers: the simulation library's `src/` and the pure maths crate's
+/// (`crates/maths/src/`, re-exported by the library under the same module names).
+const SOURCE_ROOTS: [&str; 2] = ["src", "crates/maths/src"];
+
+/// Every `.rs` file under the [`SOURCE_ROOTS`]: its path relative to the repository and its
+/// code without the file's test module (its last item; other items stay). Files of a module's
+/// tests (`#[cfg(test)] mod tests;` in `tests.rs`) are left out.
 fn rust_sources() -> Vec<(std::path::PathBuf, String)> {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let repository = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut sources = Vec::new();
-    let mut stack = vec![src.clone()];
+    let mut stack: Vec<_> = SOURCE_ROOTS.iter().map(|root| repository.join(root)).collect();
     while let Some(dir) = stack.pop() {
         for entry in std::fs::read_dir(&dir).unwrap() {
             let path = entry.unwrap().path();
@@ -29,21 +32,36 @@ fn rust_sources() -> Vec<(std::path::PathBuf, String)> {
             }
             let text = std::fs::read_to_string(&path).unwrap();
             let code = text.split("#[cfg(test)]\nmod tests {").next().unwrap().to_string();
-            sources.push((path.strip_prefix(&src).unwrap().to_path_buf(), code));
+            sources.push((path.strip_prefix(repository).unwrap().to_path_buf(), code));
         }
     }
     sources
+}
+
+/// The path of a source file relative to its crate's source root (`barrier.rs` of
+/// `crates/maths/src/barrier.rs`).
+fn within_root(path: &Path) -> &Path {
+    (SOURCE_ROOTS.iter())
+        .find_map(|root| path.strip_prefix(root).ok())
+        .unwrap_or(path)
 }
 
 fn dependencies() -> BTreeMap<String, BTreeSet<String>> {
     dependencies_of(rust_sources())
 }
 
-/// [`dependencies`] of the given sources (path relative to `src/`, code).
+/// [`dependencies`] of the given sources (path relative to the repository, code). A module of
+/// the maths crate and the library's re-export of it are one node (`crate::barrier` names it in
+/// both).
 fn dependencies_of(sources: Vec<(std::path::PathBuf, String)>) -> BTreeMap<String, BTreeSet<String>> {
     let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for (relative, code) in sources {
-        let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
+    for (path, code) in sources {
+        let first = within_root(&path)
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
         let module = first.trim_end_matches(".rs").to_string();
         if module == "lib" || module == "main" {
             continue;
@@ -136,9 +154,9 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
     // The guard sees planted violations: a barrier reaching MuJoCo through the plant, a sink
     // reading the metrics.
     let planted = dependencies_of(vec![
-        ("barrier.rs".into(), "use crate::plant::Plant;".into()),
-        ("plant.rs".into(), "use crate::mujoco::Model;".into()),
-        ("log/mod.rs".into(), "use crate::metrics::RunFacts;".into()),
+        ("crates/maths/src/barrier.rs".into(), "use crate::plant::Plant;".into()),
+        ("src/plant.rs".into(), "use crate::mujoco::Model;".into()),
+        ("src/log/mod.rs".into(), "use crate::metrics::RunFacts;".into()),
     ]);
     assert_eq!(
         layer_violations(&planted),
@@ -146,13 +164,13 @@ fn pure_maths_schema_and_analysis_keep_their_distance() {
     );
 }
 
-/// The functions of `src/` (test modules left out) and their lengths in lines, by brace
+/// The functions of the [`SOURCE_ROOTS`] (test modules left out) and their lengths in lines, by brace
 /// matching from each `fn` line (as ../shared/tools/long_functions.py counts them).
 fn function_lengths() -> Vec<(String, usize)> {
     function_lengths_of(&rust_sources())
 }
 
-/// [`function_lengths`] of the given sources (path relative to `src/`, code).
+/// [`function_lengths`] of the given sources (path relative to the repository, code).
 fn function_lengths_of(sources: &[(std::path::PathBuf, String)]) -> Vec<(String, usize)> {
     let mut found = Vec::new();
     for (relative, code) in sources.iter().filter(|(p, _)| !p.ends_with("ffi.rs")) {
@@ -181,7 +199,7 @@ fn function_lengths_of(sources: &[(std::path::PathBuf, String)]) -> Vec<(String,
                 depth += body.matches('{').count() as i64 - body.matches('}').count() as i64;
                 started |= body.contains('{');
                 if started && depth <= 0 {
-                    found.push((format!("src/{}::{name}", relative.display()), e - k + 1));
+                    found.push((format!("{}::{name}", relative.display()), e - k + 1));
                     break;
                 }
             }
@@ -190,7 +208,7 @@ fn function_lengths_of(sources: &[(std::path::PathBuf, String)]) -> Vec<(String,
     found
 }
 
-/// No function of `src/` grows past 150 lines (the last two that did, `control_tick` and
+/// No function of the library or the maths crate grows past 150 lines (the last two that did, `control_tick` and
 /// `run_guided`, were split into stages and helpers).
 #[test]
 fn no_function_grows_past_150_lines() {
@@ -207,8 +225,8 @@ fn no_function_grows_past_150_lines() {
     // The guard sees a planted violation: a function of 151 lines (and not one of 150).
     let body = |name: &str, lines: usize| format!("pub fn {name}() {{\n{}}}\n", "    x();\n".repeat(lines - 2));
     let planted = vec![
-        ("planted.rs".into(), body("grown_long", 151)),
-        ("planted.rs".into(), body("just_fits", 150)),
+        ("src/planted.rs".into(), body("grown_long", 151)),
+        ("crates/maths/src/planted.rs".into(), body("just_fits", 150)),
     ];
     assert_eq!(
         too_long(&function_lengths_of(&planted)),
@@ -216,15 +234,15 @@ fn no_function_grows_past_150_lines() {
     );
 }
 
-/// The files of `sources` (relative to `src/`) that assemble an episode (`Episode::new`)
+/// The files of `sources` (relative to the repository) that assemble an episode (`Episode::new`)
 /// outside the run path: everything runs through `run::Prepared` (src/run.rs), which the
 /// episode module itself serves.
 fn episodes_outside_the_run_path(sources: &[(std::path::PathBuf, String)]) -> Vec<String> {
     (sources.iter())
         .filter(|(path, code)| {
-            code.contains("Episode::new(") && !(path.starts_with("run.rs") || path.starts_with("episode"))
+            code.contains("Episode::new(") && !(path.starts_with("src/run.rs") || path.starts_with("src/episode"))
         })
-        .map(|(path, _)| format!("src/{}", path.display()))
+        .map(|(path, _)| path.display().to_string())
         .collect()
 }
 
@@ -237,7 +255,7 @@ fn episodes_are_assembled_only_on_the_run_path() {
     for entry in std::fs::read_dir(&python).unwrap() {
         let path = entry.unwrap().path();
         let code = std::fs::read_to_string(&path).unwrap();
-        sources.push((Path::new("../python/src").join(path.file_name().unwrap()), code));
+        sources.push((Path::new("python/src").join(path.file_name().unwrap()), code));
     }
     let outside = episodes_outside_the_run_path(&sources);
     assert!(
@@ -246,8 +264,49 @@ fn episodes_are_assembled_only_on_the_run_path() {
     );
     // The guard sees a planted violation.
     let planted = vec![
-        ("bench.rs".into(), "let mut probe = Episode::new(&loaded)?;".to_string()),
-        ("run.rs".into(), "let mut episode = Episode::new(loaded)?;".to_string()),
+        (
+            "src/bench.rs".into(),
+            "let mut probe = Episode::new(&loaded)?;".to_string(),
+        ),
+        (
+            "src/run.rs".into(),
+            "let mut episode = Episode::new(loaded)?;".to_string(),
+        ),
     ];
     assert_eq!(episodes_outside_the_run_path(&planted), ["src/bench.rs"]);
+}
+
+/// The dependencies of the maths crate's manifest (`crates/maths/Cargo.toml` text) that break
+/// its boundary: anything beyond linear algebra, a QP solver, the parsed CommonRoad data, serde,
+/// error types and TOML parameters — the library (`mjsafe`), MuJoCo, the log or any I/O.
+fn maths_crate_breaches(manifest: &str) -> Vec<String> {
+    const ALLOWED: [&str; 6] = [
+        "clarabel",
+        "mjsafe-commonroad",
+        "nalgebra",
+        "serde",
+        "thiserror",
+        "toml",
+    ];
+    let manifest: toml::Table = manifest.parse().unwrap();
+    let dependencies = manifest.get("dependencies").and_then(|d| d.as_table());
+    (dependencies.into_iter().flat_map(|d| d.keys()))
+        .filter(|name| !ALLOWED.contains(&name.as_str()))
+        .map(|name| format!("the maths crate depends on {name}"))
+        .collect()
+}
+
+/// The pure maths is a crate of its own: its manifest names no MuJoCo, log or library crate, so
+/// no import of the maths can reach them (the compiler refuses it).
+#[test]
+fn the_maths_crate_depends_on_no_simulation_log_or_io_crate() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/maths/Cargo.toml");
+    let breaches = maths_crate_breaches(&std::fs::read_to_string(path).unwrap());
+    assert!(breaches.is_empty(), "{breaches:?}");
+    // The guard sees a planted violation: the maths depending on the library, or on the log.
+    let planted = "[dependencies]\nnalgebra = \"0.35\"\nmjsafe = { path = \"../..\" }\nmcap = \"0.26\"\n";
+    assert_eq!(
+        maths_crate_breaches(planted),
+        ["the maths crate depends on mjsafe", "the maths crate depends on mcap"]
+    );
 }

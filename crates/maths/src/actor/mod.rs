@@ -44,6 +44,7 @@ impl ActorState {
     /// reference heading, e.g. a box's covering circle), turned with the actor: position
     /// o + R(turn) c, velocity ȯ + θ̇ J R c, acceleration ö + θ̈ J R c − θ̇² R c (J: a quarter turn).
     /// An actor that has not turned carries the offset unchanged.
+    #[inline]
     pub fn shifted(&self, offset: [f64; 2]) -> ActorState {
         if self.turn == 0.0 && self.yaw_rate == 0.0 && self.yaw_acceleration == 0.0 {
             return ActorState {
@@ -68,6 +69,7 @@ impl ActorState {
 
     /// The same state without its turning (rates 0), keeping its heading: what a prediction that
     /// holds the heading assumes.
+    #[inline]
     fn without_turning(self) -> ActorState {
         ActorState {
             yaw_rate: 0.0,
@@ -85,7 +87,8 @@ pub struct MotionError {
     pub message: String,
 }
 
-pub(crate) fn motion_error(key: &'static str, message: impl Into<String>) -> MotionError {
+/// A motion's parameter error at `key` (relative to its `motion` table).
+pub fn motion_error(key: &'static str, message: impl Into<String>) -> MotionError {
     MotionError {
         key,
         message: message.into(),

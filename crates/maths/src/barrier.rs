@@ -131,6 +131,7 @@ impl Barrier {
     }
 
     /// The centre of a planar circle (a ball over two state components, or a body circle).
+    #[inline]
     pub fn planar_centre_mut(&mut self) -> Option<&mut [f64]> {
         match &mut self.shape {
             Shape::Ball { centre, .. } if centre.len() == 2 => Some(centre),
@@ -141,6 +142,7 @@ impl Barrier {
 
     /// Moves the actor a barrier is about to `centre` (a circle's centre, or a headway
     /// barrier's lead to `centre`'s x); false for a barrier about no actor.
+    #[inline]
     pub fn move_actor(&mut self, centre: [f64; 2]) -> bool {
         if let Shape::Headway { lead, .. } = &mut self.shape {
             *lead = centre[0];
@@ -192,6 +194,7 @@ impl Barrier {
     /// In the relative-degree-2 form such a barrier gets the mixed-relative-degree condition
     /// (docs/actors.md, "Footprints"): [`LieWorkspace::constraint_into`] adds λ1 L_G h to b,
     /// and [`LieWorkspace::first_order_part_into`] gives the companion row ḣ + λ1 h ≥ 0.
+    #[inline]
     pub fn mixed_relative_degree(&self) -> bool {
         match &self.shape {
             Shape::BodyCircle { offset, .. }
@@ -554,6 +557,7 @@ impl BarrierForm {
     /// form with real positive roots (l0 > 0, l1 > 0, l1² ≥ 4 l0); None otherwise. The
     /// mixed-relative-degree condition of a body circle ([`Barrier::mixed_relative_degree`]) is
     /// built on this factorisation.
+    #[inline]
     pub fn real_rates(&self) -> Option<(f64, f64)> {
         let &BarrierForm::RelativeDegree2 { l0, l1 } = self else {
             return None;

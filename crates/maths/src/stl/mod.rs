@@ -1165,7 +1165,6 @@ mod tests {
 
     #[test]
     fn push_and_finish_do_not_allocate() {
-        use crate::mujoco::counting_alloc::{allocations, count_allocations};
         let f = p(
             "always[0, 20] (x > 0 until[2, 30] y < 1 or once[1, 5] x > 2) and eventually (y > 0 since[0, 9] x > 1) \
                and historically (x > -5) and always (abs(x - y) < 9)",
@@ -1175,14 +1174,14 @@ mod tests {
         let samples: Vec<[f64; 2]> = (0..2000)
             .map(|_| [rng.next_f64() * 4.0 - 2.0, rng.next_f64() * 4.0 - 2.0])
             .collect();
-        allocations(true);
-        count_allocations(true);
-        for s in &samples {
-            m.push(s);
-        }
-        let v = m.finish();
-        count_allocations(false);
-        assert_eq!(allocations(true), 0, "push or finish allocated");
+        let mut v = 0.0;
+        let counted = allocation_counter::measure(|| {
+            for s in &samples {
+                m.push(s);
+            }
+            v = m.finish();
+        });
+        assert_eq!(counted.count_total, 0, "push or finish allocated");
         let x: Vec<f64> = samples.iter().map(|s| s[0]).collect();
         let y: Vec<f64> = samples.iter().map(|s| s[1]).collect();
         assert!(same(v, robustness(&f, &[&x, &y], 0.5).unwrap()));

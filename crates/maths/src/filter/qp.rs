@@ -541,8 +541,8 @@ fn clarabel_solve(constraints: &[Constraint], u0: &DVector<f64>, limits: Option<
 mod tests {
     use super::*;
     use crate::filter::cbf_qp_closed_form;
-    use crate::mujoco::counting_alloc::{allocations, count_allocations};
     use crate::random::SplitMix64;
+    use allocation_counter::measure;
 
     /// Constraints, u0 and (lower, upper) limits.
     type Problem = (Vec<Constraint>, DVector<f64>, Option<(Vec<f64>, Vec<f64>)>);
@@ -810,18 +810,13 @@ mod tests {
                 workspace.solve(constraints, u0, Some((lo, hi)), u);
             }
         };
-        allocations(true);
-        count_allocations(true);
-        solve_all(&mut workspace, &mut u);
-        count_allocations(false);
-        assert_eq!(allocations(true), 0, "a solve allocated");
+        let counted = measure(|| solve_all(&mut workspace, &mut u));
+        assert_eq!(counted.count_total, 0, "a solve allocated");
         // A default workspace grows once, then allocates no more.
         let mut grown = QpWorkspace::default();
         solve_all(&mut grown, &mut u);
-        count_allocations(true);
-        solve_all(&mut grown, &mut u);
-        count_allocations(false);
-        assert_eq!(allocations(true), 0, "a warm solve allocated");
+        let counted = measure(|| solve_all(&mut grown, &mut u));
+        assert_eq!(counted.count_total, 0, "a warm solve allocated");
         // Timing (dev profile, shared machine: indicative only).
         let timed = std::time::Instant::now();
         for _ in 0..20 {
