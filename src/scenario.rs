@@ -230,62 +230,8 @@ impl Serialize for VehicleSpec {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ControlSpec {
-    /// Control period in seconds, a whole multiple of the timestep (default: the timestep).
-    #[serde(default)]
-    pub period: Option<f64>,
-    /// Seconds of issued-input history kept; a delay longer than this is an error.
-    #[serde(default = "default_history")]
-    pub history: f64,
-    /// RK4 step of the predictors in seconds, a whole multiple of the period (default: the
-    /// period when every delay is constant and a whole multiple of it, else the timestep).
-    /// Coarser is faster; the log's /prediction records measure what it costs in accuracy.
-    #[serde(default)]
-    pub predictor_step: Option<f64>,
-    /// Predictors: continue the previous tick's prediction trajectory when the fresh p_1 (x(t)
-    /// for one shared delay profile) lands within this max-norm distance of it (state units),
-    /// else integrate the whole window.
-    /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
-    #[serde(default = "default_chain_tolerance")]
-    pub chain_tolerance: f64,
-    /// Road users out of reach form no barrier row (docs/actors.md, "Out of reach"); `false`
-    /// forms every row at every evaluation (the same commands, at their full cost).
-    #[serde(default = "default_leave_out_of_reach", skip_serializing_if = "is_true")]
-    pub leave_out_of_reach: bool,
-}
-
-impl Default for ControlSpec {
-    fn default() -> Self {
-        ControlSpec {
-            period: None,
-            predictor_step: None,
-            history: default_history(),
-            chain_tolerance: default_chain_tolerance(),
-            leave_out_of_reach: default_leave_out_of_reach(),
-        }
-    }
-}
-
-fn default_leave_out_of_reach() -> bool {
-    true
-}
-
-fn is_true(value: &bool) -> bool {
-    *value
-}
-
-fn default_history() -> f64 {
-    30.0
-}
-
-/// See docs/performance.md (predictor chain reuse) for the measurement behind it.
-pub const DEFAULT_CHAIN_TOLERANCE: f64 = 1e-4;
-
-fn default_chain_tolerance() -> f64 {
-    DEFAULT_CHAIN_TOLERANCE
-}
+/// The `[control]` table: its spec and checks are [`crate::control_spec`]'s.
+pub use crate::control_spec::{ControlSpec, DEFAULT_CHAIN_TOLERANCE};
 
 /// A `nominal` or `filter` table: the registered `kind` it names ([`crate::registry`]) and
 /// that kind's parameters (the table's other keys, checked and normalised by the kind's
@@ -340,152 +286,9 @@ impl Serialize for KindSpec {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ObstacleSpec {
-    /// Name in logs (default `obstacle_<index>`).
-    #[serde(default)]
-    pub name: Option<String>,
-    pub centre: [f64; 2],
-    /// A circle's radius (m); a box obstacle (`shape`) has none.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub radius: Option<f64>,
-    /// A box instead of a circle (docs/actors.md, "Footprints").
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub shape: Option<ObstacleShape>,
-    /// When the obstacle becomes known to the controller (seconds).
-    #[serde(default)]
-    pub appear_at: f64,
-    /// Uniform random jitter of `appear_at` (± seconds, seeded; the result is kept >= 0).
-    #[serde(default)]
-    pub appear_jitter: f64,
-    /// How the obstacle moves (`[obstacles.motion]`; none: it stands at `centre`). `centre` is
-    /// then its position at t = 0.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub motion: Option<MotionSpec>,
-    /// A lead to follow on the line, for a vehicle that moves along one (`[obstacles.following]`,
-    /// docs/actors.md): its barrier is the headway h = D − D_sf − T v instead of a circle's,
-    /// with D the gap between the vehicle's front (its position) and the lead's rear (`centre`'s
-    /// x less `radius`, or less a box's half extent along x).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub following: Option<FollowingSpec>,
-}
-
-/// The headway barrier of a lead (Molnar et al., arXiv 2112.08445: D_sf = 3 m, T = 2 s).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FollowingSpec {
-    /// D_sf, the gap kept at standstill (m).
-    pub standstill: f64,
-    /// T, the time headway (s).
-    pub time_headway: f64,
-}
-
-/// An obstacle's shape other than a circle (`shape = { kind = "box", … }`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ObstacleShape {
-    /// A rectangle `length` × `width` (m) centred at the obstacle's centre, its length along
-    /// `heading` (rad; a moving box's follows its motion direction), covered by `circles`
-    /// circles (default ⌈L/W⌉).
-    Box {
-        length: f64,
-        width: f64,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        heading: Option<f64>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        circles: Option<usize>,
-    },
-}
-
-impl ObstacleSpec {
-    /// The obstacle's heading (a box's: the one its motion decides, `motion_heading`, e.g. a
-    /// straight motion's direction, else its `heading`) and covering circles as (offset from its
-    /// centre in the world frame, radius): one circle of `radius` at the centre, or a box's
-    /// covering circles.
-    pub fn circles(&self, motion_heading: Option<f64>) -> (f64, Vec<([f64; 2], f64)>) {
-        match self.shape {
-            None => (0.0, vec![([0.0, 0.0], self.radius.unwrap_or(0.0))]),
-            Some(ObstacleShape::Box {
-                length,
-                width,
-                heading,
-                circles,
-            }) => {
-                let heading = motion_heading.or(heading).unwrap_or(0.0);
-                let rectangle = crate::footprint::Rectangle {
-                    length,
-                    width,
-                    circles,
-                    offset: 0.0,
-                };
-                let circles = rectangle.circles().into_iter();
-                (
-                    heading,
-                    circles
-                        .map(|c| (crate::footprint::rotate(c.offset, heading), c.radius))
-                        .collect(),
-                )
-            }
-        }
-    }
-}
-
-/// A moving obstacle's motion (`[obstacles.motion]`, docs/actors.md): a registered motion
-/// kind and its parameters (`crate::registry::Registry::add_motion`). Without `kind`, a table
-/// with `waypoints` is `waypoints` and any other `straight` (the files written before motions
-/// had kinds).
-#[derive(Debug, Clone, PartialEq)]
-pub struct MotionSpec {
-    pub kind: String,
-    pub params: toml::Table,
-}
-
-impl MotionSpec {
-    /// A motion kind with its parameters (not yet checked).
-    pub fn new(kind: &str, params: toml::Table) -> MotionSpec {
-        MotionSpec {
-            kind: kind.to_string(),
-            params,
-        }
-    }
-}
-
-impl<'de> Deserialize<'de> for MotionSpec {
-    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        use serde::de::Error;
-        let mut params = toml::Table::deserialize(deserializer)?;
-        match params.remove("kind") {
-            Some(toml::Value::String(kind)) => Ok(MotionSpec { kind, params }),
-            Some(other) => Err(D::Error::custom(format!(
-                "key `kind`: expected a string, found {}",
-                other.type_str()
-            ))),
-            None if params.contains_key("waypoints") => Ok(MotionSpec::new("waypoints", params)),
-            None => Ok(MotionSpec::new("straight", params)),
-        }
-    }
-}
-
-impl Serialize for MotionSpec {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        KindSpec::new(&self.kind, self.params.clone()).serialize(serializer)
-    }
-}
-
-/// What the controller assumes of the moving obstacles over each channel's delay
-/// (`[actor_knowledge]`, next to `assumed_delays`; docs/actors.md).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ActorKnowledgeSpec {
-    /// `static`, `constant_velocity` (default), `constant_acceleration` or `oracle`.
-    #[serde(default)]
-    pub kind: crate::actor::ActorKnowledge,
-    /// A bound on the prediction error of an actor's position (m), added to its radius in the
-    /// controller's barriers (a robustness margin; the logged h keeps the true radius).
-    #[serde(default)]
-    pub margin: f64,
-}
+/// The `[[obstacles]]` section and `[actor_knowledge]`: their specs and checks are
+/// [`crate::obstacles`]'.
+pub use crate::obstacles::{ActorKnowledgeSpec, FollowingSpec, MotionSpec, ObstacleShape, ObstacleSpec};
 
 /// Which plant a scenario runs on (scenario key `plant`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -964,20 +767,8 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             format!("expected components within ±{STATE_EXTENT:e} (the models and barriers lose their precision or overflow beyond), found {v:e}"),
         ));
     }
-    for (section, channel, profile) in sc
-        .delays
-        .iter()
-        .map(|(c, p)| ("delays", c, p))
-        .chain(sc.assumed_delays.iter().map(|(c, p)| ("assumed_delays", c, p)))
-    {
-        if let DelayProfile::Constant(delay) = profile {
-            if !delay.is_finite() || *delay < 0.0 {
-                return Err(s.field_error(
-                    &format!("{section}.{channel}"),
-                    format!("expected a delay >= 0 seconds, found {delay}"),
-                ));
-            }
-        }
+    for (section, profiles) in [("delays", &sc.delays), ("assumed_delays", &sc.assumed_delays)] {
+        crate::delay::validate_profiles(section, profiles).map_err(|e| s.field_error(&e.key, e.message))?;
     }
     validate_actuation_and_sensing(s)?;
     validate_control_and_model(s)?;
@@ -1024,25 +815,12 @@ fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioErro
 /// `control`, `initial_input`, `disturbance` and the initial perturbation.
 fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
-    if !positive_finite(sc.control.history) {
-        return Err(s.field_error(
-            "control.history",
-            format!("expected a positive number of seconds, found {}", sc.control.history),
-        ));
-    }
+    sc.control.validate().map_err(|e| s.field_error(&e.key, e.message))?;
     for (channel, value) in &sc.initial_input {
         if !value.is_finite() {
             return Err(s.field_error(
                 &format!("initial_input.{channel}"),
                 format!("expected a finite number, found {value}"),
-            ));
-        }
-    }
-    if let Some(period) = sc.control.period {
-        if !positive_finite(period) {
-            return Err(s.field_error(
-                "control.period",
-                format!("expected a positive number of seconds, found {period}"),
             ));
         }
     }
@@ -1062,92 +840,20 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
     Ok(())
 }
 
-/// One obstacle's `motion`: the trajectory it defines must be usable (the checks of
-/// [`crate::actor::Trajectory::new`], at the key they name) and every jitter ≥ 0 and finite.
-/// An obstacle's `radius` (a circle) or `shape` (a box), one of the two.
-fn validate_obstacle_shape(s: &LoadedScenario, i: usize, o: &ObstacleSpec) -> Result<(), ScenarioError> {
-    let Some(ObstacleShape::Box {
-        length,
-        width,
-        heading,
-        circles,
-    }) = o.shape
-    else {
-        return match o.radius {
-            Some(radius) if !positive_finite(radius) => Err(s.field_error(
-                &format!("obstacles.{i}.radius"),
-                format!("expected a positive radius, found {radius}"),
-            )),
-            Some(_) => Ok(()),
-            None => Err(s.field_error(
-                &format!("obstacles.{i}"),
-                "expected a `radius` (a circle) or a `shape` (a box)",
-            )),
-        };
-    };
-    if o.radius.is_some() {
-        return Err(s.field_error(
-            &format!("obstacles.{i}.radius"),
-            "a box obstacle has no radius (its covering circles follow from `shape`): expected `radius` or `shape`, not both",
-        ));
-    }
-    let rectangle = crate::footprint::Rectangle {
-        length,
-        width,
-        circles,
-        offset: 0.0,
-    };
-    rectangle
-        .check(OBSTACLE_EXTENT)
-        .map_err(|e| s.field_error(&format!("obstacles.{i}.shape.{}", e.key), e.message))?;
-    match heading {
-        Some(_)
-            if motion_of(s, i)
-                .ok()
-                .flatten()
-                .is_some_and(|m| m.layout_heading().is_some()) =>
-        {
-            return Err(s.field_error(
-                &format!("obstacles.{i}.shape.heading"),
-                "a box moving along a line follows its motion's direction: expected no `heading`",
-            ));
-        }
-        Some(h) if !h.is_finite() => {
-            return Err(s.field_error(
-                &format!("obstacles.{i}.shape.heading"),
-                format!("expected a finite angle (rad), found {h}"),
-            ));
-        }
-        _ => {}
-    }
-    Ok(())
-}
-
-fn validate_motion(s: &LoadedScenario, i: usize) -> Result<(), ScenarioError> {
-    motion_of(s, i)
-        .map(|_| ())
-        .map_err(|e| s.field_error(&e.key, e.message))
-}
-
 /// Obstacle `i`'s motion built by its registered kind (None for an obstacle that stands), with
 /// its seeded variations; errors name the scenario key.
 pub fn motion_of(s: &LoadedScenario, i: usize) -> Result<Option<crate::actor::ActorMotion>, crate::params::ParamError> {
-    let sc = &s.scenario;
-    let o = &sc.obstacles[i];
-    let Some(m) = &o.motion else {
-        return Ok(None);
-    };
-    let ctx = crate::actor::MotionContext {
-        centre: o.centre,
-        seed: sc.seed,
-        index: i,
-        boxed: o.shape.is_some(),
+    s.scenario.obstacles[i].motion(i, &obstacle_context(s))
+}
+
+/// What an obstacle's checks and motion need of the rest of the scenario.
+fn obstacle_context(s: &LoadedScenario) -> crate::obstacles::ObstacleContext<'_> {
+    crate::obstacles::ObstacleContext {
+        duration: s.scenario.duration,
+        seed: s.scenario.seed,
         commonroad: s.commonroad.as_deref(),
-    };
-    let section = format!("obstacles.{i}.motion");
-    crate::registry::registry()
-        .build_motion(&section, &m.kind, &m.params, &ctx)
-        .map(Some)
+        extent: OBSTACLE_EXTENT,
+    }
 }
 
 /// `barriers` and `obstacles`: shapes, extents, times, and one name each.
@@ -1192,61 +898,14 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             .check(OBSTACLE_EXTENT)
             .map_err(|e| s.field_error(&format!("vehicle.footprint.{}", e.key), e.message))?;
     }
+    let obstacles = obstacle_context(s);
     for (i, o) in sc.obstacles.iter().enumerate() {
-        validate_obstacle_shape(s, i, o)?;
-        if o.centre.iter().any(|v| !v.is_finite()) {
-            return Err(s.field_error(&format!("obstacles.{i}.centre"), "expected two finite coordinates"));
-        }
-        // h = ‖p − c‖² − r² keeps metre-scale precision only well below 1e9 m (and overflows
-        // to inf past 1e154).
-        if o.centre.iter().chain(&o.radius).any(|v| v.abs() > OBSTACLE_EXTENT) {
-            return Err(s.field_error(
-                &format!("obstacles.{i}"),
-                format!("expected a centre and radius within ±{OBSTACLE_EXTENT:e} m (h = d² − r² loses its precision beyond)"),
-            ));
-        }
-        if !o.appear_jitter.is_finite() || o.appear_jitter < 0.0 {
-            return Err(s.field_error(
-                &format!("obstacles.{i}.appear_jitter"),
-                format!("expected a jitter >= 0, found {}", o.appear_jitter),
-            ));
-        }
-        if o.appear_jitter > sc.duration {
-            return Err(s.field_error(
-                &format!("obstacles.{i}.appear_jitter"),
-                format!(
-                    "expected at most the run's duration {} s (a later appearance never happens), found {}",
-                    sc.duration, o.appear_jitter
-                ),
-            ));
-        }
-        if !o.appear_at.is_finite() || o.appear_at < 0.0 {
-            return Err(s.field_error(
-                &format!("obstacles.{i}.appear_at"),
-                format!("expected a time >= 0, found {}", o.appear_at),
-            ));
-        }
-        if o.motion.is_some() {
-            validate_motion(s, i)?;
-        }
-        if let Some(f) = &o.following {
-            for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {
-                if !(v.is_finite() && (0.0..=OBSTACLE_EXTENT).contains(&v)) {
-                    return Err(s.field_error(
-                        &format!("obstacles.{i}.following.{key}"),
-                        format!("expected a finite value >= 0, found {v}"),
-                    ));
-                }
-            }
-        }
+        o.validate(i, &obstacles)
+            .map_err(|e| s.field_error(&e.key, e.message))?;
     }
     if let Some(k) = &sc.actor_knowledge {
-        if !(k.margin.is_finite() && k.margin >= 0.0 && k.margin <= OBSTACLE_EXTENT) {
-            return Err(s.field_error(
-                "actor_knowledge.margin",
-                format!("expected a distance >= 0 (m), found {}", k.margin),
-            ));
-        }
+        k.validate(OBSTACLE_EXTENT)
+            .map_err(|e| s.field_error(&e.key, e.message))?;
     }
     // Names key the obstacles' barrier values, events and table columns: one each. A name
     // left out is `obstacle_<index>`; the barriers are `barrier_<index>`.

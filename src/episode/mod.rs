@@ -15,11 +15,11 @@ use nalgebra::DVector;
 
 use crate::barrier::{self, Barrier};
 use crate::log::{LogError, Record, RunInfo, Sink, STALL_EVENT};
-use crate::metrics::builtin::{StallDetector, STALL_SPEED};
-use crate::metrics::{Observed, RunFacts};
 use crate::mujoco::{self, MjError};
 use crate::plant::Plant;
 use crate::scenario::{LoadedScenario, ScenarioError};
+use crate::signals::Observed;
+use crate::stall::{StallDetector, StallFacts, STALL_SPEED};
 
 pub use crate::filter::TICK_TOLERANCE;
 pub use control::{Consistency, ControlLoop, InputDisturbance, Tick};
@@ -179,7 +179,7 @@ pub struct Episode {
     actor_margin: f64,
     /// The `stall_time` definition applied to the records as they are logged, for the `stall`
     /// event (it reads the records and only adds an event: nothing feeds back into control).
-    stall: (StallDetector, RunFacts),
+    stall: (StallDetector, StallFacts),
     /// Where the step loop stands ([`Episode::advance`]).
     cursor: Cursor,
 }
@@ -333,7 +333,7 @@ impl Episode {
             cost,
             log_budget,
             inside_step: Vec::new(),
-            stall: (StallDetector::default(), RunFacts::from_metadata(&info.metadata())),
+            stall: (StallDetector::default(), StallFacts::from_metadata(&info.metadata())),
             info,
             cursor: Cursor {
                 step: 0,

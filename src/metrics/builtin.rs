@@ -6,7 +6,8 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use super::{always, Accumulate, CellKind, Metric, Observed, Part, RunFacts, Shape};
 use super::{Collision, PredictionStats, PrescribedTimeMetrics, Value};
-use crate::log::{proto, read, Topic};
+use crate::log::{proto, Topic};
+use crate::stall::{StallDetector, STALL_SPEED};
 
 const SECONDS: &str = "s";
 const METRES: &str = "m";
@@ -1038,29 +1039,18 @@ impl Accumulate for InterventionIntegral {
     }
 }
 
-/// The planar position (time, x, y) of a `/state` message at a control tick, for the metrics
-/// that sample the vehicle's motion there (the commanded input is piecewise constant on that
-/// grid, so motion is resolved at the control period, not the physics step). `planar` caches
-/// the position indices (None until the first state; Some(None): not a planar vehicle).
+/// [`planar_at_tick`](crate::stall::planar_at_tick) with the run's facts.
 fn planar_at_tick(
     planar: &mut Option<Option<[usize; 2]>>,
     m: &proto::State,
     run: &RunFacts,
 ) -> Option<(f64, f64, f64)> {
-    if let Some(period) = run.control_period {
-        let ticks = m.time / period;
-        if (ticks - ticks.round()).abs() > 1e-6 {
-            return None;
-        }
-    }
-    planar_of(planar, m, run)
+    crate::stall::planar_at_tick(planar, m, run.control_period, run.declared_planar)
 }
 
-/// The planar position (time, x, y) of any `/state` message (`planar` as for
-/// [`planar_at_tick`]).
+/// [`planar_of`](crate::stall::planar_of) with the run's facts.
 fn planar_of(planar: &mut Option<Option<[usize; 2]>>, m: &proto::State, run: &RunFacts) -> Option<(f64, f64, f64)> {
-    let [i, j] = (*planar.get_or_insert_with(|| read::planar_position_of(run.declared_planar, &m.names)))?;
-    Some((m.time, *m.values.get(i)?, *m.values.get(j)?))
+    crate::stall::planar_of(planar, m, run.declared_planar)
 }
 
 /// Why a progress metric of a vehicle without a planar position is absent.
@@ -1299,71 +1289,12 @@ impl PlanarJerk {
     }
 }
 
-/// Speed below which a planar vehicle counts as stopped (m/s), and how long it must stay so
-/// while its filter overrides the nominal input to count as stalled (s): `stall_time`.
-pub const STALL_SPEED: f64 = 0.05;
-pub const STALL_DURATION: f64 = 1.0;
-
-/// The `stall_time` definition, fed the `/state` and `/filter` records in log order: by the
-/// metric after the run, and by the episode during it (its `stall` event).
-#[derive(Default)]
-pub struct StallDetector {
-    /// The position indices ([`planar_at_tick`]).
-    planar: Option<Option<[usize; 2]>>,
-    /// The position at the last control tick (time, x, y).
-    last: Option<(f64, f64, f64)>,
-    /// Whether the last /filter record overrode the nominal.
-    overriding: bool,
-    /// Start of the current interval stopped while overridden.
-    since: Option<f64>,
-    first: Option<f64>,
-}
-
-impl StallDetector {
-    /// Reads one record; returns the start of the first stall at the record that completes it
-    /// (a `/state` message STALL_DURATION after the start), None otherwise.
-    pub fn observe(&mut self, record: Observed<'_>, run: &RunFacts) -> Option<f64> {
-        let m = match record {
-            Observed::Filter(f) => {
-                self.overriding = f.active;
-                return None;
-            }
-            Observed::State(m) => m,
-            _ => return None,
-        };
-        // Without the control period the metric is absent (its declared metadata).
-        run.control_period?;
-        let here = planar_at_tick(&mut self.planar, m, run)?;
-        let (t, x, y) = self.last.replace(here)?;
-        let dt = here.0 - t;
-        if dt <= 0.0 {
-            return None;
-        }
-        let speed = (here.1 - x).hypot(here.2 - y) / dt;
-        if speed < STALL_SPEED && self.overriding {
-            let since = *self.since.get_or_insert(t);
-            if self.first.is_none() && here.0 - since >= STALL_DURATION - 1e-9 {
-                self.first = Some(since);
-                return self.first;
-            }
-        } else {
-            self.since = None;
-        }
-        None
-    }
-
-    /// The start of the first stall so far.
-    pub fn first(&self) -> Option<f64> {
-        self.first
-    }
-}
-
 #[derive(Default)]
 struct Stall(StallDetector);
 
 impl Accumulate for Stall {
     fn observe(&mut self, record: Observed<'_>, run: &RunFacts) {
-        self.0.observe(record, run);
+        self.0.observe(record, &run.stall_facts());
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
         Value::Number(self.0.first())

@@ -165,6 +165,14 @@ impl RunFacts {
         }
     }
 
+    /// What the `stall_time` definition reads of them.
+    pub fn stall_facts(&self) -> crate::stall::StallFacts {
+        crate::stall::StallFacts {
+            control_period: self.control_period,
+            declared_planar: self.declared_planar,
+        }
+    }
+
     /// Whether the metadata key a metric needs is there.
     fn has(&self, key: &str) -> bool {
         match key {

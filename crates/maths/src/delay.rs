@@ -721,6 +721,26 @@ fn sampling_step(horizon: f64, step: f64) -> f64 {
     step.max(horizon / MAX_PROFILE_SAMPLES)
 }
 
+/// The `[delays]` or `[assumed_delays]` table (`section`): every constant delay is a finite
+/// number of seconds >= 0 (a time-varying profile is checked against Assumptions 1–2 when the
+/// queues are built: [`DelayProfile::check`]).
+pub fn validate_profiles(
+    section: &str,
+    profiles: &std::collections::BTreeMap<String, DelayProfile>,
+) -> Result<(), crate::params::ParamError> {
+    for (channel, profile) in profiles {
+        if let DelayProfile::Constant(delay) = profile {
+            if !delay.is_finite() || *delay < 0.0 {
+                return Err(crate::params::ParamError::new(
+                    format!("{section}.{channel}"),
+                    format!("expected a delay >= 0 seconds, found {delay}"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,86 @@
+//! The `[control]` table: the control loop's timing — its period, the issued-input history
+//! kept, the predictors' step and chain reuse, and whether road users out of reach form rows —
+//! with its checks at load ([`ControlSpec::validate`]). The loop it configures is
+//! `episode::control`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::params::ParamError;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlSpec {
+    /// Control period in seconds, a whole multiple of the timestep (default: the timestep).
+    #[serde(default)]
+    pub period: Option<f64>,
+    /// Seconds of issued-input history kept; a delay longer than this is an error.
+    #[serde(default = "default_history")]
+    pub history: f64,
+    /// RK4 step of the predictors in seconds, a whole multiple of the period (default: the
+    /// period when every delay is constant and a whole multiple of it, else the timestep).
+    /// Coarser is faster; the log's /prediction records measure what it costs in accuracy.
+    #[serde(default)]
+    pub predictor_step: Option<f64>,
+    /// Predictors: continue the previous tick's prediction trajectory when the fresh p_1 (x(t)
+    /// for one shared delay profile) lands within this max-norm distance of it (state units),
+    /// else integrate the whole window.
+    /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
+    #[serde(default = "default_chain_tolerance")]
+    pub chain_tolerance: f64,
+    /// Road users out of reach form no barrier row (docs/actors.md, "Out of reach"); `false`
+    /// forms every row at every evaluation (the same commands, at their full cost).
+    #[serde(default = "default_leave_out_of_reach", skip_serializing_if = "is_true")]
+    pub leave_out_of_reach: bool,
+}
+
+impl Default for ControlSpec {
+    fn default() -> Self {
+        ControlSpec {
+            period: None,
+            predictor_step: None,
+            history: default_history(),
+            chain_tolerance: default_chain_tolerance(),
+            leave_out_of_reach: default_leave_out_of_reach(),
+        }
+    }
+}
+
+fn default_leave_out_of_reach() -> bool {
+    true
+}
+
+fn is_true(value: &bool) -> bool {
+    *value
+}
+
+fn default_history() -> f64 {
+    30.0
+}
+
+/// See docs/performance.md (predictor chain reuse) for the measurement behind it.
+pub const DEFAULT_CHAIN_TOLERANCE: f64 = 1e-4;
+
+fn default_chain_tolerance() -> f64 {
+    DEFAULT_CHAIN_TOLERANCE
+}
+
+impl ControlSpec {
+    /// The period and the history are positive durations (s); the period's fit to the timestep
+    /// and the predictor step's to the period are checked with the model (`episode::build`).
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if !positive(self.history) {
+            return Err(ParamError::new(
+                "control.history",
+                format!("expected a positive number of seconds, found {}", self.history),
+            ));
+        }
+        if let Some(period) = self.period.filter(|p| !positive(*p)) {
+            return Err(ParamError::new(
+                "control.period",
+                format!("expected a positive number of seconds, found {period}"),
+            ));
+        }
+        Ok(())
+    }
+}
