@@ -1,7 +1,8 @@
 //! The dependency rules of docs/ARCHITECTURE.md, checked on the sources: no import cycle
 //! between top-level modules, pure maths never reaches the MuJoCo bindings or the log, the
 //! scenario schema and the analysis need no MuJoCo type, sinks never read through the analysis;
-//! no function over 150 lines; episodes assembled only on the run path. Each guard is also run
+//! no function over 150 lines; episodes assembled only on the run path; the control loop holds
+//! stages; the maths crate depends on no simulation, log or I/O crate. Each guard is also run
 //! on a planted violation, which it must report.
 //! A file's test module (`#[cfg(test)] mod tests`, inline or a `tests.rs`) is left out: it may
 //! use the counting allocator of `mujoco`.
@@ -309,4 +310,44 @@ fn the_maths_crate_depends_on_no_simulation_log_or_io_crate() {
         maths_crate_breaches(planted),
         ["the maths crate depends on mjsafe", "the maths crate depends on mcap"]
     );
+}
+
+/// The fields of `struct ControlLoop` in `code` (the field names before `:`, comments left out).
+fn control_loop_fields(code: &str) -> Vec<String> {
+    let Some(start) = code.find("pub struct ControlLoop {") else {
+        return Vec::new();
+    };
+    let body = &code[start..];
+    let body = &body[..body.find("\n}").unwrap_or(body.len())];
+    (body.lines().skip(1))
+        .map(str::trim)
+        .filter(|line| !line.starts_with("//") && !line.starts_with('#'))
+        .filter_map(|line| line.split_once(':').map(|(name, _)| name.trim().to_string()))
+        .collect()
+}
+
+/// What is wrong with a `ControlLoop` of these fields: more than ten (the six stages, the timing
+/// and the tick's bookkeeping) means loose fields crept back.
+fn loose_control_loop(fields: &[String]) -> Option<String> {
+    (fields.len() > 10 || fields.len() < 6).then(|| {
+        format!(
+            "ControlLoop has {} fields (group them into stages): {fields:?}",
+            fields.len()
+        )
+    })
+}
+
+/// The control loop holds the tick's stages (each a struct owning its state), not loose fields.
+#[test]
+fn the_control_loop_holds_stages_not_loose_fields() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/episode/control.rs");
+    let fields = control_loop_fields(&std::fs::read_to_string(path).unwrap());
+    assert_eq!(loose_control_loop(&fields), None);
+    // The guard sees a planted violation: the loop before issue 52, 24 loose fields.
+    let loose: String = (0..24)
+        .map(|k| format!("    /// Field {k}.\n    field_{k}: f64,\n"))
+        .collect();
+    let planted = control_loop_fields(&format!("pub struct ControlLoop {{\n{loose}}}\n"));
+    assert_eq!(planted.len(), 24);
+    assert!(loose_control_loop(&planted).is_some());
 }

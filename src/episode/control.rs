@@ -58,22 +58,6 @@ struct Pending {
     actors: Vec<f64>,
 }
 
-/// Scratch space of one control tick, sized when the loop is built (and when a barrier becomes
-/// known, outside the callback), so that a tick allocates nothing.
-struct TickWorkspace {
-    /// x(t) at the tick.
-    state: DVector<f64>,
-    predictions: Vec<Prediction>,
-    predictor: PredictorWorkspace,
-    law: LawWorkspace,
-    /// States of realised predictions, reused for new pending ones and realised states.
-    spare_states: Vec<DVector<f64>>,
-    /// Advances the state to a prediction's target time between steps.
-    realize: PredictorWorkspace,
-    /// Storage of realised predictions' actor positions, reused.
-    spare_actor_positions: Vec<Vec<f64>>,
-}
-
 /// (time, state, the time the state is for) of a nominal input.
 type NominalPoint<'a> = (f64, &'a [f64], f64);
 
@@ -504,51 +488,269 @@ struct Laws<'a> {
     actors: &'a KnownActors,
 }
 
-/// The controller: predictors, nominal, safety filter and delay queues, ticking at the
-/// control period and sampling the queues at every input evaluation ([`Controller`]).
+/// The controller: the tick's stages — sense, predict, the laws (nominal and filter), the delay
+/// queues — running at the control period, and the actuate stage sampling the queues at every
+/// input evaluation ([`Controller`]). Each stage owns its state; a tick hands each the previous
+/// stage's output ([`ControlLoop::control_tick`]).
 pub struct ControlLoop {
+    /// What the controller reads at a tick: the true state or a sensor's measurement.
+    sense: SenseStage,
+    /// The model, the nominal and the filter with what they read (the known barriers and road
+    /// users) and their scratch space.
+    laws: LawStage,
+    /// Every channel's prediction p_i(t) on the predictor structure.
+    predict: PredictStage,
+    /// The delay queues of the issued commands.
+    queues: QueueStage,
+    /// The plant's input at each evaluation, from the queues.
+    actuate: ActuateStage,
+    /// Predictions waiting for their target time, for the consistency checks.
+    pending: PendingStage,
+    timing: Timing,
+    /// What the last control tick computed; `tick_ready` until the episode takes it.
+    tick: Tick,
+    tick_ready: bool,
+    /// An error raised inside the callback (reported after the step).
+    error: Option<FilterError>,
+}
+
+/// The plant step, the control period and the steps per tick.
+#[derive(Debug, Clone, Copy)]
+struct Timing {
+    timestep: f64,
+    control_period: f64,
+    steps_per_tick: u64,
+}
+
+/// Sense: x(t) at the tick — the true state, or what a sensor reports of it (late, biased,
+/// noisy), which needs the true state of every step.
+struct SenseStage {
+    sensor: Option<Sensor>,
+    /// x(t) as the controller reads it at the tick (allocated once).
+    state: DVector<f64>,
+}
+
+impl SenseStage {
+    /// Records the true state for a late sensor (every step's first call) and, at a tick,
+    /// reads the state the controller uses (a sensor's measurement is also kept in `measured`).
+    fn read(
+        &mut self,
+        step: u64,
+        call_in_step: u32,
+        tick: bool,
+        truth: &dyn Fn(&mut [f64]),
+        measured: &mut DVector<f64>,
+    ) {
+        if let Some(sensor) = &mut self.sensor {
+            // A late sensor needs the true state of every step; otherwise only at ticks.
+            if call_in_step == 0 && (tick || sensor.latency_steps() > 0) {
+                truth(self.state.as_mut_slice());
+                sensor.record(step, self.state.as_slice());
+            }
+        }
+        if tick {
+            match &self.sensor {
+                Some(sensor) => {
+                    sensor.measure_into(step, self.state.as_mut_slice());
+                    measured.copy_from(&self.state);
+                }
+                None => truth(self.state.as_mut_slice()),
+            }
+        }
+    }
+}
+
+/// The laws: the model the controller assumes, the nominal, the filter, the barriers and road
+/// users it knows, and the scratch space of u0 and the filters' decisions.
+struct LawStage {
     model: Arc<dyn Dynamics>,
     nominal: Box<dyn NominalController>,
     filter: Box<dyn SafetyFilter>,
-    queues: Vec<DelayQueue>,
-    structure: Structure,
     /// Barriers currently known to the controller (add with [`ControlLoop::add_barrier`]).
     known_barriers: Vec<Barrier>,
     /// The moving actors among them.
     actors: KnownActors,
-    timestep: f64,
-    control_period: f64,
-    steps_per_tick: u64,
+    work: LawWorkspace,
+}
+
+impl LawStage {
+    /// (the filter uses predictions, the nominal does).
+    fn predicts(&self) -> (bool, bool) {
+        (self.filter.uses_prediction(), self.nominal.uses_prediction())
+    }
+
+    /// What the laws read, the filter and the scratch space, borrowed apart.
+    fn parts(&mut self) -> (Laws<'_>, &mut dyn SafetyFilter, &mut LawWorkspace) {
+        let laws = Laws {
+            model: self.model.as_ref(),
+            nominal: self.nominal.as_ref(),
+            form: self.filter.barrier_form(),
+            barriers: &self.known_barriers,
+            actors: &self.actors,
+        };
+        (laws, self.filter.as_mut(), &mut self.work)
+    }
+}
+
+/// Predict: the predictor structure and step, its workspace and the predictions of the last
+/// tick, and an optional audit of chain reuse.
+struct PredictStage {
+    structure: Structure,
     /// RK4 step of the predictors: by default the control period when every delay is constant
     /// and a whole multiple of it (the applied inputs are then constant on that grid, so the
     /// coarser step loses only RK4 truncation error, measured by the consistency check), else
     /// h. A scenario may set a coarser multiple of the control period (`predictor.step`).
-    predictor_step: f64,
-    /// What the last control tick computed; `tick_ready` until the episode takes it.
-    tick: Tick,
-    tick_ready: bool,
-    /// Applied input at the start of the current step (value, issue time) per channel.
-    applied: Vec<(f64, f64)>,
-    applied_buffer: Vec<f64>,
-    /// Predictions waiting for their target time, per channel.
-    pending: Vec<VecDeque<Pending>>,
-    work: TickWorkspace,
-    /// An error raised inside the callback (reported after the step).
-    error: Option<FilterError>,
+    step: f64,
+    workspace: PredictorWorkspace,
+    predictions: Vec<Prediction>,
+    /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
+    audit: Option<ChainAudit>,
+}
+
+impl PredictStage {
+    /// Every channel's prediction from x(t) = `state` ([`predict_stage`]); only for a
+    /// controller that uses predictions: otherwise every channel evaluates at x(t) and nothing
+    /// is pending for consistency checks.
+    fn run(
+        &mut self,
+        laws: &mut LawStage,
+        (queues, timing): (&[DelayQueue], Timing),
+        (t, state): (f64, &DVector<f64>),
+        predicts: (bool, bool),
+    ) -> Result<(), FilterError> {
+        let structure = if predicts.0 || predicts.1 {
+            &self.structure
+        } else {
+            &Structure::None
+        };
+        let (laws, filter, law) = laws.parts();
+        let context = PredictorContext {
+            model: laws.model,
+            queues,
+            timestep: self.step,
+            control_period: timing.control_period,
+        };
+        predict_stage(
+            (&laws, filter, law),
+            (&context, structure, predicts.1),
+            (t, state),
+            (&mut self.workspace, &mut self.predictions),
+            self.audit.as_mut(),
+        )
+    }
+}
+
+/// The delay queues: the controller's (the delays it assumes) and, when the true delays or the
+/// actuation differ, the actuators' own; every issued command goes to both.
+struct QueueStage {
+    assumed: Vec<DelayQueue>,
+    actuators: Option<Vec<DelayQueue>>,
+}
+
+impl QueueStage {
+    /// The tick's commands issued at t onto every queue.
+    fn push(&mut self, t: f64, issued: &DVector<f64>) -> Result<(), DelayError> {
+        for queues in std::iter::once(&mut self.assumed).chain(self.actuators.as_mut()) {
+            for (queue, &u) in queues.iter_mut().zip(issued.iter()) {
+                queue.push(t, u)?;
+                queue.discard_before(t);
+            }
+        }
+        Ok(())
+    }
+
+    /// The queues the plant's inputs come from: the true delays.
+    fn true_delays(&self) -> &[DelayQueue] {
+        self.actuators.as_deref().unwrap_or(&self.assumed)
+    }
+}
+
+/// Actuate: each channel's queue sampled at the evaluation time, plus the input disturbance,
+/// through the actuator dynamics.
+struct ActuateStage {
     /// A disturbance ω_i(t) added to channel i's applied input ((4.12) with Z = G); unknown
     /// to the predictors.
-    input_disturbance: Option<InputDisturbance>,
-    /// The actuators' own queues (true delays) when they differ from what the controller
-    /// assumes (`queues`); every issued command goes to both.
-    actuators: Option<Vec<DelayQueue>>,
-    /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
-    chain_audit: Option<ChainAudit>,
-    /// What the controller reads instead of the true state, if not the truth.
-    sensor: Option<Sensor>,
+    disturbance: Option<InputDisturbance>,
     /// Per channel, the actuator between the delayed command and the plant, if any; and the
     /// plant's input over the current step (every channel) when some channel has one.
-    actuator_dynamics: Vec<Option<Actuator>>,
+    dynamics: Vec<Option<Actuator>>,
     actuated: Option<Vec<f64>>,
+    /// Applied input at the start of the current step (value, issue time) per channel.
+    applied: Vec<(f64, f64)>,
+    /// The plant's input at the current evaluation (allocated once).
+    buffer: Vec<f64>,
+}
+
+impl ActuateStage {
+    /// The plant's input at `sample_time`, from `queues`; a queue's error is kept in `error`
+    /// (that channel then reads 0).
+    fn sample(
+        &mut self,
+        queues: &[DelayQueue],
+        (sample_time, call_in_step, timestep): (f64, u32, f64),
+        error: &mut Option<FilterError>,
+    ) -> &[f64] {
+        self.buffer.clear();
+        for (i, queue) in queues.iter().enumerate() {
+            let applied = match queue.applied(sample_time) {
+                Ok(a) => a,
+                Err(e) => {
+                    error.get_or_insert(e.into());
+                    crate::delay::Applied {
+                        value: 0.0,
+                        issued_at: f64::NAN,
+                    }
+                }
+            };
+            let value = applied.value + self.disturbance.as_ref().map_or(0.0, |w| w(sample_time, i));
+            if call_in_step == 0 {
+                self.applied[i] = (value, applied.issued_at);
+            }
+            self.buffer.push(value);
+        }
+        // Actuator dynamics: the step's command (at its start) drives the actuator, whose mean
+        // output over the step is the input of every evaluation of the step.
+        if let Some(actuated) = &mut self.actuated {
+            if call_in_step == 0 {
+                for ((out, &command), actuator) in actuated.iter_mut().zip(&self.buffer).zip(&mut self.dynamics) {
+                    *out = match actuator {
+                        Some(actuator) => actuator.step(command, timestep),
+                        None => command,
+                    };
+                }
+            }
+            for (value, (&out, actuator)) in self.buffer.iter_mut().zip(actuated.iter().zip(&self.dynamics)) {
+                if actuator.is_some() {
+                    *value = out;
+                }
+            }
+        }
+        &self.buffer
+    }
+}
+
+/// The predictions waiting for their target time, per channel, with the storage realised ones
+/// return (no allocation once warm) and the workspace that advances a state to a target time.
+struct PendingStage {
+    channels: Vec<VecDeque<Pending>>,
+    /// States of realised predictions, reused for new pending ones and realised states.
+    spare_states: Vec<DVector<f64>>,
+    /// Storage of realised predictions' actor positions, reused.
+    spare_actor_positions: Vec<Vec<f64>>,
+    /// Advances the state to a prediction's target time between steps.
+    realize: PredictorWorkspace,
+}
+
+impl PendingStage {
+    /// Keeps the tick's predictions whose target time is still ahead ([`keep_pending`]).
+    fn keep(&mut self, (t, timestep, actors): (f64, f64, &KnownActors), predict: &PredictStage) {
+        keep_pending(
+            (t, timestep, actors),
+            (&predict.predictions, &predict.workspace),
+            (&mut self.spare_states, &mut self.spare_actor_positions),
+            &mut self.channels,
+        );
+    }
 }
 
 /// ω_i(t) added to channel i's applied input ([`crate::disturbance`]).
@@ -583,53 +785,75 @@ impl ControlLoop {
         } else {
             timestep
         };
-        let predictor = PredictorWorkspace::new(n, r);
-        let work = TickWorkspace {
-            state: DVector::zeros(n),
-            predictions: predictor.predictions(),
-            predictor,
-            law: LawWorkspace {
-                lie: LieWorkspace::new(model.as_ref()),
-                constraints: Vec::new(),
-                nominal: DVector::zeros(r),
-                input: DVector::zeros(r),
-                moving: Vec::new(),
-                drift: vec![0.0; n],
-                zero_input: vec![0.0; r],
-                unit_input: vec![0.0; r],
-                columns: vec![0.0; n * r],
-                point_input: vec![[0.0; 2]; r],
-                row_barrier: Vec::new(),
-                rows_moved: true,
-                reach: Reach::new(model.as_ref(), &queues),
-                planned: vec![0.0; r],
-                says_planned: false,
-                law_corrected: false,
-                seen: Vec::new(),
-            },
-            spare_states: Vec::new(),
-            realize: PredictorWorkspace::new(n, r),
-            spare_actor_positions: Vec::new(),
+        let workspace = PredictorWorkspace::new(n, r);
+        let law = LawWorkspace {
+            lie: LieWorkspace::new(model.as_ref()),
+            constraints: Vec::new(),
+            nominal: DVector::zeros(r),
+            input: DVector::zeros(r),
+            moving: Vec::new(),
+            drift: vec![0.0; n],
+            zero_input: vec![0.0; r],
+            unit_input: vec![0.0; r],
+            columns: vec![0.0; n * r],
+            point_input: vec![[0.0; 2]; r],
+            row_barrier: Vec::new(),
+            rows_moved: true,
+            reach: Reach::new(model.as_ref(), &queues),
+            planned: vec![0.0; r],
+            says_planned: false,
+            law_corrected: false,
+            seen: Vec::new(),
         };
         ControlLoop {
-            predictor_step,
-            model,
-            nominal,
-            filter,
-            queues,
-            structure,
-            known_barriers: Vec::new(),
-            actors: KnownActors {
-                motions: Vec::new(),
-                offsets: Vec::new(),
-                primary: Vec::new(),
-                knowledge: ActorKnowledge::default(),
-                now: 0.0,
-                observed: Vec::new(),
+            sense: SenseStage {
+                sensor: None,
+                state: DVector::zeros(n),
             },
-            timestep,
-            control_period,
-            steps_per_tick,
+            laws: LawStage {
+                model,
+                nominal,
+                filter,
+                known_barriers: Vec::new(),
+                actors: KnownActors {
+                    motions: Vec::new(),
+                    offsets: Vec::new(),
+                    primary: Vec::new(),
+                    knowledge: ActorKnowledge::default(),
+                    now: 0.0,
+                    observed: Vec::new(),
+                },
+                work: law,
+            },
+            predict: PredictStage {
+                structure,
+                step: predictor_step,
+                predictions: workspace.predictions(),
+                workspace,
+                audit: None,
+            },
+            queues: QueueStage {
+                assumed: queues,
+                actuators: None,
+            },
+            actuate: ActuateStage {
+                disturbance: None,
+                dynamics: Vec::new(),
+                actuated: None,
+                applied: vec![(0.0, 0.0); r],
+                buffer: Vec::with_capacity(r),
+            },
+            pending: PendingStage {
+                channels: vec![VecDeque::new(); r],
+                spare_states: Vec::new(),
+                spare_actor_positions: Vec::new(),
+                realize: PredictorWorkspace::new(n, r),
+            },
+            timing: Timing {
+                timestep,
+                control_period,
+                steps_per_tick,
+            },
             tick: Tick {
                 time: 0.0,
                 nominal: DVector::zeros(r),
@@ -638,101 +862,92 @@ impl ControlLoop {
                 measured: DVector::zeros(n),
             },
             tick_ready: false,
-            applied: vec![(0.0, 0.0); r],
-            applied_buffer: Vec::with_capacity(r),
-            pending: vec![VecDeque::new(); r],
-            work,
             error: None,
-            input_disturbance: None,
-            actuators: None,
-            chain_audit: None,
-            sensor: None,
-            actuator_dynamics: Vec::new(),
-            actuated: None,
         }
     }
 
     /// The controller reads `sensor`'s measurement instead of the true state (predictions are
     /// still compared with the truth).
     pub fn set_sensor(&mut self, sensor: Sensor) {
-        self.sensor = Some(sensor);
+        self.sense.sensor = Some(sensor);
     }
 
     /// Puts an actuator (lag, rate and magnitude limits) between channel i's delayed command
     /// and the plant, for each `Some` entry (one per channel).
     pub fn set_actuator_dynamics(&mut self, actuators: Vec<Option<Actuator>>) {
         if actuators.iter().any(Option::is_some) {
-            self.actuated = Some(vec![0.0; actuators.len()]);
-            self.actuator_dynamics = actuators;
+            self.actuate.actuated = Some(vec![0.0; actuators.len()]);
+            self.actuate.dynamics = actuators;
         }
     }
 
     /// What the plant received over the last step per channel, when some channel has actuator
     /// dynamics (else the plant received [`ControlLoop::applied`]).
     pub fn actuated(&self) -> Option<&[f64]> {
-        self.actuated.as_deref()
+        self.actuate.actuated.as_deref()
     }
 
     /// Whether the controller reads a sensor rather than the true state.
     pub fn has_sensor(&self) -> bool {
-        self.sensor.is_some()
+        self.sense.sensor.is_some()
     }
 
     /// Actuates through queues of the true delays, one per channel (the controller keeps
     /// predicting and filtering with the delays of [`ControlLoop::queues`]).
     pub fn set_actuators(&mut self, actuators: Vec<DelayQueue>) {
-        self.actuators = Some(actuators);
+        self.queues.actuators = Some(actuators);
     }
 
     /// The queues the plant's inputs come from: the true delays.
     pub fn actuators(&self) -> &[DelayQueue] {
-        self.actuators.as_deref().unwrap_or(&self.queues)
+        self.queues.true_delays()
     }
 
     /// The analytic model the controller assumes.
     pub fn model(&self) -> &Arc<dyn Dynamics> {
-        &self.model
+        &self.laws.model
     }
 
     /// Whether a predictor runs at the ticks (the filter or the nominal uses predictions, and
     /// some channel is delayed).
     pub fn predicts(&self) -> bool {
-        (self.filter.uses_prediction() || self.nominal.uses_prediction()) && self.structure != Structure::None
+        let (filter, nominal) = self.laws.predicts();
+        (filter || nominal) && self.predict.structure != Structure::None
     }
 
     /// The nominal controller (to set an external one's input between steps).
     pub fn nominal_mut(&mut self) -> &mut dyn NominalController {
-        self.nominal.as_mut()
+        self.laws.nominal.as_mut()
     }
 
     /// The safety filter.
     pub fn filter(&self) -> &dyn SafetyFilter {
-        self.filter.as_ref()
+        self.laws.filter.as_ref()
     }
 
     /// The delay queue of every channel, with the delays the controller assumes.
     pub fn queues(&self) -> &[DelayQueue] {
-        &self.queues
+        &self.queues.assumed
     }
 
     /// The plant step h (s).
     pub fn timestep(&self) -> f64 {
-        self.timestep
+        self.timing.timestep
     }
 
     /// Plant steps per control tick.
     pub fn steps_per_tick(&self) -> u64 {
-        self.steps_per_tick
+        self.timing.steps_per_tick
     }
 
     /// The predictors' RK4 step (s).
     pub fn predictor_step(&self) -> f64 {
-        self.predictor_step
+        self.predict.step
     }
 
     /// (value, issue time) of each channel's input applied at the start of the last step.
     pub fn applied(&self) -> &[(f64, f64)] {
-        &self.applied
+        &self.actuate.applied
     }
 
     /// The error raised inside the last step's callbacks, if any (taken once).
@@ -742,12 +957,12 @@ impl ControlLoop {
 
     /// Adds ω_i(t) to channel i's applied input, unknown to the predictors.
     pub fn set_input_disturbance(&mut self, disturbance: InputDisturbance) {
-        self.input_disturbance = Some(disturbance);
+        self.actuate.disturbance = Some(disturbance);
     }
 
     /// The barrier rows formed and left out so far.
     pub fn barrier_rows(&self) -> super::BarrierRows {
-        let reach = &self.work.law.reach;
+        let reach = &self.laws.work.reach;
         super::BarrierRows {
             formed: reach.rows_formed,
             left_out: reach.rows_left_out,
@@ -770,45 +985,48 @@ impl ControlLoop {
             "a moving actor's barrier is a planar circle or a headway"
         );
         self.add_known(barrier, Some(motion), Some((offset, primary)));
-        *self.actors.offsets.last_mut().expect("just added") = offset;
-        *self.actors.primary.last_mut().expect("just added") = primary;
+        let actors = &mut self.laws.actors;
+        *actors.offsets.last_mut().expect("just added") = offset;
+        *actors.primary.last_mut().expect("just added") = primary;
         // (len stays 0 outside a tick: reserve for every primary actor.)
-        let primaries = self.actors.primary.iter().filter(|&&p| p).count();
-        self.work.law.seen.reserve(primaries);
+        let primaries = actors.primary.iter().filter(|&&p| p).count();
+        self.laws.work.seen.reserve(primaries);
     }
 
     fn add_known(&mut self, barrier: Barrier, motion: Option<ActorMotion>, road_user: Option<([f64; 2], bool)>) {
-        self.work.law.reach.add(&barrier, road_user);
-        self.work.law.moving.push(motion.as_ref().map(|_| barrier.clone()));
-        self.actors.motions.push(motion);
-        self.actors.offsets.push([0.0; 2]);
-        self.actors.primary.push(false);
-        self.actors.observed.push(ActorState::default());
+        let channels = self.queues.assumed.len();
+        let laws = &mut self.laws;
+        laws.work.reach.add(&barrier, road_user);
+        laws.work.moving.push(motion.as_ref().map(|_| barrier.clone()));
+        laws.actors.motions.push(motion);
+        laws.actors.offsets.push([0.0; 2]);
+        laws.actors.primary.push(false);
+        laws.actors.observed.push(ActorState::default());
         // A mixed-relative-degree barrier has a second row, ḣ + λ1 h ≥ 0.
-        let form = self.filter.barrier_form();
+        let form = laws.filter.barrier_form();
         if barrier.mixed_relative_degree() && form.is_some_and(|f| f.real_rates().is_some()) {
-            let law = &mut self.work.law;
-            law.constraints.push(Constraint::zeros(self.queues.len()));
-            law.row_barrier.push(0);
+            laws.work.constraints.push(Constraint::zeros(channels));
+            laws.work.row_barrier.push(0);
         }
-        self.known_barriers.push(barrier);
-        self.work.law.constraints.push(Constraint::zeros(self.queues.len()));
-        self.work.law.row_barrier.push(0);
-        self.work.law.rows_moved = true;
+        laws.known_barriers.push(barrier);
+        laws.work.constraints.push(Constraint::zeros(channels));
+        laws.work.row_barrier.push(0);
+        laws.work.rows_moved = true;
         // κ_j changed: the recursive chain computed with the old law no longer holds.
-        self.work.predictor.invalidate_chain();
+        self.predict.workspace.invalidate_chain();
     }
 
     /// What the controller assumes of moving actors over the delays.
     pub fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
-        self.actors.knowledge = knowledge;
+        self.laws.actors.knowledge = knowledge;
     }
 
     /// An actor's trigger fired at `time`: the controller's copy of its motion follows (from
     /// the next tick on, the actor is observed braking, walking, …). `name` is the obstacle's:
     /// its barriers are named as it or `<name>/<i>-<j>`.
     pub fn actor_triggered(&mut self, name: &str, time: f64) {
-        for (b, m) in self.known_barriers.iter().zip(&mut self.actors.motions) {
+        let laws = &mut self.laws;
+        for (b, m) in laws.known_barriers.iter().zip(&mut laws.actors.motions) {
             let ours = b.name == name || b.name.strip_prefix(name).is_some_and(|rest| rest.starts_with('/'));
             if let (true, Some(m)) = (ours, m) {
                 m.set_triggered_at(time);
@@ -819,16 +1037,17 @@ impl ControlLoop {
     /// The known moving actors: (barrier name, true motion), in the order of
     /// [`Consistency::actors_predicted`].
     pub fn moving_actors(&self) -> impl Iterator<Item = (&str, &ActorMotion)> {
-        (self
+        let laws = &self.laws;
+        (laws
             .known_barriers
             .iter()
-            .zip(&self.actors.motions)
-            .zip(&self.actors.primary))
+            .zip(&laws.actors.motions)
+            .zip(&laws.actors.primary))
         .filter_map(|((b, m), &primary)| m.as_ref().filter(|_| primary).map(|m| (b.name.as_str(), m)))
     }
 
     pub fn known_barriers(&self) -> &[Barrier] {
-        &self.known_barriers
+        &self.laws.known_barriers
     }
 
     /// Sets the predictors' RK4 step to `steps` plant steps. The plant step h is always valid;
@@ -837,28 +1056,29 @@ impl ControlLoop {
     /// exact up to RK4 truncation; a coarser one switches inputs inside its RK4 steps and holds
     /// κ_j's commands over several periods, an approximation the /prediction records measure).
     pub fn set_predictor_step(&mut self, steps: u32) -> Result<(), String> {
-        if steps != 1 && !self.queues.iter().all(|q| on_tick_grid(q, self.control_period)) {
+        let period = self.timing.control_period;
+        if steps != 1 && !self.queues.assumed.iter().all(|q| on_tick_grid(q, period)) {
             return Err("a predictor step other than the timestep needs constant delays that are whole multiples of the control period".into());
         }
-        self.predictor_step = steps as f64 * self.timestep;
+        self.predict.step = steps as f64 * self.timing.timestep;
         Ok(())
     }
 
     /// Reuse of the recursive chain between ticks (see [`PredictorWorkspace::set_chain_reuse`]).
     pub fn set_chain_tolerance(&mut self, tolerance: f64) {
-        self.work.predictor.set_chain_reuse(Some(tolerance));
+        self.predict.workspace.set_chain_reuse(Some(tolerance));
     }
 
     /// Whether road users out of reach form no barrier row (`control.leave_out_of_reach`).
     pub fn set_leave_out_of_reach(&mut self, leave_out: bool) {
-        self.work.law.reach.set_allowed(leave_out);
+        self.laws.work.reach.set_allowed(leave_out);
     }
 
     /// Recomputes every reused recursive chain over its whole window too, and keeps the
     /// largest difference (doubles the predictor cost: for measurements, not for runs).
     pub fn audit_chain_reuse(&mut self) {
-        let workspace = PredictorWorkspace::new(self.model.state_dim(), self.queues.len());
-        self.chain_audit = Some(ChainAudit {
+        let workspace = PredictorWorkspace::new(self.laws.model.state_dim(), self.queues.assumed.len());
+        self.predict.audit = Some(ChainAudit {
             predictions: workspace.predictions(),
             workspace,
             max_difference: 0.0,
@@ -869,96 +1089,42 @@ impl ControlLoop {
     /// (largest max-norm difference between a reused and a recomputed prediction, predictions
     /// made from a reused chain) since [`ControlLoop::audit_chain_reuse`].
     pub fn chain_audit(&self) -> Option<(f64, u64)> {
-        self.chain_audit.as_ref().map(|a| (a.max_difference, a.reused))
+        self.predict.audit.as_ref().map(|a| (a.max_difference, a.reused))
     }
 
     /// The last tick's record, once (after the step in which it ran).
     pub fn take_tick(&mut self) -> Option<(&Tick, &[Barrier])> {
-        std::mem::take(&mut self.tick_ready).then_some((&self.tick, &self.known_barriers))
+        std::mem::take(&mut self.tick_ready).then_some((&self.tick, &self.laws.known_barriers))
     }
 
-    /// One control tick at time t from the state in `work.state`: predictions (if the filter
-    /// or the nominal uses them), then per channel u0 and the filter's decision at the
-    /// channel's evaluation state, pushed onto the channel's queue.
+    /// One control tick at time t from the state the sense stage read: the road users as
+    /// observed at t → predict (if the filter or the nominal uses predictions) → the laws: per
+    /// channel u0 and the filter's decision at the channel's evaluation state → the delay
+    /// queues → the predictions kept for their consistency checks.
     fn control_tick(&mut self, t: f64) -> Result<(), FilterError> {
         let ControlLoop {
-            model,
-            nominal,
-            filter,
+            sense,
+            laws,
+            predict,
             queues,
-            structure,
-            known_barriers,
-            actors,
-            timestep,
-            control_period,
-            predictor_step,
+            pending,
+            timing,
             tick,
             tick_ready,
-            pending,
-            work,
-            chain_audit,
-            actuators,
             ..
         } = self;
-        let TickWorkspace {
-            state,
-            predictions,
-            predictor,
-            law,
-            spare_states,
-            spare_actor_positions,
-            ..
-        } = work;
-        // Sense: the road users as observed at t (x(t) is in `state`).
-        actors.observe(t);
-        let laws = Laws {
-            model: model.as_ref(),
-            nominal: nominal.as_ref(),
-            form: filter.barrier_form(),
-            barriers: known_barriers,
-            actors,
-        };
-        // Predict only for a controller that uses predictions; otherwise every channel
-        // evaluates at x(t) and nothing is pending for consistency checks.
-        let predicts = (filter.uses_prediction(), nominal.uses_prediction());
-        let structure = if predicts.0 || predicts.1 {
-            &*structure
-        } else {
-            &Structure::None
-        };
-        let context = PredictorContext {
-            model: model.as_ref(),
-            queues,
-            timestep: *predictor_step,
-            control_period: *control_period,
-        };
-        predict_stage(
-            (&laws, filter.as_mut(), law),
-            (&context, structure, predicts.1),
-            (t, state),
-            (predictor, predictions),
-            chain_audit.as_mut(),
-        )?;
+        laws.actors.observe(t);
+        let predicts = laws.predicts();
+        predict.run(laws, (&queues.assumed, *timing), (t, &sense.state), predicts)?;
+        let (laws_read, filter, law) = laws.parts();
         decide_stage(
-            (&laws, filter.as_mut(), law),
-            (t, state, predictions),
-            (queues, *timestep, predicts),
+            (&laws_read, filter, law),
+            (t, &sense.state, &predict.predictions),
+            (&queues.assumed, timing.timestep, predicts),
             tick,
         )?;
-        // Delay queues: every command goes to the controller's queue and, if the actuators
-        // have their own, to it.
-        for queues in std::iter::once(&mut *queues).chain(actuators.as_mut()) {
-            for (queue, &u) in queues.iter_mut().zip(tick.issued.iter()) {
-                queue.push(t, u)?;
-                queue.discard_before(t);
-            }
-        }
-        keep_pending(
-            (t, *timestep, laws.actors),
-            (predictions, predictor),
-            (spare_states, spare_actor_positions),
-            pending,
-        );
+        queues.push(t, &tick.issued)?;
+        pending.keep((t, timing.timestep, &laws.actors), predict);
         tick.time = t;
         *tick_ready = true;
         Ok(())
@@ -967,14 +1133,17 @@ impl ControlLoop {
     /// The latest prediction of each channel still waiting for its target time (the one the
     /// last tick made): what the Foxglove scene draws.
     pub fn latest_predictions(&self) -> impl Iterator<Item = &Prediction> {
-        self.pending.iter().filter_map(|q| q.back().map(|p| &p.prediction))
+        self.pending
+            .channels
+            .iter()
+            .filter_map(|q| q.back().map(|p| &p.prediction))
     }
 
     /// Per channel, the actors' assumed positions at the target time of its latest pending
     /// prediction (x, y pairs in the order of [`ControlLoop::moving_actors`], for the actors
     /// known at its tick): what the Foxglove scene draws.
     pub fn latest_actor_predictions(&self) -> impl Iterator<Item = (usize, &[f64])> {
-        (self.pending.iter()).filter_map(|q| q.back().map(|p| (p.prediction.channel, p.actors.as_slice())))
+        (self.pending.channels.iter()).filter_map(|q| q.back().map(|p| (p.prediction.channel, p.actors.as_slice())))
     }
 
     /// Predictions whose target time falls in [t_k, t_k + h), compared with the realised state:
@@ -986,7 +1155,15 @@ impl ControlLoop {
     /// `last`: x_k is the run's final state, so only predictions of that time are realised (a
     /// target later than the run's end has no realised state: not extrapolated past it).
     pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>, last: bool) -> Result<Vec<Consistency>, DelayError> {
-        let h = self.timestep;
+        let h = self.timing.timestep;
+        let ControlLoop {
+            laws,
+            predict,
+            queues,
+            pending,
+            timing,
+            ..
+        } = self;
         let reach = if last {
             h * TICK_TOLERANCE
         } else {
@@ -994,9 +1171,9 @@ impl ControlLoop {
         };
         let mut out = Vec::new();
         // The predictor's final partial step ran on this grid with these inputs.
-        let same_step = self.actuators.is_none() && (self.predictor_step - h).abs() <= h * TICK_TOLERANCE;
-        for channel in 0..self.pending.len() {
-            while let Some(p) = self.pending[channel].front() {
+        let same_step = queues.actuators.is_none() && (predict.step - h).abs() <= h * TICK_TOLERANCE;
+        for channel in 0..pending.channels.len() {
+            while let Some(p) = pending.channels[channel].front() {
                 if p.prediction.target_time >= t_k + reach {
                     break;
                 }
@@ -1004,13 +1181,13 @@ impl ControlLoop {
                     prediction: p,
                     partial_step,
                     actors,
-                } = self.pending[channel].pop_front().expect("front exists");
-                let mut realized = self.work.spare_states.pop().unwrap_or_else(|| x_k.clone());
+                } = pending.channels[channel].pop_front().expect("front exists");
+                let mut realized = pending.spare_states.pop().unwrap_or_else(|| x_k.clone());
                 let context = PredictorContext {
-                    model: self.model.as_ref(),
-                    queues: self.actuators.as_deref().unwrap_or(&self.queues),
+                    model: laws.model.as_ref(),
+                    queues: queues.true_delays(),
                     timestep: h,
-                    control_period: self.control_period,
+                    control_period: timing.control_period,
                 };
                 // Channels sharing a prediction time (one shared delay) share the realised state.
                 let same_time = out
@@ -1034,12 +1211,12 @@ impl ControlLoop {
                     context.advance_with_history_into(
                         x_k.as_slice(),
                         (t_k, p.target_time),
-                        &mut self.work.realize,
+                        &mut pending.realize,
                         realized.as_mut_slice(),
                     )?;
                 }
                 if let Some((_, state)) = partial_step {
-                    self.work.spare_states.push(state);
+                    pending.spare_states.push(state);
                 }
                 out.push(Consistency {
                     prediction: p,
@@ -1053,9 +1230,10 @@ impl ControlLoop {
 
     /// Returns a realised prediction's storage for reuse by later ticks.
     pub fn recycle(&mut self, consistency: Consistency) {
-        self.work.spare_states.push(consistency.prediction.state);
-        self.work.spare_states.push(consistency.realized);
-        self.work.spare_actor_positions.push(consistency.actors_predicted);
+        let pending = &mut self.pending;
+        pending.spare_states.push(consistency.prediction.state);
+        pending.spare_states.push(consistency.realized);
+        pending.spare_actor_positions.push(consistency.actors_predicted);
     }
 }
 
@@ -1209,23 +1387,16 @@ fn on_tick_grid(queue: &DelayQueue, control_period: f64) -> bool {
 
 impl Controller for ControlLoop {
     fn input(&mut self, step: u64, call_in_step: u32, offset: f64, state: &dyn Fn(&mut [f64])) -> &[f64] {
-        let step_time = step as f64 * self.timestep;
-        let tick = call_in_step == 0 && step.is_multiple_of(self.steps_per_tick) && self.error.is_none();
-        if let Some(sensor) = &mut self.sensor {
-            // A late sensor needs the true state of every step; otherwise only at ticks.
-            if call_in_step == 0 && (tick || sensor.latency_steps() > 0) {
-                state(self.work.state.as_mut_slice());
-                sensor.record(step, self.work.state.as_slice());
-            }
-        }
+        let Timing {
+            timestep,
+            steps_per_tick,
+            ..
+        } = self.timing;
+        let step_time = step as f64 * timestep;
+        let tick = call_in_step == 0 && step.is_multiple_of(steps_per_tick) && self.error.is_none();
+        self.sense
+            .read(step, call_in_step, tick, state, &mut self.tick.measured);
         if tick {
-            match &self.sensor {
-                Some(sensor) => {
-                    sensor.measure_into(step, self.work.state.as_mut_slice());
-                    self.tick.measured.copy_from(&self.work.state);
-                }
-                None => state(self.work.state.as_mut_slice()),
-            }
             if let Err(e) = self.control_tick(step_time) {
                 self.error = Some(e);
             }
@@ -1233,53 +1404,13 @@ impl Controller for ControlLoop {
         // Sample at the call's offset inside this step, kept in [t_k, t_k + h): RK4's last
         // stage (at t_k + h) takes the left limit, so a constant-delay input is constant over
         // the step.
-        let offset = offset.clamp(0.0, self.timestep * (1.0 - TICK_TOLERANCE));
+        let offset = offset.clamp(0.0, timestep * (1.0 - TICK_TOLERANCE));
         let sample_time = step_time + offset;
-        self.applied_buffer.clear();
-        let actuators = self.actuators.as_deref().unwrap_or(&self.queues);
-        for (i, queue) in actuators.iter().enumerate() {
-            let applied = match queue.applied(sample_time) {
-                Ok(a) => a,
-                Err(e) => {
-                    self.error.get_or_insert(e.into());
-                    crate::delay::Applied {
-                        value: 0.0,
-                        issued_at: f64::NAN,
-                    }
-                }
-            };
-            let value = applied.value + self.input_disturbance.as_ref().map_or(0.0, |w| w(sample_time, i));
-            if call_in_step == 0 {
-                self.applied[i] = (value, applied.issued_at);
-            }
-            self.applied_buffer.push(value);
-        }
-        // Actuator dynamics: the step's command (at its start) drives the actuator, whose mean
-        // output over the step is the input of every evaluation of the step.
-        if let Some(actuated) = &mut self.actuated {
-            if call_in_step == 0 {
-                for ((out, &command), actuator) in actuated
-                    .iter_mut()
-                    .zip(&self.applied_buffer)
-                    .zip(&mut self.actuator_dynamics)
-                {
-                    *out = match actuator {
-                        Some(actuator) => actuator.step(command, self.timestep),
-                        None => command,
-                    };
-                }
-            }
-            for (value, (&out, actuator)) in self
-                .applied_buffer
-                .iter_mut()
-                .zip(actuated.iter().zip(&self.actuator_dynamics))
-            {
-                if actuator.is_some() {
-                    *value = out;
-                }
-            }
-        }
-        &self.applied_buffer
+        self.actuate.sample(
+            self.queues.true_delays(),
+            (sample_time, call_in_step, timestep),
+            &mut self.error,
+        )
     }
 }
 
