@@ -9,7 +9,7 @@ use nalgebra::DVector;
 use super::control::{self, ControlLoop};
 use super::{EpisodeError, Obstacle};
 use crate::barrier::{Barrier, BarrierForm};
-use crate::delay::{DelayProfile, DelayQueue};
+use crate::delay::DelayQueue;
 use crate::dynamics::Dynamics;
 use crate::filter::{FilterContext, ParamError, SafetyFilter, TICK_TOLERANCE};
 use crate::log::{KindInfo, RunInfo};
@@ -504,65 +504,22 @@ pub(super) fn queues(
     period: f64,
 ) -> Result<Queues, EpisodeError> {
     let sc = &loaded.scenario;
-    let (mut assumed, mut actuators) = (Vec::with_capacity(channels.len()), Vec::with_capacity(channels.len()));
-    for (index, channel) in channels.iter().enumerate() {
-        let initial = sc.initial_input.get(channel).copied().unwrap_or(0.0);
-        let truth = sc.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
-        let true_key = format!("delays.{channel}");
-        let (key, profile) = match sc.assumed_delays.get(channel) {
-            Some(profile) => (format!("assumed_delays.{channel}"), profile.clone()),
-            None => (true_key.clone(), truth.clone()),
-        };
-        // The actuator's own line when it is not the controller's: another true delay
-        // (only physical), or a stochastic actuation (which needs a constant assumption).
-        let stochastic = sc.actuation.get(channel);
-        if stochastic.is_some() || sc.assumed_delays.contains_key(channel) {
-            truth
-                .check_physical(channel, sc.duration, timestep, sc.control.history)
-                .map_err(|e| loaded.field_error(&true_key, e.to_string()))?;
-        }
-        actuators.push(match stochastic {
-            Some(_) if profile.constant_delay().is_none() => {
-                return Err(loaded
-                    .field_error(
-                        &format!("actuation.{channel}"),
-                        "stochastic actuation needs a constant assumed delay on its channel (the consistency check of time-varying predictions is not defined for it)",
-                    )
-                    .into());
-            }
-            Some(spec) => Some(DelayQueue::actuator(
-                channel,
-                truth,
-                initial,
-                timestep,
-                spec.build(sc.seed, index),
-            )),
-            None if sc.assumed_delays.contains_key(channel) => Some(
-                DelayQueue::with_profile(channel, truth, initial, timestep)
-                    .map_err(|e| loaded.field_error(&true_key, e.to_string()))?,
-            ),
-            None => None,
-        });
-        profile
-            .check(channel, sc.duration, timestep, sc.control.history)
-            .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-        let queue = DelayQueue::with_profile(channel, profile, initial, timestep)
-            .map_err(|e| loaded.field_error(&key, e.to_string()))?;
-        assumed.push(queue);
-    }
-    let structure = control::predictor_structure(&assumed, period).map_err(|e| loaded.field_error("delays", e))?;
-    // Channels without their own assumption actuate through a copy of the assumed queue.
-    let actuators = actuators.iter().any(Option::is_some).then(|| {
-        actuators
-            .into_iter()
-            .zip(&assumed)
-            .map(|(own, same)| own.unwrap_or_else(|| same.clone()))
-            .collect()
-    });
+    let sections = crate::delay::DelaySections {
+        delays: &sc.delays,
+        assumed_delays: &sc.assumed_delays,
+        actuation: &sc.actuation,
+        initial_input: &sc.initial_input,
+        seed: sc.seed,
+        duration: sc.duration,
+        history: sc.control.history,
+    };
+    let built = (sections.queues(channels, timestep)).map_err(|e| loaded.field_error(&e.key, e.message))?;
+    let structure =
+        control::predictor_structure(&built.assumed, period).map_err(|e| loaded.field_error("delays", e))?;
     Ok(Queues {
-        assumed,
+        assumed: built.assumed,
         structure,
-        actuators,
+        actuators: built.actuators,
     })
 }
 
@@ -663,77 +620,9 @@ pub(super) fn road_edges(
     let Some(road) = &loaded.scenario.road else {
         return Ok(Vec::new());
     };
-    // With a footprint, one barrier per (edge, covering circle), named `<edge>/<i>`.
-    let footprint = match (&loaded.scenario.vehicle.footprint, model.heading_index()) {
-        (Some(_), Some(heading)) => Some((vehicle_circles(loaded, hull_radius), heading)),
-        _ => None,
-    };
-    let widest = footprint.as_ref().map_or(hull_radius, |(circles, _)| {
-        circles.iter().map(|c| c.1).fold(0.0, f64::max)
-    });
-    let what = if footprint.is_some() {
-        "footprint's covering circles"
-    } else {
-        "hull"
-    };
-    let mut barriers = Vec::with_capacity(road.edges.len());
-    for (i, edge) in road.edges.iter().enumerate() {
-        let Some(position) = model.planar_position() else {
-            return Err(loaded
-                .field_error("road.edges", "this vehicle does not move in a plane")
-                .into());
-        };
-        if let crate::road::Edge::Arc {
-            radius,
-            road: crate::road::ArcSide::Inside,
-            ..
-        } = edge
-        {
-            if *radius <= widest {
-                return Err(loaded
-                    .field_error(
-                        &format!("road.edges.{i}.radius"),
-                        format!("a road inside a circle of radius {radius} m has no room for the vehicle's {what} of radius {widest} m: expected a radius > {widest}"),
-                    )
-                    .into());
-            }
-        }
-        let edge_barriers = match (&footprint, edge, model.heading_index()) {
-            (Some((circles, heading)), _, _) => edge.body_barriers(&edge.name(i), (position, *heading), circles),
-            // A polyline edge's barrier reads the heading: the hull as one circle at the
-            // reference point.
-            (None, crate::road::Edge::Polyline { .. }, Some(heading)) => {
-                edge.body_barriers(&edge.name(i), (position, heading), &[([0.0, 0.0], hull_radius)])
-            }
-            (None, crate::road::Edge::Polyline { .. }, None) => {
-                return Err(loaded
-                    .field_error(
-                        &format!("road.edges.{i}"),
-                        "a polyline edge needs a vehicle with a heading",
-                    )
-                    .into());
-            }
-            (None, _, _) => edge.barrier(&edge.name(i), position, hull_radius).into_iter().collect(),
-        };
-        for barrier in edge_barriers {
-            if barrier.h(x0) < 0.0 {
-                return Err(loaded
-                    .field_error(
-                        &format!("road.edges.{i}"),
-                        format!(
-                            "the vehicle starts off the road: its {what} (radius {widest} m) at ({}, {}) {} {:.3} m beyond this edge",
-                            x0[position[0]],
-                            x0[position[1]],
-                            if footprint.is_some() { format!("reach ({})", barrier.name) } else { "is".into() },
-                            -barrier.clearance(x0)
-                        ),
-                    )
-                    .into());
-            }
-            barriers.push(barrier);
-        }
-    }
-    Ok(barriers)
+    let footprint = (loaded.scenario.vehicle.footprint.as_ref()).map(|_| vehicle_circles(loaded, hull_radius));
+    (road.barriers(model, hull_radius, footprint.as_deref(), x0))
+        .map_err(|e| loaded.field_error(&e.key, e.message).into())
 }
 
 /// The static lines of the 3D view (`road/<edge>`, `road/lane/<marking>` dashed, a CommonRoad

@@ -721,6 +721,92 @@ fn sampling_step(horizon: f64, step: f64) -> f64 {
     step.max(horizon / MAX_PROFILE_SAMPLES)
 }
 
+/// The `[delays]`, `[assumed_delays]`, `[actuation]` and `[initial_input]` tables of a run, for
+/// building its queues ([`DelaySections::queues`]).
+pub struct DelaySections<'a> {
+    pub delays: &'a std::collections::BTreeMap<String, DelayProfile>,
+    pub assumed_delays: &'a std::collections::BTreeMap<String, DelayProfile>,
+    pub actuation: &'a std::collections::BTreeMap<String, ActuationSpec>,
+    pub initial_input: &'a std::collections::BTreeMap<String, f64>,
+    /// The scenario's seed (the stochastic actuation's draws).
+    pub seed: u64,
+    /// The run's duration and the issued-input history kept (s): Assumptions 1–2 are checked
+    /// over the run.
+    pub duration: f64,
+    pub history: f64,
+}
+
+/// A run's delay queues: the controller's, with the delays it assumes, and the actuators' own
+/// when the true delays or the actuation differ from them (every channel then actuates through
+/// its own or a copy of the controller's).
+pub struct BuiltQueues {
+    pub assumed: Vec<DelayQueue>,
+    pub actuators: Option<Vec<DelayQueue>>,
+}
+
+impl DelaySections<'_> {
+    /// One queue per channel (`channels`, in the model's order) on the plant step `timestep`:
+    /// the assumed profile checked against Assumptions 1–2, the true one only for being
+    /// physical where it differs; errors at the key they concern (`delays.<channel>`,
+    /// `assumed_delays.<channel>`, `actuation.<channel>`).
+    pub fn queues(&self, channels: &[String], timestep: f64) -> Result<BuiltQueues, crate::params::ParamError> {
+        use crate::params::ParamError;
+        let (mut assumed, mut actuators) = (Vec::with_capacity(channels.len()), Vec::with_capacity(channels.len()));
+        for (index, channel) in channels.iter().enumerate() {
+            let initial = self.initial_input.get(channel).copied().unwrap_or(0.0);
+            let truth = self.delays.get(channel).cloned().unwrap_or(DelayProfile::Constant(0.0));
+            let true_key = format!("delays.{channel}");
+            let (key, profile) = match self.assumed_delays.get(channel) {
+                Some(profile) => (format!("assumed_delays.{channel}"), profile.clone()),
+                None => (true_key.clone(), truth.clone()),
+            };
+            // The actuator's own line when it is not the controller's: another true delay
+            // (only physical), or a stochastic actuation (which needs a constant assumption).
+            let stochastic = self.actuation.get(channel);
+            if stochastic.is_some() || self.assumed_delays.contains_key(channel) {
+                truth
+                    .check_physical(channel, self.duration, timestep, self.history)
+                    .map_err(|e| ParamError::new(&true_key, e.to_string()))?;
+            }
+            actuators.push(match stochastic {
+                Some(_) if profile.constant_delay().is_none() => {
+                    return Err(ParamError::new(
+                        format!("actuation.{channel}"),
+                        "stochastic actuation needs a constant assumed delay on its channel (the consistency check of time-varying predictions is not defined for it)",
+                    ));
+                }
+                Some(spec) => Some(DelayQueue::actuator(
+                    channel,
+                    truth,
+                    initial,
+                    timestep,
+                    spec.build(self.seed, index),
+                )),
+                None if self.assumed_delays.contains_key(channel) => {
+                    Some(DelayQueue::with_profile(channel, truth, initial, timestep).map_err(|e| ParamError::new(&true_key, e.to_string()))?)
+                }
+                None => None,
+            });
+            profile
+                .check(channel, self.duration, timestep, self.history)
+                .map_err(|e| ParamError::new(&key, e.to_string()))?;
+            assumed.push(
+                DelayQueue::with_profile(channel, profile, initial, timestep)
+                    .map_err(|e| ParamError::new(&key, e.to_string()))?,
+            );
+        }
+        // Channels without their own assumption actuate through a copy of the assumed queue.
+        let actuators = actuators.iter().any(Option::is_some).then(|| {
+            actuators
+                .into_iter()
+                .zip(&assumed)
+                .map(|(own, same)| own.unwrap_or_else(|| same.clone()))
+                .collect()
+        });
+        Ok(BuiltQueues { assumed, actuators })
+    }
+}
+
 /// The `[delays]` or `[assumed_delays]` table (`section`): every constant delay is a finite
 /// number of seconds >= 0 (a time-varying profile is checked against Assumptions 1–2 when the
 /// queues are built: [`DelayProfile::check`]).

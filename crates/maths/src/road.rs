@@ -30,6 +30,78 @@ pub struct RoadSpec {
 }
 
 impl RoadSpec {
+    /// The edges' barriers for a vehicle of `model` whose hull has radius `hull_radius`, or
+    /// whose footprint's covering circles are `footprint` (offset, radius; one barrier per edge
+    /// and circle, named `<edge>/<i>`), each checked to hold at the initial state `x0`; errors
+    /// at the key they concern (`road.edges.<i>…`).
+    pub fn barriers(
+        &self,
+        model: &dyn crate::dynamics::Dynamics,
+        hull_radius: f64,
+        footprint: Option<&[([f64; 2], f64)]>,
+        x0: &nalgebra::DVector<f64>,
+    ) -> Result<Vec<Barrier>, ParamError> {
+        let footprint = footprint.zip(model.heading_index());
+        let widest = footprint.map_or(hull_radius, |(circles, _)| {
+            circles.iter().map(|c| c.1).fold(0.0, f64::max)
+        });
+        let what = if footprint.is_some() {
+            "footprint's covering circles"
+        } else {
+            "hull"
+        };
+        let mut barriers = Vec::with_capacity(self.edges.len());
+        for (i, edge) in self.edges.iter().enumerate() {
+            let Some(position) = model.planar_position() else {
+                return Err(ParamError::new("road.edges", "this vehicle does not move in a plane"));
+            };
+            if let Edge::Arc {
+                radius,
+                road: ArcSide::Inside,
+                ..
+            } = edge
+            {
+                if radius <= &widest {
+                    return Err(ParamError::new(
+                        format!("road.edges.{i}.radius"),
+                        format!("a road inside a circle of radius {radius} m has no room for the vehicle's {what} of radius {widest} m: expected a radius > {widest}"),
+                    ));
+                }
+            }
+            let edge_barriers = match (footprint, edge, model.heading_index()) {
+                (Some((circles, heading)), _, _) => edge.body_barriers(&edge.name(i), (position, heading), circles),
+                // A polyline edge's barrier reads the heading: the hull as one circle at the
+                // reference point.
+                (None, Edge::Polyline { .. }, Some(heading)) => {
+                    edge.body_barriers(&edge.name(i), (position, heading), &[([0.0, 0.0], hull_radius)])
+                }
+                (None, Edge::Polyline { .. }, None) => {
+                    return Err(ParamError::new(
+                        format!("road.edges.{i}"),
+                        "a polyline edge needs a vehicle with a heading",
+                    ));
+                }
+                (None, _, _) => edge.barrier(&edge.name(i), position, hull_radius).into_iter().collect(),
+            };
+            for barrier in edge_barriers {
+                if barrier.h(x0) < 0.0 {
+                    return Err(ParamError::new(
+                        format!("road.edges.{i}"),
+                        format!(
+                            "the vehicle starts off the road: its {what} (radius {widest} m) at ({}, {}) {} {:.3} m beyond this edge",
+                            x0[position[0]],
+                            x0[position[1]],
+                            if footprint.is_some() { format!("reach ({})", barrier.name) } else { "is".into() },
+                            -barrier.clearance(x0)
+                        ),
+                    ));
+                }
+                barriers.push(barrier);
+            }
+        }
+        Ok(barriers)
+    }
+
     /// The checks of the section when the scenario loads: at most [`MAX_ROAD_ITEMS`] edges and
     /// lanes; polyline edges of 2 to [`MAX_EDGE_POINTS`] finite points within ±`extent` m that
     /// make a smooth curve; lines and arcs within ±`extent`; unique, non-empty lane names. Keys
