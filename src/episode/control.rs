@@ -491,7 +491,7 @@ struct Laws<'a> {
 /// The controller: the tick's stages — sense, predict, the laws (nominal and filter), the delay
 /// queues — running at the control period, and the actuate stage sampling the queues at every
 /// input evaluation ([`Controller`]). Each stage owns its state; a tick hands each the previous
-/// stage's output ([`ControlLoop::control_tick`]).
+/// stage's output (`control_tick`).
 pub struct ControlLoop {
     /// What the controller reads at a tick: the true state or a sensor's measurement.
     sense: SenseStage,
