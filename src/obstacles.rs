@@ -151,14 +151,7 @@ impl<'de> Deserialize<'de> for MotionSpec {
 
 impl Serialize for MotionSpec {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        // As a `kind` table is written (`scenario::KindSpec`): `kind` first, then the parameters.
-        use serde::ser::SerializeMap;
-        let mut map = serializer.serialize_map(Some(1 + self.params.len()))?;
-        map.serialize_entry("kind", &self.kind)?;
-        for (key, value) in &self.params {
-            map.serialize_entry(key, value)?;
-        }
-        map.end()
+        crate::params::serialize_kind_table(&self.kind, &self.params, serializer)
     }
 }
 

@@ -276,13 +276,7 @@ impl<'de> Deserialize<'de> for KindSpec {
 
 impl Serialize for KindSpec {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        use serde::ser::SerializeMap;
-        let mut map = serializer.serialize_map(Some(1 + self.params.len()))?;
-        map.serialize_entry("kind", &self.kind)?;
-        for (key, value) in &self.params {
-            map.serialize_entry(key, value)?;
-        }
-        map.end()
+        crate::params::serialize_kind_table(&self.kind, &self.params, serializer)
     }
 }
 

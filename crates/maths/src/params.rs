@@ -42,3 +42,18 @@ impl ParamError {
         }
     }
 }
+/// A kind table as a scenario writes it (`filter`, `nominal`, an obstacle's `motion`): `kind`
+/// first, then the kind's parameters in their order.
+pub fn serialize_kind_table<S: serde::Serializer>(
+    kind: &str,
+    params: &toml::Table,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    use serde::ser::SerializeMap;
+    let mut map = serializer.serialize_map(Some(1 + params.len()))?;
+    map.serialize_entry("kind", kind)?;
+    for (key, value) in params {
+        map.serialize_entry(key, value)?;
+    }
+    map.end()
+}
