@@ -173,7 +173,9 @@ impl ObstacleSpec {
     /// Obstacle `i`'s checks at load, each error at the key it names (`obstacles.<i>.…`).
     pub fn validate(&self, i: usize, ctx: &ObstacleContext) -> Result<(), ParamError> {
         let (o, extent) = (self, ctx.extent);
-        o.validate_shape(i, ctx)?;
+        // Built once: the shape's heading check reads it, its error is reported after the shape's.
+        let motion = o.motion(i, ctx);
+        o.validate_shape(i, extent, motion.as_ref().ok().and_then(Option::as_ref))?;
         if o.centre.iter().any(|v| !v.is_finite()) {
             return Err(ParamError::new(
                 format!("obstacles.{i}.centre"),
@@ -207,9 +209,7 @@ impl ObstacleSpec {
                 format!("expected a time >= 0, found {}", o.appear_at),
             ));
         }
-        if o.motion.is_some() {
-            o.motion(i, ctx)?;
-        }
+        motion?;
         if let Some(f) = &o.following {
             for (key, v) in [("standstill", f.standstill), ("time_headway", f.time_headway)] {
                 if !(v.is_finite() && (0.0..=extent).contains(&v)) {
@@ -223,9 +223,14 @@ impl ObstacleSpec {
         Ok(())
     }
 
-    /// An obstacle's `radius` (a circle) or `shape` (a box), one of the two; a box's extents,
-    /// and its `heading` only where its motion does not decide it.
-    fn validate_shape(&self, i: usize, ctx: &ObstacleContext) -> Result<(), ParamError> {
+    /// An obstacle's `radius` (a circle) or `shape` (a box), one of the two; a box's extents
+    /// (within `extent`), and its `heading` only where its `motion` does not decide it.
+    fn validate_shape(
+        &self,
+        i: usize,
+        extent: f64,
+        motion: Option<&crate::actor::ActorMotion>,
+    ) -> Result<(), ParamError> {
         let o = self;
         let Some(ObstacleShape::Box {
             length,
@@ -259,20 +264,13 @@ impl ObstacleSpec {
             offset: 0.0,
         };
         rectangle
-            .check(ctx.extent)
+            .check(extent)
             .map_err(|e| ParamError::new(format!("obstacles.{i}.shape.{}", e.key), e.message))?;
         match heading {
-            Some(_)
-                if o.motion(i, ctx)
-                    .ok()
-                    .flatten()
-                    .is_some_and(|m| m.layout_heading().is_some()) =>
-            {
-                Err(ParamError::new(
-                    format!("obstacles.{i}.shape.heading"),
-                    "a box moving along a line follows its motion's direction: expected no `heading`",
-                ))
-            }
+            Some(_) if motion.is_some_and(|m| m.layout_heading().is_some()) => Err(ParamError::new(
+                format!("obstacles.{i}.shape.heading"),
+                "a box moving along a line follows its motion's direction: expected no `heading`",
+            )),
             Some(h) if !h.is_finite() => Err(ParamError::new(
                 format!("obstacles.{i}.shape.heading"),
                 format!("expected a finite angle (rad), found {h}"),
