@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
+use crate::section::{Section, SectionContext};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -82,5 +83,13 @@ impl ControlSpec {
             ));
         }
         Ok(())
+    }
+}
+
+/// `[control]`: checked here; the episode sets the loop's period, predictor step and chain
+/// reuse from it (they are the loop's own settings, not a part it takes).
+impl Section for ControlSpec {
+    fn validate(&self, _key: &str, _cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        ControlSpec::validate(self)
     }
 }

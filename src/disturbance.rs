@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
 use crate::random::{self, Stream};
+use crate::section::{ControlSettings, Section, SectionContext};
 
 /// `[disturbance]`: which disturbance, by `kind`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,7 +29,7 @@ pub enum DisturbanceSpec {
 pub type StateDisturbance = Box<dyn Fn(f64) -> DVector<f64> + Send>;
 
 /// ω_i(t) added to channel i's applied input.
-pub type InputDisturbance = Box<dyn Fn(f64, usize) -> f64 + Send>;
+pub use crate::section::InputDisturbance;
 
 impl DisturbanceSpec {
     /// The checks of the section when the scenario loads: a bound ≥ 0 and a hold > 0; a
@@ -86,4 +87,19 @@ fn random_vector(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: 
 fn random_component(seed: u64, stream: Stream, bound: f64, hold: f64, t: f64, dim: usize, i: usize) -> f64 {
     let interval = (t / hold + 1e-9).floor().max(0.0) as u64;
     bound / (dim as f64).sqrt() * random::symmetric_unit(seed, stream, interval, i as u64)
+}
+
+/// `[disturbance]`: an input disturbance is added in the control loop; a state disturbance is
+/// the ODE plant's (built with the plant).
+impl Section for DisturbanceSpec {
+    fn validate(&self, _key: &str, cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        DisturbanceSpec::validate(self, cx.ode_plant)
+    }
+
+    fn configure(&self, cx: &SectionContext<'_>, control: &mut dyn ControlSettings) -> Result<(), ParamError> {
+        if let Some(disturbance) = self.input_disturbance(cx.seed, control.channel_names().len()) {
+            control.set_input_disturbance(disturbance);
+        }
+        Ok(())
+    }
 }

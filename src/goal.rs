@@ -5,6 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
+use crate::section::{Section, SectionContext};
 
 /// The `[goal]` table: a region the planar position should enter — a disc (`position`,
 /// `radius`) or polygons (their union; a CommonRoad goal's rectangles, polygons and lanelets) —
@@ -131,5 +132,12 @@ impl GoalSpec {
             }
         }
         Ok(())
+    }
+}
+
+/// `[goal]`: checked here; the run's description and the progress metrics read it.
+impl Section for GoalSpec {
+    fn validate(&self, _key: &str, cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        GoalSpec::validate(self, cx.extent)
     }
 }

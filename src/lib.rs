@@ -5,6 +5,7 @@
 #![deny(unsafe_code)]
 
 pub use mjsafe_maths::actor;
+pub use mjsafe_maths::actuation;
 pub mod actuator;
 pub mod analyze;
 pub use mjsafe_maths::barrier;
@@ -45,7 +46,9 @@ pub use mjsafe_maths::road;
 pub mod run;
 pub mod scenario;
 pub mod scorecard;
+pub mod section;
 pub mod sensing;
+pub use mjsafe_maths::sensor;
 pub mod signals;
 pub mod stall;
 pub use mjsafe_maths::stl;

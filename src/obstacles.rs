@@ -8,6 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
+use crate::section::{ControlSettings, Section, SectionContext};
 
 /// What an obstacle's checks and motion need of the rest of the scenario.
 pub struct ObstacleContext<'a> {
@@ -20,6 +21,17 @@ pub struct ObstacleContext<'a> {
     /// Largest coordinate or radius accepted (m): h = d² − r² keeps metre-scale precision only
     /// well below 1e9 m (and overflows to inf past 1e154).
     pub extent: f64,
+}
+
+impl<'a> From<&SectionContext<'a>> for ObstacleContext<'a> {
+    fn from(cx: &SectionContext<'a>) -> ObstacleContext<'a> {
+        ObstacleContext {
+            duration: cx.duration,
+            seed: cx.seed,
+            commonroad: cx.commonroad,
+            extent: cx.extent,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -308,6 +320,27 @@ impl ActorKnowledgeSpec {
                 format!("expected a distance >= 0 (m), found {}", self.margin),
             ));
         }
+        Ok(())
+    }
+}
+
+/// `[[obstacles]]`: each checked with what the rest of the scenario says of it; the episode
+/// assembles them (their bodies go into the MJCF model).
+impl Section for Vec<ObstacleSpec> {
+    fn validate(&self, _key: &str, cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        let obstacles = ObstacleContext::from(cx);
+        self.iter().enumerate().try_for_each(|(i, o)| o.validate(i, &obstacles))
+    }
+}
+
+/// `[actor_knowledge]`: what the controller assumes of the road users over the delay.
+impl Section for ActorKnowledgeSpec {
+    fn validate(&self, _key: &str, cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        ActorKnowledgeSpec::validate(self, cx.extent)
+    }
+
+    fn configure(&self, _cx: &SectionContext<'_>, control: &mut dyn ControlSettings) -> Result<(), ParamError> {
+        control.set_actor_knowledge(self.kind);
         Ok(())
     }
 }

@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
+use crate::section::{Section, SectionContext};
 
 /// One `[[requirements]]` entry: a name (the `req.<name>` metric) and an STL formula over the
 /// run's signals (docs/requirements.md).
@@ -71,4 +72,11 @@ pub fn validate(list: &[RequirementSpec]) -> Result<(), ParamError> {
             .map_err(|e| ParamError::new(format!("requirements[{i}].formula"), e.to_string()))?;
     }
     Ok(())
+}
+
+/// `[[requirements]]`: checked here; the run's description carries them to the monitors.
+impl Section for Vec<RequirementSpec> {
+    fn validate(&self, _key: &str, _cx: &SectionContext<'_>) -> Result<(), ParamError> {
+        validate(self)
+    }
 }

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::barrier::Shape;
 use crate::delay::DelayProfile;
 use crate::road::RoadSpec;
+use crate::section::{Section, SectionContext};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -25,79 +26,103 @@ pub enum ScenarioError {
     Require { flag: String, message: String },
 }
 
-/// A scenario as written in its file (after overrides).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Scenario {
+/// Declares [`Scenario`]: each field is `plain` (read where it is used) or a `section`, a
+/// table that checks itself and sets its part of the control loop through
+/// [`crate::section::Section`]. A new table is its module plus its line here.
+macro_rules! scenario_tables {
+    ($($(#[$attr:meta])* $role:ident $field:ident: $ty:ty,)*) => {
+        /// A scenario as written in its file (after overrides).
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub struct Scenario {
+            $($(#[$attr])* pub $field: $ty,)*
+        }
+
+        impl Scenario {
+            /// The tables that are sections, with their keys, in the file's order.
+            pub fn sections(&self) -> Vec<(&'static str, &dyn Section)> {
+                [$(scenario_tables!(@section self, $role $field)),*].into_iter().flatten().collect()
+            }
+        }
+    };
+    (@section $self:ident, section $field:ident) => {
+        Some((stringify!($field), &$self.$field as &dyn Section))
+    };
+    (@section $self:ident, plain $field:ident) => {
+        None
+    };
+}
+
+scenario_tables! {
     /// Short name, used in log file names.
-    pub name: String,
+    plain name: String,
     #[serde(default)]
-    pub description: String,
+    plain description: String,
     /// Simulated time in seconds.
-    pub duration: f64,
+    plain duration: f64,
     /// `mujoco` (default) or `ode` (the analytic model integrated by RK4).
     #[serde(default)]
-    pub plant: PlantKind,
+    plain plant: PlantKind,
     /// Seed of every random variation (initial-state perturbation, obstacle appearance
     /// jitter, random disturbances): the same seed gives the same run, bit for bit.
     #[serde(default)]
-    pub seed: u64,
-    pub vehicle: VehicleSpec,
+    plain seed: u64,
+    plain vehicle: VehicleSpec,
     /// Delay per input channel (channels not listed: no delay): seconds for a constant delay,
     /// or a table `{ profile = "cosine_prediction" | "rational" | "table", … }`.
     #[serde(default)]
-    pub delays: BTreeMap<String, DelayProfile>,
+    section delays: BTreeMap<String, DelayProfile>,
     /// The delays the controller and its predictors assume, per channel, when they differ from
     /// the actuators' true `delays` (channels not listed: the true delay). Assumptions 1–2
     /// are checked on these; the true delays only have to be physical (D(t) >= 0, finite).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub assumed_delays: BTreeMap<String, DelayProfile>,
+    section assumed_delays: BTreeMap<String, DelayProfile>,
     /// Stochastic actuation per channel: seeded extra latency and dropped commands, unknown to
     /// the controller (which keeps assuming `assumed_delays`, or `delays`).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub actuation: BTreeMap<String, ActuationSpec>,
+    section actuation: BTreeMap<String, ActuationSpec>,
     /// Actuator dynamics per channel, unknown to the controller: magnitude and rate limits and
     /// a first-order lag between the delayed command and the plant.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub actuator_dynamics: BTreeMap<String, ActuatorDynamicsSpec>,
+    section actuator_dynamics: BTreeMap<String, ActuatorDynamicsSpec>,
     /// What the controller reads instead of the true state: a late, biased, noisy measurement.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub sensing: Option<SensingSpec>,
+    section sensing: Option<SensingSpec>,
     /// Initial input function per channel on [−D_i, 0) (constant; channels not listed: 0).
     #[serde(default)]
-    pub initial_input: BTreeMap<String, f64>,
+    plain initial_input: BTreeMap<String, f64>,
     #[serde(default)]
-    pub control: ControlSpec,
+    section control: ControlSpec,
     /// The nominal controller: `kind` and its parameters.
-    pub nominal: KindSpec,
+    plain nominal: KindSpec,
     /// The safety filter: `kind` and its parameters (default: none).
     #[serde(default)]
-    pub filter: KindSpec,
+    plain filter: KindSpec,
     #[serde(default)]
-    pub obstacles: Vec<ObstacleSpec>,
+    section obstacles: Vec<ObstacleSpec>,
     /// State constraints h(x) >= 0 that are not physical obstacles.
     #[serde(default)]
-    pub barriers: Vec<Shape>,
+    plain barriers: Vec<Shape>,
     /// Road edges (each a barrier with the vehicle's hull) and lane markings (drawn only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub road: Option<RoadSpec>,
+    section road: Option<RoadSpec>,
     /// An additive disturbance B_ω ω(t) on the ODE plant ((3.24), (4.12)).
     #[serde(default)]
-    pub disturbance: Option<DisturbanceSpec>,
+    section disturbance: Option<DisturbanceSpec>,
     /// A place a planar vehicle should reach (the progress metrics measure against it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub goal: Option<GoalSpec>,
+    section goal: Option<GoalSpec>,
     /// What the controller assumes of moving obstacles (`[actor_knowledge]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub actor_knowledge: Option<ActorKnowledgeSpec>,
+    section actor_knowledge: Option<ActorKnowledgeSpec>,
     /// `[[requirements]]`: STL formulas over the run's signals, each reported as
     /// `req.<name>` (its robustness at t = 0; docs/requirements.md).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub requirements: Vec<RequirementSpec>,
+    section requirements: Vec<RequirementSpec>,
     /// `[commonroad]`: the world of a CommonRoad scenario file, its defaults under every key the
     /// scenario does not write itself (docs/commonroad.md).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub commonroad: Option<crate::commonroad::CommonRoadSpec>,
+    plain commonroad: Option<crate::commonroad::CommonRoadSpec>,
 }
 
 /// The `[[requirements]]` section: its spec and checks are [`crate::requirement`]'s.
@@ -331,6 +356,21 @@ pub struct LoadedScenario {
 }
 
 impl LoadedScenario {
+    /// What the scenario's tables see of the rest of it ([`Section`]).
+    pub fn section_context(&self) -> SectionContext<'_> {
+        let sc = &self.scenario;
+        SectionContext {
+            duration: sc.duration,
+            seed: sc.seed,
+            ode_plant: sc.plant == PlantKind::Ode,
+            state_dim: sc.vehicle.initial_state.len(),
+            extent: OBSTACLE_EXTENT,
+            state_extent: STATE_EXTENT,
+            initial_input: &sc.initial_input,
+            commonroad: self.commonroad.as_deref(),
+        }
+    }
+
     /// The model path resolved against the scenario file's directory.
     /// A built-in model (`mjsafe:<name>`, [`crate::models`]) is its name.
     pub fn model_path(&self) -> Option<PathBuf> {
@@ -761,55 +801,19 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
             format!("expected components within ±{STATE_EXTENT:e} (the models and barriers lose their precision or overflow beyond), found {v:e}"),
         ));
     }
-    for (section, profiles) in [("delays", &sc.delays), ("assumed_delays", &sc.assumed_delays)] {
-        crate::delay::validate_profiles(section, profiles).map_err(|e| s.field_error(&e.key, e.message))?;
-    }
-    validate_actuation_and_sensing(s)?;
-    validate_control_and_model(s)?;
-    validate_barriers_and_obstacles(s)?;
-    validate_road(s)?;
-    validate_goal(s)?;
-    validate_requirements(s)
-}
-
-/// `requirements`: their own checks ([`crate::requirement::validate`]).
-fn validate_requirements(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    crate::requirement::validate(&s.scenario.requirements).map_err(|e| s.field_error(&e.key, e.message))
-}
-
-/// `goal`: its own checks ([`GoalSpec::validate`]; planarity is checked with the model).
-fn validate_goal(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    match &s.scenario.goal {
-        Some(goal) => goal
-            .validate(OBSTACLE_EXTENT)
-            .map_err(|e| s.field_error(&e.key, e.message)),
-        None => Ok(()),
-    }
-}
-
-/// `actuation`, `actuator_dynamics` and `sensing`: ranges, and extents within the run.
-fn validate_actuation_and_sensing(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    let sc = &s.scenario;
-    for (channel, a) in &sc.actuation {
-        a.validate(channel, sc.duration)
+    let cx = s.section_context();
+    for (key, section) in sc.sections() {
+        section
+            .validate(key, &cx)
             .map_err(|e| s.field_error(&e.key, e.message))?;
     }
-    for (channel, a) in &sc.actuator_dynamics {
-        a.validate(channel).map_err(|e| s.field_error(&e.key, e.message))?;
-    }
-    if let Some(sensing) = &sc.sensing {
-        let n = sc.vehicle.initial_state.len();
-        sensing
-            .validate(n, sc.duration, STATE_EXTENT)
-            .map_err(|e| s.field_error(&e.key, e.message))?;
-    }
-    Ok(())
+    validate_inputs(s)?;
+    validate_barriers_and_names(s)
 }
 
-/// `control`, `initial_input`, `disturbance` and the initial perturbation.
-fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
+/// `initial_input` and the initial perturbation.
+fn validate_inputs(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
-    sc.control.validate().map_err(|e| s.field_error(&e.key, e.message))?;
     for (channel, value) in &sc.initial_input {
         if !value.is_finite() {
             return Err(s.field_error(
@@ -817,9 +821,6 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
                 format!("expected a finite number, found {value}"),
             ));
         }
-    }
-    if let Some(disturbance) = &sc.disturbance {
-        (disturbance.validate(sc.plant == PlantKind::Ode)).map_err(|e| s.field_error(&e.key, e.message))?;
     }
     if let Some(p) = &sc.vehicle.initial_perturbation {
         if p.len() != sc.vehicle.initial_state.len()
@@ -837,21 +838,12 @@ fn validate_control_and_model(s: &LoadedScenario) -> Result<(), ScenarioError> {
 /// Obstacle `i`'s motion built by its registered kind (None for an obstacle that stands), with
 /// its seeded variations; errors name the scenario key.
 pub fn motion_of(s: &LoadedScenario, i: usize) -> Result<Option<crate::actor::ActorMotion>, crate::params::ParamError> {
-    s.scenario.obstacles[i].motion(i, &obstacle_context(s))
+    s.scenario.obstacles[i].motion(i, &(&s.section_context()).into())
 }
 
-/// What an obstacle's checks and motion need of the rest of the scenario.
-fn obstacle_context(s: &LoadedScenario) -> crate::obstacles::ObstacleContext<'_> {
-    crate::obstacles::ObstacleContext {
-        duration: s.scenario.duration,
-        seed: s.scenario.seed,
-        commonroad: s.commonroad.as_deref(),
-        extent: OBSTACLE_EXTENT,
-    }
-}
-
-/// `barriers` and `obstacles`: shapes, extents, times, and one name each.
-fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioError> {
+/// `barriers` and the footprint: shapes and extents; one name for each barrier, obstacle and
+/// road edge.
+fn validate_barriers_and_names(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
     for (i, b) in sc.barriers.iter().enumerate() {
         let ok = match b {
@@ -892,15 +884,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
             .check(OBSTACLE_EXTENT)
             .map_err(|e| s.field_error(&format!("vehicle.footprint.{}", e.key), e.message))?;
     }
-    let obstacles = obstacle_context(s);
-    for (i, o) in sc.obstacles.iter().enumerate() {
-        o.validate(i, &obstacles)
-            .map_err(|e| s.field_error(&e.key, e.message))?;
-    }
-    if let Some(k) = &sc.actor_knowledge {
-        k.validate(OBSTACLE_EXTENT)
-            .map_err(|e| s.field_error(&e.key, e.message))?;
-    }
     // Names key the obstacles' barrier values, events and table columns: one each. A name
     // left out is `obstacle_<index>`; the barriers are `barrier_<index>`.
     let mut names: std::collections::BTreeMap<String, String> = (0..sc.barriers.len())
@@ -935,16 +918,6 @@ fn validate_barriers_and_obstacles(s: &LoadedScenario) -> Result<(), ScenarioErr
         }
     }
     Ok(())
-}
-
-/// `road`: its own checks ([`RoadSpec::validate`]).
-fn validate_road(s: &LoadedScenario) -> Result<(), ScenarioError> {
-    match &s.scenario.road {
-        Some(road) => road
-            .validate(OBSTACLE_EXTENT)
-            .map_err(|e| s.field_error(&e.key, e.message)),
-        None => Ok(()),
-    }
 }
 
 #[cfg(test)]

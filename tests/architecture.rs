@@ -312,9 +312,10 @@ fn the_maths_crate_depends_on_no_simulation_log_or_io_crate() {
     );
 }
 
-/// The fields of `struct ControlLoop` in `code` (the field names before `:`, comments left out).
+/// The fields of `struct ControlLoop` in `code` (the field names before `:`, comments left out;
+/// the last declaration, the one inside `control_loop!`, not the macro's pattern).
 fn control_loop_fields(code: &str) -> Vec<String> {
-    let Some(start) = code.find("pub struct ControlLoop {") else {
+    let Some(start) = code.rfind("pub struct ControlLoop {") else {
         return Vec::new();
     };
     let body = &code[start..];

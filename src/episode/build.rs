@@ -999,8 +999,8 @@ pub(super) fn plant(
     })
 }
 
-/// The loop's settings from the scenario's `control` table and input disturbance; the
-/// non-obstacle barriers are known from the start.
+/// The loop's settings from the scenario's `control` table and every table's part of it
+/// ([`crate::section::Section::configure`]); the non-obstacle barriers are known from the start.
 pub(super) fn configure_control(
     loaded: &LoadedScenario,
     control: &mut ControlLoop,
@@ -1033,27 +1033,14 @@ pub(super) fn configure_control(
     }
     control.set_chain_tolerance(tolerance);
     control.set_leave_out_of_reach(sc.control.leave_out_of_reach);
-    let r = control.queues().len();
-    if let Some(disturbance) = sc.disturbance.as_ref().and_then(|d| d.input_disturbance(sc.seed, r)) {
-        control.set_input_disturbance(disturbance);
-    }
     for barrier in barriers {
         control.add_barrier(barrier.clone());
     }
-    if let Some(sensing) = &sc.sensing {
-        let sensor = sensing.build(control.model().state_dim(), timestep, sc.seed);
-        control.set_sensor(sensor.map_err(|e| param_error(loaded, e))?);
+    // Every table's part of the loop (sensor, actuators, input disturbance, road users' model).
+    let cx = loaded.section_context();
+    for (_, section) in sc.sections() {
+        section.configure(&cx, control).map_err(|e| param_error(loaded, e))?;
     }
-    let actuators = control
-        .model()
-        .channel_names()
-        .iter()
-        .map(|channel| {
-            (sc.actuator_dynamics.get(channel))
-                .map(|spec| spec.build(sc.initial_input.get(channel).copied().unwrap_or(0.0)))
-        })
-        .collect();
-    control.set_actuator_dynamics(actuators);
     Ok(())
 }
 

@@ -38,6 +38,20 @@ pub struct Tick {
     pub measured: DVector<f64>,
 }
 
+impl Tick {
+    /// Nothing computed yet.
+    fn new(parts: &mut LoopParts) -> Tick {
+        let (n, r) = parts.sizes();
+        Tick {
+            time: 0.0,
+            nominal: DVector::zeros(r),
+            issued: DVector::zeros(r),
+            outcomes: vec![None; r],
+            measured: DVector::zeros(n),
+        }
+    }
+}
+
 /// A prediction compared with the realised state (Definition 4.3).
 #[derive(Debug, Clone)]
 pub struct Consistency {
@@ -488,30 +502,70 @@ struct Laws<'a> {
     actors: &'a KnownActors,
 }
 
-/// The controller: the tick's stages — sense, predict, the laws (nominal and filter), the delay
-/// queues — running at the control period, and the actuate stage sampling the queues at every
-/// input evaluation ([`Controller`]). Each stage owns its state; a tick hands each the previous
-/// stage's output (`control_tick`).
-pub struct ControlLoop {
-    /// What the controller reads at a tick: the true state or a sensor's measurement.
-    sense: SenseStage,
-    /// The model, the nominal and the filter with what they read (the known barriers and road
-    /// users) and their scratch space.
-    laws: LawStage,
-    /// Every channel's prediction p_i(t) on the predictor structure.
-    predict: PredictStage,
-    /// The delay queues of the issued commands.
-    queues: QueueStage,
-    /// The plant's input at each evaluation, from the queues.
-    actuate: ActuateStage,
-    /// Predictions waiting for their target time, for the consistency checks.
-    pending: PendingStage,
+/// Declares [`ControlLoop`]: each field with the function that builds it from the loop's
+/// parts ([`LoopParts`]), in the order they are built. A new stage is its struct, its line here
+/// and its call in `control_tick` (docs/ARCHITECTURE.md, "What an extension costs").
+macro_rules! control_loop {
+    ($(#[$meta:meta])* pub struct ControlLoop { $($(#[$field_meta:meta])* $field:ident: $ty:ty = $build:expr,)* }) => {
+        $(#[$meta])*
+        pub struct ControlLoop {
+            $($(#[$field_meta])* $field: $ty,)*
+        }
+
+        impl ControlLoop {
+            /// Builds every field from the parts, in declaration order.
+            fn from_parts(parts: &mut LoopParts) -> ControlLoop {
+                ControlLoop { $($field: ($build)(parts),)* }
+            }
+        }
+    };
+}
+
+control_loop! {
+    /// The controller: the tick's stages — sense, predict, the laws (nominal and filter), the
+    /// delay queues — running at the control period, and the actuate stage sampling the queues
+    /// at every input evaluation ([`Controller`]). Each stage owns its state; a tick hands each
+    /// the previous stage's output (`control_tick`).
+    pub struct ControlLoop {
+        /// What the controller reads at a tick: the true state or a sensor's measurement.
+        sense: SenseStage = SenseStage::new,
+        /// The model, the nominal and the filter with what they read (the known barriers and
+        /// road users) and their scratch space.
+        laws: LawStage = LawStage::new,
+        /// Every channel's prediction p_i(t) on the predictor structure.
+        predict: PredictStage = PredictStage::new,
+        /// The delay queues of the issued commands.
+        queues: QueueStage = QueueStage::new,
+        /// The plant's input at each evaluation, from the queues.
+        actuate: ActuateStage = ActuateStage::new,
+        /// Predictions waiting for their target time, for the consistency checks.
+        pending: PendingStage = PendingStage::new,
+        timing: Timing = |parts: &mut LoopParts| parts.timing,
+        /// What the last control tick computed; `tick_ready` until the episode takes it.
+        tick: Tick = Tick::new,
+        tick_ready: bool = |_: &mut LoopParts| false,
+        /// An error raised inside the callback (reported after the step).
+        error: Option<FilterError> = |_: &mut LoopParts| None,
+    }
+}
+
+/// What the loop is built from ([`ControlLoop::new`]); each stage takes its part.
+struct LoopParts {
+    model: Arc<dyn Dynamics>,
+    nominal: Option<Box<dyn NominalController>>,
+    filter: Option<Box<dyn SafetyFilter>>,
+    queues: Vec<DelayQueue>,
+    structure: Structure,
     timing: Timing,
-    /// What the last control tick computed; `tick_ready` until the episode takes it.
-    tick: Tick,
-    tick_ready: bool,
-    /// An error raised inside the callback (reported after the step).
-    error: Option<FilterError>,
+    /// (n, r): the state size and the number of input channels (one queue each).
+    sizes: (usize, usize),
+}
+
+impl LoopParts {
+    /// (n, r): the state size and the number of input channels.
+    fn sizes(&self) -> (usize, usize) {
+        self.sizes
+    }
 }
 
 /// The plant step, the control period and the steps per tick.
@@ -520,6 +574,37 @@ struct Timing {
     timestep: f64,
     control_period: f64,
     steps_per_tick: u64,
+}
+
+/// The tables' part of the loop ([`crate::section::Section::configure`]).
+impl crate::section::ControlSettings for ControlLoop {
+    fn timestep(&self) -> f64 {
+        self.timing.timestep
+    }
+
+    fn state_dim(&self) -> usize {
+        self.laws.model.state_dim()
+    }
+
+    fn channel_names(&self) -> Vec<String> {
+        self.laws.model.channel_names().to_vec()
+    }
+
+    fn set_sensor(&mut self, sensor: Sensor) {
+        ControlLoop::set_sensor(self, sensor);
+    }
+
+    fn set_actuator(&mut self, channel: usize, actuator: Actuator) {
+        ControlLoop::set_actuator(self, channel, actuator);
+    }
+
+    fn set_input_disturbance(&mut self, disturbance: InputDisturbance) {
+        ControlLoop::set_input_disturbance(self, disturbance);
+    }
+
+    fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
+        ControlLoop::set_actor_knowledge(self, knowledge);
+    }
 }
 
 /// Sense: x(t) at the tick — the true state, or what a sensor reports of it (late, biased,
@@ -531,6 +616,14 @@ struct SenseStage {
 }
 
 impl SenseStage {
+    /// The true state until a sensor is set.
+    fn new(parts: &mut LoopParts) -> SenseStage {
+        SenseStage {
+            sensor: None,
+            state: DVector::zeros(parts.sizes().0),
+        }
+    }
+
     /// Records the true state for a late sensor (every step's first call) and, at a tick,
     /// reads the state the controller uses (a sensor's measurement is also kept in `measured`).
     fn read(
@@ -574,6 +667,46 @@ struct LawStage {
 }
 
 impl LawStage {
+    /// The parts' model, nominal and filter, with no barrier or road user known yet.
+    fn new(parts: &mut LoopParts) -> LawStage {
+        let (n, r) = parts.sizes();
+        let model = parts.model.clone();
+        let work = LawWorkspace {
+            lie: LieWorkspace::new(model.as_ref()),
+            constraints: Vec::new(),
+            nominal: DVector::zeros(r),
+            input: DVector::zeros(r),
+            moving: Vec::new(),
+            drift: vec![0.0; n],
+            zero_input: vec![0.0; r],
+            unit_input: vec![0.0; r],
+            columns: vec![0.0; n * r],
+            point_input: vec![[0.0; 2]; r],
+            row_barrier: Vec::new(),
+            rows_moved: true,
+            reach: Reach::new(model.as_ref(), &parts.queues),
+            planned: vec![0.0; r],
+            says_planned: false,
+            law_corrected: false,
+            seen: Vec::new(),
+        };
+        LawStage {
+            model,
+            nominal: parts.nominal.take().expect("the law stage is built once"),
+            filter: parts.filter.take().expect("the law stage is built once"),
+            known_barriers: Vec::new(),
+            actors: KnownActors {
+                motions: Vec::new(),
+                offsets: Vec::new(),
+                primary: Vec::new(),
+                knowledge: ActorKnowledge::default(),
+                now: 0.0,
+                observed: Vec::new(),
+            },
+            work,
+        }
+    }
+
     /// (the filter uses predictions, the nominal does).
     fn predicts(&self) -> (bool, bool) {
         (self.filter.uses_prediction(), self.nominal.uses_prediction())
@@ -608,6 +741,28 @@ struct PredictStage {
 }
 
 impl PredictStage {
+    /// The parts' structure, stepping at the control period when every queue's delays stay on
+    /// its grid, else at the plant step.
+    fn new(parts: &mut LoopParts) -> PredictStage {
+        let (n, r) = parts.sizes();
+        let Timing {
+            timestep,
+            control_period,
+            ..
+        } = parts.timing;
+        let workspace = PredictorWorkspace::new(n, r);
+        PredictStage {
+            structure: parts.structure.clone(),
+            step: match parts.queues.iter().all(|q| on_tick_grid(q, control_period)) {
+                true => control_period,
+                false => timestep,
+            },
+            predictions: workspace.predictions(),
+            workspace,
+            audit: None,
+        }
+    }
+
     /// Every channel's prediction from x(t) = `state` ([`predict_stage`]); only for a
     /// controller that uses predictions: otherwise every channel evaluates at x(t) and nothing
     /// is pending for consistency checks.
@@ -648,6 +803,14 @@ struct QueueStage {
 }
 
 impl QueueStage {
+    /// The parts' queues (what the controller assumes; the actuators' own are set apart).
+    fn new(parts: &mut LoopParts) -> QueueStage {
+        QueueStage {
+            assumed: std::mem::take(&mut parts.queues),
+            actuators: None,
+        }
+    }
+
     /// The tick's commands issued at t onto every queue.
     fn push(&mut self, t: f64, issued: &DVector<f64>) -> Result<(), DelayError> {
         for queues in std::iter::once(&mut self.assumed).chain(self.actuators.as_mut()) {
@@ -682,6 +845,18 @@ struct ActuateStage {
 }
 
 impl ActuateStage {
+    /// No disturbance or actuator dynamics until set; every channel applies 0 issued at 0.
+    fn new(parts: &mut LoopParts) -> ActuateStage {
+        let r = parts.sizes().1;
+        ActuateStage {
+            disturbance: None,
+            dynamics: Vec::new(),
+            actuated: None,
+            applied: vec![(0.0, 0.0); r],
+            buffer: Vec::with_capacity(r),
+        }
+    }
+
     /// The plant's input at `sample_time`, from `queues`; a queue's error is kept in `error`
     /// (that channel then reads 0).
     fn sample(
@@ -742,6 +917,17 @@ struct PendingStage {
 }
 
 impl PendingStage {
+    /// Nothing pending, one queue per channel.
+    fn new(parts: &mut LoopParts) -> PendingStage {
+        let (n, r) = parts.sizes();
+        PendingStage {
+            channels: vec![VecDeque::new(); r],
+            spare_states: Vec::new(),
+            spare_actor_positions: Vec::new(),
+            realize: PredictorWorkspace::new(n, r),
+        }
+    }
+
     /// Keeps the tick's predictions whose target time is still ahead ([`keep_pending`]).
     fn keep(&mut self, (t, timestep, actors): (f64, f64, &KnownActors), predict: &PredictStage) {
         keep_pending(
@@ -777,93 +963,21 @@ impl ControlLoop {
         timestep: f64,
         steps_per_tick: u64,
     ) -> ControlLoop {
-        let r = queues.len();
-        let n = model.state_dim();
-        let control_period = steps_per_tick as f64 * timestep;
-        let predictor_step = if queues.iter().all(|q| on_tick_grid(q, control_period)) {
-            control_period
-        } else {
-            timestep
-        };
-        let workspace = PredictorWorkspace::new(n, r);
-        let law = LawWorkspace {
-            lie: LieWorkspace::new(model.as_ref()),
-            constraints: Vec::new(),
-            nominal: DVector::zeros(r),
-            input: DVector::zeros(r),
-            moving: Vec::new(),
-            drift: vec![0.0; n],
-            zero_input: vec![0.0; r],
-            unit_input: vec![0.0; r],
-            columns: vec![0.0; n * r],
-            point_input: vec![[0.0; 2]; r],
-            row_barrier: Vec::new(),
-            rows_moved: true,
-            reach: Reach::new(model.as_ref(), &queues),
-            planned: vec![0.0; r],
-            says_planned: false,
-            law_corrected: false,
-            seen: Vec::new(),
-        };
-        ControlLoop {
-            sense: SenseStage {
-                sensor: None,
-                state: DVector::zeros(n),
-            },
-            laws: LawStage {
-                model,
-                nominal,
-                filter,
-                known_barriers: Vec::new(),
-                actors: KnownActors {
-                    motions: Vec::new(),
-                    offsets: Vec::new(),
-                    primary: Vec::new(),
-                    knowledge: ActorKnowledge::default(),
-                    now: 0.0,
-                    observed: Vec::new(),
-                },
-                work: law,
-            },
-            predict: PredictStage {
-                structure,
-                step: predictor_step,
-                predictions: workspace.predictions(),
-                workspace,
-                audit: None,
-            },
-            queues: QueueStage {
-                assumed: queues,
-                actuators: None,
-            },
-            actuate: ActuateStage {
-                disturbance: None,
-                dynamics: Vec::new(),
-                actuated: None,
-                applied: vec![(0.0, 0.0); r],
-                buffer: Vec::with_capacity(r),
-            },
-            pending: PendingStage {
-                channels: vec![VecDeque::new(); r],
-                spare_states: Vec::new(),
-                spare_actor_positions: Vec::new(),
-                realize: PredictorWorkspace::new(n, r),
-            },
+        let sizes = (model.state_dim(), queues.len());
+        let mut parts = LoopParts {
+            sizes,
+            model,
+            nominal: Some(nominal),
+            filter: Some(filter),
+            queues,
+            structure,
             timing: Timing {
                 timestep,
-                control_period,
+                control_period: steps_per_tick as f64 * timestep,
                 steps_per_tick,
             },
-            tick: Tick {
-                time: 0.0,
-                nominal: DVector::zeros(r),
-                issued: DVector::zeros(r),
-                outcomes: vec![None; r],
-                measured: DVector::zeros(n),
-            },
-            tick_ready: false,
-            error: None,
-        }
+        };
+        ControlLoop::from_parts(&mut parts)
     }
 
     /// The controller reads `sensor`'s measurement instead of the true state (predictions are
@@ -872,13 +986,15 @@ impl ControlLoop {
         self.sense.sensor = Some(sensor);
     }
 
-    /// Puts an actuator (lag, rate and magnitude limits) between channel i's delayed command
-    /// and the plant, for each `Some` entry (one per channel).
-    pub fn set_actuator_dynamics(&mut self, actuators: Vec<Option<Actuator>>) {
-        if actuators.iter().any(Option::is_some) {
-            self.actuate.actuated = Some(vec![0.0; actuators.len()]);
-            self.actuate.dynamics = actuators;
+    /// Puts `actuator` (lag, rate and magnitude limits) between channel `channel`'s delayed
+    /// command and the plant.
+    pub fn set_actuator(&mut self, channel: usize, actuator: Actuator) {
+        let r = self.queues().len();
+        if self.actuate.dynamics.len() != r {
+            self.actuate.actuated = Some(vec![0.0; r]);
+            self.actuate.dynamics = vec![None; r];
         }
+        self.actuate.dynamics[channel] = Some(actuator);
     }
 
     /// What the plant received over the last step per channel, when some channel has actuator

@@ -300,9 +300,6 @@ impl Episode {
             .filter(|o| o.motion.is_some())
             .map(|o| o.name.clone())
             .collect();
-        if let Some(k) = loaded.scenario.actor_knowledge {
-            control.set_actor_knowledge(k.kind);
-        }
         Ok(Episode {
             plant,
             control,
