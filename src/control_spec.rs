@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamError;
-use crate::section::{Section, SectionContext};
+use crate::section::{ControlSettings, Section, SectionContext};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -82,14 +82,40 @@ impl ControlSpec {
                 format!("expected a positive number of seconds, found {period}"),
             ));
         }
+        let tolerance = self.chain_tolerance;
+        if !(tolerance >= 0.0 && tolerance.is_finite()) {
+            return Err(ParamError::new(
+                "control.chain_tolerance",
+                format!("expected a finite distance >= 0, got {tolerance}"),
+            ));
+        }
         Ok(())
     }
 }
 
-/// `[control]`: checked here; the episode sets the loop's period, predictor step and chain
-/// reuse from it (they are the loop's own settings, not a part it takes).
+/// `[control]`: the predictor step, the chain reuse and the rows left out of reach are set in
+/// the loop; the period and the history are read where the loop and its queues are built.
 impl Section for ControlSpec {
     fn validate(&self, _key: &str, _cx: &SectionContext<'_>) -> Result<(), ParamError> {
         ControlSpec::validate(self)
+    }
+
+    fn configure(&self, _cx: &SectionContext<'_>, control: &mut dyn ControlSettings) -> Result<(), ParamError> {
+        if let Some(step) = self.predictor_step {
+            let timestep = control.timestep();
+            let steps = step / timestep;
+            if !(steps >= 0.5 && (steps - steps.round()).abs() < 1e-6) {
+                return Err(ParamError::new(
+                    "control.predictor_step",
+                    format!("expected a whole multiple of the timestep {timestep} s, got {step}"),
+                ));
+            }
+            control
+                .set_predictor_step(steps.round() as u32)
+                .map_err(|e| ParamError::new("control.predictor_step", e))?;
+        }
+        control.set_chain_tolerance(self.chain_tolerance);
+        control.set_leave_out_of_reach(self.leave_out_of_reach);
+        Ok(())
     }
 }

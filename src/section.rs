@@ -56,6 +56,12 @@ pub trait ControlSettings {
     fn set_input_disturbance(&mut self, disturbance: InputDisturbance);
     /// What the controller assumes of the road users over the delay.
     fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge);
+    /// The predictors step every `steps` plant steps (an error says why the delays forbid it).
+    fn set_predictor_step(&mut self, steps: u32) -> Result<(), String>;
+    /// Reuse the previous tick's recursive chain within this distance.
+    fn set_chain_tolerance(&mut self, tolerance: f64);
+    /// Whether the rows of road users out of reach are left out of the filter.
+    fn set_leave_out_of_reach(&mut self, leave_out: bool);
 }
 
 /// A scenario table: its checks at load and its part of the control loop.

@@ -352,3 +352,60 @@ fn the_control_loop_holds_stages_not_loose_fields() {
     assert_eq!(planted.len(), 24);
     assert!(loose_control_loop(&planted).is_some());
 }
+
+/// The keys of the tables declared `section` in `scenario_tables!` (scenario.rs).
+fn section_keys(scenario_code: &str) -> Vec<String> {
+    (scenario_code.lines().map(str::trim))
+        .filter_map(|line| line.strip_prefix("section "))
+        .filter_map(|rest| rest.split_once(':').map(|(key, _)| key.trim().to_string()))
+        .collect()
+}
+
+/// The body of `fn name(` in `code` (to the first line that is a lone `}`).
+fn function_body<'a>(code: &'a str, name: &str) -> &'a str {
+    let Some(start) = code.find(&format!("fn {name}(")) else {
+        return "";
+    };
+    let body = &code[start..];
+    &body[..body.find("\n}\n").unwrap_or(body.len())]
+}
+
+/// Where the scenario's checks or the loop's configuration name a section's table directly
+/// instead of going through `Section` (a table's checks and its part of the loop are its own).
+fn sections_bypassed(scenario_code: &str, build_code: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    for key in section_keys(scenario_code) {
+        let access = format!("sc.{key}");
+        let direct = |body: &str| {
+            body.match_indices(&access)
+                .any(|(i, _)| !body[i + access.len()..].starts_with(|c: char| c == '_' || c.is_alphanumeric()))
+        };
+        if direct(function_body(scenario_code, "validate")) {
+            found.push(format!("scenario::validate reads `{access}`"));
+        }
+        if direct(function_body(build_code, "configure_control")) {
+            found.push(format!("episode::build::configure_control reads `{access}`"));
+        }
+    }
+    found
+}
+
+/// A scenario table is registered by one declaration: `scenario::validate` and the control
+/// loop's configuration reach every section through `Section`, never by name.
+#[test]
+fn scenario_tables_are_reached_through_section() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scenario = std::fs::read_to_string(root.join("src/scenario.rs")).unwrap();
+    let build = std::fs::read_to_string(root.join("src/episode/build.rs")).unwrap();
+    assert!(section_keys(&scenario).len() >= 12, "{:?}", section_keys(&scenario));
+    assert_eq!(sections_bypassed(&scenario, &build), Vec::<String>::new());
+    // The guard sees a planted violation: the sensor set by name, as before issue 52.
+    let planted = build.replace(
+        "fn configure_control(\n",
+        "fn configure_control(\n    if let Some(sensing) = &sc.sensing {}\n",
+    );
+    assert_eq!(
+        sections_bypassed(&scenario, &planted),
+        ["episode::build::configure_control reads `sc.sensing`"]
+    );
+}

@@ -999,44 +999,19 @@ pub(super) fn plant(
     })
 }
 
-/// The loop's settings from the scenario's `control` table and every table's part of it
-/// ([`crate::section::Section::configure`]); the non-obstacle barriers are known from the start.
+/// The loop's settings: every table's part of it ([`crate::section::Section::configure`]:
+/// `[control]`'s predictor step and chain reuse, the sensor, the actuators, …); the
+/// non-obstacle barriers are known from the start.
 pub(super) fn configure_control(
     loaded: &LoadedScenario,
     control: &mut ControlLoop,
     barriers: &[Barrier],
 ) -> Result<(), EpisodeError> {
     let sc = &loaded.scenario;
-    let timestep = control.timestep();
-    if let Some(step) = sc.control.predictor_step {
-        let steps = step / timestep;
-        if !(steps >= 0.5 && (steps - steps.round()).abs() < 1e-6) {
-            return Err(loaded
-                .field_error(
-                    "control.predictor_step",
-                    format!("expected a whole multiple of the timestep {timestep} s, got {step}"),
-                )
-                .into());
-        }
-        control
-            .set_predictor_step(steps.round() as u32)
-            .map_err(|e| loaded.field_error("control.predictor_step", e))?;
-    }
-    let tolerance = sc.control.chain_tolerance;
-    if !(tolerance >= 0.0 && tolerance.is_finite()) {
-        return Err(loaded
-            .field_error(
-                "control.chain_tolerance",
-                format!("expected a finite distance >= 0, got {tolerance}"),
-            )
-            .into());
-    }
-    control.set_chain_tolerance(tolerance);
-    control.set_leave_out_of_reach(sc.control.leave_out_of_reach);
     for barrier in barriers {
         control.add_barrier(barrier.clone());
     }
-    // Every table's part of the loop (sensor, actuators, input disturbance, road users' model).
+    // Every table's part of the loop ([control]'s settings, the sensor, the actuators, …).
     let cx = loaded.section_context();
     for (_, section) in sc.sections() {
         section.configure(&cx, control).map_err(|e| param_error(loaded, e))?;

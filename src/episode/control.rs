@@ -605,6 +605,18 @@ impl crate::section::ControlSettings for ControlLoop {
     fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
         ControlLoop::set_actor_knowledge(self, knowledge);
     }
+
+    fn set_predictor_step(&mut self, steps: u32) -> Result<(), String> {
+        ControlLoop::set_predictor_step(self, steps)
+    }
+
+    fn set_chain_tolerance(&mut self, tolerance: f64) {
+        ControlLoop::set_chain_tolerance(self, tolerance);
+    }
+
+    fn set_leave_out_of_reach(&mut self, leave_out: bool) {
+        ControlLoop::set_leave_out_of_reach(self, leave_out);
+    }
 }
 
 /// Sense: x(t) at the tick — the true state, or what a sensor reports of it (late, biased,
