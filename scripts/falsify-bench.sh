@@ -5,6 +5,8 @@
 #   scripts/falsify-bench.sh rate  [MJSAFE_BINARY] [OUT_DIR]        (DRAWS=2000)
 #   scripts/falsify-bench.sh study [MJSAFE_BINARY] [OUT_DIR]        (SEEDS=1..30, METHODS=guided,cmaes,random,pycma,
 #                                                                     HALF=all|tuning|test, ONLY=<problem>)
+#   scripts/falsify-bench.sh cost  [MJSAFE_BINARY] [OUT_DIR]        the searches' own work on one thread
+#                                                                    (METHODS, HALF, ONLY as for study)
 # Runs with the venv of scripts/setup.sh --test (the mjsafe Python package: pycma's candidates run
 # in-process), into which it installs pycma (PyPI `cma`). Results are cached under OUT_DIR: an
 # interrupted study continues.
@@ -23,5 +25,6 @@ args=()
 case "$command" in
   rate) args+=(--draws "${DRAWS:-2000}");;
   study) args+=(--seeds "${SEEDS:-1..30}" --methods "${METHODS:-guided,cmaes,random,pycma}" --half "${HALF:-all}");;
+  cost) args+=(--methods "${METHODS:-guided,cmaes,random}" --half "${HALF:-all}");;
 esac
 exec "$python" -W ignore scripts/falsify_bench.py "$command" "$mjsafe" "$out" "${args[@]}"

@@ -6,6 +6,7 @@ violation over many seeds, with pycma (default settings) as an anchor on the sam
 
   falsify_bench.py rate  MJSAFE OUT [--draws N] [--only NAME]     the boxes' measured rates
   falsify_bench.py study MJSAFE OUT [--seeds A..B] [--methods …] [--half tuning|test|all] [--only NAME]
+  falsify_bench.py cost  MJSAFE OUT [--methods …] [--half …] [--only NAME]   the searches' own work
 
 `MJSAFE` is the binary the searches run (`mjsafe falsify`); pycma runs the candidates in this
 process through the `mjsafe` Python package (analysed in memory, as `mjsafe falsify` does) and
@@ -18,8 +19,10 @@ import json
 import math
 import os
 import statistics
+import re
 import subprocess
 import sys
+import tempfile
 
 # The problems' scenario paths are relative to the repository.
 REPOSITORY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -242,6 +245,27 @@ def rate(mjsafe, out, problem, draws):
     return violations, len(evaluations), errors
 
 
+COST_LINE = re.compile(r"^(.+?): ([0-9.]+) s in the runs of ([0-9.]+) s on 1 thread; "
+                       r"the search's own work ([0-9.]+) ms")
+
+
+def cost(mjsafe, problem, method):
+    """(own work in ms, wall s, runs) of a whole-budget search on one thread (`--worst`, so that it
+    runs the budget): the search's own work is its wall time less its runs' (src/falsify.rs
+    `SearchCost`). Not cached: a timing."""
+    with tempfile.TemporaryDirectory() as where:
+        args = falsify_args(mjsafe, problem) + ["--budget", str(problem["budget"]), "--seed", "1", "--method", method,
+                                                "--worst", "--threads", "1", "--out", where]
+        done = subprocess.run(args, capture_output=True, text=True, check=False)
+        with open(os.path.join(where, "evaluations.json")) as f:
+            runs = len(json.load(f)["searches"][0]["evaluations"])
+    for line in done.stdout.splitlines():
+        m = COST_LINE.match(line)
+        if m:
+            return float(m.group(4)), float(m.group(3)), runs
+    raise SystemExit(f"{problem['name']} {method}: no cost line in mjsafe's output:\n{done.stdout}{done.stderr}")
+
+
 def cell(counts, budget):
     if not counts:
         return "–"
@@ -254,7 +278,7 @@ def cell(counts, budget):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("command", choices=["rate", "study"])
+    parser.add_argument("command", choices=["rate", "study", "cost"])
     parser.add_argument("mjsafe")
     parser.add_argument("out")
     parser.add_argument("--draws", type=int, default=2000)
@@ -273,6 +297,16 @@ def main():
             extra = f", {errors} errors" if errors else ""
             print(f"| {p['name']} | {p['half']} | {len(p['ranges'])} | {100 * v / max(n, 1):.2f} % ({v} of {n}{extra}) |",
                   flush=True)
+        return
+    if args.command == "cost":
+        methods = [m for m in args.methods.split(",") if m != "pycma"]
+        print("| problem | method | runs | wall time | the search's own work | share |")
+        print("|---|---|---|---|---|---|")
+        for p in problems:
+            for method in methods:
+                own_ms, wall, runs = cost(args.mjsafe, p, method)
+                print(f"| {p['name']} | {method} | {runs} | {wall:.1f} s | {own_ms:.1f} ms | "
+                      f"{100 * own_ms / 1000 / max(wall, 1e-9):.2f} % |", flush=True)
         return
     lo, hi = (int(x) for x in args.seeds.split(".."))
     seeds = range(lo, hi + 1)

@@ -17,8 +17,9 @@
 //! completion: the same seed gives the same search on any number of threads.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
+use std::time::Instant;
 
 use serde::Serialize;
 
@@ -461,6 +462,30 @@ pub struct Search {
     pub evaluations: Vec<Evaluation>,
     /// Whether Ctrl-C / SIGTERM stopped it.
     pub interrupted: bool,
+    /// What the search cost in time (not in the evaluations' files: it differs run to run).
+    #[serde(skip)]
+    pub cost: SearchCost,
+}
+
+/// What a search cost in time: the candidates' runs against the whole search. With one thread
+/// (`--threads 1`) the search's own work — proposing candidates, its model, its bookkeeping —
+/// is `wall_seconds - run_seconds`; with more, the threads also wait for a generation's
+/// slowest run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SearchCost {
+    /// The search from its first candidate to its end (s; the pre-flight check left out).
+    pub wall_seconds: f64,
+    /// The candidates' evaluations (each run and its baseline), summed over the threads (s).
+    pub run_seconds: f64,
+    /// The threads that ran candidates.
+    pub threads: usize,
+}
+
+impl SearchCost {
+    /// The search's own work (s) when one thread ran every candidate; None with more.
+    pub fn own_seconds(&self) -> Option<f64> {
+        (self.threads == 1).then(|| (self.wall_seconds - self.run_seconds).max(0.0))
+    }
 }
 
 impl Search {
@@ -583,6 +608,9 @@ struct Evaluator<'a> {
     scenario: &'a Path,
     /// Numbers the candidates' runs (names in their errors).
     next_run: AtomicUsize,
+    /// Wall time inside the candidates' evaluations (their runs and baselines), summed over
+    /// the threads (ns).
+    run_nanos: AtomicU64,
 }
 
 impl Evaluator<'_> {
@@ -640,8 +668,17 @@ impl Evaluator<'_> {
         }
     }
 
-    /// Runs the candidate at `unit` (and its baseline) and scores it.
+    /// Runs the candidate at `unit` (and its baseline) and scores it, adding its wall time to
+    /// `run_nanos`.
     fn evaluate(&self, unit: &[f64]) -> Evaluation {
+        let started = Instant::now();
+        let evaluation = self.evaluate_untimed(unit);
+        let nanos = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.run_nanos.fetch_add(nanos, Ordering::Relaxed);
+        evaluation
+    }
+
+    fn evaluate_untimed(&self, unit: &[f64]) -> Evaluation {
         let parameters = self.parameters(unit);
         let candidate: Vec<String> = self
             .problem
@@ -767,6 +804,7 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
         problem,
         scenario: &problem.scenario,
         next_run: AtomicUsize::new(0),
+        run_nanos: AtomicU64::new(0),
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(problem.threads.max(1))
@@ -778,13 +816,20 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
         method,
         evaluations: Vec::new(),
         interrupted: false,
+        cost: SearchCost::default(),
     };
+    let started = Instant::now();
     let result = match method {
         Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
     };
     result?;
+    found.cost = SearchCost {
+        wall_seconds: started.elapsed().as_secs_f64(),
+        run_seconds: evaluator.run_nanos.load(Ordering::Relaxed) as f64 * 1e-9,
+        threads: pool.current_num_threads(),
+    };
     Ok(found)
 }
 
@@ -1080,6 +1125,7 @@ mod tests {
             method: Method::Guided,
             evaluations,
             interrupted: false,
+            cost: SearchCost::default(),
         };
         let indices = |modes: Vec<&Evaluation>| modes.iter().map(|e| e.index).collect::<Vec<_>>();
         assert_eq!(indices(search.failure_modes(10, false)), [0, 2, 4]);

@@ -237,6 +237,11 @@ class FalsifyResult:
             asked), so a violation there is the filter's: what the search tested.
         proves_nothing: no counterexample and no candidate qualified: the search never
             tested the filter, and says nothing about the box (a ``UserWarning`` says so).
+        wall_seconds: the search from its first candidate to its end (s).
+        run_seconds: the candidates' runs and baselines, summed over the threads (s).
+        threads: the threads that ran candidates.
+        own_seconds: with one thread, the search's own work (``wall_seconds - run_seconds``:
+            proposing candidates, its model, its bookkeeping); None with more.
     """
 
     def __init__(self, raw: dict[str, Any], out: str | None) -> None:
@@ -254,6 +259,12 @@ class FalsifyResult:
         qualified = self.evaluations.get("qualified", pd.Series(dtype=bool))
         self.qualified: int = int(qualified.astype(str).str.lower().eq("true").sum())
         self.proves_nothing: bool = not self.counterexamples and self.qualified == 0
+        self.wall_seconds: float = raw["wall_seconds"]
+        self.run_seconds: float = raw["run_seconds"]
+        self.threads: int = raw["threads"]
+        self.own_seconds: float | None = (
+            max(self.wall_seconds - self.run_seconds, 0.0) if self.threads == 1 else None
+        )
         if self.proves_nothing:
             warnings.warn(
                 f"falsify: no counterexample, and none of the {self.runs} candidates qualified "

@@ -45,6 +45,10 @@ class FalsifyResult:
     runs: int
     qualified: int
     proves_nothing: bool
+    wall_seconds: float
+    run_seconds: float
+    threads: int
+    own_seconds: float | None
 
 def run(
     path: _Path,

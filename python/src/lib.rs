@@ -599,6 +599,10 @@ fn falsify<'py>(
         "interrupted",
         report.searches.iter().any(|s| s.interrupted) || report.rerun_interrupted,
     )?;
+    let cost = report.searches.first().map(|s| s.cost).unwrap_or_default();
+    dict.set_item("wall_seconds", cost.wall_seconds)?;
+    dict.set_item("run_seconds", cost.run_seconds)?;
+    dict.set_item("threads", cost.threads)?;
     Ok(dict)
 }
 

@@ -160,11 +160,15 @@ def test_falsify_minimises_a_requirements_robustness(tmp_path):
         require={"clear": "always obstacle_0.h >= 0"},
         budget=24,
         seed=1,
+        threads=1,
         out=str(tmp_path / "search"),
     )
     assert found.counterexamples, found.evaluations
     own = mjsafe.read_log(found.log).metrics["req"]["clear"]
     assert own < 0 and own == pytest.approx(found.reproduced)
+    # What the search cost: its runs, and on one thread its own work beside them.
+    assert found.threads == 1 and found.run_seconds > 0
+    assert found.own_seconds == max(found.wall_seconds - found.run_seconds, 0.0)
 
 
 def test_sweep_reports_each_requirement_as_a_column():

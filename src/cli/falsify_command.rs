@@ -187,6 +187,20 @@ pub(super) fn run_falsify(problem: &falsify::Problem, out: &Path, compare_random
     for s in &report.searches {
         let best = s.best();
         let qualified = s.evaluations.iter().filter(|e| e.qualified).count();
+        let cost = &s.cost;
+        outln!(
+            "{}: {:.2} s in the runs of {:.2} s on {} thread{}{}",
+            s.method.name(),
+            cost.run_seconds,
+            cost.wall_seconds,
+            cost.threads,
+            if cost.threads == 1 { "" } else { "s" },
+            cost.own_seconds().map_or(String::new(), |own| format!(
+                "; the search's own work {:.1} ms ({:.2} % of the wall time)",
+                own * 1e3,
+                100.0 * own / cost.wall_seconds.max(f64::MIN_POSITIVE)
+            ))
+        );
         outln!(
             "{}: {} runs, {qualified} qualified{}, {}; best {} = {}{}",
             s.method.name(),
