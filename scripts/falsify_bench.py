@@ -8,8 +8,8 @@ violation over many seeds, with pycma (default settings) as an anchor on the sam
   falsify_bench.py study MJSAFE OUT [--seeds A..B] [--methods …] [--half tuning|test|all] [--only NAME]
   falsify_bench.py cost  MJSAFE OUT [--methods …] [--half …] [--only NAME]   the searches' own work
 
-`MJSAFE` is the binary the searches run (`mjsafe falsify`); pycma runs the candidates in this
-process through the `mjsafe` Python package (analysed in memory, as `mjsafe falsify` does) and
+`MJSAFE` is the binary the searches run (`mjsafe falsify`); pycma and PSY-TaLiRo's dual
+annealing (`psytaliro`) run the candidates in this process through the `mjsafe` Python package (analysed in memory, as `mjsafe falsify` does) and
 scores them exactly as src/falsify.rs does. Every search's result is kept under OUT and reused,
 so an interrupted study continues where it stopped. Prints Markdown tables.
 """
@@ -23,6 +23,7 @@ import re
 import subprocess
 import sys
 import tempfile
+from importlib.metadata import version
 
 # The problems' scenario paths are relative to the repository.
 REPOSITORY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -91,7 +92,7 @@ PROBLEMS = [
                  "seed=0..1000:1"]),
 ]
 
-METHODS = ["guided", "cmaes", "random", "pycma"]
+METHODS = ["guided", "cmaes", "random", "pycma", "psytaliro"]
 
 
 class Range:
@@ -230,6 +231,49 @@ def pycma_search(out, problem, seed, threads=2):
     return found
 
 
+def psytaliro_search(out, problem, seed):
+    """Runs to the first qualified violation of PSY-TaLiRo's DualAnnealing (psy-taliro, default
+    settings but min_cost = 0, its falsification mode: stop at the first negative robustness)
+    over the box scaled to [0, 1]^d, the specification `always (score >= 0)` on a one-sample
+    trace of the candidate's score (its robustness is the score: negative exactly at a
+    qualified violation, as in scripts/psytaliro_study.py); its seed is TestOptions' seed, its
+    budget the iterations. Cached in OUT."""
+    where = search_dir(out, problem, "psytaliro", seed)
+    result = os.path.join(where, "result.json")
+    if os.path.exists(result):
+        with open(result) as f:
+            return json.load(f)["runs_to_first_violation"]
+    import staliro
+    from staliro import TestOptions, Trace, blackbox
+    from staliro.optimizers import DualAnnealing
+    from staliro.specifications import rtamt
+    py = MjsafePy()
+    ranges = [Range(r) for r in problem["ranges"]]
+    d, runs, found, found_score = len(ranges), 0, None, None
+
+    @blackbox(step_size=1.0)
+    def model(inputs):
+        nonlocal runs, found, found_score
+        if found is None:  # after the first violation the count is decided: no more runs
+            unit = [inputs.static[f"u{k}"] for k in range(d)]
+            s, violation = score(py, problem, assignments_at(ranges, unit))
+            runs += 1
+            if violation:
+                found, found_score = runs, s
+            return Trace({0.0: {"score": s if math.isfinite(s) else 1e300}})
+        return Trace({0.0: {"score": found_score}})
+
+    options = TestOptions(runs=1, iterations=problem["budget"], seed=seed,
+                          static_inputs={f"u{k}": (0.0, 1.0) for k in range(d)})
+    staliro.staliro(model, rtamt.parse_dense("always (score >= 0)"), DualAnnealing(min_cost=0.0), options)
+    if found is not None and found > problem["budget"]:
+        found = None  # past the budget: a miss, as for every other method
+    os.makedirs(where, exist_ok=True)
+    with open(result, "w") as f:
+        json.dump(dict(runs_to_first_violation=found, runs=runs, psy_taliro=version("psy-taliro")), f)
+    return found
+
+
 def rate(mjsafe, out, problem, draws):
     """The fraction of uniform draws that are qualified violations (`--method random --worst`)."""
     where = os.path.join(out, f"rate-{problem['name']}-{draws}")
@@ -299,7 +343,7 @@ def main():
                   flush=True)
         return
     if args.command == "cost":
-        methods = [m for m in args.methods.split(",") if m != "pycma"]
+        methods = [m for m in args.methods.split(",") if m not in ("pycma", "psytaliro")]
         print("| problem | method | runs | wall time | the search's own work | share |")
         print("|---|---|---|---|---|---|")
         for p in problems:
@@ -316,8 +360,13 @@ def main():
     for p in problems:
         counts = {}
         for method in methods:
-            counts[method] = [pycma_search(args.out, p, s) if method == "pycma"
-                              else mjsafe_search(args.mjsafe, args.out, p, method, s) for s in seeds]
+            if method == "psytaliro":  # sequential searches: two at a time
+                with concurrent.futures.ProcessPoolExecutor(2) as pool:
+                    counts[method] = list(pool.map(psytaliro_search, [args.out] * len(seeds), [p] * len(seeds),
+                                                   seeds))
+            else:
+                counts[method] = [pycma_search(args.out, p, s) if method == "pycma"
+                                  else mjsafe_search(args.mjsafe, args.out, p, method, s) for s in seeds]
             print(f"{p['name']} {method}: {counts[method]}", file=sys.stderr, flush=True)
         med = {m: statistics.median([c if c is not None else math.inf for c in counts[m]]) for m in methods}
         ratio = ""

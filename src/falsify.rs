@@ -28,6 +28,7 @@ use crate::random::SplitMix64;
 use crate::sweep::{self, Range, Run};
 
 pub mod guided;
+pub mod surrogate;
 
 #[derive(Debug, thiserror::Error)]
 pub enum FalsifyError {
@@ -61,15 +62,22 @@ pub enum Method {
     Cmaes,
     /// Uniform draws from the box (the baseline the optimiser must beat).
     Random,
+    /// A Gaussian-process model of the score in a trust region about the best candidate,
+    /// Thompson-sampled, in the manner of TuRBO-1 ([`surrogate`]).
+    Surrogate,
+    /// The guided search with the surrogate's trust region in place of its CMA-ES generations.
+    GuidedSurrogate,
 }
 
 impl Method {
-    /// The method `--method` names (guided, cmaes, random).
+    /// The method `--method` names (guided, cmaes, random, surrogate).
     pub fn from_flag(flag: &str) -> Option<Method> {
         match flag {
             "guided" => Some(Method::Guided),
             "cmaes" => Some(Method::Cmaes),
             "random" => Some(Method::Random),
+            "surrogate" => Some(Method::Surrogate),
+            "guided-surrogate" => Some(Method::GuidedSurrogate),
             _ => None,
         }
     }
@@ -80,6 +88,8 @@ impl Method {
             Method::Guided => "guided search",
             Method::Cmaes => "CMA-ES",
             Method::Random => "random search",
+            Method::Surrogate => "surrogate search",
+            Method::GuidedSurrogate => "guided surrogate search",
         }
     }
 }
@@ -820,9 +830,11 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
     };
     let started = Instant::now();
     let result = match method {
-        Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress),
+        Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress, false),
+        Method::GuidedSurrogate => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress, true),
         Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
+        Method::Surrogate => surrogate::run_surrogate(problem, &evaluator, &pool, &mut found, &mut progress),
     };
     result?;
     found.cost = SearchCost {

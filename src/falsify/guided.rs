@@ -28,6 +28,7 @@ use std::collections::HashSet;
 use std::sync::Mutex;
 
 use super::{
+    surrogate,
     append, cmaes_from, done, doubled_population, population_size, uniform_points, Evaluation, Evaluator, FalsifyError,
     Problem, Search,
 };
@@ -244,6 +245,7 @@ pub(super) fn run_guided(
     pool: &rayon::ThreadPool,
     found: &mut Search,
     progress: &mut impl FnMut(&Search),
+    local_model: bool,
 ) -> Result<(), FalsifyError> {
     let d = problem.ranges.len();
     let lambda = population_size(d);
@@ -300,6 +302,7 @@ pub(super) fn run_guided(
     // the budget goes to uniform draws where the baseline may hold.
     let mut noisy = false;
     let seed_free: Vec<usize> = (0..d).filter(|&k| !is_seed(&problem.ranges[k].key)).collect();
+    let (mut region, mut region_start) = (surrogate::Region::new(), 0usize);
     while !done(problem, found) {
         if !noisy && 2 * bracket_evaluations <= found.evaluations.len() {
             if let Some((s, u, distance)) = memory.closest_pair(&found.evaluations) {
@@ -345,6 +348,31 @@ pub(super) fn run_guided(
             record(found, &mut memory, &mut generation, batch, None, progress);
             continue;
         }
+        // With the local model: a generation of the surrogate search's trust region about the
+        // lowest score since its last restart (super::surrogate).
+        if local_model {
+            let own = &found.evaluations[region_start..];
+            let Some(centre) = surrogate::lowest_score(own).map(|i| own[i].point.clone()) else {
+                region_start = 0;
+                let units = uniform_points(&mut generator, lambda.min(remaining(found)), d);
+                cmaes_generations += 1;
+                let batch = evaluate(units);
+                record(found, &mut memory, &mut generation, batch, None, progress);
+                continue;
+            };
+            let before = own.iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
+            let units = region.propose(&mut generator, own, &centre, lambda.min(remaining(found)));
+            cmaes_generations += 1;
+            let batch = evaluate(units);
+            record(found, &mut memory, &mut generation, batch, None, progress);
+            let after = found.evaluations[region_start..].iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
+            region.update(after < before - 1e-3 * before.abs());
+            if region.collapsed() {
+                region = surrogate::Region::new();
+                region_start = found.evaluations.len();
+            }
+            continue;
+        }
         // A CMA-ES generation: started at the best candidate so far (the box's centre before
         // any), restarted at a random point with a doubled population when it converges.
         if optimiser.is_none() {
@@ -385,7 +413,7 @@ pub(super) fn run_guided(
 
 /// `count` points of the unit box in a Latin hypercube: along each coordinate, one in each of
 /// `count` equal strata (the strata shuffled per coordinate, the point uniform in its stratum).
-fn latin_hypercube(generator: &mut SplitMix64, count: usize, d: usize) -> Vec<Vec<f64>> {
+pub(super) fn latin_hypercube(generator: &mut SplitMix64, count: usize, d: usize) -> Vec<Vec<f64>> {
     let mut units = vec![vec![0.0; d]; count];
     for i in 0..d {
         let mut strata: Vec<usize> = (0..count).collect();

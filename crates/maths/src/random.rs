@@ -43,6 +43,12 @@ impl SplitMix64 {
     pub fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
+
+    /// A standard normal draw (Box–Muller from the next two uniform draws).
+    pub fn next_normal(&mut self) -> f64 {
+        let (u1, u2) = (self.next_f64().max(1e-300), self.next_f64());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
 }
 
 /// One SplitMix64 step from state z: the finaliser of z + γ.
