@@ -53,31 +53,25 @@ pub enum FalsifyError {
 #[serde(rename_all = "snake_case")]
 pub enum Method {
     /// A first generation spread over the box, trisection of the boundary between candidates
-    /// that hold and candidates whose baseline fails too, CMA-ES alternating with uniform
-    /// draws, and once a trisection shows noise only uniform draws where the baseline held,
-    /// with the smallest baseline margin nearby ([`guided`]).
+    /// that hold and candidates whose baseline fails too, a local model of the score in a trust
+    /// region (a Gaussian process, Thompson-sampled) alternating with uniform draws, and once a
+    /// trisection shows noise only uniform draws where the baseline held, with the smallest
+    /// baseline margin nearby ([`guided`]).
     Guided,
     /// CMA-ES on the box mapped to [0, 1]^d (reflected at the bounds), restarted with a doubled
     /// population (IPOP) when it converges before the budget is spent.
     Cmaes,
     /// Uniform draws from the box (the baseline the optimiser must beat).
     Random,
-    /// A Gaussian-process model of the score in a trust region about the best candidate,
-    /// Thompson-sampled, in the manner of TuRBO-1 ([`surrogate`]).
-    Surrogate,
-    /// The guided search with the surrogate's trust region in place of its CMA-ES generations.
-    GuidedSurrogate,
 }
 
 impl Method {
-    /// The method `--method` names (guided, cmaes, random, surrogate).
+    /// The method `--method` names (guided, cmaes, random).
     pub fn from_flag(flag: &str) -> Option<Method> {
         match flag {
             "guided" => Some(Method::Guided),
             "cmaes" => Some(Method::Cmaes),
             "random" => Some(Method::Random),
-            "surrogate" => Some(Method::Surrogate),
-            "guided-surrogate" => Some(Method::GuidedSurrogate),
             _ => None,
         }
     }
@@ -88,8 +82,6 @@ impl Method {
             Method::Guided => "guided search",
             Method::Cmaes => "CMA-ES",
             Method::Random => "random search",
-            Method::Surrogate => "surrogate search",
-            Method::GuidedSurrogate => "guided surrogate search",
         }
     }
 }
@@ -830,11 +822,9 @@ pub fn search(problem: &Problem, method: Method, mut progress: impl FnMut(&Searc
     };
     let started = Instant::now();
     let result = match method {
-        Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress, false),
-        Method::GuidedSurrogate => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress, true),
+        Method::Guided => guided::run_guided(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Cmaes => run_cmaes(problem, &evaluator, &pool, &mut found, &mut progress),
         Method::Random => run_random(problem, &evaluator, &pool, &mut found, &mut progress),
-        Method::Surrogate => surrogate::run_surrogate(problem, &evaluator, &pool, &mut found, &mut progress),
     };
     result?;
     found.cost = SearchCost {

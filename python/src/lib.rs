@@ -535,7 +535,7 @@ fn falsify<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let method = mjsafe::falsify::Method::from_flag(method).ok_or_else(|| {
         PyValueError::new_err(format!(
-            "falsify: method: expected one of guided, cmaes, random, surrogate, found {method:?}"
+            "falsify: method: expected one of guided, cmaes, random, found {method:?}"
         ))
     })?;
     let request = mjsafe::falsify::Request {

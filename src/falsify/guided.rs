@@ -1,7 +1,9 @@
 //! The guided search (`--method guided`, the default): a first generation spread over the box,
 //! then generations that trisect the boundary between a qualified candidate that holds and a
-//! failing candidate whose baseline fails too, and after those CMA-ES generations alternating
-//! with uniform draws over the box (docs/falsification.md measures each of these ideas).
+//! failing candidate whose baseline fails too, and after those generations of a local model of
+//! the score (a Gaussian process in a trust region, Thompson-sampled: [`super::surrogate`])
+//! alternating with uniform draws over the box (docs/falsification.md measures each of these
+//! ideas; the model replaced CMA-ES in issue 53, measured on a tuning and a test half).
 //!
 //! Why the boundary: a baseline-qualified violation is a candidate that fails while its
 //! baseline holds. Where the baseline is the more capable configuration (no delays, the true
@@ -12,7 +14,7 @@
 //! points at the segment's thirds, one generation) shrinks the bracket 3 times per
 //! generation; when the two boundaries meet (a bracket shorter than [`BRACKET_TOLERANCE`]) the
 //! pair is spent. Without a baseline no candidate is in U and the search is the spread
-//! generation plus CMA-ES.
+//! generation plus the model's generations.
 //!
 //! Noise: where a random seed or actuation jitter decides the outcome, the classes of the
 //! points on a bracket's line interleave (`ordered_along`); the score's mean then does not
@@ -25,12 +27,9 @@
 //! generations, and a generation's evaluations are recorded in canonical order.
 
 use std::collections::HashSet;
-use std::sync::Mutex;
 
 use super::{
-    surrogate,
-    append, cmaes_from, done, doubled_population, population_size, uniform_points, Evaluation, Evaluator, FalsifyError,
-    Problem, Search,
+    append, done, population_size, surrogate, uniform_points, Evaluation, Evaluator, FalsifyError, Problem, Search,
 };
 use crate::random::SplitMix64;
 
@@ -245,7 +244,6 @@ pub(super) fn run_guided(
     pool: &rayon::ThreadPool,
     found: &mut Search,
     progress: &mut impl FnMut(&Search),
-    local_model: bool,
 ) -> Result<(), FalsifyError> {
     let d = problem.ranges.len();
     let lambda = population_size(d);
@@ -289,20 +287,16 @@ pub(super) fn run_guided(
     }
 
     // 2. Brackets and CMA-ES generations.
-    let cmaes_batch: Mutex<Vec<Evaluation>> = Mutex::new(Vec::new());
-    let objective = evaluator.cmaes_objective(&cmaes_batch);
-    let mut optimiser = None;
-    let mut population = lambda;
-    let mut restarts = 0u64;
     let mut bracket_evaluations = 0usize;
     let mut lineages = 0usize;
-    let (mut cmaes_generations, mut explore_generations) = (0usize, 0usize);
+    let (mut model_generations, mut explore_generations) = (0usize, 0usize);
     // Set by a bracket whose classes interleave: noise decides the outcome, the score does not
     // point to violations (CMA-ES minimises its mean and drifts to low jitter), and the rest of
     // the budget goes to uniform draws where the baseline may hold.
     let mut noisy = false;
     let seed_free: Vec<usize> = (0..d).filter(|&k| !is_seed(&problem.ranges[k].key)).collect();
-    let (mut region, mut region_start) = (surrogate::Region::new(), 0usize);
+    let (mut region, mut region_start, mut elsewhere) = (surrogate::Region::new(), 0usize, false);
+    let lowest = |evaluations: &[Evaluation]| evaluations.iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
     while !done(problem, found) {
         if !noisy && 2 * bracket_evaluations <= found.evaluations.len() {
             if let Some((s, u, distance)) = memory.closest_pair(&found.evaluations) {
@@ -336,7 +330,7 @@ pub(super) fn run_guided(
         }
         // Every other generation explores: uniform draws over the box (what random search does),
         // so an optimiser stuck in a flat or noisy basin costs at most half the budget.
-        if noisy || cmaes_generations > explore_generations {
+        if noisy || model_generations > explore_generations {
             let count = lambda.min(remaining(found));
             let units = if noisy {
                 qualified_points(&mut generator, count, d, &seed_free, &found.evaluations)
@@ -348,64 +342,33 @@ pub(super) fn run_guided(
             record(found, &mut memory, &mut generation, batch, None, progress);
             continue;
         }
-        // With the local model: a generation of the surrogate search's trust region about the
-        // lowest score since its last restart (super::surrogate).
-        if local_model {
-            let own = &found.evaluations[region_start..];
-            let Some(centre) = surrogate::lowest_score(own).map(|i| own[i].point.clone()) else {
+        // A generation of the model's trust region about the lowest score since the region
+        // started (super::surrogate). A collapsed region, or a violation when another failure
+        // mode is wanted, starts a new one after a generation of uniform draws.
+        let own = &found.evaluations[region_start..];
+        let Some(best) = surrogate::lowest_score(own) else {
+            // After a collapse the next region is about the search's lowest score; after a
+            // violation when another mode is wanted, about the lowest of these draws.
+            if !elsewhere {
                 region_start = 0;
-                let units = uniform_points(&mut generator, lambda.min(remaining(found)), d);
-                cmaes_generations += 1;
-                let batch = evaluate(units);
-                record(found, &mut memory, &mut generation, batch, None, progress);
-                continue;
-            };
-            let before = own.iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
-            let units = region.propose(&mut generator, own, &centre, lambda.min(remaining(found)));
-            cmaes_generations += 1;
+            }
+            elsewhere = false;
+            let units = uniform_points(&mut generator, lambda.min(remaining(found)), d);
+            model_generations += 1;
             let batch = evaluate(units);
             record(found, &mut memory, &mut generation, batch, None, progress);
-            let after = found.evaluations[region_start..].iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
-            region.update(after < before - 1e-3 * before.abs());
-            if region.collapsed() {
-                region = surrogate::Region::new();
-                region_start = found.evaluations.len();
-            }
             continue;
-        }
-        // A CMA-ES generation: started at the best candidate so far (the box's centre before
-        // any), restarted at a random point with a doubled population when it converges.
-        if optimiser.is_none() {
-            let mean: Vec<f64> = if restarts == 0 {
-                match found.best() {
-                    Some(best) => best.point.clone(),
-                    None => vec![0.5; d],
-                }
-            } else {
-                (0..d).map(|_| generator.next_f64()).collect()
-            };
-            optimiser = Some(cmaes_from(
-                mean,
-                population,
-                problem.seed.wrapping_add(restarts),
-                &objective,
-            )?);
-        }
-        let terminated = match optimiser.as_mut() {
-            Some(o) => pool.install(|| o.next_parallel()),
-            None => None,
         };
-        cmaes_generations += 1;
-        let batch = std::mem::take(&mut *cmaes_batch.lock().unwrap_or_else(|p| p.into_inner()));
+        let units = region.propose(&mut generator, own, &own[best].point, lambda.min(remaining(found)));
+        let before = lowest(own);
+        model_generations += 1;
+        let batch = evaluate(units);
         let violated = record(found, &mut memory, &mut generation, batch, None, progress);
-        if violated && problem.counterexamples > 1 && !problem.worst {
-            // Another failure mode is wanted: start again elsewhere.
-            optimiser = None;
-            restarts += 1;
-        } else if terminated.is_some() {
-            optimiser = None;
-            restarts += 1;
-            population = doubled_population(population, problem, found);
+        region.update(lowest(&found.evaluations[region_start..]) < before - 1e-3 * before.abs());
+        elsewhere = violated && problem.counterexamples > 1 && !problem.worst;
+        if region.collapsed() || elsewhere {
+            region = surrogate::Region::new();
+            region_start = found.evaluations.len();
         }
     }
     Ok(())
