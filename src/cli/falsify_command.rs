@@ -62,7 +62,8 @@ pub struct FalsifyArgs {
     #[arg(long)]
     pub baseline_reaches_goal: bool,
     /// How candidates are chosen: guided (a spread first generation, trisection of the boundary
-    /// where the baseline starts to fail, CMA-ES alternating with uniform draws; once a
+    /// where the baseline starts to fail, a local model of the score (a Gaussian process in a
+    /// trust region) alternating with uniform draws; once a
     /// trisection shows that noise decides, only uniform draws where the baseline held, with
     /// the smallest margin nearby), cmaes (CMA-ES from the box's centre) or random (uniform
     /// draws).
