@@ -197,15 +197,24 @@ class MjsafePy:
         return r.metrics.get("min_h")
 
 
+def cached_result(out, problem, method, seed):
+    """(its directory, its result.json, [runs to the first violation] if OUT holds it already)
+    of a search run in this process."""
+    where = search_dir(out, problem, method, seed)
+    result = os.path.join(where, "result.json")
+    if not os.path.exists(result):
+        return where, result, []
+    with open(result) as f:
+        return where, result, [json.load(f)["runs_to_first_violation"]]
+
+
 def pycma_search(out, problem, seed, threads=2):
     """Runs to the first qualified violation of pycma with its default settings (λ = 4 + ⌊3 ln d⌋,
     bounds [0, 1] by its own handling), from the box's centre with σ0 = 0.3, restarted from a
     seeded random point with the same settings when it stops; cached in OUT."""
-    where = search_dir(out, problem, "pycma", seed)
-    result = os.path.join(where, "result.json")
-    if os.path.exists(result):
-        with open(result) as f:
-            return json.load(f)["runs_to_first_violation"]
+    where, result, cached = cached_result(out, problem, "pycma", seed)
+    if cached:
+        return cached[0]
     import cma
     import random
     py = MjsafePy()
@@ -238,11 +247,9 @@ def psytaliro_search(out, problem, seed):
     trace of the candidate's score (its robustness is the score: negative exactly at a
     qualified violation, as in scripts/psytaliro_study.py); its seed is TestOptions' seed, its
     budget the iterations. Cached in OUT."""
-    where = search_dir(out, problem, "psytaliro", seed)
-    result = os.path.join(where, "result.json")
-    if os.path.exists(result):
-        with open(result) as f:
-            return json.load(f)["runs_to_first_violation"]
+    where, result, cached = cached_result(out, problem, "psytaliro", seed)
+    if cached:
+        return cached[0]
     import staliro
     from staliro import TestOptions, Trace, blackbox
     from staliro.optimizers import DualAnnealing
