@@ -41,7 +41,7 @@ pub struct Tick {
 impl Tick {
     /// Nothing computed yet.
     fn new(parts: &mut LoopParts) -> Tick {
-        let (n, r) = parts.sizes();
+        let (n, r) = parts.sizes;
         Tick {
             time: 0.0,
             nominal: DVector::zeros(r),
@@ -561,13 +561,6 @@ struct LoopParts {
     sizes: (usize, usize),
 }
 
-impl LoopParts {
-    /// (n, r): the state size and the number of input channels.
-    fn sizes(&self) -> (usize, usize) {
-        self.sizes
-    }
-}
-
 /// The plant step, the control period and the steps per tick.
 #[derive(Debug, Clone, Copy)]
 struct Timing {
@@ -590,32 +583,55 @@ impl crate::section::ControlSettings for ControlLoop {
         self.laws.model.channel_names().to_vec()
     }
 
+    /// The controller reads `sensor`'s measurement instead of the true state (predictions are
+    /// still compared with the truth).
     fn set_sensor(&mut self, sensor: Sensor) {
-        ControlLoop::set_sensor(self, sensor);
+        self.sense.sensor = Some(sensor);
     }
 
+    /// Puts `actuator` (lag, rate and magnitude limits) between channel `channel`'s delayed
+    /// command and the plant.
     fn set_actuator(&mut self, channel: usize, actuator: Actuator) {
-        ControlLoop::set_actuator(self, channel, actuator);
+        let r = self.queues().len();
+        if self.actuate.dynamics.len() != r {
+            self.actuate.actuated = Some(vec![0.0; r]);
+            self.actuate.dynamics = vec![None; r];
+        }
+        self.actuate.dynamics[channel] = Some(actuator);
     }
 
+    /// Adds ω_i(t) to channel i's applied input, unknown to the predictors.
     fn set_input_disturbance(&mut self, disturbance: InputDisturbance) {
-        ControlLoop::set_input_disturbance(self, disturbance);
+        self.actuate.disturbance = Some(disturbance);
     }
 
+    /// What the controller assumes of moving actors over the delays.
     fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
-        ControlLoop::set_actor_knowledge(self, knowledge);
+        self.laws.actors.knowledge = knowledge;
     }
 
+    /// Sets the predictors' RK4 step to `steps` plant steps. The plant step h is always valid;
+    /// anything else needs every delay constant and a whole multiple of the control period
+    /// (the applied inputs are then constant on the control grid, so a step of one period is
+    /// exact up to RK4 truncation; a coarser one switches inputs inside its RK4 steps and holds
+    /// κ_j's commands over several periods, an approximation the /prediction records measure).
     fn set_predictor_step(&mut self, steps: u32) -> Result<(), String> {
-        ControlLoop::set_predictor_step(self, steps)
+        let period = self.timing.control_period;
+        if steps != 1 && !self.queues.assumed.iter().all(|q| on_tick_grid(q, period)) {
+            return Err("a predictor step other than the timestep needs constant delays that are whole multiples of the control period".into());
+        }
+        self.predict.step = steps as f64 * self.timing.timestep;
+        Ok(())
     }
 
+    /// Reuse of the recursive chain between ticks (see [`PredictorWorkspace::set_chain_reuse`]).
     fn set_chain_tolerance(&mut self, tolerance: f64) {
-        ControlLoop::set_chain_tolerance(self, tolerance);
+        self.predict.workspace.set_chain_reuse(Some(tolerance));
     }
 
+    /// Whether road users out of reach form no barrier row (`control.leave_out_of_reach`).
     fn set_leave_out_of_reach(&mut self, leave_out: bool) {
-        ControlLoop::set_leave_out_of_reach(self, leave_out);
+        self.laws.work.reach.set_allowed(leave_out);
     }
 }
 
@@ -632,7 +648,7 @@ impl SenseStage {
     fn new(parts: &mut LoopParts) -> SenseStage {
         SenseStage {
             sensor: None,
-            state: DVector::zeros(parts.sizes().0),
+            state: DVector::zeros(parts.sizes.0),
         }
     }
 
@@ -681,7 +697,7 @@ struct LawStage {
 impl LawStage {
     /// The parts' model, nominal and filter, with no barrier or road user known yet.
     fn new(parts: &mut LoopParts) -> LawStage {
-        let (n, r) = parts.sizes();
+        let (n, r) = parts.sizes;
         let model = parts.model.clone();
         let work = LawWorkspace {
             lie: LieWorkspace::new(model.as_ref()),
@@ -756,7 +772,7 @@ impl PredictStage {
     /// The parts' structure, stepping at the control period when every queue's delays stay on
     /// its grid, else at the plant step.
     fn new(parts: &mut LoopParts) -> PredictStage {
-        let (n, r) = parts.sizes();
+        let (n, r) = parts.sizes;
         let Timing {
             timestep,
             control_period,
@@ -859,7 +875,7 @@ struct ActuateStage {
 impl ActuateStage {
     /// No disturbance or actuator dynamics until set; every channel applies 0 issued at 0.
     fn new(parts: &mut LoopParts) -> ActuateStage {
-        let r = parts.sizes().1;
+        let r = parts.sizes.1;
         ActuateStage {
             disturbance: None,
             dynamics: Vec::new(),
@@ -931,7 +947,7 @@ struct PendingStage {
 impl PendingStage {
     /// Nothing pending, one queue per channel.
     fn new(parts: &mut LoopParts) -> PendingStage {
-        let (n, r) = parts.sizes();
+        let (n, r) = parts.sizes;
         PendingStage {
             channels: vec![VecDeque::new(); r],
             spare_states: Vec::new(),
@@ -990,23 +1006,6 @@ impl ControlLoop {
             },
         };
         ControlLoop::from_parts(&mut parts)
-    }
-
-    /// The controller reads `sensor`'s measurement instead of the true state (predictions are
-    /// still compared with the truth).
-    pub fn set_sensor(&mut self, sensor: Sensor) {
-        self.sense.sensor = Some(sensor);
-    }
-
-    /// Puts `actuator` (lag, rate and magnitude limits) between channel `channel`'s delayed
-    /// command and the plant.
-    pub fn set_actuator(&mut self, channel: usize, actuator: Actuator) {
-        let r = self.queues().len();
-        if self.actuate.dynamics.len() != r {
-            self.actuate.actuated = Some(vec![0.0; r]);
-            self.actuate.dynamics = vec![None; r];
-        }
-        self.actuate.dynamics[channel] = Some(actuator);
     }
 
     /// What the plant received over the last step per channel, when some channel has actuator
@@ -1083,11 +1082,6 @@ impl ControlLoop {
         self.error.take()
     }
 
-    /// Adds ω_i(t) to channel i's applied input, unknown to the predictors.
-    pub fn set_input_disturbance(&mut self, disturbance: InputDisturbance) {
-        self.actuate.disturbance = Some(disturbance);
-    }
-
     /// The barrier rows formed and left out so far.
     pub fn barrier_rows(&self) -> super::BarrierRows {
         let reach = &self.laws.work.reach;
@@ -1144,11 +1138,6 @@ impl ControlLoop {
         self.predict.workspace.invalidate_chain();
     }
 
-    /// What the controller assumes of moving actors over the delays.
-    pub fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
-        self.laws.actors.knowledge = knowledge;
-    }
-
     /// An actor's trigger fired at `time`: the controller's copy of its motion follows (from
     /// the next tick on, the actor is observed braking, walking, …). `name` is the obstacle's:
     /// its barriers are named as it or `<name>/<i>-<j>`.
@@ -1176,30 +1165,6 @@ impl ControlLoop {
 
     pub fn known_barriers(&self) -> &[Barrier] {
         &self.laws.known_barriers
-    }
-
-    /// Sets the predictors' RK4 step to `steps` plant steps. The plant step h is always valid;
-    /// anything else needs every delay constant and a whole multiple of the control period
-    /// (the applied inputs are then constant on the control grid, so a step of one period is
-    /// exact up to RK4 truncation; a coarser one switches inputs inside its RK4 steps and holds
-    /// κ_j's commands over several periods, an approximation the /prediction records measure).
-    pub fn set_predictor_step(&mut self, steps: u32) -> Result<(), String> {
-        let period = self.timing.control_period;
-        if steps != 1 && !self.queues.assumed.iter().all(|q| on_tick_grid(q, period)) {
-            return Err("a predictor step other than the timestep needs constant delays that are whole multiples of the control period".into());
-        }
-        self.predict.step = steps as f64 * self.timing.timestep;
-        Ok(())
-    }
-
-    /// Reuse of the recursive chain between ticks (see [`PredictorWorkspace::set_chain_reuse`]).
-    pub fn set_chain_tolerance(&mut self, tolerance: f64) {
-        self.predict.workspace.set_chain_reuse(Some(tolerance));
-    }
-
-    /// Whether road users out of reach form no barrier row (`control.leave_out_of_reach`).
-    pub fn set_leave_out_of_reach(&mut self, leave_out: bool) {
-        self.laws.work.reach.set_allowed(leave_out);
     }
 
     /// Recomputes every reused recursive chain over its whole window too, and keeps the

@@ -296,7 +296,6 @@ pub(super) fn run_guided(
     let mut noisy = false;
     let seed_free: Vec<usize> = (0..d).filter(|&k| !is_seed(&problem.ranges[k].key)).collect();
     let (mut region, mut region_start, mut elsewhere) = (surrogate::Region::new(), 0usize, false);
-    let lowest = |evaluations: &[Evaluation]| evaluations.iter().map(|e| e.score).fold(f64::INFINITY, f64::min);
     while !done(problem, found) {
         if !noisy && 2 * bracket_evaluations <= found.evaluations.len() {
             if let Some((s, u, distance)) = memory.closest_pair(&found.evaluations) {
@@ -360,11 +359,13 @@ pub(super) fn run_guided(
             continue;
         };
         let units = region.propose(&mut generator, own, &own[best].point, lambda.min(remaining(found)));
-        let before = lowest(own);
+        let before = own[best].score;
         model_generations += 1;
         let batch = evaluate(units);
         let violated = record(found, &mut memory, &mut generation, batch, None, progress);
-        region.update(lowest(&found.evaluations[region_start..]) < before - 1e-3 * before.abs());
+        let own = &found.evaluations[region_start..];
+        let after = surrogate::lowest_score(own).map_or(before, |i| own[i].score);
+        region.update(after < before - 1e-3 * before.abs());
         elsewhere = violated && problem.counterexamples > 1 && !problem.worst;
         if region.collapsed() || elsewhere {
             region = surrogate::Region::new();

@@ -21,7 +21,7 @@
 //! Determinism: every draw comes from the caller's seeded generator, and the model reads the
 //! evaluations in their canonical order.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::Evaluation;
 use crate::random::SplitMix64;
@@ -120,7 +120,7 @@ struct Model {
     /// K⁻¹ y.
     alpha: DVector<f64>,
     /// Cholesky factor of K + σ²I.
-    chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    chol: Cholesky<f64, Dyn>,
     length: f64,
 }
 
@@ -146,6 +146,7 @@ impl Model {
         scored.truncate(MODEL_POINTS);
         let y = normal_scores(&scored.iter().map(|e| e.score).collect::<Vec<_>>());
         let points: Vec<Vec<f64>> = scored.iter().map(|e| e.point.clone()).collect();
+        // The points are moved into the chosen fit at the end (Vec::new() allocates nothing).
         let mut best: Option<(f64, Model)> = None;
         for &length in &LENGTH_SCALES {
             for &noise in &NOISE_VARIANCES {
@@ -158,19 +159,17 @@ impl Model {
                 let log_det: f64 = chol.l().diagonal().iter().map(|v| 2.0 * v.ln()).sum();
                 let likelihood = -0.5 * y.dot(&alpha) - 0.5 * log_det;
                 if best.as_ref().is_none_or(|(l, _)| likelihood > *l) {
-                    best = Some((
-                        likelihood,
-                        Model {
-                            points: points.clone(),
-                            alpha,
-                            chol,
-                            length,
-                        },
-                    ));
+                    let fit = Model {
+                        points: Vec::new(),
+                        alpha,
+                        chol,
+                        length,
+                    };
+                    best = Some((likelihood, fit));
                 }
             }
         }
-        best.map(|(_, m)| m)
+        best.map(|(_, fit)| Model { points, ..fit })
     }
 
     /// The posterior at `candidates` (None if its covariance is not positive definite even
