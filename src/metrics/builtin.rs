@@ -313,6 +313,9 @@ struct LeadTracker {
     /// position, velocity, acceleration, heading (reused: no allocation per message).
     actors_time: Option<f64>,
     present: Vec<RoadUser>,
+    /// The last `/actors` message's names by position with their extents (one comparison
+    /// instead of a look-up by name per road user and message).
+    extents_by_position: Vec<(String, Option<[f64; 2]>)>,
     done: f64,
     /// Whether any road user was ever ahead in the path.
     saw_lead: bool,
@@ -335,8 +338,19 @@ impl LeadTracker {
             Observed::Actors(m) => {
                 self.actors_time = Some(m.time);
                 self.present.clear();
-                for a in m.actors.iter().filter(|a| !a.absent) {
-                    let Some(&extent) = run.actor_extents.get(&a.name) else {
+                for (k, a) in m.actors.iter().enumerate() {
+                    let known = match self.extents_by_position.get_mut(k) {
+                        Some((name, extent)) if *name == a.name => *extent,
+                        slot => {
+                            let extent = run.actor_extents.get(&a.name).copied();
+                            match slot {
+                                Some(entry) => *entry = (a.name.clone(), extent),
+                                None => self.extents_by_position.push((a.name.clone(), extent)),
+                            }
+                            extent
+                        }
+                    };
+                    let Some(extent) = known.filter(|_| !a.absent) else {
                         continue;
                     };
                     self.present
@@ -566,6 +580,9 @@ struct MinH {
     /// h of obstacles is in m² (4.81), of another barrier in its own unit.
     not_obstacle: Option<String>,
     names: BTreeSet<String>,
+    /// The names of the last message's barriers by position: a name in its place is in
+    /// `names` already (one comparison instead of a set look-up per barrier and message).
+    by_position: Vec<String>,
 }
 
 impl Accumulate for MinH {
@@ -575,9 +592,15 @@ impl Accumulate for MinH {
             if h.is_finite() {
                 self.min = lower(self.min, h);
             }
-            for b in &m.barriers {
-                if !self.names.contains(&b.name) {
-                    self.names.insert(b.name.clone());
+            for (k, b) in m.barriers.iter().enumerate() {
+                if self.by_position.get(k) != Some(&b.name) {
+                    if !self.names.contains(&b.name) {
+                        self.names.insert(b.name.clone());
+                    }
+                    match self.by_position.get_mut(k) {
+                        Some(name) => name.clone_from(&b.name),
+                        None => self.by_position.push(b.name.clone()),
+                    }
                 }
                 if !b.obstacle && self.not_obstacle.is_none() {
                     self.not_obstacle = Some(b.name.clone());
