@@ -3,9 +3,9 @@
 # half"): ten rare-failure boxes in a tuning and a test half, their measured rates, and the
 # searches' runs to the first qualified violation over seeds 1..30, with pycma and PSY-TaLiRo's
 # dual annealing as anchors.
-#   scripts/falsify-bench.sh rate  [MJSAFE_BINARY] [OUT_DIR]        (DRAWS=2000)
+#   scripts/falsify-bench.sh rate  [MJSAFE_BINARY] [OUT_DIR]        (DRAWS=2000; HALF, ONLY as for study)
 #   scripts/falsify-bench.sh study [MJSAFE_BINARY] [OUT_DIR]        (SEEDS=1..30, METHODS=guided,cmaes,random,pycma,psytaliro,
-#                                                                     HALF=all|tuning|test, ONLY=<problem>)
+#                                                                     HALF=all|tuning|test|fresh, ONLY=<problem>)
 #   scripts/falsify-bench.sh cost  [MJSAFE_BINARY] [OUT_DIR]        the searches' own work on one thread
 #                                                                    (METHODS, HALF, ONLY as for study)
 # Runs with the venv of scripts/setup.sh --test (the mjsafe Python package: pycma's candidates run
@@ -27,7 +27,7 @@ done
 args=()
 [ -n "${ONLY:-}" ] && args+=(--only "$ONLY")
 case "$command" in
-  rate) args+=(--draws "${DRAWS:-2000}");;
+  rate) args+=(--draws "${DRAWS:-2000}" --half "${HALF:-all}");;
   study) args+=(--seeds "${SEEDS:-1..30}" --methods "${METHODS:-guided,cmaes,random,pycma,psytaliro}" --half "${HALF:-all}");;
   cost) args+=(--methods "${METHODS:-guided,cmaes,random}" --half "${HALF:-all}");;
 esac
