@@ -7,14 +7,21 @@ mod real_files;
 
 use std::path::{Path, PathBuf};
 
+/// This crate's directory as `cargo test` gives it when the tests run. The path compiled in is
+/// only the fallback: this crate's test binary is not rebuilt when the same sources are built
+/// from another checkout with the same target directory (CI's clone), and would read there.
+fn crate_dir() -> PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from)
+}
+
 /// The repository's `data/commonroad` directory.
 fn data_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/commonroad")
+    crate_dir().join("../../data/commonroad")
 }
 
 /// The repository's `tests/data/commonroad/test_reading_all.xml` (commonroad-io's every-shape test).
 fn reading_all() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/commonroad/test_reading_all.xml")
+    crate_dir().join("../../tests/data/commonroad/test_reading_all.xml")
 }
 
 /// The real scenario files, sorted.
