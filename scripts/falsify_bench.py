@@ -36,6 +36,9 @@ CH4_BASELINE = DELAY_FREE + ['filter={kind="cbf_qp", l0=4.0, l1=4.0}']
 JITTER_OFF = ["actuation.steering.extra_latency.max=0.0", "actuation.acceleration.extra_latency.max=0.0"]
 JITTER_SET = ['actuation={steering={extra_latency={distribution="uniform", max=0.0}}, '
               'acceleration={extra_latency={distribution="uniform", max=0.0}}}']
+# Sensor noise on the bicycle's four states (σ set by the ranges), and its noise-free baseline.
+NOISE_SET = ["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"]
+NOISE_OFF = ["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"]
 
 # The problems, split into halves before any method was tuned on the new ones: the tuning half
 # holds every box a method of mjsafe has been chosen on (the Ch. 4 problems of
@@ -79,7 +82,7 @@ PROBLEMS = [
     # (4.67) rides its boundary (min h ≈ 1e-5 clear of it): any sensor noise grazes it, so a
     # violation here is an intrusion of h < −0.1, not a graze.
     dict(name="ccrm_noise", half="test", scenario="scenarios/ncap_ccrm.toml", budget=600, threshold=-0.1,
-         set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"], baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["vehicle.initial_state.3=14..20", "obstacles.0.centre.0=30..60",
                  "sensing.noise_std.0=0..0.1", "sensing.noise_std.3=0..0.1", "seed=0..1000:1"]),
     dict(name="car_late", half="test", scenario="scenarios/car_obstacle_gamma_m.toml", budget=600,
@@ -99,7 +102,7 @@ PROBLEMS = [
     # draws gave 0.20 %); no search had run on them before the table. The last three were made
     # after the first three's table had been read, to test the default once more.
     dict(name="ccrs_noise", half="fresh", scenario="scenarios/ncap_ccrs.toml", budget=600, threshold=-0.1,
-         set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"], baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["vehicle.initial_state.3=15..25", "sensing.noise_std.0=0..1.0", "sensing.noise_std.3=0..1.2",
                  "seed=0..1000:1"]),
     dict(name="car_jitter", half="fresh", scenario="scenarios/car_obstacle_gamma_m.toml", budget=600,
@@ -108,21 +111,19 @@ PROBLEMS = [
                  "actuation.steering.extra_latency.max=0..0.1", "actuation.acceleration.extra_latency.max=0..0.4",
                  "seed=0..1000:1"]),
     dict(name="ch4_noise", half="fresh", scenario="scenarios/bicycle_obstacle_gamma_m.toml", budget=600,
-         threshold=-0.1, set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"],
-         baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         threshold=-0.1, set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["vehicle.initial_state.0=-40..-15", "obstacles.0.centre.1=-3..3", "sensing.noise_std.1=0..0.2",
                  "sensing.noise_std.2=0..0.06", "seed=0..1000:1"]),
     dict(name="ccrb_noise", half="fresh", scenario="scenarios/ncap_ccrb.toml", budget=600, threshold=-0.1,
-         set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"], baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["obstacles.0.motion.acceleration.1.1=-6..-2", "obstacles.0.centre.0=44..60",
                  "sensing.noise_std.0=0..1.0", "sensing.noise_std.3=0..1.0", "seed=0..1000:1"]),
     dict(name="two_noise", half="fresh", scenario="scenarios/bicycle_two_obstacles.toml", budget=600,
-         threshold=-0.1, set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"],
-         baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         threshold=-0.1, set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["vehicle.initial_state.0=-40..-15", "vehicle.initial_state.1=-2..2", "sensing.noise_std.1=0..0.15",
                  "sensing.noise_std.2=0..0.045", "seed=0..1000:1"]),
     dict(name="ccrm_lateral", half="fresh", scenario="scenarios/ncap_ccrm.toml", budget=600, threshold=-0.1,
-         set=["sensing={noise_std=[0.0, 0.0, 0.0, 0.0]}"], baseline=["sensing.noise_std=[0.0, 0.0, 0.0, 0.0]"],
+         set=NOISE_SET, baseline=NOISE_OFF,
          ranges=["vehicle.initial_state.3=14..20", "obstacles.0.centre.0=30..60", "sensing.noise_std.1=0..0.4",
                  "sensing.noise_std.2=0..0.13", "seed=0..1000:1"]),
 ]
