@@ -313,9 +313,8 @@ struct LeadTracker {
     /// position, velocity, acceleration, heading (reused: no allocation per message).
     actors_time: Option<f64>,
     present: Vec<RoadUser>,
-    /// The last `/actors` message's names by position with their extents (one comparison
-    /// instead of a look-up by name per road user and message).
-    extents_by_position: Vec<(String, Option<[f64; 2]>)>,
+    /// Each road user's extent, by its place in the last `/actors` message.
+    extents: ByPosition<Option<[f64; 2]>>,
     done: f64,
     /// Whether any road user was ever ahead in the path.
     saw_lead: bool,
@@ -339,17 +338,7 @@ impl LeadTracker {
                 self.actors_time = Some(m.time);
                 self.present.clear();
                 for (k, a) in m.actors.iter().enumerate() {
-                    let known = match self.extents_by_position.get_mut(k) {
-                        Some((name, extent)) if *name == a.name => *extent,
-                        slot => {
-                            let extent = run.actor_extents.get(&a.name).copied();
-                            match slot {
-                                Some(entry) => *entry = (a.name.clone(), extent),
-                                None => self.extents_by_position.push((a.name.clone(), extent)),
-                            }
-                            extent
-                        }
-                    };
+                    let known = (self.extents).get(k, &a.name, |name| run.actor_extents.get(name).copied());
                     let Some(extent) = known.filter(|_| !a.absent) else {
                         continue;
                     };
@@ -580,9 +569,31 @@ struct MinH {
     /// h of obstacles is in m² (4.81), of another barrier in its own unit.
     not_obstacle: Option<String>,
     names: BTreeSet<String>,
-    /// The names of the last message's barriers by position: a name in its place is in
-    /// `names` already (one comparison instead of a set look-up per barrier and message).
-    by_position: Vec<String>,
+    /// The last message's barriers by place: a name in its place is in `names` already.
+    by_position: ByPosition<()>,
+}
+
+/// The names of the last message's entries by their place in it, each with what a look-up by
+/// name gave: an entry whose name is the one in its place costs one comparison instead of a
+/// look-up per entry and message.
+#[derive(Default)]
+struct ByPosition<T>(Vec<(String, T)>);
+
+impl<T: Copy> ByPosition<T> {
+    /// The value for the entry `name` at `position`: the remembered one, or `look_up(name)`.
+    fn get(&mut self, position: usize, name: &str, look_up: impl FnOnce(&str) -> T) -> T {
+        match self.0.get_mut(position) {
+            Some((known, value)) if known == name => *value,
+            slot => {
+                let value = look_up(name);
+                match slot {
+                    Some(entry) => *entry = (name.to_string(), value),
+                    None => self.0.push((name.to_string(), value)),
+                }
+                value
+            }
+        }
+    }
 }
 
 impl Accumulate for MinH {
@@ -593,15 +604,12 @@ impl Accumulate for MinH {
                 self.min = lower(self.min, h);
             }
             for (k, b) in m.barriers.iter().enumerate() {
-                if self.by_position.get(k) != Some(&b.name) {
-                    if !self.names.contains(&b.name) {
-                        self.names.insert(b.name.clone());
+                let names = &mut self.names;
+                self.by_position.get(k, &b.name, |name| {
+                    if !names.contains(name) {
+                        names.insert(name.to_string());
                     }
-                    match self.by_position.get_mut(k) {
-                        Some(name) => name.clone_from(&b.name),
-                        None => self.by_position.push(b.name.clone()),
-                    }
-                }
+                });
                 if !b.obstacle && self.not_obstacle.is_none() {
                     self.not_obstacle = Some(b.name.clone());
                 }
