@@ -24,6 +24,11 @@ and the interval's midpoint, `contains` accepts a position inside the shape and 
 the interval, `skip` leaves them out. Obstacles with a set-based prediction (an occupancySet,
 no states after the initial one) are compared at their initial time step only.
 
+Every `/prediction` entry of a road user is checked against its recorded life span (first and
+last time step): `actor_realized` NaN exactly when it does not exist at the target time (and the
+recorded position at a recorded step), `actor_predicted` NaN when it did not exist at the
+prediction's tick, `actor_error` their distance (NaN when either is).
+
 Prints `commonroad_check: N states compared, M absent, K mismatches` and exits 1 with the
 first 10 mismatches listed when K > 0, or when no `/actors` message fell on a time step.
 
@@ -142,18 +147,49 @@ def decode_actors(buf):
     return time, actors
 
 
-def read_actor_messages(path):
+def decode_doubles(wire, value, what):
+    """A repeated double: packed (wire type 2) or one element (wire type 1)."""
+    if wire == 2:
+        if len(value) % 8:
+            raise ValueError(f"{what}: {len(value)} bytes is no whole number of doubles")
+        return list(struct.unpack(f"<{len(value) // 8}d", value))
+    return [_double(wire, value, what)]
+
+
+def decode_prediction(buf):
+    """The fields of mjsafe.Prediction checked here: time = 1, issued_at = 3, actors = 11,
+    actor_predicted = 12, actor_realized = 13, actor_error = 14."""
+    m = {"time": 0.0, "issued_at": 0.0, "actors": [], "actor_predicted": [], "actor_realized": [],
+         "actor_error": []}
+    names = {12: "actor_predicted", 13: "actor_realized", 14: "actor_error"}
+    for field, wire, value in _fields(buf):
+        if field == 1:
+            m["time"] = _double(wire, value, "Prediction.time")
+        elif field == 3:
+            m["issued_at"] = _double(wire, value, "Prediction.issued_at")
+        elif field == 11:
+            m["actors"].append(bytes(value).decode("utf-8"))
+        elif field in names:
+            m[names[field]] += decode_doubles(wire, value, "Prediction." + names[field])
+    return m
+
+
+def read_actor_messages(path, topic="/actors", decode=None):
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
-        for schema, channel, message in reader.iter_messages(topics=["/actors"]):
+        for schema, channel, message in reader.iter_messages(topics=[topic]):
+            expected = "mjsafe.Actors" if decode is None else "mjsafe.Prediction"
             if channel.message_encoding != "protobuf":
-                raise SystemExit(f"commonroad_check: /actors message encoding is "
+                raise SystemExit(f"commonroad_check: {topic} message encoding is "
                                  f"{channel.message_encoding!r}, expected 'protobuf'")
-            if schema is not None and schema.name != "mjsafe.Actors":
-                raise SystemExit(f"commonroad_check: /actors schema is {schema.name!r}, "
-                                 "expected 'mjsafe.Actors'")
+            if schema is not None and schema.name != expected:
+                raise SystemExit(f"commonroad_check: {topic} schema is {schema.name!r}, "
+                                 f"expected {expected!r}")
+            if decode is not None:
+                yield decode(message.data)
+                continue
             time, actors = decode_actors(message.data)
             yield message.log_time, time, actors
 
@@ -384,6 +420,68 @@ def check_log(scenario, log_path, dt, mode, ego_ids=()):
     return messages, on_step, compared, absent, set_valued_count, skipped, mismatches
 
 
+def check_predictions(scenario, log_path, dt, ego_ids=()):
+    """Every `/prediction` entry of a road user against its recorded life span [first, last]
+    time step (× dt): its true position (`actor_realized`) is NaN exactly when it does not
+    exist at the target time, and its recorded position at a recorded step otherwise; the
+    controller's assumption (`actor_predicted`) is NaN when it did not exist at the prediction's
+    tick; `actor_error` is the distance between the two, NaN when either is. Road users with a
+    set-based prediction are left out. Returns (entries checked, NaN errors, mismatches)."""
+    from commonroad.prediction.prediction import SetBasedPrediction
+
+    span = {}
+    for o in scenario.dynamic_obstacles:
+        if o.obstacle_id in ego_ids or isinstance(o.prediction, SetBasedPrediction):
+            continue
+        first = o.initial_state.time_step
+        last = o.prediction.final_time_step if o.prediction is not None else first
+        span[f"cr_{o.obstacle_id}"] = (o, first * dt, last * dt)
+    checked = without = 0
+    mismatches = []
+    for m in read_actor_messages(log_path, "/prediction", decode_prediction):
+        n = len(m["actors"])
+        if len(m["actor_predicted"]) != 2 * n or len(m["actor_realized"]) != 2 * n \
+                or len(m["actor_error"]) != n:
+            mismatches.append(f"/prediction at t={m['time']!r}: {n} actors but "
+                              f"{len(m['actor_predicted'])}, {len(m['actor_realized'])} and "
+                              f"{len(m['actor_error'])} values")
+            continue
+        for i, name in enumerate(m["actors"]):
+            if name not in span:
+                continue
+            o, first, last = span[name]
+            def exists(t):
+                return first - TOL <= t <= last + TOL
+            t, tick = m["time"], m["issued_at"]
+            predicted = m["actor_predicted"][2 * i:2 * i + 2]
+            realized = m["actor_realized"][2 * i:2 * i + 2]
+            error = m["actor_error"][i]
+            where = f"/prediction issued at {tick!r} for {t!r}, {name}"
+            checked += 1
+            if exists(t) == any(math.isnan(v) for v in realized):
+                mismatches.append(f"{where}: true position {realized} while it "
+                                  f"{'exists' if exists(t) else 'does not exist'}")
+            if not exists(tick) and not all(math.isnan(v) for v in predicted):
+                mismatches.append(f"{where}: assumed at {predicted} although it did not exist at "
+                                  "the tick")
+            expected = math.hypot(predicted[0] - realized[0], predicted[1] - realized[1])
+            if math.isnan(expected) != math.isnan(error) or \
+                    (not math.isnan(error) and abs(error - expected) > TOL * max(1.0, expected)):
+                mismatches.append(f"{where}: error {error!r}, the distance is {expected!r}")
+            without += math.isnan(error)
+            k = round(t / dt)
+            if exists(t) and abs(t - k * dt) <= TOL:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    state = o.state_at_time(k)
+                pos = getattr(state, "position", None)
+                if hasattr(pos, "__len__") and (abs(realized[0] - float(pos[0])) > TOL or
+                                                abs(realized[1] - float(pos[1])) > TOL):
+                    mismatches.append(f"{where}: true position {realized} != recorded "
+                                      f"({float(pos[0])!r}, {float(pos[1])!r})")
+    return checked, without, mismatches
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("xml")
@@ -415,6 +513,10 @@ def main(argv=None):
     ego_ids = {pp.planning_problem_id for pp in pps.planning_problem_dict.values()}
     messages, on_step, compared, absent, set_valued, skipped, mismatches = check_log(
         scenario, args.log, dt, args.set_valued, ego_ids)
+    checked, without, prediction_mismatches = check_predictions(scenario, args.log, dt, ego_ids)
+    mismatches += prediction_mismatches
+    print(f"commonroad_check: {checked} road-user predictions checked, {without} without an "
+          "error (the road user not there at the tick or at the target time)")
     if set_valued or skipped:
         print(f"commonroad_check: {set_valued} set-valued states ({args.set_valued}), "
               f"{skipped} left out (set-valued skipped or set-based predictions)")

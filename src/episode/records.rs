@@ -112,11 +112,19 @@ impl RecordBuffers {
         actor_realized.clear();
         actor_error.clear();
         let known = c.actors_predicted.len() / 2;
+        let (tick, target_time) = (c.prediction.issued_at, c.prediction.target_time);
         for o in obstacles {
             let Some(motion) = &o.motion else { continue };
-            let truth = motion.state_at(c.prediction.target_time).position;
+            // A road user that does not exist at the target time has no true position, and one
+            // that did not exist at the tick was not predicted (the controller held it parked):
+            // NaN, not the distance to a parking place.
+            let truth = match motion.exists_at(target_time) {
+                true => motion.state_at(target_time).position,
+                false => [f64::NAN; 2],
+            };
             let assumed = (control.moving_actors().take(known))
                 .position(|(name, _)| name == o.barriers[0].name)
+                .filter(|_| motion.exists_at(tick))
                 .map_or([f64::NAN; 2], |k| {
                     [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
                 });
