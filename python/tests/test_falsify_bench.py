@@ -5,7 +5,9 @@ a cached result is reused only for the box it was computed for."""
 
 import importlib.util
 import json
+import itertools
 import math
+import random
 
 import pytest
 
@@ -51,6 +53,33 @@ def test_a_cached_result_serves_only_the_box_it_was_computed_for(tmp_path):
     (where / "evaluations.json").write_text("{}")
     assert not bench.reusable(str(where), problem) and not where.exists()
 
+
+
+def exact_two_sided_p(a, b):
+    """Mann–Whitney's exact two-sided p-value by enumerating every split of the pooled runs
+    (no ties): the share of splits whose U is at least as far from its mean as the observed."""
+    pooled = a + b
+    def u(first):
+        return sum(1 for x in first for y in pooled if y not in first and x > y)
+    mean = len(a) * len(b) / 2
+    observed = abs(u(a) - mean)
+    splits = [list(c) for c in itertools.combinations(pooled, len(a))]
+    return sum(1 for s in splits if abs(u(s) - mean) >= observed - 1e-12) / len(splits)
+
+
+def test_the_separation_of_two_methods_is_mann_whitney_s_with_a_miss_beyond_the_budget():
+    budget = 600
+    # Wholly separated (a miss ranks last): 2 of the C(8, 4) = 70 splits are as extreme.
+    assert bench.separation([1, 2, 3, 4], [5, 6, 7, None], budget) == pytest.approx(2 / 70)
+    assert exact_two_sided_p([1, 2, 3, 4], [5, 6, 7, budget + 1]) == pytest.approx(2 / 70)
+    rng = random.Random(53)
+    for _ in range(20):
+        runs = rng.sample(range(1, budget + 1), 10)
+        a, b = runs[:5], runs[5:]
+        assert bench.separation(a, b, budget) == pytest.approx(exact_two_sided_p(a, b), abs=1e-12)
+    row = bench.separations({"guided": [1, 2, 3, 4], "random": [5, 6, 7, None], "pycma": [1, 2, 3, 4]},
+                            budget)
+    assert row.startswith("random 0.029, pycma ") and float(row.split()[-1]) > 0.9
 
 def test_quantised_values_are_multiples_of_the_step_within_the_box():
     r = bench.Range("delays.acceleration=0.3..0.8:0.01")
