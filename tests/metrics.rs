@@ -392,3 +392,66 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
     assert!(m["impact_speed_by_actor"].is_null() && m["max_actor_prediction_error"].is_null());
     assert!(m["missing"].is_null(), "{m}");
 }
+
+/// Passes every record on, but from the step after the first collision on logs the walker as a
+/// recorded road user that ended there: absent, where it was last seen (as the episode logs a
+/// road user past its last recorded state).
+struct WalkerEndsAtTheCollision<S> {
+    log: S,
+    collided: bool,
+    last_seen: Option<(f64, f64)>,
+}
+
+impl<S: mjsafe::log::Sink> mjsafe::log::Sink for WalkerEndsAtTheCollision<S> {
+    fn record(&mut self, record: &mjsafe::log::Record) -> Result<(), mjsafe::log::LogError> {
+        use mjsafe::log::Record;
+        match record {
+            Record::Event(e) if e.kind == "collision_start" => self.collided = true,
+            Record::Actors(m) if self.collided => {
+                let mut m = m.clone();
+                for a in m.actors.iter_mut().filter(|a| a.name == "walker") {
+                    let (x, y) = *self.last_seen.get_or_insert((a.x, a.y));
+                    (a.x, a.y, a.vx, a.vy, a.absent) = (x, y, 0.0, 0.0, true);
+                }
+                return self.log.record(&Record::Actors(m));
+            }
+            _ => {}
+        }
+        self.log.record(record)
+    }
+    fn finish(&mut self, complete: bool) -> Result<(), mjsafe::log::LogError> {
+        self.log.finish(complete)
+    }
+}
+
+/// A road user whose recording ends at its collision has no velocity after it: its impact speed
+/// is absent with that reason, not the vehicle's own speed (a forward difference of the road
+/// user's frozen last position), and the run is not said to have had no collision.
+#[test]
+fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
+    use mjsafe::log::mcap::McapSink;
+    let dir = tempfile::tempdir().unwrap();
+    let loaded = mjsafe::scenario::load(
+        &root().join("tests/data/crossing_walker.toml"),
+        &["actor_knowledge.kind=\"static\"".to_string()],
+    )
+    .unwrap();
+    let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
+    let log = dir.path().join("ends.mcap");
+    let file = McapSink::create(&log, episode.info(), &[]).unwrap();
+    let mut sink = WalkerEndsAtTheCollision {
+        log: file,
+        collided: false,
+        last_seen: None,
+    };
+    episode.run(&mut [&mut sink]).unwrap();
+    assert!(sink.collided, "the static assumption collides");
+    let m = common::analyze_json(&log);
+    assert!(m["collision"].is_object(), "{m}");
+    assert!(m["impact_speed_by_actor"].is_null(), "{m}");
+    assert_eq!(
+        m["missing"]["impact_speed_by_actor.walker"],
+        "it no longer exists at the step after its collision (its last recorded state): no forward difference"
+    );
+    assert!(m["missing"].get("impact_speed_by_actor").is_none(), "{m}");
+}

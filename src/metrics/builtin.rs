@@ -187,7 +187,7 @@ pub static METRICS: &[Metric] = &[
         "CommonRoad-CriMe's brake threat number BTN (measure/index/btn.py, Åsljung et al. 2017, (9)): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead")
     },
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
-        "per obstacle, at its first `collision_start` at time t: the relative speed of the vehicle and the obstacle, ‖Δ(p − o)‖ / Δt for a moving one (`/actors`: the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages), ‖Δp‖ / Δt for a standing one (its velocity 0); absent without a collision (reason `no collision` when the log has moving obstacles)"),
+        "per obstacle, at its first `collision_start` at time t: the relative speed of the vehicle and the obstacle, ‖Δ(p − o)‖ / Δt for a moving one (`/actors`: the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages), ‖Δp‖ / Δt for a standing one (its velocity 0); absent without a collision (reason `no collision` when the log has moving obstacles), and for an obstacle absent at the next `/actors` message (a recorded road user at its last state; reason under `impact_speed_by_actor.<name>`)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
         "planar vehicles: v(0) − v(t_c), t_c the first `collision_start`, or v(0) − min v over the run without a collision; v at a `/state` message = distance to the next `/state` position / the time between them (forward difference); absent for vehicles without a planar position"),
     metric("vehicle_stopped", FRACTION, Shape::Count, &[Topic::State, Topic::Event], new::<VehicleStopped>,
@@ -1578,6 +1578,9 @@ struct Impact {
     actor_at: (f64, f64),
     actor_velocity: Option<(f64, f64)>,
     vehicle_velocity: Option<(f64, f64)>,
+    /// The obstacle no longer existed at the next `/actors` message (a recorded road user at
+    /// its last recorded state): no forward difference.
+    vanished: bool,
 }
 
 #[derive(Default)]
@@ -1595,8 +1598,14 @@ impl Accumulate for ImpactSpeedByActor {
                 for a in &m.actors {
                     for i in self.impacts.iter_mut().filter(|i| i.actor == a.name) {
                         let dt = m.time - i.time;
-                        if i.actor_velocity.is_none() && dt > 0.0 {
-                            i.actor_velocity = Some(((a.x - i.actor_at.0) / dt, (a.y - i.actor_at.1) / dt));
+                        if i.actor_velocity.is_none() && !i.vanished && dt > 0.0 {
+                            // Absent, it is logged where it was last seen: no velocity from that.
+                            match a.absent {
+                                true => i.vanished = true,
+                                false => {
+                                    i.actor_velocity = Some(((a.x - i.actor_at.0) / dt, (a.y - i.actor_at.1) / dt))
+                                }
+                            }
                         }
                     }
                     match self.latest.get_mut(&a.name) {
@@ -1618,6 +1627,7 @@ impl Accumulate for ImpactSpeedByActor {
                                 actor_at: (f64::NAN, f64::NAN),
                                 actor_velocity: Some((0.0, 0.0)),
                                 vehicle_velocity: None,
+                                vanished: false,
                             });
                         }
                         continue;
@@ -1629,6 +1639,7 @@ impl Accumulate for ImpactSpeedByActor {
                             actor_at: (x, y),
                             actor_velocity: None,
                             vehicle_velocity: None,
+                            vanished: false,
                         });
                     }
                 }
@@ -1650,7 +1661,14 @@ impl Accumulate for ImpactSpeedByActor {
                 Some((i.actor.clone(), (vx - ox).hypot(vy - oy)))
             })
             .collect();
-        if speeds.is_empty() && !self.latest.is_empty() {
+        for i in self.impacts.iter().filter(|i| !speeds.contains_key(&i.actor)) {
+            let why = match i.vanished {
+                true => "it no longer exists at the step after its collision (its last recorded state): no forward difference",
+                false => "the log ends at its collision: no next step to difference over",
+            };
+            missing.insert(format!("impact_speed_by_actor.{}", i.actor), why.into());
+        }
+        if self.impacts.is_empty() && !self.latest.is_empty() {
             missing.insert("impact_speed_by_actor".into(), "no collision".into());
         }
         Value::PerChannel((!speeds.is_empty()).then_some(speeds))

@@ -337,17 +337,16 @@ fn relative_impact_kmh(run: &RunResult, target: &str) -> Result<f64, String> {
     if with != target {
         return Err(format!("collided with `{with}`, not the target `{target}`"));
     }
-    match metrics.value("impact_speed_by_actor") {
-        Some(Value::PerChannel(Some(speeds))) => speeds
-            .get(target)
-            .map(|v| v * 3.6)
-            .ok_or_else(|| format!("no impact speed with `{target}`")),
-        _ => Err(format!(
-            "the impact speed is absent ({})",
-            run.missing("impact_speed_by_actor")
-                .unwrap_or_else(|| "no reason given".into())
-        )),
-    }
+    let speed = match metrics.value("impact_speed_by_actor") {
+        Some(Value::PerChannel(Some(speeds))) => speeds.get(target).map(|v| v * 3.6),
+        _ => None,
+    };
+    speed.ok_or_else(|| {
+        let why = (run.missing(&format!("impact_speed_by_actor.{target}")))
+            .or_else(|| run.missing("impact_speed_by_actor"))
+            .unwrap_or_else(|| "no reason given".into());
+        format!("no impact speed with `{target}` ({why})")
+    })
 }
 
 fn ncap_cell(
