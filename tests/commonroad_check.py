@@ -27,7 +27,10 @@ no states after the initial one) are compared at their initial time step only.
 Every `/prediction` entry of a road user is checked against its recorded life span (first and
 last time step): `actor_realized` NaN exactly when it does not exist at the target time (and the
 recorded position at a recorded step), `actor_predicted` NaN when it did not exist at the
-prediction's tick, `actor_error` their distance (NaN when either is).
+prediction's tick, `actor_error` their distance (NaN when either is). The `road_user_entered`
+and `road_user_left` events are checked against the same spans: one at the first logged step at
+or after a first recorded time later than 0, one at the first step after a last recorded time
+before the log's end, and no others.
 
 Prints `commonroad_check: N states compared, M absent, K mismatches` and exits 1 with the
 first 10 mismatches listed when K > 0, or when no `/actors` message fell on a time step.
@@ -174,13 +177,27 @@ def decode_prediction(buf):
     return m
 
 
+def decode_event(buf):
+    """mjsafe.Event { double time = 1; string kind = 2; repeated string participants = 4; }"""
+    m = {"time": 0.0, "kind": "", "participants": []}
+    for field, wire, value in _fields(buf):
+        if field == 1:
+            m["time"] = _double(wire, value, "Event.time")
+        elif field == 2:
+            m["kind"] = bytes(value).decode("utf-8")
+        elif field == 4:
+            m["participants"].append(bytes(value).decode("utf-8"))
+    return m
+
+
 def read_actor_messages(path, topic="/actors", decode=None):
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         for schema, channel, message in reader.iter_messages(topics=[topic]):
-            expected = "mjsafe.Actors" if decode is None else "mjsafe.Prediction"
+            expected = {"/actors": "mjsafe.Actors", "/prediction": "mjsafe.Prediction",
+                        "/event": "mjsafe.Event"}[topic]
             if channel.message_encoding != "protobuf":
                 raise SystemExit(f"commonroad_check: {topic} message encoding is "
                                  f"{channel.message_encoding!r}, expected 'protobuf'")
@@ -427,15 +444,7 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
     controller's assumption (`actor_predicted`) is NaN when it did not exist at the prediction's
     tick; `actor_error` is the distance between the two, NaN when either is. Road users with a
     set-based prediction are left out. Returns (entries checked, NaN errors, mismatches)."""
-    from commonroad.prediction.prediction import SetBasedPrediction
-
-    span = {}
-    for o in scenario.dynamic_obstacles:
-        if o.obstacle_id in ego_ids or isinstance(o.prediction, SetBasedPrediction):
-            continue
-        first = o.initial_state.time_step
-        last = o.prediction.final_time_step if o.prediction is not None else first
-        span[f"cr_{o.obstacle_id}"] = (o, first * dt, last * dt)
+    span = life_spans(scenario, dt, ego_ids)
     checked = without = 0
     mismatches = []
     for m in read_actor_messages(log_path, "/prediction", decode_prediction):
@@ -482,6 +491,55 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
     return checked, without, mismatches
 
 
+def life_spans(scenario, dt, ego_ids):
+    """cr_<id> -> (obstacle, first recorded time, last recorded time) of every road user with
+    recorded states (set-based predictions left out)."""
+    from commonroad.prediction.prediction import SetBasedPrediction
+
+    span = {}
+    for o in scenario.dynamic_obstacles:
+        if o.obstacle_id in ego_ids or isinstance(o.prediction, SetBasedPrediction):
+            continue
+        first = o.initial_state.time_step
+        last = o.prediction.final_time_step if o.prediction is not None else first
+        span[f"cr_{o.obstacle_id}"] = (o, first * dt, last * dt)
+    return span
+
+
+def check_entries(scenario, log_path, dt, ego_ids=()):
+    """The `road_user_entered` / `road_user_left` events against the recorded life spans: within
+    the logged steps (t_0 = 0 < t_1 < … < t_end), a road user whose first recorded time lies in
+    (0, t_end] enters once, at the first step at or after it; one whose last recorded time lies
+    before t_end leaves once, at the first step after it; no other such events. Returns
+    (events checked, mismatches)."""
+    times = [t for _, t, _ in read_actor_messages(log_path)]
+    if len(times) < 2:
+        return 0, []
+    end = times[-1]
+    events = {"road_user_entered": {}, "road_user_left": {}}
+    mismatches = []
+    for e in read_actor_messages(log_path, "/event", decode_event):
+        if e["kind"] in events:
+            for name in e["participants"]:
+                events[e["kind"]].setdefault(name, []).append(e["time"])
+    def first_step(after, strictly):
+        return next((t for t in times if (t > after + TOL if strictly else t >= after - TOL)), None)
+    for name, (_, first, last) in life_spans(scenario, dt, ego_ids).items():
+        expected = {
+            "road_user_entered": [first_step(first, False)] if TOL < first <= end + TOL else [],
+            "road_user_left": [first_step(last, True)] if last < end - TOL else [],
+        }
+        for kind, want in expected.items():
+            got = events[kind].pop(name, [])
+            if len(got) != len(want) or any(abs(g - w) > TOL for g, w in zip(got, want)):
+                mismatches.append(f"{name}: {kind} at {got}, expected at {want} (recorded from "
+                                  f"{first!r} to {last!r} s)")
+    for kind, rest in events.items():
+        for name, got in rest.items():
+            mismatches.append(f"{name}: {kind} at {got}, but it is no recorded road user")
+    return sum(len(v) for v in events.values()), mismatches
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("xml")
@@ -515,6 +573,8 @@ def main(argv=None):
         scenario, args.log, dt, args.set_valued, ego_ids)
     checked, without, prediction_mismatches = check_predictions(scenario, args.log, dt, ego_ids)
     mismatches += prediction_mismatches
+    _, entry_mismatches = check_entries(scenario, args.log, dt, ego_ids)
+    mismatches += entry_mismatches
     print(f"commonroad_check: {checked} road-user predictions checked, {without} without an "
           "error (the road user not there at the tick or at the target time)")
     if set_valued or skipped:

@@ -455,3 +455,71 @@ fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
     );
     assert!(m["missing"].get("impact_speed_by_actor").is_none(), "{m}");
 }
+
+/// Passes every record on and adds a `road_user_entered` event for the walker at the first
+/// step at or after `at` (as a recorded road user whose recording began then would have).
+struct WalkerEntersAt<S> {
+    log: S,
+    at: f64,
+    entered: Option<f64>,
+}
+
+impl<S: mjsafe::log::Sink> mjsafe::log::Sink for WalkerEntersAt<S> {
+    fn record(&mut self, record: &mjsafe::log::Record) -> Result<(), mjsafe::log::LogError> {
+        use mjsafe::log::{proto, Record};
+        if let Record::Actors(m) = record {
+            if self.entered.is_none() && m.time >= self.at {
+                self.entered = Some(m.time);
+                self.log.record(&Record::Event(proto::Event {
+                    time: m.time,
+                    kind: "road_user_entered".into(),
+                    message: "walker enters: its first recorded state".into(),
+                    participants: vec!["walker".into()],
+                    depth: 0.0,
+                }))?;
+            }
+        }
+        self.log.record(record)
+    }
+    fn finish(&mut self, complete: bool) -> Result<(), mjsafe::log::LogError> {
+        self.log.finish(complete)
+    }
+}
+
+/// delay_attributed_violation_time counts from a road user's `road_user_entered` when its
+/// recording begins after it became known: Δt × the steps with its h < 0 within
+/// [entered, entered + max delay), counted here from the raw `/barrier` messages (the walker
+/// collides at 6.074 s; the delays are 0.2 s and 1.5 s).
+#[test]
+fn a_violation_within_the_delay_after_a_road_user_enters_is_attributed_to_the_delay() {
+    use mjsafe::log::{mcap::McapSink, proto};
+    let dir = tempfile::tempdir().unwrap();
+    let loaded = mjsafe::scenario::load(
+        &root().join("tests/data/crossing_walker.toml"),
+        &["actor_knowledge.kind=\"static\"".to_string()],
+    )
+    .unwrap();
+    let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
+    let log = dir.path().join("enters.mcap");
+    let file = McapSink::create(&log, episode.info(), &[]).unwrap();
+    let mut sink = WalkerEntersAt {
+        log: file,
+        at: 5.5,
+        entered: None,
+    };
+    episode.run(&mut [&mut sink]).unwrap();
+    let entered = sink.entered.unwrap();
+    let (max_delay, dt) = (1.5, 0.002);
+    let steps = common::read_topic::<proto::Barrier>(&log, "/barrier")
+        .iter()
+        .filter(|m| m.time >= entered && m.time < entered + max_delay)
+        .filter(|m| m.barriers.iter().any(|b| b.name == "walker" && b.h < 0.0))
+        .count();
+    assert!(steps > 100, "violations after it entered: {steps}");
+    let m = common::analyze_json(&log);
+    let attributed = m["delay_attributed_violation_time"].as_f64().unwrap();
+    assert!(
+        (attributed - steps as f64 * dt).abs() < 1e-9,
+        "{attributed} vs {steps} steps"
+    );
+}

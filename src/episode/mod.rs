@@ -534,7 +534,17 @@ impl Episode {
             o.state = state;
             self.plant.move_obstacle(index, state.position, state.turn);
             // Drawn where it was last (or will be first) seen while it does not exist.
-            o.absent = !motion.exists_at(time);
+            let was_absent = std::mem::replace(&mut o.absent, !motion.exists_at(time));
+            if time > 0.0 && was_absent != o.absent {
+                let (kind, what) = match o.absent {
+                    false => ("road_user_entered", "enters: its first recorded state"),
+                    true => ("road_user_left", "has left: past its last recorded state"),
+                };
+                let event = Self::event(time, kind, format!("{} {what}", o.name), vec![o.name.clone()], 0.0);
+                for sink in sinks.iter_mut() {
+                    sink.record(&event)?;
+                }
+            }
             o.centre = match o.absent {
                 true => motion.state_at(time).position,
                 false => state.position,

@@ -195,7 +195,7 @@ pub static METRICS: &[Metric] = &[
     Metric {
         metadata: &["timestep", "max_delay"],
         ..metric("delay_attributed_violation_time", SECONDS, Shape::Number, &[Topic::Barrier, Topic::Event], new::<DelayAttributed>,
-            "Δt × (steps where an obstacle has h < 0 within [its appearance, appearance + metadata `max_delay`)): violations before the delay since it appeared could be compensated; absent without obstacles")
+            "Δt × (steps where an obstacle has h < 0 within [its appearance, appearance + metadata `max_delay`)): violations before the delay since it appeared could be compensated; its appearance is its `obstacle_appeared` event, or its `road_user_entered` event for a recorded road user whose recording begins later; absent without obstacles")
     },
     Metric {
         metadata: &["control_period"],
@@ -1031,6 +1031,12 @@ impl Accumulate for DelayAttributed {
             Observed::Event(m) if m.kind == "obstacle_appeared" => {
                 for name in &m.participants {
                     self.appeared.entry(name.clone()).or_insert(m.time);
+                }
+            }
+            // A recorded road user known from the start appears when its recording begins.
+            Observed::Event(m) if m.kind == "road_user_entered" => {
+                for name in &m.participants {
+                    self.appeared.insert(name.clone(), m.time);
                 }
             }
             Observed::Barrier(m) => {
