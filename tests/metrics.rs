@@ -6,6 +6,7 @@
 mod common;
 
 use common::{mjsafe, root, run_ok, stdout};
+use mjsafe::log::Record;
 use mjsafe::metrics::builtin::METRICS;
 use mjsafe::metrics::Shape;
 
@@ -393,35 +394,39 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
     assert!(m["missing"].is_null(), "{m}");
 }
 
-/// Passes every record on, but from the step after the first collision on logs the walker as a
-/// recorded road user that ended there: absent, where it was last seen (as the episode logs a
-/// road user past its last recorded state).
-struct WalkerEndsAtTheCollision<S> {
-    log: S,
-    collided: bool,
-    last_seen: Option<(f64, f64)>,
+/// A sink that writes to its log what `edit` makes of each record.
+struct Edited<F> {
+    log: mjsafe::log::mcap::McapSink,
+    edit: F,
 }
 
-impl<S: mjsafe::log::Sink> mjsafe::log::Sink for WalkerEndsAtTheCollision<S> {
-    fn record(&mut self, record: &mjsafe::log::Record) -> Result<(), mjsafe::log::LogError> {
-        use mjsafe::log::Record;
-        match record {
-            Record::Event(e) if e.kind == "collision_start" => self.collided = true,
-            Record::Actors(m) if self.collided => {
-                let mut m = m.clone();
-                for a in m.actors.iter_mut().filter(|a| a.name == "walker") {
-                    let (x, y) = *self.last_seen.get_or_insert((a.x, a.y));
-                    (a.x, a.y, a.vx, a.vy, a.absent) = (x, y, 0.0, 0.0, true);
-                }
-                return self.log.record(&Record::Actors(m));
-            }
-            _ => {}
+impl<F: FnMut(&Record) -> Vec<Record>> mjsafe::log::Sink for Edited<F> {
+    fn record(&mut self, record: &Record) -> Result<(), mjsafe::log::LogError> {
+        for r in (self.edit)(record) {
+            self.log.record(&r)?;
         }
-        self.log.record(record)
+        Ok(())
     }
     fn finish(&mut self, complete: bool) -> Result<(), mjsafe::log::LogError> {
         self.log.finish(complete)
     }
+}
+
+/// The run of tests/data/crossing_walker.toml with the walker assumed static (a collision at
+/// 6.074 s; delays 0.2 s and 1.5 s), logged to `log` as `edit` rewrites each record: the log a
+/// recorded road user with another life span would have given.
+fn static_walker_run_edited(log: &std::path::Path, edit: impl FnMut(&Record) -> Vec<Record>) {
+    let loaded = mjsafe::scenario::load(
+        &root().join("tests/data/crossing_walker.toml"),
+        &["actor_knowledge.kind=\"static\"".to_string()],
+    )
+    .unwrap();
+    let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
+    let mut sink = Edited {
+        log: mjsafe::log::mcap::McapSink::create(log, episode.info(), &[]).unwrap(),
+        edit,
+    };
+    episode.run(&mut [&mut sink]).unwrap();
 }
 
 /// A road user whose recording ends at its collision has no velocity after it: its impact speed
@@ -429,23 +434,27 @@ impl<S: mjsafe::log::Sink> mjsafe::log::Sink for WalkerEndsAtTheCollision<S> {
 /// user's frozen last position), and the run is not said to have had no collision.
 #[test]
 fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
-    use mjsafe::log::mcap::McapSink;
     let dir = tempfile::tempdir().unwrap();
-    let loaded = mjsafe::scenario::load(
-        &root().join("tests/data/crossing_walker.toml"),
-        &["actor_knowledge.kind=\"static\"".to_string()],
-    )
-    .unwrap();
-    let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
     let log = dir.path().join("ends.mcap");
-    let file = McapSink::create(&log, episode.info(), &[]).unwrap();
-    let mut sink = WalkerEndsAtTheCollision {
-        log: file,
-        collided: false,
-        last_seen: None,
-    };
-    episode.run(&mut [&mut sink]).unwrap();
-    assert!(sink.collided, "the static assumption collides");
+    // From the step after the collision on, the walker is absent where it was last seen, as
+    // the episode logs a road user past its last recorded state.
+    let (mut collided, mut last_seen) = (false, None);
+    static_walker_run_edited(&log, |record| match record {
+        Record::Event(e) if e.kind == "collision_start" => {
+            collided = true;
+            vec![record.clone()]
+        }
+        Record::Actors(m) if collided => {
+            let mut m = m.clone();
+            for a in m.actors.iter_mut().filter(|a| a.name == "walker") {
+                let (x, y) = *last_seen.get_or_insert((a.x, a.y));
+                (a.x, a.y, a.vx, a.vy, a.absent) = (x, y, 0.0, 0.0, true);
+            }
+            vec![Record::Actors(m)]
+        }
+        _ => vec![record.clone()],
+    });
+    assert!(collided, "the static assumption collides");
     let m = common::analyze_json(&log);
     assert!(m["collision"].is_object(), "{m}");
     assert!(m["impact_speed_by_actor"].is_null(), "{m}");
@@ -456,59 +465,31 @@ fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
     assert!(m["missing"].get("impact_speed_by_actor").is_none(), "{m}");
 }
 
-/// Passes every record on and adds a `road_user_entered` event for the walker at the first
-/// step at or after `at` (as a recorded road user whose recording began then would have).
-struct WalkerEntersAt<S> {
-    log: S,
-    at: f64,
-    entered: Option<f64>,
-}
-
-impl<S: mjsafe::log::Sink> mjsafe::log::Sink for WalkerEntersAt<S> {
-    fn record(&mut self, record: &mjsafe::log::Record) -> Result<(), mjsafe::log::LogError> {
-        use mjsafe::log::{proto, Record};
-        if let Record::Actors(m) = record {
-            if self.entered.is_none() && m.time >= self.at {
-                self.entered = Some(m.time);
-                self.log.record(&Record::Event(proto::Event {
-                    time: m.time,
-                    kind: "road_user_entered".into(),
-                    message: "walker enters: its first recorded state".into(),
-                    participants: vec!["walker".into()],
-                    depth: 0.0,
-                }))?;
-            }
-        }
-        self.log.record(record)
-    }
-    fn finish(&mut self, complete: bool) -> Result<(), mjsafe::log::LogError> {
-        self.log.finish(complete)
-    }
-}
-
 /// delay_attributed_violation_time counts from a road user's `road_user_entered` when its
 /// recording begins after it became known: Δt × the steps with its h < 0 within
-/// [entered, entered + max delay), counted here from the raw `/barrier` messages (the walker
-/// collides at 6.074 s; the delays are 0.2 s and 1.5 s).
+/// [entered, entered + max delay), counted here from the raw `/barrier` messages.
 #[test]
 fn a_violation_within_the_delay_after_a_road_user_enters_is_attributed_to_the_delay() {
-    use mjsafe::log::{mcap::McapSink, proto};
+    use mjsafe::log::proto;
     let dir = tempfile::tempdir().unwrap();
-    let loaded = mjsafe::scenario::load(
-        &root().join("tests/data/crossing_walker.toml"),
-        &["actor_knowledge.kind=\"static\"".to_string()],
-    )
-    .unwrap();
-    let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
     let log = dir.path().join("enters.mcap");
-    let file = McapSink::create(&log, episode.info(), &[]).unwrap();
-    let mut sink = WalkerEntersAt {
-        log: file,
-        at: 5.5,
-        entered: None,
-    };
-    episode.run(&mut [&mut sink]).unwrap();
-    let entered = sink.entered.unwrap();
+    // The walker's recording "begins" at the first step from 5.5 s on.
+    let mut entered = None;
+    static_walker_run_edited(&log, |record| match record {
+        Record::Actors(m) if entered.is_none() && m.time >= 5.5 => {
+            entered = Some(m.time);
+            let event = proto::Event {
+                time: m.time,
+                kind: "road_user_entered".into(),
+                message: "walker enters: its first recorded state".into(),
+                participants: vec!["walker".into()],
+                depth: 0.0,
+            };
+            vec![Record::Event(event), record.clone()]
+        }
+        _ => vec![record.clone()],
+    });
+    let entered = entered.unwrap();
     let (max_delay, dt) = (1.5, 0.002);
     let steps = common::read_topic::<proto::Barrier>(&log, "/barrier")
         .iter()
