@@ -190,7 +190,9 @@ def decode_event(buf):
     return m
 
 
-def read_actor_messages(path, topic="/actors", decode=None):
+def read_messages(path, topic="/actors", decode=None):
+    """The log's `topic` messages (CRCs checked): (log_time, time, actors) of each `/actors`
+    message, or what `decode` makes of each message of another topic."""
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
@@ -373,7 +375,7 @@ def compare_state(actor, state, mode):
     return ("; ".join(problems) if problems else None), set_valued
 
 
-def check_log(scenario, log_path, dt, mode, ego_ids=()):
+def check_log(scenario, log_path, dt, mode, ego_ids=(), times=None):
     from commonroad.prediction.prediction import SetBasedPrediction
 
     # A road user listed under a planning problem's id is the ego itself (two commonroad-crime
@@ -385,8 +387,10 @@ def check_log(scenario, log_path, dt, mode, ego_ids=()):
     known = {f"cr_{o.obstacle_id}" for o in obstacles}
     compared = absent = set_valued_count = skipped = messages = on_step = 0
     mismatches = []
-    for log_time, t, actors in read_actor_messages(log_path):
+    for log_time, t, actors in read_messages(log_path):
         messages += 1
+        if times is not None:
+            times.append(t)
         if log_time != round(t * 1e9):
             mismatches.append(f"/actors at t={t!r}: log_time {log_time} ns is not its time")
         k = round(t / dt)
@@ -447,7 +451,7 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
     span = life_spans(scenario, dt, ego_ids)
     checked = without = 0
     mismatches = []
-    for m in read_actor_messages(log_path, "/prediction", decode_prediction):
+    for m in read_messages(log_path, "/prediction", decode_prediction):
         n = len(m["actors"])
         if len(m["actor_predicted"]) != 2 * n or len(m["actor_realized"]) != 2 * n \
                 or len(m["actor_error"]) != n:
@@ -506,19 +510,18 @@ def life_spans(scenario, dt, ego_ids):
     return span
 
 
-def check_entries(scenario, log_path, dt, ego_ids=()):
+def check_entries(scenario, log_path, dt, times, ego_ids=()):
     """The `road_user_entered` / `road_user_left` events against the recorded life spans: within
     the logged steps (t_0 = 0 < t_1 < … < t_end), a road user whose first recorded time lies in
     (0, t_end] enters once, at the first step at or after it; one whose last recorded time lies
     before t_end leaves once, at the first step after it; no other such events. Returns
-    (events checked, mismatches)."""
-    times = [t for _, t, _ in read_actor_messages(log_path)]
+    (events checked, mismatches). `times`: the times of the log's `/actors` messages."""
     if len(times) < 2:
         return 0, []
     end = times[-1]
     events = {"road_user_entered": {}, "road_user_left": {}}
     mismatches = []
-    for e in read_actor_messages(log_path, "/event", decode_event):
+    for e in read_messages(log_path, "/event", decode_event):
         if e["kind"] in events:
             for name in e["participants"]:
                 events[e["kind"]].setdefault(name, []).append(e["time"])
@@ -569,11 +572,12 @@ def main(argv=None):
         return 0
 
     ego_ids = {pp.planning_problem_id for pp in pps.planning_problem_dict.values()}
+    times = []
     messages, on_step, compared, absent, set_valued, skipped, mismatches = check_log(
-        scenario, args.log, dt, args.set_valued, ego_ids)
+        scenario, args.log, dt, args.set_valued, ego_ids, times)
     checked, without, prediction_mismatches = check_predictions(scenario, args.log, dt, ego_ids)
     mismatches += prediction_mismatches
-    _, entry_mismatches = check_entries(scenario, args.log, dt, ego_ids)
+    _, entry_mismatches = check_entries(scenario, args.log, dt, times, ego_ids)
     mismatches += entry_mismatches
     print(f"commonroad_check: {checked} road-user predictions checked, {without} without an "
           "error (the road user not there at the tick or at the target time)")
