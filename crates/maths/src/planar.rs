@@ -105,6 +105,125 @@ pub fn polyline_distance(points: &[[f64; 2]], p: [f64; 2]) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// Consecutive points per block of a [`Blocks`] index.
+const BLOCK: usize = 16;
+
+/// An index of a point sequence for exact nearest searches that skip most of it: the points in
+/// blocks of 16 consecutive ones, each with a circle holding them and the next block's first
+/// point (so the segment joining two blocks too). No point or segment of a block is nearer to q
+/// than ‖q − c‖ − r; a search visits the block of the least such bound first and then only the
+/// blocks whose bound does not exceed the best distance found. The answers are the linear
+/// scan's to the bit (the same values, the same tie rule).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Blocks {
+    /// Per block, the centre and radius of its circle.
+    circles: Vec<([f64; 2], f64)>,
+    points: usize,
+}
+
+impl Blocks {
+    /// The index of `points`.
+    pub fn new(points: &[[f64; 2]]) -> Blocks {
+        let circles = (0..points.len())
+            .step_by(BLOCK)
+            .map(|first| {
+                let span = &points[first..(first + BLOCK + 1).min(points.len())];
+                let (mut lo, mut hi) = (span[0], span[0]);
+                for p in span {
+                    lo = [lo[0].min(p[0]), lo[1].min(p[1])];
+                    hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+                }
+                let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+                let radius = span
+                    .iter()
+                    .map(|p| (p[0] - centre[0]).hypot(p[1] - centre[1]))
+                    .fold(0.0, f64::max);
+                (centre, radius)
+            })
+            .collect();
+        Blocks {
+            circles,
+            points: points.len(),
+        }
+    }
+
+    /// Whether block b may hold a point or segment within `best` of q: false only when its
+    /// bound exceeds `best` by more than rounding (NaN never prunes).
+    #[inline]
+    fn may_hold(&self, b: usize, q: [f64; 2], best: f64) -> bool {
+        let (c, r) = self.circles[b];
+        let to_centre = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt();
+        let bound = to_centre - r - 1e-9 * (1.0 + to_centre + r);
+        bound.is_nan() || bound <= best
+    }
+
+    /// The block of the least bound from q (0 when none is finite).
+    fn seed(&self, q: [f64; 2]) -> usize {
+        let mut seed = (f64::INFINITY, 0);
+        for (b, (c, r)) in self.circles.iter().enumerate() {
+            let bound = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt() - r;
+            if bound < seed.0 {
+                seed = (bound, b);
+            }
+        }
+        seed.1
+    }
+
+    /// The indices of block b's points.
+    fn range(&self, b: usize) -> std::ops::Range<usize> {
+        b * BLOCK..((b + 1) * BLOCK).min(self.points)
+    }
+
+    /// The first of the indexed `points` at the least squared distance from q (0 when q is
+    /// not finite), and that squared distance: the linear scan's answer.
+    pub fn nearest_point(&self, points: &[[f64; 2]], q: [f64; 2]) -> (usize, f64) {
+        debug_assert_eq!(points.len(), self.points);
+        let mut best = (f64::INFINITY, 0);
+        let scan = |b: usize, best: &mut (f64, usize)| {
+            for k in self.range(b) {
+                let d2 = (points[k][0] - q[0]).powi(2) + (points[k][1] - q[1]).powi(2);
+                if d2 < best.0 || (d2 == best.0 && k < best.1) {
+                    *best = (d2, k);
+                }
+            }
+        };
+        if self.circles.is_empty() {
+            return (0, f64::INFINITY);
+        }
+        let seed = self.seed(q);
+        scan(seed, &mut best);
+        for b in (0..self.circles.len()).filter(|&b| b != seed) {
+            if self.may_hold(b, q, best.0.sqrt()) {
+                scan(b, &mut best);
+            }
+        }
+        (best.1, best.0)
+    }
+
+    /// The distance from q to the polyline through the indexed `points` ([`polyline_distance`]).
+    pub fn polyline_distance(&self, points: &[[f64; 2]], q: [f64; 2]) -> f64 {
+        debug_assert_eq!(points.len(), self.points);
+        if self.circles.is_empty() {
+            return f64::INFINITY;
+        }
+        // Block b holds the segments starting at its points (the last joins the next block).
+        let scan = |b: usize, best: f64| {
+            self.range(b)
+                .filter(|&k| k + 1 < points.len())
+                .map(|k| project_on_segment(points[k], points[k + 1], q).1)
+                .fold(best, f64::min)
+        };
+        let seed = self.seed(q);
+        let mut best = scan(seed, f64::INFINITY);
+        for b in (0..self.circles.len()).filter(|&b| b != seed) {
+            if self.may_hold(b, q, best) {
+                best = scan(b, best);
+            }
+        }
+        best
+    }
+}
+
 /// Whether p lies inside the polygon (even-odd rule; the last point joins the first).
 pub fn polygon_contains(polygon: &[[f64; 2]], p: [f64; 2]) -> bool {
     let n = polygon.len();
@@ -129,6 +248,68 @@ pub fn polygon_boundary_distance(polygon: &[[f64; 2]], p: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The block index answers as the linear scans do, to the bit, on winding polylines with
+    /// repeated points and on points all equally far from the query (the first one wins).
+    #[test]
+    fn blocks_answer_as_the_linear_scan() {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let scan = |points: &[[f64; 2]], q: [f64; 2]| {
+            let mut best = (f64::INFINITY, 0);
+            for (k, p) in points.iter().enumerate() {
+                let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+                if d2 < best.0 {
+                    best = (d2, k);
+                }
+            }
+            (best.1, best.0)
+        };
+        for n in [1, 2, 15, 16, 17, 33, 300] {
+            let mut points = Vec::new();
+            let (mut x, mut y, mut heading) = (1e5, -3e4, 0.0_f64);
+            for k in 0..n {
+                heading += 0.6 * (uniform() - 0.5);
+                x += 2.0 * heading.cos();
+                y += 2.0 * heading.sin();
+                points.push([x, y]);
+                if k % 7 == 3 {
+                    points.push([x, y]);
+                }
+            }
+            let blocks = Blocks::new(&points);
+            for _ in 0..200 {
+                let centre = points[(uniform() * points.len() as f64) as usize];
+                let spread = [0.1, 3.0, 50.0, 5e3][(uniform() * 4.0) as usize];
+                let q = [
+                    centre[0] + spread * (uniform() - 0.5),
+                    centre[1] + spread * (uniform() - 0.5),
+                ];
+                assert_eq!(blocks.nearest_point(&points, q), scan(&points, q));
+                assert_eq!(
+                    blocks.polyline_distance(&points, q).to_bits(),
+                    polyline_distance(&points, q).to_bits()
+                );
+            }
+            assert_eq!(blocks.nearest_point(&points, [f64::NAN, 0.0]).0, 0);
+        }
+        // 64 points on a circle around q, some repeated: the first of the nearest.
+        let ring: Vec<[f64; 2]> = (0..64)
+            .map(|k| {
+                let a = std::f64::consts::TAU * (k % 40) as f64 / 40.0;
+                [3.0 * a.cos(), 3.0 * a.sin()]
+            })
+            .collect();
+        let blocks = Blocks::new(&ring);
+        for q in [[0.0, 0.0], [0.5, -0.25], [3.0, 0.0], [-2.9, 0.1]] {
+            assert_eq!(blocks.nearest_point(&ring, q), scan(&ring, q));
+        }
+    }
 
     /// By hand: a unit square, a point-segment, a resampled L.
     #[test]

@@ -14,6 +14,8 @@
 //!    (sampled 16 times per piece both ways), is added to the margin: h = ±e − ρ − δ ≥ 0 keeps a
 //!    circle of radius ρ at least δ from the smooth curve, so clear of the polyline itself.
 
+use crate::planar::Blocks;
+
 /// The resampling step (m).
 pub const SPACING: f64 = 2.0;
 /// Most samples of one curve.
@@ -28,6 +30,9 @@ pub struct SmoothCurve {
     x: Vec<[f64; 4]>,
     y: Vec<[f64; 4]>,
     deviation: f64,
+    /// The samples' positions (where the pieces meet) and their [`Blocks`] index.
+    samples: Vec<[f64; 2]>,
+    blocks: Blocks,
     /// Which curve this is, for [`SmoothCurve::nearest`]'s memo (not part of its value).
     id: CurveId,
 }
@@ -93,14 +98,24 @@ impl SmoothCurve {
             y: crate::planar::natural_spline(&s, &ys),
             s,
             deviation: 0.0,
+            samples: Vec::new(),
+            blocks: Blocks::default(),
             id: CurveId::next(),
         };
+        curve.samples = (0..curve.s.len())
+            .map(|k| match k < curve.x.len() {
+                true => [curve.x[k][0], curve.y[k][0]],
+                false => curve.point_at(curve.s[k]),
+            })
+            .collect();
+        curve.blocks = Blocks::new(&curve.samples);
+        let polyline = Blocks::new(points);
         // δ: both ways, 16 points per piece and every polyline point.
         let mut deviation: f64 = 0.0;
         for k in 0..curve.x.len() {
             for j in 0..16 {
                 let at = curve.s[k] + (curve.s[k + 1] - curve.s[k]) * j as f64 / 16.0;
-                deviation = deviation.max(crate::planar::polyline_distance(points, curve.point_at(at)));
+                deviation = deviation.max(polyline.polyline_distance(points, curve.point_at(at)));
             }
         }
         for p in points {
@@ -149,7 +164,7 @@ impl SmoothCurve {
     /// The curve's samples (where its cubic pieces meet), from s = 0 to its end: points on the
     /// curve, which lies within [`SmoothCurve::deviation`] of the polyline it was built from.
     pub fn samples(&self) -> Vec<[f64; 2]> {
-        self.s.iter().map(|&s| self.point_at(s)).collect()
+        self.samples.clone()
     }
 
     /// The curve's point at s.
@@ -173,18 +188,8 @@ impl SmoothCurve {
 
     /// [`SmoothCurve::nearest`] without the memo.
     fn search_nearest(&self, q: [f64; 2]) -> Nearest {
-        let mut best = (f64::INFINITY, 0.0);
-        for (k, &s) in self.s.iter().enumerate() {
-            let p = match k < self.x.len() {
-                true => [self.x[k][0], self.y[k][0]],
-                false => self.point_at(s),
-            };
-            let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
-            if d2 < best.0 {
-                best = (d2, s);
-            }
-        }
-        let mut s = best.1;
+        // The nearest sample (the first of equal ones), found without visiting most.
+        let mut s = self.s[self.blocks.nearest_point(&self.samples, q).0];
         for _ in 0..20 {
             let [c, d1, d2] = self.derivatives(s);
             let r = [c[0] - q[0], c[1] - q[1]];
