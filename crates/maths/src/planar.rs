@@ -147,12 +147,18 @@ impl Blocks {
         }
     }
 
+    /// ‖q − c‖ and r of block b's circle: nothing in it is nearer to q than their difference.
+    #[inline]
+    fn reach(&self, b: usize, q: [f64; 2]) -> (f64, f64) {
+        let (c, r) = self.circles[b];
+        (((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt(), r)
+    }
+
     /// Whether block b may hold a point or segment within `best` of q: false only when its
     /// bound exceeds `best` by more than rounding (NaN never prunes).
     #[inline]
     fn may_hold(&self, b: usize, q: [f64; 2], best: f64) -> bool {
-        let (c, r) = self.circles[b];
-        let to_centre = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt();
+        let (to_centre, r) = self.reach(b, q);
         let bound = to_centre - r - 1e-9 * (1.0 + to_centre + r);
         bound.is_nan() || bound <= best
     }
@@ -160,10 +166,10 @@ impl Blocks {
     /// The block of the least bound from q (0 when none is finite).
     fn seed(&self, q: [f64; 2]) -> usize {
         let mut seed = (f64::INFINITY, 0);
-        for (b, (c, r)) in self.circles.iter().enumerate() {
-            let bound = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt() - r;
-            if bound < seed.0 {
-                seed = (bound, b);
+        for b in 0..self.circles.len() {
+            let (to_centre, r) = self.reach(b, q);
+            if to_centre - r < seed.0 {
+                seed = (to_centre - r, b);
             }
         }
         seed.1
@@ -174,53 +180,57 @@ impl Blocks {
         b * BLOCK..((b + 1) * BLOCK).min(self.points)
     }
 
+    /// The search every query shares: `scan` folds the points of a block's index range into
+    /// `best`, the seed block first, then every block that may hold something within
+    /// `distance(best)` of q.
+    fn search<T>(
+        &self,
+        q: [f64; 2],
+        mut best: T,
+        distance: impl Fn(&T) -> f64,
+        scan: impl Fn(std::ops::Range<usize>, T) -> T,
+    ) -> T {
+        if self.circles.is_empty() {
+            return best;
+        }
+        let seed = self.seed(q);
+        best = scan(self.range(seed), best);
+        for b in (0..self.circles.len()).filter(|&b| b != seed) {
+            if self.may_hold(b, q, distance(&best)) {
+                best = scan(self.range(b), best);
+            }
+        }
+        best
+    }
+
     /// The first of the indexed `points` at the least squared distance from q (0 when q is
     /// not finite), and that squared distance: the linear scan's answer.
     pub fn nearest_point(&self, points: &[[f64; 2]], q: [f64; 2]) -> (usize, f64) {
         debug_assert_eq!(points.len(), self.points);
-        let mut best = (f64::INFINITY, 0);
-        let scan = |b: usize, best: &mut (f64, usize)| {
-            for k in self.range(b) {
+        let scan = |range: std::ops::Range<usize>, mut best: (f64, usize)| {
+            for k in range {
                 let d2 = (points[k][0] - q[0]).powi(2) + (points[k][1] - q[1]).powi(2);
                 if d2 < best.0 || (d2 == best.0 && k < best.1) {
-                    *best = (d2, k);
+                    best = (d2, k);
                 }
             }
+            best
         };
-        if self.circles.is_empty() {
-            return (0, f64::INFINITY);
-        }
-        let seed = self.seed(q);
-        scan(seed, &mut best);
-        for b in (0..self.circles.len()).filter(|&b| b != seed) {
-            if self.may_hold(b, q, best.0.sqrt()) {
-                scan(b, &mut best);
-            }
-        }
-        (best.1, best.0)
+        let (d2, k) = self.search(q, (f64::INFINITY, 0), |best| best.0.sqrt(), scan);
+        (k, d2)
     }
 
     /// The distance from q to the polyline through the indexed `points` ([`polyline_distance`]).
     pub fn polyline_distance(&self, points: &[[f64; 2]], q: [f64; 2]) -> f64 {
         debug_assert_eq!(points.len(), self.points);
-        if self.circles.is_empty() {
-            return f64::INFINITY;
-        }
         // Block b holds the segments starting at its points (the last joins the next block).
-        let scan = |b: usize, best: f64| {
-            self.range(b)
+        let scan = |range: std::ops::Range<usize>, best: f64| {
+            range
                 .filter(|&k| k + 1 < points.len())
                 .map(|k| project_on_segment(points[k], points[k + 1], q).1)
                 .fold(best, f64::min)
         };
-        let seed = self.seed(q);
-        let mut best = scan(seed, f64::INFINITY);
-        for b in (0..self.circles.len()).filter(|&b| b != seed) {
-            if self.may_hold(b, q, best) {
-                best = scan(b, best);
-            }
-        }
-        best
+        self.search(q, f64::INFINITY, |best| *best, scan)
     }
 }
 
