@@ -23,6 +23,46 @@ pub(super) struct RecordBuffers {
     pub(super) actors: Option<Record>,
     /// One prediction record per channel (each names its channel once).
     predictions: Vec<Record>,
+    /// Each obstacle's place among the controller's known moving actors.
+    pub(super) actor_slots: ActorSlots,
+}
+
+/// Per obstacle, its place in the order of [`ControlLoop::moving_actors`] (the order of the
+/// controller's predicted actor positions), found by its first barrier's name: one look-up
+/// per obstacle when the known barriers change, instead of a search by name per obstacle at
+/// every prediction and scene frame (quadratic in the number of road users).
+#[derive(Default)]
+pub(super) struct ActorSlots {
+    /// How many barriers the controller knew when `slots` was built (None: never built).
+    built_for: Option<usize>,
+    slots: Vec<Option<usize>>,
+}
+
+impl ActorSlots {
+    /// Rebuilds the slots if the controller's known barriers changed since they were built.
+    pub(super) fn refresh(&mut self, control: &ControlLoop, obstacles: &[Obstacle]) {
+        let known = control.known_barriers().len();
+        if self.built_for == Some(known) {
+            return;
+        }
+        // The first actor of each name, as a search from the front finds it.
+        let mut first: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+        for (k, (name, _)) in control.moving_actors().enumerate() {
+            first.entry(name).or_insert(k);
+        }
+        self.slots.clear();
+        self.slots.extend(
+            obstacles
+                .iter()
+                .map(|o| o.barriers.first().and_then(|b| first.get(b.name.as_str()).copied())),
+        );
+        self.built_for = Some(known);
+    }
+
+    /// Obstacle i's place among the first `known` moving actors, if it is one of them.
+    pub(super) fn slot(&self, i: usize, known: usize) -> Option<usize> {
+        self.slots.get(i).copied().flatten().filter(|&k| k < known)
+    }
 }
 
 impl RecordBuffers {
@@ -75,6 +115,7 @@ impl RecordBuffers {
                     })
                 })
                 .collect(),
+            actor_slots: ActorSlots::default(),
         }
     }
 
@@ -113,7 +154,8 @@ impl RecordBuffers {
         actor_error.clear();
         let known = c.actors_predicted.len() / 2;
         let (tick, target_time) = (c.prediction.issued_at, c.prediction.target_time);
-        for o in obstacles {
+        self.actor_slots.refresh(control, obstacles);
+        for (i, o) in obstacles.iter().enumerate() {
             let Some(motion) = &o.motion else { continue };
             // A road user that does not exist at the target time has no true position, and one
             // that did not exist at the tick was not predicted (the controller held it parked):
@@ -122,8 +164,7 @@ impl RecordBuffers {
                 true => motion.state_at(target_time).position,
                 false => [f64::NAN; 2],
             };
-            let assumed = (control.moving_actors().take(known))
-                .position(|(name, _)| name == o.barriers[0].name)
+            let assumed = (self.actor_slots.slot(i, known))
                 .filter(|_| motion.exists_at(tick))
                 .map_or([f64::NAN; 2], |k| {
                     [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
@@ -418,6 +459,7 @@ impl Episode {
         }
         let frame = k / self.scene.frame_steps;
         let last_frame = k + self.scene.frame_steps > self.steps;
+        self.records.actor_slots.refresh(&self.control, &self.obstacles);
         for view in &mut self.scene.actors {
             let o = &self.obstacles[view.obstacle];
             let centre = o.centre;
@@ -439,8 +481,7 @@ impl Episode {
                 Self::emit_ref(sinks, &view.record)?;
             }
             for (channel, assumed) in self.control.latest_actor_predictions() {
-                let mut known = self.control.moving_actors().take(assumed.len() / 2);
-                let Some(a) = known.position(|(name, _)| name == o.barriers[0].name) else {
+                let Some(a) = self.records.actor_slots.slot(view.obstacle, assumed.len() / 2) else {
                     continue;
                 };
                 let Some((id, record)) = view.predictions.get_mut(channel) else {
