@@ -474,25 +474,56 @@ fn a_standing_obstacle_has_an_impact_speed() {
 /// command: the issued and applied commands and the states are byte for byte those of the run
 /// without them (issue "Real traffic", part 8). They still cost (docs/performance.md): leaving
 /// them out of the QP is what this test guards.
+/// `count` road users a kilometre away from the CCRm test, driving along beside it (rows of
+/// 200, 50 m apart).
+fn far_road_users(count: usize) -> String {
+    (0..count)
+        .map(|k| {
+            format!(
+                "\n[[obstacles]]\nname = \"far_{k}\"\ncentre = [{}, {}]\nradius = 1.0\n[obstacles.motion]\nkind = \"straight\"\ndirection = [1.0, 0.0]\nspeed = {}\n",
+                -500.0 + 10.0 * (k % 200) as f64,
+                1000.0 + 5.0 * (k % 7) as f64 + 50.0 * (k / 200) as f64,
+                10.0 + (k % 5) as f64
+            )
+        })
+        .collect()
+}
+
+/// The CCRm world with its model path made absolute (for a scenario written elsewhere).
+fn ccrm_text() -> String {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::fs::read_to_string(root.join("scenarios/ncap_ccrm.toml"))
+        .unwrap()
+        .replace("\"../models/", &format!("\"{}/models/", root.display()))
+}
+
+/// Each moving road user is a mocap body, and MuJoCo 2.2.2's collision takes about nbody² / 2
+/// integers of its stack: the CCRm model's `nstack` (100 000 doubles) held about 433 of them,
+/// and more failed with MuJoCo's own "Stack overflow". mjsafe now sizes the stack for the
+/// bodies it adds; past what it allows, one line names the obstacles.
+#[test]
+fn many_road_users_fit_in_mujocos_stack() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("many.mcap");
+    let many = write(dir.path(), "many.toml", &(ccrm_text() + &far_road_users(600)));
+    run_ok(&many, &log, &["--set", "duration=0.02"]);
+    assert_eq!(read_topic::<proto::Actors>(&log, "/actors")[0].actors.len(), 601);
+    let too_many = write(dir.path(), "too_many.toml", &(ccrm_text() + &far_road_users(7500)));
+    let o = mjsafe(&["run", too_many.to_str().unwrap(), "--out", log.to_str().unwrap()]);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("too_many.toml") && err.contains("`obstacles`") && err.contains("7500 moving obstacles"),
+        "{err}"
+    );
+    assert!(!err.contains("Stack overflow"), "{err}");
+}
+
 #[test]
 fn two_hundred_far_road_users_change_no_command() {
     let dir = tempfile::tempdir().unwrap();
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let base = std::fs::read_to_string(root.join("scenarios/ncap_ccrm.toml"))
-        .unwrap()
-        .replace("\"../models/", &format!("\"{}/models/", root.display()));
-    let far = |count: usize| -> String {
-        (0..count)
-            .map(|k| {
-                format!(
-                    "\n[[obstacles]]\nname = \"far_{k}\"\ncentre = [{}, {}]\nradius = 1.0\n[obstacles.motion]\nkind = \"straight\"\ndirection = [1.0, 0.0]\nspeed = {}\n",
-                    -500.0 + 10.0 * k as f64,
-                    1000.0 + 5.0 * (k % 7) as f64,
-                    10.0 + (k % 5) as f64
-                )
-            })
-            .collect()
-    };
+    let (base, far) = (ccrm_text(), far_road_users);
     let (near, one_far, with_far) = (
         dir.path().join("near.mcap"),
         dir.path().join("one.mcap"),

@@ -250,6 +250,15 @@ fn model_with_obstacles(
         });
     }
     let mut text = format!("{}{}{}", &xml[..at], geoms, &xml[at..]);
+    if let Some(stack) = stack_for_bodies(xml, geoms.matches("<body ").count(), loaded, model_path)? {
+        let Some(end) = text.rfind("</mujoco>") else {
+            return Err(loaded.field_error(
+                "vehicle.model",
+                format!("{}: expected the end tag </mujoco>", model_path.display()),
+            ));
+        };
+        text.insert_str(end, &format!("  <size nstack=\"{stack}\"/>\n"));
+    }
     if let Some(hull) = hull {
         let (size, pos) = match &sc.vehicle.footprint {
             Some(f) => (
@@ -275,6 +284,45 @@ fn model_with_obstacles(
         text.insert_str(end, &geom);
     }
     Ok(text)
+}
+
+/// MuJoCo 2.2.2's default stack when a model declares no `<size nstack>` (doubles, ~10 MB).
+const DEFAULT_NSTACK: f64 = 1_250_000.0;
+
+/// The `nstack` the model needs once `added` mocap bodies are in it, when its own (declared, or
+/// MuJoCo's default) is too small; None when it suffices (the text is left as it was). MuJoCo
+/// 2.2.2's collision takes about nbody² / 2 integers of the stack (measured: with `nstack`
+/// 100 000, 200 000 and 400 000 doubles the bicycle model loads with at most about 433, 620
+/// and 881 moving obstacles; beyond, `mj_loadXML` fails with "Stack overflow"): the model's
+/// own stack plus nbody² doubles (twice that) is asked for. An error, naming the number of
+/// obstacles, when that exceeds [`crate::mujoco::MAX_NSTACK`].
+fn stack_for_bodies(
+    xml: &str,
+    added: usize,
+    loaded: &LoadedScenario,
+    model_path: &std::path::Path,
+) -> Result<Option<u64>, ScenarioError> {
+    let (declared, bodies) = crate::mujoco::last_attribute_and_count(xml, ("size", "nstack"), "body");
+    let own = (declared.and_then(|v| v.trim().parse::<f64>().ok()))
+        .filter(|v| *v >= 0.0)
+        .unwrap_or(DEFAULT_NSTACK);
+    // (The world body, the model's bodies and the added ones.)
+    let nbody = (1 + bodies + added) as f64;
+    if added == 0 || nbody * nbody <= own {
+        return Ok(None);
+    }
+    let stack = own + nbody * nbody;
+    if stack > crate::mujoco::MAX_NSTACK {
+        return Err(loaded.field_error(
+            "obstacles",
+            format!(
+                "{added} moving obstacles in {}: MuJoCo's collision would need a stack of about {stack:.0} doubles, more than mjsafe allows ({}); expected fewer moving obstacles",
+                model_path.display(),
+                crate::mujoco::MAX_NSTACK
+            ),
+        ));
+    }
+    Ok(Some(stack.ceil() as u64))
 }
 
 pub(super) fn obstacle_geom_name(index: usize) -> String {

@@ -9,6 +9,7 @@
 pub(crate) mod counting_alloc;
 mod ffi;
 mod sizes;
+pub use sizes::{last_attribute_and_count, MAX_NSTACK};
 
 use std::cell::RefCell;
 use std::ffi::{CStr, CString};

@@ -9,11 +9,14 @@
 
 use std::path::{Path, PathBuf};
 
+/// Most doubles of MuJoCo's stack (`<size nstack>`) a model may ask for (400 MB).
+pub const MAX_NSTACK: f64 = 50_000_000.0;
+
 /// (element, attribute, most): single attributes that size an allocation.
 const SINGLE: [(&str, &str, f64); 14] = [
     ("size", "nkey", 10_000.0),
     ("size", "nuserdata", 10_000_000.0),
-    ("size", "nstack", 50_000_000.0),
+    ("size", "nstack", MAX_NSTACK),
     ("size", "njmax", 1_000_000.0),
     ("size", "nconmax", 100_000.0),
     ("size", "nuser_body", 1_000.0),
@@ -101,6 +104,23 @@ fn product(value: &str) -> Option<f64> {
         .split_whitespace()
         .map(|w| w.parse::<f64>().ok())
         .try_fold(1.0, |acc, v| Some(acc * v?.abs()))
+}
+
+/// The value of the last `<element attribute="…">` in `xml` (the one MuJoCo keeps when an
+/// element such as `<size>` is repeated), and how many `<count>` elements it has; `<include>`d
+/// files are not read.
+pub fn last_attribute_and_count(xml: &str, (element, attribute): (&str, &str), count: &str) -> (Option<String>, usize) {
+    let mut last = None;
+    let mut counted = 0;
+    for tag in tags(xml) {
+        counted += usize::from(tag.name == count);
+        if tag.name == element {
+            if let Some((_, value)) = tag.attributes.iter().rev().find(|(k, _)| *k == attribute) {
+                last = Some(value.to_string());
+            }
+        }
+    }
+    (last, counted)
 }
 
 /// Checks `xml` (from the file `origin`) and the files it includes: `Err` names the element,
