@@ -287,8 +287,9 @@ impl Request {
 pub struct BaselineProgress {
     /// Its run has no `stall_time` (`--baseline-no-stall`).
     pub no_stall: bool,
-    /// Its `distance_to_goal` is 0: it entered the goal disc, by the goal's `by`
-    /// (`--baseline-reaches-goal`; the scenario needs a `[goal]`).
+    /// Its `distance_to_goal` is 0: it entered the goal disc, by the goal's `by`; for a goal
+    /// without a region, it has a `time_to_goal` (`--baseline-reaches-goal`; the scenario
+    /// needs a `[goal]`).
     pub reach_goal: bool,
 }
 
@@ -312,8 +313,10 @@ impl BaselineProgress {
                     reasons.push(format!("the baseline stayed {d:.3} m from the goal"));
                     penalty += d.max(1e-3);
                 }
+                // A goal without a region has no distance: reaching it is its time.
+                None if baseline.number("time_to_goal").is_some() => {}
                 None => {
-                    reasons.push("the baseline's run has no distance_to_goal".into());
+                    reasons.push("the baseline's run has no distance_to_goal and never reached the goal".into());
                     penalty += 1.0;
                 }
             }

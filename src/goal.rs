@@ -9,7 +9,8 @@ use crate::section::{Section, SectionContext};
 
 /// The `[goal]` table: a region the planar position should enter — a disc (`position`,
 /// `radius`) or polygons (their union; a CommonRoad goal's rectangles, polygons and lanelets) —
-/// optionally within a time window (`after`, `by`).
+/// optionally within a time window (`after`, `by`); or, without a region, the conditions alone
+/// (a CommonRoad goal of a time window, and a speed or heading interval, with no position).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GoalSpec {
@@ -48,7 +49,8 @@ pub const MAX_GOAL_POINTS: usize = 10_000;
 
 impl GoalSpec {
     /// The checks of the table when the scenario loads: a disc (finite centre, positive radius)
-    /// or 1 to [`MAX_GOAL_POLYGONS`] polygons of 3 to [`MAX_GOAL_POINTS`] points, all within
+    /// or 1 to [`MAX_GOAL_POLYGONS`] polygons of 3 to [`MAX_GOAL_POINTS`] points (or no region,
+    /// with a time window, a speed or a heading interval), all within
     /// ±`extent` m; an offset, speed and heading intervals, and a window `after` ≤ `by`. Keys
     /// are the scenario's (`goal.radius`). (Planarity is checked with the model.)
     pub fn validate(&self, extent: f64) -> Result<(), ParamError> {
@@ -90,10 +92,13 @@ impl GoalSpec {
                     }
                 }
             }
+            // A goal of conditions alone (a CommonRoad goal without a position): something
+            // must be asked.
+            (None, None, true) if goal.speed.is_some() || goal.heading.is_some() || goal.after.is_some() || goal.by.is_some() => {}
             _ => {
                 return Err(ParamError::new(
                     "goal",
-                    "expected a disc (`position` and `radius`) or `polygons`, one of the two",
+                    "expected a disc (`position` and `radius`) or `polygons`, one of the two, or without a region a time window (`after`, `by`) or a `speed` or `heading` interval",
                 ))
             }
         }

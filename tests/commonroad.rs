@@ -36,7 +36,8 @@ fn run(xml: &Path, out: &Path, extra: &[&str]) -> String {
 
 /// Every committed file runs with the defaults, and at every recorded step every road user in
 /// `/actors` is where commonroad-io's `state_at_time(k)` puts it (1e-9 m, 1e-9 rad), absent
-/// where it has no state.
+/// where it has no state; the car first reaches its goal (`time_to_goal`) at the `/state`
+/// where commonroad-io's `GoalRegion.is_reached` first says so, or neither says it does.
 #[test]
 fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
     let dir = tempfile::tempdir().unwrap();
@@ -52,11 +53,18 @@ fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
             .path()
             .join(format!("{}.mcap", xml.file_stem().unwrap().to_string_lossy()));
         run(xml, &log, &[]);
+        // mjsafe's time_to_goal, checked against commonroad-io's GoalRegion.is_reached.
+        let time_to_goal = match &common::analyze_json(&log)["time_to_goal"] {
+            serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
+            _ => "none".to_string(),
+        };
         let check = Command::new(commonroad_python())
             .args([
                 common::root().join("tests/commonroad_check.py").to_str().unwrap(),
                 xml.to_str().unwrap(),
                 log.to_str().unwrap(),
+                "--time-to-goal",
+                &time_to_goal,
             ])
             .output()
             .unwrap();
@@ -276,7 +284,8 @@ fn close(a: f64, b: f64) -> bool {
 /// problem's initial state (its centre: the rear axle plus b along the heading), draws its road
 /// edges through lanelet bound vertices, and makes its goal the planning problem's (with its
 /// velocity and orientation intervals): each rectangle's corners, each lanelet's polygon (left bound,
-/// right bound reversed), a lone circle's disc, the time interval × the time step.
+/// right bound reversed), a lone circle's disc, the time interval × the time step; a goal without
+/// a position has no region, only its window and intervals.
 #[test]
 fn the_ego_and_the_goal_are_the_planning_problems() {
     let dir = tempfile::tempdir().unwrap();
@@ -381,13 +390,14 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
                 expected.push(polygon);
             }
         }
-        let goal = scenario.get("goal");
-        if expected.is_empty() && disc.is_none() {
-            assert!(goal.is_none(), "{name}: a goal of a time alone has no region: {goal:?}");
-            continue;
-        }
-        let goal = goal.unwrap_or_else(|| panic!("{name}: no [goal]"));
+        let goal = scenario.get("goal").unwrap_or_else(|| panic!("{name}: no [goal]"));
         match disc {
+            // A goal without a position: its window and intervals alone (no region, no offset).
+            None if expected.is_empty() => {
+                for key in ["position", "radius", "polygons", "offset"] {
+                    assert!(goal.get(key).is_none(), "{name}: a goal without a position has {key}");
+                }
+            }
             Some((c, r)) => {
                 let p = goal["position"].as_array().unwrap();
                 assert!(

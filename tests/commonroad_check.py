@@ -5,6 +5,7 @@ ${MJSAFE_CR_VENV:-~/.cache/mjsafe/cr-venv}: PyPI commonroad-io and mcap, nothing
 
     python tests/commonroad_check.py SCENARIO.xml [LOG.mcap] [--time-step-size DT]
         [--planning-problem-json OUT] [--lanelets-json OUT] [--set-valued centre|contains|skip]
+        [--time-to-goal T|none]
 
 The scenario is read with commonroad-io (`CommonRoadFileReader(path).open()`); the log with the
 `mcap` package's reader, its `/actors` messages (`mjsafe.Actors`, proto/mjsafe.proto) decoded
@@ -31,6 +32,12 @@ prediction's tick, `actor_error` their distance (NaN when either is). The `road_
 and `road_user_left` events are checked against the same spans: one at the first logged step at
 or after a first recorded time later than 0, one at the first step after a last recorded time
 before the log's end, and no others.
+
+With --time-to-goal (mjsafe's `time_to_goal` of the log, `none` when absent): at every `/state`
+message, the car's centre (the planar position plus the log's `goal_offset` along the heading),
+its heading, speed and time step t / dt go to the planning problem's `GoalRegion.is_reached`;
+the first time it says yes must be T, and when it never does T must be none or later than the
+goal's window.
 
 Prints `commonroad_check: N states compared, M absent, K mismatches` and exits 1 with the
 first 10 mismatches listed when K > 0, or when no `/actors` message fell on a time step.
@@ -177,6 +184,19 @@ def decode_prediction(buf):
     return m
 
 
+def decode_state(buf):
+    """mjsafe.State { double time = 1; repeated string names = 3; repeated double values = 4; }"""
+    m = {"time": 0.0, "names": [], "values": []}
+    for field, wire, value in _fields(buf):
+        if field == 1:
+            m["time"] = _double(wire, value, "State.time")
+        elif field == 3:
+            m["names"].append(bytes(value).decode("utf-8"))
+        elif field == 4:
+            m["values"] += decode_doubles(wire, value, "State.values")
+    return m
+
+
 def decode_event(buf):
     """mjsafe.Event { double time = 1; string kind = 2; repeated string participants = 4; }"""
     m = {"time": 0.0, "kind": "", "participants": []}
@@ -199,7 +219,7 @@ def read_messages(path, topic="/actors", decode=None):
         reader = make_reader(f, validate_crcs=True)
         for schema, channel, message in reader.iter_messages(topics=[topic]):
             expected = {"/actors": "mjsafe.Actors", "/prediction": "mjsafe.Prediction",
-                        "/event": "mjsafe.Event"}[topic]
+                        "/event": "mjsafe.Event", "/state": "mjsafe.State"}[topic]
             if channel.message_encoding != "protobuf":
                 raise SystemExit(f"commonroad_check: {topic} message encoding is "
                                  f"{channel.message_encoding!r}, expected 'protobuf'")
@@ -543,6 +563,53 @@ def check_entries(scenario, log_path, dt, times, ego_ids=()):
     return sum(len(v) for v in events.values()), mismatches
 
 
+def run_metadata(path):
+    """The log's `mjsafe` metadata record."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        for m in make_reader(f, validate_crcs=True).iter_metadata():
+            if m.name == "mjsafe":
+                return dict(m.metadata)
+    raise SystemExit(f"commonroad_check: {path} has no mjsafe metadata record")
+
+
+def check_goal(pps, log_path, dt, expected):
+    """When the car first reached its planning problem's goal, as commonroad-io's
+    `GoalRegion.is_reached` decides it, against mjsafe's `time_to_goal` (`expected`, None when
+    absent). At every `/state` message: the car's centre (the planar position plus the log's
+    `goal_offset` along the heading), orientation, velocity and time step t / dt. Returns
+    (commonroad-io's first time or None, mismatches)."""
+    from commonroad.scenario.state import CustomState
+    import numpy as np
+
+    problems = list(pps.planning_problem_dict.values())
+    if len(problems) != 1:
+        return None, [f"goal: {len(problems)} planning problems; the check takes files with one"]
+    goal = problems[0].goal
+    offset = float(run_metadata(log_path).get("goal_offset", "0"))
+    first = None
+    for m in read_messages(log_path, "/state", decode_state):
+        v = dict(zip(m["names"], m["values"]))
+        x, y, heading, speed = v["x1"], v["x2"], v["heading"], v["speed"]
+        centre = np.array([x + offset * math.cos(heading), y + offset * math.sin(heading)])
+        state = CustomState(position=centre, orientation=heading, velocity=speed,
+                            time_step=m["time"] / dt)
+        if goal.is_reached(state):
+            first = m["time"]
+            break
+    mismatches = []
+    if first is None and expected is not None:
+        # mjsafe's time_to_goal counts an entry after the window's end too.
+        end = max(float(g.time_step.end) for g in goal.state_list) * dt
+        if expected <= end + TOL:
+            mismatches.append(f"goal: mjsafe reached it at {expected} s, within the window "
+                              f"(ends {end} s); commonroad-io never")
+    elif first is not None and (expected is None or abs(first - expected) > TOL):
+        mismatches.append(f"goal: commonroad-io reached it at {first} s, mjsafe at {expected}")
+    return first, mismatches
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("xml")
@@ -553,6 +620,9 @@ def main(argv=None):
     ap.add_argument("--lanelets-json", metavar="OUT")
     ap.add_argument("--set-valued", choices=["centre", "contains", "skip"], default="centre",
                     help="how to compare states given as shapes / intervals (default: centre)")
+    ap.add_argument("--time-to-goal", metavar="T|none",
+                    help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
+                         "GoalRegion.is_reached at every /state")
     args = ap.parse_args(argv)
     if args.log is None and not (args.planning_problem_json or args.lanelets_json):
         ap.error("nothing to do: give a log, --planning-problem-json or --lanelets-json")
@@ -579,6 +649,12 @@ def main(argv=None):
     mismatches += prediction_mismatches
     _, entry_mismatches = check_entries(scenario, args.log, dt, times, ego_ids)
     mismatches += entry_mismatches
+    if args.time_to_goal is not None:
+        expected = None if args.time_to_goal == "none" else float(args.time_to_goal)
+        first, goal_mismatches = check_goal(pps, args.log, dt, expected)
+        mismatches += goal_mismatches
+        print(f"commonroad_check: goal reached at {first} s by commonroad-io, "
+              f"{expected} s by mjsafe")
     print(f"commonroad_check: {checked} road-user predictions checked, {without} without an "
           "error (the road user not there at the tick or at the target time)")
     if set_valued or skipped:

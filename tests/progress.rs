@@ -117,10 +117,45 @@ fn a_deadline_limits_distance_to_goal_and_a_run_without_goal_has_none() {
     assert!(m.get("missing").is_none(), "{m}");
 }
 
+/// A goal without a region (a CommonRoad goal without a position; its check against
+/// commonroad-io is tests/commonroad.rs): reached at the first state from `after` on with the
+/// speed in its interval; never, with the reason, when the speed never is; no distance.
+#[test]
+fn a_goal_without_a_region_is_its_window_and_intervals() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("window.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle_gamma_m.toml"),
+        &log,
+        &["--set", "goal={after=1.0, by=2.0, speed=[-1.0, 1000.0]}"],
+    );
+    let m = analyze_json(&log);
+    let t = m["time_to_goal"].as_f64().unwrap();
+    assert!((t - 1.0).abs() < 1e-9, "{m}");
+    assert!(m["distance_to_goal"].is_null(), "{m}");
+    let why = m["missing"]["distance_to_goal"].as_str().unwrap();
+    assert!(why.contains("no region"), "{why}");
+
+    let never = dir.path().join("never.mcap");
+    run_ok(
+        &scenario("bicycle_obstacle_gamma_m.toml"),
+        &never,
+        &["--set", "goal={after=1.0, speed=[100.0, 200.0]}"],
+    );
+    let m = analyze_json(&never);
+    assert!(m["time_to_goal"].is_null(), "{m}");
+    let why = m["missing"]["time_to_goal"].as_str().unwrap();
+    assert!(
+        why.contains("never met the goal (no region, speed in [100, 200] m/s) from 1 s on"),
+        "{why}"
+    );
+}
+
 #[test]
 fn a_bad_goal_is_one_error_line_naming_the_file_and_field() {
     let dir = tempfile::tempdir().unwrap();
     for (set, key) in [
+        ("goal={}", "goal"),
         ("goal.radius=0.0", "goal.radius"),
         ("goal.position=[1e300, 0.0]", "goal.position"),
         ("goal.by=-1.0", "goal.by"),

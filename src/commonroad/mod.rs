@@ -222,8 +222,9 @@ fn table(entries: &[(&str, toml::Value)]) -> toml::Value {
 
 /// `[goal]`: the planning problem's goal region — its rectangles and polygons, its lanelets'
 /// polygons, its circles (a single circle as the disc itself, circles among other shapes as
-/// inscribed 64-gons) — within its time interval (steps × time step). None for a goal of a
-/// time alone (nothing to reach: the run must only last).
+/// inscribed 64-gons) — within its time interval (steps × time step); without a position, its
+/// time window, speed and heading alone (a goal of a time alone is reached by lasting into its
+/// window). None when nothing is asked at all.
 fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
     let v = toml::Value::Float;
     let point = |p: [f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
@@ -248,14 +249,15 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
     } else {
         let mut polygons: Vec<Vec<[f64; 2]>> = shapes.iter().map(|s| shape_polygon(s)).collect();
         polygons.extend(lanelets.iter().filter_map(|id| cr.lanelet(*id)).map(route::polygon));
-        if polygons.is_empty() {
-            return None;
+        // (None: a goal of conditions alone, its time window, speed and heading.)
+        if !polygons.is_empty() {
+            let polygons = polygons
+                .into_iter()
+                .map(|p| toml::Value::Array(p.into_iter().map(point).collect()));
+            t.insert("polygons".into(), toml::Value::Array(polygons.collect()));
         }
-        let polygons = polygons
-            .into_iter()
-            .map(|p| toml::Value::Array(p.into_iter().map(point).collect()));
-        t.insert("polygons".into(), toml::Value::Array(polygons.collect()));
     }
+    let region = !t.is_empty();
     let (start, end) = (problem.goals.iter())
         .map(|g| g.time_steps)
         .fold((i64::MAX, i64::MIN), |(a, b), (s, e)| (a.min(s), b.max(e)));
@@ -263,7 +265,9 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
         t.insert("after".into(), v(start as f64 * cr.time_step));
     }
     // CommonRoad's goal is for the car's centre, b ahead of the bicycle's rear axle.
-    t.insert("offset".into(), v(VEHICLE.b));
+    if region {
+        t.insert("offset".into(), v(VEHICLE.b));
+    }
     // The velocity and orientation intervals, when every goal state has one (their hull).
     let hull = |intervals: Vec<Option<(f64, f64)>>| -> Option<toml::Value> {
         let all: Option<Vec<(f64, f64)>> = intervals.into_iter().collect();
@@ -283,7 +287,9 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
     if end > 0 {
         t.insert("by".into(), v(end as f64 * cr.time_step));
     }
-    Some(t)
+    // A goal of a time alone is reached by lasting into its window, as commonroad-io's
+    // `GoalRegion.is_reached` decides it; nothing at all to ask: no goal.
+    (region || ["after", "by", "speed", "heading"].iter().any(|k| t.contains_key(*k))).then_some(t)
 }
 
 /// The largest deviation (m) of a road edge's smooth curve from its polyline that a world

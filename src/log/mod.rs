@@ -340,8 +340,8 @@ pub struct RunInfo {
     /// them: metadata `<role>_kind`, `<role>_label`, `<role>_description`.
     pub kinds: Vec<KindInfo>,
     /// The scenario's `[goal]`: metadata `goal_position` ("x y") and `goal_radius`, or
-    /// `goal_polygons` (JSON), and `goal_after`, `goal_by`, `goal_offset`, `goal_speed`,
-    /// `goal_heading` ("lo hi").
+    /// `goal_polygons` (JSON), or `goal_region` = "none" (a goal of conditions alone), and
+    /// `goal_after`, `goal_by`, `goal_offset`, `goal_speed`, `goal_heading` ("lo hi").
     pub goal: Option<crate::scenario::GoalSpec>,
     /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
     pub requirements: Vec<(String, String)>,
@@ -414,6 +414,9 @@ impl RunInfo {
             if !goal.polygons.is_empty() {
                 let polygons = serde_json::to_string(&goal.polygons).unwrap_or_default();
                 metadata.insert("goal_polygons".to_string(), polygons);
+            }
+            if goal.position.is_none() && goal.polygons.is_empty() {
+                metadata.insert("goal_region".to_string(), "none".to_string());
             }
             if let Some(after) = goal.after {
                 metadata.insert("goal_after".to_string(), format!("{after}"));

@@ -212,12 +212,12 @@ pub static METRICS: &[Metric] = &[
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("distance_to_goal", METRES, Shape::Number, &[Topic::State], new::<DistanceToGoal>,
-            "runs with a `[goal]` (metadata `goal_position` g and `goal_radius` r, or `goal_polygons`; `goal_after`, `goal_by`): min over the `/state` messages from `after` up to `by` (all without them) of the distance from p, the planar position, to the region (max(0, ‖p − g‖ − r) for a disc; 0 inside a polygon, else the distance to its edges): how far the vehicle stayed from the goal; 0: it entered it (in the window)")
+            "runs with a `[goal]` (metadata `goal_position` g and `goal_radius` r, or `goal_polygons`; `goal_after`, `goal_by`): min over the `/state` messages from `after` up to `by` (all without them) of the distance from p, the planar position, to the region (max(0, ‖p − g‖ − r) for a disc; 0 inside a polygon, else the distance to its edges): how far the vehicle stayed from the goal; 0: it entered it (in the window); absent, with the reason, for a goal without a region (`goal_region` = none)")
     },
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("time_to_goal", SECONDS, Shape::Number, &[Topic::State], new::<TimeToGoal>,
-            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not) and the speed and heading in the goal's intervals (`goal_speed`, `goal_heading`, if any); absent when the vehicle never enters it so, the closest approach under `missing`")
+            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not) and the speed and heading in the goal's intervals (`goal_speed`, `goal_heading`, if any); for a goal without a region (metadata `goal_region` = none: a CommonRoad goal without a position) the first from `after` on with the speed and heading in them (a goal of a time alone: `after`, the time a run lasting into the window reaches it, as commonroad-io's `GoalRegion.is_reached` decides); absent when the vehicle never enters it so, the closest approach under `missing`")
     },
     Metric {
         applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
@@ -1119,6 +1119,13 @@ impl GoalApproach {
         if goal.after.is_some_and(|after| t < after - 1e-9) {
             return;
         }
+        // A goal of conditions alone: reached once the state meets them.
+        if !goal.has_region() {
+            if self.reached.is_none() && self.state_within(goal, m) {
+                self.reached = Some(t);
+            }
+            return;
+        }
         // The point that must enter: `offset` ahead along the heading (no heading: absent).
         if let Some((offset, heading)) = goal.offset {
             let Some(theta) = heading.and_then(|h| m.values.get(h)) else {
@@ -1199,6 +1206,13 @@ impl Accumulate for DistanceToGoal {
         if !self.0.planar("distance_to_goal", run, missing) {
             return Value::Number(None);
         }
+        if run.goal.as_ref().is_some_and(|g| !g.has_region()) {
+            missing.insert(
+                "distance_to_goal".into(),
+                "the goal has no region (a time window, speed or heading alone): see time_to_goal".into(),
+            );
+            return Value::Number(None);
+        }
         Value::Number(self.0.closest_by.map(|(d, _)| d))
     }
 }
@@ -1217,6 +1231,18 @@ impl Accumulate for TimeToGoal {
         if let (None, Some(why)) = (self.0.reached, self.0.unchecked) {
             missing.insert("time_to_goal".into(), why.into());
             return Value::Number(None);
+        }
+        if let (None, Some(goal)) = (self.0.reached, run.goal.as_ref().filter(|g| !g.has_region())) {
+            let window = match (goal.after, goal.by) {
+                (Some(after), Some(by)) => format!(" in [{after}, {by}] s"),
+                (Some(after), None) => format!(" from {after} s on"),
+                (None, Some(by)) => format!(" by {by} s"),
+                (None, None) => String::new(),
+            };
+            missing.insert(
+                "time_to_goal".into(),
+                format!("the vehicle's state never met the goal ({}){window}", goal.describe()),
+            );
         }
         if let (None, Some(goal), Some((d, t))) = (self.0.reached, &run.goal, self.0.closest) {
             missing.insert(

@@ -56,7 +56,7 @@ pub struct RunFacts {
 
 /// A goal as the run metadata records it: a region — the disc of centre `position` and
 /// `radius` (m), or the union of `polygons` — to be entered after `after` and by `by` (s), if
-/// given.
+/// given; or no region (metadata `goal_region` = "none"): the window, speed and heading alone.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Goal {
     pub disc: Option<([f64; 2], f64)>,
@@ -74,7 +74,13 @@ pub struct Goal {
 }
 
 impl Goal {
-    /// The distance (m) from `p` to the region: 0 inside it.
+    /// Whether the goal has a region (a disc or polygons); without one it is its time window,
+    /// speed and heading alone (a CommonRoad goal without a position).
+    pub fn has_region(&self) -> bool {
+        self.disc.is_some() || !self.polygons.is_empty()
+    }
+
+    /// The distance (m) from `p` to the region: 0 inside it (+inf without a region).
     pub fn distance(&self, p: [f64; 2]) -> f64 {
         let disc = self.disc.map(|(c, r)| ((p[0] - c[0]).hypot(p[1] - c[1]) - r).max(0.0));
         let polygons = self.polygons.iter().map(|polygon| polygon_distance(polygon, p));
@@ -91,6 +97,7 @@ impl Goal {
     pub fn describe(&self) -> String {
         let mut text = match self.disc {
             Some(([x, y], r)) => format!("within {r} m of ({x}, {y})"),
+            None if self.polygons.is_empty() => "no region".to_string(),
             None => format!("inside its {} polygon(s)", self.polygons.len()),
         };
         if let Some([lo, hi]) = self.speed {
@@ -138,7 +145,8 @@ impl RunFacts {
                     .and_then(|p| serde_json::from_str(p).ok())
                     .unwrap_or_default();
                 let heading = metadata.get("heading_index").and_then(|h| h.trim().parse().ok());
-                (disc.is_some() || !polygons.is_empty()).then(|| Goal {
+                let regionless = metadata.get("goal_region").is_some_and(|r| r == "none");
+                (disc.is_some() || !polygons.is_empty() || regionless).then(|| Goal {
                     disc,
                     polygons,
                     after: number("goal_after"),
