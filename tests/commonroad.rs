@@ -453,6 +453,88 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
     }
 }
 
+/// Every committed file's imported road users are commonroad-io's: one `cr_<id>` obstacle per
+/// road user (the planning problems' own ids left out), and at its initial state the shape
+/// commonroad-io's `obstacle_shape.compute_occupancy_for_state` gives — a rectangle's centre,
+/// length, width and orientation as the box's centre, length, width and heading; a circle's
+/// centre and radius (2018b files' set-valued initial states: the set only).
+#[test]
+fn road_users_are_where_and_as_large_as_commonroad_io_places_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(data(""))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+        .collect();
+    files.sort();
+    let mut shapes = 0;
+    for xml in &files {
+        let name = xml.display();
+        let toml_path = dir.path().join("x.toml");
+        let _ = std::fs::remove_file(&toml_path);
+        let o = mjsafe(&[
+            "import",
+            "commonroad",
+            xml.to_str().unwrap(),
+            "--out",
+            toml_path.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+        let ours: std::collections::BTreeMap<String, &toml::Value> = (scenario.get("obstacles"))
+            .and_then(|o| o.as_array())
+            .into_iter()
+            .flatten()
+            .map(|o| (o["name"].as_str().unwrap().to_string(), o))
+            .collect();
+        let theirs = commonroad_io_json(xml, "--obstacles-json");
+        let theirs = theirs["obstacles"].as_array().unwrap();
+        let names: std::collections::BTreeSet<String> = theirs
+            .iter()
+            .map(|o| format!("cr_{}", o["id"].as_i64().unwrap()))
+            .collect();
+        assert_eq!(
+            ours.keys().cloned().collect::<std::collections::BTreeSet<_>>(),
+            names,
+            "{name}: the road users"
+        );
+        let float = |v: &toml::Value| v.as_float().unwrap();
+        for o in theirs {
+            let Some(occupancy) = o["occupancy"].as_array() else {
+                continue;
+            };
+            assert_eq!(occupancy.len(), 1, "{name}");
+            let (shape, ours) = (&occupancy[0], ours[&format!("cr_{}", o["id"])]);
+            let f = |k: &str| shape[k].as_f64().unwrap();
+            let centre = ours["centre"].as_array().unwrap();
+            let (cx, cy) = (
+                shape["center"][0].as_f64().unwrap(),
+                shape["center"][1].as_f64().unwrap(),
+            );
+            assert!(
+                close(float(&centre[0]), cx) && close(float(&centre[1]), cy),
+                "{name}: {o}"
+            );
+            match shape["type"].as_str().unwrap() {
+                "rectangle" => {
+                    let s = &ours["shape"];
+                    assert_eq!(s["kind"].as_str(), Some("box"), "{name}: {o}");
+                    assert!(
+                        close(float(&s["length"]), f("length")) && close(float(&s["width"]), f("width")),
+                        "{name}: {o}"
+                    );
+                    let turn = (float(&s["heading"]) - f("orientation")).rem_euclid(std::f64::consts::TAU);
+                    assert!(turn.min(std::f64::consts::TAU - turn) < 1e-9, "{name}: {o}");
+                }
+                "circle" => assert!(close(float(&ours["radius"]), f("radius")), "{name}: {o}"),
+                other => panic!("{name}: a road user's shape {other} the committed files do not have"),
+            }
+            shapes += 1;
+        }
+    }
+    assert!(shapes > 100, "{shapes}");
+}
+
 /// `falsify` searches a CommonRoad world like any scenario, and its counterexample (a scenario
 /// naming the file and the built-in model) runs from its own directory and reproduces the
 /// violation.

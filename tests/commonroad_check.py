@@ -60,7 +60,10 @@ first 10 mismatches listed when K > 0, or when no `/actors` message fell on a ti
   ...], "right": [...], "predecessor": [ids], "successor": [ids], "adjacent_left": id | null,
   "adjacent_left_same_direction": bool | null, "adjacent_right": ..., "adjacent_right_same_direction":
   ..., "lanelet_types": [names]}]}.
-The XML alone is enough for these two (the log argument may be left out).
+--obstacles-json OUT writes every road user (sorted by id, the planning problems' ids left out):
+  {"obstacles": [{"id", "role", "occupancy": [shape, ...] | null}]}, where commonroad-io puts its
+  shape at its initial state (see `obstacles_json`).
+The XML alone is enough for these three (the log argument may be left out).
 """
 import argparse
 import json
@@ -284,7 +287,7 @@ def shape_json(occ):
                  "radius": float(occ.radius)}]
     if isinstance(occ, PolygonOccupancy):
         return [{"type": "polygon", "vertices": [point(v) for v in occ.vertices]}]
-    raise SystemExit(f"commonroad_check: unknown goal shape {type(occ).__name__}")
+    raise SystemExit(f"commonroad_check: unknown shape {type(occ).__name__}")
 
 
 def planning_problems_json(pps, dt):
@@ -334,6 +337,22 @@ def lanelets_json(scenario):
             "lanelet_types": sorted(t.value for t in (l.lanelet_type or [])),
         })
     return {"lanelets": out}
+
+
+def obstacles_json(scenario, ego_ids):
+    """Every road user as commonroad-io places it at its initial state (sorted by id; the planning
+    problems' own ids left out): {"id", "role": "static" | "dynamic", "occupancy": [shape]}, the
+    shapes of `obstacle_shape.compute_occupancy_for_state(initial_state)` as `shape_json` gives
+    them (world frame); "occupancy": null for a set-valued initial state (2018b files)."""
+    out = []
+    for o in sorted(scenario.obstacles, key=lambda o: o.obstacle_id):
+        if o.obstacle_id in ego_ids:
+            continue
+        state = o.initial_state
+        exact = not hasattr(state.position, "center") and not is_interval(state.orientation)
+        occupancy = shape_json(o.obstacle_shape.compute_occupancy_for_state(state)) if exact else None
+        out.append({"id": int(o.obstacle_id), "role": o.obstacle_role.value, "occupancy": occupancy})
+    return {"obstacles": out}
 
 
 def angle_diff(a, b):
@@ -618,14 +637,15 @@ def main(argv=None):
                     help="dt in seconds (default: the scenario's timeStepSize)")
     ap.add_argument("--planning-problem-json", metavar="OUT")
     ap.add_argument("--lanelets-json", metavar="OUT")
+    ap.add_argument("--obstacles-json", metavar="OUT")
     ap.add_argument("--set-valued", choices=["centre", "contains", "skip"], default="centre",
                     help="how to compare states given as shapes / intervals (default: centre)")
     ap.add_argument("--time-to-goal", metavar="T|none",
                     help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
                          "GoalRegion.is_reached at every /state")
     args = ap.parse_args(argv)
-    if args.log is None and not (args.planning_problem_json or args.lanelets_json):
-        ap.error("nothing to do: give a log, --planning-problem-json or --lanelets-json")
+    if args.log is None and not (args.planning_problem_json or args.lanelets_json or args.obstacles_json):
+        ap.error("nothing to do: give a log, --planning-problem-json, --lanelets-json or --obstacles-json")
 
     scenario, pps = open_scenario(args.xml)
     dt = args.time_step_size if args.time_step_size is not None else float(scenario.dt)
@@ -638,6 +658,10 @@ def main(argv=None):
     if args.lanelets_json:
         with open(args.lanelets_json, "w") as f:
             json.dump(lanelets_json(scenario), f)
+    if args.obstacles_json:
+        egos = {pp.planning_problem_id for pp in pps.planning_problem_dict.values()}
+        with open(args.obstacles_json, "w") as f:
+            json.dump(obstacles_json(scenario, egos), f)
     if args.log is None:
         return 0
 
