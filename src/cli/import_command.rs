@@ -70,7 +70,7 @@ impl ImportCommand {
             text.as_bytes(),
         )?;
         if let Some(cr) = &loaded.commonroad {
-            if let Some(line) = cr.ignored_line() {
+            for line in cr.ignored_line().into_iter().chain(cr.notes()) {
                 eprintln!("{}: {line}", file.display());
             }
         }

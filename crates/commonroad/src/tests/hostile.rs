@@ -653,3 +653,29 @@ fn no_panic_on_truncations_or_byte_edits() {
         }
     }
 }
+
+/// Goal states that differ only in their regions make an exact union; ones that differ in their
+/// windows or intervals (or in having a position) get a note, since one `[goal]` can only take
+/// their hull.
+#[test]
+fn goal_states_one_goal_cannot_hold_exactly_are_noted() {
+    let goal = "<goalState>\n      <position><lanelet ref=\"2\"/></position>\n      \
+                <time><intervalStart>10</intervalStart><intervalEnd>50</intervalEnd></time>\n    </goalState>";
+    let note = |text: &str| -> Option<String> {
+        let cr = parse(text, "goals.xml").unwrap_or_else(|e| panic!("{e}"));
+        cr.notes().into_iter().find(|n| n.contains("goal states"))
+    };
+    assert_eq!(note(MINI), None);
+    let regions = goal.to_string() + "\n    " + &goal.replace("ref=\"2\"", "ref=\"1\"");
+    assert_eq!(note(&edit(goal, &regions)), None);
+    let windows = goal.to_string() + "\n    " + &goal.replace("<intervalEnd>50", "<intervalEnd>60");
+    let line = note(&edit(goal, &windows)).expect("a note");
+    assert!(
+        line.starts_with("planning problem 100: its 2 goal states differ"),
+        "{line}"
+    );
+    let anywhere = goal.to_string()
+        + "\n    "
+        + "<goalState><time><intervalStart>10</intervalStart><intervalEnd>50</intervalEnd></time></goalState>";
+    assert!(note(&edit(goal, &anywhere)).is_some());
+}
