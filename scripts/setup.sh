@@ -82,16 +82,20 @@ if [ "$want_test" = 1 ]; then
   # scripts/requirements-test.txt.
   cr_venv="${MJSAFE_CR_VENV:-$HOME/.cache/mjsafe/cr-venv}"
   cr_io=2026.1
+  # (Its vehicle parameter sets: tests/commonroad.rs checks the ego against vehicle 2.)
+  cr_vm=3.0.2
   mcap_pin=$(grep -m 1 '^mcap==' scripts/requirements-test.txt)
   if [ ! -x "$cr_venv/bin/python" ]; then
     echo "setup: creating Python venv for the CommonRoad reader at $cr_venv"
     python3 -m venv "$cr_venv"
   fi
-  if ! "$cr_venv/bin/python" -c 'import sys, importlib.metadata as md, commonroad, mcap
-sys.exit(md.version("commonroad-io") != sys.argv[1] or "mcap==" + md.version("mcap") != sys.argv[2])' \
-    "$cr_io" "$mcap_pin" >/dev/null 2>&1; then
-    echo "setup: installing the CommonRoad reader (commonroad-io $cr_io) and $mcap_pin into $cr_venv"
-    "$cr_venv/bin/pip" install -q --disable-pip-version-check "commonroad-io==$cr_io" "$mcap_pin"
+  if ! "$cr_venv/bin/python" -c 'import sys, importlib.metadata as md, commonroad, mcap, vehiclemodels
+sys.exit(md.version("commonroad-io") != sys.argv[1] or "mcap==" + md.version("mcap") != sys.argv[2]
+         or md.version("commonroad-vehicle-models") != sys.argv[3])' \
+    "$cr_io" "$mcap_pin" "$cr_vm" >/dev/null 2>&1; then
+    echo "setup: installing the CommonRoad reader (commonroad-io $cr_io, commonroad-vehicle-models $cr_vm) and $mcap_pin into $cr_venv"
+    "$cr_venv/bin/pip" install -q --disable-pip-version-check "commonroad-io==$cr_io" \
+      "commonroad-vehicle-models==$cr_vm" "$mcap_pin"
   fi
   # The mjsafe Python package (python/): built by maturin with the tests' profile (dev, which
   # shares their compiled dependencies; headless, without the rerun SDK), installed into the

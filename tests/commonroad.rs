@@ -535,6 +535,51 @@ fn road_users_are_where_and_as_large_as_commonroad_io_places_them() {
     assert!(shapes > 100, "{shapes}");
 }
 
+/// The ego of a CommonRoad world is CommonRoad's vehicle parameter set 2 as its own package
+/// gives it (PyPI commonroad-vehicle-models, `parameters_vehicle2()`): the imported footprint's
+/// length, width and offset b, the route nominal's steering limit, and the built-in model's
+/// wheelbase a + b.
+#[test]
+fn the_ego_is_commonroads_vehicle_2() {
+    let o = Command::new(commonroad_python())
+        .args([
+            "-c",
+            "import json; from vehiclemodels.parameters_vehicle2 import parameters_vehicle2 as p; v = p(); \
+             print(json.dumps([v.l, v.w, v.a, v.b, v.steering.max]))",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let [l, w, a, b, steering]: [f64; 5] = serde_json::from_slice(&o.stdout).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.toml");
+    let xml = data("ZAM_Tutorial-1_1_T-1.xml");
+    let o = mjsafe(&[
+        "import",
+        "commonroad",
+        xml.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let scenario: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
+    let footprint = &scenario["vehicle"]["footprint"];
+    let float = |v: &toml::Value| v.as_float().unwrap();
+    assert!(close(float(&footprint["length"]), l) && close(float(&footprint["width"]), w));
+    assert!(close(float(&footprint["offset"]), b));
+    assert!(close(float(&scenario["nominal"]["max_steering"]), steering));
+    assert_eq!(scenario["vehicle"]["model"].as_str(), Some("mjsafe:commonroad_car.xml"));
+    let model = std::fs::read_to_string(common::root().join("models/commonroad_car.xml")).unwrap();
+    let wheelbase: f64 = model
+        .split("<numeric name=\"wheelbase\" data=\"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(close(wheelbase, a + b), "{wheelbase} against {}", a + b);
+}
+
 /// `falsify` searches a CommonRoad world like any scenario, and its counterexample (a scenario
 /// naming the file and the built-in model) runs from its own directory and reproduces the
 /// violation.
