@@ -40,7 +40,18 @@ pub struct GoalSpec {
     /// Deadline (s, > 0): `distance_to_goal` counts only the states up to it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub by: Option<f64>,
+    /// The goal states, any one of which, whole, reaches the goal (a CommonRoad planning
+    /// problem's, when they differ in more than their regions): each a region or none with its
+    /// own `after`, `by`, `speed` and `heading` (no `offset`, no `states`; the point is the
+    /// table's). The table's own region, window and intervals are then their union and hulls:
+    /// `distance_to_goal` and the scene use those, `time_to_goal` asks one state whole. At most
+    /// [`MAX_GOAL_STATES`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub states: Vec<GoalSpec>,
 }
+
+/// Most goal states of a goal.
+pub const MAX_GOAL_STATES: usize = 64;
 
 /// Most polygons of a goal region, and most points of one.
 pub const MAX_GOAL_POLYGONS: usize = 64;
@@ -135,6 +146,28 @@ impl GoalSpec {
                     format!("expected a positive time (s), not before `after`, found {by}"),
                 ));
             }
+        }
+        if goal.states.len() > MAX_GOAL_STATES {
+            return Err(ParamError::new(
+                "goal.states",
+                format!(
+                    "expected at most {MAX_GOAL_STATES} goal states, found {}",
+                    goal.states.len()
+                ),
+            ));
+        }
+        for (i, state) in goal.states.iter().enumerate() {
+            let key = format!("goal.states.{i}");
+            if !state.states.is_empty() || state.offset.is_some() {
+                return Err(ParamError::new(
+                    key,
+                    "expected a region, `after`, `by`, `speed` and `heading` only (the point and its `offset` are the goal's)",
+                ));
+            }
+            state.validate(extent).map_err(|mut e| {
+                e.key = e.key.replacen("goal", &key, 1);
+                e
+            })?;
         }
         Ok(())
     }

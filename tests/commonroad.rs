@@ -535,6 +535,73 @@ fn road_users_are_where_and_as_large_as_commonroad_io_places_them() {
     assert!(shapes > 100, "{shapes}");
 }
 
+/// A planning problem whose goal states differ in more than their regions: each is asked whole,
+/// as commonroad-io's `GoalRegion.is_reached` asks it (a union of the regions with the hull of
+/// the intervals would say the car on lanelet 1 at 22 m/s reached a goal of "lanelet 1 at
+/// 100–200 m/s, or lanelet 3 at 0–50 m/s"). ZAM_Tutorial with its goal state replaced by two.
+#[test]
+fn each_goal_state_is_asked_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(data("ZAM_Tutorial-1_1_T-1.xml")).unwrap();
+    let start = text.find("<goalState>").unwrap();
+    let end = text.find("</goalState>").unwrap() + "</goalState>".len();
+    let state = |lanelet: u32, (from, to): (u32, u32), (lo, hi): (f64, f64)| {
+        format!(
+            "<goalState><position><lanelet ref=\"{lanelet}\"/></position><time><intervalStart>{from}</intervalStart>\
+             <intervalEnd>{to}</intervalEnd></time><velocity><intervalStart>{lo}</intervalStart>\
+             <intervalEnd>{hi}</intervalEnd></velocity></goalState>"
+        )
+    };
+    let cases = [
+        // Neither whole: lanelet 1 too fast a goal, lanelet 3 never driven on.
+        (
+            "neither",
+            state(1, (35, 40), (100.0, 200.0)) + &state(3, (35, 40), (0.0, 50.0)),
+            false,
+        ),
+        // The second whole, from its window's start.
+        (
+            "second",
+            state(3, (35, 40), (0.0, 50.0)) + &state(1, (30, 40), (0.0, 50.0)),
+            true,
+        ),
+    ];
+    for (name, goals, reached) in cases {
+        let xml = dir.path().join(format!("{name}.xml"));
+        std::fs::write(&xml, format!("{}{goals}{}", &text[..start], &text[end..])).unwrap();
+        let toml_path = dir.path().join(format!("{name}.toml"));
+        let o = mjsafe(&[
+            "import",
+            "commonroad",
+            xml.to_str().unwrap(),
+            "--out",
+            toml_path.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+        assert_eq!(scenario["goal"]["states"].as_array().map(Vec::len), Some(2), "{name}");
+        let log = dir.path().join(format!("{name}.mcap"));
+        run(&xml, &log, &[]);
+        let time_to_goal = match &common::analyze_json(&log)["time_to_goal"] {
+            serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
+            _ => "none".to_string(),
+        };
+        assert_eq!(time_to_goal != "none", reached, "{name}: {time_to_goal}");
+        let check = Command::new(commonroad_python())
+            .args([
+                common::root().join("tests/commonroad_check.py").to_str().unwrap(),
+                xml.to_str().unwrap(),
+                log.to_str().unwrap(),
+                "--time-to-goal",
+                &time_to_goal,
+            ])
+            .output()
+            .unwrap();
+        let out = String::from_utf8_lossy(&check.stdout).to_string() + &String::from_utf8_lossy(&check.stderr);
+        assert!(check.status.success() && out.contains(" 0 mismatches"), "{name}: {out}");
+    }
+}
+
 /// The ego of a CommonRoad world is CommonRoad's vehicle parameter set 2 as its own package
 /// gives it (PyPI commonroad-vehicle-models, `parameters_vehicle2()`): the imported footprint's
 /// length, width and offset b, the route nominal's steering limit, and the built-in model's

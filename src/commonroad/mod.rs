@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use mjsafe_commonroad::{CommonRoad, GoalPosition, ObstacleRole, PlanningProblem, Shape};
+use mjsafe_commonroad::{CommonRoad, GoalPosition, GoalState, ObstacleRole, PlanningProblem, Shape};
 use serde::{Deserialize, Serialize};
 
 /// `[commonroad]`: the CommonRoad file (relative to the scenario file) and the planning problem
@@ -224,32 +224,60 @@ fn table(entries: &[(&str, toml::Value)]) -> toml::Value {
 /// polygons, its circles (a single circle as the disc itself, circles among other shapes as
 /// inscribed 64-gons) — within its time interval (steps × time step); without a position, its
 /// time window, speed and heading alone (a goal of a time alone is reached by lasting into its
-/// window). None when nothing is asked at all.
+/// window). Goal states that differ in more than their regions are `states` too (any one of
+/// them, whole, reaches the goal; the table's own region, window and intervals are their union
+/// and hulls). None when nothing is asked at all.
 fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
+    let goals: Vec<&GoalState> = problem.goals.iter().collect();
+    // CommonRoad's goal is for the car's centre, b ahead of the bicycle's rear axle.
+    let offset = goals.iter().any(|g| g.position.is_some()).then_some(VEHICLE.b);
+    let mut t = goal_table(cr, &goals, offset);
+    if problem.goal_states_differ() {
+        let states = goals.iter().map(|g| {
+            let mut state = goal_table(cr, &[g], None);
+            // (Every state asks something: from its window's start on, 0 included.)
+            if !state.contains_key("after") {
+                state.insert("after".into(), toml::Value::Float(g.time_steps.0 as f64 * cr.time_step));
+            }
+            toml::Value::Table(state)
+        });
+        t.insert("states".into(), toml::Value::Array(states.collect()));
+    }
+    // A goal of a time alone is reached by lasting into its window, as commonroad-io's
+    // `GoalRegion.is_reached` decides it; nothing at all to ask: no goal.
+    let asks = ["position", "polygons", "after", "by", "speed", "heading", "states"];
+    asks.iter().any(|k| t.contains_key(*k)).then_some(t)
+}
+
+/// The `[goal]` keys of these goal states: their region (the union, when every one has a
+/// position), `after`, `offset` (if given), their speed and heading intervals' hulls (when every
+/// one has one) and `by`.
+fn goal_table(cr: &CommonRoad, goals: &[&GoalState], offset: Option<f64>) -> toml::Table {
     let v = toml::Value::Float;
     let point = |p: [f64; 2]| toml::Value::Array(vec![v(p[0]), v(p[1])]);
     let mut t = toml::Table::new();
-    let shapes: Vec<&Shape> = (problem.goals.iter())
+    let shapes: Vec<&Shape> = (goals.iter())
         .filter_map(|g| match &g.position {
             Some(GoalPosition::Shapes(shapes)) => Some(shapes.iter()),
             _ => None,
         })
         .flatten()
         .collect();
-    let lanelets: Vec<u64> = (problem.goals.iter())
+    let lanelets: Vec<u64> = (goals.iter())
         .filter_map(|g| match &g.position {
             Some(GoalPosition::Lanelets(ids)) => Some(ids.iter().copied()),
             _ => None,
         })
         .flatten()
         .collect();
-    if let ([Shape::Circle { radius, center }], true) = (shapes.as_slice(), lanelets.is_empty()) {
+    // (A goal state without a position is met anywhere: then the union has no region.)
+    let everywhere = goals.iter().any(|g| g.position.is_none());
+    if let ([Shape::Circle { radius, center }], true, false) = (shapes.as_slice(), lanelets.is_empty(), everywhere) {
         t.insert("position".into(), point(*center));
         t.insert("radius".into(), v(*radius));
-    } else {
+    } else if !everywhere {
         let mut polygons: Vec<Vec<[f64; 2]>> = shapes.iter().map(|s| shape_polygon(s)).collect();
         polygons.extend(lanelets.iter().filter_map(|id| cr.lanelet(*id)).map(route::polygon));
-        // (None: a goal of conditions alone, its time window, speed and heading.)
         if !polygons.is_empty() {
             let polygons = polygons
                 .into_iter()
@@ -257,16 +285,14 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
             t.insert("polygons".into(), toml::Value::Array(polygons.collect()));
         }
     }
-    let region = !t.is_empty();
-    let (start, end) = (problem.goals.iter())
+    let (start, end) = (goals.iter())
         .map(|g| g.time_steps)
         .fold((i64::MAX, i64::MIN), |(a, b), (s, e)| (a.min(s), b.max(e)));
     if start > 0 {
         t.insert("after".into(), v(start as f64 * cr.time_step));
     }
-    // CommonRoad's goal is for the car's centre, b ahead of the bicycle's rear axle.
-    if region {
-        t.insert("offset".into(), v(VEHICLE.b));
+    if let Some(offset) = offset {
+        t.insert("offset".into(), v(offset));
     }
     // The velocity and orientation intervals, when every goal state has one (their hull).
     let hull = |intervals: Vec<Option<(f64, f64)>>| -> Option<toml::Value> {
@@ -278,18 +304,16 @@ fn goal(cr: &CommonRoad, problem: &PlanningProblem) -> Option<toml::Table> {
             });
         Some(toml::Value::Array(vec![v(lo), v(hi)]))
     };
-    if let Some(speed) = hull(problem.goals.iter().map(|g| g.velocity).collect()) {
+    if let Some(speed) = hull(goals.iter().map(|g| g.velocity).collect()) {
         t.insert("speed".into(), speed);
     }
-    if let Some(heading) = hull(problem.goals.iter().map(|g| g.orientation).collect()) {
+    if let Some(heading) = hull(goals.iter().map(|g| g.orientation).collect()) {
         t.insert("heading".into(), heading);
     }
     if end > 0 {
         t.insert("by".into(), v(end as f64 * cr.time_step));
     }
-    // A goal of a time alone is reached by lasting into its window, as commonroad-io's
-    // `GoalRegion.is_reached` decides it; nothing at all to ask: no goal.
-    (region || ["after", "by", "speed", "heading"].iter().any(|k| t.contains_key(*k))).then_some(t)
+    t
 }
 
 /// The largest deviation (m) of a road edge's smooth curve from its polyline that a world

@@ -341,7 +341,8 @@ pub struct RunInfo {
     pub kinds: Vec<KindInfo>,
     /// The scenario's `[goal]`: metadata `goal_position` ("x y") and `goal_radius`, or
     /// `goal_polygons` (JSON), or `goal_region` = "none" (a goal of conditions alone), and
-    /// `goal_after`, `goal_by`, `goal_offset`, `goal_speed`, `goal_heading` ("lo hi").
+    /// `goal_after`, `goal_by`, `goal_offset`, `goal_speed`, `goal_heading` ("lo hi"), and
+    /// `goal_states` (JSON: the goal states, any one of which reaches it).
     pub goal: Option<crate::scenario::GoalSpec>,
     /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
     pub requirements: Vec<(String, String)>,
@@ -432,6 +433,10 @@ impl RunInfo {
             }
             if let Some(by) = goal.by {
                 metadata.insert("goal_by".to_string(), format!("{by}"));
+            }
+            if !goal.states.is_empty() {
+                let states = serde_json::to_string(&goal.states).unwrap_or_default();
+                metadata.insert("goal_states".to_string(), states);
             }
         }
         if let Some(([x, y], heading)) = self.reference_path {

@@ -217,7 +217,7 @@ pub static METRICS: &[Metric] = &[
     Metric {
         applies: |run| run.goal.is_some(),
         ..metric("time_to_goal", SECONDS, Shape::Number, &[Topic::State], new::<TimeToGoal>,
-            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not) and the speed and heading in the goal's intervals (`goal_speed`, `goal_heading`, if any); for a goal without a region (metadata `goal_region` = none: a CommonRoad goal without a position) the first from `after` on with the speed and heading in them (a goal of a time alone: `after`, the time a run lasting into the window reaches it, as commonroad-io's `GoalRegion.is_reached` decides); absent when the vehicle never enters it so, the closest approach under `missing`")
+            "`time` of the first `/state` message from `after` on with p in the goal region (‖p − g‖ ≤ r, or inside a polygon; whether before `by` or not) and the speed and heading in the goal's intervals (`goal_speed`, `goal_heading`, if any); for a goal without a region (metadata `goal_region` = none: a CommonRoad goal without a position) the first from `after` on with the speed and heading in them (a goal of a time alone: `after`, the time a run lasting into the window reaches it, as commonroad-io's `GoalRegion.is_reached` decides); with goal states (metadata `goal_states`: a CommonRoad planning problem's that differ in more than their regions) the first state that meets one of them whole, each from its own `after` on; absent when the vehicle never enters it so, the closest approach under `missing`")
     },
     Metric {
         applies: |run| run.reference_path.is_some() && run.declared_planar != Some(None),
@@ -1119,25 +1119,31 @@ impl GoalApproach {
         if goal.after.is_some_and(|after| t < after - 1e-9) {
             return;
         }
-        // A goal of conditions alone: reached once the state meets them.
-        if !goal.has_region() {
-            if self.reached.is_none() && self.state_within(goal, m) {
-                self.reached = Some(t);
-            }
-            return;
-        }
-        // The point that must enter: `offset` ahead along the heading (no heading: absent).
-        if let Some((offset, heading)) = goal.offset {
+        // The point that must enter a region: `offset` ahead along the heading (no heading:
+        // absent).
+        let regions = goal.has_region() || goal.states.iter().any(|s| s.has_region());
+        if let (true, Some((offset, heading))) = (regions, goal.offset) {
             let Some(theta) = heading.and_then(|h| m.values.get(h)) else {
                 self.no_heading = true;
                 return;
             };
             (x, y) = (x + offset * theta.cos(), y + offset * theta.sin());
         }
-        let d = goal.distance([x, y]);
-        if d <= 0.0 && self.reached.is_none() && self.state_within(goal, m) {
-            self.reached = Some(t);
+        // Reached when the state meets the goal whole, or one of its goal states whole.
+        if self.reached.is_none() {
+            let reached = match goal.states.is_empty() {
+                true => self.meets(goal, t, [x, y], m),
+                false => goal.states.iter().any(|s| self.meets(s, t, [x, y], m)),
+            };
+            if reached {
+                self.reached = Some(t);
+            }
         }
+        // (A goal of conditions alone has no distance.)
+        if !goal.has_region() {
+            return;
+        }
+        let d = goal.distance([x, y]);
         let closer = |c: Option<(f64, f64)>| c.is_none_or(|(closest, _)| d < closest);
         if closer(self.closest) {
             self.closest = Some((d, t));
@@ -1145,6 +1151,14 @@ impl GoalApproach {
         if goal.by.is_none_or(|by| t <= by + 1e-9) && closer(self.closest_by) {
             self.closest_by = Some((d, t));
         }
+    }
+
+    /// Whether the state at time t, its point at `point`, meets `goal` (or one goal state):
+    /// from its `after` on, in its region (if it has one), speed and heading in its intervals.
+    fn meets(&mut self, goal: &crate::metrics::Goal, t: f64, point: [f64; 2], m: &proto::State) -> bool {
+        goal.after.is_none_or(|after| t >= after - 1e-9)
+            && (!goal.has_region() || goal.distance(point) <= 0.0)
+            && self.state_within(goal, m)
     }
 
     /// Whether the state's speed and heading lie in the goal's intervals (no interval: yes; a

@@ -71,9 +71,30 @@ pub struct Goal {
     pub speed: Option<[f64; 2]>,
     pub heading: Option<([f64; 2], Option<usize>)>,
     pub by: Option<f64>,
+    /// The goal states, any one of which, whole, reaches it (metadata `goal_states`; each with
+    /// the goal's offset and heading index); empty: the goal is one state.
+    pub states: Vec<Goal>,
 }
 
 impl Goal {
+    /// One goal state of a `[goal]`'s `states`, with the goal's point (`offset`, `heading`).
+    fn of_state(
+        spec: &crate::scenario::GoalSpec,
+        offset: Option<(f64, Option<usize>)>,
+        heading: Option<usize>,
+    ) -> Goal {
+        Goal {
+            disc: spec.position.zip(spec.radius),
+            polygons: spec.polygons.clone(),
+            after: spec.after,
+            offset,
+            speed: spec.speed,
+            heading: spec.heading.map(|i| (i, heading)),
+            by: spec.by,
+            states: Vec::new(),
+        }
+    }
+
     /// Whether the goal has a region (a disc or polygons); without one it is its time window,
     /// speed and heading alone (a CommonRoad goal without a position).
     pub fn has_region(&self) -> bool {
@@ -105,6 +126,9 @@ impl Goal {
         }
         if let Some(([lo, hi], _)) = self.heading {
             text.push_str(&format!(", heading in [{lo}, {hi}] rad"));
+        }
+        if !self.states.is_empty() {
+            text.push_str(&format!("; one of its {} goal states whole", self.states.len()));
         }
         text
     }
@@ -146,17 +170,23 @@ impl RunFacts {
                     .unwrap_or_default();
                 let heading = metadata.get("heading_index").and_then(|h| h.trim().parse().ok());
                 let regionless = metadata.get("goal_region").is_some_and(|r| r == "none");
+                let offset = number("goal_offset").map(|offset| (offset, heading));
+                let states: Vec<crate::scenario::GoalSpec> = metadata
+                    .get("goal_states")
+                    .and_then(|p| serde_json::from_str(p).ok())
+                    .unwrap_or_default();
                 (disc.is_some() || !polygons.is_empty() || regionless).then(|| Goal {
                     disc,
                     polygons,
                     after: number("goal_after"),
-                    offset: number("goal_offset").map(|offset| (offset, heading)),
+                    offset,
                     speed: metadata.get("goal_speed").and_then(|p| numbers::<2>(p)),
                     heading: metadata
                         .get("goal_heading")
                         .and_then(|p| numbers::<2>(p))
                         .map(|i| (i, heading)),
                     by: number("goal_by"),
+                    states: states.iter().map(|s| Goal::of_state(s, offset, heading)).collect(),
                 })
             },
             reference_path: metadata
@@ -633,6 +663,7 @@ mod tests {
             speed: None,
             heading: None,
             by: None,
+            states: Vec::new(),
         };
         assert_eq!(goal.distance([1.0, 1.0]), 0.0);
         assert!((goal.distance([3.0, 1.0]) - 1.0).abs() < 1e-12);
@@ -649,6 +680,7 @@ mod tests {
             speed: None,
             heading: None,
             by: None,
+            states: Vec::new(),
         };
         assert!((disc.distance([3.0, 4.0]) - 4.0).abs() < 1e-12);
         // Headings modulo 2π: [−0.8, −0.6] holds −0.7 and −0.7 + 2π, not 0.

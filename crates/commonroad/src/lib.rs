@@ -319,20 +319,14 @@ pub struct PlanningProblem {
 }
 
 impl PlanningProblem {
-    /// A remark when the goal states differ in more than their regions: mjsafe's `[goal]` is one
-    /// region (their union) with one window and one speed and heading interval (the hulls), so a
-    /// state meeting one goal state's region and another's conditions counts as reaching it,
-    /// where CommonRoad asks one goal state to hold whole. None when the union is exact.
-    pub fn goal_states_note(&self) -> Option<String> {
+    /// Whether the goal states differ in more than their regions (their time windows,
+    /// intervals, or whether they have a position): then no one region with one window and one
+    /// pair of intervals is the goal, and each goal state must be asked whole.
+    pub fn goal_states_differ(&self) -> bool {
         let conditions = |g: &GoalState| (g.time_steps, g.orientation, g.velocity, g.position.is_some());
-        let first = conditions(self.goals.first()?);
-        self.goals.iter().any(|g| conditions(g) != first).then(|| {
-            format!(
-                "planning problem {}: its {} goal states differ in their time windows, intervals or whether they have a position; the goal is their regions' union with the hull of their windows and intervals, so `time_to_goal` may count a state that meets no one goal state whole",
-                self.id,
-                self.goals.len()
-            )
-        })
+        self.goals
+            .first()
+            .is_some_and(|first| self.goals.iter().any(|g| conditions(g) != conditions(first)))
     }
 }
 
@@ -420,9 +414,8 @@ impl CommonRoad {
         Some(format!("ignored: {}", parts.join(", ")))
     }
 
-    /// Further remarks on how the file was read (set-valued states reduced to a point; goal
-    /// states that mjsafe's one goal can only approximate), one line each;
-    /// [`CommonRoad::ignored_line`] is separate.
+    /// Further remarks on how the file was read (currently: set-valued states reduced to a point),
+    /// one line each; [`CommonRoad::ignored_line`] is separate.
     pub fn notes(&self) -> Vec<String> {
         let mut notes = Vec::new();
         if self.uncertain_states > 0 {
@@ -431,11 +424,6 @@ impl CommonRoad {
             notes.push(format!(
                 "{n} {states} with interval values or shape positions read as the interval midpoint / shape centre"
             ));
-        }
-        for problem in &self.planning_problems {
-            if let Some(note) = problem.goal_states_note() {
-                notes.push(note);
-            }
         }
         notes
     }
