@@ -26,6 +26,60 @@ fn commonroad_python() -> String {
     })
 }
 
+/// The committed CommonRoad files, sorted.
+fn committed_files() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(data(""))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+        .collect();
+    files.sort();
+    files
+}
+
+/// `mjsafe import commonroad xml` into `dir`, read back.
+fn imported(xml: &Path, dir: &Path) -> toml::Table {
+    let out = dir.join(format!("{}.toml", xml.file_stem().unwrap().to_string_lossy()));
+    let _ = std::fs::remove_file(&out);
+    let o = mjsafe(&[
+        "import",
+        "commonroad",
+        xml.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::read_to_string(&out).unwrap().parse().unwrap()
+}
+
+/// tests/commonroad_check.py on the run of `xml` logged in `log` (road users at every recorded
+/// step, predictions, entry events, and `time_to_goal` against commonroad-io's
+/// `GoalRegion.is_reached`): its output, asserting 0 mismatches.
+fn check_with_commonroad_io(xml: &Path, log: &Path) -> String {
+    let time_to_goal = match &common::analyze_json(log)["time_to_goal"] {
+        serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
+        _ => "none".to_string(),
+    };
+    let check = Command::new(commonroad_python())
+        .args([
+            common::root().join("tests/commonroad_check.py").to_str().unwrap(),
+            xml.to_str().unwrap(),
+            log.to_str().unwrap(),
+            "--time-to-goal",
+            &time_to_goal,
+        ])
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&check.stdout),
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert!(check.status.success(), "{}: {text}", xml.display());
+    assert!(text.contains(" 0 mismatches"), "{text}");
+    text
+}
+
 fn run(xml: &Path, out: &Path, extra: &[&str]) -> String {
     let mut args = vec!["run", xml.to_str().unwrap(), "--out", out.to_str().unwrap()];
     args.extend_from_slice(extra);
@@ -41,40 +95,14 @@ fn run(xml: &Path, out: &Path, extra: &[&str]) -> String {
 #[test]
 fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
     let dir = tempfile::tempdir().unwrap();
-    let mut files: Vec<PathBuf> = std::fs::read_dir(data(""))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
-        .collect();
-    files.sort();
+    let files = committed_files();
     assert!(files.len() >= 10, "{files:?}");
     for xml in &files {
         let log = dir
             .path()
             .join(format!("{}.mcap", xml.file_stem().unwrap().to_string_lossy()));
         run(xml, &log, &[]);
-        // mjsafe's time_to_goal, checked against commonroad-io's GoalRegion.is_reached.
-        let time_to_goal = match &common::analyze_json(&log)["time_to_goal"] {
-            serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
-            _ => "none".to_string(),
-        };
-        let check = Command::new(commonroad_python())
-            .args([
-                common::root().join("tests/commonroad_check.py").to_str().unwrap(),
-                xml.to_str().unwrap(),
-                log.to_str().unwrap(),
-                "--time-to-goal",
-                &time_to_goal,
-            ])
-            .output()
-            .unwrap();
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&check.stdout),
-            String::from_utf8_lossy(&check.stderr)
-        );
-        assert!(check.status.success(), "{}: {text}", xml.display());
-        assert!(text.contains(" 0 mismatches"), "{text}");
+        check_with_commonroad_io(xml, &log);
     }
 }
 
@@ -215,10 +243,8 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
     let header: Vec<&str> = rows.next().unwrap().split(',').collect();
     let column = header.iter().position(|c| *c == "scenario").expect("a scenario column");
     let mut ids: Vec<String> = rows.map(|r| r.split(',').nth(column).unwrap().to_string()).collect();
-    let mut expected: Vec<String> = std::fs::read_dir(data(""))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+    let mut expected: Vec<String> = committed_files()
+        .into_iter()
         .map(|p| {
             let text = std::fs::read_to_string(&p).unwrap();
             let at = text.find("benchmarkID=\"").unwrap() + "benchmarkID=\"".len();
@@ -290,22 +316,8 @@ fn close(a: f64, b: f64) -> bool {
 fn the_ego_and_the_goal_are_the_planning_problems() {
     let dir = tempfile::tempdir().unwrap();
     let b = 1.4227170936;
-    for entry in std::fs::read_dir(data("")).unwrap() {
-        let xml = entry.unwrap().path();
-        if xml.extension().is_none_or(|e| e != "xml") {
-            continue;
-        }
-        let toml_path = dir.path().join("x.toml");
-        let _ = std::fs::remove_file(&toml_path);
-        let o = mjsafe(&[
-            "import",
-            "commonroad",
-            xml.to_str().unwrap(),
-            "--out",
-            toml_path.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+    for xml in committed_files() {
+        let scenario = imported(&xml, dir.path());
         let pp = commonroad_io_json(&xml, "--planning-problem-json");
         let lanelets = commonroad_io_json(&xml, "--lanelets-json");
         let dt = pp["time_step_size"].as_f64().unwrap();
@@ -461,26 +473,10 @@ fn the_ego_and_the_goal_are_the_planning_problems() {
 #[test]
 fn road_users_are_where_and_as_large_as_commonroad_io_places_them() {
     let dir = tempfile::tempdir().unwrap();
-    let mut files: Vec<PathBuf> = std::fs::read_dir(data(""))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
-        .collect();
-    files.sort();
     let mut shapes = 0;
-    for xml in &files {
+    for xml in &committed_files() {
         let name = xml.display();
-        let toml_path = dir.path().join("x.toml");
-        let _ = std::fs::remove_file(&toml_path);
-        let o = mjsafe(&[
-            "import",
-            "commonroad",
-            xml.to_str().unwrap(),
-            "--out",
-            toml_path.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+        let scenario = imported(xml, dir.path());
         let ours: std::collections::BTreeMap<String, &toml::Value> = (scenario.get("obstacles"))
             .and_then(|o| o.as_array())
             .into_iter()
@@ -569,36 +565,16 @@ fn each_goal_state_is_asked_whole() {
     for (name, goals, reached) in cases {
         let xml = dir.path().join(format!("{name}.xml"));
         std::fs::write(&xml, format!("{}{goals}{}", &text[..start], &text[end..])).unwrap();
-        let toml_path = dir.path().join(format!("{name}.toml"));
-        let o = mjsafe(&[
-            "import",
-            "commonroad",
-            xml.to_str().unwrap(),
-            "--out",
-            toml_path.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let scenario: toml::Table = std::fs::read_to_string(&toml_path).unwrap().parse().unwrap();
+        let scenario = imported(&xml, dir.path());
         assert_eq!(scenario["goal"]["states"].as_array().map(Vec::len), Some(2), "{name}");
         let log = dir.path().join(format!("{name}.mcap"));
         run(&xml, &log, &[]);
-        let time_to_goal = match &common::analyze_json(&log)["time_to_goal"] {
-            serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
-            _ => "none".to_string(),
-        };
-        assert_eq!(time_to_goal != "none", reached, "{name}: {time_to_goal}");
-        let check = Command::new(commonroad_python())
-            .args([
-                common::root().join("tests/commonroad_check.py").to_str().unwrap(),
-                xml.to_str().unwrap(),
-                log.to_str().unwrap(),
-                "--time-to-goal",
-                &time_to_goal,
-            ])
-            .output()
-            .unwrap();
-        let out = String::from_utf8_lossy(&check.stdout).to_string() + &String::from_utf8_lossy(&check.stderr);
-        assert!(check.status.success() && out.contains(" 0 mismatches"), "{name}: {out}");
+        assert_eq!(
+            common::analyze_json(&log)["time_to_goal"].is_number(),
+            reached,
+            "{name}"
+        );
+        check_with_commonroad_io(&xml, &log);
     }
 }
 
@@ -619,17 +595,7 @@ fn the_ego_is_commonroads_vehicle_2() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let [l, w, a, b, steering]: [f64; 5] = serde_json::from_slice(&o.stdout).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("x.toml");
-    let xml = data("ZAM_Tutorial-1_1_T-1.xml");
-    let o = mjsafe(&[
-        "import",
-        "commonroad",
-        xml.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let scenario: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
+    let scenario = imported(&data("ZAM_Tutorial-1_1_T-1.xml"), dir.path());
     let footprint = &scenario["vehicle"]["footprint"];
     let float = |v: &toml::Value| v.as_float().unwrap();
     assert!(close(float(&footprint["length"]), l) && close(float(&footprint["width"]), w));

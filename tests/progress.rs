@@ -160,7 +160,10 @@ fn a_bad_goal_is_one_error_line_naming_the_file_and_field() {
             "goal={position=[0.0, 0.0], radius=1.0, states=[{after=1.0}, {position=[1.0, 0.0], radius=-1.0}]}",
             "goal.states.1.radius",
         ),
-        ("goal={position=[0.0, 0.0], radius=1.0, states=[{offset=1.0}]}", "goal.states.0"),
+        (
+            "goal={position=[0.0, 0.0], radius=1.0, states=[{offset=1.0}]}",
+            "goal.states.0",
+        ),
         ("goal.radius=0.0", "goal.radius"),
         ("goal.position=[1e300, 0.0]", "goal.position"),
         ("goal.by=-1.0", "goal.by"),
