@@ -195,6 +195,11 @@ pub(super) fn run_scenario(
         if let Some(t) = metrics.number("stall_time") {
             value["stall_time"] = serde_json::json!(t);
         }
+        // Only for a run with a goal: when it reached it (null: not reached, `analyze` says
+        // how close it came).
+        if let Some(reached) = goal_outcome(&metrics) {
+            value["time_to_goal"] = serde_json::json!(reached);
+        }
         // Only for a run whose filter received barrier rows: how many, and how many of road
         // users out of reach were left out.
         let rows = summary.barrier_rows;
@@ -214,9 +219,14 @@ pub(super) fn run_scenario(
         outln!("{value}");
     } else {
         outln!(
-            "{}: {}{}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
+            "{}: {}{}{}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
             collision_text(&metrics),
+            match goal_outcome(&metrics) {
+                Some(Some(t)) => format!(" | goal reached at {t:.2} s"),
+                Some(None) => " | goal NOT REACHED".to_string(),
+                None => String::new(),
+            },
             // Safe by not moving is said next to "no collision".
             metrics.number("stall_time").map_or(String::new(), |t| format!(
                 ", but STALLED from t = {t:.2} s (held still by the filter)"
@@ -449,6 +459,15 @@ fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
         for line in cr.ignored_line().into_iter().chain(cr.notes()) {
             eprintln!("{}: {line}", file.display());
         }
+    }
+}
+
+/// For a run with a goal, when it reached it (`time_to_goal`), or None inside when it did not;
+/// None for a run without a goal.
+fn goal_outcome(metrics: &RunMetrics) -> Option<Option<f64>> {
+    match metrics.number("time_to_goal") {
+        Some(t) => Some(Some(t)),
+        None => metrics.missing.contains_key("time_to_goal").then_some(None),
     }
 }
 
