@@ -176,46 +176,7 @@ pub(super) fn run_scenario(
     let summary = outcome.summary;
     let metrics = outcome.metrics.expect("a logged run is analysed");
     if report.json {
-        let rtf = summary.real_time_factor();
-        let value = serde_json::json!({
-            "scenario": loaded.scenario.name,
-            "collision": metrics.collision(),
-            "min_h": metrics.min_h(),
-            "min_h_by_barrier": metrics.min_h_by_barrier(),
-            "steps": summary.steps,
-            "simulated_time": summary.simulated_time,
-            "real_time_factor": rtf.is_finite().then_some(rtf),
-            "log": log_path.display().to_string(),
-            "complete": summary.error.is_none(),
-            "error": summary.error.as_ref().map(ToString::to_string),
-        });
-        let mut value = value;
-        // Only for a run that stalled, or with warnings, so the object of a clean run keeps
-        // its keys.
-        if let Some(t) = metrics.number("stall_time") {
-            value["stall_time"] = serde_json::json!(t);
-        }
-        // Only for a run with a goal: when it reached it (null: not reached, `analyze` says
-        // how close it came).
-        if let Some(reached) = goal_outcome(&metrics) {
-            value["time_to_goal"] = serde_json::json!(reached);
-        }
-        // Only for a run whose filter received barrier rows: how many, and how many of road
-        // users out of reach were left out.
-        let rows = summary.barrier_rows;
-        if rows.formed + rows.left_out > 0 {
-            value["barrier_rows"] = serde_json::json!(rows);
-        }
-        // Only for a run with requirements: their robustness (null when absent: `missing`).
-        if let Some(Value::PerChannel(values)) = metrics.value(REQUIREMENTS) {
-            value["req"] = serde_json::json!(values);
-        }
-        if let Some(Value::PerChannel(Some(times))) = metrics.value(REQUIREMENT_VIOLATED_AT) {
-            value[REQUIREMENT_VIOLATED_AT] = serde_json::json!(times);
-        }
-        if !metrics.warnings.is_empty() {
-            value["warnings"] = serde_json::json!(metrics.warnings);
-        }
+        let value = summary_json(&loaded.scenario.name, &summary, &metrics, &log_path);
         outln!("{value}");
     } else {
         outln!(
@@ -460,6 +421,55 @@ fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
             eprintln!("{}: {line}", file.display());
         }
     }
+}
+
+/// `run --json`'s object: the summary of the run, and the keys a run has only when they apply.
+fn summary_json(
+    name: &str,
+    summary: &crate::episode::EpisodeSummary,
+    metrics: &RunMetrics,
+    log_path: &Path,
+) -> serde_json::Value {
+    let rtf = summary.real_time_factor();
+    let mut value = serde_json::json!({
+        "scenario": name,
+        "collision": metrics.collision(),
+        "min_h": metrics.min_h(),
+        "min_h_by_barrier": metrics.min_h_by_barrier(),
+        "steps": summary.steps,
+        "simulated_time": summary.simulated_time,
+        "real_time_factor": rtf.is_finite().then_some(rtf),
+        "log": log_path.display().to_string(),
+        "complete": summary.error.is_none(),
+        "error": summary.error.as_ref().map(ToString::to_string),
+    });
+    // Only for a run that stalled, or with warnings, so the object of a clean run keeps
+    // its keys.
+    if let Some(t) = metrics.number("stall_time") {
+        value["stall_time"] = serde_json::json!(t);
+    }
+    // Only for a run with a goal: when it reached it (null: not reached, `analyze` says
+    // how close it came).
+    if let Some(reached) = goal_outcome(metrics) {
+        value["time_to_goal"] = serde_json::json!(reached);
+    }
+    // Only for a run whose filter received barrier rows: how many, and how many of road
+    // users out of reach were left out.
+    let rows = summary.barrier_rows;
+    if rows.formed + rows.left_out > 0 {
+        value["barrier_rows"] = serde_json::json!(rows);
+    }
+    // Only for a run with requirements: their robustness (null when absent: `missing`).
+    if let Some(Value::PerChannel(values)) = metrics.value(REQUIREMENTS) {
+        value["req"] = serde_json::json!(values);
+    }
+    if let Some(Value::PerChannel(Some(times))) = metrics.value(REQUIREMENT_VIOLATED_AT) {
+        value[REQUIREMENT_VIOLATED_AT] = serde_json::json!(times);
+    }
+    if !metrics.warnings.is_empty() {
+        value["warnings"] = serde_json::json!(metrics.warnings);
+    }
+    value
 }
 
 /// For a run with a goal, when it reached it (`time_to_goal`), or None inside when it did not;
