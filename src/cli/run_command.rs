@@ -183,11 +183,6 @@ pub(super) fn run_scenario(
             "{}: {}{}{}{} | min h = {} | {} steps, {:.2} s simulated, {}x real time | log: {}",
             loaded.scenario.name,
             collision_text(&metrics),
-            match goal_outcome(&metrics) {
-                Some(Some(t)) => format!(" | goal reached at {t:.2} s"),
-                Some(None) => " | goal NOT REACHED".to_string(),
-                None => String::new(),
-            },
             // Safe by not moving is said next to "no collision".
             metrics.number("stall_time").map_or(String::new(), |t| format!(
                 ", but STALLED from t = {t:.2} s (held still by the filter)"
@@ -198,6 +193,11 @@ pub(super) fn run_scenario(
                     " | {n} MUJOCO WARNING{}: physics not the model's",
                     if n > 1 { "S" } else { "" }
                 ),
+            },
+            match goal_outcome(&metrics) {
+                Some(Some(t)) => format!(" | goal reached at {t:.2} s"),
+                Some(None) => " | goal NOT REACHED".to_string(),
+                None => String::new(),
             },
             min_h_text(&metrics),
             summary.steps,
