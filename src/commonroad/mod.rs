@@ -263,13 +263,20 @@ fn goal_table(cr: &CommonRoad, goals: &[&GoalState], offset: Option<f64>) -> tom
         })
         .flatten()
         .collect();
-    let lanelets: Vec<u64> = (goals.iter())
+    let mut lanelets: Vec<u64> = Vec::new();
+    // (Each lanelet once, in the order the goal states name them: several may share one.)
+    for id in goals
+        .iter()
         .filter_map(|g| match &g.position {
             Some(GoalPosition::Lanelets(ids)) => Some(ids.iter().copied()),
             _ => None,
         })
         .flatten()
-        .collect();
+    {
+        if !lanelets.contains(&id) {
+            lanelets.push(id);
+        }
+    }
     // (A goal state without a position is met anywhere: then the union has no region.)
     let everywhere = goals.iter().any(|g| g.position.is_none());
     if let ([Shape::Circle { radius, center }], true, false) = (shapes.as_slice(), lanelets.is_empty(), everywhere) {
