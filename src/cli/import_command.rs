@@ -70,7 +70,7 @@ impl ImportCommand {
             text.as_bytes(),
         )?;
         if let Some(cr) = &loaded.commonroad {
-            for line in cr.ignored_line().into_iter().chain(cr.notes()) {
+            for line in cr.remarks() {
                 eprintln!("{}: {line}", file.display());
             }
         }

@@ -417,7 +417,7 @@ impl ReplayCommand {
 /// dropped silently).
 fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
     if let (Some(cr), Some(file)) = (&loaded.commonroad, loaded.commonroad_path()) {
-        for line in cr.ignored_line().into_iter().chain(cr.notes()) {
+        for line in cr.remarks() {
             eprintln!("{}: {line}", file.display());
         }
     }

@@ -414,6 +414,12 @@ impl CommonRoad {
         Some(format!("ignored: {}", parts.join(", ")))
     }
 
+    /// Every line to tell the user about how the file was read: [`CommonRoad::ignored_line`],
+    /// then [`CommonRoad::notes`].
+    pub fn remarks(&self) -> Vec<String> {
+        self.ignored_line().into_iter().chain(self.notes()).collect()
+    }
+
     /// Further remarks on how the file was read (currently: set-valued states reduced to a point),
     /// one line each; [`CommonRoad::ignored_line`] is separate.
     pub fn notes(&self) -> Vec<String> {
