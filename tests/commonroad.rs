@@ -707,3 +707,125 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
         );
     }
 }
+
+/// `tests/commonroad_check.py --write-turned`: `xml` turned by `angle` about the origin and
+/// shifted by `shift`, as commonroad-io writes it, at `out`.
+fn turned(xml: &Path, out: &Path, angle: f64, shift: [f64; 2]) {
+    let (angle, x, y) = (angle.to_string(), shift[0].to_string(), shift[1].to_string());
+    let check = Command::new(commonroad_python())
+        .args([
+            common::root().join("tests/commonroad_check.py").to_str().unwrap(),
+            xml.to_str().unwrap(),
+            "--write-turned",
+            out.to_str().unwrap(),
+            &angle,
+            &x,
+            &y,
+        ])
+        .output()
+        .unwrap();
+    assert!(check.status.success(), "{}", String::from_utf8_lossy(&check.stderr));
+}
+
+/// `analyze --json`'s object flattened to dotted paths (the per-barrier maps' entries, the
+/// `missing` reasons).
+fn flattened(value: &serde_json::Value, path: &str, out: &mut std::collections::BTreeMap<String, serde_json::Value>) {
+    match value {
+        serde_json::Value::Object(map) => {
+            for (key, entry) in map {
+                let inner = if path.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{path}.{key}")
+                };
+                flattened(entry, &inner, out);
+            }
+        }
+        _ => {
+            out.insert(path.to_string(), value.clone());
+        }
+    }
+}
+
+/// mjsafe measures a scene, not the frame it is written in. Every committed file, and the same
+/// file turned and shifted by commonroad-io (three frames, one of them half a turn; one that starts
+/// the car just below a heading of π; one that centres the goal's heading interval on π), run
+/// with the nominal alone: every metric of
+/// `analyze --json` equal within 1e-6 (relative, or absolute below 1; 1e-5 for a run that
+/// collided, whose car MuJoCo's iterative contact solver moves after the contact), the ones
+/// formed from differences of the logged states at one step (jerks, input rates, the impact
+/// speed and speed reduction at the first contact) and MuJoCo's contact depth within 1e-3; the
+/// same metrics present, and absent for the same ones (the reasons may name the heading
+/// interval, which turns). This runs the whole chain that the frame
+/// could leak into: the import of the road users, lanelets and planning problem, the route and
+/// the nominal following it, the road edges, MuJoCo's contacts and every metric. (The filters'
+/// runs differ slightly between frames: their prediction chains are continued when the mismatch's
+/// largest component is below `control.chain_tolerance`, a norm that turns with the frame.)
+#[test]
+fn a_scene_turned_and_shifted_gives_the_same_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = [
+        (0.0, [0.0, 0.0]),
+        (2.3, [37.5, -12.25]),
+        (std::f64::consts::PI, [-250.0, 80.0]),
+        (-1.9, [1000.0, 400.0]),
+    ];
+    let loose = |path: &str| {
+        ["jerk", "input_rate", "impact_speed", "speed_reduction", "depth"]
+            .iter()
+            .any(|k| path.contains(k))
+    };
+    for xml in committed_files() {
+        let stem = xml.file_stem().unwrap().to_string_lossy().to_string();
+        // Two more frames: the car starting at a heading of π − 0.05 rad (it crosses ±π as it
+        // turns left), and the first goal state's heading interval centred on π.
+        let problem = &commonroad_io_json(&xml, "--planning-problem-json")["planning_problems"][0];
+        let start = problem["initial_state"]["orientation"].as_f64().unwrap();
+        let mut frames = frames.to_vec();
+        frames.push((std::f64::consts::PI - 0.05 - start, [-30.0, 60.0]));
+        if let Some([low, high]) = problem["goal_states"][0]["orientation"]
+            .as_array()
+            .map(|i| [&i[0], &i[1]])
+        {
+            let middle = 0.5 * (low.as_f64().unwrap() + high.as_f64().unwrap());
+            frames.push((std::f64::consts::PI - middle, [15.0, -5.0]));
+        }
+        let mut runs = Vec::new();
+        for (i, &(angle, shift)) in frames.iter().enumerate() {
+            let file = dir.path().join(format!("{stem}-{i}.xml"));
+            turned(&xml, &file, angle, shift);
+            let log = dir.path().join(format!("{stem}-{i}.mcap"));
+            run(&file, &log, &["--set", "filter={kind=\"none\"}"]);
+            let mut metrics = std::collections::BTreeMap::new();
+            flattened(&common::analyze_json(&log), "", &mut metrics);
+            metrics.remove("file");
+            runs.push(metrics);
+        }
+        let (first, others) = runs.split_first().unwrap();
+        // (After a contact MuJoCo's contact solver, an iterative one, moves the car.)
+        let collided = first.get("collision.time").is_some_and(|t| t.is_number());
+        for (frame, other) in frames[1..].iter().zip(others) {
+            let keys =
+                |m: &std::collections::BTreeMap<String, serde_json::Value>| m.keys().cloned().collect::<Vec<_>>();
+            assert_eq!(keys(first), keys(other), "{stem} turned by {frame:?}: other metrics");
+            for (path, value) in first {
+                let turned_value = &other[path];
+                match (value.as_f64(), turned_value.as_f64()) {
+                    (Some(a), Some(b)) => {
+                        let tolerance = match (loose(path), collided) {
+                            (true, _) => 1e-3,
+                            (false, true) => 1e-5,
+                            (false, false) => 1e-6,
+                        };
+                        assert!(
+                            (a - b).abs() <= tolerance * a.abs().max(1.0),
+                            "{stem} turned by {frame:?}: {path} {a} against {b}"
+                        );
+                    }
+                    _ if path.starts_with("missing.") => {}
+                    _ => assert_eq!(value, turned_value, "{stem} turned by {frame:?}: {path}"),
+                }
+            }
+        }
+    }
+}

@@ -63,12 +63,15 @@ first 10 mismatches listed when K > 0, or when no `/actors` message fell on a ti
 --obstacles-json OUT writes every road user (sorted by id, the planning problems' ids left out):
   {"obstacles": [{"id", "role", "occupancy": [shape, ...] | null}]}, where commonroad-io puts its
   shape at its initial state (see `obstacles_json`).
-The XML alone is enough for these three (the log argument may be left out).
+--write-turned OUT ANGLE X Y writes the scenario turned by ANGLE (rad) about the origin and then
+  shifted by (X, Y) m, as commonroad-io turns it (`translate_rotate`), and exits.
+The XML alone is enough for these four (the log argument may be left out).
 """
 import argparse
 import json
 import logging
 import math
+import os
 import struct
 import sys
 import warnings
@@ -629,6 +632,29 @@ def check_goal(pps, log_path, dt, expected):
     return first, mismatches
 
 
+def write_turned(xml, out, angle, x, y):
+    """The scenario and its planning problems turned by `angle` about the origin, then shifted by
+    (x, y) (`translate_rotate` of commonroad-io's Scenario and PlanningProblemSet: positions,
+    orientations, shapes, lanelets, goal regions and their orientation intervals), written as
+    2020a XML with 12 decimals (commonroad-io's default of 4 would round the recording)."""
+    import numpy as np
+    from commonroad.common.file_writer import CommonRoadFileWriter, OverwriteExistingFile
+    from commonroad.common.util import FileFormat
+
+    scenario, pps = open_scenario(xml)
+    scenario.translate_rotate(np.zeros(2), angle)
+    pps.translate_rotate(np.zeros(2), angle)
+    scenario.translate_rotate(np.array([x, y]), 0.0)
+    pps.translate_rotate(np.array([x, y]), 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        CommonRoadFileWriter(scenario, pps, "tests/commonroad_check.py", "mjsafe", "turned",
+                             scenario.tags, decimal_precision=12,
+                             file_format=FileFormat.XML).write_to_file(out, OverwriteExistingFile.ALWAYS)
+    if not os.path.exists(out):
+        raise SystemExit(f"commonroad_check: commonroad-io wrote no {out}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("xml")
@@ -640,10 +666,18 @@ def main(argv=None):
     ap.add_argument("--obstacles-json", metavar="OUT")
     ap.add_argument("--set-valued", choices=["centre", "contains", "skip"], default="centre",
                     help="how to compare states given as shapes / intervals (default: centre)")
+    ap.add_argument("--write-turned", nargs=4, metavar=("OUT", "ANGLE", "X", "Y"),
+                    help="write the scenario and its planning problems turned by ANGLE (rad) about "
+                         "the origin, then shifted by (X, Y) m (commonroad-io's translate_rotate), "
+                         "as a 2020a XML file, and exit")
     ap.add_argument("--time-to-goal", metavar="T|none",
                     help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
                          "GoalRegion.is_reached at every /state")
     args = ap.parse_args(argv)
+    if args.write_turned:
+        out, angle, x, y = args.write_turned
+        write_turned(args.xml, out, float(angle), float(x), float(y))
+        return 0
     if args.log is None and not (args.planning_problem_json or args.lanelets_json or args.obstacles_json):
         ap.error("nothing to do: give a log, --planning-problem-json, --lanelets-json or --obstacles-json")
 
