@@ -53,8 +53,9 @@ fn imported(xml: &Path, dir: &Path) -> toml::Table {
 }
 
 /// tests/commonroad_check.py on the run of `xml` logged in `log` (road users at every recorded
-/// step, predictions, entry events, and `time_to_goal` against commonroad-io's
-/// `GoalRegion.is_reached`): its output, asserting 0 mismatches.
+/// step, predictions, entry events, `time_to_goal` against commonroad-io's
+/// `GoalRegion.is_reached`, and the contacts against the car's footprint meeting commonroad-io's
+/// shapes): its output, asserting 0 mismatches.
 fn check_with_commonroad_io(xml: &Path, log: &Path) -> String {
     let time_to_goal = match &common::analyze_json(log)["time_to_goal"] {
         serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
@@ -67,6 +68,7 @@ fn check_with_commonroad_io(xml: &Path, log: &Path) -> String {
             log.to_str().unwrap(),
             "--time-to-goal",
             &time_to_goal,
+            "--contacts",
         ])
         .output()
         .unwrap();
@@ -758,7 +760,10 @@ fn flattened(value: &serde_json::Value, path: &str, out: &mut std::collections::
 /// same metrics present, and absent for the same ones (the reasons may name the heading
 /// interval, which turns). This runs the whole chain that the frame
 /// could leak into: the import of the road users, lanelets and planning problem, the route and
-/// the nominal following it, the road edges, MuJoCo's contacts and every metric. (The filters'
+/// the nominal following it, the road edges, MuJoCo's contacts and every metric. The unturned
+/// runs of the nominal alone, which collide on six files, and those across ±π also go through
+/// tests/commonroad_check.py (contacts against commonroad-io's shapes, the goal against
+/// `GoalRegion.is_reached`). (The filters'
 /// runs differ slightly between frames: their prediction chains are continued when the mismatch's
 /// largest component is below `control.chain_tolerance`, a norm that turns with the frame.)
 #[test]
@@ -796,6 +801,11 @@ fn a_scene_turned_and_shifted_gives_the_same_run() {
             turned(&xml, &file, angle, shift);
             let log = dir.path().join(format!("{stem}-{i}.mcap"));
             run(&file, &log, &["--set", "filter={kind=\"none\"}"]);
+            // The collisions and the goal as commonroad-io decides them: unturned, and where the
+            // car starts, or the goal's interval lies, across ±π.
+            if i == 0 || i > 3 {
+                check_with_commonroad_io(&file, &log);
+            }
             let mut metrics = std::collections::BTreeMap::new();
             flattened(&common::analyze_json(&log), "", &mut metrics);
             metrics.remove("file");

@@ -76,6 +76,8 @@ import struct
 import sys
 import warnings
 
+# A contact is decided within this much of touching (`check_contacts`), m.
+CONTACT_MARGIN = 0.05
 TOL = 1e-9
 TWO_PI = 2.0 * math.pi
 
@@ -585,6 +587,77 @@ def check_entries(scenario, log_path, dt, times, ego_ids=()):
     return sum(len(v) for v in events.values()), mismatches
 
 
+def contact_intervals(log_path):
+    """Per road user name, mjsafe's contact intervals [start, end] from the log's
+    `collision_start` / `collision_end` events (an interval still open at the end runs to +inf)."""
+    intervals, open_at = {}, {}
+    for e in read_messages(log_path, "/event", decode_event):
+        for name in e["participants"]:
+            if name == "vehicle":
+                continue
+            if e["kind"] == "collision_start":
+                open_at[name] = e["time"]
+            elif e["kind"] == "collision_end" and name in open_at:
+                intervals.setdefault(name, []).append((open_at.pop(name), e["time"]))
+    for name, start in open_at.items():
+        intervals.setdefault(name, []).append((start, math.inf))
+    return intervals
+
+
+def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
+    """mjsafe's contacts against the shapes CommonRoad gives: at every `/state` on a time step k,
+    the car's footprint (a rectangle from the log's pose and its `vehicle_extent`) against every
+    road user's `occupancy_at_time(k).shape` (commonroad-io's shapely polygon). Overlapping by more
+    than `margin` (the footprint shrunk by `margin` still meets the shape) must be a contact in
+    the log, and a gap of more than `margin` must not be (MuJoCo finds contacts at the state before
+    each step: within a step's motion of touching, either is right). Returns (pairs compared,
+    pairs overlapping, mismatches)."""
+    from shapely.geometry import Polygon as ShapelyPolygon
+
+    meta = run_metadata(log_path)
+    front, rear, half_width = map(float, meta["vehicle_extent"].split())
+    i, j = map(int, meta["planar_position"].split())
+    heading_index = int(meta["heading_index"])
+    intervals = contact_intervals(log_path)
+    obstacles = [o for o in scenario.dynamic_obstacles + scenario.static_obstacles
+                 if o.obstacle_id not in ego_ids]
+    compared = overlapping = 0
+    mismatches = []
+    for state in read_messages(log_path, "/state", decode_state):
+        t = state["time"]
+        k = round(t / dt)
+        if k < 0 or abs(t - k * dt) > TOL:
+            continue
+        x, y, heading = state["values"][i], state["values"][j], state["values"][heading_index]
+        c, s = math.cos(heading), math.sin(heading)
+        corners = [(x + a * c - b * s, y + a * s + b * c)
+                   for a, b in ((front, half_width), (-rear, half_width), (-rear, -half_width), (front, -half_width))]
+        car = ShapelyPolygon(corners)
+        shrunk = car.buffer(-margin)
+        for o in obstacles:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                recorded = o.state_at_time(k) if hasattr(o, "state_at_time") else o.initial_state
+                occupancy = o.occupancy_at_time(k)
+            # (A set-valued state, as A9-3's, is no pose: left out.)
+            if occupancy is None or recorded is None or hasattr(recorded.position, "center"):
+                continue
+            # (commonroad-io 2026.1's occupancy is the shape; older ones wrap it in `.shape`.)
+            shape = getattr(occupancy, "shape", occupancy).shapely_object
+            name = f"cr_{o.obstacle_id}"
+            touching = any(start <= t <= end for start, end in intervals.get(name, []))
+            compared += 1
+            if shrunk.intersects(shape):
+                overlapping += 1
+                if not touching:
+                    mismatches.append(f"t={t!r} (step {k}) {name}: the car overlaps its shape by more "
+                                      f"than {margin} m, and the log has no contact")
+            elif car.distance(shape) > margin and touching:
+                mismatches.append(f"t={t!r} (step {k}) {name}: the log has a contact, and the car is "
+                                  f"{car.distance(shape):.3f} m from its shape")
+    return compared, overlapping, mismatches
+
+
 def run_metadata(path):
     """The log's `mjsafe` metadata record."""
     from mcap.reader import make_reader
@@ -600,7 +673,8 @@ def check_goal(pps, log_path, dt, expected):
     """When the car first reached its planning problem's goal, as commonroad-io's
     `GoalRegion.is_reached` decides it, against mjsafe's `time_to_goal` (`expected`, None when
     absent). At every `/state` message: the car's centre (the planar position plus the log's
-    `goal_offset` along the heading), orientation, velocity and time step t / dt. Returns
+    `goal_offset` along the heading), orientation, velocity and time step t / dt (rounded to the
+    step within 1e-9 s of one). Returns
     (commonroad-io's first time or None, mismatches)."""
     from commonroad.scenario.state import CustomState
     import numpy as np
@@ -615,8 +689,11 @@ def check_goal(pps, log_path, dt, expected):
         v = dict(zip(m["names"], m["values"]))
         x, y, heading, speed = v["x1"], v["x2"], v["heading"], v["speed"]
         centre = np.array([x + offset * math.cos(heading), y + offset * math.sin(heading)])
-        state = CustomState(position=centre, orientation=heading, velocity=speed,
-                            time_step=m["time"] / dt)
+        # (A state on the grid is at its integer step: 8.2 s / 0.1 s is 81.99999999999999.)
+        step = m["time"] / dt
+        if abs(step - round(step)) * dt <= TOL:
+            step = round(step)
+        state = CustomState(position=centre, orientation=heading, velocity=speed, time_step=step)
         if goal.is_reached(state):
             first = m["time"]
             break
@@ -670,6 +747,9 @@ def main(argv=None):
                     help="write the scenario and its planning problems turned by ANGLE (rad) about "
                          "the origin, then shifted by (X, Y) m (commonroad-io's translate_rotate), "
                          "as a 2020a XML file, and exit")
+    ap.add_argument("--contacts", action="store_true",
+                    help="check the log's contacts against the car's footprint and CommonRoad's "
+                         "shapes at every time step (check_contacts)")
     ap.add_argument("--time-to-goal", metavar="T|none",
                     help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
                          "GoalRegion.is_reached at every /state")
@@ -707,6 +787,11 @@ def main(argv=None):
     mismatches += prediction_mismatches
     _, entry_mismatches = check_entries(scenario, args.log, dt, times, ego_ids)
     mismatches += entry_mismatches
+    if args.contacts:
+        pairs, overlapping, contact_mismatches = check_contacts(scenario, args.log, dt, ego_ids)
+        mismatches += contact_mismatches
+        print(f"commonroad_check: contacts: {pairs} car and road user pairs compared at time "
+              f"steps, {overlapping} overlapping, {len(contact_mismatches)} mismatches")
     if args.time_to_goal is not None:
         expected = None if args.time_to_goal == "none" else float(args.time_to_goal)
         first, goal_mismatches = check_goal(pps, args.log, dt, expected)
