@@ -97,6 +97,23 @@ sys.exit(md.version("commonroad-io") != sys.argv[1] or "mcap==" + md.version("mc
     "$cr_venv/bin/pip" install -q --disable-pip-version-check "commonroad-io==$cr_io" \
       "commonroad-vehicle-models==$cr_vm" "$mcap_pin"
   fi
+  # CommonRoad's route planner (PyPI commonroad-route-planner), which tests/route_check.py asks
+  # for the route of each committed file's planning problem. Its newest release needs a
+  # commonroad-io before 2026 (it imports commonroad.geometry.shape), so it gets a venv of its own.
+  cr_route_venv="${MJSAFE_CR_ROUTE_VENV:-$HOME/.cache/mjsafe/cr-route-venv}"
+  cr_route_io=2024.3
+  cr_rp=2025.1.0
+  if [ ! -x "$cr_route_venv/bin/python" ]; then
+    echo "setup: creating Python venv for the CommonRoad route planner at $cr_route_venv"
+    python3 -m venv "$cr_route_venv"
+  fi
+  if ! "$cr_route_venv/bin/python" -c 'import sys, importlib.metadata as md, commonroad_route_planner.route_planner
+sys.exit(md.version("commonroad-io") != sys.argv[1] or md.version("commonroad-route-planner") != sys.argv[2])' \
+    "$cr_route_io" "$cr_rp" >/dev/null 2>&1; then
+    echo "setup: installing the CommonRoad route planner (commonroad-route-planner $cr_rp, commonroad-io $cr_route_io) into $cr_route_venv"
+    "$cr_route_venv/bin/pip" install -q --disable-pip-version-check --prefer-binary \
+      "commonroad-io==$cr_route_io" "commonroad-route-planner==$cr_rp"
+  fi
   # The mjsafe Python package (python/): built by maturin with the tests' profile (dev, which
   # shares their compiled dependencies; headless, without the rerun SDK), installed into the
   # venv when its wheel changed. A rebuild with nothing changed takes seconds.

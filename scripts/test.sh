@@ -8,6 +8,8 @@ scripts/setup.sh --test
 export MJSAFE_PYTHON="${MJSAFE_VENV:-$HOME/.cache/mjsafe/venv}/bin/python"
 # CommonRoad's own reader (PyPI commonroad-io) in a venv of its own: tests/commonroad.rs.
 export MJSAFE_CR_PYTHON="${MJSAFE_CR_VENV:-$HOME/.cache/mjsafe/cr-venv}/bin/python"
+# Its route planner (PyPI commonroad-route-planner, on an older commonroad-io): the route.
+export MJSAFE_CR_ROUTE_PYTHON="${MJSAFE_CR_ROUTE_VENV:-$HOME/.cache/mjsafe/cr-route-venv}/bin/python"
 # As root, setup.sh --test installed Slurm: tests/cluster.rs must run it, not skip.
 [ "$(id -u)" = 0 ] && export MJSAFE_REQUIRE_SLURM="${MJSAFE_REQUIRE_SLURM:-1}"
 cargo fmt --check

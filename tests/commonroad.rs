@@ -839,3 +839,48 @@ fn a_scene_turned_and_shifted_gives_the_same_run() {
         }
     }
 }
+
+/// The interpreter of the route planner's venv (`scripts/setup.sh --test`).
+fn route_planner_python() -> String {
+    std::env::var("MJSAFE_CR_ROUTE_PYTHON").unwrap_or_else(|_| {
+        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/cr-route-venv/bin/python";
+        assert!(
+            Path::new(&venv).exists(),
+            "no Python with commonroad-route-planner: run scripts/test.sh (it creates {venv}) or set MJSAFE_CR_ROUTE_PYTHON"
+        );
+        venv
+    })
+}
+
+/// Every committed file's route, the lanelets from the start's to the goal's that its imported
+/// description names, is the first of the routes CommonRoad's own route planner plans for its
+/// planning problem (PyPI commonroad-route-planner 2025.1.0: tests/route_check.py).
+#[test]
+fn the_route_is_commonroads_route_planners() {
+    let dir = tempfile::tempdir().unwrap();
+    for xml in committed_files() {
+        let scenario = imported(&xml, dir.path());
+        let description = scenario["description"].as_str().unwrap();
+        let ids = description
+            .split("route over lanelets ")
+            .nth(1)
+            .and_then(|rest| rest.split(';').next())
+            .unwrap_or_else(|| panic!("{}: no route in the description {description:?}", xml.display()))
+            .replace(' ', "");
+        let check = Command::new(route_planner_python())
+            .args([
+                common::root().join("tests/route_check.py").to_str().unwrap(),
+                xml.to_str().unwrap(),
+                &ids,
+            ])
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&check.stdout),
+            String::from_utf8_lossy(&check.stderr)
+        );
+        assert!(check.status.success(), "{}: {text}", xml.display());
+        assert!(text.contains(" is route 1 of "), "{}: {text}", xml.display());
+    }
+}

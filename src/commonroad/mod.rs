@@ -153,8 +153,11 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
     t.insert(
         "description".into(),
         toml::Value::String(format!(
-            "CommonRoad {} ({}), planning problem {}",
-            cr.benchmark_id, cr.source, problem.id
+            "CommonRoad {} ({}), planning problem {}; route over lanelets {}",
+            cr.benchmark_id,
+            cr.source,
+            problem.id,
+            route.lanelets.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")
         )),
     );
     t.insert("duration".into(), v(duration));
