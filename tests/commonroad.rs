@@ -14,16 +14,22 @@ fn data(name: &str) -> PathBuf {
     common::root().join("data/commonroad").join(name)
 }
 
-/// The interpreter of the CommonRoad venv (`scripts/setup.sh --test`).
-fn commonroad_python() -> String {
-    std::env::var("MJSAFE_CR_PYTHON").unwrap_or_else(|_| {
-        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/cr-venv/bin/python";
+/// The interpreter of a venv `scripts/setup.sh --test` makes (`name` under ~/.cache/mjsafe),
+/// or `variable`'s; `holding` says what it has.
+fn venv_python(variable: &str, name: &str, holding: &str) -> String {
+    std::env::var(variable).unwrap_or_else(|_| {
+        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/" + name + "/bin/python";
         assert!(
             Path::new(&venv).exists(),
-            "no Python with commonroad-io: run scripts/test.sh (it creates {venv}) or set MJSAFE_CR_PYTHON"
+            "no Python with {holding}: run scripts/test.sh (it creates {venv}) or set {variable}"
         );
         venv
     })
+}
+
+/// The interpreter of the CommonRoad venv.
+fn commonroad_python() -> String {
+    venv_python("MJSAFE_CR_PYTHON", "cr-venv", "commonroad-io")
 }
 
 /// The committed CommonRoad files, sorted.
@@ -61,15 +67,19 @@ fn check_with_commonroad_io(xml: &Path, log: &Path) -> String {
         serde_json::Value::Number(t) => format!("{:?}", t.as_f64().unwrap()),
         _ => "none".to_string(),
     };
-    let check = Command::new(commonroad_python())
-        .args([
-            common::root().join("tests/commonroad_check.py").to_str().unwrap(),
-            xml.to_str().unwrap(),
-            log.to_str().unwrap(),
-            "--time-to-goal",
-            &time_to_goal,
-            "--contacts",
-        ])
+    let (xml_arg, log_arg) = (xml.to_str().unwrap(), log.to_str().unwrap());
+    let args = [xml_arg, log_arg, "--time-to-goal", &time_to_goal, "--contacts"];
+    let text = python_check(&commonroad_python(), "commonroad_check.py", &args, xml);
+    assert!(text.contains(" 0 mismatches"), "{text}");
+    text
+}
+
+/// `python tests/<script> args…`: its output (stdout, then stderr), asserting it succeeded; `case`
+/// names the file in the message.
+fn python_check(python: &str, script: &str, args: &[&str], case: &Path) -> String {
+    let check = Command::new(python)
+        .arg(common::root().join("tests").join(script))
+        .args(args)
         .output()
         .unwrap();
     let text = format!(
@@ -77,8 +87,7 @@ fn check_with_commonroad_io(xml: &Path, log: &Path) -> String {
         String::from_utf8_lossy(&check.stdout),
         String::from_utf8_lossy(&check.stderr)
     );
-    assert!(check.status.success(), "{}: {text}", xml.display());
-    assert!(text.contains(" 0 mismatches"), "{text}");
+    assert!(check.status.success(), "{}: {text}", case.display());
     text
 }
 
@@ -714,19 +723,15 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
 /// shifted by `shift`, as commonroad-io writes it, at `out`.
 fn turned(xml: &Path, out: &Path, angle: f64, shift: [f64; 2]) {
     let (angle, x, y) = (angle.to_string(), shift[0].to_string(), shift[1].to_string());
-    let check = Command::new(commonroad_python())
-        .args([
-            common::root().join("tests/commonroad_check.py").to_str().unwrap(),
-            xml.to_str().unwrap(),
-            "--write-turned",
-            out.to_str().unwrap(),
-            &angle,
-            &x,
-            &y,
-        ])
-        .output()
-        .unwrap();
-    assert!(check.status.success(), "{}", String::from_utf8_lossy(&check.stderr));
+    let args = [
+        xml.to_str().unwrap(),
+        "--write-turned",
+        out.to_str().unwrap(),
+        &angle,
+        &x,
+        &y,
+    ];
+    python_check(&commonroad_python(), "commonroad_check.py", &args, xml);
 }
 
 /// `analyze --json`'s object flattened to dotted paths (the per-barrier maps' entries, the
@@ -840,16 +845,9 @@ fn a_scene_turned_and_shifted_gives_the_same_run() {
     }
 }
 
-/// The interpreter of the route planner's venv (`scripts/setup.sh --test`).
+/// The interpreter of the route planner's venv.
 fn route_planner_python() -> String {
-    std::env::var("MJSAFE_CR_ROUTE_PYTHON").unwrap_or_else(|_| {
-        let venv = std::env::var("HOME").unwrap_or_default() + "/.cache/mjsafe/cr-route-venv/bin/python";
-        assert!(
-            Path::new(&venv).exists(),
-            "no Python with commonroad-route-planner: run scripts/test.sh (it creates {venv}) or set MJSAFE_CR_ROUTE_PYTHON"
-        );
-        venv
-    })
+    venv_python("MJSAFE_CR_ROUTE_PYTHON", "cr-route-venv", "commonroad-route-planner")
 }
 
 /// Every committed file's route, the lanelets from the start's to the goal's that its imported
@@ -867,20 +865,12 @@ fn the_route_is_commonroads_route_planners() {
             .and_then(|rest| rest.split(';').next())
             .unwrap_or_else(|| panic!("{}: no route in the description {description:?}", xml.display()))
             .replace(' ', "");
-        let check = Command::new(route_planner_python())
-            .args([
-                common::root().join("tests/route_check.py").to_str().unwrap(),
-                xml.to_str().unwrap(),
-                &ids,
-            ])
-            .output()
-            .unwrap();
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&check.stdout),
-            String::from_utf8_lossy(&check.stderr)
+        let text = python_check(
+            &route_planner_python(),
+            "route_check.py",
+            &[xml.to_str().unwrap(), &ids],
+            &xml,
         );
-        assert!(check.status.success(), "{}: {text}", xml.display());
         assert!(text.contains(" is route 1 of "), "{}: {text}", xml.display());
     }
 }
