@@ -17,7 +17,9 @@ timeStepSize unless --time-step-size), every dynamic obstacle with a recorded tr
 compared with `obstacle.state_at_time(k)` (an index into the recorded states, no
 interpolation). None there: the actor `cr_<id>` must be `absent` or not listed. Otherwise it
 must be listed and not absent, |x - position[0]| and |y - position[1]| <= 1e-9 m, and its heading
-equal to the state's orientation modulo 2 pi within 1e-9 rad.
+equal to the state's orientation modulo 2 pi within 1e-9 rad. (A rectangle's position is its
+centre, which commonroad-io's `compute_occupancy_for_state` moves from the state's position when
+the shape has an `originXShift`.)
 
 Set-valued states (2018b files such as DEU_A9-3_1_T-1 give positions as rectangles and
 orientations as intervals): `--set-valued centre` (default) compares with the shape's centre
@@ -382,11 +384,22 @@ def describe_position(pos):
     return f"a {type(pos).__name__} centred at ({c.x!r}, {c.y!r})"
 
 
-def compare_state(actor, state, mode):
-    """Returns (problem or None, set_valued)."""
+def rectangle_centre(obstacle, state):
+    """Where commonroad-io puts the centre of a road user's rectangle at an exact state
+    (`compute_occupancy_for_state`): the state's position, unless the shape moves its origin
+    (`originXShift`); the state's position for other shapes and set-valued states."""
+    shape = obstacle.obstacle_shape
+    if type(shape).__name__ != "RectObstacleShape" or not hasattr(state.position, "__len__"):
+        return state.position
+    centre = shape.compute_occupancy_for_state(state).center
+    return [centre.x, centre.y]
+
+
+def compare_state(actor, state, mode, position=None):
+    """Returns (problem or None, set_valued); `position` in place of the state's when given."""
     import shapely
 
-    pos, ori = state.position, state.orientation
+    pos, ori = (state.position if position is None else position), state.orientation
     set_valued = not hasattr(pos, "__len__") or is_interval(ori)
     if set_valued and mode == "skip":
         return None, True
@@ -473,7 +486,7 @@ def check_log(scenario, log_path, dt, mode, ego_ids=(), times=None):
             if actor["absent"]:
                 mismatches.append(f"t={t!r} (step {k}) {name}: absent, but the scenario has a state")
                 continue
-            problem, sv = compare_state(actor, state, mode)
+            problem, sv = compare_state(actor, state, mode, rectangle_centre(o, state))
             if sv:
                 set_valued_count += 1
                 if mode == "skip":
@@ -531,7 +544,7 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     state = o.state_at_time(k)
-                pos = getattr(state, "position", None)
+                pos = rectangle_centre(o, state) if state is not None else None
                 if hasattr(pos, "__len__") and (abs(realized[0] - float(pos[0])) > TOL or
                                                 abs(realized[1] - float(pos[1])) > TOL):
                     mismatches.append(f"{where}: true position {realized} != recorded "
@@ -715,17 +728,51 @@ def write_turned(xml, out, angle, x, y):
     orientations, shapes, lanelets, goal regions and their orientation intervals), written as
     2020a XML with 12 decimals (commonroad-io's default of 4 would round the recording)."""
     import numpy as np
-    from commonroad.common.file_writer import CommonRoadFileWriter, OverwriteExistingFile
-    from commonroad.common.util import FileFormat
 
     scenario, pps = open_scenario(xml)
     scenario.translate_rotate(np.zeros(2), angle)
     pps.translate_rotate(np.zeros(2), angle)
     scenario.translate_rotate(np.array([x, y]), 0.0)
     pps.translate_rotate(np.array([x, y]), 0.0)
+    write_scenario(scenario, pps, out, "turned")
+
+
+def write_origin_shifted(xml, out, fraction):
+    """The scenario with every road user's rectangle given `originXShift` = fraction × its length
+    and every state of it moved by that much along its orientation, so that each rectangle stays
+    where it was (commonroad-io's `compute_occupancy_for_state` puts its centre at the position
+    minus the shift). Written as `write_turned` writes."""
+    import numpy as np
+    from commonroad.geometry.obstacle_shapes.rect_obstacle_shape import RectObstacleShape
+
+    scenario, pps = open_scenario(xml)
+    for o in scenario.dynamic_obstacles:
+        shape = o.obstacle_shape
+        if not isinstance(shape, RectObstacleShape):
+            continue
+        trajectory = getattr(o.prediction, "trajectory", None)
+        states = [o.initial_state] + (list(trajectory.state_list) if trajectory else [])
+        # (commonroad-io places no shifted origin in a set-valued state, as A9-3's: left as is.)
+        if any(not hasattr(st.position, "__len__") or is_interval(st.orientation) for st in states):
+            continue
+        shift = fraction * shape.length
+        # (The shape has no setter: commonroad-io keeps obstacle shapes immutable.)
+        o._obstacle_shape = RectObstacleShape(width=shape.width, length=shape.length, origin_x_shift=shift)
+        for state in states:
+            c, s = math.cos(state.orientation), math.sin(state.orientation)
+            state.position = np.array([state.position[0] + shift * c, state.position[1] + shift * s])
+    write_scenario(scenario, pps, out, "origin-shifted")
+
+
+def write_scenario(scenario, pps, out, source):
+    """`scenario` and `pps` as 2020a XML at `out`, with 12 decimals (commonroad-io's default of 4
+    would round the recording)."""
+    from commonroad.common.file_writer import CommonRoadFileWriter, OverwriteExistingFile
+    from commonroad.common.util import FileFormat
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        CommonRoadFileWriter(scenario, pps, "tests/commonroad_check.py", "mjsafe", "turned",
+        CommonRoadFileWriter(scenario, pps, "tests/commonroad_check.py", "mjsafe", source,
                              scenario.tags, decimal_precision=12,
                              file_format=FileFormat.XML).write_to_file(out, OverwriteExistingFile.ALWAYS)
     if not os.path.exists(out):
@@ -750,10 +797,18 @@ def main(argv=None):
     ap.add_argument("--contacts", action="store_true",
                     help="check the log's contacts against the car's footprint and CommonRoad's "
                          "shapes at every time step (check_contacts)")
+    ap.add_argument("--write-origin-shifted", nargs=2, metavar=("OUT", "FRACTION"),
+                    help="write the scenario with every road user's rectangle given an originXShift "
+                         "of FRACTION times its length and its states moved to keep the rectangle "
+                         "in place, and exit")
     ap.add_argument("--time-to-goal", metavar="T|none",
                     help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
                          "GoalRegion.is_reached at every /state")
     args = ap.parse_args(argv)
+    if args.write_origin_shifted:
+        out, fraction = args.write_origin_shifted
+        write_origin_shifted(args.xml, out, float(fraction))
+        return 0
     if args.write_turned:
         out, angle, x, y = args.write_turned
         write_turned(args.xml, out, float(angle), float(x), float(y))

@@ -212,7 +212,8 @@ pub enum Shape {
         width: f64,
         /// Heading of the length axis (0 when absent).
         orientation: f64,
-        /// Centre (`[0, 0]` when absent).
+        /// Centre (`[0, 0]` when absent); for a road user's shape with an `<originXShift>` s,
+        /// moved by −s along the orientation (its states' positions are then the shifted origin).
         center: [f64; 2],
     },
     /// A circle.

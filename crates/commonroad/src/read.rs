@@ -375,10 +375,11 @@ fn read_point(ctx: &mut Ctx, node: Node) -> Result<[f64; 2], ReadError> {
     Ok([required(ctx, node, x, "x")?, required(ctx, node, y, "y")?])
 }
 
-/// A `<rectangle>`, `<circle>` or `<polygon>`; `None` for any other element.
-fn read_shape(ctx: &mut Ctx, node: Node) -> Result<Option<Shape>, ReadError> {
+/// A `<rectangle>`, `<circle>` or `<polygon>`; `None` for any other element. `obstacle`: the
+/// shape of a road user (`<shape>`), whose rectangle may move its origin (`<originXShift>`).
+fn read_shape(ctx: &mut Ctx, node: Node, obstacle: bool) -> Result<Option<Shape>, ReadError> {
     Ok(Some(match name(node) {
-        "rectangle" => read_rectangle(ctx, node)?,
+        "rectangle" => read_rectangle(ctx, node, obstacle)?,
         "circle" => read_circle(ctx, node)?,
         "polygon" => {
             let mut points = Vec::new();
@@ -397,9 +398,15 @@ fn read_shape(ctx: &mut Ctx, node: Node) -> Result<Option<Shape>, ReadError> {
     }))
 }
 
-/// A `<rectangle>`: length and width > 0, orientation 0 and centre (0, 0) unless given.
-fn read_rectangle(ctx: &mut Ctx, node: Node) -> Result<Shape, ReadError> {
+/// A `<rectangle>`: length and width > 0, orientation 0 and centre (0, 0) unless given. A road
+/// user's rectangle may give `<originXShift>` s (commonroad-io 2026's `RectObstacleShape`): its
+/// state's position is then s along the length axis from the rectangle's centre (s = −b with the
+/// rear axle as origin), so the centre is moved by −s along the orientation; |s| ≤ length / 2,
+/// as commonroad-io requires. Elsewhere (a goal's rectangle) commonroad-io reads no
+/// `<originXShift>`, and it is counted as ignored.
+fn read_rectangle(ctx: &mut Ctx, node: Node, obstacle: bool) -> Result<Shape, ReadError> {
     let (mut length, mut width, mut orientation, mut center) = (None, None, None, None);
+    let mut origin_shift = None;
     for c in elements(node) {
         let slot = match name(c) {
             "length" => &mut length,
@@ -408,6 +415,11 @@ fn read_rectangle(ctx: &mut Ctx, node: Node) -> Result<Shape, ReadError> {
             "center" => {
                 unique(ctx, c, &center)?;
                 center = Some(read_point(ctx, c)?);
+                continue;
+            }
+            "originXShift" if obstacle => {
+                unique(ctx, c, &origin_shift)?;
+                origin_shift = Some((number(ctx, c)?, c));
                 continue;
             }
             other => {
@@ -422,11 +434,27 @@ fn read_rectangle(ctx: &mut Ctx, node: Node) -> Result<Shape, ReadError> {
             positive(ctx, c)?
         });
     }
+    let length = required(ctx, node, length, "length")?;
+    let orientation = orientation.unwrap_or(0.0);
+    let mut center = center.unwrap_or([0.0, 0.0]);
+    if let Some((shift, c)) = origin_shift {
+        if shift.abs() > length / 2.0 {
+            return Err(ctx.err(
+                c,
+                format!(
+                    "expected |originXShift| <= length / 2 = {}, found {shift}",
+                    length / 2.0
+                ),
+            ));
+        }
+        let (sin, cos) = orientation.sin_cos();
+        center = [center[0] - shift * cos, center[1] - shift * sin];
+    }
     Ok(Shape::Rectangle {
-        length: required(ctx, node, length, "length")?,
+        length,
         width: required(ctx, node, width, "width")?,
-        orientation: orientation.unwrap_or(0.0),
-        center: center.unwrap_or([0.0, 0.0]),
+        orientation,
+        center,
     })
 }
 
@@ -457,7 +485,7 @@ fn read_circle(ctx: &mut Ctx, node: Node) -> Result<Shape, ReadError> {
 fn read_shapes(ctx: &mut Ctx, node: Node) -> Result<Vec<Shape>, ReadError> {
     let mut shapes = Vec::new();
     for c in elements(node) {
-        match read_shape(ctx, c)? {
+        match read_shape(ctx, c, true)? {
             Some(shape) => shapes.push(shape),
             None => ctx.ignore(name(c)),
         }
@@ -594,7 +622,7 @@ fn read_position(ctx: &mut Ctx, node: Node) -> Result<([f64; 2], bool), ReadErro
                     "expected a <point> or shapes, found a lanelet reference (allowed in goals only)",
                 ))
             }
-            other => match read_shape(ctx, c)? {
+            other => match read_shape(ctx, c, false)? {
                 Some(shape) => centres.push(shape.center()),
                 None => ctx.ignore(other),
             },
@@ -857,7 +885,7 @@ fn read_goal_position(ctx: &mut Ctx, node: Node) -> Result<GoalPosition, ReadErr
         match name(c) {
             "lanelet" => lanelets.push(id_attribute(ctx, c, "ref")?),
             "point" => return Err(ctx.err(c, "expected a goal region (shapes or lanelets), found a <point>")),
-            other => match read_shape(ctx, c)? {
+            other => match read_shape(ctx, c, false)? {
                 Some(shape) => shapes.push(shape),
                 None => ctx.ignore(other),
             },

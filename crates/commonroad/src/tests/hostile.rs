@@ -674,3 +674,36 @@ fn goal_states_that_differ_in_more_than_their_regions_are_told_apart() {
         + "<goalState><time><intervalStart>10</intervalStart><intervalEnd>50</intervalEnd></time></goalState>";
     assert!(differ(&edit(goal, &anywhere)));
 }
+
+/// A road user's `<originXShift>` s (commonroad-io 2026's `RectObstacleShape`) puts the
+/// rectangle's centre s behind its states' positions along the length axis; |s| above half the
+/// length is one line naming it; in a goal's rectangle, where commonroad-io reads none, it is
+/// counted as ignored.
+#[test]
+fn an_origin_shift_moves_a_road_users_rectangle() {
+    let car = "<shape><rectangle><length>4.5</length><width>1.8</width></rectangle></shape>";
+    let shifted = |s: &str| {
+        car.replace(
+            "</width>",
+            &format!("</width><orientation>0.5</orientation><originXShift>{s}</originXShift>"),
+        )
+    };
+    let cr = accepts(&edit(car, &shifted("-1.2")));
+    let centre = cr.obstacle(10).unwrap().shapes[0].center();
+    let expected = [1.2 * 0.5f64.cos(), 1.2 * 0.5f64.sin()];
+    assert!(
+        (centre[0] - expected[0]).abs() < 1e-15 && (centre[1] - expected[1]).abs() < 1e-15,
+        "{centre:?}"
+    );
+    assert_eq!(cr.ignored_count("originXShift"), 0);
+    rejects(
+        &edit(car, &shifted("2.3")),
+        "dynamicObstacle 10 / shape / rectangle / originXShift",
+        "expected |originXShift| <= length / 2 = 2.25, found 2.3",
+    );
+    let goal = "<position><lanelet ref=\"2\"/></position>";
+    let rectangle = "<position><rectangle><length>4</length><width>3</width><center><x>60</x><y>1.75</y></center>\
+                     <originXShift>1</originXShift></rectangle></position>";
+    let cr = accepts(&edit(goal, rectangle));
+    assert_eq!(cr.ignored_count("originXShift"), 1);
+}
