@@ -23,8 +23,9 @@ pub struct ControlSpec {
     #[serde(default)]
     pub predictor_step: Option<f64>,
     /// Predictors: continue the previous tick's prediction trajectory when the fresh p_1 (x(t)
-    /// for one shared delay profile) lands within this max-norm distance of it (state units),
-    /// else integrate the whole window.
+    /// for one shared delay profile) lands within this distance of it (state units: the largest
+    /// of the planar position's distance and every other component's difference), else
+    /// integrate the whole window.
     /// 0 reuses only an exact match; the log's /prediction records say which ticks reused.
     #[serde(default = "default_chain_tolerance")]
     pub chain_tolerance: f64,

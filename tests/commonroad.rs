@@ -775,6 +775,28 @@ fn flattened(value: &serde_json::Value, path: &str, out: &mut std::collections::
     }
 }
 
+/// A run's verdict: its first collision (the road user, the time) and the time it reached its
+/// goal; without a collision also how many of its ticks the filter acted on and could not meet a
+/// barrier (after a contact MuJoCo's iterative contact solver moves the car, and a tick at the
+/// edge of acting may go either way); as JSON text. And its min_clearance (m).
+fn verdict(metrics: &serde_json::Value) -> (String, f64) {
+    let collision = &metrics["collision"];
+    let clear = collision.is_null();
+    let after_clear = |key: &str| match clear {
+        true => metrics[key].clone(),
+        false => serde_json::Value::Null,
+    };
+    let text = serde_json::json!([
+        collision["with"],
+        collision["time"],
+        metrics["time_to_goal"],
+        after_clear("filter_active_fraction"),
+        after_clear("filter_infeasible_ticks"),
+    ])
+    .to_string();
+    (text, metrics["min_clearance"].as_f64().unwrap_or(f64::NAN))
+}
+
 /// mjsafe measures a scene, not the way its file writes it. Every committed file is written
 /// again by commonroad-io: unturned, turned and shifted (three frames, one of them half a turn;
 /// one that starts the car just below a heading of π; one that centres the goal's heading
@@ -791,9 +813,11 @@ fn flattened(value: &serde_json::Value, path: &str, out: &mut std::collections::
 /// metric. The unturned runs (the nominal alone collides on six files), those across ±π and the
 /// origin-shifted ones also go through tests/commonroad_check.py (road users against
 /// commonroad-io's occupancies, contacts against its shapes, the goal against
-/// `GoalRegion.is_reached`). (The filters' runs differ slightly between frames: their
-/// prediction chains are continued when the mismatch's largest component is below
-/// `control.chain_tolerance`, a norm that turns with the frame.)
+/// `GoalRegion.is_reached`). The γm filter (4.67) with the defaults gives the same verdict
+/// unturned, half a turn round and −1.9 rad a kilometre away (the same collision at the same
+/// time, the goal at the same time, without a collision the same ticks active and infeasible)
+/// and min_clearance within 0.1 mm (1 mm within a collision): its prediction chain is continued
+/// by a norm the frame does not change.
 #[test]
 fn a_scene_written_another_way_gives_the_same_run() {
     let dir = tempfile::tempdir().unwrap();
@@ -829,6 +853,7 @@ fn a_scene_written_another_way_gives_the_same_run() {
             frames.push((Rewrite::Turned(std::f64::consts::PI - middle, [15.0, -5.0]), true));
         }
         let mut runs = Vec::new();
+        let mut verdicts = Vec::new();
         for (i, &(rewrite, checked)) in frames.iter().enumerate() {
             let file = dir.path().join(format!("{stem}-{i}.xml"));
             rewritten(&xml, &file, rewrite);
@@ -841,6 +866,22 @@ fn a_scene_written_another_way_gives_the_same_run() {
             flattened(&common::analyze_json(&log), "", &mut metrics);
             metrics.remove("file");
             runs.push(metrics);
+            // (4.67) with the defaults, unturned, half a turn and a kilometre away.
+            if matches!(i, 0 | 2 | 3) {
+                run(&file, &log, &[]);
+                verdicts.push((rewrite, verdict(&common::analyze_json(&log))));
+            }
+        }
+        let (unturned, turned) = verdicts.split_first().unwrap();
+        for (rewrite, verdict) in turned {
+            assert_eq!(unturned.1 .0, verdict.0, "{stem} {rewrite:?}: (4.67)'s verdict");
+            // (Within a collision, the depth MuJoCo's contact solver leaves.)
+            let (a, b) = (unturned.1 .1, verdict.1);
+            let tolerance = if a < 0.0 { 1e-3 } else { 1e-4 };
+            assert!(
+                (a - b).abs() <= tolerance,
+                "{stem} {rewrite:?}: (4.67)'s min_clearance {a} against {b}"
+            );
         }
         let (first, others) = runs.split_first().unwrap();
         // (After a contact MuJoCo's contact solver, an iterative one, moves the car.)

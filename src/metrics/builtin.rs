@@ -140,7 +140,7 @@ pub static METRICS: &[Metric] = &[
             part("reused_chain", "", "predictions", CellKind::Int,
                 "predictions that continued the previous tick's trajectory instead of integrating the whole window (`control.chain_tolerance`)"),
             part("max_chain_mismatch", "", STATE, CellKind::Num,
-                "max of `chain_mismatch` = ‖p_1(t) − previous chain at t + D_1‖_∞ (0 when never measured)"),
+                "max of `chain_mismatch`, how far p_1(t) is from the previous chain at t + D_1: the largest of the planar position's distance and every other state component's difference (0 when never measured)"),
         ],
         applies: |run| run.predicts != Some(false),
         table: Some("prediction_err_max/rms"),

@@ -35,9 +35,19 @@ pub struct Prediction {
     /// Whether this tick continued the previous tick's trajectory instead of integrating its
     /// whole window (see [`PredictorWorkspace::set_chain_reuse`]).
     pub reused_chain: bool,
-    /// max |p_1(t) − the previous trajectory at the same time| over the state (x(t) for the
-    /// shared predictor): how far the measurement moved off it; NaN without a previous one.
+    /// How far p_1(t) is from the previous trajectory at the same time (x(t) for the shared
+    /// predictor): the largest of the planar position's distance and every other component's
+    /// difference; how far the measurement moved off it; NaN without a previous one.
     pub chain_mismatch: f64,
+}
+
+/// How far `fresh` is from `node`: the largest of the planar position's distance (`planar`, its
+/// two components; a distance turns with the world's frame, where the largest coordinate
+/// difference would not) and every other component's difference.
+fn mismatch(node: &[f64], fresh: &[f64], planar: Option<[usize; 2]>) -> f64 {
+    let position = planar.map_or(0.0, |[i, j]| (node[i] - fresh[i]).hypot(node[j] - fresh[j]));
+    let others = (0..fresh.len()).filter(|k| planar.is_none_or(|p| !p.contains(k)));
+    others.fold(position, |m, k| m.max((node[k] - fresh[k]).abs()))
 }
 
 /// How the predictor treats the channels (fixed by the scenario's delays).
@@ -341,11 +351,12 @@ impl Chain {
     }
 
     /// At tick t, if this chain is the previous tick's (t − T, `period_steps` nodes per T)
-    /// and `usable`, drops that period from the front and returns max |node 0 − `fresh`|, the
-    /// mismatch of the fresh prediction; NaN otherwise.
+    /// and `usable`, drops that period from the front and returns the mismatch of the fresh
+    /// prediction ([`mismatch`] of node 0 and `fresh`, `planar` the position's components);
+    /// NaN otherwise.
     fn advance_to(
         &mut self,
-        axes: Option<[usize; 3]>,
+        (axes, planar): (Option<[usize; 3]>, Option<[usize; 2]>),
         (t, period, period_steps): (f64, f64, usize),
         usable: bool,
         fresh: &[f64],
@@ -357,7 +368,7 @@ impl Chain {
         self.drop_front(period_steps);
         let mut node0 = std::mem::take(&mut self.scratch);
         self.state_into(axes, 0, &mut node0);
-        let mismatch = node0.iter().zip(fresh).fold(0.0_f64, |m, (c, p)| m.max((c - p).abs()));
+        let mismatch = mismatch(&node0, fresh, planar);
         self.scratch = node0;
         mismatch
     }
@@ -410,7 +421,9 @@ impl PredictorWorkspace {
     /// Lets consecutive ticks reuse the previous prediction trajectory. Recursive predictors
     /// (4.23), chain on [t + D_1, t + D_r]: tick t + T computes p_1 afresh from x(t + T) (the
     /// feedback), and if
-    /// it is within `tolerance` (max norm) of the previous chain's state at t + T + D_1, and
+    /// it is within `tolerance` of the previous chain's state at t + T + D_1 (the planar
+    /// position's distance and every other component's difference: a norm the world's frame
+    /// does not change), and
     /// the commands issued at t equal the κ_j values that chain assumed for them, the overlap
     /// [t + T + D_1, t + D_r] is the previous chain and only [t + D_r, t + T + D_r] is
     /// integrated. Otherwise the whole window is. On a plant that follows the model exactly the
@@ -659,7 +672,7 @@ impl PredictorContext<'_> {
         let last_full = t + full_steps as f64 * step;
         let axes = self.motion_axes();
         let mismatch = chain.advance_to(
-            axes,
+            (axes, self.model.planar_position()),
             (t, self.control_period, period_steps),
             chain.capacity() > full_steps,
             x,
@@ -726,7 +739,7 @@ impl PredictorContext<'_> {
         let chain = &mut workspace.chain;
         let usable = chain.len == nodes;
         let mismatch = chain.advance_to(
-            None,
+            (None, self.model.planar_position()),
             (t, self.control_period, period_steps),
             usable,
             &workspace.rk4.state,
