@@ -14,7 +14,10 @@ seeds="${SEEDS:-1 2 3 4 5 6 7 8 9 10}"
 psy_taliro_version=3.2.0   # the newest on PyPI (Python >= 3.10, < 3.13)
 venv="$HOME/.cache/mjsafe/psytaliro-venv"
 if ! "$venv/bin/python" -c "import importlib.metadata as m, sys; sys.exit(m.version('psy-taliro') != '$psy_taliro_version')" 2>/dev/null; then
-  python=$(command -v python3.12 || command -v python3.11 || command -v python3.10 || command -v python3)
+  # (The first of these that runs: a pyenv shim can name a version it does not select.)
+  for python in python3.12 python3.11 python3.10 python3; do
+    "$python" -c 'import sys; sys.exit(not (3, 10) <= sys.version_info[:2] < (3, 13))' 2>/dev/null && break
+  done
   "$python" -m venv "$venv"
   "$venv/bin/pip" install --quiet "psy-taliro==$psy_taliro_version"
 fi
