@@ -31,7 +31,7 @@ import sys
 import warnings
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
-import commonroad_check as log_reader  # noqa: E402  (the hand decoder of /state, and metadata)
+import commonroad_check as log_reader  # noqa: E402  (the hand decoder of /state: car_on_steps)
 
 
 def ego_obstacle(scenario, log, obstacle_id):
@@ -43,22 +43,13 @@ def ego_obstacle(scenario, log, obstacle_id):
     from commonroad.scenario.state import CustomState, InitialState
     from commonroad.scenario.trajectory import Trajectory
 
-    meta = log_reader.run_metadata(log)
-    front, rear, half_width = map(float, meta["vehicle_extent"].split())
-    i, j = map(int, meta["planar_position"].split())
-    heading_index = int(meta["heading_index"])
     dt = scenario.dt
-    by_step = {}
-    for state in log_reader.read_messages(log, "/state", log_reader.decode_state):
-        k = round(state["time"] / dt)
-        if abs(state["time"] - k * dt) < 1e-9:
-            by_step[k] = state
+    (front, rear, half_width), poses = log_reader.car_on_steps(log, dt)
     states = []
-    for k in sorted(by_step):
-        names, values = by_step[k]["names"], by_step[k]["values"]
-        heading, speed = values[heading_index], values[names.index("speed")]
+    for k, _, x, y, heading, state in poses:
         shift = (front - rear) / 2.0
-        centre = np.array([values[i] + shift * math.cos(heading), values[j] + shift * math.sin(heading)])
+        centre = np.array([x + shift * math.cos(heading), y + shift * math.sin(heading)])
+        speed = state["speed"]
         if not states:
             states.append(InitialState(time_step=k, position=centre, orientation=heading, velocity=speed,
                                        acceleration=0.0, yaw_rate=0.0, slip_angle=0.0))

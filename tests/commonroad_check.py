@@ -617,6 +617,23 @@ def contact_intervals(log_path):
     return intervals
 
 
+def car_on_steps(log_path, dt):
+    """The car of a log at the time steps: its extent (front, rear, half width) from the log's
+    `vehicle_extent`, and (k, t, x, y, heading, state by name) of every `/state` whose time is
+    k * dt within TOL, (x, y) the planar position."""
+    meta = run_metadata(log_path)
+    extent = tuple(map(float, meta["vehicle_extent"].split()))
+    i, j = map(int, meta["planar_position"].split())
+    heading_index = int(meta["heading_index"])
+    poses = []
+    for state in read_messages(log_path, "/state", decode_state):
+        t, values = state["time"], state["values"]
+        k = round(t / dt)
+        if k >= 0 and abs(t - k * dt) <= TOL:
+            poses.append((k, t, values[i], values[j], values[heading_index], dict(zip(state["names"], values))))
+    return extent, poses
+
+
 def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
     """mjsafe's contacts against the shapes CommonRoad gives: at every `/state` on a time step k,
     the car's footprint (a rectangle from the log's pose and its `vehicle_extent`) against every
@@ -627,21 +644,13 @@ def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
     pairs overlapping, mismatches)."""
     from shapely.geometry import Polygon as ShapelyPolygon
 
-    meta = run_metadata(log_path)
-    front, rear, half_width = map(float, meta["vehicle_extent"].split())
-    i, j = map(int, meta["planar_position"].split())
-    heading_index = int(meta["heading_index"])
+    (front, rear, half_width), poses = car_on_steps(log_path, dt)
     intervals = contact_intervals(log_path)
     obstacles = [o for o in scenario.dynamic_obstacles + scenario.static_obstacles
                  if o.obstacle_id not in ego_ids]
     compared = overlapping = 0
     mismatches = []
-    for state in read_messages(log_path, "/state", decode_state):
-        t = state["time"]
-        k = round(t / dt)
-        if k < 0 or abs(t - k * dt) > TOL:
-            continue
-        x, y, heading = state["values"][i], state["values"][j], state["values"][heading_index]
+    for k, t, x, y, heading, _ in poses:
         c, s = math.cos(heading), math.sin(heading)
         corners = [(x + a * c - b * s, y + a * s + b * c)
                    for a, b in ((front, half_width), (-rear, half_width), (-rear, -half_width), (front, -half_width))]
