@@ -196,11 +196,25 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
         "actor_knowledge".into(),
         table(&[("kind", toml::Value::String("constant_velocity".into()))]),
     );
-    // (Some files list the ego itself as a road user under the planning problem's id.)
     if let Some(goal) = goal(cr, problem) {
         t.insert("goal".into(), toml::Value::Table(goal));
     }
-    let (road, omitted) = road(cr, &route, rear, start.orientation);
+    let (road, mut omitted) = road(cr, &route, rear, start.orientation);
+    // The ego's own recording: listed under the planning problem's id, or (as CommonRoad-CriMe's
+    // files do, with its `ego_id`) a road user starting exactly at the planning problem's start.
+    let own_recording = |o: &&mjsafe_commonroad::Obstacle| {
+        o.id == problem.id
+            || (o.role == ObstacleRole::Dynamic
+                && o.states.first().is_some_and(|s| {
+                    (s.time_step, s.position, s.orientation) == (start.time_step, start.position, start.orientation)
+                }))
+    };
+    for o in cr.obstacles.iter().filter(own_recording).filter(|o| o.id != problem.id) {
+        omitted.push(format!(
+            "road user {} left out: it starts at the planning problem's initial state (the ego's own recording)",
+            o.id
+        ));
+    }
     if let Some(road) = road {
         t.insert("road".into(), toml::Value::Table(road));
     }
@@ -212,7 +226,7 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
         );
         t.insert("description".into(), toml::Value::String(description));
     }
-    let obstacles = (cr.obstacles.iter().filter(|o| o.id != problem.id))
+    let obstacles = (cr.obstacles.iter().filter(|o| !own_recording(o)))
         .filter_map(obstacle)
         .collect::<Result<Vec<_>, String>>()?;
     t.insert("obstacles".into(), toml::Value::Array(obstacles));
@@ -733,6 +747,30 @@ mod tests {
             "{}",
             t["duration"]
         );
+    }
+
+    /// A road user starting exactly at the planning problem's start is the ego's own recording
+    /// (CommonRoad-CriMe's files list it, with an `ego_id`): left out, and named. One a
+    /// millimetre away stays.
+    #[test]
+    fn the_egos_own_recording_is_left_out_and_named() {
+        let mut cr = (*read(&data("USA_US101-4_1_T-1.xml")).unwrap()).clone();
+        let start = cr.planning_problem(None).unwrap().initial;
+        let recorded = |cr: &CommonRoad, id: u64| {
+            let t = world(cr, cr.planning_problem(None).unwrap()).unwrap();
+            let name = format!("cr_{id}");
+            let listed = (t["obstacles"].as_array().unwrap().iter()).any(|o| o["name"].as_str() == Some(name.as_str()));
+            let named = t["description"].as_str().unwrap().contains(&format!(
+                "road user {id} left out: it starts at the planning problem's initial state"
+            ));
+            (listed, named)
+        };
+        let first = &mut cr.obstacles.iter_mut().find(|o| o.id == 373).unwrap().states[0];
+        (first.position, first.orientation) = (start.position, start.orientation);
+        assert_eq!(recorded(&cr, 373), (false, true));
+        let first = &mut cr.obstacles.iter_mut().find(|o| o.id == 373).unwrap().states[0];
+        first.position[0] += 1e-3;
+        assert_eq!(recorded(&cr, 373), (true, false));
     }
 
     /// Every committed file gives a world (a route from its start).

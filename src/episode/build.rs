@@ -854,7 +854,7 @@ pub(super) fn obstacles(
                         .field_error(
                             &format!("obstacles.{i}"),
                             format!(
-                                "the obstacle overlaps the vehicle at the start (clearance {:.3} m)",
+                                "the obstacle `{name}` overlaps the vehicle at the start (clearance {:.3} m)",
                                 barrier.clearance(x0)
                             ),
                         )

@@ -23,6 +23,10 @@ pub(crate) struct Ctx<'f> {
     pub total_points: usize,
     /// States with an interval value or shape position.
     pub uncertain_states: usize,
+    /// 2020a dynamic obstacles whose initial state is after time step 0.
+    pub late_starts: usize,
+    /// Trajectory states repeating their obstacle's initial state (read once).
+    pub repeated_initial_states: usize,
     /// Obstacle elements read so far (checked against [`Limits::max_obstacles`]).
     pub obstacles: usize,
 }
@@ -37,6 +41,8 @@ impl<'f> Ctx<'f> {
             ignored: BTreeMap::new(),
             total_points: 0,
             uncertain_states: 0,
+            late_starts: 0,
+            repeated_initial_states: 0,
             obstacles: 0,
         }
     }
@@ -199,9 +205,15 @@ pub(crate) fn next_time_step(ctx: &Ctx, node: Node, previous: i64, time: i64) ->
     Ok(())
 }
 
-/// Checks the initial state's time step: exactly 0 in 2020a, any step >= 0 in 2018b.
-pub(crate) fn initial_time_step(ctx: &Ctx, node: Node, time: i64) -> Result<(), ReadError> {
+/// Checks the initial state's time step: any step >= 0 in 2018b; exactly 0 in 2020a, except that a
+/// dynamic obstacle (`road_user`) may start later, as files converted from datasets (inD, highD)
+/// have it and commonroad-io reads it (counted in [`Ctx::late_starts`]).
+pub(crate) fn initial_time_step(ctx: &mut Ctx, node: Node, time: i64, road_user: bool) -> Result<(), ReadError> {
     if ctx.version == Version::V2020a && time != 0 {
+        if road_user {
+            ctx.late_starts += 1;
+            return Ok(());
+        }
         return Err(ctx.err(
             node,
             format!("expected initial time step 0 (format 2020a), found {time}"),
@@ -313,7 +325,7 @@ type Ids<'a, 'i> = HashMap<u64, (Kind, Node<'a, 'i>)>;
 /// incomings, all obstacles share one namespace; planning problems have their own) and that every
 /// `ref` attribute anywhere names an existing element of the right kind, and that no lanelet is its
 /// own successor, predecessor or neighbour (longer cycles, as in roundabouts, are fine).
-pub(crate) fn ids_and_refs(ctx: &Ctx, root: Node) -> Result<(), ReadError> {
+pub(crate) fn ids_and_refs(ctx: &mut Ctx, root: Node) -> Result<(), ReadError> {
     let mut ids: Ids = HashMap::new();
     let mut problems: HashMap<u64, Node> = HashMap::new();
     for node in root.children().filter(Node::is_element) {
@@ -361,8 +373,9 @@ fn duplicate(ctx: &Ctx, node: Node, id: u64, first: Node) -> ReadError {
     )
 }
 
-/// Checks one `ref` attribute.
-fn check_ref(ctx: &Ctx, ids: &Ids, node: Node) -> Result<(), ReadError> {
+/// Checks one `ref` attribute. An `isLeftOf` naming an existing element that is not an incoming
+/// (some files name a lanelet) is counted as ignored: intersections are ignored anyway.
+fn check_ref(ctx: &mut Ctx, ids: &Ids, node: Node) -> Result<(), ReadError> {
     let name = node.tag_name().name();
     let target = id_attribute(ctx, node, "ref")?;
     let wanted = Kind::referenced_by(name);
@@ -374,11 +387,17 @@ fn check_ref(ctx: &Ctx, ids: &Ids, node: Node) -> Result<(), ReadError> {
                 format!("expected ref to name an existing {wanted_name}, found ref {target} (no such id)"),
             ))
         }
+        Some((kind, _)) if name == "isLeftOf" && *kind != Kind::Incoming => ctx.ignore("isLeftOf/notIncoming"),
         Some((kind, found)) if wanted.is_some_and(|w| w != *kind) => {
             let found = element_path(*found);
+            let article = if wanted_name.starts_with(['a', 'e', 'i', 'o', 'u']) {
+                "an"
+            } else {
+                "a"
+            };
             return Err(ctx.err(
                 node,
-                format!("expected ref to name a {wanted_name}, found ref {target} naming {found}"),
+                format!("expected ref to name {article} {wanted_name}, found ref {target} naming {found}"),
             ));
         }
         Some(_) => {}

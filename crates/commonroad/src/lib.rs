@@ -147,6 +147,13 @@ pub struct CommonRoad {
     /// States (obstacle states and planning-problem initial states) with an interval value or a
     /// shape position, read as the interval's midpoint or the shape's centre.
     pub uncertain_states: usize,
+    /// Dynamic obstacles of a 2020a file whose initial state is after time step 0 (the schema
+    /// says 0; files converted from datasets have them): each exists from its first step, as in
+    /// commonroad-io.
+    pub late_starts: usize,
+    /// Trajectory states repeating their obstacle's initial state at its time step, read once (as
+    /// commonroad-io's `state_at_time` reads them).
+    pub repeated_initial_states: usize,
 }
 
 /// An element the reader skipped, and how often it occurred.
@@ -421,8 +428,8 @@ impl CommonRoad {
         self.ignored_line().into_iter().chain(self.notes()).collect()
     }
 
-    /// Further remarks on how the file was read (currently: set-valued states reduced to a point),
-    /// one line each; [`CommonRoad::ignored_line`] is separate.
+    /// Further remarks on how the file was read (set-valued states reduced to a point, road users
+    /// starting late, repeated initial states), one line each; [`CommonRoad::ignored_line`] is separate.
     pub fn notes(&self) -> Vec<String> {
         let mut notes = Vec::new();
         if self.uncertain_states > 0 {
@@ -430,6 +437,24 @@ impl CommonRoad {
             let states = if n == 1 { "state" } else { "states" };
             notes.push(format!(
                 "{n} {states} with interval values or shape positions read as the interval midpoint / shape centre"
+            ));
+        }
+        if self.late_starts > 0 {
+            let n = self.late_starts;
+            let users = if n == 1 { "road user starts" } else { "road users start" };
+            notes.push(format!(
+                "{n} {users} after time step 0 (format 2020a expects 0): each exists from its first recorded step, as commonroad-io reads it"
+            ));
+        }
+        if self.repeated_initial_states > 0 {
+            let n = self.repeated_initial_states;
+            let states = if n == 1 {
+                "trajectory repeats"
+            } else {
+                "trajectories repeat"
+            };
+            notes.push(format!(
+                "{n} {states} its road user's initial state as its first state: read once, as commonroad-io reads it"
             ));
         }
         notes
@@ -456,6 +481,10 @@ fn label(element: &str) -> (String, String) {
         "userOneWay" => Some(("one-way road user entry", "one-way road user entries")),
         "userBidirectional" => Some(("bidirectional road user entry", "bidirectional road user entries")),
         "signalSeries" => Some(("signal series", "signal series")),
+        "isLeftOf/notIncoming" => Some((
+            "isLeftOf naming no intersection incoming",
+            "isLeftOfs naming no intersection incoming",
+        )),
         _ => None,
     };
     if let Some((s, p)) = fixed {

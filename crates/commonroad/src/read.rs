@@ -184,12 +184,15 @@ fn read_root(file: &str, root: Node, limits: Limits) -> Result<CommonRoad, ReadE
         planning_problems: Vec::new(),
         ignored: Vec::new(),
         uncertain_states: 0,
+        late_starts: 0,
+        repeated_initial_states: 0,
     };
     for node in elements(root) {
         read_top(&mut ctx, &mut cr, node)?;
     }
-    check::ids_and_refs(&ctx, root)?;
+    check::ids_and_refs(&mut ctx, root)?;
     cr.uncertain_states = ctx.uncertain_states;
+    (cr.late_starts, cr.repeated_initial_states) = (ctx.late_starts, ctx.repeated_initial_states);
     cr.ignored = std::mem::take(&mut ctx.ignored)
         .into_iter()
         .map(|(element, count)| Ignored { element, count })
@@ -774,7 +777,8 @@ fn read_obstacle(ctx: &mut Ctx, node: Node, role: Option<ObstacleRole>) -> Resul
     }
     let shapes = required(ctx, node, p.shapes, "shape")?;
     let (initial, initial_node) = required(ctx, node, p.initial, "initialState")?;
-    check::initial_time_step(ctx, time_node(initial_node), initial.time_step)?;
+    let road_user = role == ObstacleRole::Dynamic;
+    check::initial_time_step(ctx, time_node(initial_node), initial.time_step, road_user)?;
     let mut states = vec![initial];
     match (role, p.trajectory, p.occupancy) {
         (ObstacleRole::Static, trajectory, occupancy) => {
@@ -812,12 +816,21 @@ fn read_trajectory(ctx: &mut Ctx, node: Node, states: &mut Vec<State>) -> Result
         ctx.at_most(c, states.len() + 1, ctx.limits.max_states, "states per obstacle")?;
         let state = read_state(ctx, c)?;
         if let Some(previous) = states.last() {
+            // A first state repeating the initial state (its time step included): read once, as
+            // commonroad-io's `state_at_time` reads it. One that differs is an error below.
+            if states.len() == 1 && state == *previous {
+                ctx.repeated_initial_states += 1;
+                continue;
+            }
             check::next_time_step(ctx, time_node(c), previous.time_step, state.time_step)?;
         }
         states.push(state);
     }
     if states.len() < 2 {
-        return Err(ctx.err(node, "expected at least one <state> in the trajectory, found none"));
+        return Err(ctx.err(
+            node,
+            "expected at least one <state> after the initial state in the trajectory, found none",
+        ));
     }
     Ok(())
 }
@@ -831,7 +844,7 @@ fn read_planning_problem(ctx: &mut Ctx, node: Node) -> Result<PlanningProblem, R
             "initialState" => {
                 unique(ctx, c, &initial)?;
                 let state = read_state(ctx, c)?;
-                check::initial_time_step(ctx, time_node(c), state.time_step)?;
+                check::initial_time_step(ctx, time_node(c), state.time_step, false)?;
                 initial = Some(state);
             }
             "goalState" => goals.push(read_goal(ctx, c)?),

@@ -476,7 +476,7 @@ fn trajectories_must_be_non_empty_and_consecutive() {
     rejects(
         &empty,
         "dynamicObstacle 10 / trajectory",
-        "expected at least one <state> in the trajectory, found none",
+        "expected at least one <state> after the initial state in the trajectory, found none",
     );
     let none = format!("{}{}", &MINI[..start], &MINI[end + "</trajectory>".len()..]);
     rejects(
@@ -506,14 +506,104 @@ fn trajectories_must_be_non_empty_and_consecutive() {
         state2,
         "expected an <exact> time step, found the interval 2..3",
     );
+    // A static obstacle exists at every step: its initial state is at step 0 in 2020a.
     let initial = edit(
-        "<time><exact>0</exact></time><velocity><exact>10.0</exact>",
-        "<time><exact>1</exact></time><velocity><exact>10.0</exact>",
+        "<orientation><exact>0.0</exact></orientation><time><exact>0</exact></time></initialState>",
+        "<orientation><exact>0.0</exact></orientation><time><exact>1</exact></time></initialState>",
     );
     rejects(
         &initial,
-        "dynamicObstacle 10 / initialState / time",
+        "staticObstacle 20 / initialState / time",
         "expected initial time step 0 (format 2020a), found 1",
+    );
+}
+
+/// Road user 10's first trajectory state, and its initial state's time and velocity.
+const FIRST_STATE: &str = "<state><position><point><x>11.0</x><y>1.75</y></point></position><orientation><exact>0.0</exact></orientation><time><exact>1</exact></time><velocity><exact>10.1</exact></velocity></state>";
+const INITIAL_TIME: &str = "<time><exact>0</exact></time><velocity><exact>10.0</exact>";
+
+/// What files converted from datasets have and commonroad-io reads: a 2020a road user starting
+/// after step 0, a trajectory whose first state repeats the initial state, an isLeftOf naming a
+/// lanelet. Each is read and named in one remark; a repeated state that differs, a dangling
+/// isLeftOf and a planning problem starting late stay errors.
+#[test]
+fn what_dataset_files_do_is_read_and_named() {
+    let parsed = |text: &str| parse_with(text, "converted.xml", &Limits::default()).expect("reads");
+    // Road user 10 appears at step 1: its initial state at step 1, its trajectory from step 2.
+    let late = edit(FIRST_STATE, "").replacen(
+        INITIAL_TIME,
+        "<time><exact>1</exact></time><velocity><exact>10.0</exact>",
+        1,
+    );
+    let cr = parsed(&late);
+    let steps: Vec<i64> = cr
+        .obstacle(10)
+        .expect("road user 10")
+        .states
+        .iter()
+        .map(|s| s.time_step)
+        .collect();
+    assert_eq!((cr.late_starts, steps), (1, vec![1, 2, 3]));
+    assert!(
+        cr.notes()
+            .iter()
+            .any(|n| n.starts_with("1 road user starts after time step 0")),
+        "{:?}",
+        cr.notes()
+    );
+    // The trajectory repeats the initial state at step 0: read once.
+    let initial = "<state><position><point><x>10.0</x><y>1.75</y></point></position><orientation><exact>0.0</exact></orientation><time><exact>0</exact></time><velocity><exact>10.0</exact></velocity></state>";
+    let repeated = edit(FIRST_STATE, &format!("{initial}{FIRST_STATE}"));
+    let cr = parsed(&repeated);
+    let steps: Vec<i64> = cr
+        .obstacle(10)
+        .expect("road user 10")
+        .states
+        .iter()
+        .map(|s| s.time_step)
+        .collect();
+    assert_eq!((cr.repeated_initial_states, steps), (1, vec![0, 1, 2, 3]));
+    assert_eq!(cr.obstacle(10), parsed(MINI).obstacle(10));
+    assert!(
+        cr.notes().iter().any(|n| n.starts_with("1 trajectory repeats")),
+        "{:?}",
+        cr.notes()
+    );
+    let differing = edit(
+        FIRST_STATE,
+        &format!(
+            "{}{FIRST_STATE}",
+            initial.replace("10.0</exact></velocity>", "10.5</exact></velocity>")
+        ),
+    );
+    rejects(
+        &differing,
+        "dynamicObstacle 10 / trajectory / state 1 / time",
+        "expected time step 1, found 0 (not after 0)",
+    );
+    // An isLeftOf naming a lanelet, in an intersection (ignored as a whole).
+    let intersection = |left_of: &str| {
+        edit(
+            "  <staticObstacle id=\"20\">",
+            &format!("  <intersection id=\"30\"><incoming id=\"31\"><incomingLanelet ref=\"1\"/><isLeftOf ref=\"{left_of}\"/></incoming></intersection>\n  <staticObstacle id=\"20\">"),
+        )
+    };
+    let cr = parsed(&intersection("2"));
+    assert_eq!(
+        (
+            cr.ignored_count("intersection"),
+            cr.ignored_count("isLeftOf/notIncoming")
+        ),
+        (1, 1)
+    );
+    assert!(cr
+        .ignored_line()
+        .is_some_and(|l| l.contains("1 isLeftOf naming no intersection incoming")));
+    assert_eq!(parsed(&intersection("31")).ignored_count("isLeftOf/notIncoming"), 0);
+    rejects(
+        &intersection("99"),
+        "intersection 30 / incoming 31 / isLeftOf",
+        "expected ref to name an existing intersection incoming, found ref 99 (no such id)",
     );
 }
 
