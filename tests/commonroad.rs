@@ -723,6 +723,8 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
 /// its scene as it was.
 #[derive(Debug, Clone, Copy)]
 enum Rewrite {
+    /// Every second road user appearing at this step: `--write-late-starts`.
+    LateStarts(u32),
     /// Turned by the angle (rad) about the origin, then shifted (m): `--write-turned`.
     Turned(f64, [f64; 2]),
     /// Every road user's rectangle given an origin this fraction of its length from its centre,
@@ -741,6 +743,14 @@ fn rewritten(xml: &Path, out: &Path, rewrite: Rewrite) {
                 .into_iter()
                 .chain(numbers)
                 .collect()
+        }
+        Rewrite::LateStarts(step) => {
+            vec![
+                xml_arg.into(),
+                "--write-late-starts".into(),
+                out_arg.into(),
+                step.to_string(),
+            ]
         }
         Rewrite::OriginShifted(fraction) => {
             vec![
@@ -795,6 +805,41 @@ fn verdict(metrics: &serde_json::Value) -> (String, f64) {
     ])
     .to_string();
     (text, metrics["min_clearance"].as_f64().unwrap_or(f64::NAN))
+}
+
+/// Road users appearing after the start, as files converted from datasets have them (a 2020a
+/// initial state after step 0, which commonroad-io reads and writes): commonroad-io rewrites
+/// US101-4 with every second road user appearing at step 12. mjsafe runs it, says how many start
+/// late, and at every recorded step each road user is where commonroad-io's `state_at_time(k)`
+/// puts it and absent before its first step (tests/commonroad_check.py, with the contacts and the
+/// goal).
+#[test]
+fn road_users_appearing_after_the_start_exist_from_their_first_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_US101-4_1_T-1.xml");
+    let late = dir.path().join("late.xml");
+    rewritten(&xml, &late, Rewrite::LateStarts(12));
+    let log = dir.path().join("late.mcap");
+    let o = mjsafe(&["run", late.to_str().unwrap(), "--out", log.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stderr(&o);
+    let late_count: usize = (text.split_once(" road users start after time step 0"))
+        .and_then(|(head, _)| head.rsplit(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no count of late road users in {text}"));
+    assert!(late_count >= 5, "{text}");
+    check_with_commonroad_io(&late, &log);
+    // Each late one is absent until step 12 (1.2 s) and present after it.
+    let actors = common::read_topic::<mjsafe::log::proto::Actors>(&log, "/actors");
+    let absent = |m: &mjsafe::log::proto::Actors| -> Vec<String> {
+        m.actors.iter().filter(|a| a.absent).map(|a| a.name.clone()).collect()
+    };
+    let late = absent(&actors[0]);
+    assert_eq!(late.len(), late_count, "{late:?}");
+    for m in actors.iter().take_while(|m| m.time < 1.15) {
+        assert!(late.iter().all(|name| absent(m).contains(name)), "at {} s", m.time);
+    }
+    let first_after = actors.iter().find(|m| m.time > 1.25).unwrap();
+    assert!(late.iter().all(|name| !absent(first_after).contains(name)));
 }
 
 /// mjsafe measures a scene, not the way its file writes it. Every committed file is written

@@ -67,9 +67,12 @@ first 10 mismatches listed when K > 0, or when no `/actors` message fell on a ti
   shape at its initial state (see `obstacles_json`).
 --write-turned OUT ANGLE X Y writes the scenario turned by ANGLE (rad) about the origin and then
   shifted by (X, Y) m, as commonroad-io turns it (`translate_rotate`), and exits.
+--write-late-starts OUT STEP writes the scenario with every second road user (by id) appearing
+  at STEP (its initial state there, its trajectory after it), and exits.
 The XML alone is enough for these four (the log argument may be left out).
 """
 import argparse
+import copy
 import json
 import logging
 import math
@@ -773,6 +776,32 @@ def write_origin_shifted(xml, out, fraction):
     write_scenario(scenario, pps, out, "origin-shifted")
 
 
+def write_late_starts(xml, out, step):
+    """The scenario with every second road user (by id) appearing at `step`: its initial state
+    is its recorded state there and its trajectory starts after it, as files converted from
+    datasets (inD, highD) have them. commonroad-io writes the initial state's time as it is (the
+    2020a schema says 0). Written as `write_turned` writes."""
+    from commonroad.scenario.trajectory import Trajectory
+
+    scenario, pps = open_scenario(xml)
+    for o in sorted(scenario.dynamic_obstacles, key=lambda o: o.obstacle_id)[::2]:
+        trajectory = getattr(o.prediction, "trajectory", None)
+        if trajectory is None or o.initial_state.time_step != 0:
+            continue
+        later = [st for st in trajectory.state_list if st.time_step > step]
+        first = o.state_at_time(step)
+        if first is None or not later:
+            continue
+        # (An InitialState of the same attributes, with the recorded state's values.)
+        initial = copy.deepcopy(o.initial_state)
+        for name in ("time_step", "position", "orientation", "velocity", "acceleration"):
+            if getattr(first, name, None) is not None:
+                setattr(initial, name, getattr(first, name))
+        o.initial_state = initial
+        o.prediction.trajectory = Trajectory(later[0].time_step, later)
+    write_scenario(scenario, pps, out, "late-starts")
+
+
 def write_scenario(scenario, pps, out, source):
     """`scenario` and `pps` as 2020a XML at `out`, with 12 decimals (commonroad-io's default of 4
     would round the recording)."""
@@ -806,6 +835,8 @@ def main(argv=None):
     ap.add_argument("--contacts", action="store_true",
                     help="check the log's contacts against the car's footprint and CommonRoad's "
                          "shapes at every time step (check_contacts)")
+    ap.add_argument("--write-late-starts", nargs=2, metavar=("OUT", "STEP"),
+                    help="write the scenario with every second road user appearing at STEP and exit")
     ap.add_argument("--write-origin-shifted", nargs=2, metavar=("OUT", "FRACTION"),
                     help="write the scenario with every road user's rectangle given an originXShift "
                          "of FRACTION times its length and its states moved to keep the rectangle "
@@ -814,6 +845,10 @@ def main(argv=None):
                     help="mjsafe's time_to_goal of the log: checked against commonroad-io's "
                          "GoalRegion.is_reached at every /state")
     args = ap.parse_args(argv)
+    if args.write_late_starts:
+        out, step = args.write_late_starts
+        write_late_starts(args.xml, out, int(step))
+        return 0
     if args.write_origin_shifted:
         out, fraction = args.write_origin_shifted
         write_origin_shifted(args.xml, out, float(fraction))

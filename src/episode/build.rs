@@ -849,7 +849,8 @@ pub(super) fn obstacles(
                     }
                     _ => Barrier::circular_obstacle(&pair, position, at, body_radius + radius),
                 };
-                if barrier.h(x0) < 0.0 {
+                // (A recorded road user that appears later is not there at the start.)
+                if barrier.h(x0) < 0.0 && motion.as_ref().is_none_or(|m| m.exists_at(0.0)) {
                     return Err(loaded
                         .field_error(
                             &format!("obstacles.{i}"),
