@@ -70,7 +70,9 @@ enum Outline {
 }
 
 /// The vehicle's extent about its planar position [front, rear, half width] and each moving
-/// road user's [length, width] (`RunInfo::extents`); None without moving road users.
+/// road user's [length, width] (`RunInfo::extents`); None without moving road users, unless the
+/// vehicle has a footprint and there are obstacles (its contacts with them can then be checked
+/// from the log alone, as tests/commonroad_check.py does).
 fn extents(loaded: &LoadedScenario, hull_radius: f64, obstacles: &[Obstacle]) -> Option<crate::log::Extents> {
     let actors: std::collections::BTreeMap<String, [f64; 2]> = (obstacles.iter())
         .filter(|o| o.motion.is_some())
@@ -82,7 +84,7 @@ fn extents(loaded: &LoadedScenario, hull_radius: f64, obstacles: &[Obstacle]) ->
             (o.name.clone(), size)
         })
         .collect();
-    if actors.is_empty() {
+    if actors.is_empty() && (obstacles.is_empty() || loaded.scenario.vehicle.footprint.is_none()) {
         return None;
     }
     let vehicle = match &loaded.scenario.vehicle.footprint {
