@@ -349,7 +349,7 @@ pub struct RunInfo {
     /// The nominal's straight reference path (point, heading): metadata `reference_path`
     /// ("x y heading").
     pub reference_path: Option<([f64; 2], f64)>,
-    /// With road users (`/actors`): the vehicle's extent about its planar position along its
+    /// With road users (`/actors`), or a footprint among static obstacles: the vehicle's extent about its planar position along its
     /// heading, [front, rear, half width] (m; metadata `vehicle_extent` "front rear half_width"),
     /// and each road user's [length, width] (m; a circle's: its diameter twice; metadata
     /// `actor_extents`, JSON), for the headway metrics.
