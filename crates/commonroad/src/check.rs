@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, HashMap};
 use roxmltree::Node;
 
 use crate::error::quote;
-use crate::{Limits, ReadError, Version, MAX_ABS_VALUE};
+use crate::{Limits, ObstacleRole, ReadError, Version, MAX_ABS_VALUE};
 
 /// State shared by the element readers: the file name for errors, the version, what was ignored,
 /// and running totals checked against the limits.
@@ -25,6 +25,8 @@ pub(crate) struct Ctx<'f> {
     pub uncertain_states: usize,
     /// 2020a dynamic obstacles whose initial state is after time step 0.
     pub late_starts: usize,
+    /// 2020a static obstacles whose initial state is after time step 0.
+    pub late_static: usize,
     /// Trajectory states repeating their obstacle's initial state (read once).
     pub repeated_initial_states: usize,
     /// Obstacle elements read so far (checked against [`Limits::max_obstacles`]).
@@ -42,6 +44,7 @@ impl<'f> Ctx<'f> {
             total_points: 0,
             uncertain_states: 0,
             late_starts: 0,
+            late_static: 0,
             repeated_initial_states: 0,
             obstacles: 0,
         }
@@ -205,13 +208,23 @@ pub(crate) fn next_time_step(ctx: &Ctx, node: Node, previous: i64, time: i64) ->
     Ok(())
 }
 
-/// Checks the initial state's time step: any step >= 0 in 2018b; exactly 0 in 2020a, except that a
-/// dynamic obstacle (`road_user`) may start later, as files converted from datasets (inD, highD)
-/// have it and commonroad-io reads it (counted in [`Ctx::late_starts`]).
-pub(crate) fn initial_time_step(ctx: &mut Ctx, node: Node, time: i64, road_user: bool) -> Result<(), ReadError> {
+/// Checks the initial state's time step: any step >= 0 in 2018b; exactly 0 in 2020a for a planning
+/// problem (`obstacle` None). An obstacle's may be later, as commonroad-io reads it: a dynamic one
+/// (files converted from datasets, e.g. inD, have them) exists from that step, a static one at
+/// every step (counted in [`Ctx::late_starts`], [`Ctx::late_static`]).
+pub(crate) fn initial_time_step(
+    ctx: &mut Ctx,
+    node: Node,
+    time: i64,
+    obstacle: Option<ObstacleRole>,
+) -> Result<(), ReadError> {
     if ctx.version == Version::V2020a && time != 0 {
-        if road_user {
-            ctx.late_starts += 1;
+        match obstacle {
+            Some(ObstacleRole::Dynamic) => ctx.late_starts += 1,
+            Some(ObstacleRole::Static) => ctx.late_static += 1,
+            None => {}
+        }
+        if obstacle.is_some() {
             return Ok(());
         }
         return Err(ctx.err(
@@ -323,7 +336,8 @@ type Ids<'a, 'i> = HashMap<u64, (Kind, Node<'a, 'i>)>;
 
 /// Checks that ids are unique (lanelets, traffic signs and lights, intersections and their
 /// incomings, all obstacles share one namespace; planning problems have their own) and that every
-/// `ref` attribute anywhere names an existing element of the right kind, and that no lanelet is its
+/// `ref` attribute anywhere names an existing element of the right kind (one mjsafe does not follow
+/// may not: counted, [`check_ref`]), and that no lanelet is its
 /// own successor, predecessor or neighbour (longer cycles, as in roundabouts, are fine).
 pub(crate) fn ids_and_refs(ctx: &mut Ctx, root: Node) -> Result<(), ReadError> {
     let mut ids: Ids = HashMap::new();
@@ -373,13 +387,33 @@ fn duplicate(ctx: &Ctx, node: Node, id: u64, first: Node) -> ReadError {
     )
 }
 
-/// Checks one `ref` attribute. An `isLeftOf` naming an existing element that is not an incoming
-/// (some files name a lanelet) is counted as ignored: intersections are ignored anyway.
+/// Whether mjsafe follows a `ref` on this element: a lanelet's links to its neighbours and a goal's
+/// lanelets. The others (traffic signs and lights, stop lines, intersections) sit in elements it
+/// does not use.
+fn followed(node: Node) -> bool {
+    let parent = node.parent().map(|p| p.tag_name().name());
+    match node.tag_name().name() {
+        "predecessor" | "successor" | "adjacentLeft" | "adjacentRight" => parent == Some("lanelet"),
+        "lanelet" => parent == Some("position"),
+        _ => false,
+    }
+}
+
+/// Checks one `ref` attribute. One that mjsafe does not follow ([`followed`]) and that names no
+/// element of its kind (some files leave a stop line's sign out, or name a lanelet as an incoming)
+/// is counted as ignored instead: commonroad-io reads such files, and the element is not used.
 fn check_ref(ctx: &mut Ctx, ids: &Ids, node: Node) -> Result<(), ReadError> {
     let name = node.tag_name().name();
     let target = id_attribute(ctx, node, "ref")?;
     let wanted = Kind::referenced_by(name);
     let wanted_name = wanted.map_or("element", kind_name);
+    let resolves = ids
+        .get(&target)
+        .is_some_and(|(kind, _)| wanted.is_none_or(|w| w == *kind));
+    if !resolves && !followed(node) {
+        ctx.ignore("ref/unresolved");
+        return Ok(());
+    }
     match ids.get(&target) {
         None => {
             return Err(ctx.err(
@@ -387,7 +421,6 @@ fn check_ref(ctx: &mut Ctx, ids: &Ids, node: Node) -> Result<(), ReadError> {
                 format!("expected ref to name an existing {wanted_name}, found ref {target} (no such id)"),
             ))
         }
-        Some((kind, _)) if name == "isLeftOf" && *kind != Kind::Incoming => ctx.ignore("isLeftOf/notIncoming"),
         Some((kind, found)) if wanted.is_some_and(|w| w != *kind) => {
             let found = element_path(*found);
             let article = if wanted_name.starts_with(['a', 'e', 'i', 'o', 'u']) {

@@ -151,6 +151,9 @@ pub struct CommonRoad {
     /// says 0; files converted from datasets have them): each exists from its first step, as in
     /// commonroad-io.
     pub late_starts: usize,
+    /// Static obstacles of a 2020a file whose initial state is after time step 0: static at every
+    /// step, as commonroad-io reads them.
+    pub late_static: usize,
     /// Trajectory states repeating their obstacle's initial state at its time step, read once (as
     /// commonroad-io's `state_at_time` reads them).
     pub repeated_initial_states: usize,
@@ -446,6 +449,17 @@ impl CommonRoad {
                 "{n} {users} after time step 0 (format 2020a expects 0): each exists from its first recorded step, as commonroad-io reads it"
             ));
         }
+        if self.late_static > 0 {
+            let n = self.late_static;
+            let obstacles = if n == 1 {
+                "static obstacle starts"
+            } else {
+                "static obstacles start"
+            };
+            notes.push(format!(
+                "{n} {obstacles} after time step 0 (format 2020a expects 0): static at every step, as commonroad-io reads it"
+            ));
+        }
         if self.repeated_initial_states > 0 {
             let n = self.repeated_initial_states;
             let states = if n == 1 {
@@ -481,9 +495,9 @@ fn label(element: &str) -> (String, String) {
         "userOneWay" => Some(("one-way road user entry", "one-way road user entries")),
         "userBidirectional" => Some(("bidirectional road user entry", "bidirectional road user entries")),
         "signalSeries" => Some(("signal series", "signal series")),
-        "isLeftOf/notIncoming" => Some((
-            "isLeftOf naming no intersection incoming",
-            "isLeftOfs naming no intersection incoming",
+        "ref/unresolved" => Some((
+            "reference to no element of its kind (in an element not used)",
+            "references to no element of their kind (in elements not used)",
         )),
         _ => None,
     };

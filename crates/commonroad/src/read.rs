@@ -185,6 +185,7 @@ fn read_root(file: &str, root: Node, limits: Limits) -> Result<CommonRoad, ReadE
         ignored: Vec::new(),
         uncertain_states: 0,
         late_starts: 0,
+        late_static: 0,
         repeated_initial_states: 0,
     };
     for node in elements(root) {
@@ -192,7 +193,8 @@ fn read_root(file: &str, root: Node, limits: Limits) -> Result<CommonRoad, ReadE
     }
     check::ids_and_refs(&mut ctx, root)?;
     cr.uncertain_states = ctx.uncertain_states;
-    (cr.late_starts, cr.repeated_initial_states) = (ctx.late_starts, ctx.repeated_initial_states);
+    (cr.late_starts, cr.late_static) = (ctx.late_starts, ctx.late_static);
+    cr.repeated_initial_states = ctx.repeated_initial_states;
     cr.ignored = std::mem::take(&mut ctx.ignored)
         .into_iter()
         .map(|(element, count)| Ignored { element, count })
@@ -777,8 +779,7 @@ fn read_obstacle(ctx: &mut Ctx, node: Node, role: Option<ObstacleRole>) -> Resul
     }
     let shapes = required(ctx, node, p.shapes, "shape")?;
     let (initial, initial_node) = required(ctx, node, p.initial, "initialState")?;
-    let road_user = role == ObstacleRole::Dynamic;
-    check::initial_time_step(ctx, time_node(initial_node), initial.time_step, road_user)?;
+    check::initial_time_step(ctx, time_node(initial_node), initial.time_step, Some(role))?;
     let mut states = vec![initial];
     match (role, p.trajectory, p.occupancy) {
         (ObstacleRole::Static, trajectory, occupancy) => {
@@ -844,7 +845,7 @@ fn read_planning_problem(ctx: &mut Ctx, node: Node) -> Result<PlanningProblem, R
             "initialState" => {
                 unique(ctx, c, &initial)?;
                 let state = read_state(ctx, c)?;
-                check::initial_time_step(ctx, time_node(c), state.time_step, false)?;
+                check::initial_time_step(ctx, time_node(c), state.time_step, None)?;
                 initial = Some(state);
             }
             "goalState" => goals.push(read_goal(ctx, c)?),
