@@ -434,44 +434,38 @@ impl CommonRoad {
     /// Further remarks on how the file was read (set-valued states reduced to a point, road users
     /// starting late, repeated initial states), one line each; [`CommonRoad::ignored_line`] is separate.
     pub fn notes(&self) -> Vec<String> {
-        let mut notes = Vec::new();
-        if self.uncertain_states > 0 {
-            let n = self.uncertain_states;
-            let states = if n == 1 { "state" } else { "states" };
-            notes.push(format!(
-                "{n} {states} with interval values or shape positions read as the interval midpoint / shape centre"
-            ));
-        }
-        if self.late_starts > 0 {
-            let n = self.late_starts;
-            let users = if n == 1 { "road user starts" } else { "road users start" };
-            notes.push(format!(
-                "{n} {users} after time step 0 (format 2020a expects 0): each exists from its first recorded step, as commonroad-io reads it"
-            ));
-        }
-        if self.late_static > 0 {
-            let n = self.late_static;
-            let obstacles = if n == 1 {
-                "static obstacle starts"
-            } else {
-                "static obstacles start"
-            };
-            notes.push(format!(
-                "{n} {obstacles} after time step 0 (format 2020a expects 0): static at every step, as commonroad-io reads it"
-            ));
-        }
-        if self.repeated_initial_states > 0 {
-            let n = self.repeated_initial_states;
-            let states = if n == 1 {
-                "trajectory repeats"
-            } else {
-                "trajectories repeat"
-            };
-            notes.push(format!(
-                "{n} {states} its road user's initial state as its first state: read once, as commonroad-io reads it"
-            ));
-        }
-        notes
+        // (count, singular, plural, the rest of the line)
+        let remarks = [
+            (
+                self.uncertain_states,
+                "state",
+                "states",
+                "with interval values or shape positions read as the interval midpoint / shape centre",
+            ),
+            (
+                self.late_starts,
+                "road user starts",
+                "road users start",
+                "after time step 0 (format 2020a expects 0): each exists from its first recorded step, as commonroad-io reads it",
+            ),
+            (
+                self.late_static,
+                "static obstacle starts",
+                "static obstacles start",
+                "after time step 0 (format 2020a expects 0): static at every step, as commonroad-io reads it",
+            ),
+            (
+                self.repeated_initial_states,
+                "trajectory repeats",
+                "trajectories repeat",
+                "its road user's initial state as its first state: read once, as commonroad-io reads it",
+            ),
+        ];
+        remarks
+            .iter()
+            .filter(|(n, ..)| *n > 0)
+            .map(|&(n, one, many, rest)| format!("{n} {} {rest}", if n == 1 { one } else { many }))
+            .collect()
     }
 }
 

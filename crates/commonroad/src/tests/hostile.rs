@@ -513,6 +513,12 @@ fn trajectories_must_be_non_empty_and_consecutive() {
     );
 }
 
+/// The time steps of road user `id`'s states.
+fn steps_of(cr: &CommonRoad, id: u64) -> Vec<i64> {
+    let states = &cr.obstacle(id).expect("the road user").states;
+    states.iter().map(|s| s.time_step).collect()
+}
+
 /// Road user 10's first trajectory state, and its initial state's time and velocity.
 const FIRST_STATE: &str = "<state><position><point><x>11.0</x><y>1.75</y></point></position><orientation><exact>0.0</exact></orientation><time><exact>1</exact></time><velocity><exact>10.1</exact></velocity></state>";
 const INITIAL_TIME: &str = "<time><exact>0</exact></time><velocity><exact>10.0</exact>";
@@ -531,13 +537,7 @@ fn what_dataset_files_do_is_read_and_named() {
         1,
     );
     let cr = parsed(&late);
-    let steps: Vec<i64> = cr
-        .obstacle(10)
-        .expect("road user 10")
-        .states
-        .iter()
-        .map(|s| s.time_step)
-        .collect();
+    let steps = steps_of(&cr, 10);
     assert_eq!((cr.late_starts, steps), (1, vec![1, 2, 3]));
     assert!(
         cr.notes()
@@ -550,13 +550,7 @@ fn what_dataset_files_do_is_read_and_named() {
     let initial = "<state><position><point><x>10.0</x><y>1.75</y></point></position><orientation><exact>0.0</exact></orientation><time><exact>0</exact></time><velocity><exact>10.0</exact></velocity></state>";
     let repeated = edit(FIRST_STATE, &format!("{initial}{FIRST_STATE}"));
     let cr = parsed(&repeated);
-    let steps: Vec<i64> = cr
-        .obstacle(10)
-        .expect("road user 10")
-        .states
-        .iter()
-        .map(|s| s.time_step)
-        .collect();
+    let steps = steps_of(&cr, 10);
     assert_eq!((cr.repeated_initial_states, steps), (1, vec![0, 1, 2, 3]));
     assert_eq!(cr.obstacle(10), parsed(MINI).obstacle(10));
     assert!(
