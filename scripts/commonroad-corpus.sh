@@ -6,19 +6,23 @@
 # (road users against commonroad-io's `state_at_time` at every recorded step, contacts against its
 # shapes, the goal against `GoalRegion.is_reached`), in the venv scripts/setup.sh --test makes
 # (or $MJSAFE_CR_PYTHON). Prints one line per file, then the counts.
-#   scripts/commonroad-corpus.sh [--mjsafe BINARY] [--out DIR] DIR...
+# --set KEY=VALUE (repeatable) passes an override to every run, e.g. --set 'filter={kind="none"}'
+# for the nominal alone.
+#   scripts/commonroad-corpus.sh [--mjsafe BINARY] [--out DIR] [--set KEY=VALUE]... DIR...
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mjsafe="${CARGO_TARGET_DIR:-target}/debug/mjsafe"
 out=logs/commonroad-corpus
+sets=()
 while [[ $# -gt 0 && $1 == --* ]]; do
   case $1 in
     --mjsafe) mjsafe=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
+    --set) sets+=(--set "$2"); shift 2 ;;
     *) echo "commonroad-corpus: unknown option $1" >&2; exit 2 ;;
   esac
 done
-[[ $# -gt 0 ]] || { echo "usage: scripts/commonroad-corpus.sh [--mjsafe BINARY] [--out DIR] DIR..." >&2; exit 2; }
+[[ $# -gt 0 ]] || { echo "usage: scripts/commonroad-corpus.sh [--mjsafe BINARY] [--out DIR] [--set KEY=VALUE]... DIR..." >&2; exit 2; }
 python="${MJSAFE_CR_PYTHON:-$HOME/.cache/mjsafe/cr-venv/bin/python}"
 "$python" -c "import commonroad" 2>/dev/null || { echo "commonroad-corpus: no commonroad-io at $python (scripts/setup.sh --test makes it)" >&2; exit 2; }
 mkdir -p "$out"
@@ -30,7 +34,7 @@ while IFS= read -r -d '' xml; do
   [[ -z ${seen[$digest]:-} ]] || continue
   seen[$digest]=1
   log="$out/$digest.mcap"
-  if ! line=$("$mjsafe" run "$xml" --out "$log" 2>&1); then
+  if ! line=$("$mjsafe" run "$xml" --out "$log" "${sets[@]}" 2>&1); then
     refused=$((refused + 1))
     echo "refused  $xml: $(grep '^error' <<<"$line" | head -1)"
     continue
