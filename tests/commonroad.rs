@@ -182,6 +182,27 @@ fn a_scenario_names_a_commonroad_file_and_overrides_its_defaults() {
         err.contains("commonroad.planning_problem") && err.contains("458"),
         "{err}"
     );
+    // The road user that is the ego's own recording (CriMe's `ego_id`): left out, and named; an
+    // id that is no road user of the file is one line.
+    let own = dir.path().join("own.mcap");
+    run(&toml, &own, &["--set", "commonroad.ego_obstacle=373"]);
+    let actors = common::read_topic::<mjsafe::log::proto::Actors>(&own, "/actors");
+    let names = |m: &mjsafe::log::proto::Actors| m.actors.iter().map(|a| a.name.clone()).collect::<Vec<_>>();
+    assert!(names(&actors[0]).contains(&"cr_375".to_string()));
+    assert!(actors.iter().all(|m| !names(m).contains(&"cr_373".to_string())));
+    let description = mjsafe(&["info", "--resolved", own.to_str().unwrap()]);
+    assert!(
+        stdout(&description).contains("road user 373 left out: commonroad.ego_obstacle names it"),
+        "{}",
+        stdout(&description)
+    );
+    let o = mjsafe(&["run", toml.to_str().unwrap(), "--set", "commonroad.ego_obstacle=458"]);
+    let err = stderr(&o);
+    assert!(!o.status.success() && err.trim().lines().count() == 1, "{err}");
+    assert!(
+        err.contains("commonroad.ego_obstacle") && err.contains("found 458"),
+        "{err}"
+    );
 }
 
 /// Hostile files: one line naming the file and what was wrong, a non-zero exit, no panic.

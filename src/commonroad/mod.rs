@@ -13,14 +13,18 @@ use std::sync::{Arc, Mutex};
 use mjsafe_commonroad::{CommonRoad, GoalPosition, GoalState, ObstacleRole, PlanningProblem, Shape};
 use serde::{Deserialize, Serialize};
 
-/// `[commonroad]`: the CommonRoad file (relative to the scenario file) and the planning problem
-/// (its id; default the file's first).
+/// `[commonroad]`: the CommonRoad file (relative to the scenario file), the planning problem
+/// (its id; default the file's first), and the road user that is the ego's own recording (its id,
+/// as CommonRoad-CriMe's `ego_id`: left out; one starting exactly at the planning problem's start
+/// is left out without it).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CommonRoadSpec {
     pub file: PathBuf,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub planning_problem: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ego_obstacle: Option<u64>,
 }
 
 /// A vehicle parameter set of CommonRoad (commonroad-vehicle-models): the footprint L × W, the
@@ -79,7 +83,13 @@ pub fn defaults(spec: &CommonRoadSpec, dir: &Path) -> Result<(Arc<CommonRoad>, t
     let problem = cr
         .planning_problem(spec.planning_problem)
         .map_err(|e| ("commonroad.planning_problem".to_string(), e.to_string()))?;
-    let defaults = world(&cr, problem).map_err(|e| ("commonroad".to_string(), e))?;
+    if let Some(id) = spec.ego_obstacle {
+        if cr.obstacle(id).is_none_or(|o| o.role != ObstacleRole::Dynamic) {
+            let message = format!("expected the id of a dynamic road user of {}, found {id}", cr.file);
+            return Err(("commonroad.ego_obstacle".to_string(), message));
+        }
+    }
+    let defaults = world(&cr, problem, spec.ego_obstacle).map_err(|e| ("commonroad".to_string(), e))?;
     Ok((cr, defaults))
 }
 
@@ -118,8 +128,9 @@ fn merge(table: &mut toml::Table, defaults: toml::Table) {
     }
 }
 
-/// The world of planning problem `problem` as scenario keys.
-pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, String> {
+/// The world of planning problem `problem` as scenario keys; `ego` the road user that is the ego's
+/// own recording, if the scenario names one.
+pub fn world(cr: &CommonRoad, problem: &PlanningProblem, ego: Option<u64>) -> Result<toml::Table, String> {
     let dt = cr.time_step;
     let start = problem.initial;
     let speed = start.velocity.unwrap_or(0.0);
@@ -204,16 +215,18 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem) -> Result<toml::Table, 
     // files do, with its `ego_id`) a road user starting exactly at the planning problem's start.
     let own_recording = |o: &&mjsafe_commonroad::Obstacle| {
         o.id == problem.id
+            || Some(o.id) == ego
             || (o.role == ObstacleRole::Dynamic
                 && o.states.first().is_some_and(|s| {
                     (s.time_step, s.position, s.orientation) == (start.time_step, start.position, start.orientation)
                 }))
     };
     for o in cr.obstacles.iter().filter(own_recording).filter(|o| o.id != problem.id) {
-        omitted.push(format!(
-            "road user {} left out: it starts at the planning problem's initial state (the ego's own recording)",
-            o.id
-        ));
+        let why = match Some(o.id) == ego {
+            true => "commonroad.ego_obstacle names it",
+            false => "it starts at the planning problem's initial state",
+        };
+        omitted.push(format!("road user {} left out: {why} (the ego's own recording)", o.id));
     }
     if let Some(road) = road {
         t.insert("road".into(), toml::Value::Table(road));
@@ -733,7 +746,7 @@ mod tests {
     fn the_world_of_us101_4() {
         let cr = read(&data("USA_US101-4_1_T-1.xml")).unwrap();
         let problem = cr.planning_problem(None).unwrap();
-        let t = world(&cr, problem).unwrap();
+        let t = world(&cr, problem, None).unwrap();
         let x0 = t["vehicle"]["initial_state"].as_array().unwrap();
         let theta = -0.76501_f64;
         assert!((x0[0].as_float().unwrap() + VEHICLE.b * theta.cos()).abs() < 1e-12);
@@ -757,7 +770,7 @@ mod tests {
         let mut cr = (*read(&data("USA_US101-4_1_T-1.xml")).unwrap()).clone();
         let start = cr.planning_problem(None).unwrap().initial;
         let recorded = |cr: &CommonRoad, id: u64| {
-            let t = world(cr, cr.planning_problem(None).unwrap()).unwrap();
+            let t = world(cr, cr.planning_problem(None).unwrap(), None).unwrap();
             let name = format!("cr_{id}");
             let listed = (t["obstacles"].as_array().unwrap().iter()).any(|o| o["name"].as_str() == Some(name.as_str()));
             let named = t["description"].as_str().unwrap().contains(&format!(
@@ -781,7 +794,7 @@ mod tests {
             if path.extension().is_some_and(|e| e == "xml") {
                 let cr = read(&path).unwrap();
                 let problem = cr.planning_problem(None).unwrap();
-                world(&cr, problem).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                world(&cr, problem, None).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             }
         }
     }

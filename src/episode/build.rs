@@ -791,6 +791,16 @@ pub(super) fn vehicle_circles(loaded: &LoadedScenario, hull_radius: f64) -> Vec<
     }
 }
 
+/// For a CommonRoad road user overlapping the car at the start: how to say it is the ego's own
+/// recording (CommonRoad-CriMe's `ego_id`), if it may be.
+fn own_recording_hint(loaded: &LoadedScenario, o: &crate::scenario::ObstacleSpec) -> String {
+    let id = o.name.as_deref().and_then(|n| n.strip_prefix("cr_"));
+    match (&loaded.scenario.commonroad, id, o.motion.is_some()) {
+        (Some(_), Some(id), true) => format!("; if it is the ego's own recording, set commonroad.ego_obstacle = {id} (`--set commonroad.ego_obstacle={id}`)"),
+        _ => String::new(),
+    }
+}
+
 /// The obstacles: circular barriers (4.81) with r = hull + obstacle radius, clear of x(0),
 /// or with a footprint or a box, one barrier per (vehicle circle i, obstacle circle j) pair,
 /// named `<obstacle>/<i>-<j>` (a body circle, [`Barrier::body_circle`], for a footprint).
@@ -855,8 +865,9 @@ pub(super) fn obstacles(
                         .field_error(
                             &format!("obstacles.{i}"),
                             format!(
-                                "the obstacle `{name}` overlaps the vehicle at the start (clearance {:.3} m)",
-                                barrier.clearance(x0)
+                                "the obstacle `{name}` overlaps the vehicle at the start (clearance {:.3} m){}",
+                                barrier.clearance(x0),
+                                own_recording_hint(loaded, o)
                             ),
                         )
                         .into());
