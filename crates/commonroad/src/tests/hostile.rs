@@ -513,6 +513,12 @@ fn trajectories_must_be_non_empty_and_consecutive() {
     );
 }
 
+/// Asserts that one of the file's notes starts with `start`.
+fn assert_noted(cr: &CommonRoad, start: &str) {
+    let notes = cr.notes();
+    assert!(notes.iter().any(|n| n.starts_with(start)), "{start:?} in {notes:?}");
+}
+
 /// The time steps of road user `id`'s states.
 fn steps_of(cr: &CommonRoad, id: u64) -> Vec<i64> {
     let states = &cr.obstacle(id).expect("the road user").states;
@@ -539,13 +545,7 @@ fn what_dataset_files_do_is_read_and_named() {
     let cr = parsed(&late);
     let steps = steps_of(&cr, 10);
     assert_eq!((cr.late_starts, steps), (1, vec![1, 2, 3]));
-    assert!(
-        cr.notes()
-            .iter()
-            .any(|n| n.starts_with("1 road user starts after time step 0")),
-        "{:?}",
-        cr.notes()
-    );
+    assert_noted(&cr, "1 road user starts after time step 0");
     // The trajectory repeats the initial state at step 0: read once.
     let initial = "<state><position><point><x>10.0</x><y>1.75</y></point></position><orientation><exact>0.0</exact></orientation><time><exact>0</exact></time><velocity><exact>10.0</exact></velocity></state>";
     let repeated = edit(FIRST_STATE, &format!("{initial}{FIRST_STATE}"));
@@ -553,11 +553,7 @@ fn what_dataset_files_do_is_read_and_named() {
     let steps = steps_of(&cr, 10);
     assert_eq!((cr.repeated_initial_states, steps), (1, vec![0, 1, 2, 3]));
     assert_eq!(cr.obstacle(10), parsed(MINI).obstacle(10));
-    assert!(
-        cr.notes().iter().any(|n| n.starts_with("1 trajectory repeats")),
-        "{:?}",
-        cr.notes()
-    );
+    assert_noted(&cr, "1 trajectory repeats");
     let differing = edit(
         FIRST_STATE,
         &format!(
@@ -592,13 +588,7 @@ fn what_dataset_files_do_is_read_and_named() {
     );
     let cr = parsed(&late_static);
     assert_eq!((cr.late_static, cr.late_starts), (1, 0));
-    assert!(
-        cr.notes()
-            .iter()
-            .any(|n| n.starts_with("1 static obstacle starts after time step 0")),
-        "{:?}",
-        cr.notes()
-    );
+    assert_noted(&cr, "1 static obstacle starts after time step 0");
 }
 
 #[test]
