@@ -175,13 +175,14 @@ fn a_scenario_names_a_commonroad_file_and_overrides_its_defaults() {
     );
     let m = common::analyze_json(&a);
     assert!((m["simulated_time"].as_f64().unwrap() - 2.0).abs() < 1e-9, "{m}");
-    let o = mjsafe(&["run", toml.to_str().unwrap(), "--set", "commonroad.planning_problem=9"]);
-    let err = stderr(&o);
-    assert!(!o.status.success() && err.trim().lines().count() == 1, "{err}");
-    assert!(
-        err.contains("commonroad.planning_problem") && err.contains("458"),
-        "{err}"
-    );
+    // An override the file cannot meet: one line naming the key and what the file has.
+    let refused = |set: &str, needles: [&str; 2]| {
+        let o = mjsafe(&["run", toml.to_str().unwrap(), "--set", set]);
+        let err = stderr(&o);
+        assert!(!o.status.success() && err.trim().lines().count() == 1, "{err}");
+        assert!(needles.iter().all(|n| err.contains(n)), "{needles:?} in {err}");
+    };
+    refused("commonroad.planning_problem=9", ["commonroad.planning_problem", "458"]);
     // The road user that is the ego's own recording (CriMe's `ego_id`): left out, and named; an
     // id that is no road user of the file is one line.
     let own = dir.path().join("own.mcap");
@@ -196,13 +197,7 @@ fn a_scenario_names_a_commonroad_file_and_overrides_its_defaults() {
         "{}",
         stdout(&description)
     );
-    let o = mjsafe(&["run", toml.to_str().unwrap(), "--set", "commonroad.ego_obstacle=458"]);
-    let err = stderr(&o);
-    assert!(!o.status.success() && err.trim().lines().count() == 1, "{err}");
-    assert!(
-        err.contains("commonroad.ego_obstacle") && err.contains("found 458"),
-        "{err}"
-    );
+    refused("commonroad.ego_obstacle=458", ["commonroad.ego_obstacle", "found 458"]);
 }
 
 /// Hostile files: one line naming the file and what was wrong, a non-zero exit, no panic.
