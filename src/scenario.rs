@@ -421,10 +421,37 @@ impl LoadedScenario {
 /// every default (docs/commonroad.md).
 pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScenario, ScenarioError> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xml")) {
-        return from_text(path, crate::commonroad::scenario_text(path, None), overrides);
+        // `commonroad.file=…` on a CommonRoad file (a sweep over files sets it per run) runs
+        // that file as if it were given: its errors and its log name it.
+        let (file, rest) = commonroad_file_override(path, overrides)?;
+        return from_text(&file, crate::commonroad::scenario_text(&file, None), &rest);
     }
     let text = crate::files::read_text_limited(path, "scenario", crate::files::SCENARIO_LIMIT)?;
     from_text(path, text, overrides)
+}
+
+/// The CommonRoad file a run of the CommonRoad file `path` reads (`path`, or the one a
+/// `commonroad.file` override names, relative to `path`'s directory) and the other overrides.
+fn commonroad_file_override(path: &Path, overrides: &[String]) -> Result<(PathBuf, Vec<String>), ScenarioError> {
+    let is_file = |spec: &String| {
+        spec.split_once('=')
+            .is_some_and(|(key, _)| canonical_key(key) == "commonroad.file")
+    };
+    let name = path
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let mut probe = toml::Table::new();
+    let mut commonroad = toml::Table::new();
+    commonroad.insert("file".into(), toml::Value::String(name.clone()));
+    probe.insert("commonroad".into(), toml::Value::Table(commonroad));
+    for spec in overrides.iter().filter(|s| is_file(s)) {
+        apply_override(&mut probe, spec)?;
+    }
+    let file = match probe["commonroad"].get("file").and_then(toml::Value::as_str) {
+        Some(file) if file != name => path.parent().unwrap_or_else(|| Path::new(".")).join(file),
+        _ => return Ok((path.to_path_buf(), overrides.to_vec())),
+    };
+    Ok((file, overrides.iter().filter(|s| !is_file(s)).cloned().collect()))
 }
 
 /// The comment that names a file to load for a kind that is not built in (written into a

@@ -304,6 +304,35 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
     assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
     let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
     assert_eq!(summary.lines().count(), 1 + 4, "{summary}");
+    // A file of the set that is refused: its row names that file, not the sweep's first.
+    let refused = dir.path().join("refused.xml");
+    let text = std::fs::read_to_string(data("ZAM_Tutorial-1_1_T-1.xml")).unwrap();
+    std::fs::write(&refused, text.replacen("<planningProblem id=", "<nothing id=", 1)).unwrap();
+    let out = dir.path().join("refused");
+    let first = data("USA_US101-4_1_T-1.xml");
+    let o = mjsafe(&[
+        "sweep",
+        "--scenarios",
+        first.to_str().unwrap(),
+        "--scenarios",
+        refused.to_str().unwrap(),
+        "--no-logs",
+        "--set",
+        "duration=0.1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let row = summary
+        .lines()
+        .find(|l| l.contains("refused.xml"))
+        .expect("the refused file's row");
+    assert!(
+        row.contains(&format!("\"{}: key `commonroad.file`", refused.display())),
+        "{row}"
+    );
+    assert!(!row.contains(&format!("{}:", first.display())), "{row}");
     let o = mjsafe(&["sweep", "--scenarios", "data/commonroad/*.nothing"]);
     assert!(
         !o.status.success() && stderr(&o).contains("names no file"),
