@@ -253,19 +253,22 @@ fn hostile_commonroad_files_get_one_line() {
 #[test]
 fn a_sweep_runs_a_set_of_commonroad_files() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("set");
-    let o = mjsafe(&[
-        "sweep",
-        "--scenarios",
-        "data/commonroad/*.xml",
-        "--no-logs",
-        "--set",
-        "duration=0.5",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
-    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    // `mjsafe sweep ARGS --no-logs --out DIR/NAME`: whether it succeeded, and its summary.
+    let sweep = |name: &str, args: &[&str]| {
+        let out = dir.path().join(name);
+        let mut all = vec!["sweep"];
+        all.extend_from_slice(args);
+        all.extend(["--no-logs", "--out", out.to_str().unwrap()]);
+        let o = mjsafe(&all);
+        let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap_or_default();
+        assert!(o.status.success() || !summary.is_empty(), "{}", stderr(&o));
+        (o.status.success(), summary)
+    };
+    let (ok, summary) = sweep(
+        "set",
+        &["--scenarios", "data/commonroad/*.xml", "--set", "duration=0.5"],
+    );
+    assert!(ok, "{summary}");
     let mut rows = summary.lines();
     let header: Vec<&str> = rows.next().unwrap().split(',').collect();
     let column = header.iter().position(|c| *c == "scenario").expect("a scenario column");
@@ -282,9 +285,9 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
     expected.sort();
     assert_eq!(ids, expected);
 
-    let sweep = dir.path().join("set.sweep.toml");
+    let file = dir.path().join("set.sweep.toml");
     std::fs::write(
-        &sweep,
+        &file,
         format!(
             "scenarios = [{:?}, {:?}]\nset = [\"duration=0.5\"]\n\n[[grid]]\nkey = \"delays.acceleration\"\nvalues = [0.3, 0.6]\n",
             data("USA_US101-4_1_T-1.xml").display().to_string(),
@@ -292,38 +295,27 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
         ),
     )
     .unwrap();
-    let out = dir.path().join("file");
-    let o = mjsafe(&[
-        "sweep",
-        "--sweep",
-        sweep.to_str().unwrap(),
-        "--no-logs",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
-    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let (ok, summary) = sweep("file", &["--sweep", file.to_str().unwrap()]);
+    assert!(ok, "{summary}");
     assert_eq!(summary.lines().count(), 1 + 4, "{summary}");
     // A file of the set that is refused: its row names that file, not the sweep's first.
     let refused = dir.path().join("refused.xml");
     let text = std::fs::read_to_string(data("ZAM_Tutorial-1_1_T-1.xml")).unwrap();
     std::fs::write(&refused, text.replacen("<planningProblem id=", "<nothing id=", 1)).unwrap();
-    let out = dir.path().join("refused");
     let first = data("USA_US101-4_1_T-1.xml");
-    let o = mjsafe(&[
-        "sweep",
-        "--scenarios",
-        first.to_str().unwrap(),
-        "--scenarios",
-        refused.to_str().unwrap(),
-        "--no-logs",
-        "--set",
-        "duration=0.1",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success(), "{}", stderr(&o));
-    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let (first_arg, refused_arg) = (first.to_str().unwrap(), refused.to_str().unwrap());
+    let (ok, summary) = sweep(
+        "refused",
+        &[
+            "--scenarios",
+            first_arg,
+            "--scenarios",
+            refused_arg,
+            "--set",
+            "duration=0.1",
+        ],
+    );
+    assert!(!ok, "{summary}");
     let row = summary
         .lines()
         .find(|l| l.contains("refused.xml"))
