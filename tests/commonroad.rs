@@ -262,13 +262,21 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
         let o = mjsafe(&all);
         let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap_or_default();
         assert!(o.status.success() || !summary.is_empty(), "{}", stderr(&o));
-        (o.status.success(), summary)
+        (o.status.success(), summary, stderr(&o))
     };
-    let (ok, summary) = sweep(
+    let (ok, summary, err) = sweep(
         "set",
         &["--scenarios", "data/commonroad/*.xml", "--set", "duration=0.5"],
     );
     assert!(ok, "{summary}");
+    // What each file holds that mjsafe does not use is named once, as `mjsafe run` names it.
+    let named = |file: &str, line: &str| err.lines().filter(|l| l.contains(file) && l.ends_with(line)).count();
+    assert_eq!(named("USA_US101-4_1_T-1.xml: ", "ignored: 1 location"), 1, "{err}");
+    assert_eq!(
+        named("DEU_A9-3_1_T-1.xml: ", "read as the interval midpoint / shape centre"),
+        1,
+        "{err}"
+    );
     let mut rows = summary.lines();
     let header: Vec<&str> = rows.next().unwrap().split(',').collect();
     let column = header.iter().position(|c| *c == "scenario").expect("a scenario column");
@@ -295,7 +303,7 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
         ),
     )
     .unwrap();
-    let (ok, summary) = sweep("file", &["--sweep", file.to_str().unwrap()]);
+    let (ok, summary, _) = sweep("file", &["--sweep", file.to_str().unwrap()]);
     assert!(ok, "{summary}");
     assert_eq!(summary.lines().count(), 1 + 4, "{summary}");
     // A file of the set that is refused: its row names that file, not the sweep's first.
@@ -304,7 +312,7 @@ fn a_sweep_runs_a_set_of_commonroad_files() {
     std::fs::write(&refused, text.replacen("<planningProblem id=", "<nothing id=", 1)).unwrap();
     let first = data("USA_US101-4_1_T-1.xml");
     let (first_arg, refused_arg) = (first.to_str().unwrap(), refused.to_str().unwrap());
-    let (ok, summary) = sweep(
+    let (ok, summary, _) = sweep(
         "refused",
         &[
             "--scenarios",

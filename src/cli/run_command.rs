@@ -415,7 +415,7 @@ impl ReplayCommand {
 
 /// What of a scenario's CommonRoad file mjsafe does not use, named on stderr (nothing of it is
 /// dropped silently).
-fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
+pub(super) fn print_commonroad_notes(loaded: &scenario::LoadedScenario) {
     if let (Some(cr), Some(file)) = (&loaded.commonroad, loaded.commonroad_path()) {
         for line in cr.remarks() {
             eprintln!("{}: {line}", file.display());

@@ -77,6 +77,7 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
     }
     sweep::check_out_dir(&dir)?;
     Summary::check_outputs(&dir, shard).with_context(|| format!("writing the summary into {}", dir.display()))?;
+    print_commonroad_remarks(&spec, &indices);
     let _graceful = episode::GracefulStop::begin();
     let terminal = std::io::stderr().is_terminal();
     let mut progress = Progress {
@@ -151,6 +152,22 @@ pub(super) fn run_sweep(args: &SweepArgs, options: &SweepOptions) -> Result<Exit
         return Ok(ExitCode::from(exit::COLLISION));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// What of the sweep's CommonRoad files mjsafe does not use, named on stderr once per file, as
+/// `mjsafe run` names it (a file that does not load is left to its run's row).
+fn print_commonroad_remarks(spec: &SweepSpec, indices: &[usize]) {
+    let mut seen = std::collections::BTreeSet::new();
+    for &i in indices {
+        let run = spec.run(i);
+        let file = run.parameters.iter().find(|(key, _)| key == "commonroad.file");
+        if !seen.insert(file.map(|(_, value)| value.clone())) {
+            continue;
+        }
+        if let Ok(loaded) = scenario::load(Path::new(&spec.scenario), &run.overrides) {
+            super::run_command::print_commonroad_notes(&loaded);
+        }
+    }
 }
 
 /// `mjsafe plot-sweep`: a sweep's metric `y` against the swept key `x`, one PNG.
