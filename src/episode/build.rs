@@ -791,13 +791,17 @@ pub(super) fn vehicle_circles(loaded: &LoadedScenario, hull_radius: f64) -> Vec<
     }
 }
 
-/// For a CommonRoad road user overlapping the car at the start: how to say it is the ego's own
-/// recording (CommonRoad-CriMe's `ego_id`), if it may be.
+/// For a road user of the CommonRoad file (`cr_<id>`, a dynamic one of the file) overlapping the
+/// car at the start: how to say it is the ego's own recording (CommonRoad-CriMe's `ego_id`).
 fn own_recording_hint(loaded: &LoadedScenario, o: &crate::scenario::ObstacleSpec) -> String {
-    let id = o.name.as_deref().and_then(|n| n.strip_prefix("cr_"));
-    match (&loaded.scenario.commonroad, id, o.motion.is_some()) {
-        (Some(_), Some(id), true) => format!("; if it is the ego's own recording, set commonroad.ego_obstacle = {id} (`--set commonroad.ego_obstacle={id}`)"),
-        _ => String::new(),
+    let id = (o.name.as_deref().and_then(|n| n.strip_prefix("cr_"))).and_then(|id| id.parse::<u64>().ok());
+    let dynamic = |id: u64| {
+        (loaded.commonroad.as_ref().and_then(|cr| cr.obstacle(id)))
+            .is_some_and(|road_user| road_user.role == mjsafe_commonroad::ObstacleRole::Dynamic)
+    };
+    match id.filter(|&id| dynamic(id)) {
+        Some(id) => format!("; if it is the ego's own recording, set commonroad.ego_obstacle = {id} (`--set commonroad.ego_obstacle={id}`)"),
+        None => String::new(),
     }
 }
 

@@ -222,15 +222,13 @@ pub(crate) fn initial_time_step(
         match obstacle {
             Some(ObstacleRole::Dynamic) => ctx.late_starts += 1,
             Some(ObstacleRole::Static) => ctx.late_static += 1,
-            None => {}
+            None => {
+                return Err(ctx.err(
+                    node,
+                    format!("expected initial time step 0 (format 2020a), found {time}"),
+                ))
+            }
         }
-        if obstacle.is_some() {
-            return Ok(());
-        }
-        return Err(ctx.err(
-            node,
-            format!("expected initial time step 0 (format 2020a), found {time}"),
-        ));
     }
     Ok(())
 }
