@@ -76,6 +76,35 @@ enum Bound {
     Lower(usize),
 }
 
+/// Where the last solve of one stream of similar problems ended (a channel's decisions, say):
+/// its working set and which barriers paid the penalty. [`QpWorkspace::solve_hinted`] tries
+/// it first and keeps it only if it passes every optimality condition, so a hint changes how
+/// fast the solution is found, never which solution (the problem is strictly convex).
+#[derive(Debug, Default, Clone)]
+pub struct QpHint {
+    working: Vec<Bound>,
+    soft: Vec<bool>,
+    /// Solves that the hint answered, and solves in all.
+    hits: u64,
+    solves: u64,
+}
+
+impl QpHint {
+    /// A hint that never allocates for r inputs and up to k barriers.
+    pub fn with_capacity(r: usize, k: usize) -> QpHint {
+        QpHint {
+            working: Vec::with_capacity(2 * r),
+            soft: Vec::with_capacity(k),
+            ..QpHint::default()
+        }
+    }
+
+    /// (solves the hint answered, solves in all).
+    pub fn hits(&self) -> (u64, u64) {
+        (self.hits, self.solves)
+    }
+}
+
 /// The scratch space of the active-set solver; keep one per filter so that solving allocates
 /// nothing once it has seen the largest problem (r inputs, k barriers).
 #[derive(Debug, Default, Clone)]
@@ -156,6 +185,33 @@ impl QpWorkspace {
         limits: Option<(&[f64], &[f64])>,
         u: &mut DVector<f64>,
     ) -> (bool, bool, f64) {
+        self.solve_from(constraints, u0, limits, u, None)
+    }
+
+    /// [`QpWorkspace::solve`], trying first where the last solve with this `hint` ended (its
+    /// working set, checked against every optimality condition before it is accepted), and
+    /// leaving in `hint` where this one ended. The same solution up to rounding: consecutive
+    /// decisions of one channel mostly keep their active barriers, and then take one
+    /// equality solve instead of an iteration per barrier crossed.
+    pub fn solve_hinted(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        limits: Option<(&[f64], &[f64])>,
+        u: &mut DVector<f64>,
+        hint: &mut QpHint,
+    ) -> (bool, bool, f64) {
+        self.solve_from(constraints, u0, limits, u, Some(hint))
+    }
+
+    fn solve_from(
+        &mut self,
+        constraints: &[Constraint],
+        u0: &DVector<f64>,
+        limits: Option<(&[f64], &[f64])>,
+        u: &mut DVector<f64>,
+        hint: Option<&mut QpHint>,
+    ) -> (bool, bool, f64) {
         let mu = constraints.iter().map(|c| c.value(u0)).fold(f64::INFINITY, f64::min);
         u.copy_from(u0);
         let mut scaled = std::mem::take(&mut self.scaled);
@@ -177,7 +233,7 @@ impl QpWorkspace {
                 *sb = cb * scale;
             }
         }
-        let outcome = self.solve_scaled(&scaled[..constraints.len()], u0, limits, u, mu);
+        let outcome = self.solve_scaled(&scaled[..constraints.len()], u0, limits, u, mu, hint);
         self.scaled = scaled;
         outcome
     }
@@ -190,6 +246,7 @@ impl QpWorkspace {
         limits: Option<(&[f64], &[f64])>,
         u: &mut DVector<f64>,
         mu: f64,
+        hint: Option<&mut QpHint>,
     ) -> (bool, bool, f64) {
         // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
         // for: u0 is returned, flagged infeasible.
@@ -203,7 +260,29 @@ impl QpWorkspace {
             return (false, false, mu);
         }
         self.prepare(constraints, u0, limits);
-        if self.active_set(constraints) {
+        let hinted = match hint {
+            Some(hint) => {
+                hint.solves += 1;
+                let hit = self.hot_start(constraints, hint);
+                hint.hits += u64::from(hit);
+                Some((hint, hit))
+            }
+            None => None,
+        };
+        let solved = match hinted {
+            Some((hint, hit)) => {
+                let solved = hit || self.active_set(constraints);
+                hint.working.clear();
+                hint.soft.clear();
+                if solved {
+                    hint.working.extend_from_slice(&self.working);
+                    hint.soft.extend_from_slice(&self.soft);
+                }
+                solved
+            }
+            None => self.active_set(constraints),
+        };
+        if solved {
             let v = DVectorView::from_slice(&self.v, u0.len());
             *u += v;
             let worst_slack = self
@@ -260,13 +339,7 @@ impl QpWorkspace {
             self.lower.push(lo);
             self.upper.push(hi);
         }
-        self.v.clear();
-        self.v.extend(
-            self.lower
-                .iter()
-                .zip(&self.upper)
-                .map(|(lo, hi)| 0.0_f64.clamp(*lo, *hi)),
-        );
+        self.start_nearest_zero();
         self.p.clear();
         self.p.resize(r, 0.0);
         self.gradient.clear();
@@ -282,6 +355,100 @@ impl QpWorkspace {
         self.multipliers.resize(r, 0.0);
         self.correction.resize(r, 0.0);
         debug_assert_eq!(self.soft.len(), k);
+    }
+
+    /// Whether the hint's working set and penalised barriers, with the minimiser on them, meet
+    /// every optimality condition of the problem [`QpWorkspace::prepare`] set up: each
+    /// multiplier in its range ([0, ρ] for a barrier, [0, ∞) for a limit), every other hard
+    /// barrier met and every other penalised one not (within rounding), v within the box. Then
+    /// v is the problem's unique solution; else the workspace is left for the cold start.
+    fn hot_start(&mut self, constraints: &[Constraint], hint: &QpHint) -> bool {
+        let (r, k) = (self.v.len(), constraints.len());
+        let valid = |bound: &Bound| match *bound {
+            Bound::Barrier(j) => j < k,
+            Bound::Upper(i) => i < r && self.upper[i].is_finite(),
+            Bound::Lower(i) => i < r && self.lower[i].is_finite(),
+        };
+        if hint.working.is_empty() || hint.soft.len() != k || !hint.working.iter().all(valid) {
+            return false;
+        }
+        let cold_soft = std::mem::take(&mut self.soft);
+        self.soft.extend_from_slice(&hint.soft);
+        self.working.clear();
+        self.working.extend_from_slice(&hint.working);
+        for bound in &self.working {
+            if let Bound::Barrier(j) = *bound {
+                self.soft[j] = false;
+            }
+        }
+        if self.hint_is_optimal(constraints) == Some(true) {
+            return true;
+        }
+        // The cold start's state again.
+        self.soft = cold_soft;
+        self.start_nearest_zero();
+        self.working.clear();
+        false
+    }
+
+    /// [`QpWorkspace::hot_start`]'s test, with v ← the minimiser on the working set (None
+    /// when it has none, or not a finite one).
+    fn hint_is_optimal(&mut self, constraints: &[Constraint]) -> Option<bool> {
+        let r = self.v.len();
+        self.penalty_gradient(constraints);
+        if !(self.equality_step(constraints) && self.p.iter().all(|p| p.is_finite())) {
+            return None;
+        }
+        self.v.copy_from_slice(&self.p);
+        let largest = |x: &[f64]| x.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+        let size = 1.0 + largest(&self.gradient) + 2.0 * largest(&self.v);
+        let tolerance = MULTIPLIER_TOLERANCE * size;
+        let multipliers_in_range = self.working.iter().zip(&self.multipliers).all(|(bound, &lambda)| {
+            let excess = match bound {
+                Bound::Barrier(_) => (-lambda).max(lambda - SLACK_PENALTY),
+                _ => -lambda,
+            };
+            excess <= tolerance
+        });
+        // Rounding of the constraint values: rows have ‖b_k‖ = 1, so |b_k·v| ≤ ‖v‖.
+        let slack = 1e-12 * (1.0 + largest(&self.v));
+        let within_box = (0..r).all(|i| self.v[i] >= self.lower[i] - slack && self.v[i] <= self.upper[i] + slack);
+        let optimal = multipliers_in_range
+            && within_box
+            && constraints.iter().enumerate().all(|(k, constraint)| {
+                if self.working.contains(&Bound::Barrier(k)) {
+                    return true;
+                }
+                let g = self.c[k] + dot(constraint.b.as_slice(), &self.v);
+                let tolerance = slack + 1e-12 * self.c[k].abs();
+                if self.soft[k] {
+                    g <= tolerance
+                } else {
+                    g >= -tolerance
+                }
+            });
+        Some(optimal)
+    }
+
+    /// v ← the point of the box nearest 0.
+    fn start_nearest_zero(&mut self) {
+        self.v.clear();
+        self.v.extend(
+            self.lower
+                .iter()
+                .zip(&self.upper)
+                .map(|(lo, hi)| 0.0_f64.clamp(*lo, *hi)),
+        );
+    }
+
+    /// d ← −ρ Σ_soft b_k: F = ‖v‖² + d·v (+ const) while the soft set holds.
+    fn penalty_gradient(&mut self, constraints: &[Constraint]) {
+        self.gradient.fill(0.0);
+        for (constraint, _) in constraints.iter().zip(&self.soft).filter(|(_, soft)| **soft) {
+            for (d, b) in self.gradient.iter_mut().zip(constraint.b.iter()) {
+                *d -= SLACK_PENALTY * b;
+            }
+        }
     }
 
     /// β_w of working constraint w (n_w·v = β_w when it holds with equality).
@@ -308,13 +475,7 @@ impl QpWorkspace {
         // After a full step the point minimises on the working set: p = 0 in exact arithmetic.
         let mut at_minimum = false;
         for _ in 0..MAX_ITERATIONS {
-            // d = −ρ Σ_soft b_k: F = ‖v‖² + d·v (+ const) while the soft set holds.
-            self.gradient.fill(0.0);
-            for (constraint, _) in constraints.iter().zip(&self.soft).filter(|(_, soft)| **soft) {
-                for i in 0..r {
-                    self.gradient[i] -= SLACK_PENALTY * constraint.b[i];
-                }
-            }
+            self.penalty_gradient(constraints);
             if !self.equality_step(constraints) {
                 return false;
             }
@@ -780,6 +941,71 @@ mod tests {
             active_count > 10_000 && infeasible_count > 1000 && flags_differ <= 600,
             "{flags_differ}"
         );
+    }
+
+    /// A stream of slowly changing problems (a channel's decisions, tick after tick): the hinted
+    /// solve answers most from the last one's working set, and every answer is the cold
+    /// solve's (the same flags, the input to rounding), with or without limits, when the
+    /// hint is wrong (the barriers changed), and when barriers come and go.
+    #[test]
+    fn a_hinted_solve_gives_the_cold_solution() {
+        let mut rng = SplitMix64(11);
+        let mut hits = (0, 0);
+        for stream in 0..40 {
+            let (r, k, limited) = (1 + stream % 4, 2 + stream % 7, stream % 3 == 0);
+            let (mut constraints, u0, limits) = random_problem(&mut rng, r, k, limited);
+            let limits = limits.as_ref().map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
+            let mut hint = QpHint::default();
+            let (mut workspace, mut hot) = (QpWorkspace::default(), QpWorkspace::default());
+            for step in 0..60 {
+                for c in constraints.iter_mut() {
+                    c.a += 0.05 * (rng.next_f64() - 0.5);
+                    for b in c.b.iter_mut() {
+                        *b += 0.02 * (rng.next_f64() - 0.5);
+                    }
+                }
+                // Now and then a barrier leaves or another comes (the hint then cannot hold).
+                let count = if step % 17 == 16 { k - 1 } else { k };
+                let rows = &constraints[..count];
+                let (mut cold_u, mut hot_u) = (DVector::zeros(r), DVector::zeros(r));
+                let cold_flags = workspace.solve(rows, &u0, limits, &mut cold_u);
+                let hot_flags = hot.solve_hinted(rows, &u0, limits, &mut hot_u, &mut hint);
+                assert_eq!(cold_flags.1, hot_flags.1, "stream {stream} step {step}");
+                assert_eq!(cold_flags.2, hot_flags.2, "stream {stream} step {step}");
+                let size = 1.0 + cold_u.amax();
+                assert!(
+                    (&cold_u - &hot_u).amax() <= 1e-9 * size,
+                    "stream {stream} step {step}: {cold_u} vs {hot_u}"
+                );
+            }
+            assert_eq!(hot.fallbacks(), workspace.fallbacks(), "stream {stream}");
+            hits = (hits.0 + hint.hits().0, hits.1 + hint.hits().1);
+        }
+        // (Most solves of a slowly changing stream keep their working set.)
+        assert!(hits.0 * 2 > hits.1, "{hits:?}");
+    }
+
+    /// The hint holds the solution of a problem seen again: it answers it (one equality
+    /// solve) with what the cold solve finds.
+    #[test]
+    fn a_problem_seen_again_is_answered_by_its_hint() {
+        let constraints = [
+            constraint(-3.0, &[1.0, 2.0]),
+            constraint(-1.0, &[1.0, -1.0]),
+            constraint(9.0, &[0.5, 1.0]),
+        ];
+        let u0 = DVector::from_column_slice(&[0.5, -0.2]);
+        let (mut workspace, mut hint) = (QpWorkspace::default(), QpHint::default());
+        let (mut first, mut again) = (DVector::zeros(2), DVector::zeros(2));
+        workspace.solve_hinted(&constraints, &u0, None, &mut first, &mut hint);
+        assert_eq!(hint.hits(), (0, 1));
+        workspace.solve_hinted(&constraints, &u0, None, &mut again, &mut hint);
+        assert_eq!(hint.hits(), (1, 2));
+        assert!((&first - &again).amax() < 1e-12, "{first} vs {again}");
+        // Both barriers at equality: g_1 = g_2 = 0.
+        for c in &constraints[..2] {
+            assert!(c.value(&again).abs() < 1e-12, "{}", c.value(&again));
+        }
     }
 
     #[test]

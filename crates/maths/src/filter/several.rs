@@ -11,7 +11,7 @@
 use nalgebra::DVector;
 
 use crate::barrier::Constraint;
-use crate::filter::qp::QpWorkspace;
+use crate::filter::qp::{QpHint, QpWorkspace};
 use crate::filter::{fixed_channel_one_barrier, gamma_m_one_barrier, gamma_m_xi, gamma_m_zeta, ChannelOutcome};
 
 /// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
@@ -29,6 +29,9 @@ pub struct ChannelQp {
     solution: DVector<f64>,
     /// u0 + ū on the moved channels, ω on the later ones: the inputs the decision plans.
     planned: DVector<f64>,
+    /// Where the last QP of each stream ended: per channel, its decisions and the law the
+    /// predictors assume (`hint(i, report)`), each a sequence of similar problems.
+    hints: Vec<QpHint>,
     /// Per channel, the largest |input| the solves since [`ChannelQp::take_planned`] planned,
     /// fictitious ones included (γm's (u0 + v or ω) + σ).
     largest_planned: Vec<f64>,
@@ -44,8 +47,17 @@ impl ChannelQp {
             origin: DVector::zeros(variables),
             solution: DVector::zeros(variables),
             planned: DVector::zeros(r),
+            hints: vec![QpHint::with_capacity(variables, barriers); 2 * r],
             largest_planned: vec![0.0; r],
         }
+    }
+
+    /// Solves the QP answered by where the last solve of its stream ended, and solves in all.
+    pub fn hint_hits(&self) -> (u64, u64) {
+        self.hints
+            .iter()
+            .map(QpHint::hits)
+            .fold((0, 0), |(a, b), (c, d)| (a + c, b + d))
     }
 
     /// largest ← per channel, the largest |input| planned since the last call (then reset).
@@ -142,7 +154,8 @@ impl ChannelQp {
             }
         }
         let reduced = &self.reduced[..constraints.len()];
-        let (active, infeasible, mu) = self.qp.solve(reduced, u0, None, &mut self.solution);
+        let hint = &mut self.hints[2 * i + usize::from(report)];
+        let (active, infeasible, mu) = self.qp.solve_hinted(reduced, u0, None, &mut self.solution, hint);
         let mut out = ChannelOutcome::new(self.solution[i], active, infeasible, mu);
         for j in 0..r {
             self.plan(j, if j < s { self.solution[j] } else { omega[j] });
@@ -242,7 +255,10 @@ impl ChannelQp {
         }
         let reduced = &self.reduced[..constraints.len()];
         self.origin.fill(0.0);
-        let (active, infeasible, mu) = self.qp.solve(reduced, &self.origin, None, &mut self.solution);
+        let hint = &mut self.hints[2 * i + usize::from(report)];
+        let (active, infeasible, mu) = self
+            .qp
+            .solve_hinted(reduced, &self.origin, None, &mut self.solution, hint);
         let mut out = ChannelOutcome::new(u0[i] + self.solution[i], active, infeasible, mu);
         for j in 0..r {
             let real = if j < used { u0[j] + self.solution[j] } else { omega[j] };
