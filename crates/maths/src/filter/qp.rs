@@ -118,6 +118,8 @@ pub struct QpWorkspace {
     p: Vec<f64>,
     gradient: Vec<f64>,
     soft: Vec<bool>,
+    /// The cold start's `soft` while a hint is tried.
+    cold_soft: Vec<bool>,
     working: Vec<Bound>,
     /// The working set's normals (row-major, |W| × r), their Gram matrix and multipliers.
     normals: Vec<f64>,
@@ -160,6 +162,7 @@ impl QpWorkspace {
         }
         workspace.c.reserve_exact(k);
         workspace.soft.reserve_exact(k);
+        workspace.cold_soft.reserve_exact(k);
         workspace.scaled = (0..k).map(|_| Constraint::zeros(r)).collect();
         workspace.working.reserve_exact(r);
         workspace
@@ -372,7 +375,9 @@ impl QpWorkspace {
         if hint.working.is_empty() || hint.soft.len() != k || !hint.working.iter().all(valid) {
             return false;
         }
-        let cold_soft = std::mem::take(&mut self.soft);
+        // (The cold start's penalised barriers kept aside, in a buffer that keeps its capacity.)
+        std::mem::swap(&mut self.soft, &mut self.cold_soft);
+        self.soft.clear();
         self.soft.extend_from_slice(&hint.soft);
         self.working.clear();
         self.working.extend_from_slice(&hint.working);
@@ -385,7 +390,7 @@ impl QpWorkspace {
             return true;
         }
         // The cold start's state again.
-        self.soft = cold_soft;
+        std::mem::swap(&mut self.soft, &mut self.cold_soft);
         self.start_nearest_zero();
         self.working.clear();
         false
@@ -1038,6 +1043,17 @@ mod tests {
         };
         let counted = measure(|| solve_all(&mut workspace, &mut u));
         assert_eq!(counted.count_total, 0, "a solve allocated");
+        // Nor a hinted one, the hint answering or not.
+        let mut hint = QpHint::with_capacity(2, 3);
+        let counted = measure(|| {
+            for (constraints, u0, limits) in problems.iter().chain(&problems) {
+                let (lo, hi) = limits.as_ref().unwrap();
+                workspace.solve_hinted(constraints, u0, Some((lo, hi)), &mut u, &mut hint);
+                workspace.solve_hinted(constraints, u0, Some((lo, hi)), &mut u, &mut hint);
+            }
+        });
+        assert_eq!(counted.count_total, 0, "a hinted solve allocated");
+        assert!(hint.hits().0 > 0, "{:?}", hint.hits());
         // A default workspace grows once, then allocates no more.
         let mut grown = QpWorkspace::default();
         solve_all(&mut grown, &mut u);
