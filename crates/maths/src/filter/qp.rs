@@ -65,8 +65,9 @@ pub fn cbf_qp_multi(constraints: &[Constraint], u0: &DVector<f64>, limits: Optio
     }
 }
 
-/// A constraint of the active set, in the form n·v ≥ β.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A constraint of the active set, in the form n·v ≥ β (ordered: the working set's canonical
+/// order, [`QpWorkspace::settle`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum Bound {
     /// g_k(v) = c_k + b_k·v ≥ 0 (n = b_k).
     Barrier(usize),
@@ -381,6 +382,7 @@ impl QpWorkspace {
         self.soft.extend_from_slice(&hint.soft);
         self.working.clear();
         self.working.extend_from_slice(&hint.working);
+        self.working.sort_unstable();
         for bound in &self.working {
             if let Bound::Barrier(j) = *bound {
                 self.soft[j] = false;
@@ -433,6 +435,18 @@ impl QpWorkspace {
                 }
             });
         Some(optimal)
+    }
+
+    /// v ← the minimiser on the optimal working set taken in its canonical order, so that the
+    /// solution's bits depend on that set and the rows alone, not on the path that found it
+    /// (the cold iteration, a hint, or the same rows at other positions: leaving out rows of
+    /// road users out of reach changes no command bit for bit).
+    fn settle(&mut self, constraints: &[Constraint]) {
+        self.working.sort_unstable();
+        self.penalty_gradient(constraints);
+        if self.equality_step(constraints) && self.p.iter().all(|p| p.is_finite()) {
+            self.v.copy_from_slice(&self.p);
+        }
     }
 
     /// v ← the point of the box nearest 0.
@@ -510,7 +524,10 @@ impl QpWorkspace {
                         worst = Some((w, excess));
                     }
                 }
-                let Some((w, _)) = worst else { return true };
+                let Some((w, _)) = worst else {
+                    self.settle(constraints);
+                    return true;
+                };
                 if let Bound::Barrier(k) = self.working[w] {
                     // Above ρ: paying the penalty is cheaper than keeping g_k = 0.
                     self.soft[k] = self.multipliers[w] > SLACK_PENALTY;
