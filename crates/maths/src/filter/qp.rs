@@ -195,7 +195,7 @@ impl QpWorkspace {
     /// [`QpWorkspace::solve`], trying first where the last solve with this `hint` ended (its
     /// working set, checked against every optimality condition before it is accepted), and
     /// leaving in `hint` where this one ended. The same solution, formed the same way on the
-    /// same working set ([`QpWorkspace::settle`]'s order): consecutive decisions of one channel
+    /// same working set, taken in a fixed order: consecutive decisions of one channel
     /// mostly keep their active barriers, and then take one equality solve instead of an
     /// iteration per barrier crossed.
     pub fn solve_hinted(
