@@ -52,14 +52,6 @@ impl ChannelQp {
         }
     }
 
-    /// Solves the QP answered by where the last solve of its stream ended, and solves in all.
-    pub fn hint_hits(&self) -> (u64, u64) {
-        self.hints
-            .iter()
-            .map(QpHint::hits)
-            .fold((0, 0), |(a, b), (c, d)| (a + c, b + d))
-    }
-
     /// largest ← per channel, the largest |input| planned since the last call (then reset).
     pub fn take_planned(&mut self, largest: &mut [f64]) {
         for (out, planned) in largest.iter_mut().zip(&mut self.largest_planned) {
