@@ -265,26 +265,8 @@ impl QpWorkspace {
             return (false, false, mu);
         }
         self.prepare(constraints, u0, limits);
-        let hinted = match hint {
-            Some(hint) => {
-                hint.solves += 1;
-                let hit = self.hot_start(constraints, hint);
-                hint.hits += u64::from(hit);
-                Some((hint, hit))
-            }
-            None => None,
-        };
-        let solved = match hinted {
-            Some((hint, hit)) => {
-                let solved = hit || self.active_set(constraints);
-                hint.working.clear();
-                hint.soft.clear();
-                if solved {
-                    hint.working.extend_from_slice(&self.working);
-                    hint.soft.extend_from_slice(&self.soft);
-                }
-                solved
-            }
+        let solved = match hint {
+            Some(hint) => self.active_set_hinted(constraints, hint),
             None => self.active_set(constraints),
         };
         if solved {
@@ -360,6 +342,21 @@ impl QpWorkspace {
         self.multipliers.resize(r, 0.0);
         self.correction.resize(r, 0.0);
         debug_assert_eq!(self.soft.len(), k);
+    }
+
+    /// [`QpWorkspace::active_set`], answered by the hint's working set when it is optimal;
+    /// leaves in `hint` where this solve ended.
+    fn active_set_hinted(&mut self, constraints: &[Constraint], hint: &mut QpHint) -> bool {
+        let hit = self.hot_start(constraints, hint);
+        let solved = hit || self.active_set(constraints);
+        (hint.solves, hint.hits) = (hint.solves + 1, hint.hits + u64::from(hit));
+        hint.working.clear();
+        hint.soft.clear();
+        if solved {
+            hint.working.extend_from_slice(&self.working);
+            hint.soft.extend_from_slice(&self.soft);
+        }
+        solved
     }
 
     /// Whether the hint's working set and penalised barriers, with the minimiser on them, meet

@@ -14,6 +14,12 @@ use crate::barrier::Constraint;
 use crate::filter::qp::{QpHint, QpWorkspace};
 use crate::filter::{fixed_channel_one_barrier, gamma_m_one_barrier, gamma_m_xi, gamma_m_zeta, ChannelOutcome};
 
+/// The stream of channel i's decisions (`report`: they report their shortfall) or of its law
+/// at predicted states, in [`ChannelQp`]'s hints.
+fn hint_index(i: usize, report: bool) -> usize {
+    2 * i + usize::from(report)
+}
+
 /// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
 const SHORTFALL_TOLERANCE: f64 = 1e-9;
 
@@ -30,7 +36,7 @@ pub struct ChannelQp {
     /// u0 + ū on the moved channels, ω on the later ones: the inputs the decision plans.
     planned: DVector<f64>,
     /// Where the last QP of each stream ended: per channel, its decisions and the law the
-    /// predictors assume (`hint(i, report)`), each a sequence of similar problems.
+    /// predictors assume ([`hint_index`]), each a sequence of similar problems.
     hints: Vec<QpHint>,
     /// Per channel, the largest |input| the solves since [`ChannelQp::take_planned`] planned,
     /// fictitious ones included (γm's (u0 + v or ω) + σ).
@@ -146,7 +152,7 @@ impl ChannelQp {
             }
         }
         let reduced = &self.reduced[..constraints.len()];
-        let hint = &mut self.hints[2 * i + usize::from(report)];
+        let hint = &mut self.hints[hint_index(i, report)];
         let (active, infeasible, mu) = self.qp.solve_hinted(reduced, u0, None, &mut self.solution, hint);
         let mut out = ChannelOutcome::new(self.solution[i], active, infeasible, mu);
         for j in 0..r {
@@ -247,7 +253,7 @@ impl ChannelQp {
         }
         let reduced = &self.reduced[..constraints.len()];
         self.origin.fill(0.0);
-        let hint = &mut self.hints[2 * i + usize::from(report)];
+        let hint = &mut self.hints[hint_index(i, report)];
         let (active, infeasible, mu) = self
             .qp
             .solve_hinted(reduced, &self.origin, None, &mut self.solution, hint);
