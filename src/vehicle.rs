@@ -67,8 +67,26 @@ pub struct MujocoBicycle {
     ctrl_yaw_rate: usize,
     ctrl_speed: usize,
     act_speed: usize,
+    /// A model with a `speed_lead` actuator (models/commonroad_car.xml) moves each step as
+    /// (4.78) does, to second order ([`MidStep`]).
+    mid_step: Option<MidStep>,
     hull_geom: usize,
     hull_radius: f64,
+}
+
+/// The actuators that make a step of models/commonroad_car.xml move the car as (4.78) does
+/// under a held input, to second order in the timestep h: the Euler and implicit integrators
+/// apply the speed activation x4 of the step's start and move the body along its heading at the
+/// step's start, where (4.78) moves at the mean speed x4 + h u2 / 2 along the mean heading
+/// θ + h ω / 2. `speed_lead` adds K h u2 / 2 to the speed servo's force (its target becomes the
+/// mean speed), `rear_no_slip` turns the rear axle's velocity by h ω / 2 (its target lateral
+/// speed), the yaw-rate servo runs at the mean speed, and x4 is read from the activation.
+struct MidStep {
+    speed_lead: usize,
+    rear_no_slip: usize,
+    /// h under the Euler and implicit integrators; 0 under RK4, which integrates the
+    /// activation with the forces.
+    late: f64,
 }
 
 /// qpos and dof addresses of the planar joints x, y, yaw.
@@ -87,6 +105,17 @@ impl MujocoBicycle {
         let yaw_rate = model.require(ObjKind::Actuator, "yaw_rate")?;
         let speed = model.require(ObjKind::Actuator, "speed")?;
         let act_speed = activation(model, speed, "speed")?;
+        let mid_step = match model.id(ObjKind::Actuator, "speed_lead") {
+            Some(speed_lead) => Some(MidStep {
+                speed_lead,
+                rear_no_slip: model.require(ObjKind::Actuator, "rear_no_slip")?,
+                late: match model.integrator() {
+                    crate::mujoco::Integrator::Rk4 => 0.0,
+                    _ => model.timestep(),
+                },
+            }),
+            None => None,
+        };
         let (hull_geom, hull_radius) = hull(model)?;
         Ok(MujocoBicycle {
             model: Arc::new(BicycleModel::new(wheelbase(model)?)),
@@ -95,6 +124,7 @@ impl MujocoBicycle {
             ctrl_yaw_rate: yaw_rate,
             ctrl_speed: speed,
             act_speed,
+            mid_step,
             hull_geom,
             hull_radius,
         })
@@ -111,11 +141,18 @@ impl MujocoVehicle for MujocoBicycle {
     fn hull_geom(&self) -> usize {
         self.hull_geom
     }
-    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], _act: &[f64], x: &mut [f64]) {
+    fn read_state_into(&self, qpos: &[f64], qvel: &[f64], act: &[f64], x: &mut [f64]) {
         let heading = qpos[self.qpos[2]];
-        let (s, c) = heading.sin_cos();
-        // Longitudinal velocity of the rear axle, measured from the body's motion.
-        let speed = qvel[self.dof[0]] * c + qvel[self.dof[1]] * s;
+        let speed = match self.mid_step {
+            // x4 of (4.78) itself: the integrator of u2 (the body moves at the step's mean
+            // speed, [`MidStep`]).
+            Some(_) => act[self.act_speed],
+            None => {
+                // Longitudinal velocity of the rear axle, measured from the body's motion.
+                let (s, c) = heading.sin_cos();
+                qvel[self.dof[0]] * c + qvel[self.dof[1]] * s
+            }
+        };
         x.copy_from_slice(&[qpos[self.qpos[0]], qpos[self.qpos[1]], heading, speed]);
     }
     fn write_state(&self, sim: &mut Simulation, x: &DVector<f64>) {
@@ -132,10 +169,18 @@ impl MujocoVehicle for MujocoBicycle {
     fn write_ctrl(&self, data: &mut DataView<'_>, applied_input: &[f64]) {
         // (4.78): heading rate = x4 u1 / L, with x4 the commanded speed (the integrator state
         // the body's velocity follows); speed rate = u2.
-        let commanded_speed = data.act()[self.act_speed];
+        let mut commanded_speed = data.act()[self.act_speed];
         let ctrl = data.ctrl_mut();
-        ctrl[self.ctrl_yaw_rate] = commanded_speed * applied_input[0] / self.model.wheelbase;
         ctrl[self.ctrl_speed] = applied_input[1];
+        if let Some(mid) = &self.mid_step {
+            // The step's mean speed x4 + h u2 / 2, and its velocity turned by half the step's
+            // turn h ω (tan: the lateral speed in the frame of the step's start).
+            ctrl[mid.speed_lead] = 0.5 * mid.late * applied_input[1];
+            commanded_speed += 0.5 * mid.late * applied_input[1];
+            let turn = mid.late * commanded_speed * applied_input[0] / self.model.wheelbase;
+            ctrl[mid.rear_no_slip] = commanded_speed * (0.5 * turn).tan();
+        }
+        ctrl[self.ctrl_yaw_rate] = commanded_speed * applied_input[0] / self.model.wheelbase;
     }
 }
 
