@@ -9,6 +9,7 @@ use nalgebra::DVector;
 
 use crate::barrier::Barrier;
 use crate::dynamics::Dynamics;
+use crate::footprint::{boxes_penetration, OrientedBox};
 use crate::mujoco::{CallbackContext, ControlHook, DataView, MjError, PhysicsWarning, Simulation};
 use crate::vehicle::MujocoVehicle;
 
@@ -62,6 +63,10 @@ pub struct MujocoPlant {
     /// The vehicle's geom whose contacts count: its hull, or the box added for a footprint
     /// or a lead.
     contact_geom: usize,
+    /// The contact geom's half extents if it is a box, and each obstacle's: a box-box pair's
+    /// depth is [`boxes_penetration`]'s, not MuJoCo's.
+    contact_box: Option<[f64; 3]>,
+    obstacle_boxes: Vec<Option<[f64; 3]>>,
     input_buffer: Vec<f64>,
 }
 
@@ -85,9 +90,14 @@ impl MujocoPlant {
         obstacles: Vec<MujocoObstacle>,
         x0: &DVector<f64>,
     ) -> MujocoPlant {
+        let obstacle_boxes = (obstacles.iter())
+            .map(|o| sim.model().box_half_extents(o.geom))
+            .collect();
         let mut plant = MujocoPlant {
+            contact_box: sim.model().box_half_extents(vehicle.hull_geom()),
             sim,
             contact_geom: vehicle.hull_geom(),
+            obstacle_boxes,
             vehicle,
             obstacles,
             input_buffer: Vec::new(),
@@ -99,7 +109,18 @@ impl MujocoPlant {
     /// The vehicle's contacts are those of `geom` (a geom of its body) instead of the hull's.
     pub fn with_contact_geom(mut self, geom: usize) -> MujocoPlant {
         self.contact_geom = geom;
+        self.contact_box = self.sim.model().box_half_extents(geom);
         self
+    }
+
+    /// A box geom where the last kinematics put it (the state the last step started from).
+    fn placed_box(&self, geom: usize, half: [f64; 3]) -> OrientedBox {
+        let m = self.sim.geom_xmat(geom);
+        OrientedBox {
+            centre: self.sim.geom_xpos(geom),
+            axes: [[m[0], m[3], m[6]], [m[1], m[4], m[7]], [m[2], m[5], m[8]]],
+            half,
+        }
     }
 }
 
@@ -171,19 +192,28 @@ impl Plant for MujocoPlant {
     /// From MuJoCo's contacts between the vehicle's contact geom (the hull, or the footprint's
     /// or lead's box) and each obstacle's geom, deepest first in the obstacle's first barrier
     /// slot. The contacts after `mj_step` are those of the step's first collision phase (the
-    /// state at its start).
+    /// state at its start). MuJoCo says which pairs touch; two boxes' depth is their exact
+    /// penetration ([`boxes_penetration`]): MuJoCo 2.2.2's box-box collider reports half of it,
+    /// and at a grazing corner up to a metre in one frame and 27 µm in another
+    /// (docs/actors.md, "On MuJoCo").
     fn penetrations(&self, obstacles: &[Barrier], depths: &mut Vec<Option<f64>>) {
         let vehicle = self.contact_geom;
         let contacts = self.sim.data().contacts();
         depths.clear();
-        for o in &self.obstacles {
+        for (o, obstacle_box) in self.obstacles.iter().zip(&self.obstacle_boxes) {
             let geom = o.geom;
-            let depth = contacts
-                .iter()
+            let mut touching = (contacts.iter())
                 .filter(|c| (c.geom1 == vehicle && c.geom2 == geom) || (c.geom2 == vehicle && c.geom1 == geom))
                 .map(|c| -c.dist)
-                .filter(|d| *d > 0.0)
-                .fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d))));
+                .peekable();
+            let depth = match (self.contact_box, obstacle_box) {
+                (Some(car), Some(other)) if touching.peek().is_some() => Some(boxes_penetration(
+                    &self.placed_box(vehicle, car),
+                    &self.placed_box(geom, *other),
+                )),
+                _ => touching.fold(None, |acc: Option<f64>, d| Some(acc.map_or(d, |a| a.max(d)))),
+            }
+            .filter(|d| *d > 0.0);
             depths.push(depth);
             depths.extend(std::iter::repeat_n(None, o.barriers.saturating_sub(1)));
         }

@@ -637,6 +637,20 @@ def car_on_steps(log_path, dt):
     return extent, poses
 
 
+def shapely_shape(shape):
+    """commonroad-io's shape as a shapely polygon. A circle is built from its centre and radius:
+    commonroad-io 2026.1's `CircleOccupancy.shapely_object` is `circle_center.buffer(radius / 2)`,
+    a circle of half the radius (its own `contains_point` takes the whole radius, as the schema's
+    `<circle><radius>` means)."""
+    from shapely.geometry import Point
+
+    if hasattr(shape, "radius"):
+        centre = shape.center
+        x, y = (centre.x, centre.y) if hasattr(centre, "x") else (centre[0], centre[1])
+        return Point(x, y).buffer(shape.radius, quad_segs=64)
+    return shape.shapely_object
+
+
 def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
     """mjsafe's contacts against the shapes CommonRoad gives: at every `/state` on a time step k,
     the car's footprint (a rectangle from the log's pose and its `vehicle_extent`) against every
@@ -674,7 +688,7 @@ def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
             if occupancy is None or recorded is None or hasattr(recorded.position, "center"):
                 continue
             # (commonroad-io 2026.1's occupancy is the shape; older ones wrap it in `.shape`.)
-            shape = getattr(occupancy, "shape", occupancy).shapely_object
+            shape = shapely_shape(getattr(occupancy, "shape", occupancy))
             name = f"cr_{o.obstacle_id}"
             touching = any(start <= t <= end for start, end in intervals.get(name, []))
             compared += 1

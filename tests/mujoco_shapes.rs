@@ -217,22 +217,13 @@ fn static_and_moving_boxes_are_hit_on_mujoco_where_the_exact_shapes_first_overla
             assert!((mujoco.time - mujoco_geometry).abs() <= STEP + 1e-9, "{name}");
             assert!(mujoco.depth > 0.0, "{name}: {mujoco:?}");
             assert!(exact_depth > 0.0 && exact_depth < 0.05, "{name}: {exact_depth}");
-            if !footprint {
-                // Sphere and box: MuJoCo's depth is the exact one.
-                assert!(
-                    (mujoco.depth - exact_depth).abs() < 1e-6,
-                    "{name}: {} vs {exact_depth}",
-                    mujoco.depth
-                );
-            } else {
-                // Box and box: MuJoCo 2.2.2's box-box collider reports half the penetration
-                // (docs/actors.md, "On MuJoCo").
-                assert!(
-                    (2.0 * mujoco.depth - exact_depth).abs() < 0.05 * exact_depth,
-                    "{name}: {} vs {exact_depth}",
-                    mujoco.depth
-                );
-            }
+            // Sphere and box: MuJoCo's depth; box and box: the boxes' exact penetration
+            // (MuJoCo 2.2.2's collider reports half of it; docs/actors.md, "On MuJoCo").
+            assert!(
+                (mujoco.depth - exact_depth).abs() < 1e-6,
+                "{name}: {} vs {exact_depth}",
+                mujoco.depth
+            );
             // ODE: the circles reach out first, by at most their overreach at the closing speed
             // (at least the car's 3 m/s towards the static box; the crossing box's 1.4 m/s
             // towards the car's side).

@@ -89,7 +89,7 @@ pub static METRICS: &[Metric] = &[
             part("with", "collision_with", "", CellKind::Text,
                 "that event's first participant other than `vehicle` (the obstacle's name)"),
             part("depth", "collision_depth", METRES, CellKind::Num,
-                "the largest `depth` over all `collision_start` and `collision_end` events (deepest penetration of any contact; MuJoCo contact distance, or the circle overlap on the ODE plant); a contact the log leaves open gives null, reason under `missing`"),
+                "the largest `depth` over all `collision_start` and `collision_end` events (deepest penetration of any contact; MuJoCo's contact distance, two boxes' exact penetration (docs/actors.md, \"On MuJoCo\"), or the circle overlap on the ODE plant); a contact the log leaves open gives null, reason under `missing`"),
         ],
         table: Some("collision"),
         ..metric("collision", SECONDS, Shape::Collision, &[Topic::Event], new::<FirstCollision>,

@@ -505,6 +505,13 @@ impl Model {
         }
     }
 
+    /// Half extents of a box geom; None for every other kind.
+    pub fn box_half_extents(&self, geom: usize) -> Option<[f64; 3]> {
+        // mjtGeom of 2.2.2: box 6.
+        let box_kind = self.int_array(self.raw().geom_type, self.raw().ngeom)[geom] == 6;
+        box_kind.then(|| self.geom_size(geom))
+    }
+
     /// A geom's contact bits (`[contype, conaffinity]`).
     pub fn geom_collision(&self, geom: usize) -> [i32; 2] {
         let n = self.raw().ngeom;
@@ -1166,6 +1173,18 @@ impl Simulation {
         assert!(geom < n, "geom {geom} of {n}");
         let all = slice(self.data.raw().geom_xpos, 3 * n);
         [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
+    }
+
+    /// World orientation of a geom (`geom_xmat`, row-major: its columns are the geom's axes) as
+    /// the last kinematics computed it.
+    ///
+    /// # Panics
+    /// If `geom` is not a geom of the model.
+    pub fn geom_xmat(&self, geom: usize) -> [f64; 9] {
+        let n = self.model.ngeom();
+        assert!(geom < n, "geom {geom} of {n}");
+        let all = slice(self.data.raw().geom_xmat, 9 * n);
+        std::array::from_fn(|k| all[9 * geom + k])
     }
 
     /// Sets the position of mocap body `mocap` (`mocap_pos`): where the next step's
