@@ -999,11 +999,12 @@ fn a_scene_written_another_way_gives_the_same_run() {
                 let turned_value = &other[path];
                 match (value.as_f64(), turned_value.as_f64()) {
                     (Some(a), Some(b)) => {
-                        let tolerance = match (loose(path), collided) {
-                            (true, _) => 1e-3,
-                            (false, true) => 1e-5,
-                            (false, false) => 1e-6,
-                        };
+                        // (Inside a contact MuJoCo's iterative solver moves the car: US101-5's
+                        // nominal run and the same turned by 2.3 rad agree to 1e-14 rad in heading
+                        // until the first contact, 2e-6 rad one step later, 3e-5 rad after 3 s of
+                        // a road user passing 2.4 m deep through the car; min_clearance then
+                        // differs by 6.7e-5 and a later min h by 1.1e-4, relative.)
+                        let tolerance = if loose(path) || collided { 1e-3 } else { 1e-6 };
                         assert!(
                             (a - b).abs() <= tolerance * a.abs().max(1.0),
                             "{stem} {frame:?}: {path} {a} against {b}"
