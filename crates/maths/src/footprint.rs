@@ -347,7 +347,8 @@ mod tests {
     /// The penetration depth is the least, over all directions, of the two boxes' overlap along
     /// it: no direction sampled on a fine sphere, nor the best one refined by a pattern search,
     /// overlaps less, and the sampled least is as near the depth as the sampling allows; where
-    /// the boxes are apart some sampled direction separates them. Axis-aligned boxes: the least overlap along x, y and z.
+    /// the boxes are apart some sampled direction separates them. Axis-aligned boxes: the least
+    /// overlap along x, y and z.
     #[test]
     fn the_box_penetration_is_the_least_overlap_over_all_directions() {
         let mut rng = crate::random::SplitMix64(7);
