@@ -167,8 +167,10 @@ pub struct Episode {
     /// velocities of time to collision).
     depths: Vec<Option<f64>>,
     xdot: Vec<f64>,
-    /// The ego points road users' barriers measure from, for their logged conditions.
+    /// The ego points road users' barriers measure from, for their logged conditions, and
+    /// each logged barrier's point (None: not a road user's circle), found once.
     ego_points: reach::EgoPoints,
+    logged_points: Vec<Option<usize>>,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
     records: RecordBuffers,
     /// The run's estimated cost, and the error of a log over the log budget (taken by
@@ -315,6 +317,7 @@ impl Episode {
             depths: Vec::new(),
             xdot: vec![0.0; model.state_dim()],
             ego_points: reach::EgoPoints::new(model.as_ref()),
+            logged_points: Vec::new(),
             records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(

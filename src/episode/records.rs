@@ -607,6 +607,7 @@ impl Episode {
         };
         record.time = time;
         let count = self.obstacle_barriers.len() + self.barriers.len();
+        let ego = &mut self.ego_points;
         if record.barriers.len() != count {
             record.barriers = entries
                 .clone()
@@ -615,14 +616,22 @@ impl Episode {
                     ..Default::default()
                 })
                 .collect();
+            // A road user's circle measures from its ego point (when conditions are logged).
+            self.logged_points = entries
+                .clone()
+                .map(|(b, _, _, actor)| actor.and(form).and_then(|_| ego.index_of(b)))
+                .collect();
         }
-        let (lie, constraint_data, ego) = (&mut self.lie, &mut self.constraint, &mut self.ego_points);
-        for ((b, known, obstacle, actor), value) in entries.zip(record.barriers.iter_mut()) {
+        if self.logged_points.iter().any(Option::is_some) {
+            ego.measure(model, x.as_slice());
+        }
+        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
+        let points = self.logged_points.iter();
+        for (((b, known, obstacle, actor), value), point) in entries.zip(record.barriers.iter_mut()).zip(points) {
             let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
                 // A road user's circle against an ego point: the closed form of the pair's
                 // condition from the point's kinematics, measured once per step.
-                if let (Some(circle), Some(i)) = (&actor, ego.index_of(b)) {
-                    ego.measure(model, x.as_slice());
+                if let (Some(circle), &Some(i)) = (&actor, point) {
                     let value = pair_condition_at(ego.point(i), form, b, circle, applied.as_slice());
                     return (value, form.relative_degree());
                 }
