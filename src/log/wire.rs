@@ -680,43 +680,13 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
     room.done();
 }
 
-/// Bytes of a barrier value's body.
-fn barrier_value_len(value: &proto::BarrierValue) -> usize {
-    let proto::BarrierValue {
-        name,
-        h,
-        constraint,
-        known,
-        relative_degree,
-        clearance,
-        time_to_collision,
-        obstacle,
-    } = value;
-    str_len(name)
-        + f64_len(*h)
-        + f64_len(*constraint)
-        + bool_len(*known)
-        + u64_len(u64::from(*relative_degree))
-        + f64_len(*clearance)
-        + f64_len(*time_to_collision)
-        + bool_len(*obstacle)
-}
-
 pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
     let proto::Barrier { time, barriers } = m;
-    // The first values' lengths, kept from the sizing for the writing.
-    let mut lengths = [0; 8];
-    let mut size = f64_len(*time);
-    for (i, value) in barriers.iter().enumerate() {
-        let length = barrier_value_len(value);
-        if let Some(slot) = lengths.get_mut(i) {
-            *slot = length;
-        }
-        size += len_field_len(length);
-    }
-    let mut room = Room::new(out, size);
-    room.f64(1, *time);
-    for (i, value) in barriers.iter().enumerate() {
+    // One pass: each value is written after a one-byte length, patched once its size is
+    // known (a longer varint, for a value of 128 bytes or more, is spliced in).
+    out.reserve(9 + barriers.iter().map(|v| 48 + v.name.len()).sum::<usize>());
+    push_f64(out, 1, *time);
+    for value in barriers {
         let proto::BarrierValue {
             name,
             h,
@@ -727,18 +697,61 @@ pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
             time_to_collision,
             obstacle,
         } = value;
-        let length = lengths.get(i).copied().unwrap_or_else(|| barrier_value_len(value));
-        room.len_prefix(2, length);
-        room.str(1, name);
-        room.f64(2, *h);
-        room.f64(3, *constraint);
-        room.bool(4, *known);
-        room.u64(5, u64::from(*relative_degree));
-        room.f64(6, *clearance);
-        room.f64(7, *time_to_collision);
-        room.bool(8, *obstacle);
+        out.push((2 << 3) | LEN as u8);
+        let length_at = out.len();
+        out.push(0);
+        if !name.is_empty() {
+            push_varint_key(out, 1, LEN, name.len() as u64);
+            out.extend_from_slice(name.as_bytes());
+        }
+        push_f64(out, 2, *h);
+        push_f64(out, 3, *constraint);
+        if *known {
+            out.extend_from_slice(&[(4 << 3) | VARINT as u8, 1]);
+        }
+        if *relative_degree != 0 {
+            push_varint_key(out, 5, VARINT, u64::from(*relative_degree));
+        }
+        push_f64(out, 6, *clearance);
+        push_f64(out, 7, *time_to_collision);
+        if *obstacle {
+            out.extend_from_slice(&[(8 << 3) | VARINT as u8, 1]);
+        }
+        let length = out.len() - length_at - 1;
+        if length < 0x80 {
+            out[length_at] = length as u8;
+        } else {
+            let (mut prefix, mut width, mut rest) = ([0u8; 10], 0, length as u64);
+            while rest >= 0x80 {
+                (prefix[width], width, rest) = ((rest as u8) | 0x80, width + 1, rest >> 7);
+            }
+            prefix[width] = rest as u8;
+            out.splice(length_at..=length_at, prefix[..=width].iter().copied());
+        }
     }
-    room.done();
+}
+
+/// A double field (omitted when 0 or −0, as prost writes it; NaN written).
+fn push_f64(out: &mut Vec<u8>, field: u8, value: f64) {
+    if value != 0.0 {
+        let [a, b, c, d, e, f, g, h] = value.to_le_bytes();
+        out.extend_from_slice(&[(field << 3) | FIXED64 as u8, a, b, c, d, e, f, g, h]);
+    }
+}
+
+/// A key (field < 16) and then a varint (a value, or a length).
+fn push_varint_key(out: &mut Vec<u8>, field: u8, wire: u64, value: u64) {
+    debug_assert!(field < 16);
+    out.push((field << 3) | wire as u8);
+    push_varint(out, value);
+}
+
+fn push_varint(out: &mut Vec<u8>, mut value: u64) {
+    while value >= 0x80 {
+        out.push((value as u8) | 0x80);
+        value >>= 7;
+    }
+    out.push(value as u8);
 }
 
 pub(crate) fn encode_prediction(m: &proto::Prediction, out: &mut Vec<u8>) {
