@@ -7,7 +7,7 @@
 //! cost one distance per ego point (and, for one in reach as a whole, one test per circle). The
 //! admissible inputs are, per channel j, |u_j| ≤ 2 M_j with M_j the largest |u_j| of the
 //! channel's recent commands, nominal inputs and planned inputs (M_j forgets slowly); a decision
-//! that used an input above M_j on some channel is made again, with the bound grown to it and
+//! that used an input above 2 M_j on some channel is made again, with the bound grown to it and
 //! then with every row (control.rs), so every left-out row is met by every input a decision
 //! plans: the decision is the one with every row.
 
@@ -82,14 +82,14 @@ pub(super) struct Reach {
     pub(super) rows_left_out: u64,
     pub(super) rows_formed: u64,
     attempt_rows: [u64; 2],
-    /// Decisions made again with every row (a command or nominal input above M).
+    /// Decisions made again (an input above the bound 2 M, or one not said).
     pub(super) redone: u64,
     /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
     active: bool,
     allowed: bool,
-    /// Whether an input of the current decision exceeded its channel's M_j, and the commands
-    /// it started from.
+    /// Whether an input of the current decision exceeded its channel's admissible 2 M_j (the
+    /// bound its left-out rows were checked for), and the commands it started from.
     exceeded: bool,
     /// Whether the current decision used an input it does not say (noted as NaN).
     unknown: bool,
@@ -319,7 +319,8 @@ impl Reach {
         for (j, value) in inputs {
             let magnitude = value.abs();
             self.unknown |= magnitude.is_nan();
-            self.exceeded |= magnitude.is_nan() || magnitude > self.bound[j];
+            // (The left-out rows hold for every |u_j| ≤ 2 M_j: `mark`'s W and B.)
+            self.exceeded |= magnitude.is_nan() || magnitude > 2.0 * self.bound[j];
             self.largest_input[j] = self.largest_input[j].max(magnitude);
         }
     }
@@ -568,5 +569,123 @@ mod tests {
             checked += 1;
         }
         assert!(checked == 400 && worst < 1e-10, "worst relative difference {worst:e}");
+    }
+
+    /// The row the controller forms for `barrier` (a body circle) against a road user's circle
+    /// in `circle`'s state: the Lie derivatives with the circle frozen plus its motion terms.
+    fn controller_row(
+        model: &BicycleModel,
+        barrier: &mut Barrier,
+        form: BarrierForm,
+        x: &[f64],
+        circle: &ActorState,
+    ) -> Constraint {
+        let mut lie = LieWorkspace::new(model);
+        barrier.move_actor(circle.position);
+        let mut row = Constraint::zeros(2);
+        lie.constraint_into(barrier, form, model, x, &mut row);
+        let mut drift = [0.0; 4];
+        model.dynamics_into(x, &[0.0, 0.0], &mut drift);
+        let (q, q_drift) = barrier.point_and_velocity(x, &drift).expect("a body circle");
+        let mut inputs = [[0.0; 2]; 2];
+        for (j, input) in inputs.iter_mut().enumerate() {
+            let (mut unit, mut column) = ([0.0; 2], [0.0; 4]);
+            unit[j] = 1.0;
+            model.add_input_term(x, &unit, &mut column);
+            *input = barrier.point_and_velocity(x, &column).expect("a body circle").1;
+        }
+        add_point_motion_terms(&mut row, form, (q, q_drift, &inputs), circle);
+        row
+    }
+
+    /// Every row [`Reach::mark`] leaves out is met by every input [`Reach::note`] lets a
+    /// decision keep without being made again: random bicycle states against two road users of
+    /// three circles each, the inputs at the corners of the largest box `note` accepts (found by
+    /// probing it), and that box within the one `mark`'s certificate assumed (W and B): with
+    /// `note`'s bound at 2.1 M_j instead of 2 M_j this fails (tried).
+    #[test]
+    fn every_row_left_out_holds_for_every_input_a_decision_may_keep() {
+        let model = BicycleModel::new(2.6);
+        let queues = [
+            DelayQueue::new("steering", 0.2, 0.3, 0.002).expect("a queue"),
+            DelayQueue::new("acceleration", 0.5, 2.0, 0.002).expect("a queue"),
+        ];
+        let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
+        let offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
+        let mut rng = SplitMix64(5);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let (mut left_out, mut checked) = (0, 0);
+        for _ in 0..300 {
+            let mut reach = Reach::new(&model, &queues);
+            let mut barriers = Vec::new();
+            for user in 0..2 {
+                for (c, offset) in offsets.iter().enumerate() {
+                    let barrier = Barrier::body_circle(&format!("u{user}c{c}"), ([0, 1], 2), [1.3, 0.0], [0.0; 2], 2.0);
+                    reach.add(&barrier, Some((*offset, c == 0)));
+                    barriers.push(barrier);
+                }
+            }
+            // M_j: recent commands of up to 0.3 rad and 2 m/s².
+            reach.largest_input = vec![uniform(0.0, 0.3), uniform(0.0, 2.0)];
+            reach.bound.clone_from(&reach.largest_input);
+            let x = [0.0, 0.0, uniform(-3.0, 3.0), uniform(0.0, 30.0)];
+            let users: Vec<ActorState> = (0..2)
+                .map(|_| ActorState {
+                    position: [uniform(-40.0, 40.0), uniform(-40.0, 40.0)],
+                    velocity: [uniform(-20.0, 20.0), uniform(-20.0, 20.0)],
+                    acceleration: [uniform(-5.0, 5.0), uniform(-5.0, 5.0)],
+                    ..ActorState::default()
+                })
+                .collect();
+            if !reach.mark(&model, form, &x, 2, |k| users[k / 3]) {
+                continue;
+            }
+            // The largest |u_j| `note` accepts on each channel (bisection on its flag; each
+            // probe from the M_j `mark` saw, which `note` grows).
+            let seen = reach.largest_input.clone();
+            let accepted: Vec<f64> = (0..2)
+                .map(|j| {
+                    let exceeds = |reach: &mut Reach, value: f64| {
+                        reach.largest_input.copy_from_slice(&seen);
+                        reach.begin_decision(&[0.0, 0.0]);
+                        reach.note(std::iter::once((j, value)));
+                        reach.exceeded
+                    };
+                    let (mut lo, mut hi) = (0.0, 1e3 * seen[j]);
+                    for _ in 0..60 {
+                        let mid = 0.5 * (lo + hi);
+                        (lo, hi) = if exceeds(&mut reach, mid) { (lo, mid) } else { (mid, hi) };
+                    }
+                    lo
+                })
+                .collect();
+            // The certificate's W and B (`input_reach`) cover that box.
+            for (point, covered) in reach.ego.points.iter().zip(&reach.input_reach) {
+                let needed = |gains: &[f64; 4]| gains.iter().zip(&accepted).map(|(g, u)| g * u).sum::<f64>();
+                let needed = [needed(&point.velocity_gains), needed(&point.acceleration_gains)];
+                for (n, c) in needed.iter().zip(covered) {
+                    assert!(
+                        *n <= c * (1.0 + 1e-9),
+                        "note accepts inputs the certificate did not cover: {n} > {c}"
+                    );
+                }
+            }
+            for k in (0..barriers.len()).filter(|&k| reach.out[k]) {
+                left_out += 1;
+                let circle = users[k / 3].shifted(offsets[k % 3]);
+                let row = controller_row(&model, &mut barriers[k], form, &x, &circle);
+                for corner in [[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]] {
+                    let u = nalgebra::DVector::from_column_slice(&[corner[0] * accepted[0], corner[1] * accepted[1]]);
+                    let value = row.value(&u);
+                    assert!(
+                        value >= -1e-9 * (1.0 + row.a.abs()),
+                        "row {k} left out but {value} < 0 at {u:?}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert!(left_out > 50, "only {left_out} rows left out");
+        assert!(checked > 200);
     }
 }
