@@ -12,6 +12,7 @@ use std::sync::Arc;
 use nalgebra::DVector;
 
 use super::reach::Reach;
+use crate::actor::reach::pair_rows;
 use crate::actor::{add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
@@ -357,6 +358,19 @@ impl LawWorkspace {
                 (Some(motion), Some(moved)) => {
                     // The barrier's circle: the actor's centre plus its offset (a box's).
                     let actor = laws.actors.assumed(motion, k, at).shifted(laws.actors.offsets[k]);
+                    // A road user's circle against an ego point: the pair's rows in closed form
+                    // from the point's kinematics, measured once per state (`pair_rows`).
+                    if let Some((point, radius)) = self.reach.point_at(laws.model, z, k) {
+                        let mixed_rate = form.real_rates().filter(|_| mixed).map(|(lambda1, _)| lambda1);
+                        let first = first_order_rows.get_mut(first_order).filter(|_| mixed);
+                        let has_first = first.is_some();
+                        pair_rows(form, mixed_rate, &point.kinematics(r), &actor, radius, c, first);
+                        if has_first {
+                            self.row_barrier[count + first_order] = k;
+                            first_order += 1;
+                        }
+                        continue;
+                    }
                     moved.move_actor(actor.position);
                     self.lie.constraint_into(moved, form, laws.model, z, c);
                     if let crate::barrier::Shape::Headway { .. } = moved.shape {

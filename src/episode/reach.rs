@@ -44,6 +44,19 @@ pub(super) struct PointMotion {
     acceleration_gains: [f64; 4],
 }
 
+impl PointMotion {
+    /// The point's kinematics for r ≤ 4 input channels.
+    pub(super) fn kinematics(&self, r: usize) -> crate::actor::reach::PointKinematics<'_> {
+        crate::actor::reach::PointKinematics {
+            position: self.position,
+            velocity: self.velocity,
+            acceleration: self.acceleration,
+            velocity_columns: &self.velocity_columns[..r],
+            acceleration_columns: &self.acceleration_columns[..r],
+        }
+    }
+}
+
 /// The ego's points (a footprint's covering circles, or the planar position) that barriers
 /// around road users measure from, and what each does at the last state measured: two probe
 /// barriers each (module docs).
@@ -297,6 +310,18 @@ impl Reach {
         }
         self.culled_last = any;
         any
+    }
+
+    /// Barrier k's ego point measured at z, and the barrier's radius, when k is a road user's
+    /// circle against an ego point and the model has at most four inputs (the points keep
+    /// four columns); None otherwise.
+    pub(super) fn point_at(&mut self, model: &dyn Dynamics, z: &[f64], k: usize) -> Option<(&PointMotion, f64)> {
+        let i = self.point_of[k]?;
+        if model.input_dim() > 4 {
+            return None;
+        }
+        self.ego.measure(model, z);
+        Some((&self.ego.points[i], self.radius[k]))
     }
 
     /// A decision begins: its left-out rows are checked for the M_j of now; keeps `inputs` (the
@@ -687,5 +712,100 @@ mod tests {
         }
         assert!(left_out > 50, "only {left_out} rows left out");
         assert!(checked > 200);
+    }
+
+    /// The rows the controller forms for a road user's circle in closed form
+    /// ([`crate::actor::reach::pair_rows`] from the measured ego point) against the Lie path
+    /// (h, ∇h, ∇²h with f, G and ∂f/∂x, plus the motion terms), a and every b_j, and the
+    /// first-order row ḣ + λ1 h of the mixed-relative-degree pair, on random bicycle states,
+    /// circles off the rear axle, road users and forms.
+    #[test]
+    fn the_pairs_rows_from_the_point_equal_the_lie_path() {
+        let model = BicycleModel::new(2.6);
+        let mut rng = SplitMix64(23);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let mut ego = EgoPoints::new(&model);
+        let mut lie = LieWorkspace::new(&model);
+        let (mut worst, mut first_rows) = (0.0_f64, 0);
+        let relative = |x: f64, y: f64| (x - y).abs() / (1.0 + x.abs().max(y.abs()));
+        for trial in 0..400 {
+            let offset = [uniform(-1.0, 4.0), uniform(-0.9, 0.9)];
+            let radius = uniform(0.5, 3.0);
+            let mut barrier = Barrier::body_circle("pair", ([0, 1], 2), offset, [0.0; 2], radius);
+            let i = ego.index_of(&barrier).expect("a body circle");
+            let x = [
+                uniform(-50.0, 50.0),
+                uniform(-50.0, 50.0),
+                uniform(-3.0, 3.0),
+                uniform(-5.0, 30.0),
+            ];
+            let circle = ActorState {
+                position: [x[0] + uniform(-30.0, 30.0), x[1] + uniform(-30.0, 30.0)],
+                velocity: [uniform(-20.0, 20.0), uniform(-20.0, 20.0)],
+                acceleration: [uniform(-5.0, 5.0), uniform(-5.0, 5.0)],
+                ..ActorState::default()
+            };
+            let form = match trial % 3 {
+                0 => BarrierForm::RelativeDegree1 { alpha: 2.0 },
+                1 => BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 },
+                _ => BarrierForm::RelativeDegree2 { l0: 1.0, l1: 3.0 },
+            };
+            let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
+            // The Lie path, as the controller formed it.
+            let expected = if rd2 {
+                controller_row(&model, &mut barrier, form, &x, &circle)
+            } else {
+                barrier.move_actor(circle.position);
+                let q = barrier.point_and_velocity(&x, &x).expect("a body circle").0;
+                let mut row = Constraint::zeros(2);
+                lie.constraint_into(&barrier, form, &model, &x, &mut row);
+                add_point_motion_terms(&mut row, form, (q, [0.0; 2], &[]), &circle);
+                row
+            };
+            let mixed = barrier
+                .mixed_relative_degree()
+                .then(|| form.real_rates().map(|r| r.0))
+                .flatten();
+            let mut expected_first = Constraint::zeros(2);
+            if mixed.is_some() {
+                barrier.move_actor(circle.position);
+                let mut scratch = Constraint::zeros(2);
+                lie.constraint_into(&barrier, form, &model, &x, &mut scratch);
+                assert!(lie.first_order_part_into(form, &mut expected_first));
+                let q = barrier.point_and_velocity(&x, &x).expect("a body circle").0;
+                add_point_motion_terms(
+                    &mut expected_first,
+                    BarrierForm::RelativeDegree1 { alpha: 0.0 },
+                    (q, [0.0; 2], &[]),
+                    &circle,
+                );
+            }
+            ego.measure(&model, &x);
+            let (mut row, mut first) = (Constraint::zeros(2), Constraint::zeros(2));
+            crate::actor::reach::pair_rows(
+                form,
+                mixed,
+                &ego.points[i].kinematics(2),
+                &circle,
+                radius,
+                &mut row,
+                Some(&mut first),
+            );
+            worst = worst.max(relative(row.h, expected.h)).max(relative(row.a, expected.a));
+            for j in 0..2 {
+                worst = worst.max(relative(row.b[j], expected.b[j]));
+            }
+            if mixed.is_some() {
+                first_rows += 1;
+                worst = worst.max(relative(first.a, expected_first.a));
+                for j in 0..2 {
+                    worst = worst.max(relative(first.b[j], expected_first.b[j]));
+                }
+            }
+        }
+        assert!(
+            first_rows > 100 && worst < 1e-10,
+            "worst relative difference {worst:e} ({first_rows} first-order rows)"
+        );
     }
 }

@@ -33,7 +33,7 @@
 //! the full problem's).
 
 use crate::actor::ActorState;
-use crate::barrier::BarrierForm;
+use crate::barrier::{BarrierForm, Constraint};
 
 /// Bounds of one road user against the ego at one evaluation state (every pair of its circles
 /// with the ego's points) and a set of admissible inputs: see the module docs for their
@@ -152,6 +152,62 @@ pub fn pair_condition(
                 .map(|((k, j), u)| (2.0 * dot(w, *k) + 2.0 * dot(d, *j) + 2.0 * lambda1 * dot(d, *k)) * u)
                 .sum();
             a + b_u
+        }
+    }
+}
+
+/// The rows of [`pair_condition`] themselves: `row` ← (h, a, b) with a + b·u that condition
+/// (b_j for the point's channels; the rest of b left 0), and, for a mixed-relative-degree pair
+/// (`mixed_rate` λ1), `first_order` ← ḣ + λ1 h ≥ 0: a = 2 d·(q̇₀ − ȯ) + λ1 h, b = 2 dᵀK. What
+/// the Lie path forms for a body circle against a moving circle (with its motion terms), from
+/// the point's kinematics instead of f, G and ∂f/∂x.
+pub fn pair_rows(
+    form: BarrierForm,
+    mixed_rate: Option<f64>,
+    point: &PointKinematics<'_>,
+    circle: &ActorState,
+    radius: f64,
+    row: &mut Constraint,
+    first_order: Option<&mut Constraint>,
+) {
+    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
+    let d = [
+        point.position[0] - circle.position[0],
+        point.position[1] - circle.position[1],
+    ];
+    let w = [
+        point.velocity[0] - circle.velocity[0],
+        point.velocity[1] - circle.velocity[1],
+    ];
+    let h = dot(d, d) - radius * radius;
+    row.h = h;
+    row.b.fill(0.0);
+    let columns = point.velocity_columns.iter().zip(point.acceleration_columns);
+    match form {
+        BarrierForm::RelativeDegree1 { alpha } => {
+            row.a = 2.0 * dot(d, w) + alpha * h;
+            for (b, (k, _)) in row.b.iter_mut().zip(columns) {
+                *b = 2.0 * dot(d, *k);
+            }
+        }
+        BarrierForm::RelativeDegree2 { l0, l1 } => {
+            let relative_acceleration = [
+                point.acceleration[0] - circle.acceleration[0],
+                point.acceleration[1] - circle.acceleration[1],
+            ];
+            row.a = 2.0 * dot(w, w) + 2.0 * dot(d, relative_acceleration) + 2.0 * l1 * dot(d, w) + l0 * h;
+            let lambda1 = mixed_rate.unwrap_or(0.0);
+            for (b, (k, j)) in row.b.iter_mut().zip(columns) {
+                *b = 2.0 * dot(w, *k) + 2.0 * dot(d, *j) + 2.0 * lambda1 * dot(d, *k);
+            }
+        }
+    }
+    if let (Some(lambda1), Some(out)) = (mixed_rate, first_order) {
+        out.h = h;
+        out.a = 2.0 * dot(d, w) + lambda1 * h;
+        out.b.fill(0.0);
+        for (b, k) in out.b.iter_mut().zip(point.velocity_columns) {
+            *b = 2.0 * dot(d, *k);
         }
     }
 }
