@@ -346,8 +346,10 @@ impl LawWorkspace {
             });
         let (rows, first_order_rows) = self.constraints.split_at_mut(count);
         let mut first_order = 0;
-        // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z.
+        // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z; the ego
+        // points road users' circles measure from.
         let mut kinematics = false;
+        let points = self.reach.measure_points(laws.model, z);
         for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
             let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
             if culled && self.reach.out[k] {
@@ -360,7 +362,7 @@ impl LawWorkspace {
                     let actor = laws.actors.assumed(motion, k, at).shifted(laws.actors.offsets[k]);
                     // A road user's circle against an ego point: the pair's rows in closed form
                     // from the point's kinematics, measured once per state (`pair_rows`).
-                    if let Some((point, radius)) = self.reach.point_at(laws.model, z, k) {
+                    if let Some((point, radius)) = self.reach.point(k).filter(|_| points) {
                         let mixed_rate = form.real_rates().filter(|_| mixed).map(|(lambda1, _)| lambda1);
                         let first = first_order_rows.get_mut(first_order).filter(|_| mixed);
                         let has_first = first.is_some();

@@ -312,16 +312,20 @@ impl Reach {
         any
     }
 
-    /// Barrier k's ego point measured at z, and the barrier's radius, when k is a road user's
-    /// circle against an ego point and the model has at most four inputs (the points keep
-    /// four columns); None otherwise.
-    pub(super) fn point_at(&mut self, model: &dyn Dynamics, z: &[f64], k: usize) -> Option<(&PointMotion, f64)> {
-        let i = self.point_of[k]?;
-        if model.input_dim() > 4 {
-            return None;
+    /// Measures the ego points at z (once per state) when the model has at most four inputs
+    /// (the points keep four columns); returns whether it did: then [`Reach::point`] holds.
+    pub(super) fn measure_points(&mut self, model: &dyn Dynamics, z: &[f64]) -> bool {
+        let measurable = model.input_dim() <= 4 && self.ego.len() > 0;
+        if measurable {
+            self.ego.measure(model, z);
         }
-        self.ego.measure(model, z);
-        Some((&self.ego.points[i], self.radius[k]))
+        measurable
+    }
+
+    /// Barrier k's ego point as last measured ([`Reach::measure_points`]), and the barrier's
+    /// radius, when k is a road user's circle against an ego point; None otherwise.
+    pub(super) fn point(&self, k: usize) -> Option<(&PointMotion, f64)> {
+        self.point_of[k].map(|i| (&self.ego.points[i], self.radius[k]))
     }
 
     /// A decision begins: its left-out rows are checked for the M_j of now; keeps `inputs` (the

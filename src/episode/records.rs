@@ -628,6 +628,8 @@ impl Episode {
         let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
         let points = self.logged_points.iter();
         for (((b, known, obstacle, actor), value), point) in entries.zip(record.barriers.iter_mut()).zip(points) {
+            // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q.
+            let circle_values = b.circle_values(x.as_slice(), &self.xdot);
             let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
                 // A road user's circle against an ego point: the closed form of the pair's
                 // condition from the point's kinematics, measured once per step.
@@ -665,7 +667,8 @@ impl Episode {
                 ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
                 // A body circle's point q, moving at q̇ (with the applied input).
                 (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
-                    match b.point_and_velocity(x.as_slice(), &self.xdot) {
+                    let point = circle_values.map(|(_, _, q, q_dot)| (q, q_dot));
+                    match point.or_else(|| b.point_and_velocity(x.as_slice(), &self.xdot)) {
                         Some((q, q_dot)) => {
                             let relative =
                                 actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
@@ -688,11 +691,11 @@ impl Episode {
             };
             *value = proto::BarrierValue {
                 name: std::mem::take(&mut value.name),
-                h: b.h(x),
+                h: circle_values.map_or_else(|| b.h(x), |(h, ..)| h),
                 constraint,
                 known,
                 relative_degree,
-                clearance: b.clearance(x),
+                clearance: circle_values.map_or_else(|| b.clearance(x), |(_, clearance, ..)| clearance),
                 time_to_collision,
                 obstacle,
             };

@@ -189,6 +189,35 @@ impl Barrier {
         }
     }
 
+    /// For an outside planar circle (a ball on the planar position, or a body circle) at x:
+    /// (h, clearance, q, q̇ along `xdot`), the values of [`Barrier::h_at`],
+    /// [`Barrier::clearance_at`] and [`Barrier::point_and_velocity`] bit for bit, with q
+    /// formed once; None for any other shape.
+    pub fn circle_values(&self, x: &[f64], xdot: &[f64]) -> Option<(f64, f64, [f64; 2], [f64; 2])> {
+        let (centre, radius, ball) = match &self.shape {
+            Shape::Ball {
+                indices,
+                centre,
+                radius,
+                inside: false,
+            } if indices.len() == 2 => ([centre[0], centre[1]], *radius, true),
+            &Shape::BodyCircle {
+                centre,
+                radius,
+                inside: false,
+                ..
+            } => (centre, radius, false),
+            _ => return None,
+        };
+        let (q, q_dot) = self.point_and_velocity(x, xdot)?;
+        let squared = (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2);
+        let clearance = match ball {
+            true => squared.sqrt() - radius,
+            false => (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius,
+        };
+        Some((squared - radius * radius, clearance, q, q_dot))
+    }
+
     /// Whether an input reaches h at first order while another reaches it only at second:
     /// a body circle off the vehicle's reference point (its heading turns with the steering).
     /// In the relative-degree-2 form such a barrier gets the mixed-relative-degree condition
@@ -925,6 +954,54 @@ pub fn constraint(barrier: &Barrier, form: BarrierForm, model: &dyn Dynamics, x:
 mod tests {
     use super::*;
     use crate::dynamics::{BicycleModel, LinearModel};
+
+    /// `circle_values` gives h_at, clearance_at and point_and_velocity bit for bit (balls on
+    /// the planar position and body circles, outside; random states and centres).
+    #[test]
+    fn circle_values_are_the_barriers_own_bit_for_bit() {
+        let mut rng = crate::random::SplitMix64(3);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        for trial in 0..2000 {
+            let centre = [uniform(-50.0, 50.0), uniform(-50.0, 50.0)];
+            let radius = uniform(0.1, 5.0);
+            let barrier = match trial % 2 {
+                0 => Barrier::circular_obstacle("ball", [0, 1], centre, radius),
+                _ => Barrier::body_circle(
+                    "body",
+                    ([0, 1], 2),
+                    [uniform(-1.0, 4.0), uniform(-1.0, 1.0)],
+                    centre,
+                    radius,
+                ),
+            };
+            let x = [
+                uniform(-60.0, 60.0),
+                uniform(-60.0, 60.0),
+                uniform(-4.0, 4.0),
+                uniform(-5.0, 30.0),
+            ];
+            let xdot = [
+                uniform(-30.0, 30.0),
+                uniform(-30.0, 30.0),
+                uniform(-2.0, 2.0),
+                uniform(-5.0, 5.0),
+            ];
+            let (h, clearance, q, q_dot) = barrier.circle_values(&x, &xdot).expect("a circle");
+            assert_eq!(h.to_bits(), barrier.h_at(&x).to_bits());
+            assert_eq!(clearance.to_bits(), barrier.clearance_at(&x).to_bits());
+            assert_eq!(Some((q, q_dot)), barrier.point_and_velocity(&x, &xdot));
+        }
+        let inside = Barrier {
+            name: "inside".into(),
+            shape: Shape::Ball {
+                indices: vec![0, 1],
+                centre: vec![0.0; 2],
+                radius: 1.0,
+                inside: true,
+            },
+        };
+        assert_eq!(inside.circle_values(&[0.0; 4], &[0.0; 4]), None);
+    }
 
     #[test]
     fn bicycle_lie_derivatives_match_4_88_to_4_90() {
