@@ -521,87 +521,9 @@ mod tests {
     use crate::dynamics::BicycleModel;
     use crate::random::SplitMix64;
 
-    /// The closed form of a pair's condition from the measured ego point
-    /// ([`crate::actor::reach::pair_condition`]) against the general path: the Lie derivatives
-    /// of the body circle with the road user frozen, plus its motion terms, with q̇₀ and K from
-    /// the model's f and G (what the controller forms), on random bicycle states and road users.
-    #[test]
-    fn a_pairs_condition_from_the_point_equals_the_general_path() {
-        let model = BicycleModel::new(2.6);
-        let mut rng = SplitMix64(11);
-        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
-        let mut ego = EgoPoints::new(&model);
-        let mut lie = LieWorkspace::new(&model);
-        let (mut worst, mut checked) = (0.0_f64, 0);
-        for trial in 0..400 {
-            let offset = [uniform(-1.0, 4.0), uniform(-0.9, 0.9)];
-            let mut barrier = Barrier::body_circle("pair", ([0, 1], 2), offset, [0.0; 2], uniform(0.5, 3.0));
-            let i = ego.index_of(&barrier).expect("a body circle");
-            let x = [
-                uniform(-50.0, 50.0),
-                uniform(-50.0, 50.0),
-                uniform(-3.0, 3.0),
-                uniform(-5.0, 30.0),
-            ];
-            let circle = ActorState {
-                position: [x[0] + uniform(-30.0, 30.0), x[1] + uniform(-30.0, 30.0)],
-                velocity: [uniform(-20.0, 20.0), uniform(-20.0, 20.0)],
-                acceleration: [uniform(-5.0, 5.0), uniform(-5.0, 5.0)],
-                ..ActorState::default()
-            };
-            barrier.move_actor(circle.position);
-            let u = [uniform(-0.5, 0.5), uniform(-6.0, 6.0)];
-            let form = match trial % 3 {
-                0 => BarrierForm::RelativeDegree1 { alpha: 2.0 },
-                1 => BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 },
-                _ => BarrierForm::RelativeDegree2 { l0: 1.0, l1: 3.0 },
-            };
-            // The general path, as the controller forms it (control.rs).
-            let mut general = Constraint::zeros(2);
-            lie.constraint_into(&barrier, form, &model, &x, &mut general);
-            let mut drift = [0.0; 4];
-            model.dynamics_into(&x, &[0.0, 0.0], &mut drift);
-            let (q, q_drift) = barrier.point_and_velocity(&x, &drift).unwrap();
-            let mut inputs = [[0.0; 2]; 2];
-            for (j, input) in inputs.iter_mut().enumerate() {
-                let (mut unit, mut column) = ([0.0; 2], [0.0; 4]);
-                unit[j] = 1.0;
-                model.add_input_term(&x, &unit, &mut column);
-                *input = barrier.point_and_velocity(&x, &column).unwrap().1;
-            }
-            let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
-            let q_drift = if rd2 { q_drift } else { [0.0; 2] };
-            let q_input: &[[f64; 2]] = if rd2 { &inputs } else { &[] };
-            add_point_motion_terms(&mut general, form, (q, q_drift, q_input), &circle);
-            let expected = general.value(&nalgebra::DVector::from_column_slice(&u));
-            // The closed form from the probes.
-            ego.measure(&model, &x);
-            let p = &ego.points[i];
-            let point = crate::actor::reach::PointKinematics {
-                position: p.position,
-                velocity: p.velocity,
-                acceleration: p.acceleration,
-                velocity_columns: &p.velocity_columns[..2],
-                acceleration_columns: &p.acceleration_columns[..2],
-            };
-            let mixed = barrier
-                .mixed_relative_degree()
-                .then(|| form.real_rates().map(|r| r.0))
-                .flatten();
-            let radius = match barrier.shape {
-                Shape::BodyCircle { radius, .. } => radius,
-                _ => unreachable!(),
-            };
-            let closed = crate::actor::reach::pair_condition(form, mixed, &point, &circle, radius, &u);
-            let error = (closed - expected).abs() / (1.0 + expected.abs());
-            worst = worst.max(error);
-            checked += 1;
-        }
-        assert!(checked == 400 && worst < 1e-10, "worst relative difference {worst:e}");
-    }
-
-    /// The row the controller forms for `barrier` (a body circle) against a road user's circle
-    /// in `circle`'s state: the Lie derivatives with the circle frozen plus its motion terms.
+    /// The row the Lie path forms for `barrier` (a body circle) against a road user's circle in
+    /// `circle`'s state: the Lie derivatives with the circle frozen plus its motion terms (at
+    /// relative degree 1 with q alone: ∂h/∂t has no input).
     fn controller_row(
         model: &BicycleModel,
         barrier: &mut Barrier,
@@ -623,7 +545,12 @@ mod tests {
             model.add_input_term(x, &unit, &mut column);
             *input = barrier.point_and_velocity(x, &column).expect("a body circle").1;
         }
-        add_point_motion_terms(&mut row, form, (q, q_drift, &inputs), circle);
+        match form {
+            BarrierForm::RelativeDegree2 { .. } => {
+                add_point_motion_terms(&mut row, form, (q, q_drift, &inputs), circle)
+            }
+            BarrierForm::RelativeDegree1 { .. } => add_point_motion_terms(&mut row, form, (q, [0.0; 2], &[]), circle),
+        }
         row
     }
 
@@ -721,7 +648,8 @@ mod tests {
     /// The rows the controller forms for a road user's circle in closed form
     /// ([`crate::actor::reach::pair_rows`] from the measured ego point) against the Lie path
     /// (h, ∇h, ∇²h with f, G and ∂f/∂x, plus the motion terms), a and every b_j, and the
-    /// first-order row ḣ + λ1 h of the mixed-relative-degree pair, on random bicycle states,
+    /// first-order row ḣ + λ1 h of the mixed-relative-degree pair, and the condition a + b·u
+    /// `/barrier` logs ([`crate::actor::reach::pair_condition`]), on random bicycle states,
     /// circles off the rear axle, road users and forms.
     #[test]
     fn the_pairs_rows_from_the_point_equal_the_lie_path() {
@@ -754,18 +682,8 @@ mod tests {
                 1 => BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 },
                 _ => BarrierForm::RelativeDegree2 { l0: 1.0, l1: 3.0 },
             };
-            let rd2 = matches!(form, BarrierForm::RelativeDegree2 { .. });
-            // The Lie path, as the controller formed it.
-            let expected = if rd2 {
-                controller_row(&model, &mut barrier, form, &x, &circle)
-            } else {
-                barrier.move_actor(circle.position);
-                let q = barrier.point_and_velocity(&x, &x).expect("a body circle").0;
-                let mut row = Constraint::zeros(2);
-                lie.constraint_into(&barrier, form, &model, &x, &mut row);
-                add_point_motion_terms(&mut row, form, (q, [0.0; 2], &[]), &circle);
-                row
-            };
+            // The Lie path, as the controller formed it before.
+            let expected = controller_row(&model, &mut barrier, form, &x, &circle);
             let mixed = barrier
                 .mixed_relative_degree()
                 .then(|| form.real_rates().map(|r| r.0))
@@ -796,6 +714,14 @@ mod tests {
                 Some(&mut first),
             );
             worst = worst.max(relative(row.h, expected.h)).max(relative(row.a, expected.a));
+            // The condition at an input, as `/barrier` logs it.
+            let u = [uniform(-0.5, 0.5), uniform(-6.0, 6.0)];
+            let condition =
+                crate::actor::reach::pair_condition(form, mixed, &ego.points[i].kinematics(2), &circle, radius, &u);
+            worst = worst.max(relative(
+                condition,
+                expected.value(&nalgebra::DVector::from_column_slice(&u)),
+            ));
             for j in 0..2 {
                 worst = worst.max(relative(row.b[j], expected.b[j]));
             }

@@ -114,6 +114,61 @@ pub struct PointKinematics<'a> {
     pub acceleration_columns: &'a [[f64; 2]],
 }
 
+/// What a pair's rows are made of: d = q − o, w = q̇₀ − ȯ, q̈₀ − ö and h = ‖d‖² − r².
+struct Pair {
+    d: [f64; 2],
+    w: [f64; 2],
+    acceleration: [f64; 2],
+    h: f64,
+}
+
+fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+
+impl Pair {
+    fn new(point: &PointKinematics<'_>, circle: &ActorState, radius: f64) -> Pair {
+        let d = [
+            point.position[0] - circle.position[0],
+            point.position[1] - circle.position[1],
+        ];
+        Pair {
+            d,
+            w: [
+                point.velocity[0] - circle.velocity[0],
+                point.velocity[1] - circle.velocity[1],
+            ],
+            acceleration: [
+                point.acceleration[0] - circle.acceleration[0],
+                point.acceleration[1] - circle.acceleration[1],
+            ],
+            h: dot(d, d) - radius * radius,
+        }
+    }
+
+    /// a of the pair's row in `form`.
+    fn a(&self, form: BarrierForm) -> f64 {
+        let Pair { d, w, acceleration, h } = *self;
+        match form {
+            BarrierForm::RelativeDegree1 { alpha } => 2.0 * dot(d, w) + alpha * h,
+            BarrierForm::RelativeDegree2 { l0, l1 } => {
+                2.0 * dot(w, w) + 2.0 * dot(d, acceleration) + 2.0 * l1 * dot(d, w) + l0 * h
+            }
+        }
+    }
+
+    /// b_j of the pair's row in `form`, for the channel's columns K_j and J_j (with the mixed
+    /// relative degree's λ1, else 0).
+    fn b(&self, form: BarrierForm, lambda1: f64, k: [f64; 2], j: [f64; 2]) -> f64 {
+        match form {
+            BarrierForm::RelativeDegree1 { .. } => 2.0 * dot(self.d, k),
+            BarrierForm::RelativeDegree2 { .. } => {
+                2.0 * dot(self.w, k) + 2.0 * dot(self.d, j) + 2.0 * lambda1 * dot(self.d, k)
+            }
+        }
+    }
+}
+
 /// a + b·u of the barrier h = ‖q − o‖² − r² between an ego point and a road user's circle
 /// (`circle`: its position, velocity and acceleration), in `form` at the input `u`, the motion
 /// terms included: the rows of the module docs formed from the point's kinematics (with
@@ -126,34 +181,11 @@ pub fn pair_condition(
     radius: f64,
     u: &[f64],
 ) -> f64 {
-    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
-    let d = [
-        point.position[0] - circle.position[0],
-        point.position[1] - circle.position[1],
-    ];
-    let w = [
-        point.velocity[0] - circle.velocity[0],
-        point.velocity[1] - circle.velocity[1],
-    ];
-    let h = dot(d, d) - radius * radius;
+    let pair = Pair::new(point, circle, radius);
+    let lambda1 = mixed_rate.unwrap_or(0.0);
     let columns = point.velocity_columns.iter().zip(point.acceleration_columns).zip(u);
-    match form {
-        BarrierForm::RelativeDegree1 { alpha } => {
-            2.0 * dot(d, w) + alpha * h + columns.map(|((k, _), u)| 2.0 * dot(d, *k) * u).sum::<f64>()
-        }
-        BarrierForm::RelativeDegree2 { l0, l1 } => {
-            let relative_acceleration = [
-                point.acceleration[0] - circle.acceleration[0],
-                point.acceleration[1] - circle.acceleration[1],
-            ];
-            let a = 2.0 * dot(w, w) + 2.0 * dot(d, relative_acceleration) + 2.0 * l1 * dot(d, w) + l0 * h;
-            let lambda1 = mixed_rate.unwrap_or(0.0);
-            let b_u: f64 = columns
-                .map(|((k, j), u)| (2.0 * dot(w, *k) + 2.0 * dot(d, *j) + 2.0 * lambda1 * dot(d, *k)) * u)
-                .sum();
-            a + b_u
-        }
-    }
+    let b_u: f64 = columns.map(|((k, j), u)| pair.b(form, lambda1, *k, *j) * u).sum();
+    pair.a(form) + b_u
 }
 
 /// The rows of [`pair_condition`] themselves: `row` ← (h, a, b) with a + b·u that condition
@@ -170,44 +202,20 @@ pub fn pair_rows(
     row: &mut Constraint,
     first_order: Option<&mut Constraint>,
 ) {
-    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
-    let d = [
-        point.position[0] - circle.position[0],
-        point.position[1] - circle.position[1],
-    ];
-    let w = [
-        point.velocity[0] - circle.velocity[0],
-        point.velocity[1] - circle.velocity[1],
-    ];
-    let h = dot(d, d) - radius * radius;
-    row.h = h;
+    let pair = Pair::new(point, circle, radius);
+    let lambda1 = mixed_rate.unwrap_or(0.0);
+    (row.h, row.a) = (pair.h, pair.a(form));
     row.b.fill(0.0);
     let columns = point.velocity_columns.iter().zip(point.acceleration_columns);
-    match form {
-        BarrierForm::RelativeDegree1 { alpha } => {
-            row.a = 2.0 * dot(d, w) + alpha * h;
-            for (b, (k, _)) in row.b.iter_mut().zip(columns) {
-                *b = 2.0 * dot(d, *k);
-            }
-        }
-        BarrierForm::RelativeDegree2 { l0, l1 } => {
-            let relative_acceleration = [
-                point.acceleration[0] - circle.acceleration[0],
-                point.acceleration[1] - circle.acceleration[1],
-            ];
-            row.a = 2.0 * dot(w, w) + 2.0 * dot(d, relative_acceleration) + 2.0 * l1 * dot(d, w) + l0 * h;
-            let lambda1 = mixed_rate.unwrap_or(0.0);
-            for (b, (k, j)) in row.b.iter_mut().zip(columns) {
-                *b = 2.0 * dot(w, *k) + 2.0 * dot(d, *j) + 2.0 * lambda1 * dot(d, *k);
-            }
-        }
+    for (b, (k, j)) in row.b.iter_mut().zip(columns) {
+        *b = pair.b(form, lambda1, *k, *j);
     }
     if let (Some(lambda1), Some(out)) = (mixed_rate, first_order) {
-        out.h = h;
-        out.a = 2.0 * dot(d, w) + lambda1 * h;
+        let first = BarrierForm::RelativeDegree1 { alpha: lambda1 };
+        (out.h, out.a) = (pair.h, pair.a(first));
         out.b.fill(0.0);
         for (b, k) in out.b.iter_mut().zip(point.velocity_columns) {
-            *b = 2.0 * dot(d, *k);
+            *b = pair.b(first, 0.0, *k, [0.0; 2]);
         }
     }
 }
