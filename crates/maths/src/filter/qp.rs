@@ -217,28 +217,63 @@ impl QpWorkspace {
         u: &mut DVector<f64>,
         hint: Option<&mut QpHint>,
     ) -> (bool, bool, f64) {
-        let mu = constraints.iter().map(|c| c.value(u0)).fold(f64::INFINITY, f64::min);
-        u.copy_from(u0);
+        let copy = |k: usize, out: &mut Constraint| {
+            let c = &constraints[k];
+            (out.h, out.a) = (c.h, c.a);
+            out.b.copy_from(&c.b);
+        };
+        self.solve_rows(constraints.len(), copy, u0, limits, u, hint)
+    }
+
+    /// [`QpWorkspace::solve_hinted`] of `count` rows that `row(k, out)` writes (h, a and b, with
+    /// u0's length), each valued at u0 and scaled where it is written: one pass over the rows
+    /// instead of forming them, then reading them for μ and again for the scaling.
+    #[allow(clippy::too_many_arguments)]
+    pub fn solve_hinted_rows(
+        &mut self,
+        count: usize,
+        row: impl FnMut(usize, &mut Constraint),
+        u0: &DVector<f64>,
+        limits: Option<(&[f64], &[f64])>,
+        u: &mut DVector<f64>,
+        hint: &mut QpHint,
+    ) -> (bool, bool, f64) {
+        self.solve_rows(count, row, u0, limits, u, Some(hint))
+    }
+
+    fn solve_rows(
+        &mut self,
+        count: usize,
+        mut row: impl FnMut(usize, &mut Constraint),
+        u0: &DVector<f64>,
+        limits: Option<(&[f64], &[f64])>,
+        u: &mut DVector<f64>,
+        hint: Option<&mut QpHint>,
+    ) -> (bool, bool, f64) {
         let mut scaled = std::mem::take(&mut self.scaled);
-        while scaled.len() < constraints.len() {
+        while scaled.len() < count {
             scaled.push(Constraint::zeros(u0.len()));
         }
-        for (c, s) in constraints.iter().zip(scaled.iter_mut()) {
-            let norm = c.b.norm();
+        let mut mu = f64::INFINITY;
+        for (k, s) in scaled[..count].iter_mut().enumerate() {
+            if s.b.len() != u0.len() {
+                s.b = DVector::zeros(u0.len());
+            }
+            row(k, s);
+            mu = mu.min(s.value(u0));
+            let norm = s.b.norm();
             let scale = if norm > 0.0 && norm.is_finite() {
                 1.0 / norm
             } else {
                 1.0
             };
-            if s.b.len() != c.b.len() {
-                s.b = DVector::zeros(c.b.len());
-            }
-            (s.h, s.a) = (c.h, c.a * scale);
-            for (sb, cb) in s.b.iter_mut().zip(c.b.iter()) {
-                *sb = cb * scale;
+            s.a *= scale;
+            for b in s.b.iter_mut() {
+                *b *= scale;
             }
         }
-        let outcome = self.solve_scaled(&scaled[..constraints.len()], u0, limits, u, mu, hint);
+        u.copy_from(u0);
+        let outcome = self.solve_scaled(&scaled[..count], u0, limits, u, mu, hint);
         self.scaled = scaled;
         outcome
     }

@@ -28,8 +28,6 @@ const SHORTFALL_TOLERANCE: f64 = 1e-9;
 #[derive(Debug, Clone)]
 pub struct ChannelQp {
     qp: QpWorkspace,
-    /// The channel's QP in the form a_k + b_k·(w0 + w) ≥ 0, one per barrier.
-    reduced: Vec<Constraint>,
     /// w0 (u0, or 0 for the γm QP's variables) and the solution w0 + w.
     origin: DVector<f64>,
     solution: DVector<f64>,
@@ -49,7 +47,6 @@ impl ChannelQp {
     fn new(r: usize, variables: usize, barriers: usize) -> ChannelQp {
         ChannelQp {
             qp: QpWorkspace::with_capacity(variables, barriers),
-            reduced: (0..barriers).map(|_| Constraint::zeros(variables)).collect(),
             origin: DVector::zeros(variables),
             solution: DVector::zeros(variables),
             planned: DVector::zeros(r),
@@ -83,15 +80,6 @@ impl ChannelQp {
     /// For the γm filter (4.67) on r channels.
     pub fn gamma_m(r: usize, barriers: usize) -> ChannelQp {
         ChannelQp::new(r, 2 * r, barriers)
-    }
-
-    /// The reduced constraints for `count` barriers (growing only when a barrier is first seen).
-    fn reduced(&mut self, count: usize) -> &mut [Constraint] {
-        let variables = self.origin.len();
-        while self.reduced.len() < count {
-            self.reduced.push(Constraint::zeros(variables));
-        }
-        &mut self.reduced[..count]
     }
 
     /// (4.42) for channel `i` with every barrier k: min ‖v‖², v ∈ R^s, s.t.
@@ -145,15 +133,17 @@ impl ChannelQp {
             }
             return out;
         }
-        for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
-            reduced.a = c.a + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>();
+        let reduced = |k: usize, reduced: &mut Constraint| {
+            let c = &constraints[k];
+            (reduced.h, reduced.a) = (0.0, c.a + (s..r).map(|j| c.b[j] * omega[j]).sum::<f64>());
             for j in 0..r {
                 reduced.b[j] = if j < s { c.b[j] } else { 0.0 };
             }
-        }
-        let reduced = &self.reduced[..constraints.len()];
+        };
         let hint = &mut self.hints[hint_index(i, report)];
-        let (active, infeasible, mu) = self.qp.solve_hinted(reduced, u0, None, &mut self.solution, hint);
+        let (active, infeasible, mu) =
+            self.qp
+                .solve_hinted_rows(constraints.len(), reduced, u0, None, &mut self.solution, hint);
         let mut out = ChannelOutcome::new(self.solution[i], active, infeasible, mu);
         for j in 0..r {
             self.plan(j, if j < s { self.solution[j] } else { omega[j] });
@@ -244,19 +234,20 @@ impl ChannelQp {
             return out;
         }
         let root_m = m.sqrt();
-        for (c, reduced) in constraints.iter().zip(self.reduced(constraints.len())) {
-            reduced.a = gamma_m_zeta(c, u0, omega, used, gamma);
+        // The rows formed where the QP scales them (one pass).
+        let reduced = |k: usize, reduced: &mut Constraint| {
+            let c = &constraints[k];
+            (reduced.h, reduced.a) = (0.0, gamma_m_zeta(c, u0, omega, used, gamma));
             for j in 0..r {
                 reduced.b[j] = if j < used { c.b[j] } else { 0.0 };
                 reduced.b[r + j] = c.b[j] / root_m;
             }
-        }
-        let reduced = &self.reduced[..constraints.len()];
+        };
         self.origin.fill(0.0);
         let hint = &mut self.hints[hint_index(i, report)];
-        let (active, infeasible, mu) = self
-            .qp
-            .solve_hinted(reduced, &self.origin, None, &mut self.solution, hint);
+        let (active, infeasible, mu) =
+            self.qp
+                .solve_hinted_rows(constraints.len(), reduced, &self.origin, None, &mut self.solution, hint);
         let mut out = ChannelOutcome::new(u0[i] + self.solution[i], active, infeasible, mu);
         for j in 0..r {
             let real = if j < used { u0[j] + self.solution[j] } else { omega[j] };
