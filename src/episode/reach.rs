@@ -521,7 +521,7 @@ mod tests {
     use crate::dynamics::BicycleModel;
     use crate::random::SplitMix64;
 
-    /// The row the Lie path forms for `barrier` (a body circle) against a road user's circle in
+    /// The row the Lie path forms for `barrier` (a body circle or a planar ball) against a road user's circle in
     /// `circle`'s state: the Lie derivatives with the circle frozen plus its motion terms (at
     /// relative degree 1 with q alone: ∂h/∂t has no input).
     fn controller_row(
@@ -537,13 +537,13 @@ mod tests {
         lie.constraint_into(barrier, form, model, x, &mut row);
         let mut drift = [0.0; 4];
         model.dynamics_into(x, &[0.0, 0.0], &mut drift);
-        let (q, q_drift) = barrier.point_and_velocity(x, &drift).expect("a body circle");
+        let (q, q_drift) = barrier.point_and_velocity(x, &drift).expect("a planar circle");
         let mut inputs = [[0.0; 2]; 2];
         for (j, input) in inputs.iter_mut().enumerate() {
             let (mut unit, mut column) = ([0.0; 2], [0.0; 4]);
             unit[j] = 1.0;
             model.add_input_term(x, &unit, &mut column);
-            *input = barrier.point_and_velocity(x, &column).expect("a body circle").1;
+            *input = barrier.point_and_velocity(x, &column).expect("a planar circle").1;
         }
         match form {
             BarrierForm::RelativeDegree2 { .. } => {
@@ -650,7 +650,7 @@ mod tests {
     /// (h, ∇h, ∇²h with f, G and ∂f/∂x, plus the motion terms), a and every b_j, and the
     /// first-order row ḣ + λ1 h of the mixed-relative-degree pair, and the condition a + b·u
     /// `/barrier` logs ([`crate::actor::reach::pair_condition`]), on random bicycle states,
-    /// circles off the rear axle, road users and forms.
+    /// circles off the rear axle and balls about the planar position, road users and forms.
     #[test]
     fn the_pairs_rows_from_the_point_equal_the_lie_path() {
         let model = BicycleModel::new(2.6);
@@ -663,8 +663,13 @@ mod tests {
         for trial in 0..400 {
             let offset = [uniform(-1.0, 4.0), uniform(-0.9, 0.9)];
             let radius = uniform(0.5, 3.0);
-            let mut barrier = Barrier::body_circle("pair", ([0, 1], 2), offset, [0.0; 2], radius);
-            let i = ego.index_of(&barrier).expect("a body circle");
+            // (Every fourth a ball about the planar position, the ego point of a vehicle
+            // without a footprint.)
+            let mut barrier = match trial % 4 {
+                3 => Barrier::circular_obstacle("pair", [0, 1], [0.0; 2], radius),
+                _ => Barrier::body_circle("pair", ([0, 1], 2), offset, [0.0; 2], radius),
+            };
+            let i = ego.index_of(&barrier).expect("a planar circle");
             let x = [
                 uniform(-50.0, 50.0),
                 uniform(-50.0, 50.0),
@@ -694,7 +699,7 @@ mod tests {
                 let mut scratch = Constraint::zeros(2);
                 lie.constraint_into(&barrier, form, &model, &x, &mut scratch);
                 assert!(lie.first_order_part_into(form, &mut expected_first));
-                let q = barrier.point_and_velocity(&x, &x).expect("a body circle").0;
+                let q = barrier.point_and_velocity(&x, &x).expect("a planar circle").0;
                 add_point_motion_terms(
                     &mut expected_first,
                     BarrierForm::RelativeDegree1 { alpha: 0.0 },
