@@ -521,9 +521,9 @@ mod tests {
     use crate::dynamics::BicycleModel;
     use crate::random::SplitMix64;
 
-    /// The row the Lie path forms for `barrier` (a body circle or a planar ball) against a road user's circle in
-    /// `circle`'s state: the Lie derivatives with the circle frozen plus its motion terms (at
-    /// relative degree 1 with q alone: ∂h/∂t has no input).
+    /// The row the Lie path forms for `barrier` (a body circle or a planar ball) against a
+    /// road user's circle in `circle`'s state: the Lie derivatives with the circle frozen plus
+    /// its motion terms (at relative degree 1 with q alone: ∂h/∂t has no input).
     fn controller_row(
         model: &BicycleModel,
         barrier: &mut Barrier,
