@@ -54,8 +54,8 @@ pub trait Plant: Send {
     }
 }
 
-/// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms in the model, a
-/// moving one's in a mocap body.
+/// MuJoCo plant: a simulation with a bound vehicle; obstacles are geoms of the world body (a
+/// moving one's moved every step) or, for a lead, of a mocap body.
 pub struct MujocoPlant {
     sim: Simulation,
     vehicle: Box<dyn MujocoVehicle>,
@@ -67,6 +67,9 @@ pub struct MujocoPlant {
     /// depth is [`boxes_penetration`]'s, not MuJoCo's.
     contact_box: Option<[f64; 3]>,
     obstacle_boxes: Vec<Option<[f64; 3]>>,
+    /// Per obstacle, the turn its geom was last given (as a mocap body's quaternion) and its
+    /// orientation in the model text (a box's layout heading).
+    turns: Vec<([f64; 4], [f64; 4])>,
     input_buffer: Vec<f64>,
 }
 
@@ -75,8 +78,10 @@ pub struct MujocoPlant {
 pub struct MujocoObstacle {
     /// Its geom (sphere or box).
     pub geom: usize,
-    /// The mocap index of its body if it moves, None if it stands in the world body.
+    /// The mocap index of its body if it moves in one (a lead), None if it is in the world body.
     pub mocap: Option<usize>,
+    /// A geom of the world body that moves ([`Simulation::place_world_geom`]).
+    pub moves_in_world: bool,
     /// How many barriers the episode keeps for it (one per pair of covering circles): its
     /// depth goes to the first, the others get none.
     pub barriers: usize,
@@ -93,7 +98,11 @@ impl MujocoPlant {
         let obstacle_boxes = (obstacles.iter())
             .map(|o| sim.model().box_half_extents(o.geom))
             .collect();
+        let turns = (obstacles.iter())
+            .map(|o| ([1.0, 0.0, 0.0, 0.0], sim.model().geom_quat(o.geom)))
+            .collect();
         let mut plant = MujocoPlant {
+            turns,
             contact_box: sim.model().box_half_extents(vehicle.hull_geom()),
             sim,
             contact_geom: vehicle.hull_geom(),
@@ -182,11 +191,22 @@ impl Plant for MujocoPlant {
     }
     /// Sets the obstacle's mocap body (at z = 0): the next `mj_step`'s collision sees it there.
     fn move_obstacle(&mut self, index: usize, position: [f64; 2], turn: f64) {
-        if let Some(mocap) = self.obstacles.get(index).and_then(|o| o.mocap) {
+        let Some(&obstacle) = self.obstacles.get(index) else {
+            return;
+        };
+        if let Some(mocap) = obstacle.mocap {
             self.sim.set_mocap_pos(mocap, [position[0], position[1], 0.0]);
             if turn != 0.0 {
                 self.sim.set_mocap_yaw(mocap, turn);
             }
+        } else if obstacle.moves_in_world {
+            let (body, local) = &mut self.turns[index];
+            if turn != 0.0 {
+                let (s, c) = (0.5 * turn).sin_cos();
+                *body = [c, 0.0, 0.0, s];
+            }
+            self.sim
+                .place_world_geom(obstacle.geom, [position[0], position[1], 0.0], *body, *local);
         }
     }
     /// From MuJoCo's contacts between the vehicle's contact geom (the hull, or the footprint's

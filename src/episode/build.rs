@@ -158,8 +158,8 @@ fn yaw_quat(heading: f64) -> String {
 /// MJCF of the model with each obstacle added as a geom `obstacle_<i>` (contype 0,
 /// conaffinity 1: it collides with the vehicle's contact geom and nothing else): a sphere of
 /// its radius, or a box of its length and width (half-height half its longer side) turned by
-/// its heading; static in the world body, or, when it moves, in a mocap body
-/// `obstacle_<i>_body` the plant moves every step. A lead's geom sits at the height and on the
+/// its heading, in the world body (the plant moves a moving one's every step), except a lead's,
+/// in a mocap body `obstacle_<i>_body`: it sits at the height and on the
 /// line of the vehicle's hull (`hull`). With `hull` (a footprint or a lead), the vehicle's
 /// body gets the geom [`CONTACT_GEOM`]: the footprint's box centred on the reference point (the
 /// body's origin) at the hull's height, or a box of the hull's extents ending at the body's
@@ -238,15 +238,9 @@ fn model_with_obstacles(
                 format!("    <geom name=\"{name}\" type=\"sphere\" pos=\"{x} {y} 0\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/>\n", o.radius.unwrap_or_default())
             }
             (false, None) => format!("    <geom name=\"{name}\" {shape} pos=\"{x} {y} 0\" {look}/>\n"),
-            (true, None) if o.shape.is_none() => format!(
-                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" type=\"sphere\" size=\"{}\" contype=\"0\" conaffinity=\"1\" rgba=\"0.9 0.2 0.2 0.6\"/></body>\n",
-                obstacle_body_name(i),
-                o.radius.unwrap_or_default()
-            ),
-            (true, None) => format!(
-                "    <body name=\"{}\" mocap=\"true\" pos=\"{x} {y} 0\"><geom name=\"{name}\" {shape} {look}/></body>\n",
-                obstacle_body_name(i)
-            ),
+            // A moving road user is a world geom the plant moves (`Simulation::place_world_geom`):
+            // as a mocap body it cost the implicit integrator's derivatives (docs/performance.md).
+            (true, None) => format!("    <geom name=\"{name}\" {shape} pos=\"{x} {y} 0\" {look}/>\n"),
         });
     }
     let mut text = format!("{}{}{}", &xml[..at], geoms, &xml[at..]);
@@ -1024,19 +1018,23 @@ pub(super) fn plant(
             let obstacles = (sc.obstacles.iter().zip(barriers).enumerate())
                 .map(|(i, (o, &barriers))| {
                     let geom = model.require(ObjKind::Geom, &obstacle_geom_name(i))?;
-                    let mocap = match o.motion.is_some() {
-                        false => None,
-                        true => {
-                            let name = obstacle_body_name(i);
-                            let body = model.require(ObjKind::Body, &name)?;
-                            let mocap = model.body_mocap_id(body).ok_or(mujoco::MjError::MissingName {
-                                kind: "mocap body",
-                                name,
-                            })?;
-                            Some(mocap)
-                        }
+                    // A moving one: a lead's mocap body (its geom offset to the hull's height), or
+                    // its world geom.
+                    let body = model.id(ObjKind::Body, &obstacle_body_name(i));
+                    let mocap = match (o.motion.is_some(), body) {
+                        (true, Some(body)) => Some(model.body_mocap_id(body).ok_or(mujoco::MjError::MissingName {
+                            kind: "mocap body",
+                            name: obstacle_body_name(i),
+                        })?),
+                        _ => None,
                     };
-                    Ok(MujocoObstacle { geom, mocap, barriers })
+                    let moves_in_world = o.motion.is_some() && mocap.is_none();
+                    Ok(MujocoObstacle {
+                        geom,
+                        mocap,
+                        moves_in_world,
+                        barriers,
+                    })
                 })
                 .collect::<Result<Vec<_>, mujoco::MjError>>()
                 .map_err(|source| EpisodeError::Model {

@@ -489,6 +489,12 @@ impl Model {
         [all[3 * geom], all[3 * geom + 1], all[3 * geom + 2]]
     }
 
+    /// Orientation of a geom in its body's frame (`geom_quat`).
+    pub fn geom_quat(&self, geom: usize) -> [f64; 4] {
+        let all = self.num_array(self.raw().geom_quat, self.raw().ngeom * 4);
+        std::array::from_fn(|k| all[4 * geom + k])
+    }
+
     /// Half-extents of a geom along its own axes, for the solid primitives (sphere, capsule,
     /// ellipsoid, cylinder, box); None for planes, height fields and meshes.
     pub fn geom_half_extents(&self, geom: usize) -> Option<[f64; 3]> {
@@ -1211,6 +1217,40 @@ impl Simulation {
         slice_mut(v.d.mocap_quat, 4 * n)[4 * mocap..4 * mocap + 4].copy_from_slice(&[c, 0.0, 0.0, s]);
     }
 
+    /// Places world-body geom `geom` where a mocap body at `position` with orientation
+    /// `body_quat` would place a geom at its origin with the local orientation `local`, for the
+    /// next step's kinematics and collision (its `geom_pos` and `geom_quat` in the model): the
+    /// same `geom_xpos` bit for bit and `geom_xmat` to rounding (MuJoCo's own normalisation and
+    /// quaternion product); a world geom is no body of the implicit integrator's derivatives,
+    /// which a mocap body is.
+    ///
+    /// # Panics
+    /// If `geom` is not below the model's `ngeom` or is not the world body's.
+    pub fn place_world_geom(&mut self, geom: usize, position: [f64; 3], body_quat: [f64; 4], local: [f64; 4]) {
+        let n = self.model.ngeom();
+        assert!(geom < n, "geom {geom} of {n}");
+        assert_eq!(self.model.geom_body(geom), 0, "geom {geom} is not the world body's");
+        let (mut body, mut quat) = (body_quat, [0.0; 4]);
+        // SAFETY: MuJoCo's pure quaternion functions on arrays of four on this stack frame.
+        unsafe {
+            ffi::mju_normalize4(body.as_mut_ptr());
+            ffi::mju_mulQuat(quat.as_mut_ptr(), body.as_ptr(), local.as_ptr());
+        }
+        let m = self.model.ptr.as_ptr();
+        // SAFETY: the model's geom arrays have ngeom entries (3, 4 and 1 per geom); no step runs
+        // while `self` is borrowed mutably, and MuJoCo reads them only inside a step.
+        unsafe {
+            slice_mut((*m).geom_pos, 3 * n)[3 * geom..3 * geom + 3].copy_from_slice(&position);
+            slice_mut((*m).geom_quat, 4 * n)[4 * geom..4 * geom + 4].copy_from_slice(&quat);
+            *(*m).geom_sameframe.add(geom) = 0;
+        }
+    }
+
+    /// A geom's orientation in its body's frame (`geom_quat`).
+    pub fn geom_quat(&self, geom: usize) -> [f64; 4] {
+        self.model.geom_quat(geom)
+    }
+
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
     pub fn set_ctrl(&mut self, ctrl: &[f64]) {
         let v = self.data.view();
@@ -1292,6 +1332,63 @@ mod tests {
     </body>
   </worldbody>
 </mujoco>"#;
+
+    /// The same turned box twice: in a mocap body, and as a geom of the world body.
+    const TWO_BOXES: &str = r#"<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody>
+    <body name="probe">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <geom name="hull" type="box" size="1 0.5 0.5" mass="1" contype="1" conaffinity="0"/>
+    </body>
+    <body name="actor" mocap="true" pos="10 0 0">
+      <geom name="in_body" type="box" size="2 1 2" quat="0.9 0 0 0.43589" contype="0" conaffinity="1"/>
+    </body>
+    <geom name="in_world" type="box" size="2 1 2" quat="0.9 0 0 0.43589" pos="10 0 0" contype="0" conaffinity="1"/>
+  </worldbody>
+</mujoco>"#;
+
+    /// A world geom placed as a mocap body would place it has that geom's position bit for bit
+    /// and its orientation to rounding (MuJoCo turns a body's geom by the body's matrix, a world
+    /// geom by its quaternion's), and the contacts see it.
+    #[test]
+    fn a_placed_world_geom_is_where_the_mocap_body_puts_its_geom() {
+        let model = Model::from_xml_string(TWO_BOXES, "two boxes").unwrap();
+        let (in_body, in_world, hull) = (
+            model.require(ObjKind::Geom, "in_body").unwrap(),
+            model.require(ObjKind::Geom, "in_world").unwrap(),
+            model.require(ObjKind::Geom, "hull").unwrap(),
+        );
+        let local = model.geom_quat(in_world);
+        assert_eq!(local, model.geom_quat(in_body));
+        let mut sim = Simulation::new(model).unwrap();
+        for (k, (x, y, yaw)) in [(1.9, -0.2, 0.3), (-1.75, 1e-3, -2.9), (0.4, 0.1, 1.234_567)]
+            .into_iter()
+            .enumerate()
+        {
+            sim.set_mocap_pos(0, [x, y, 0.0]);
+            sim.set_mocap_yaw(0, yaw);
+            let (s, c) = (0.5 * yaw).sin_cos();
+            sim.place_world_geom(in_world, [x, y, 0.0], [c, 0.0, 0.0, s], local);
+            sim.step_without_hook().unwrap();
+            assert_eq!(sim.geom_xpos(in_world), sim.geom_xpos(in_body), "pose {k}");
+            let (a, b) = (sim.geom_xmat(in_world), sim.geom_xmat(in_body));
+            assert!(
+                a.iter().zip(&b).all(|(a, b)| (a - b).abs() <= 1e-15),
+                "pose {k}: {a:?} against {b:?}"
+            );
+            let touching = |geom: usize| {
+                sim.data()
+                    .contacts()
+                    .iter()
+                    .any(|c| [c.geom1, c.geom2] == [hull, geom] || [c.geom1, c.geom2] == [geom, hull])
+            };
+            assert!(
+                touching(in_world) && touching(in_body),
+                "pose {k}: both boxes overlap the probe"
+            );
+        }
+    }
 
     #[test]
     fn a_mocap_body_is_where_it_was_set_when_the_step_collides() {
