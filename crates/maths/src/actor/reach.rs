@@ -205,16 +205,19 @@ pub fn pair_rows(
     let pair = Pair::new(point, circle, radius);
     let lambda1 = mixed_rate.unwrap_or(0.0);
     (row.h, row.a) = (pair.h, pair.a(form));
-    row.b.fill(0.0);
+    // (Through slices: nalgebra's iterators cost as much as the arithmetic here.)
+    let b = row.b.as_mut_slice();
+    b.fill(0.0);
     let columns = point.velocity_columns.iter().zip(point.acceleration_columns);
-    for (b, (k, j)) in row.b.iter_mut().zip(columns) {
+    for (b, (k, j)) in b.iter_mut().zip(columns) {
         *b = pair.b(form, lambda1, *k, *j);
     }
     if let (Some(lambda1), Some(out)) = (mixed_rate, first_order) {
         let first = BarrierForm::RelativeDegree1 { alpha: lambda1 };
         (out.h, out.a) = (pair.h, pair.a(first));
-        out.b.fill(0.0);
-        for (b, k) in out.b.iter_mut().zip(point.velocity_columns) {
+        let b = out.b.as_mut_slice();
+        b.fill(0.0);
+        for (b, k) in b.iter_mut().zip(point.velocity_columns) {
             *b = pair.b(first, 0.0, *k, [0.0; 2]);
         }
     }

@@ -268,7 +268,7 @@ impl QpWorkspace {
                 1.0
             };
             s.a *= scale;
-            for b in s.b.iter_mut() {
+            for b in s.b.as_mut_slice() {
                 *b *= scale;
             }
         }
