@@ -622,7 +622,8 @@ impl Episode {
                 .map(|(b, _, _, actor)| actor.and(form).and_then(|_| ego.index_of(b)))
                 .collect();
         }
-        if self.logged_points.iter().any(Option::is_some) {
+        // (The points are those of the logged road users' circles.)
+        if ego.len() > 0 {
             ego.measure(model, x.as_slice());
         }
         let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
@@ -746,14 +747,7 @@ fn pair_condition_at(
     circle: &crate::actor::ActorState,
     u: &[f64],
 ) -> f64 {
-    let r = u.len().min(4);
-    let kinematics = crate::actor::reach::PointKinematics {
-        position: point.position,
-        velocity: point.velocity,
-        acceleration: point.acceleration,
-        velocity_columns: &point.velocity_columns[..r],
-        acceleration_columns: &point.acceleration_columns[..r],
-    };
+    let kinematics = point.kinematics(u.len().min(4));
     let mixed_rate = match b.mixed_relative_degree() {
         true => form.real_rates().map(|(lambda1, _)| lambda1),
         false => None,

@@ -1246,11 +1246,6 @@ impl Simulation {
         }
     }
 
-    /// A geom's orientation in its body's frame (`geom_quat`).
-    pub fn geom_quat(&self, geom: usize) -> [f64; 4] {
-        self.model.geom_quat(geom)
-    }
-
     /// Sets `ctrl` (outside a step; the hook sets it during steps).
     pub fn set_ctrl(&mut self, ctrl: &[f64]) {
         let v = self.data.view();
