@@ -123,6 +123,25 @@ scenario_tables! {
     /// scenario does not write itself (docs/commonroad.md).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     plain commonroad: Option<crate::commonroad::CommonRoadSpec>,
+    /// `[log]`: what the log records beyond its defaults (docs/log-format.md).
+    #[serde(default, skip_serializing_if = "LogSpec::is_default")]
+    plain log: LogSpec,
+}
+
+/// The `[log]` table.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LogSpec {
+    /// `/barrier` with one entry per barrier of the filter (each pair of a footprint's covering
+    /// circle and an obstacle's, named `<obstacle>/<i>-<j>`) instead of one per obstacle.
+    #[serde(default)]
+    pub barrier_pairs: bool,
+}
+
+impl LogSpec {
+    fn is_default(&self) -> bool {
+        *self == LogSpec::default()
+    }
 }
 
 /// The `[[requirements]]` section: its spec and checks are [`crate::requirement`]'s.

@@ -135,20 +135,29 @@ fn the_logged_actor_states_are_the_closed_form_motion_and_h_uses_them() {
             target.x
         );
         assert!((target.vx - v).abs() < 1e-9, "t = {t}: v {} vs {v}", target.vx);
-        // /barrier's first pair (the car's rear circle, the target's rear circle) at the same
-        // time: ‖q − o‖² − (ρ + σ)², the circles by the covering rule of docs/actors.md (n = 3
-        // for both: ρ = √((4.6/6)² + 0.9²), σ = √((4.02/6)² + 0.855²), centres L/3 behind).
+        // /barrier's entry of the target at the same time: the least over the 3 × 3 pairs of
+        // covering circles of ‖q − o‖² − (ρ + σ)² (h), and of ‖q − o‖ − (ρ + σ) (clearance),
+        // the circles by the covering rule of docs/actors.md (n = 3 for both: ρ = √((4.6/6)² +
+        // 0.9²), σ = √((4.02/6)² + 0.855²), centres L/3 apart along the heading).
         if let Some(b) = barriers.iter().find(|b| b.time == t) {
-            assert_eq!(b.barriers[0].name, "target/0-0");
+            assert_eq!(b.barriers.len(), 1);
+            assert_eq!(b.barriers[0].name, "target");
             let (rho, sigma) = ((4.6f64 / 6.0).hypot(0.9), (4.02f64 / 6.0).hypot(0.855));
             let heading = s.values[2];
-            let q = [
-                s.values[0] - 4.6 / 3.0 * heading.cos(),
-                s.values[1] - 4.6 / 3.0 * heading.sin(),
-            ];
-            let (dx, dy) = (q[0] - (x - 4.02 / 3.0), q[1]);
-            let h = dx * dx + dy * dy - (rho + sigma).powi(2);
+            let (mut h, mut clearance) = (f64::INFINITY, f64::INFINITY);
+            for i in [-1.0, 0.0, 1.0] {
+                let q = [
+                    s.values[0] + i * 4.6 / 3.0 * heading.cos(),
+                    s.values[1] + i * 4.6 / 3.0 * heading.sin(),
+                ];
+                for j in [-1.0, 0.0, 1.0] {
+                    let (dx, dy) = (q[0] - (x + j * 4.02 / 3.0), q[1]);
+                    h = h.min(dx * dx + dy * dy - (rho + sigma).powi(2));
+                    clearance = clearance.min(dx.hypot(dy) - (rho + sigma));
+                }
+            }
             assert!((b.barriers[0].h - h).abs() < 1e-6 * (1.0 + h.abs()), "t = {t}");
+            assert!((b.barriers[0].clearance - clearance).abs() < 1e-6, "t = {t}");
         }
     }
 }
@@ -420,9 +429,10 @@ fn a_moving_box_s_logged_condition_is_the_derivative_of_its_logged_h() {
     // central differences of the logged h. The car drives straight at 100 % overlap, so the
     // steering's first-order term (L_G h = 0 on the axis) drops out and the two must agree.
     // (A box's circles are off the target's centre: their motion terms once used the centre.)
+    // `[log] barrier_pairs`: every pair logged, not the target's one entry.
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("ccrm.mcap");
-    let m = outcome("ncap_ccrm.toml", &log, &[]);
+    let m = outcome("ncap_ccrm.toml", &log, &["log.barrier_pairs=true"]);
     assert!(!collided(&m), "{m}");
     let barriers = read_topic::<proto::Barrier>(&log, "/barrier");
     let names: Vec<String> = barriers[0].barriers.iter().map(|b| b.name.clone()).collect();

@@ -416,11 +416,17 @@ impl<F: FnMut(&Record) -> Vec<Record>> mjsafe::log::Sink for Edited<F> {
 /// 6.074 s; delays 0.2 s and 1.5 s), logged to `log` as `edit` rewrites each record: the log a
 /// recorded road user with another life span would have given.
 fn static_walker_run_edited(log: &std::path::Path, edit: impl FnMut(&Record) -> Vec<Record>) {
-    let loaded = mjsafe::scenario::load(
-        &root().join("tests/data/crossing_walker.toml"),
-        &["actor_knowledge.kind=\"static\"".to_string()],
-    )
-    .unwrap();
+    static_walker_run_edited_with(log, &[], edit)
+}
+
+/// The same with more overrides.
+fn static_walker_run_edited_with(log: &std::path::Path, sets: &[&str], edit: impl FnMut(&Record) -> Vec<Record>) {
+    let sets: Vec<String> = ["actor_knowledge.kind=\"static\""]
+        .iter()
+        .chain(sets)
+        .map(|s| s.to_string())
+        .collect();
+    let loaded = mjsafe::scenario::load(&root().join("tests/data/crossing_walker.toml"), &sets).unwrap();
     let mut episode = mjsafe::episode::Episode::new(&loaded).unwrap();
     let mut sink = Edited {
         log: mjsafe::log::mcap::McapSink::create(log, episode.info(), &[]).unwrap(),
@@ -503,4 +509,62 @@ fn a_violation_within_the_delay_after_a_road_user_enters_is_attributed_to_the_de
         (attributed - steps as f64 * dt).abs() < 1e-9,
         "{attributed} vs {steps} steps"
     );
+}
+
+/// With a footprint the walker is three barriers of the filter (the car's covering circles
+/// against it): the log's one entry `walker` and, with `[log] barrier_pairs`, the pairs
+/// `walker/<i>-0` are attributed to the walker's appearance alike (the pairs' names once
+/// matched no appearance, and the metric read 0 s).
+#[test]
+fn a_footprint_s_violations_are_attributed_whether_the_log_lists_the_obstacle_or_its_pairs() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    let mut attributed = Vec::new();
+    for pairs in [false, true] {
+        let log = dir.path().join(format!("pairs_{pairs}.mcap"));
+        let footprint = "vehicle.footprint={length=4.6,width=1.8}";
+        let sets = [
+            footprint,
+            if pairs {
+                "log.barrier_pairs=true"
+            } else {
+                "log.barrier_pairs=false"
+            },
+        ];
+        let mut entered = None;
+        // The walker's recording "begins" at its first violation.
+        static_walker_run_edited_with(&log, &sets, |record| match record {
+            Record::Barrier(m) if entered.is_none() && m.barriers.iter().any(|b| b.h < 0.0) => {
+                entered = Some(m.time);
+                let event = proto::Event {
+                    time: m.time,
+                    kind: "road_user_entered".into(),
+                    message: "walker enters: its first recorded state".into(),
+                    participants: vec!["walker".into()],
+                    depth: 0.0,
+                };
+                vec![Record::Event(event), record.clone()]
+            }
+            _ => vec![record.clone()],
+        });
+        let entered = entered.unwrap();
+        let messages = common::read_topic::<proto::Barrier>(&log, "/barrier");
+        let names: Vec<&str> = messages[0].barriers.iter().map(|b| b.name.as_str()).collect();
+        match pairs {
+            true => assert_eq!(names, ["walker/0-0", "walker/1-0", "walker/2-0"]),
+            false => assert_eq!(names, ["walker"]),
+        }
+        let steps = messages
+            .iter()
+            .filter(|m| m.time >= entered && m.time < entered + 1.5)
+            .filter(|m| m.barriers.iter().any(|b| b.h < 0.0))
+            .count();
+        assert!(steps > 10, "violations after it entered: {steps}");
+        let value = common::analyze_json(&log)["delay_attributed_violation_time"]
+            .as_f64()
+            .unwrap();
+        assert!((value - steps as f64 * 0.002).abs() < 1e-9, "{value} vs {steps} steps");
+        attributed.push(value);
+    }
+    assert_eq!(attributed[0], attributed[1]);
 }

@@ -171,6 +171,8 @@ pub struct Episode {
     /// each logged barrier's point (None: not a road user's circle), found once.
     ego_points: reach::EgoPoints,
     logged_points: Vec<Option<usize>>,
+    /// `[log] barrier_pairs`: `/barrier` lists each pair of an obstacle, not one entry.
+    log_barrier_pairs: bool,
     /// Per-step and per-tick records, updated in place (their names keep their storage).
     records: RecordBuffers,
     /// The run's estimated cost, and the error of a log over the log budget (taken by
@@ -298,8 +300,14 @@ impl Episode {
         let mut info = build::run_info(loaded, vehicle_params, &control, period)?;
         info.reference_path = reference_path.map(|p| (p.point, p.heading));
         info.extents = extents(loaded, hull_radius, &obstacles);
-        let (cost, log_budget) =
-            build::check_cost(loaded, &control, build::steps(loaded, timestep), every_barrier.len())?;
+        // `/barrier`'s entries: one per obstacle with barriers, or per pair.
+        let log_barrier_pairs = loaded.scenario.log.barrier_pairs;
+        let logged_barriers = barriers.len()
+            + match log_barrier_pairs {
+                true => every_barrier.len() - barriers.len(),
+                false => obstacles.iter().filter(|o| !o.barriers.is_empty()).count(),
+            };
+        let (cost, log_budget) = build::check_cost(loaded, &control, build::steps(loaded, timestep), logged_barriers)?;
         let moving_names: Vec<String> = (obstacles.iter())
             .filter(|o| o.motion.is_some())
             .map(|o| o.name.clone())
@@ -318,6 +326,7 @@ impl Episode {
             xdot: vec![0.0; model.state_dim()],
             ego_points: reach::EgoPoints::new(model.as_ref()),
             logged_points: Vec::new(),
+            log_barrier_pairs,
             records: RecordBuffers::new(model.state_names(), model.channel_names(), moving_names.into_iter()),
             actor_margin: loaded.scenario.actor_knowledge.map_or(0.0, |k| k.margin),
             scene: SceneState::new(

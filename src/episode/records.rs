@@ -576,7 +576,10 @@ impl Episode {
     }
 
     /// Every barrier at x(t_k), with its constraint evaluated at the applied input (without a
-    /// filter there is no barrier constraint: only h is meaningful).
+    /// filter there is no barrier constraint: only h is meaningful). An obstacle is one entry,
+    /// named as the obstacle, from its pairs (a footprint's covering circles against the
+    /// obstacle's, each pair a barrier of the filter; [`BarrierSample::nearer`]), or, with
+    /// `[log] barrier_pairs`, one entry per pair.
     pub(super) fn emit_barriers(
         &mut self,
         sinks: &mut [&mut dyn Sink],
@@ -586,16 +589,6 @@ impl Episode {
     ) -> Result<(), LogError> {
         let form = self.control.filter().barrier_form();
         let model = self.control.model().as_ref();
-        let entries = self
-            .obstacles
-            .iter()
-            .flat_map(|o| {
-                // Each barrier's circle moves with the actor at its offset (a box's circles).
-                let actor = o.motion.as_ref().map(|_| o.state);
-                (o.barriers.iter().zip(&o.offsets))
-                    .map(move |(b, &offset)| (b, o.known, true, actor.map(|a| a.shifted(offset))))
-            })
-            .chain(self.barriers.iter().map(|b| (b, true, false, None)));
         // World velocity of the planar position (for time-to-collision): ṗ from the model, ẋ
         // formed once per step (a body circle's point velocity reads it too).
         let velocity = model.planar_position().map(|[i, j]| {
@@ -606,105 +599,214 @@ impl Episode {
             unreachable!("records.barrier holds a barrier record")
         };
         record.time = time;
-        let count = self.obstacle_barriers.len() + self.barriers.len();
+        let logged = self.obstacles.iter().filter(|o| !o.barriers.is_empty());
+        let pairs = self.log_barrier_pairs;
+        let obstacle_entries = match pairs {
+            true => self.obstacle_barriers.len(),
+            false => logged.clone().count(),
+        };
+        let count = obstacle_entries + self.barriers.len();
         let ego = &mut self.ego_points;
         if record.barriers.len() != count {
-            record.barriers = entries
-                .clone()
-                .map(|(b, ..)| proto::BarrierValue {
-                    name: b.name.clone(),
+            let names: Box<dyn Iterator<Item = &String>> = match pairs {
+                true => Box::new(logged.clone().flat_map(|o| o.barriers.iter().map(|b| &b.name))),
+                false => Box::new(logged.clone().map(|o| &o.name)),
+            };
+            record.barriers = names
+                .chain(self.barriers.iter().map(|b| &b.name))
+                .map(|name| proto::BarrierValue {
+                    name: name.clone(),
                     ..Default::default()
                 })
                 .collect();
             // A road user's circle measures from its ego point (when conditions are logged).
-            self.logged_points = entries
+            self.logged_points = logged
                 .clone()
-                .map(|(b, _, _, actor)| actor.and(form).and_then(|_| ego.index_of(b)))
+                .flat_map(|o| o.barriers.iter().map(move |b| (b, o.motion.is_some())))
+                .map(|(b, moving)| (moving && form.is_some()).then(|| ego.index_of(b)).flatten())
                 .collect();
         }
         // (The points are those of the logged road users' circles.)
         if ego.len() > 0 {
             ego.measure(model, x.as_slice());
         }
-        let (lie, constraint_data) = (&mut self.lie, &mut self.constraint);
-        let points = self.logged_points.iter();
-        for (((b, known, obstacle, actor), value), point) in entries.zip(record.barriers.iter_mut()).zip(points) {
-            // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q.
-            let circle_values = b.circle_values(x.as_slice(), &self.xdot);
-            let (constraint, relative_degree) = form.map_or((f64::NAN, 0), |form| {
-                // A road user's circle against an ego point: the closed form of the pair's
-                // condition from the point's kinematics, measured once per step.
-                if let (Some(circle), &Some(i)) = (&actor, point) {
-                    let value = pair_condition_at(ego.point(i), form, b, circle, applied.as_slice());
-                    return (value, form.relative_degree());
+        let mut sampler = BarrierSampler {
+            form,
+            model,
+            x,
+            applied,
+            xdot: &self.xdot,
+            velocity,
+            ego,
+            lie: &mut self.lie,
+            constraint: &mut self.constraint,
+        };
+        let (obstacle_values, other_values) = record.barriers.split_at_mut(obstacle_entries);
+        let (mut points, mut values) = (self.logged_points.iter(), obstacle_values.iter_mut());
+        for o in logged {
+            // Each barrier's circle moves with the actor at its offset (a box's circles).
+            let actor = o.motion.as_ref().map(|_| o.state);
+            let samples = (o.barriers.iter().zip(&o.offsets).zip(&mut points))
+                .map(|((b, &offset), &point)| sampler.sample(b, true, actor.map(|a| a.shifted(offset)), point));
+            if pairs {
+                for (sample, value) in samples.zip(&mut values) {
+                    sample.write(value, o.known, true);
                 }
-                lie.constraint_into(b, form, model, x.as_slice(), constraint_data);
-                // A moving actor: h(x, t) gains the terms of its true motion.
-                if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
-                    crate::actor::add_headway_motion_terms(constraint_data, form, actor);
-                }
-                // (ṗ: at relative degree 2 no input reaches the position, so the velocity
-                // with the applied input is the drift.)
-                if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, model.planar_position(), velocity) {
-                    crate::actor::add_motion_terms(constraint_data, form, [x[i], x[j]], p_dot, actor);
-                }
-                (constraint_data.value(applied), form.relative_degree())
-            });
-            // Relative to a moving actor's velocity.
-            let relative_velocity = match (velocity, &actor) {
-                (Some(v), Some(a)) => Some([v[0] - a.velocity[0], v[1] - a.velocity[1]]),
-                (v, _) => v,
-            };
-            let time_to_collision = match (obstacle, relative_velocity, &b.shape) {
-                (
-                    true,
-                    Some(v),
-                    crate::barrier::Shape::Ball {
-                        indices,
-                        centre,
-                        radius,
-                        ..
-                    },
-                ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
-                // A body circle's point q, moving at q̇ (with the applied input).
-                (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
-                    let point = circle_values.map(|(_, _, q, q_dot)| (q, q_dot));
-                    match point.or_else(|| b.point_and_velocity(x.as_slice(), &self.xdot)) {
-                        Some((q, q_dot)) => {
-                            let relative =
-                                actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
-                            time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, *radius)
-                        }
-                        None => f64::NAN,
-                    }
-                }
-                // A lead: the gap over the closing speed v − v_L (the lead's velocity held).
-                (true, _, &crate::barrier::Shape::Headway { speed, .. }) => {
-                    let closing = x[speed] - actor.map_or(0.0, |a| a.velocity[0]);
-                    let gap = b.clearance(x);
-                    match (gap <= 0.0, closing > 0.0) {
-                        (true, _) => 0.0,
-                        (false, true) => gap / closing,
-                        (false, false) => f64::INFINITY,
-                    }
-                }
-                _ => f64::NAN,
-            };
-            *value = proto::BarrierValue {
-                name: std::mem::take(&mut value.name),
-                h: circle_values.map_or_else(|| b.h(x), |(h, ..)| h),
-                constraint,
-                known,
-                relative_degree,
-                clearance: circle_values.map_or_else(|| b.clearance(x), |(_, clearance, ..)| clearance),
-                time_to_collision,
-                obstacle,
-            };
+            } else if let (Some(nearest), Some(value)) = (samples.reduce(BarrierSample::nearer), values.next()) {
+                nearest.write(value, o.known, true);
+            }
+        }
+        for (b, value) in self.barriers.iter().zip(other_values) {
+            sampler.sample(b, false, None, None).write(value, true, false);
         }
         if count == 0 {
             return Ok(());
         }
         Self::emit_ref(sinks, &self.records.barrier)
+    }
+}
+
+/// One barrier's logged values at a step (an obstacle's entry: the least over its pairs).
+#[derive(Clone, Copy)]
+struct BarrierSample {
+    h: f64,
+    constraint: f64,
+    relative_degree: u32,
+    clearance: f64,
+    time_to_collision: f64,
+}
+
+impl BarrierSample {
+    /// An obstacle's entry from two of its pairs: the nearer pair's h and condition (the first
+    /// on a tie), the least clearance and the least time to collision (NaN only where both are).
+    fn nearer(self, other: BarrierSample) -> BarrierSample {
+        let nearer = if other.h < self.h { other } else { self };
+        BarrierSample {
+            clearance: self.clearance.min(other.clearance),
+            time_to_collision: self.time_to_collision.min(other.time_to_collision),
+            ..nearer
+        }
+    }
+
+    /// Into the record's entry (its name kept).
+    fn write(self, value: &mut proto::BarrierValue, known: bool, obstacle: bool) {
+        *value = proto::BarrierValue {
+            name: std::mem::take(&mut value.name),
+            h: self.h,
+            constraint: self.constraint,
+            known,
+            relative_degree: self.relative_degree,
+            clearance: self.clearance,
+            time_to_collision: self.time_to_collision,
+            obstacle,
+        };
+    }
+}
+
+/// What one step's barrier values are measured from (x, the applied input, ẋ formed once).
+struct BarrierSampler<'a> {
+    form: Option<crate::barrier::BarrierForm>,
+    model: &'a dyn crate::dynamics::Dynamics,
+    x: &'a DVector<f64>,
+    applied: &'a DVector<f64>,
+    xdot: &'a [f64],
+    velocity: Option<[f64; 2]>,
+    ego: &'a super::reach::EgoPoints,
+    lie: &'a mut crate::barrier::LieWorkspace,
+    constraint: &'a mut crate::barrier::Constraint,
+}
+
+impl BarrierSampler<'_> {
+    /// Barrier b's h, condition a + b·u at the applied input, clearance and time to collision;
+    /// `actor`: where its circle is when it moves; `point`: its ego point when it is measured.
+    fn sample(
+        &mut self,
+        b: &Barrier,
+        obstacle: bool,
+        actor: Option<crate::actor::ActorState>,
+        point: Option<usize>,
+    ) -> BarrierSample {
+        let (x, applied) = (self.x, self.applied);
+        // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q.
+        let circle_values = b.circle_values(x.as_slice(), self.xdot);
+        let (constraint, relative_degree) = self.form.map_or((f64::NAN, 0), |form| {
+            // A road user's circle against an ego point: the closed form of the pair's
+            // condition from the point's kinematics, measured once per step.
+            if let (Some(circle), Some(i)) = (&actor, point) {
+                let value = pair_condition_at(self.ego.point(i), form, b, circle, applied.as_slice());
+                return (value, form.relative_degree());
+            }
+            let data = &mut *self.constraint;
+            self.lie.constraint_into(b, form, self.model, x.as_slice(), data);
+            // A moving actor: h(x, t) gains the terms of its true motion.
+            if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
+                crate::actor::add_headway_motion_terms(data, form, actor);
+            }
+            // (ṗ: at relative degree 2 no input reaches the position, so the velocity
+            // with the applied input is the drift.)
+            if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, self.model.planar_position(), self.velocity) {
+                crate::actor::add_motion_terms(data, form, [x[i], x[j]], p_dot, actor);
+            }
+            (data.value(applied), form.relative_degree())
+        });
+        let time_to_collision = self.time_to_collision(b, obstacle, actor, circle_values);
+        BarrierSample {
+            h: circle_values.map_or_else(|| b.h(x), |(h, ..)| h),
+            constraint,
+            relative_degree,
+            clearance: circle_values.map_or_else(|| b.clearance(x), |(_, c, ..)| c),
+            time_to_collision,
+        }
+    }
+
+    /// Time until the clearance reaches 0 with the velocity held (NaN where it has none).
+    fn time_to_collision(
+        &self,
+        b: &Barrier,
+        obstacle: bool,
+        actor: Option<crate::actor::ActorState>,
+        circle_values: Option<(f64, f64, [f64; 2], [f64; 2])>,
+    ) -> f64 {
+        let x = self.x;
+        // Relative to a moving actor's velocity.
+        let relative_velocity = match (self.velocity, &actor) {
+            (Some(v), Some(a)) => Some([v[0] - a.velocity[0], v[1] - a.velocity[1]]),
+            (v, _) => v,
+        };
+        match (obstacle, relative_velocity, &b.shape) {
+            (
+                true,
+                Some(v),
+                crate::barrier::Shape::Ball {
+                    indices,
+                    centre,
+                    radius,
+                    ..
+                },
+            ) => time_to_contact([x[indices[0]] - centre[0], x[indices[1]] - centre[1]], v, *radius),
+            // A body circle's point q, moving at q̇ (with the applied input).
+            (true, Some(_), crate::barrier::Shape::BodyCircle { centre, radius, .. }) => {
+                let point = circle_values.map(|(_, _, q, q_dot)| (q, q_dot));
+                match point.or_else(|| b.point_and_velocity(x.as_slice(), self.xdot)) {
+                    Some((q, q_dot)) => {
+                        let relative = actor.map_or(q_dot, |a| [q_dot[0] - a.velocity[0], q_dot[1] - a.velocity[1]]);
+                        time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, *radius)
+                    }
+                    None => f64::NAN,
+                }
+            }
+            // A lead: the gap over the closing speed v − v_L (the lead's velocity held).
+            (true, _, &crate::barrier::Shape::Headway { speed, .. }) => {
+                let closing = x[speed] - actor.map_or(0.0, |a| a.velocity[0]);
+                let gap = b.clearance(x);
+                match (gap <= 0.0, closing > 0.0) {
+                    (true, _) => 0.0,
+                    (false, true) => gap / closing,
+                    (false, false) => f64::INFINITY,
+                }
+            }
+            _ => f64::NAN,
+        }
     }
 }
 

@@ -1017,6 +1017,22 @@ impl Accumulate for MinTimeToCollision {
     }
 }
 
+/// The value kept for an entry's obstacle: the entry's name itself, or the obstacle of a pair
+/// `<obstacle>/<i>-<j>` (`[log] barrier_pairs`).
+fn obstacle_of<'a, T>(name: &str, by_obstacle: &'a BTreeMap<String, T>) -> Option<&'a T> {
+    let is_pair = |pair: &str| {
+        pair.split_once('-').is_some_and(|(i, j)| {
+            [i, j]
+                .iter()
+                .all(|n| !n.is_empty() && n.bytes().all(|c| c.is_ascii_digit()))
+        })
+    };
+    by_obstacle.get(name).or_else(|| {
+        let (obstacle, pair) = name.rsplit_once('/')?;
+        is_pair(pair).then(|| by_obstacle.get(obstacle)).flatten()
+    })
+}
+
 #[derive(Default)]
 struct DelayAttributed {
     /// Appearance time per obstacle name.
@@ -1044,10 +1060,7 @@ impl Accumulate for DelayAttributed {
                 let max_delay = run.max_delay.unwrap_or(0.0);
                 let uncompensated = m.barriers.iter().any(|b| {
                     b.h < 0.0
-                        && self
-                            .appeared
-                            .get(&b.name)
-                            .is_some_and(|t| m.time >= *t && m.time < t + max_delay)
+                        && obstacle_of(&b.name, &self.appeared).is_some_and(|t| m.time >= *t && m.time < t + max_delay)
                 });
                 self.steps += u64::from(uncompensated);
             }
