@@ -642,18 +642,28 @@ impl Episode {
             constraint: &mut self.constraint,
         };
         let (obstacle_values, other_values) = record.barriers.split_at_mut(obstacle_entries);
-        let (mut points, mut values) = (self.logged_points.iter(), obstacle_values.iter_mut());
+        let (mut first, mut values) = (0, obstacle_values.iter_mut());
         for o in logged {
             // Each barrier's circle moves with the actor at its offset (a box's circles).
             let actor = o.motion.as_ref().map(|_| o.state);
-            let samples = (o.barriers.iter().zip(&o.offsets).zip(&mut points))
-                .map(|((b, &offset), &point)| sampler.sample(b, true, actor.map(|a| a.shifted(offset)), point));
+            let circle = |k: usize| actor.map(|a| a.shifted(o.offsets[k]));
+            let points = &self.logged_points[first..first + o.barriers.len()];
+            first += o.barriers.len();
             if pairs {
-                for (sample, value) in samples.zip(&mut values) {
-                    sample.write(value, o.known, true);
+                for ((k, b), value) in o.barriers.iter().enumerate().zip(&mut values) {
+                    sampler
+                        .sample(b, true, circle(k), points[k])
+                        .write(value, o.known, true);
                 }
-            } else if let (Some(nearest), Some(value)) = (samples.reduce(BarrierSample::nearer), values.next()) {
-                nearest.write(value, o.known, true);
+                continue;
+            }
+            // The pairs' geometry, then the condition of the nearest pair alone.
+            let nearest = (o.barriers.iter().enumerate())
+                .map(|(k, b)| (k, sampler.geometry(b, true, circle(k))))
+                .reduce(|(i, a), (j, b)| (if b.h < a.h { j } else { i }, a.nearer(b)));
+            if let (Some((k, mut sample)), Some(value)) = (nearest, values.next()) {
+                (sample.constraint, sample.relative_degree) = sampler.condition(&o.barriers[k], circle(k), points[k]);
+                sample.write(value, o.known, true);
             }
         }
         for (b, value) in self.barriers.iter().zip(other_values) {
@@ -726,37 +736,50 @@ impl BarrierSampler<'_> {
         actor: Option<crate::actor::ActorState>,
         point: Option<usize>,
     ) -> BarrierSample {
-        let (x, applied) = (self.x, self.applied);
+        let mut sample = self.geometry(b, obstacle, actor);
+        (sample.constraint, sample.relative_degree) = self.condition(b, actor, point);
+        sample
+    }
+
+    /// Barrier b's h, clearance and time to collision (its condition NaN, to be formed).
+    fn geometry(&self, b: &Barrier, obstacle: bool, actor: Option<crate::actor::ActorState>) -> BarrierSample {
+        let x = self.x;
         // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q.
         let circle_values = b.circle_values(x.as_slice(), self.xdot);
-        let (constraint, relative_degree) = self.form.map_or((f64::NAN, 0), |form| {
-            // A road user's circle against an ego point: the closed form of the pair's
-            // condition from the point's kinematics, measured once per step.
-            if let (Some(circle), Some(i)) = (&actor, point) {
-                let value = pair_condition_at(self.ego.point(i), form, b, circle, applied.as_slice());
-                return (value, form.relative_degree());
-            }
-            let data = &mut *self.constraint;
-            self.lie.constraint_into(b, form, self.model, x.as_slice(), data);
-            // A moving actor: h(x, t) gains the terms of its true motion.
-            if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
-                crate::actor::add_headway_motion_terms(data, form, actor);
-            }
-            // (ṗ: at relative degree 2 no input reaches the position, so the velocity
-            // with the applied input is the drift.)
-            if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, self.model.planar_position(), self.velocity) {
-                crate::actor::add_motion_terms(data, form, [x[i], x[j]], p_dot, actor);
-            }
-            (data.value(applied), form.relative_degree())
-        });
-        let time_to_collision = self.time_to_collision(b, obstacle, actor, circle_values);
         BarrierSample {
             h: circle_values.map_or_else(|| b.h(x), |(h, ..)| h),
-            constraint,
-            relative_degree,
+            constraint: f64::NAN,
+            relative_degree: 0,
             clearance: circle_values.map_or_else(|| b.clearance(x), |(_, c, ..)| c),
-            time_to_collision,
+            time_to_collision: self.time_to_collision(b, obstacle, actor, circle_values),
         }
+    }
+
+    /// Barrier b's condition a + b·u at the applied input and its relative degree (NaN and 0
+    /// without a filter).
+    fn condition(&mut self, b: &Barrier, actor: Option<crate::actor::ActorState>, point: Option<usize>) -> (f64, u32) {
+        let (x, applied) = (self.x, self.applied);
+        let Some(form) = self.form else {
+            return (f64::NAN, 0);
+        };
+        // A road user's circle against an ego point: the closed form of the pair's condition
+        // from the point's kinematics, measured once per step.
+        if let (Some(circle), Some(i)) = (&actor, point) {
+            let value = pair_condition_at(self.ego.point(i), form, b, circle, applied.as_slice());
+            return (value, form.relative_degree());
+        }
+        let data = &mut *self.constraint;
+        self.lie.constraint_into(b, form, self.model, x.as_slice(), data);
+        // A moving actor: h(x, t) gains the terms of its true motion.
+        if let (Some(actor), crate::barrier::Shape::Headway { .. }) = (&actor, &b.shape) {
+            crate::actor::add_headway_motion_terms(data, form, actor);
+        }
+        // (ṗ: at relative degree 2 no input reaches the position, so the velocity with the
+        // applied input is the drift.)
+        if let (Some(actor), Some([i, j]), Some(p_dot)) = (&actor, self.model.planar_position(), self.velocity) {
+            crate::actor::add_motion_terms(data, form, [x[i], x[j]], p_dot, actor);
+        }
+        (data.value(applied), form.relative_degree())
     }
 
     /// Time until the clearance reaches 0 with the velocity held (NaN where it has none).
