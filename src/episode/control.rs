@@ -338,7 +338,7 @@ impl LawWorkspace {
         // degree barriers, in barrier order; then those of road users out of reach are left
         // out ([`LawWorkspace::compact_rows`]).
         let r = self.nominal.len();
-        let culled = self
+        let mut culled = self
             .reach
             .mark(laws.model, form, z, r, |k| match &laws.actors.motions[k] {
                 Some(motion) => laws.actors.assumed(motion, k, at),
@@ -367,6 +367,17 @@ impl LawWorkspace {
                         let first = first_order_rows.get_mut(first_order).filter(|_| mixed);
                         let has_first = first.is_some();
                         pair_rows(form, mixed_rate, &point.kinematics(r), &actor, radius, c, first);
+                        let first = first_order_rows.get(first_order).filter(|_| has_first);
+                        // Rows that hold for every admissible input enter no QP either.
+                        if self
+                            .reach
+                            .holds_for_every_admissible_input(std::iter::once(&*c).chain(first))
+                        {
+                            self.reach.leave_out(k);
+                            self.reach.count_rows(0, 1 + u64::from(has_first));
+                            culled = true;
+                            continue;
+                        }
                         if has_first {
                             self.row_barrier[count + first_order] = k;
                             first_order += 1;

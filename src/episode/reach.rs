@@ -13,7 +13,7 @@
 
 use crate::actor::reach::{rows_hold_given, ReachBounds};
 use crate::actor::ActorState;
-use crate::barrier::{Barrier, BarrierForm, LieWorkspace, Shape};
+use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace, Shape};
 use crate::delay::DelayQueue;
 use crate::dynamics::Dynamics;
 
@@ -100,6 +100,8 @@ pub(super) struct Reach {
     /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
     active: bool,
+    /// Whether some known barrier is never left out (its rows stay in every QP).
+    keeps_a_row: bool,
     allowed: bool,
     /// Whether an input of the current decision exceeded its channel's admissible 2 M_j (the
     /// bound its left-out rows were checked for), and the commands it started from.
@@ -130,6 +132,7 @@ impl Reach {
             enabled: true,
             culled_last: false,
             active: false,
+            keeps_a_row: false,
             allowed: true,
             exceeded: false,
             unknown: false,
@@ -181,7 +184,29 @@ impl Reach {
     fn refresh_active(&mut self) {
         let cullable = self.groups.iter().filter(|g| g.cullable).count();
         let in_cullable: usize = self.groups.iter().filter(|g| g.cullable).map(|g| g.end - g.first).sum();
-        self.active = self.allowed && (cullable >= 2 || (cullable == 1 && in_cullable < self.point_of.len()));
+        self.keeps_a_row = in_cullable < self.point_of.len();
+        self.active = self.allowed && (cullable >= 2 || (cullable == 1 && self.keeps_a_row));
+    }
+
+    /// Whether a formed row (and its first-order row) holds for every admissible input,
+    /// a − Σ_j |b_j| U_j > 0 with U_j = 2 M_j, the box [`Reach::mark`]'s certificate is for (a
+    /// margin of 1e-9 of its terms for the rounding): then it may be left out of the QP as a
+    /// row out of reach is ([`Reach::leave_out`]). Only where some other barrier's row always
+    /// stays (the road's edges), so that a decision never has no row.
+    pub(super) fn holds_for_every_admissible_input<'a>(&self, rows: impl IntoIterator<Item = &'a Constraint>) -> bool {
+        if !(self.enabled && self.active && self.keeps_a_row) {
+            return false;
+        }
+        rows.into_iter().all(|row| {
+            let spread: f64 = (row.b.iter().zip(&self.bound)).map(|(b, m)| (b * 2.0 * m).abs()).sum();
+            row.b.len() <= self.bound.len() && row.a - spread > 1e-9 * (row.a.abs() + spread)
+        })
+    }
+
+    /// Leaves barrier k's formed rows out of the QP (they hold for every admissible input).
+    pub(super) fn leave_out(&mut self, k: usize) {
+        self.out[k] = true;
+        self.culled_last = true;
     }
 
     /// Whether rows may be left out at all (`control.leave_out_of_reach`).
@@ -643,6 +668,55 @@ mod tests {
         }
         assert!(left_out > 50, "only {left_out} rows left out");
         assert!(checked > 200);
+    }
+
+    /// A formed row is left out only when it holds at every corner of the box of inputs
+    /// `note` accepts without making the decision again (|u_j| ≤ 2 M_j), and only where
+    /// another barrier's row always stays (it fails with M_j for 2 M_j, or with the margin's
+    /// sign turned).
+    #[test]
+    fn a_formed_row_left_out_holds_for_every_input_a_decision_may_keep() {
+        let model = BicycleModel::new(2.6);
+        let queues = [
+            DelayQueue::new("steering", 0.2, 0.3, 0.002).expect("a queue"),
+            DelayQueue::new("acceleration", 0.5, 2.0, 0.002).expect("a queue"),
+        ];
+        let user = |c: usize| Barrier::body_circle(&format!("u{c}"), ([0, 1], 2), [1.3, 0.0], [0.0; 2], 2.0);
+        let mut alone = Reach::new(&model, &queues);
+        for c in 0..2 {
+            alone.add(&user(c), Some(([0.0; 2], true)));
+        }
+        let mut reach = Reach::new(&model, &queues);
+        reach.add(&Barrier::circular_obstacle("fixed", [0, 1], [100.0, 0.0], 1.0), None);
+        for c in 0..2 {
+            reach.add(&user(c), Some(([0.0; 2], true)));
+        }
+        let mut rng = SplitMix64(11);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let (mut kept, mut left_out) = (0, 0);
+        for _ in 0..2000 {
+            let bound = [uniform(0.0, 0.3), uniform(0.0, 2.0)];
+            for r in [&mut reach, &mut alone] {
+                r.bound.copy_from_slice(&bound);
+            }
+            let mut row = Constraint::zeros(2);
+            (row.a, row.b[0], row.b[1]) = (uniform(-5.0, 40.0), uniform(-60.0, 60.0), uniform(-8.0, 8.0));
+            assert!(!alone.holds_for_every_admissible_input([&row]), "no other row stays");
+            if !reach.holds_for_every_admissible_input([&row]) {
+                kept += 1;
+                continue;
+            }
+            left_out += 1;
+            for corner in [[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]] {
+                let u = nalgebra::DVector::from_column_slice(&[2.0 * corner[0] * bound[0], 2.0 * corner[1] * bound[1]]);
+                assert!(
+                    row.value(&u) >= 0.0,
+                    "{row:?} left out, but {} < 0 at {u:?}",
+                    row.value(&u)
+                );
+            }
+        }
+        assert!(kept > 200 && left_out > 200, "kept {kept}, left out {left_out}");
     }
 
     /// The rows the controller forms for a road user's circle in closed form
