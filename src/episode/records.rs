@@ -640,6 +640,8 @@ impl Episode {
             ego,
             lie: &mut self.lie,
             constraint: &mut self.constraint,
+            points: Default::default(),
+            known_points: 0,
         };
         let (obstacle_values, other_values) = record.barriers.split_at_mut(obstacle_entries);
         let (mut first, mut values) = (0, obstacle_values.iter_mut());
@@ -724,7 +726,14 @@ struct BarrierSampler<'a> {
     ego: &'a super::reach::EgoPoints,
     lie: &'a mut crate::barrier::LieWorkspace,
     constraint: &'a mut crate::barrier::Constraint,
+    /// The footprint circles' (point, q, q̇) at this step, as formed, and how many
+    /// ([`BarrierSampler::body_point`]; room for four, on the stack).
+    points: [BodyPoint; 4],
+    known_points: usize,
 }
+
+/// A body circle's point (position and heading indices, offset) with its q and q̇.
+type BodyPoint = (([usize; 2], usize, [f64; 2]), [f64; 2], [f64; 2]);
 
 impl BarrierSampler<'_> {
     /// Barrier b's h, condition a + b·u at the applied input, clearance and time to collision;
@@ -742,10 +751,17 @@ impl BarrierSampler<'_> {
     }
 
     /// Barrier b's h, clearance and time to collision (its condition NaN, to be formed).
-    fn geometry(&self, b: &Barrier, obstacle: bool, actor: Option<crate::actor::ActorState>) -> BarrierSample {
+    fn geometry(&mut self, b: &Barrier, obstacle: bool, actor: Option<crate::actor::ActorState>) -> BarrierSample {
         let x = self.x;
-        // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q.
-        let circle_values = b.circle_values(x.as_slice(), self.xdot);
+        // An outside circle: h, the clearance, q and q̇ (with the applied input) from one q,
+        // a footprint circle's formed once per step for all its barriers.
+        let circle_values = match b.body_point_of() {
+            Some(key) => {
+                let (q, q_dot) = self.body_point(key, b);
+                b.circle_values_at(q, q_dot)
+            }
+            None => b.circle_values(x.as_slice(), self.xdot),
+        };
         BarrierSample {
             h: circle_values.map_or_else(|| b.h(x), |(h, ..)| h),
             constraint: f64::NAN,
@@ -753,6 +769,24 @@ impl BarrierSampler<'_> {
             clearance: circle_values.map_or_else(|| b.clearance(x), |(_, c, ..)| c),
             time_to_collision: self.time_to_collision(b, obstacle, actor, circle_values),
         }
+    }
+
+    /// The point q and its velocity q̇ of body circle `key` (b one of its barriers), formed once
+    /// per step ([`Barrier::point_and_velocity`]) for up to four footprint circles.
+    fn body_point(&mut self, key: ([usize; 2], usize, [f64; 2]), b: &Barrier) -> ([f64; 2], [f64; 2]) {
+        let same = |known: &([usize; 2], usize, [f64; 2])| {
+            known.0 == key.0 && known.1 == key.1 && known.2.map(f64::to_bits) == key.2.map(f64::to_bits)
+        };
+        if let Some((_, q, q_dot)) = self.points[..self.known_points].iter().find(|(known, ..)| same(known)) {
+            return (*q, *q_dot);
+        }
+        let (q, q_dot) = b
+            .point_and_velocity(self.x.as_slice(), self.xdot)
+            .expect("a body circle has a point");
+        if let Some(room) = self.points.get_mut(self.known_points) {
+            (*room, self.known_points) = ((key, q, q_dot), self.known_points + 1);
+        }
+        (q, q_dot)
     }
 
     /// Barrier b's condition a + b·u at the applied input and its relative degree (NaN and 0

@@ -194,28 +194,45 @@ impl Barrier {
     /// [`Barrier::clearance_at`] and [`Barrier::point_and_velocity`] bit for bit, with q
     /// formed once; None for any other shape.
     pub fn circle_values(&self, x: &[f64], xdot: &[f64]) -> Option<(f64, f64, [f64; 2], [f64; 2])> {
-        let (centre, radius, ball) = match &self.shape {
+        let (q, q_dot) = self.point_and_velocity(x, xdot)?;
+        self.circle_values_at(q, q_dot)
+    }
+
+    /// A body circle's point: its position and heading indices and its offset in the body
+    /// frame (the barriers of one footprint circle share it, and their q and q̇); None for any
+    /// other shape.
+    pub fn body_point_of(&self) -> Option<([usize; 2], usize, [f64; 2])> {
+        match self.shape {
+            Shape::BodyCircle {
+                position,
+                heading,
+                offset,
+                ..
+            } => Some((position, heading, offset)),
+            _ => None,
+        }
+    }
+
+    /// [`Barrier::circle_values`] with q and q̇ given, as [`Barrier::point_and_velocity`] forms
+    /// them (for a point several barriers share).
+    pub fn circle_values_at(&self, q: [f64; 2], q_dot: [f64; 2]) -> Option<(f64, f64, [f64; 2], [f64; 2])> {
+        let (centre, radius) = match &self.shape {
             Shape::Ball {
                 indices,
                 centre,
                 radius,
                 inside: false,
-            } if indices.len() == 2 => ([centre[0], centre[1]], *radius, true),
+            } if indices.len() == 2 => ([centre[0], centre[1]], *radius),
             &Shape::BodyCircle {
                 centre,
                 radius,
                 inside: false,
                 ..
-            } => (centre, radius, false),
+            } => (centre, radius),
             _ => return None,
         };
-        let (q, q_dot) = self.point_and_velocity(x, xdot)?;
         let squared = (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2);
-        let clearance = match ball {
-            true => squared.sqrt() - radius,
-            false => (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius,
-        };
-        Some((squared - radius * radius, clearance, q, q_dot))
+        Some((squared - radius * radius, squared.sqrt() - radius, q, q_dot))
     }
 
     /// Whether an input reaches h at first order while another reaches it only at second:
@@ -370,7 +387,9 @@ impl Barrier {
                 inside,
             } => {
                 let (q, _) = body_point(position, heading, offset, x);
-                let d = (q[0] - centre[0]).hypot(q[1] - centre[1]) - radius;
+                // (sqrt, not hypot: states and centres are bounded by ±1e9, so the squares
+                // cannot overflow.)
+                let d = ((q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2)).sqrt() - radius;
                 if inside {
                     -d
                 } else {
