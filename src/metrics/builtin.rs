@@ -101,7 +101,7 @@ pub static METRICS: &[Metric] = &[
             "min over `/barrier` messages and their barriers of `h` (NaN ignored); h < 0: the state left the safe set; absent without barriers, and where the barriers are not in one unit (several barriers, not all obstacles: see min_h_by_barrier)")
     },
     metric("min_h_by_barrier", BARRIER, Shape::PerBarrier, &[Topic::Barrier], new::<MinHByBarrier>,
-        "min over `/barrier` messages of each barrier's `h`, in that barrier's own unit (m² for an obstacle (4.81), m for a half-space (2.47)); absent without barriers"),
+        "min over `/barrier` messages of each entry's `h` (an obstacle's entry: the least over its barriers, a footprint's pairs of covering circles, unless `[log] barrier_pairs` lists them), in that barrier's own unit (m² for an obstacle (4.81), m for a half-space (2.47)); absent without barriers"),
     Metric {
         metadata: &["timestep"],
         table: Some("t_h<0"),
@@ -121,7 +121,7 @@ pub static METRICS: &[Metric] = &[
     metric("filter_unmet_ticks", "ticks", Shape::Count, &[Topic::Filter], new::<UnmetTicks>,
         "ticks whose `/filter` `unmet` is not empty: some channel's decision leaves a barrier condition unmet with the real inputs it plans (an infeasible QP, or a γm constraint (4.60) met only by the fictitious inputs σ)"),
     metric("max_shortfall_by_barrier", CONDITION, Shape::PerBarrier, &[Topic::Filter], new::<MaxShortfallByBarrier>,
-        "max over `/filter` messages of each barrier's `shortfall`: how far below 0 a decision leaves a + b·u, in that barrier's constraint units (those of ḣ + α(h), or of ḧ + l1 ḣ + l0 h); absent if no condition was ever left unmet"),
+        "max over `/filter` messages of each barrier's `shortfall` (the filter's barriers: a footprint's pairs `<obstacle>/<i>-<j>`): how far below 0 a decision leaves a + b·u, in that barrier's constraint units (those of ḣ + α(h), or of ḧ + l1 ḣ + l0 h); absent if no condition was ever left unmet"),
     Metric {
         table: Some("max|u-u_nom|"),
         ..metric("max_correction", INPUT, Shape::PerChannel, &[Topic::Filter], new::<MaxCorrection>,
@@ -168,7 +168,7 @@ pub static METRICS: &[Metric] = &[
     metric("min_time_to_collision", SECONDS, Shape::Number, &[Topic::Barrier], new::<MinTimeToCollision>,
         "min over `/barrier` entries of known obstacles of `time_to_collision` (contact if the velocity were kept; 0 while overlapping); absent if never finite"),
     metric("min_ttc_by_barrier", SECONDS, Shape::PerBarrier, &[Topic::Barrier], new::<MinTtcByBarrier>,
-        "min over `/barrier` messages of each known obstacle's `time_to_collision` (relative to a moving obstacle's velocity; NaN ignored, ∞: never closing in); absent without obstacles"),
+        "min over `/barrier` messages of each known obstacle's entry's `time_to_collision` (the least over its pairs) (relative to a moving obstacle's velocity; NaN ignored, ∞: never closing in); absent without obstacles"),
     Metric {
         // A run that made no predictions (metadata `predicts = false`) has no /prediction to lack.
         applies: |run| run.predicts != Some(false),
