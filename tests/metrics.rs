@@ -471,6 +471,17 @@ fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
     assert!(m["missing"].get("impact_speed_by_actor").is_none(), "{m}");
 }
 
+/// The walker's `road_user_entered` event at `time` (its recording "begins" then).
+fn walker_enters(time: f64) -> Record {
+    Record::Event(mjsafe::log::proto::Event {
+        time,
+        kind: "road_user_entered".into(),
+        message: "walker enters: its first recorded state".into(),
+        participants: vec!["walker".into()],
+        depth: 0.0,
+    })
+}
+
 /// delay_attributed_violation_time counts from a road user's `road_user_entered` when its
 /// recording begins after it became known: Δt × the steps with its h < 0 within
 /// [entered, entered + max delay), counted here from the raw `/barrier` messages.
@@ -484,14 +495,7 @@ fn a_violation_within_the_delay_after_a_road_user_enters_is_attributed_to_the_de
     static_walker_run_edited(&log, |record| match record {
         Record::Actors(m) if entered.is_none() && m.time >= 5.5 => {
             entered = Some(m.time);
-            let event = proto::Event {
-                time: m.time,
-                kind: "road_user_entered".into(),
-                message: "walker enters: its first recorded state".into(),
-                participants: vec!["walker".into()],
-                depth: 0.0,
-            };
-            vec![Record::Event(event), record.clone()]
+            vec![walker_enters(m.time), record.clone()]
         }
         _ => vec![record.clone()],
     });
@@ -536,14 +540,7 @@ fn a_footprint_s_violations_are_attributed_whether_the_log_lists_the_obstacle_or
         static_walker_run_edited_with(&log, &sets, |record| match record {
             Record::Barrier(m) if entered.is_none() && m.barriers.iter().any(|b| b.h < 0.0) => {
                 entered = Some(m.time);
-                let event = proto::Event {
-                    time: m.time,
-                    kind: "road_user_entered".into(),
-                    message: "walker enters: its first recorded state".into(),
-                    participants: vec!["walker".into()],
-                    depth: 0.0,
-                };
-                vec![Record::Event(event), record.clone()]
+                vec![walker_enters(m.time), record.clone()]
             }
             _ => vec![record.clone()],
         });
