@@ -469,14 +469,18 @@ impl Episode {
                 Outline::Box { length, width, .. } => 0.5 * length.hypot(width),
             };
             if k > 0 {
-                match o.outline {
-                    Outline::Circle { radius } => {
-                        if let Record::Scene(t, update) = &mut view.record {
-                            *t = time;
-                            scene::obstacle_into(update, time, &o.name, centre, radius, o.known && !o.absent);
+                if let Record::Scene(t, update) = &mut view.record {
+                    *t = time;
+                    let known = o.known && !o.absent;
+                    match o.outline {
+                        Outline::Circle { radius } => {
+                            scene::obstacle_into(update, time, &o.name, centre, radius, known)
+                        }
+                        Outline::Box { length, width, heading } => {
+                            let turned = heading + o.state.turn;
+                            scene::box_obstacle_into(update, time, &o.name, centre, turned, [length, width], known);
                         }
                     }
-                    Outline::Box { .. } => view.record = obstacle_scene(time, o),
                 }
                 Self::emit_ref(sinks, &view.record)?;
             }

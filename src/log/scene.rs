@@ -239,6 +239,35 @@ pub fn box_obstacle(time: f64, name: &str, centre: [f64; 2], heading: f64, size:
     update
 }
 
+/// `update` ← [`box_obstacle`], reusing its buffers when it already holds entity `name` (a
+/// moving road user redrawn every frame).
+pub fn box_obstacle_into(
+    update: &mut SceneUpdate,
+    time: f64,
+    name: &str,
+    centre: [f64; 2],
+    heading: f64,
+    size: [f64; 2],
+    known: bool,
+) {
+    let shaped =
+        matches!(update.entities.as_slice(), [e] if e.id == name && e.cubes.len() == 1 && e.cylinders.is_empty());
+    if !shaped {
+        *update = box_obstacle(time, name, centre, heading, size, known);
+        return;
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
+    let cube = &mut e.cubes[0];
+    cube.pose = Some(pose(centre[0], centre[1], 0.5, heading));
+    cube.size = Some(Vector3 {
+        x: size[0],
+        y: size[1],
+        z: 1.0,
+    });
+    cube.color = Some(obstacle_color(known));
+}
+
 /// A predicted position p_i(t) of the vehicle: a flat ring of the hull radius (orange) and a
 /// line from the vehicle's current position to it.
 pub fn prediction(time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius: f64) -> SceneUpdate {
