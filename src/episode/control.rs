@@ -1275,6 +1275,20 @@ impl ControlLoop {
     /// `last`: x_k is the run's final state, so only predictions of that time are realised (a
     /// target later than the run's end has no realised state: not extrapolated past it).
     pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>, last: bool) -> Result<Vec<Consistency>, DelayError> {
+        let mut out = Vec::new();
+        self.realize_into(t_k, x_k, last, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`ControlLoop::realize`] into `out` (cleared first; its room kept between steps).
+    pub fn realize_into(
+        &mut self,
+        t_k: f64,
+        x_k: &DVector<f64>,
+        last: bool,
+        out: &mut Vec<Consistency>,
+    ) -> Result<(), DelayError> {
+        out.clear();
         let h = self.timing.timestep;
         let ControlLoop {
             laws,
@@ -1289,7 +1303,6 @@ impl ControlLoop {
         } else {
             h * (1.0 - TICK_TOLERANCE)
         };
-        let mut out = Vec::new();
         // The predictor's final partial step ran on this grid with these inputs.
         let same_step = queues.actuators.is_none() && (predict.step - h).abs() <= h * TICK_TOLERANCE;
         for channel in 0..pending.channels.len() {
@@ -1345,7 +1358,7 @@ impl ControlLoop {
                 });
             }
         }
-        Ok(out)
+        Ok(())
     }
 
     /// Returns a realised prediction's storage for reuse by later ticks.

@@ -181,6 +181,8 @@ pub struct Episode {
     log_budget: Option<ScenarioError>,
     /// Predictions realised at a time inside the current step, logged after its records.
     inside_step: Vec<control::Consistency>,
+    /// The predictions realised at a step (their room kept between steps).
+    realized: Vec<control::Consistency>,
     /// The margin added to a moving obstacle's radius in the controller's barrier (m).
     actor_margin: f64,
     /// The `stall_time` definition applied to the records as they are logged, for the `stall`
@@ -344,6 +346,7 @@ impl Episode {
             cost,
             log_budget,
             inside_step: Vec::new(),
+            realized: Vec::new(),
             stall: (StallDetector::default(), StallFacts::from_metadata(&info.metadata())),
             info,
             cursor: Cursor {
@@ -760,9 +763,10 @@ impl Episode {
                 format!("non-finite state {:?} at t = {time}", x.as_slice()),
             );
         }
-        match self.control.realize(time, x, k == self.steps) {
-            Ok(done) => {
-                for c in done {
+        let mut done = std::mem::take(&mut self.realized);
+        match self.control.realize_into(time, x, k == self.steps, &mut done) {
+            Ok(()) => {
+                for c in done.drain(..) {
                     // A target inside the step (off the grid: a time-varying delay) is
                     // logged after the step's records of t_k, so the log stays in
                     // log-time order (a reader streams it instead of sorting it).
@@ -773,6 +777,7 @@ impl Episode {
                     Self::emit_ref(sinks, self.records.set_prediction(&c, &self.control, &self.obstacles))?;
                     self.control.recycle(c);
                 }
+                self.realized = done;
             }
             Err(e) => return self.stop_with_error(sinks, time, k, e.to_string()),
         }

@@ -234,13 +234,8 @@ pub(super) struct SceneState {
     pub(super) path: Option<([f64; 2], f64, f64)>,
     /// The road and the planar half-space barriers, drawn once at the start.
     pub(super) lines: Vec<SceneLine>,
-    /// Positions at every fifth scene frame since the last published trail segment (which
-    /// starts with the previous segment's last point, so the segments join up).
-    pub(super) trail: Vec<[f64; 2]>,
-    /// Trail segments published so far (entities `trail/0`, `trail/1`, …: each is
-    /// published once and persists, so the log and the memory grow linearly, not
-    /// quadratically, with the episode's length).
-    pub(super) trail_segments: u64,
+    /// The vehicle's trail (entities `trail/0`, `trail/1`, …).
+    trail: Trail,
     /// The per-frame records, updated in place: the vehicle, `/tf`, and per channel the
     /// predicted position (entity `prediction/<channel>`).
     vehicle: Record,
@@ -258,9 +253,53 @@ pub(super) struct SceneState {
 pub(super) struct ActorView {
     obstacle: usize,
     record: Record,
-    trail: Vec<[f64; 2]>,
-    trail_segments: u64,
+    trail: Trail,
     predictions: Vec<(String, Record)>,
+}
+
+/// A trail drawn in segments: positions at every fifth scene frame since the last published
+/// segment (which starts with the previous segment's last point, so the segments join up).
+/// Each segment (entity `<prefix><n>`) is published once and persists, so the log and the
+/// memory grow linearly, not quadratically, with the episode's length; its record and name
+/// are reused.
+struct Trail {
+    points: Vec<[f64; 2]>,
+    segments: u64,
+    prefix: String,
+    id: String,
+    record: Record,
+}
+
+impl Trail {
+    fn new(prefix: String) -> Trail {
+        Trail {
+            points: Vec::new(),
+            segments: 0,
+            prefix,
+            id: String::new(),
+            record: Record::Scene(0.0, Default::default()),
+        }
+    }
+
+    /// At a trail frame: adds `position`, and returns the next segment to publish when it has
+    /// enough points (or at the `last` frame, any two).
+    fn advance(&mut self, time: f64, position: [f64; 2], last: bool, thickness: f64) -> Option<&Record> {
+        self.points.push(position);
+        let points = self.points.len();
+        if !(points > TRAIL_PUBLISH_EVERY_POINTS || (last && points >= 2)) {
+            return None;
+        }
+        use std::fmt::Write;
+        self.id.clear();
+        let _ = write!(self.id, "{}{}", self.prefix, self.segments);
+        if let Record::Scene(t, update) = &mut self.record {
+            *t = time;
+            scene::polyline_into(update, time, &self.id, &self.points, scene::TRAIL, thickness);
+        }
+        self.segments += 1;
+        self.points.drain(..points - 1);
+        Some(&self.record)
+    }
 }
 
 impl SceneState {
@@ -278,8 +317,7 @@ impl SceneState {
             footprint,
             path,
             lines,
-            trail: Vec::new(),
-            trail_segments: 0,
+            trail: Trail::new("trail/".into()),
             frame_steps,
             actors: Vec::new(),
             vehicle: scene(),
@@ -421,15 +459,9 @@ impl Episode {
         }
         Self::emit_ref(sinks, &self.scene.transform)?;
         if frame.is_multiple_of(TRAIL_EVERY_FRAMES) {
-            self.scene.trail.push(position);
             let last_tick = k + frame_steps > self.steps;
-            let points = self.scene.trail.len();
-            if points > TRAIL_PUBLISH_EVERY_POINTS || (last_tick && points >= 2) {
-                let id = format!("trail/{}", self.scene.trail_segments);
-                let trail = scene::polyline(time, &id, &self.scene.trail, scene::TRAIL, 0.15);
-                Self::emit(sinks, Record::Scene(time, trail))?;
-                self.scene.trail_segments += 1;
-                self.scene.trail.drain(..points - 1);
+            if let Some(segment) = self.scene.trail.advance(time, position, last_tick, 0.15) {
+                Self::emit_ref(sinks, segment)?;
             }
         }
         Ok(())
@@ -446,8 +478,7 @@ impl Episode {
                 .map(|(i, o)| ActorView {
                     obstacle: i,
                     record: Record::Scene(time, Default::default()),
-                    trail: Vec::new(),
-                    trail_segments: 0,
+                    trail: Trail::new(format!("actor_trail/{}/", o.name)),
                     predictions: (channels.iter())
                         .map(|c| {
                             let id = format!("actor_prediction/{}/{c}", o.name);
@@ -499,14 +530,8 @@ impl Episode {
                 Self::emit_ref(sinks, record)?;
             }
             if frame.is_multiple_of(TRAIL_EVERY_FRAMES) {
-                view.trail.push(centre);
-                let points = view.trail.len();
-                if points > TRAIL_PUBLISH_EVERY_POINTS || (last_frame && points >= 2) {
-                    let id = format!("actor_trail/{}/{}", o.name, view.trail_segments);
-                    let trail = scene::polyline(time, &id, &view.trail, scene::TRAIL, 0.1);
-                    Self::emit(sinks, Record::Scene(time, trail))?;
-                    view.trail_segments += 1;
-                    view.trail.drain(..points - 1);
+                if let Some(segment) = view.trail.advance(time, centre, last_frame, 0.1) {
+                    Self::emit_ref(sinks, segment)?;
                 }
             }
         }

@@ -143,6 +143,13 @@ struct MetadataIndex {
     name: String,
 }
 
+/// A chunk's buffers once written, emptied for the next chunk: its records and its per-channel
+/// message indexes (so that a warm log allocates nothing per chunk).
+struct Spare {
+    records: Vec<u8>,
+    indexes: Vec<(u16, Vec<(u64, u64)>)>,
+}
+
 /// What goes to the data section, in file order.
 enum Job {
     /// A record outside chunks (header, schema, channel): opcode and content.
@@ -194,14 +201,14 @@ impl<W: LogOutput> DataSection<W> {
     }
 
     /// Writes one job; a chunk's record buffer is handed back (emptied) for reuse.
-    fn write(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+    fn write(&mut self, job: Job) -> io::Result<Option<Spare>> {
         let started = std::time::Instant::now();
         let result = self.write_untimed(job);
         self.busy += started.elapsed();
         result
     }
 
-    fn write_untimed(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+    fn write_untimed(&mut self, job: Job) -> io::Result<Option<Spare>> {
         match job {
             Job::Record(opcode, content) => self.write_record(opcode, &content)?,
             Job::Metadata { name, content } => {
@@ -217,7 +224,7 @@ impl<W: LogOutput> DataSection<W> {
                 start_time,
                 end_time,
                 mut records,
-                indexes,
+                mut indexes,
             } => {
                 // The bytes before this chunk, once enough accumulate: never after the last
                 // chunk, whose bytes the commit's own sync makes durable (one wait, not two).
@@ -227,7 +234,10 @@ impl<W: LogOutput> DataSection<W> {
                 }
                 self.write_chunk(start_time, end_time, &records, &indexes)?;
                 records.clear();
-                return Ok(Some(records));
+                for (_, entries) in &mut indexes {
+                    entries.clear();
+                }
+                return Ok(Some(Spare { records, indexes }));
             }
         }
         Ok(None)
@@ -306,7 +316,7 @@ enum Back<W: LogOutput> {
 struct WriterThread<W: LogOutput> {
     jobs: Option<mpsc::SyncSender<Job>>,
     /// Chunk buffers handed back by the thread.
-    spare: mpsc::Receiver<Vec<u8>>,
+    spare: mpsc::Receiver<Spare>,
     thread: Option<std::thread::JoinHandle<io::Result<DataSection<W>>>>,
 }
 
@@ -363,7 +373,7 @@ impl<W: LogOutput> Back<W> {
     }
 
     /// Writes `job` (or queues it for the thread); returns a chunk buffer free for reuse.
-    fn submit(&mut self, job: Job) -> io::Result<Option<Vec<u8>>> {
+    fn submit(&mut self, job: Job) -> io::Result<Option<Spare>> {
         match self {
             Back::Inline(section) => section.write(job),
             Back::Deferred(section) if matches!(job, Job::Chunk { .. }) => {
@@ -399,6 +409,8 @@ pub struct McapWriter<W: LogOutput> {
     schemas: Vec<SchemaInfo>,
     channels: Vec<ChannelInfo>,
     chunk: Vec<u8>,
+    /// The message indexes of a written chunk, emptied, for the next ones.
+    spare_indexes: Vec<(u16, Vec<(u64, u64)>)>,
     /// (earliest, latest) log time of the open chunk's messages.
     chunk_bounds: Option<(u64, u64)>,
     chunk_size: usize,
@@ -439,6 +451,7 @@ impl<W: LogOutput> McapWriter<W> {
             schemas: Vec::new(),
             channels: Vec::new(),
             chunk: Vec::with_capacity(chunk_size + chunk_size / 8),
+            spare_indexes: Vec::new(),
             chunk_bounds: None,
             chunk_size,
             bounds: None,
@@ -544,24 +557,35 @@ impl<W: LogOutput> McapWriter<W> {
         self.bounds = Some(self.bounds.map_or((start_time, end_time), widen));
         let capacity = self.chunk.capacity();
         let records = std::mem::take(&mut self.chunk);
-        // Each channel's next index starts with the room this one needed (no regrowing).
-        let indexes = self
-            .channels
-            .iter_mut()
-            .map(|c| {
-                // A channel's messages are counted by chunk, from its index entries.
-                let room = c.index.len();
-                c.message_count += room as u64;
-                (c.id, std::mem::replace(&mut c.index, Vec::with_capacity(room)))
-            })
-            .collect();
+        // Each channel's next index is a written chunk's (emptied), with at least the room this
+        // one needed (no regrowing).
+        let mut indexes = std::mem::take(&mut self.spare_indexes);
+        for (i, c) in self.channels.iter_mut().enumerate() {
+            // A channel's messages are counted by chunk, from its index entries.
+            let room = c.index.len();
+            c.message_count += room as u64;
+            let mut next = indexes
+                .get_mut(i)
+                .map(|(_, entries)| std::mem::take(entries))
+                .unwrap_or_default();
+            next.reserve(room);
+            let full = (c.id, std::mem::replace(&mut c.index, next));
+            match indexes.get_mut(i) {
+                Some(slot) => *slot = full,
+                None => indexes.push(full),
+            }
+        }
+        indexes.truncate(self.channels.len());
         let spare = self.back.submit(Job::Chunk {
             start_time,
             end_time,
             records,
             indexes,
         })?;
-        self.chunk = spare.unwrap_or_else(|| Vec::with_capacity(capacity));
+        match spare {
+            Some(Spare { records, indexes }) => (self.chunk, self.spare_indexes) = (records, indexes),
+            None => self.chunk = Vec::with_capacity(capacity),
+        }
         Ok(())
     }
 

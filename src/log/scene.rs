@@ -140,6 +140,28 @@ pub fn polyline(time: f64, id: &str, points: &[[f64; 2]], color: Color, thicknes
     lines(time, id, points, color, thickness, false)
 }
 
+/// `update` ← [`polyline`], reusing its buffers when it already holds one (a trail's next
+/// segment).
+pub fn polyline_into(update: &mut SceneUpdate, time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: f64) {
+    let shaped = matches!(update.entities.as_slice(), [e] if e.lines.len() == 1 && e.cubes.is_empty());
+    if !shaped {
+        *update = polyline(time, id, points, color, thickness);
+        return;
+    }
+    let e = &mut update.entities[0];
+    e.timestamp = Some(timestamp(time));
+    e.id.clear();
+    e.id.push_str(id);
+    let line = &mut e.lines[0];
+    line.points.clear();
+    line.points.extend(points.iter().map(|p| Point3 {
+        x: p[0],
+        y: p[1],
+        z: 0.0,
+    }));
+    (line.thickness, line.color) = (thickness, Some(color));
+}
+
 /// Lines in the world frame: a polyline, or with `dashed` separate segments between the
 /// points taken in pairs (a line list: a lane marking's dashes).
 pub fn lines(time: f64, id: &str, points: &[[f64; 2]], color: Color, thickness: f64, dashed: bool) -> SceneUpdate {
