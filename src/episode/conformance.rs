@@ -181,11 +181,13 @@ fn callback_allocations(loaded: &LoadedScenario, steady_from: f64) -> (u64, u64)
     let mut episode = Episode::new(loaded).unwrap();
     let h = episode.control.timestep();
     let (mut warm_up, mut steady) = (0, 0);
+    let mut realized = Vec::new();
     for k in 0..episode.steps {
         let time = k as f64 * h;
         episode.reveal_obstacles(time);
         let x = episode.plant.state();
-        for c in episode.control.realize(time, &x, false).unwrap() {
+        episode.control.realize_into(time, &x, false, &mut realized).unwrap();
+        for c in realized.drain(..) {
             episode.control.recycle(c);
         }
         allocations(true);

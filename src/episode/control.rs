@@ -373,8 +373,7 @@ impl LawWorkspace {
                             .reach
                             .holds_for_every_admissible_input(std::iter::once(&*c).chain(first))
                         {
-                            self.reach.leave_out(k);
-                            self.reach.count_rows(0, 1 + u64::from(has_first));
+                            self.reach.leave_out(k, 1 + u64::from(has_first));
                             culled = true;
                             continue;
                         }
@@ -1274,13 +1273,7 @@ impl ControlLoop {
     ///
     /// `last`: x_k is the run's final state, so only predictions of that time are realised (a
     /// target later than the run's end has no realised state: not extrapolated past it).
-    pub fn realize(&mut self, t_k: f64, x_k: &DVector<f64>, last: bool) -> Result<Vec<Consistency>, DelayError> {
-        let mut out = Vec::new();
-        self.realize_into(t_k, x_k, last, &mut out)?;
-        Ok(out)
-    }
-
-    /// [`ControlLoop::realize`] into `out` (cleared first; its room kept between steps).
+    /// They are written into `out` (cleared first; its room kept between steps).
     pub fn realize_into(
         &mut self,
         t_k: f64,

@@ -203,10 +203,12 @@ impl Reach {
         })
     }
 
-    /// Leaves barrier k's formed rows out of the QP (they hold for every admissible input).
-    pub(super) fn leave_out(&mut self, k: usize) {
+    /// Leaves barrier k's formed rows (`rows`: its row, and its first-order row if it has one)
+    /// out of the QP: they hold for every admissible input.
+    pub(super) fn leave_out(&mut self, k: usize, rows: u64) {
         self.out[k] = true;
         self.culled_last = true;
+        self.count_rows(0, rows);
     }
 
     /// Whether rows may be left out at all (`control.leave_out_of_reach`).
@@ -579,6 +581,15 @@ mod tests {
         row
     }
 
+    /// The bicycle of wheelbase 2.6 m with its steering delayed 0.2 s and its acceleration 0.5 s.
+    fn bicycle_with_delays() -> (BicycleModel, [DelayQueue; 2]) {
+        let queues = [
+            DelayQueue::new("steering", 0.2, 0.3, 0.002).expect("a queue"),
+            DelayQueue::new("acceleration", 0.5, 2.0, 0.002).expect("a queue"),
+        ];
+        (BicycleModel::new(2.6), queues)
+    }
+
     /// Every row [`Reach::mark`] leaves out is met by every input [`Reach::note`] lets a
     /// decision keep without being made again: random bicycle states against two road users of
     /// three circles each, the inputs at the corners of the largest box `note` accepts (found by
@@ -586,11 +597,7 @@ mod tests {
     /// `note`'s bound at 2.1 M_j instead of 2 M_j this fails (tried).
     #[test]
     fn every_row_left_out_holds_for_every_input_a_decision_may_keep() {
-        let model = BicycleModel::new(2.6);
-        let queues = [
-            DelayQueue::new("steering", 0.2, 0.3, 0.002).expect("a queue"),
-            DelayQueue::new("acceleration", 0.5, 2.0, 0.002).expect("a queue"),
-        ];
+        let (model, queues) = bicycle_with_delays();
         let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
         let offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
         let mut rng = SplitMix64(5);
@@ -676,11 +683,7 @@ mod tests {
     /// sign turned).
     #[test]
     fn a_formed_row_left_out_holds_for_every_input_a_decision_may_keep() {
-        let model = BicycleModel::new(2.6);
-        let queues = [
-            DelayQueue::new("steering", 0.2, 0.3, 0.002).expect("a queue"),
-            DelayQueue::new("acceleration", 0.5, 2.0, 0.002).expect("a queue"),
-        ];
+        let (model, queues) = bicycle_with_delays();
         let user = |c: usize| Barrier::body_circle(&format!("u{c}"), ([0, 1], 2), [1.3, 0.0], [0.0; 2], 2.0);
         let mut alone = Reach::new(&model, &queues);
         for c in 0..2 {

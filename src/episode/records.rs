@@ -637,17 +637,18 @@ impl Episode {
         let count = obstacle_entries + self.barriers.len();
         let ego = &mut self.ego_points;
         if record.barriers.len() != count {
-            let names: Box<dyn Iterator<Item = &String>> = match pairs {
-                true => Box::new(logged.clone().flat_map(|o| o.barriers.iter().map(|b| &b.name))),
-                false => Box::new(logged.clone().map(|o| &o.name)),
+            let entry = |name: &String| proto::BarrierValue {
+                name: name.clone(),
+                ..Default::default()
             };
-            record.barriers = names
-                .chain(self.barriers.iter().map(|b| &b.name))
-                .map(|name| proto::BarrierValue {
-                    name: name.clone(),
-                    ..Default::default()
-                })
-                .collect();
+            record.barriers.clear();
+            for o in logged.clone() {
+                match pairs {
+                    true => record.barriers.extend(o.barriers.iter().map(|b| entry(&b.name))),
+                    false => record.barriers.push(entry(&o.name)),
+                }
+            }
+            record.barriers.extend(self.barriers.iter().map(|b| entry(&b.name)));
             // A road user's circle measures from its ego point (when conditions are logged).
             self.logged_points = logged
                 .clone()
