@@ -16,7 +16,10 @@
 //! quadratic ‖v‖² + ρ Σ max{0, −g_k(v)} over the box. A barrier is *hard* (g_k ≥ 0 kept),
 //! *soft* (g_k ≤ 0, contributing −ρ b_k to the gradient) or in the working set at g_k = 0 with
 //! a multiplier in [0, ρ] (the ℓ1-penalty active set, e.g. Fletcher's Sℓ1QP); the equality
-//! subproblems have Hessian 2I, so each step is one ≤ r×r Cholesky solve. It allocates nothing
+//! subproblems have Hessian 2I, so each step is one ≤ r×r Cholesky solve. The iteration looks
+//! only at the barriers near the start (within twice its largest violation); the others are
+//! checked at each optimum over those and join when violated, so most rows of a large problem
+//! are read twice, not at every iteration (`QpWorkspace::screen`). It allocates nothing
 //! once its buffers fit the problem, and is exact up to rounding. Clarabel (the crate's former
 //! solver, a maintained interior-point method) remains the fallback if the active set fails to
 //! converge, and the reference of the tests: a warm Clarabel solve (data updated in place)
@@ -131,6 +134,12 @@ pub struct QpWorkspace {
     fallbacks: u64,
     /// The constraints scaled to ‖b_k‖ = 1 (see [`QpWorkspace::solve`]).
     scaled: Vec<Constraint>,
+    /// The barriers the iteration looks at, ascending (see [`QpWorkspace::screen`]), and per
+    /// barrier whether it is among them.
+    considered: Vec<usize>,
+    is_considered: Vec<bool>,
+    /// g_k at the start v.
+    start: Vec<f64>,
 }
 
 fn finite_limit(bound: f64) -> bool {
@@ -164,6 +173,9 @@ impl QpWorkspace {
         workspace.c.reserve_exact(k);
         workspace.soft.reserve_exact(k);
         workspace.cold_soft.reserve_exact(k);
+        workspace.considered.reserve_exact(k);
+        workspace.is_considered.reserve_exact(k);
+        workspace.start.reserve_exact(k);
         workspace.scaled = (0..k).map(|_| Constraint::zeros(r)).collect();
         workspace.working.reserve_exact(r);
         workspace
@@ -254,31 +266,51 @@ impl QpWorkspace {
         while scaled.len() < count {
             scaled.push(Constraint::zeros(u0.len()));
         }
-        let mut mu = f64::INFINITY;
+        // One pass forms the rows, μ and whether they are finite; only a correction scales them.
+        let (r, finite_values) = (u0.len(), |v: &[f64]| v.iter().all(|x| x.is_finite()));
+        let (mut mu, mut finite) = (f64::INFINITY, finite_values(u0.as_slice()));
         for (k, s) in scaled[..count].iter_mut().enumerate() {
-            if s.b.len() != u0.len() {
-                s.b = DVector::zeros(u0.len());
+            if s.b.len() != r {
+                s.b = DVector::zeros(r);
             }
             row(k, s);
             mu = mu.min(s.value(u0));
-            let norm = s.b.norm();
-            let scale = if norm > 0.0 && norm.is_finite() {
-                1.0 / norm
-            } else {
-                1.0
-            };
-            s.a *= scale;
-            for b in s.b.as_mut_slice() {
-                *b *= scale;
-            }
+            finite &= s.a.is_finite() && finite_values(s.b.as_slice());
         }
         u.copy_from(u0);
-        let outcome = self.solve_scaled(&scaled[..count], u0, limits, u, mu, hint);
+        // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
+        // for: u0 is returned, flagged infeasible.
+        let within_limits =
+            limits.is_none_or(|(lo, hi)| u0.iter().enumerate().all(|(i, v)| *v >= lo[i] && *v <= hi[i]));
+        let outcome = if !finite {
+            (false, true, mu)
+        } else if mu >= 0.0 && within_limits {
+            (false, false, mu)
+        } else {
+            self.c.clear();
+            for s in &mut scaled[..count] {
+                let b = s.b.as_mut_slice();
+                // ‖b‖ summed in nalgebra's order (`norm`), so the same bits.
+                let norm = b.iter().fold(0.0, |sum, b| sum + b * b).sqrt();
+                let scale = if norm > 0.0 && norm.is_finite() {
+                    1.0 / norm
+                } else {
+                    1.0
+                };
+                s.a *= scale;
+                for b in b.iter_mut() {
+                    *b *= scale;
+                }
+                self.c.push(s.value(u0));
+            }
+            self.solve_scaled(&scaled[..count], u0, limits, u, mu, hint)
+        };
         self.scaled = scaled;
         outcome
     }
 
-    /// [`QpWorkspace::solve`] on constraints already scaled; `mu` is the unscaled μ.
+    /// [`QpWorkspace::solve`] on finite constraints already scaled and valued at u0 (`c`) that
+    /// need a correction; `mu` is the unscaled μ.
     fn solve_scaled(
         &mut self,
         constraints: &[Constraint],
@@ -288,17 +320,6 @@ impl QpWorkspace {
         mu: f64,
         hint: Option<&mut QpHint>,
     ) -> (bool, bool, f64) {
-        // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
-        // for: u0 is returned, flagged infeasible.
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        if !(finite(u0.as_slice()) && constraints.iter().all(|c| c.a.is_finite() && finite(c.b.as_slice()))) {
-            return (false, true, mu);
-        }
-        let within_limits =
-            limits.is_none_or(|(lo, hi)| u0.iter().enumerate().all(|(i, v)| *v >= lo[i] && *v <= hi[i]));
-        if mu >= 0.0 && within_limits {
-            return (false, false, mu);
-        }
         self.prepare(constraints, u0, limits);
         let solved = match hint {
             Some(hint) => self.active_set_hinted(constraints, hint),
@@ -307,11 +328,11 @@ impl QpWorkspace {
         if solved {
             let v = DVectorView::from_slice(&self.v, u0.len());
             *u += v;
-            let worst_slack = self
-                .c
-                .iter()
-                .enumerate()
-                .map(|(k, c)| -(c + constraints[k].b.dot(&v)))
+            // At the solution only the penalised barriers are violated (the others are met,
+            // within rounding).
+            let worst_slack = (self.c.iter().zip(constraints).zip(&self.soft))
+                .filter(|(_, soft)| **soft)
+                .map(|((c, constraint), _)| -(c + dot(constraint.b.as_slice(), &self.v)))
                 .fold(0.0, f64::max);
             return (v.norm() > 1e-12, worst_slack > SLACK_TOLERANCE, mu);
         }
@@ -335,12 +356,10 @@ impl QpWorkspace {
         }
     }
 
-    /// Sizes the buffers (allocating only to grow) and writes c, the box and the start
-    /// v = the point of the box nearest 0, with the barriers violated there soft.
+    /// Sizes the buffers (allocating only to grow) and writes the box and the start v = the
+    /// point of the box nearest 0, with the barriers violated there soft (c is written).
     fn prepare(&mut self, constraints: &[Constraint], u0: &DVector<f64>, limits: Option<(&[f64], &[f64])>) {
         let (r, k) = (u0.len(), constraints.len());
-        self.c.clear();
-        self.c.extend(constraints.iter().map(|c| c.value(u0)));
         self.lower.clear();
         self.upper.clear();
         for i in 0..r {
@@ -367,9 +386,18 @@ impl QpWorkspace {
         self.gradient.clear();
         self.gradient.resize(r, 0.0);
         self.soft.clear();
+        self.start.clear();
+        let moved = self.v.iter().any(|v| *v != 0.0);
         for (c, constraint) in self.c.iter().zip(constraints) {
-            self.soft.push(c + dot(constraint.b.as_slice(), &self.v) < 0.0);
+            let g = if moved {
+                c + dot(constraint.b.as_slice(), &self.v)
+            } else {
+                *c
+            };
+            self.soft.push(g < 0.0);
+            self.start.push(g);
         }
+        self.screen();
         self.working.clear();
         self.working.reserve(r);
         self.normals.resize(r * r, 0.0);
@@ -377,6 +405,46 @@ impl QpWorkspace {
         self.multipliers.resize(r, 0.0);
         self.correction.resize(r, 0.0);
         debug_assert_eq!(self.soft.len(), k);
+    }
+
+    /// The barriers the cold iteration starts with: those within twice the largest violation
+    /// of the start v (a row k with ‖b_k‖ = 1 and g_k(v) > 0 is met within ‖Δv‖ < g_k(v)
+    /// of v, and the correction must move v at least as far as the largest violation). The
+    /// others are checked at each optimum over these and join when violated
+    /// ([`QpWorkspace::admit_violated`]): a screen changes the path, never the solution, and
+    /// [`QpWorkspace::settle`] forms it from the optimal working set alone.
+    fn screen(&mut self) {
+        let within = 2.0 * self.start.iter().fold(0.0_f64, |m, g| m.max(-g));
+        self.considered.clear();
+        self.is_considered.clear();
+        for (k, &g) in self.start.iter().enumerate() {
+            let near = self.soft[k] || g <= within;
+            self.is_considered.push(near);
+            if near {
+                self.considered.push(k);
+            }
+        }
+    }
+
+    /// At an optimum over the considered barriers: each other barrier violated at v (beyond
+    /// rounding) joins them, penalised (it is violated at v). Whether any joined.
+    fn admit_violated(&mut self, constraints: &[Constraint]) -> bool {
+        let tolerance = 1e-12 * (1.0 + self.v.iter().fold(0.0_f64, |m, v| m.max(v.abs())));
+        let mut admitted = false;
+        for (k, constraint) in constraints.iter().enumerate() {
+            if self.is_considered[k] {
+                continue;
+            }
+            let g = self.c[k] + dot(constraint.b.as_slice(), &self.v);
+            if g < -(tolerance + 1e-12 * self.c[k].abs()) {
+                (self.is_considered[k], self.soft[k], admitted) = (true, true, true);
+                self.considered.push(k);
+            }
+        }
+        if admitted {
+            self.considered.sort_unstable();
+        }
+        admitted
     }
 
     /// [`QpWorkspace::active_set`], answered by the hint's working set when it is optimal;
@@ -503,6 +571,17 @@ impl QpWorkspace {
         }
     }
 
+    /// [`QpWorkspace::penalty_gradient`] over the considered barriers (every penalised
+    /// barrier is among them, in the same ascending order: the same sum).
+    fn considered_penalty_gradient(&mut self, constraints: &[Constraint]) {
+        self.gradient.fill(0.0);
+        for &k in self.considered.iter().filter(|&&k| self.soft[k]) {
+            for (d, b) in self.gradient.iter_mut().zip(constraints[k].b.iter()) {
+                *d -= SLACK_PENALTY * b;
+            }
+        }
+    }
+
     /// β_w of working constraint w (n_w·v = β_w when it holds with equality).
     fn beta(&self, w: usize) -> f64 {
         match self.working[w] {
@@ -527,7 +606,7 @@ impl QpWorkspace {
         // After a full step the point minimises on the working set: p = 0 in exact arithmetic.
         let mut at_minimum = false;
         for _ in 0..MAX_ITERATIONS {
-            self.penalty_gradient(constraints);
+            self.considered_penalty_gradient(constraints);
             if !self.equality_step(constraints) {
                 return false;
             }
@@ -558,6 +637,10 @@ impl QpWorkspace {
                     }
                 }
                 let Some((w, _)) = worst else {
+                    if self.admit_violated(constraints) {
+                        at_minimum = false;
+                        continue;
+                    }
                     self.settle(constraints);
                     return true;
                 };
@@ -581,10 +664,11 @@ impl QpWorkspace {
                     blocking = Some(bound);
                 }
             };
-            for (k, constraint) in constraints.iter().enumerate() {
+            for &k in &self.considered {
                 if self.working.contains(&Bound::Barrier(k)) {
                     continue;
                 }
+                let constraint = &constraints[k];
                 let g = self.c[k] + dot(constraint.b.as_slice(), &self.v);
                 let rate = dot(constraint.b.as_slice(), &self.p);
                 // Hard: g ≥ 0 decreasing to 0; soft: g ≤ 0 increasing to 0 (the kink).
@@ -831,6 +915,28 @@ mod tests {
         let closed = cbf_qp_closed_form(&c, &u0);
         assert!((&qp.input - &closed.input).norm() < 1e-6, "{qp:?}");
         assert!(qp.active && !qp.infeasible);
+    }
+
+    #[test]
+    fn a_barrier_left_out_of_the_first_screen_joins_when_the_correction_crosses_it() {
+        // v0 ≥ 1 and a nearly opposite row push v far along v1 (to ≈ (1, 9.95, 0)); the
+        // third row, 3 > twice the largest violation from 0, is outside the first screen and
+        // violated there, so it must join and bind (v2 ≈ 3.7).
+        let theta: f64 = 0.2;
+        let cs = [
+            constraint(-1.0, &[1.0, 0.0, 0.0]),
+            constraint(-1.0, &[-theta.cos(), theta.sin(), 0.0]),
+            constraint(3.0, &[0.0, -0.6, 0.8]),
+        ];
+        let u0 = DVector::zeros(3);
+        let qp = cbf_qp_multi(&cs, &u0, None);
+        let reference = clarabel_outcome(&cs, &u0, None);
+        assert!(
+            (&qp.input - &reference.input).amax() < 1e-6,
+            "{qp:?} against {reference:?}"
+        );
+        assert!(qp.input[2] > 1.0 && cs[2].value(&qp.input).abs() < 1e-9, "{qp:?}");
+        assert!(!qp.infeasible);
     }
 
     #[test]
