@@ -207,9 +207,11 @@ pub fn gamma_f(gamma: f64, s: f64) -> f64 {
 }
 
 /// ζ (4.64) of QP_k with `used` = k + 1 channels: γ_f(z) + Σ_{j>k} b_j ω_j, z (4.66).
+#[inline]
 pub(crate) fn gamma_m_zeta(c: &Constraint, u0: &DVector<f64>, omega: &DVector<f64>, used: usize, gamma: f64) -> f64 {
-    let z = c.a + (0..used).map(|j| c.b[j] * u0[j]).sum::<f64>();
-    gamma_f(gamma, z) + (used..u0.len()).map(|j| c.b[j] * omega[j]).sum::<f64>()
+    let (b, u0, omega) = (c.b.as_slice(), u0.as_slice(), omega.as_slice());
+    let z = c.a + b[..used].iter().zip(&u0[..used]).map(|(b, u)| b * u).sum::<f64>();
+    gamma_f(gamma, z) + b[used..].iter().zip(&omega[used..]).map(|(b, w)| b * w).sum::<f64>()
 }
 
 /// ξ (4.65) of QP_k with `used` = k + 1 channels: ‖b_{1:k}‖² + ‖b‖²/m.

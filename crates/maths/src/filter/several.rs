@@ -238,9 +238,10 @@ impl ChannelQp {
         let reduced = |k: usize, reduced: &mut Constraint| {
             let c = &constraints[k];
             (reduced.h, reduced.a) = (0.0, gamma_m_zeta(c, u0, omega, used, gamma));
-            for j in 0..r {
-                reduced.b[j] = if j < used { c.b[j] } else { 0.0 };
-                reduced.b[r + j] = c.b[j] / root_m;
+            let (real, slack) = reduced.b.as_mut_slice().split_at_mut(r);
+            for (j, ((real, slack), b)) in real.iter_mut().zip(slack).zip(c.b.as_slice()).enumerate() {
+                *real = if j < used { *b } else { 0.0 };
+                *slack = b / root_m;
             }
         };
         self.origin.fill(0.0);
