@@ -46,6 +46,9 @@ struct Obstacle {
     barriers: Vec<Barrier>,
     /// Per barrier, its obstacle circle's centre relative to the obstacle's (world frame).
     offsets: Vec<[f64; 2]>,
+    /// The obstacle's circles: the barriers are the vehicle's circles' pairs in turn, each
+    /// with these in order (barrier k pairs vehicle circle k / circles with circle k % circles).
+    circles: usize,
     /// The obstacle's true centre now.
     centre: [f64; 2],
     outline: Outline,

@@ -6,7 +6,7 @@ use nalgebra::DVector;
 
 use super::control::{Consistency, ControlLoop, Tick};
 use super::{Episode, Obstacle, Outline};
-use crate::barrier::Barrier;
+use crate::barrier::{Barrier, Shape};
 use crate::log::{proto, scene, LogError, Record, Sink};
 
 /// The records written at every step or tick, kept between steps so logging allocates
@@ -690,9 +690,12 @@ impl Episode {
                 continue;
             }
             // The pairs' geometry, then the condition of the nearest pair alone.
-            let nearest = (o.barriers.iter().enumerate())
-                .map(|(k, b)| (k, sampler.geometry(b, true, circle(k))))
-                .reduce(|(i, a), (j, b)| (if b.h < a.h { j } else { i }, a.nearer(b)));
+            let pairs = actor.and_then(|actor| sampler.road_user_pairs(&o.barriers, &o.offsets[..o.circles], actor));
+            let nearest = pairs.or_else(|| {
+                (o.barriers.iter().enumerate())
+                    .map(|(k, b)| (k, sampler.geometry(b, true, circle(k))))
+                    .reduce(nearer_pair)
+            });
             if let (Some((k, mut sample)), Some(value)) = (nearest, values.next()) {
                 (sample.constraint, sample.relative_degree) = sampler.condition(&o.barriers[k], circle(k), points[k]);
                 sample.write(value, o.known, true);
@@ -706,6 +709,13 @@ impl Episode {
         }
         Self::emit_ref(sinks, &self.records.barrier)
     }
+}
+
+/// Two pairs' samples reduced to their obstacle's entry: the nearer pair's index (the first on
+/// a tie) with [`BarrierSample::nearer`].
+#[inline]
+fn nearer_pair((i, a): (usize, BarrierSample), (j, b): (usize, BarrierSample)) -> (usize, BarrierSample) {
+    (if b.h < a.h { j } else { i }, a.nearer(b))
 }
 
 /// One barrier's logged values at a step (an obstacle's entry: the least over its pairs).
@@ -778,6 +788,59 @@ impl BarrierSampler<'_> {
         let mut sample = self.geometry(b, obstacle, actor);
         (sample.constraint, sample.relative_degree) = self.condition(b, actor, point);
         sample
+    }
+
+    /// The nearest pair of a moving road user's body-circle pairs (`barriers`, each vehicle
+    /// circle with the road user's `circles` in turn) and their entry, as [`Self::geometry`]
+    /// and [`nearer_pair`] give them pair by pair, bit for bit, with each circle's state and
+    /// each vehicle point formed once; None for any other layout (then pair by pair).
+    fn road_user_pairs(
+        &mut self,
+        barriers: &[Barrier],
+        circles: &[[f64; 2]],
+        actor: crate::actor::ActorState,
+    ) -> Option<(usize, BarrierSample)> {
+        const MOST_CIRCLES: usize = 8;
+        let n = circles.len();
+        if self.velocity.is_none() || n == 0 || n > MOST_CIRCLES || barriers.len() % n != 0 {
+            return None;
+        }
+        let mut states = [crate::actor::ActorState::default(); MOST_CIRCLES];
+        for (state, offset) in states.iter_mut().zip(circles) {
+            *state = actor.shifted(*offset);
+        }
+        let mut nearest: Option<(usize, BarrierSample)> = None;
+        for (vehicle, pairs) in barriers.chunks_exact(n).enumerate() {
+            let key = pairs[0].body_point_of()?;
+            let (q, q_dot) = self.body_point(key, &pairs[0]);
+            for (j, (b, circle)) in pairs.iter().zip(&states).enumerate() {
+                let &Shape::BodyCircle {
+                    centre,
+                    radius,
+                    inside: false,
+                    ..
+                } = &b.shape
+                else {
+                    return None;
+                };
+                if b.body_point_of() != Some(key) {
+                    return None;
+                }
+                // (Barrier::circle_values_at and the body-circle case of time_to_collision.)
+                let squared = (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2);
+                let relative = [q_dot[0] - circle.velocity[0], q_dot[1] - circle.velocity[1]];
+                let sample = BarrierSample {
+                    h: squared - radius * radius,
+                    constraint: f64::NAN,
+                    relative_degree: 0,
+                    clearance: squared.sqrt() - radius,
+                    time_to_collision: time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, radius),
+                };
+                let pair = (vehicle * n + j, sample);
+                nearest = Some(nearest.map_or(pair, |best| nearer_pair(best, pair)));
+            }
+        }
+        nearest
     }
 
     /// Barrier b's h, clearance and time to collision (its condition NaN, to be formed).
