@@ -802,7 +802,7 @@ impl BarrierSampler<'_> {
     ) -> Option<(usize, BarrierSample)> {
         const MOST_CIRCLES: usize = 8;
         let n = circles.len();
-        if self.velocity.is_none() || n == 0 || n > MOST_CIRCLES || barriers.len() % n != 0 {
+        if self.velocity.is_none() || n == 0 || n > MOST_CIRCLES || !barriers.len().is_multiple_of(n) {
             return None;
         }
         let mut states = [crate::actor::ActorState::default(); MOST_CIRCLES];
