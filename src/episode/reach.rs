@@ -5,9 +5,9 @@
 //! per evaluation from two probe barriers each (h = ‖q − o‖² with o = q − e_x and o = q − e_y,
 //! whose Lie derivatives give q̇₀, q̈₀ and the rows of K and J exactly); a road user's bounds then
 //! cost one distance per ego point (and, for one in reach as a whole, one test per circle). The
-//! admissible inputs are, per channel j, |u_j| ≤ 2 M_j with M_j the largest |u_j| of the
+//! admissible inputs are, per channel j, |u_j| ≤ U_j = 1.1 M_j with M_j the largest |u_j| of the
 //! channel's recent commands, nominal inputs and planned inputs (M_j forgets slowly); a decision
-//! that used an input above 2 M_j on some channel is made again, with the bound grown to it and
+//! that used an input above U_j on some channel is made again, with the bound grown to it and
 //! then with every row (control.rs), so every left-out row is met by every input a decision
 //! plans: the decision is the one with every row.
 
@@ -19,6 +19,10 @@ use crate::dynamics::Dynamics;
 
 /// The factor M_j keeps of itself at each decision ([`Reach::begin_decision`]).
 const FORGET: f64 = 0.999;
+/// U_j = BOUND_FACTOR · M_j, the admissible inputs' bound per channel (module docs). A wider box
+/// certifies fewer rows out of reach, a narrower one makes more decisions again; 1.1 took the
+/// fewest instructions on every CommonRoad file measured (docs/performance.md, "Stop 72").
+const BOUND_FACTOR: f64 = 1.1;
 
 /// One road user: its barriers (consecutive known barriers from its primary), the largest
 /// distance of its circles from its centre, and whether its rows may be left out at all.
@@ -95,7 +99,7 @@ pub(super) struct Reach {
     pub(super) rows_left_out: u64,
     pub(super) rows_formed: u64,
     attempt_rows: [u64; 2],
-    /// Decisions made again (an input above the bound 2 M, or one not said).
+    /// Decisions made again (an input above the bound U, or one not said).
     pub(super) redone: u64,
     /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
@@ -103,7 +107,7 @@ pub(super) struct Reach {
     /// Whether some known barrier is never left out (its rows stay in every QP).
     keeps_a_row: bool,
     allowed: bool,
-    /// Whether an input of the current decision exceeded its channel's admissible 2 M_j (the
+    /// Whether an input of the current decision exceeded its channel's admissible U_j (the
     /// bound its left-out rows were checked for), and the commands it started from.
     exceeded: bool,
     /// Whether the current decision used an input it does not say (noted as NaN).
@@ -189,7 +193,7 @@ impl Reach {
     }
 
     /// Whether a formed row (and its first-order row) holds for every admissible input,
-    /// a − Σ_j |b_j| U_j > 0 with U_j = 2 M_j, the box [`Reach::mark`]'s certificate is for (a
+    /// a − Σ_j |b_j| U_j > 0 with U_j = 1.1 M_j, the box [`Reach::mark`]'s certificate is for (a
     /// margin of 1e-9 of its terms for the rounding): then it may be left out of the QP as a
     /// row out of reach is ([`Reach::leave_out`]). Only where some other barrier's row always
     /// stays (the road's edges), so that a decision never has no row.
@@ -198,7 +202,9 @@ impl Reach {
             return false;
         }
         rows.into_iter().all(|row| {
-            let spread: f64 = (row.b.iter().zip(&self.bound)).map(|(b, m)| (b * 2.0 * m).abs()).sum();
+            let spread: f64 = (row.b.iter().zip(&self.bound))
+                .map(|(b, m)| (b * BOUND_FACTOR * m).abs())
+                .sum();
             row.b.len() <= self.bound.len() && row.a - spread > 1e-9 * (row.a.abs() + spread)
         })
     }
@@ -252,8 +258,14 @@ impl Reach {
             return false;
         }
         self.ego.measure(model, z);
-        // W and B of each ego point for |u_j| ≤ 2 M_j.
-        let admissible = |gains: &[f64; 4]| gains.iter().zip(&self.bound).map(|(g, m)| 2.0 * g * m).sum::<f64>();
+        // W and B of each ego point for |u_j| ≤ U_j.
+        let admissible = |gains: &[f64; 4]| {
+            gains
+                .iter()
+                .zip(&self.bound)
+                .map(|(g, m)| BOUND_FACTOR * g * m)
+                .sum::<f64>()
+        };
         for (reach, p) in self.input_reach.iter_mut().zip(&self.ego.points) {
             *reach = [admissible(&p.velocity_gains), admissible(&p.acceleration_gains)];
         }
@@ -375,8 +387,8 @@ impl Reach {
         for (j, value) in inputs {
             let magnitude = value.abs();
             self.unknown |= magnitude.is_nan();
-            // (The left-out rows hold for every |u_j| ≤ 2 M_j: `mark`'s W and B.)
-            self.exceeded |= magnitude.is_nan() || magnitude > 2.0 * self.bound[j];
+            // (The left-out rows hold for every |u_j| ≤ U_j: `mark`'s W and B.)
+            self.exceeded |= magnitude.is_nan() || magnitude > BOUND_FACTOR * self.bound[j];
             self.largest_input[j] = self.largest_input[j].max(magnitude);
         }
     }
@@ -594,7 +606,7 @@ mod tests {
     /// decision keep without being made again: random bicycle states against two road users of
     /// three circles each, the inputs at the corners of the largest box `note` accepts (found by
     /// probing it), and that box within the one `mark`'s certificate assumed (W and B): with
-    /// `note`'s bound at 2.1 M_j instead of 2 M_j this fails (tried).
+    /// `note`'s bound 5 % above U_j this fails (tried).
     #[test]
     fn every_row_left_out_holds_for_every_input_a_decision_may_keep() {
         let (model, queues) = bicycle_with_delays();
@@ -678,9 +690,9 @@ mod tests {
     }
 
     /// A formed row is left out only when it holds at every corner of the box of inputs
-    /// `note` accepts without making the decision again (|u_j| ≤ 2 M_j), and only where
-    /// another barrier's row always stays (it fails with M_j for 2 M_j, or with the margin's
-    /// sign turned).
+    /// `note` accepts without making the decision again (|u_j| ≤ U_j), and only where
+    /// another barrier's row always stays (it fails with U_j / 1.1 = M_j for U_j, or with the
+    /// margin's sign turned).
     #[test]
     fn a_formed_row_left_out_holds_for_every_input_a_decision_may_keep() {
         let (model, queues) = bicycle_with_delays();
@@ -711,7 +723,10 @@ mod tests {
             }
             left_out += 1;
             for corner in [[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]] {
-                let u = nalgebra::DVector::from_column_slice(&[2.0 * corner[0] * bound[0], 2.0 * corner[1] * bound[1]]);
+                let u = nalgebra::DVector::from_column_slice(&[
+                    BOUND_FACTOR * corner[0] * bound[0],
+                    BOUND_FACTOR * corner[1] * bound[1],
+                ]);
                 assert!(
                     row.value(&u) >= 0.0,
                     "{row:?} left out, but {} < 0 at {u:?}",
