@@ -11,7 +11,7 @@
 //! | `/command/issued` | `<channel>.nominal`, `<channel>.filtered` per channel |
 //! | `/command/applied`, `/command/actuated` | `<channel>`, `<channel>.issued_at` per channel |
 //! | `/barrier` | per barrier `<name>.h`, `.constraint`, `.clearance`, `.time_to_collision`, `.known`, `.relative_degree`, `.obstacle` |
-//! | `/filter` | `active`, `infeasible`, `mu`, `<channel>.correction` per channel |
+//! | `/filter` | `active`, `infeasible`, `mu`, `left_out`, `<channel>.correction` per channel |
 //! | `/prediction` | `channel`, `issued_at`, `horizon`, `predicted.<state>`, `realized.<state>` per state component, `error`, `relative_error`, `reused_chain`, `chain_mismatch` |
 //! | `/event` | `kind`, `message`, `participants` (space-separated), `depth` |
 //!

@@ -185,7 +185,13 @@ pub fn table_row(
             name(&|| "active".into(), Kind::Bool);
             name(&|| "infeasible".into(), Kind::Bool);
             name(&|| "mu".into(), Kind::F64);
-            c.extend([Cell::B(m.active), Cell::B(m.infeasible), Cell::F(m.mu)]);
+            name(&|| "left_out".into(), Kind::U64);
+            c.extend([
+                Cell::B(m.active),
+                Cell::B(m.infeasible),
+                Cell::F(m.mu),
+                Cell::U(u64::from(m.left_out)),
+            ]);
             for (i, ch) in m.channels.iter().enumerate() {
                 name(&|| format!("{ch}.correction"), Kind::F64);
                 c.push(Cell::F(m.correction.get(i).copied().unwrap_or(f64::NAN)));

@@ -125,6 +125,8 @@ fn check_tables(tables: &serde_json::Value, logged: &Logged) {
         );
     }
     assert_column(tables, "/filter", "mu", logged.filters.iter().map(|m| m.mu));
+    let left_out: Vec<serde_json::Value> = logged.filters.iter().map(|m| serde_json::json!(m.left_out)).collect();
+    assert_eq!(column(tables, "/filter", "left_out"), &left_out);
     let b = &logged.barriers;
     assert_column(tables, "/barrier", "time", b.iter().map(|m| m.time));
     for (i, barrier) in b[0].barriers.iter().enumerate() {

@@ -37,6 +37,9 @@ pub struct Tick {
     /// With a sensor, the state the controller read (its late, biased, noisy measurement);
     /// without one it is not kept (the controller read the true state).
     pub measured: DVector<f64>,
+    /// Barrier rows the tick's decisions left out of their QPs ([`Reach`]): each holds for
+    /// every input the decision may use, so the outcomes' μ are over the others.
+    pub left_out: u64,
 }
 
 impl Tick {
@@ -49,6 +52,7 @@ impl Tick {
             issued: DVector::zeros(r),
             outcomes: vec![None; r],
             measured: DVector::zeros(n),
+            left_out: 0,
         }
     }
 }
@@ -1235,6 +1239,7 @@ impl ControlLoop {
         laws.actors.observe(t);
         let predicts = laws.predicts();
         predict.run(laws, (&queues.assumed, *timing), (t, &sense.state), predicts)?;
+        let left_out_before = laws.work.reach.rows_left_out;
         let (laws_read, filter, law) = laws.parts();
         decide_stage(
             (&laws_read, filter, law),
@@ -1242,6 +1247,7 @@ impl ControlLoop {
             (&queues.assumed, timing.timestep, predicts),
             tick,
         )?;
+        tick.left_out = laws.work.reach.rows_left_out - left_out_before;
         queues.push(t, &tick.issued)?;
         pending.keep((t, timing.timestep, &laws.actors), predict);
         tick.time = t;

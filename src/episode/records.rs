@@ -571,6 +571,7 @@ impl Episode {
             m.active = solved.clone().any(|o| o.active);
             m.infeasible = solved.clone().any(|o| o.infeasible);
             m.mu = solved.clone().map(|o| o.mu).fold(f64::NAN, f64::min);
+            m.left_out = u32::try_from(tick.left_out).unwrap_or(u32::MAX);
             // Per barrier left unmet by some channel's decision: its largest shortfall (names
             // written into the message's reused strings).
             m.shortfall.clear();

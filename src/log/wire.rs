@@ -187,6 +187,7 @@ pub(crate) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
     m.correction.clear();
     m.infeasible = false;
     m.mu = 0.0;
+    m.left_out = 0;
     let mut unmet = 0;
     m.shortfall.clear();
     while !r.done() {
@@ -205,6 +206,7 @@ pub(crate) fn merge_filter(buf: &[u8], m: &mut proto::Filter) -> Option<()> {
                 unmet += 1;
             }
             (8, wire) => r.repeated_f64(wire, &mut m.shortfall)?,
+            (9, VARINT) => m.left_out = r.varint()? as u32,
             _ => return None,
         }
     }
@@ -659,6 +661,7 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
         mu,
         unmet,
         shortfall,
+        left_out,
     } = m;
     let size = f64_len(*time)
         + bool_len(*active)
@@ -667,7 +670,8 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
         + bool_len(*infeasible)
         + f64_len(*mu)
         + strings_len(unmet)
-        + packed_f64_len(shortfall);
+        + packed_f64_len(shortfall)
+        + u64_len(u64::from(*left_out));
     let mut room = Room::new(out, size);
     room.f64(1, *time);
     room.bool(2, *active);
@@ -677,6 +681,7 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
     room.f64(6, *mu);
     room.strings(7, unmet);
     room.packed_f64(8, shortfall);
+    room.u64(9, u64::from(*left_out));
     room.done();
 }
 
@@ -1124,6 +1129,7 @@ mod tests {
                 mu: -0.25,
                 unmet: vec!["road_edge_0".to_string(), "obstacle_0".to_string()],
                 shortfall: vec![0.75, 2.5],
+                left_out: 1234,
             },
             proto::Filter::default(),
         ];
@@ -1313,6 +1319,7 @@ mod tests {
                     mu: v(4),
                     unmet: names(k),
                     shortfall: list.clone(),
+                    left_out: [0, 1, 300, u32::MAX][k % 4],
                 };
                 buffer.clear();
                 encode_filter(&filter, &mut buffer);
