@@ -38,8 +38,8 @@ pub struct Tick {
     /// without one it is not kept (the controller read the true state).
     pub measured: DVector<f64>,
     /// Barrier rows the tick's decisions left out of their QPs (docs/actors.md, "Out of
-    /// reach"): each holds for
-    /// every input the decision may use, so the outcomes' μ are over the others.
+    /// reach"): each holds for every input the decision may use, so the outcomes' μ are over
+    /// the others.
     pub left_out: u64,
 }
 
