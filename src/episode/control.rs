@@ -495,6 +495,10 @@ struct KnownActors {
     /// The tick time t and, per known barrier, the actor state observed then.
     now: f64,
     observed: Vec<ActorState>,
+    /// The observation the recursive chain's laws were first formed with (its tick time, NaN
+    /// for none): [`KnownActors::assumption_change`] compares what it assumes with now.
+    anchor_time: f64,
+    anchor: Vec<ActorState>,
 }
 
 impl KnownActors {
@@ -511,6 +515,52 @@ impl KnownActors {
     fn assumed_circle(&self, k: usize, at: f64) -> Option<ActorState> {
         let motion = self.motions.get(k)?.as_ref()?;
         Some(self.assumed(motion, k, at).shifted(self.offsets[k]))
+    }
+
+    /// Keeps the present observation as the one the recursive chain's laws are formed with.
+    fn anchor_here(&mut self) {
+        self.anchor_time = self.now;
+        self.anchor.clone_from(&self.observed);
+    }
+
+    /// The largest change, at the times `at`, of what the controller assumes of the moving road
+    /// users between the anchor's observation and the present one: of a circle's position
+    /// (the centre's, plus the road user's spread times its change of heading), velocity and
+    /// acceleration, each the largest coordinate (m, m/s, m/s²). Infinite without an anchor;
+    /// 0 for the oracle, whose assumption is the truth whenever observed.
+    fn assumption_change(&self, at: impl Iterator<Item = f64> + Clone) -> f64 {
+        if self.knowledge == ActorKnowledge::Oracle {
+            return 0.0;
+        }
+        if self.anchor_time.is_nan() || self.anchor.len() != self.observed.len() {
+            return f64::INFINITY;
+        }
+        let largest = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs().max((a[1] - b[1]).abs());
+        let mut change = 0.0_f64;
+        for (k, motion) in self.motions.iter().enumerate() {
+            if !(motion.is_some() && self.primary[k]) {
+                continue;
+            }
+            // The road user's barriers: k and the ones after it up to the next primary (every
+            // road user: one out of reach at every node may come within reach under the new
+            // assumption).
+            let group = 1 + self.primary[k + 1..].iter().take_while(|p| !**p).count();
+            let spread = (self.offsets[k..k + group].iter()).fold(0.0_f64, |m, c| m.max(c[0].hypot(c[1])));
+            let (now, then) = (&self.observed[k], &self.anchor[k]);
+            let turned = spread * (now.turn - then.turn).abs();
+            for s in at.clone() {
+                let truth = |_: f64| *now;
+                let a = self.knowledge.predict(now, self.now, s.max(self.now), truth);
+                let b = self
+                    .knowledge
+                    .predict(then, self.anchor_time, s.max(self.anchor_time), truth);
+                change = change
+                    .max(largest(a.position, b.position) + turned)
+                    .max(largest(a.velocity, b.velocity))
+                    .max(largest(a.acceleration, b.acceleration));
+            }
+        }
+        change
     }
 
     /// observed ← every actor's state at the tick time t.
@@ -761,6 +811,8 @@ impl LawStage {
                 knowledge: ActorKnowledge::default(),
                 now: 0.0,
                 observed: Vec::new(),
+                anchor_time: f64::NAN,
+                anchor: Vec::new(),
             },
             work,
         }
@@ -819,6 +871,26 @@ impl PredictStage {
             predictions: workspace.predictions(),
             workspace,
             audit: None,
+        }
+    }
+
+    /// Forgets the recursive chain when what the controller assumes of the road users has
+    /// changed by more than the chain tolerance since the chain's laws were formed, at any
+    /// time they are evaluated at ([t + D_1, t + D_r] on the control grid): those laws are then
+    /// no longer the filter's (as when a barrier becomes known), and reusing them would
+    /// predict with a stale assumption (constant velocity re-anchored at every tick).
+    fn keep_chain_for(&mut self, actors: &KnownActors, t: f64, period: f64) {
+        let (Some(tolerance), Structure::Recursive { delays, .. }) =
+            (self.workspace.chain_tolerance(), &self.structure)
+        else {
+            return;
+        };
+        let first = delays.iter().copied().fold(f64::INFINITY, f64::min);
+        let last = delays.iter().copied().fold(0.0, f64::max);
+        let nodes = ((last - first) / period).round().max(0.0) as usize;
+        let times = (0..=nodes).map(|n| t + first + n as f64 * period);
+        if actors.assumption_change(times) > tolerance {
+            self.workspace.invalidate_chain();
         }
     }
 
@@ -1239,7 +1311,11 @@ impl ControlLoop {
         } = self;
         laws.actors.observe(t);
         let predicts = laws.predicts();
+        predict.keep_chain_for(&laws.actors, t, timing.control_period);
         predict.run(laws, (&queues.assumed, *timing), (t, &sense.state), predicts)?;
+        if predict.predictions.iter().any(|p| !p.reused_chain) {
+            laws.actors.anchor_here();
+        }
         let left_out_before = laws.work.reach.rows_left_out;
         let (laws_read, filter, law) = laws.parts();
         decide_stage(

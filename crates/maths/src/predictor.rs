@@ -439,6 +439,11 @@ impl PredictorWorkspace {
         self.lead.tick = f64::NAN;
     }
 
+    /// The tolerance of chain reuse ([`PredictorWorkspace::set_chain_reuse`]), None without.
+    pub fn chain_tolerance(&self) -> Option<f64> {
+        self.chain_tolerance
+    }
+
     /// Where the last shared prediction's final partial step (from its last grid node to
     /// φ⁻¹(t), off the grid) started: (time, predicted state); `None` when it took none.
     pub fn partial_step(&self) -> Option<(f64, &[f64])> {
