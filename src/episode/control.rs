@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use super::reach::Reach;
+use super::reach::{Reach, ReachAt};
 use crate::actor::reach::pair_rows;
 use crate::actor::{add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
 use crate::actuator::Actuator;
@@ -109,6 +109,12 @@ struct LawWorkspace {
     rows_moved: bool,
     /// Which road users are out of reach at an evaluation state.
     reach: Reach,
+    /// The reach tests of the laws the recursive predictor evaluated at this tick (`recording`
+    /// while it predicts), of the laws its present chain holds, and spares ([`Reach::record`]).
+    reach_now: Vec<ReachAt>,
+    reach_chain: Vec<ReachAt>,
+    reach_spare: Vec<ReachAt>,
+    recording: bool,
     /// Per channel, the largest |input| the filter's QPs planned, and whether it says.
     planned: Vec<f64>,
     says_planned: bool,
@@ -163,7 +169,9 @@ impl LawWorkspace {
         u: &mut [f64],
     ) -> Result<(), FilterError> {
         if !self.reach.active() {
-            return self.issued_law_once(laws, filter, queues, nominal_predicts, point, u);
+            self.issued_law_once(laws, filter, queues, nominal_predicts, point, u)?;
+            self.record_reach(laws.form, point.0);
+            return Ok(());
         }
         self.reach.begin_decision(u);
         let mut attempt = 0;
@@ -184,7 +192,30 @@ impl LawWorkspace {
             attempt += 1;
         }
         self.reach.enabled = true;
+        self.record_reach(laws.form, point.0);
         Ok(())
+    }
+
+    /// While the recursive predictor evaluates laws: what this law's reach test saw at `time`.
+    fn record_reach(&mut self, form: Option<BarrierForm>, time: f64) {
+        if !self.recording {
+            return;
+        }
+        let mut node = self.reach_spare.pop().unwrap_or_default();
+        self.reach.record(time, form, &mut node);
+        self.reach_now.push(node);
+    }
+
+    /// The chain's laws after a tick: this tick's alone when the chain was formed again, else
+    /// the ones still in its window (from `from` on) and this tick's.
+    fn keep_chain_reach(&mut self, restarted: bool, from: f64) {
+        if restarted {
+            self.reach_spare.append(&mut self.reach_chain);
+        } else {
+            let gone = self.reach_chain.iter().take_while(|node| node.time < from).count();
+            self.reach_spare.extend(self.reach_chain.drain(..gone));
+        }
+        self.reach_chain.append(&mut self.reach_now);
     }
 
     #[inline(always)]
@@ -523,12 +554,18 @@ impl KnownActors {
         self.anchor.clone_from(&self.observed);
     }
 
-    /// The largest change, at the times `at`, of what the controller assumes of the moving road
-    /// users between the anchor's observation and the present one: of a circle's position
-    /// (the centre's, plus the road user's spread times its change of heading), velocity and
-    /// acceleration, each the largest coordinate (m, m/s, m/s²). Infinite without an anchor;
-    /// 0 for the oracle, whose assumption is the truth whenever observed.
-    fn assumption_change(&self, at: impl Iterator<Item = f64> + Clone) -> f64 {
+    /// The moving road users, by their primary barrier.
+    fn road_users(&self) -> impl Iterator<Item = usize> + '_ {
+        (self.motions.iter().zip(&self.primary).enumerate()).filter_map(|(k, (m, &p))| (m.is_some() && p).then_some(k))
+    }
+
+    /// The largest change, at the times `at`, of what the controller assumes of the road user
+    /// whose primary barrier is k between the anchor's observation and the present one: of a
+    /// circle's position (the centre's, plus the road user's spread times its change of
+    /// heading), velocity and acceleration, each the largest coordinate (m, m/s, m/s²).
+    /// Infinite without an anchor; 0 for the oracle, whose assumption is the truth whenever
+    /// observed.
+    fn assumption_change(&self, k: usize, at: impl Iterator<Item = f64>) -> f64 {
         if self.knowledge == ActorKnowledge::Oracle {
             return 0.0;
         }
@@ -536,31 +573,33 @@ impl KnownActors {
             return f64::INFINITY;
         }
         let largest = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs().max((a[1] - b[1]).abs());
+        // The road user's barriers: k and the ones after it up to the next primary.
+        let group = 1 + self.primary[k + 1..].iter().take_while(|p| !**p).count();
+        let spread = (self.offsets[k..k + group].iter()).fold(0.0_f64, |m, c| m.max(c[0].hypot(c[1])));
+        let (now, then) = (&self.observed[k], &self.anchor[k]);
+        let turned = spread * (now.turn - then.turn).abs();
         let mut change = 0.0_f64;
-        for (k, motion) in self.motions.iter().enumerate() {
-            if !(motion.is_some() && self.primary[k]) {
-                continue;
-            }
-            // The road user's barriers: k and the ones after it up to the next primary (every
-            // road user: one out of reach at every node may come within reach under the new
-            // assumption).
-            let group = 1 + self.primary[k + 1..].iter().take_while(|p| !**p).count();
-            let spread = (self.offsets[k..k + group].iter()).fold(0.0_f64, |m, c| m.max(c[0].hypot(c[1])));
-            let (now, then) = (&self.observed[k], &self.anchor[k]);
-            let turned = spread * (now.turn - then.turn).abs();
-            for s in at.clone() {
-                let truth = |_: f64| *now;
-                let a = self.knowledge.predict(now, self.now, s.max(self.now), truth);
-                let b = self
-                    .knowledge
-                    .predict(then, self.anchor_time, s.max(self.anchor_time), truth);
-                change = change
-                    .max(largest(a.position, b.position) + turned)
-                    .max(largest(a.velocity, b.velocity))
-                    .max(largest(a.acceleration, b.acceleration));
-            }
+        for s in at {
+            let truth = |_: f64| *now;
+            let a = self.knowledge.predict(now, self.now, s.max(self.now), truth);
+            let b = self
+                .knowledge
+                .predict(then, self.anchor_time, s.max(self.anchor_time), truth);
+            change = change
+                .max(largest(a.position, b.position) + turned)
+                .max(largest(a.velocity, b.velocity))
+                .max(largest(a.acceleration, b.acceleration));
         }
         change
+    }
+
+    /// Where the controller now assumes the road user of known barrier k at `at` (its centre;
+    /// the default state for a barrier that does not move), as its reach tests read it.
+    fn assumed_centre(&self, k: usize, at: f64) -> ActorState {
+        match &self.motions[k] {
+            Some(motion) => self.assumed(motion, k, at),
+            None => ActorState::default(),
+        }
     }
 
     /// observed ← every actor's state at the tick time t.
@@ -798,6 +837,10 @@ impl LawStage {
             says_planned: false,
             law_corrected: false,
             seen: Vec::new(),
+            reach_now: Vec::new(),
+            reach_chain: Vec::new(),
+            reach_spare: Vec::new(),
+            recording: false,
         };
         LawStage {
             model,
@@ -879,7 +922,10 @@ impl PredictStage {
     /// time they are evaluated at ([t + D_1, t + D_r] on the control grid): those laws are then
     /// no longer the filter's (as when a barrier becomes known), and reusing them would
     /// predict with a stale assumption (constant velocity re-anchored at every tick).
-    fn keep_chain_for(&mut self, actors: &KnownActors, t: f64, period: f64) {
+    /// A road user whose assumption changed is let be when no law of the chain formed its rows
+    /// and the reach test, made again at each law's state with the new assumption, still
+    /// leaves it out: its rows are then in those laws under neither assumption.
+    fn keep_chain_for(&mut self, actors: &KnownActors, work: &mut LawWorkspace, t: f64, period: f64) {
         let (Some(tolerance), Structure::Recursive { delays, .. }) =
             (self.workspace.chain_tolerance(), &self.structure)
         else {
@@ -888,9 +934,18 @@ impl PredictStage {
         let first = delays.iter().copied().fold(f64::INFINITY, f64::min);
         let last = delays.iter().copied().fold(0.0, f64::max);
         let nodes = ((last - first) / period).round().max(0.0) as usize;
-        let times = (0..=nodes).map(|n| t + first + n as f64 * period);
-        if actors.assumption_change(times) > tolerance {
-            self.workspace.invalidate_chain();
+        let times = || (0..=nodes).map(|n| t + first + n as f64 * period);
+        let LawWorkspace { reach, reach_chain, .. } = work;
+        for k in actors.road_users() {
+            if actors.assumption_change(k, times()) <= tolerance {
+                continue;
+            }
+            let left_out =
+                |reach: &mut Reach, node: &ReachAt| reach.still_out(node, k, |j| actors.assumed_centre(j, node.time));
+            if reach_chain.is_empty() || !reach_chain.iter().all(|node| left_out(reach, node)) {
+                self.workspace.invalidate_chain();
+                return;
+            }
         }
     }
 
@@ -1311,9 +1366,20 @@ impl ControlLoop {
         } = self;
         laws.actors.observe(t);
         let predicts = laws.predicts();
-        predict.keep_chain_for(&laws.actors, t, timing.control_period);
-        predict.run(laws, (&queues.assumed, *timing), (t, &sense.state), predicts)?;
-        if predict.predictions.iter().any(|p| !p.reused_chain) {
+        predict.keep_chain_for(&laws.actors, &mut laws.work, t, timing.control_period);
+        laws.work.recording = true;
+        let predicted = predict.run(laws, (&queues.assumed, *timing), (t, &sense.state), predicts);
+        laws.work.recording = false;
+        predicted?;
+        let restarted = predict.predictions.iter().any(|p| !p.reused_chain);
+        let window_start = predict
+            .predictions
+            .iter()
+            .map(|p| p.target_time)
+            .fold(f64::INFINITY, f64::min);
+        laws.work
+            .keep_chain_reach(restarted, window_start - 0.5 * timing.control_period);
+        if restarted {
             laws.actors.anchor_here();
         }
         let left_out_before = laws.work.reach.rows_left_out;

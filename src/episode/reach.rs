@@ -88,6 +88,8 @@ pub(super) struct Reach {
     distances: Vec<f64>,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
+    /// Scratch space of [`Reach::still_out`].
+    scratch_out: Vec<bool>,
     /// M_j per channel: the largest recent |u_j| of a command or nominal input.
     largest_input: Vec<f64>,
     /// M_j when the current decision began.
@@ -103,6 +105,9 @@ pub(super) struct Reach {
     pub(super) redone: u64,
     /// Whether the last [`Reach::mark`] left rows out, and whether some group may.
     culled_last: bool,
+    /// Whether the last [`Reach::mark`] kept the nearest road user because every row would
+    /// have gone.
+    kept_nearest: bool,
     active: bool,
     /// Whether some known barrier is never left out (its rows stay in every QP).
     keeps_a_row: bool,
@@ -131,10 +136,12 @@ impl Reach {
             input_reach: Vec::new(),
             distances: Vec::new(),
             out: Vec::new(),
+            scratch_out: Vec::new(),
             bound: largest_input.clone(),
             largest_input,
             enabled: true,
             culled_last: false,
+            kept_nearest: false,
             active: false,
             keeps_a_row: false,
             allowed: true,
@@ -274,78 +281,37 @@ impl Reach {
         // The nearest road user left out: kept when every row would be (a filter with known
         // barriers always decides).
         let mut nearest: Option<(f64, usize, usize)> = None;
-        for group in self.groups.iter().filter(|g| g.cullable) {
-            let actor = assumed(group.first);
-            // Every barrier of a road user sees one state while it exists; one that does not
-            // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
-            let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
-            // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
-            let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
-            let rho = group.spread;
-            let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
-            // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
-            let (turning_speed, turning_acceleration) = (w * rho, (dw + w * w) * rho);
-            let relative = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
-            let mut bounds = ReachBounds {
-                gap: f64::INFINITY,
-                closing: f64::INFINITY,
-                ..Default::default()
-            };
-            // Per ego point (every one: a superset of the group's, so the bounds still hold).
-            for (i, p) in self.ego.points.iter().enumerate() {
-                let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
-                let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
-                let distance = norm(d);
-                self.distances[i] = distance;
-                // d·w for a circle at c: (d_c − Rc)·(w_c − θ̇ J R c) ≥ d_c·w_c − ‖d_c‖ θ̇ρ − ρ‖w_c‖ − θ̇ρ².
-                let closing = d[0] * w[0] + d[1] * w[1] - (distance + rho) * turning_speed - rho * norm(w);
-                bounds.closing = bounds.closing.min(closing);
-                bounds.speed = bounds.speed.max(norm(w) + turning_speed);
-                let acceleration = relative(p.acceleration, actor.acceleration) + turning_acceleration;
-                bounds.acceleration = bounds.acceleration.max(acceleration);
-                bounds.input_speed = bounds.input_speed.max(self.input_reach[i][0]);
-                bounds.input_acceleration = bounds.input_acceleration.max(self.input_reach[i][1]);
-            }
-            for k in group.first..group.end {
-                if let Some(i) = self.point_of[k] {
-                    bounds.gap = bounds.gap.min(self.distances[i] - rho - self.radius[k]);
-                }
-            }
-            if shared && rows_hold_given(&bounds, form, rates) {
-                self.out[group.first..group.end].fill(true);
-            } else {
-                // Pair by pair: each circle where the road user's state puts it, exactly.
-                for k in group.first..group.end {
-                    let Some(p) = self.point_of[k].map(|i| &self.ego.points[i]) else {
-                        continue;
-                    };
-                    let circle = match shared {
-                        true => actor.shifted(self.offsets[k]),
-                        false => assumed(k).shifted(self.offsets[k]),
-                    };
-                    let d = [p.position[0] - circle.position[0], p.position[1] - circle.position[1]];
-                    let w = [p.velocity[0] - circle.velocity[0], p.velocity[1] - circle.velocity[1]];
-                    let [input_speed, input_acceleration] = self.input_reach[self.point_of[k].unwrap_or(0)];
-                    let pair = ReachBounds {
-                        gap: norm(d) - self.radius[k],
-                        speed: norm(w),
-                        acceleration: relative(p.acceleration, circle.acceleration),
-                        closing: d[0] * w[0] + d[1] * w[1],
-                        input_speed,
-                        input_acceleration,
-                    };
-                    self.out[k] = rows_hold_given(&pair, form, rates);
-                }
-            }
-            any |= self.out[group.first..group.end].iter().any(|&out| out);
-            let all_out = self.out[group.first..group.end].iter().all(|&out| out);
-            if all_out && nearest.is_none_or(|(gap, ..)| bounds.gap < gap) {
-                nearest = Some((bounds.gap, group.first, group.end));
+        let Reach {
+            groups,
+            point_of,
+            radius,
+            offsets,
+            ego,
+            input_reach,
+            distances,
+            out,
+            ..
+        } = self;
+        for group in groups.iter().filter(|g| g.cullable) {
+            let gap = mark_group(
+                group,
+                (point_of, radius, offsets),
+                (&ego.points, input_reach, distances),
+                (form, rates),
+                &assumed,
+                out,
+            );
+            any |= out[group.first..group.end].iter().any(|&out| out);
+            let all_out = out[group.first..group.end].iter().all(|&out| out);
+            if all_out && nearest.is_none_or(|(nearest, ..)| gap < nearest) {
+                nearest = Some((gap, group.first, group.end));
             }
         }
+        self.kept_nearest = false;
         if let (true, Some((_, first, end))) = (self.out.iter().all(|&out| out), nearest) {
             self.out[first..end].fill(false);
             any = self.out.iter().any(|&out| out);
+            self.kept_nearest = true;
         }
         self.culled_last = any;
         any
@@ -419,6 +385,135 @@ impl Reach {
     pub(super) fn restore(&self, inputs: &mut [f64]) {
         inputs.copy_from_slice(&self.saved[..inputs.len()]);
     }
+}
+
+/// What the reach test of one law saw at its evaluation state: the time, the ego points and
+/// their input bounds, the barrier form, and per barrier whether the law formed its rows (all,
+/// when it left none out or kept the nearest road user): [`Reach::still_out`] tests a road user
+/// again there under another assumption.
+#[derive(Default)]
+pub(super) struct ReachAt {
+    pub(super) time: f64,
+    points: Vec<PointMotion>,
+    input_reach: Vec<[f64; 2]>,
+    form: Option<(BarrierForm, Option<(f64, f64)>)>,
+    formed: Vec<bool>,
+}
+
+impl Reach {
+    /// `node` ← what the last [`Reach::mark`] (made at `time`, in `form`) saw and left out.
+    pub(super) fn record(&self, time: f64, form: Option<BarrierForm>, node: &mut ReachAt) {
+        let culled = self.culled_last && !self.kept_nearest;
+        node.time = time;
+        node.points.clone_from(&self.ego.points);
+        node.input_reach.clone_from(&self.input_reach);
+        node.form = form.map(|form| (form, form.real_rates()));
+        node.formed.clear();
+        node.formed.extend(self.out.iter().map(|&out| !(culled && out)));
+    }
+
+    /// Whether the road user whose primary barrier is `first` had no row in the law `node`
+    /// records and is out of reach there as a whole when barrier k's road user is at
+    /// `assumed(k)` ([`Reach::mark`]'s test, with the law's own ego points and input bounds):
+    /// then its rows are in that law under neither assumption. `out` is scratch space.
+    pub(super) fn still_out(&mut self, node: &ReachAt, first: usize, assumed: impl Fn(usize) -> ActorState) -> bool {
+        let (Some(group), Some((form, rates))) = (self.groups.iter().find(|g| g.first == first), node.form) else {
+            return false;
+        };
+        let range = group.first..group.end;
+        if !group.cullable || node.formed.get(range.clone()).is_none_or(|f| f.iter().any(|&f| f)) {
+            return false;
+        }
+        self.scratch_out.clear();
+        self.scratch_out.resize(self.out.len(), false);
+        self.distances.resize(node.points.len(), 0.0);
+        mark_group(
+            group,
+            (&self.point_of, &self.radius, &self.offsets),
+            (&node.points, &node.input_reach, &mut self.distances),
+            (form, rates),
+            &assumed,
+            &mut self.scratch_out,
+        );
+        self.scratch_out[range].iter().all(|&out| out)
+    }
+}
+
+/// Which of `group`'s barriers are out of reach, written into `out` (indexed by barrier): the
+/// road user as a whole from its centre and spread, else pair by pair (module docs), for the
+/// ego points `points` and their input bounds `input_reach` (W and B), with barrier k's road
+/// user at `assumed(k)`. Returns the group's gap bound D.
+fn mark_group(
+    group: &Group,
+    (point_of, radius, offsets): (&[Option<usize>], &[f64], &[[f64; 2]]),
+    (points, input_reach, distances): (&[PointMotion], &[[f64; 2]], &mut [f64]),
+    (form, rates): (BarrierForm, Option<(f64, f64)>),
+    assumed: &impl Fn(usize) -> ActorState,
+    out: &mut [bool],
+) -> f64 {
+    let actor = assumed(group.first);
+    // Every barrier of a road user sees one state while it exists; one that does not
+    // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
+    let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
+    // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
+    let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
+    let rho = group.spread;
+    let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
+    // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
+    let (turning_speed, turning_acceleration) = (w * rho, (dw + w * w) * rho);
+    let relative = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
+    let mut bounds = ReachBounds {
+        gap: f64::INFINITY,
+        closing: f64::INFINITY,
+        ..Default::default()
+    };
+    // Per ego point (every one: a superset of the group's, so the bounds still hold).
+    for (i, p) in points.iter().enumerate() {
+        let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
+        let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
+        let distance = norm(d);
+        distances[i] = distance;
+        // d·w for a circle at c: (d_c − Rc)·(w_c − θ̇ J R c) ≥ d_c·w_c − ‖d_c‖ θ̇ρ − ρ‖w_c‖ − θ̇ρ².
+        let closing = d[0] * w[0] + d[1] * w[1] - (distance + rho) * turning_speed - rho * norm(w);
+        bounds.closing = bounds.closing.min(closing);
+        bounds.speed = bounds.speed.max(norm(w) + turning_speed);
+        let acceleration = relative(p.acceleration, actor.acceleration) + turning_acceleration;
+        bounds.acceleration = bounds.acceleration.max(acceleration);
+        bounds.input_speed = bounds.input_speed.max(input_reach[i][0]);
+        bounds.input_acceleration = bounds.input_acceleration.max(input_reach[i][1]);
+    }
+    for k in group.first..group.end {
+        if let Some(i) = point_of[k] {
+            bounds.gap = bounds.gap.min(distances[i] - rho - radius[k]);
+        }
+    }
+    if shared && rows_hold_given(&bounds, form, rates) {
+        out[group.first..group.end].fill(true);
+    } else {
+        // Pair by pair: each circle where the road user's state puts it, exactly.
+        for k in group.first..group.end {
+            let Some(p) = point_of[k].map(|i| &points[i]) else {
+                continue;
+            };
+            let circle = match shared {
+                true => actor.shifted(offsets[k]),
+                false => assumed(k).shifted(offsets[k]),
+            };
+            let d = [p.position[0] - circle.position[0], p.position[1] - circle.position[1]];
+            let w = [p.velocity[0] - circle.velocity[0], p.velocity[1] - circle.velocity[1]];
+            let [input_speed, input_acceleration] = input_reach[point_of[k].unwrap_or(0)];
+            let pair = ReachBounds {
+                gap: norm(d) - radius[k],
+                speed: norm(w),
+                acceleration: relative(p.acceleration, circle.acceleration),
+                closing: d[0] * w[0] + d[1] * w[1],
+                input_speed,
+                input_acceleration,
+            };
+            out[k] = rows_hold_given(&pair, form, rates);
+        }
+    }
+    bounds.gap
 }
 
 impl EgoPoints {
