@@ -216,6 +216,15 @@ impl LawWorkspace {
             self.reach_spare.extend(self.reach_chain.drain(..gone));
         }
         self.reach_chain.append(&mut self.reach_now);
+        // The next restart takes a whole chain's records before this one's come back: as many
+        // spares, with their room (allocated once, when the chain first grows).
+        while let (true, Some(node)) = (
+            self.reach_spare.len() < self.reach_chain.len(),
+            self.reach_chain.first(),
+        ) {
+            let copy = node.clone();
+            self.reach_spare.push(copy);
+        }
     }
 
     #[inline(always)]
@@ -1292,6 +1301,20 @@ impl ControlLoop {
         laws.work.constraints.push(Constraint::zeros(channels));
         laws.work.row_barrier.push(0);
         laws.work.rows_moved = true;
+        let sizes = laws.work.reach.sizes();
+        let LawWorkspace {
+            reach_now,
+            reach_chain,
+            reach_spare,
+            ..
+        } = &mut laws.work;
+        for node in reach_now
+            .iter_mut()
+            .chain(reach_chain.iter_mut())
+            .chain(reach_spare.iter_mut())
+        {
+            node.reserve(sizes);
+        }
         // κ_j changed: the recursive chain computed with the old law no longer holds.
         self.predict.workspace.invalidate_chain();
     }

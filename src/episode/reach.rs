@@ -391,7 +391,7 @@ impl Reach {
 /// their input bounds, the barrier form, and per barrier whether the law formed its rows (all,
 /// when it left none out or kept the nearest road user): [`Reach::still_out`] tests a road user
 /// again there under another assumption.
-#[derive(Default)]
+#[derive(Default, Clone)]
 pub(super) struct ReachAt {
     pub(super) time: f64,
     points: Vec<PointMotion>,
@@ -400,7 +400,21 @@ pub(super) struct ReachAt {
     formed: Vec<bool>,
 }
 
+impl ReachAt {
+    /// Room for this many barriers and ego points (so that recording allocates nothing).
+    pub(super) fn reserve(&mut self, (barriers, points): (usize, usize)) {
+        self.formed.reserve(barriers.saturating_sub(self.formed.len()));
+        self.points.reserve(points.saturating_sub(self.points.len()));
+        self.input_reach.reserve(points.saturating_sub(self.input_reach.len()));
+    }
+}
+
 impl Reach {
+    /// (known barriers, ego points): what a [`ReachAt`] records.
+    pub(super) fn sizes(&self) -> (usize, usize) {
+        (self.out.len(), self.ego.len())
+    }
+
     /// `node` ← what the last [`Reach::mark`] (made at `time`, in `form`) saw and left out.
     pub(super) fn record(&self, time: f64, form: Option<BarrierForm>, node: &mut ReachAt) {
         let culled = self.culled_last && !self.kept_nearest;
