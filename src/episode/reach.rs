@@ -429,7 +429,7 @@ impl Reach {
     /// Whether the road user whose primary barrier is `first` had no row in the law `node`
     /// records and is out of reach there as a whole when barrier k's road user is at
     /// `assumed(k)` ([`Reach::mark`]'s test, with the law's own ego points and input bounds):
-    /// then its rows are in that law under neither assumption. `out` is scratch space.
+    /// then its rows are in that law under neither assumption.
     pub(super) fn still_out(&mut self, node: &ReachAt, first: usize, assumed: impl Fn(usize) -> ActorState) -> bool {
         let (Some(group), Some((form, rates))) = (self.groups.iter().find(|g| g.first == first), node.form) else {
             return false;
