@@ -385,10 +385,7 @@ impl LawWorkspace {
         let r = self.nominal.len();
         let mut culled = self
             .reach
-            .mark(laws.model, form, z, r, |k| match &laws.actors.motions[k] {
-                Some(motion) => laws.actors.assumed(motion, k, at),
-                None => ActorState::default(),
-            });
+            .mark(laws.model, form, z, r, |k| laws.actors.assumed_centre(k, at));
         let (rows, first_order_rows) = self.constraints.split_at_mut(count);
         let mut first_order = 0;
         // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z; the ego

@@ -815,26 +815,18 @@ impl BarrierSampler<'_> {
             let key = pairs[0].body_point_of()?;
             let (q, q_dot) = self.body_point(key, &pairs[0]);
             for (j, (b, circle)) in pairs.iter().zip(&states).enumerate() {
-                let &Shape::BodyCircle {
-                    centre,
-                    radius,
-                    inside: false,
-                    ..
-                } = &b.shape
+                let (&Shape::BodyCircle { centre, radius, .. }, Some((h, clearance, ..)), true) =
+                    (&b.shape, b.circle_values_at(q, q_dot), b.body_point_of() == Some(key))
                 else {
                     return None;
                 };
-                if b.body_point_of() != Some(key) {
-                    return None;
-                }
-                // (Barrier::circle_values_at and the body-circle case of time_to_collision.)
-                let squared = (q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2);
+                // (The body-circle case of time_to_collision.)
                 let relative = [q_dot[0] - circle.velocity[0], q_dot[1] - circle.velocity[1]];
                 let sample = BarrierSample {
-                    h: squared - radius * radius,
+                    h,
                     constraint: f64::NAN,
                     relative_degree: 0,
-                    clearance: squared.sqrt() - radius,
+                    clearance,
                     time_to_collision: time_to_contact([q[0] - centre[0], q[1] - centre[1]], relative, radius),
                 };
                 let pair = (vehicle * n + j, sample);

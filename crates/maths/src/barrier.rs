@@ -215,6 +215,7 @@ impl Barrier {
 
     /// [`Barrier::circle_values`] with q and q̇ given, as [`Barrier::point_and_velocity`] forms
     /// them (for a point several barriers share).
+    #[inline]
     pub fn circle_values_at(&self, q: [f64; 2], q_dot: [f64; 2]) -> Option<(f64, f64, [f64; 2], [f64; 2])> {
         let (centre, radius) = match &self.shape {
             Shape::Ball {

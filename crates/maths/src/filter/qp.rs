@@ -563,23 +563,14 @@ impl QpWorkspace {
 
     /// d ← −ρ Σ_soft b_k: F = ‖v‖² + d·v (+ const) while the soft set holds.
     fn penalty_gradient(&mut self, constraints: &[Constraint]) {
-        self.gradient.fill(0.0);
-        for (constraint, _) in constraints.iter().zip(&self.soft).filter(|(_, soft)| **soft) {
-            for (d, b) in self.gradient.iter_mut().zip(constraint.b.iter()) {
-                *d -= SLACK_PENALTY * b;
-            }
-        }
+        penalty_gradient_over(&mut self.gradient, constraints, &self.soft, 0..constraints.len());
     }
 
     /// [`QpWorkspace::penalty_gradient`] over the considered barriers (every penalised
     /// barrier is among them, in the same ascending order: the same sum).
     fn considered_penalty_gradient(&mut self, constraints: &[Constraint]) {
-        self.gradient.fill(0.0);
-        for &k in self.considered.iter().filter(|&&k| self.soft[k]) {
-            for (d, b) in self.gradient.iter_mut().zip(constraints[k].b.iter()) {
-                *d -= SLACK_PENALTY * b;
-            }
-        }
+        let rows = self.considered.iter().copied();
+        penalty_gradient_over(&mut self.gradient, constraints, &self.soft, rows);
     }
 
     /// β_w of working constraint w (n_w·v = β_w when it holds with equality).
@@ -755,6 +746,21 @@ impl QpWorkspace {
                 .sum::<f64>();
         }
         true
+    }
+}
+
+/// gradient ← −ρ Σ b_k over the penalised (`soft`) barriers among `rows`, in their order.
+fn penalty_gradient_over(
+    gradient: &mut [f64],
+    constraints: &[Constraint],
+    soft: &[bool],
+    rows: impl Iterator<Item = usize>,
+) {
+    gradient.fill(0.0);
+    for k in rows.filter(|&k| soft[k]) {
+        for (d, b) in gradient.iter_mut().zip(constraints[k].b.iter()) {
+            *d -= SLACK_PENALTY * b;
+        }
     }
 }
 
