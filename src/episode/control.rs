@@ -565,13 +565,15 @@ impl KnownActors {
         (self.motions.iter().zip(&self.primary).enumerate()).filter_map(|(k, (m, &p))| (m.is_some() && p).then_some(k))
     }
 
-    /// The largest change, at the times `at`, of what the controller assumes of the road user
-    /// whose primary barrier is k between the anchor's observation and the present one: of a
-    /// circle's position (the centre's, plus the road user's spread times its change of
-    /// heading), velocity and acceleration, each the largest coordinate (m, m/s, m/s²).
-    /// Infinite without an anchor; 0 for the oracle, whose assumption is the truth whenever
-    /// observed.
-    fn assumption_change(&self, k: usize, at: impl Iterator<Item = f64>) -> f64 {
+    /// The largest change, over the times `window` (none before either observation), of what the
+    /// controller assumes of the road user whose primary barrier is k between the anchor's
+    /// observation and the present one: of a circle's position (the centre's, plus the road
+    /// user's spread times its change of heading), velocity and acceleration, each the largest
+    /// coordinate (m, m/s, m/s²). Each coordinate's change is constant or affine in time but
+    /// constant acceleration's position, a parabola: largest at an end of the window or at
+    /// its vertex. Infinite without an anchor; 0 for the oracle, whose assumption is the truth
+    /// whenever observed.
+    fn assumption_change(&self, k: usize, (from, to): (f64, f64)) -> f64 {
         if self.knowledge == ActorKnowledge::Oracle {
             return 0.0;
         }
@@ -584,8 +586,18 @@ impl KnownActors {
         let spread = (self.offsets[k..k + group].iter()).fold(0.0_f64, |m, c| m.max(c[0].hypot(c[1])));
         let (now, then) = (&self.observed[k], &self.anchor[k]);
         let turned = spread * (now.turn - then.turn).abs();
+        let mut times = [from, to, f64::NAN, f64::NAN];
+        if self.knowledge == ActorKnowledge::ConstantAcceleration {
+            // Where d/ds of the difference of o + v (s − t_o) + a (s − t_o)²/2 vanishes.
+            for c in 0..2 {
+                let curvature = now.acceleration[c] - then.acceleration[c];
+                let slope_at_zero = now.velocity[c] - now.acceleration[c] * self.now - then.velocity[c]
+                    + then.acceleration[c] * self.anchor_time;
+                times[2 + c] = (-slope_at_zero / curvature).clamp(from, to);
+            }
+        }
         let mut change = 0.0_f64;
-        for s in at {
+        for s in times.into_iter().filter(|s| s.is_finite()) {
             let truth = |_: f64| *now;
             let a = self.knowledge.predict(now, self.now, s.max(self.now), truth);
             let b = self
@@ -940,17 +952,24 @@ impl PredictStage {
         let first = delays.iter().copied().fold(f64::INFINITY, f64::min);
         let last = delays.iter().copied().fold(0.0, f64::max);
         let nodes = ((last - first) / period).round().max(0.0) as usize;
-        let times = || (0..=nodes).map(|n| t + first + n as f64 * period);
+        let window = (t + first, t + first + nodes as f64 * period);
         let LawWorkspace { reach, reach_chain, .. } = work;
-        for k in actors.road_users() {
-            if actors.assumption_change(k, times()) <= tolerance {
-                continue;
-            }
-            let left_out =
-                |reach: &mut Reach, node: &ReachAt| reach.still_out(node, k, |j| actors.assumed_centre(j, node.time));
-            if reach_chain.is_empty() || !reach_chain.iter().all(|node| left_out(reach, node)) {
-                self.workspace.invalidate_chain();
-                return;
+        // Road users some law of the chain formed rows of first (no reach test to make again),
+        // then the others, each tested again at every law's state with the new assumption.
+        for formed in [true, false] {
+            for k in actors.road_users() {
+                if actors.assumption_change(k, window) <= tolerance
+                    || reach_chain.iter().any(|node| reach.formed_in(node, k)) != formed
+                {
+                    continue;
+                }
+                let left_out = |reach: &mut Reach, node: &ReachAt| {
+                    reach.still_out(node, k, |j| actors.assumed_centre(j, node.time))
+                };
+                if formed || reach_chain.is_empty() || !reach_chain.iter().all(|node| left_out(reach, node)) {
+                    self.workspace.invalidate_chain();
+                    return;
+                }
             }
         }
     }

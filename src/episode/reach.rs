@@ -26,6 +26,7 @@ const BOUND_FACTOR: f64 = 1.1;
 
 /// One road user: its barriers (consecutive known barriers from its primary), the largest
 /// distance of its circles from its centre, and whether its rows may be left out at all.
+#[derive(Clone, Copy)]
 struct Group {
     first: usize,
     end: usize,
@@ -426,23 +427,41 @@ impl Reach {
         node.formed.extend(self.out.iter().map(|&out| !(culled && out)));
     }
 
+    /// The road user whose primary barrier is `first` (the groups are in barrier order).
+    fn group_of(&self, first: usize) -> Option<Group> {
+        let i = self.groups.partition_point(|g| g.first < first);
+        self.groups.get(i).filter(|g| g.first == first).copied()
+    }
+
+    /// Whether the law `node` records may have formed a row of the road user whose primary
+    /// barrier is `first` (it did, or its rows are never left out, or the law has no form):
+    /// then [`Reach::still_out`] is false without a test.
+    pub(super) fn formed_in(&self, node: &ReachAt, first: usize) -> bool {
+        let Some(group) = self.group_of(first) else {
+            return true;
+        };
+        !group.cullable
+            || node.form.is_none()
+            || (node.formed.get(group.first..group.end)).is_none_or(|formed| formed.iter().any(|&f| f))
+    }
+
     /// Whether the road user whose primary barrier is `first` had no row in the law `node`
     /// records and is out of reach there as a whole when barrier k's road user is at
     /// `assumed(k)` ([`Reach::mark`]'s test, with the law's own ego points and input bounds):
     /// then its rows are in that law under neither assumption.
     pub(super) fn still_out(&mut self, node: &ReachAt, first: usize, assumed: impl Fn(usize) -> ActorState) -> bool {
-        let (Some(group), Some((form, rates))) = (self.groups.iter().find(|g| g.first == first), node.form) else {
+        if self.formed_in(node, first) {
+            return false;
+        }
+        let (Some(group), Some((form, rates))) = (self.group_of(first), node.form) else {
             return false;
         };
         let range = group.first..group.end;
-        if !group.cullable || node.formed.get(range.clone()).is_none_or(|f| f.iter().any(|&f| f)) {
-            return false;
-        }
         self.scratch_out.clear();
         self.scratch_out.resize(self.out.len(), false);
         self.distances.resize(node.points.len(), 0.0);
         mark_group(
-            group,
+            &group,
             (&self.point_of, &self.radius, &self.offsets),
             (&node.points, &node.input_reach, &mut self.distances),
             (form, rates),
