@@ -179,6 +179,12 @@ pub struct ActorKnowledgeSpec {
     /// controller's barriers (a robustness margin; the logged h keeps the true radius).
     #[serde(default)]
     pub margin: f64,
+    /// How often the controller observes the road users (s): every control tick when 0 (the
+    /// default), else at every tick a whole multiple of this period after the first, as a
+    /// perception stack at that rate would; between observations it assumes `kind` from the
+    /// last one (`oracle` knows the recording whatever the period).
+    #[serde(default)]
+    pub period: f64,
 }
 
 impl ObstacleSpec {
@@ -312,12 +318,18 @@ impl ObstacleSpec {
 }
 
 impl ActorKnowledgeSpec {
-    /// The margin is a distance (m) within `extent`.
+    /// The margin is a distance (m) within `extent`, the period a time >= 0 (s).
     pub fn validate(&self, extent: f64) -> Result<(), ParamError> {
         if !(self.margin.is_finite() && self.margin >= 0.0 && self.margin <= extent) {
             return Err(ParamError::new(
                 "actor_knowledge.margin",
                 format!("expected a distance >= 0 (m), found {}", self.margin),
+            ));
+        }
+        if !(self.period.is_finite() && self.period >= 0.0) {
+            return Err(ParamError::new(
+                "actor_knowledge.period",
+                format!("expected a period >= 0 (s), found {}", self.period),
             ));
         }
         Ok(())
@@ -340,7 +352,8 @@ impl Section for ActorKnowledgeSpec {
     }
 
     fn configure(&self, _cx: &SectionContext<'_>, control: &mut dyn ControlSettings) -> Result<(), ParamError> {
-        control.set_actor_knowledge(self.kind);
-        Ok(())
+        control
+            .set_actor_knowledge(self.kind, self.period)
+            .map_err(|e| ParamError::new("actor_knowledge.period", e))
     }
 }

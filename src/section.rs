@@ -54,8 +54,9 @@ pub trait ControlSettings {
     fn set_actuator(&mut self, channel: usize, actuator: Actuator);
     /// Adds ω_i(t) to every channel's applied input.
     fn set_input_disturbance(&mut self, disturbance: InputDisturbance);
-    /// What the controller assumes of the road users over the delay.
-    fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge);
+    /// What the controller assumes of the road users over the delay, observing them every
+    /// `period` seconds (0: every control tick; an error says why the period is not allowed).
+    fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge, period: f64) -> Result<(), String>;
     /// The predictors step every `steps` plant steps (an error says why the delays forbid it).
     fn set_predictor_step(&mut self, steps: u32) -> Result<(), String>;
     /// Reuse the previous tick's recursive chain within this distance.

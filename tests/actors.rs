@@ -222,7 +222,7 @@ fn actor_runs_are_deterministic_and_jitter_is_seeded() {
 
 #[test]
 fn hostile_actor_inputs_are_refused_with_one_line() {
-    let cases: [(&str, &[&str]); 10] = [
+    let cases: [(&str, &[&str]); 14] = [
         (
             "obstacles.0.motion.waypoints=[[60.0, 0.0]]",
             &["obstacles.0.motion", "either a `direction` or `waypoints`"],
@@ -260,6 +260,20 @@ fn hostile_actor_inputs_are_refused_with_one_line() {
             &["obstacles.0.motion.jitter.speed", ">= 0"],
         ),
         ("actor_knowledge.kind=\"psychic\"", &["actor_knowledge", "psychic"]),
+        ("actor_knowledge.period=-0.1", &["actor_knowledge.period", ">= 0"]),
+        ("actor_knowledge.period=nan", &["actor_knowledge.period", ">= 0"]),
+        (
+            "actor_knowledge.period=0.015",
+            &[
+                "actor_knowledge.period",
+                "whole multiple of the control period",
+                "0.015",
+            ],
+        ),
+        (
+            "actor_knowledge.period=1e300",
+            &["actor_knowledge.period", "whole multiple"],
+        ),
     ];
     for (set, needles) in cases {
         let line = run_expecting_failure("ncap_cpna.toml", &[set], needles);

@@ -529,9 +529,14 @@ struct KnownActors {
     offsets: Vec<[f64; 2]>,
     primary: Vec<bool>,
     knowledge: ActorKnowledge,
-    /// The tick time t and, per known barrier, the actor state observed then.
+    /// The time of the last observation and, per known barrier, the actor state observed then
+    /// (the first `observed_known` barriers were known then).
     now: f64,
     observed: Vec<ActorState>,
+    observed_known: usize,
+    /// Observations every this many ticks (`actor_knowledge.period`), and ticks since the last.
+    observe_every: u64,
+    ticks_since_observation: u64,
     /// The observation the recursive chain's laws were first formed with (its tick time, NaN
     /// for none): [`KnownActors::assumption_change`] compares what it assumes with now.
     anchor_time: f64,
@@ -620,14 +625,29 @@ impl KnownActors {
         }
     }
 
-    /// observed ← every actor's state at the tick time t.
+    /// observed ← every actor's state at the tick time t when an observation is due (every
+    /// `observe_every` ticks from the first); else the barriers that became known since the
+    /// last one are given their state then (a road user that did not exist then is parked out
+    /// of the way, `ActorMotion::where_at`: it is seen from the next observation on).
     fn observe(&mut self, t: f64) {
-        self.now = t;
-        for (k, (o, m)) in self.observed.iter_mut().zip(&self.motions).enumerate() {
+        let due = self.observed_known == 0 || self.ticks_since_observation + 1 >= self.observe_every;
+        let from = match due {
+            true => {
+                (self.now, self.ticks_since_observation) = (t, 0);
+                0
+            }
+            false => {
+                self.ticks_since_observation += 1;
+                self.observed_known
+            }
+        };
+        let now = self.now;
+        for (k, (o, m)) in (self.observed.iter_mut().zip(&self.motions).enumerate()).skip(from) {
             if let Some(m) = m {
-                *o = m.where_at(t, k);
+                *o = m.where_at(now, k);
             }
         }
+        self.observed_known = self.observed.len();
     }
 }
 
@@ -744,8 +764,18 @@ impl crate::section::ControlSettings for ControlLoop {
     }
 
     /// What the controller assumes of moving actors over the delays.
-    fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge) {
-        self.laws.actors.knowledge = knowledge;
+    fn set_actor_knowledge(&mut self, knowledge: ActorKnowledge, period: f64) -> Result<(), String> {
+        let control_period = self.timing.control_period;
+        let ticks = period / control_period;
+        if !(period == 0.0 || ((0.5..=1e9).contains(&ticks) && (ticks - ticks.round()).abs() < 1e-6)) {
+            return Err(format!(
+                "expected 0 (every tick) or a whole multiple of the control period {control_period} s, found {period}"
+            ));
+        }
+        let actors = &mut self.laws.actors;
+        actors.knowledge = knowledge;
+        actors.observe_every = (ticks.round() as u64).max(1);
+        Ok(())
     }
 
     /// Sets the predictors' RK4 step to `steps` plant steps. The plant step h is always valid;
@@ -872,6 +902,9 @@ impl LawStage {
                 knowledge: ActorKnowledge::default(),
                 now: 0.0,
                 observed: Vec::new(),
+                observed_known: 0,
+                observe_every: 1,
+                ticks_since_observation: 0,
                 anchor_time: f64::NAN,
                 anchor: Vec::new(),
             },
