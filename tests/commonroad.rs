@@ -721,8 +721,9 @@ fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
 /// Road users out of reach leave no row and change nothing (docs/actors.md, "Out of reach"):
 /// on US101-5 (25 recorded cars in a jam, road edges on) under (4.67) and under the CBF-QP, the
 /// run that leaves them out and the run that forms every row (`control.leave_out_of_reach =
-/// false`) issue the same commands bit for bit, drive the same states and log the same
-/// barriers, while the first forms fewer rows.
+/// false`) issue the same commands bit for bit, drive the same states, log the same barriers
+/// and the same conditions left unmet with the same shortfalls, while the first forms fewer
+/// rows.
 #[test]
 fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
     use mjsafe::log::proto;
@@ -783,8 +784,15 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
         let (culled, every) = (filters(&logs[0]), filters(&logs[1]));
         assert_eq!(culled.len(), every.len());
         let mut upper_bounds = 0;
+        let mut unmet = 0;
         for (c, e) in culled.iter().zip(&every) {
             assert_eq!(e.left_out, 0, "{filter}: the every-row run left rows out at {}", e.time);
+            // A left-out condition holds at the real inputs a decision plans: the unmet ones and
+            // their shortfalls are the every-row run's.
+            assert_eq!(c.unmet, e.unmet, "{filter}: unmet at {}", c.time);
+            let bits = |f: &proto::Filter| f.shortfall.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(c), bits(e), "{filter}: shortfall at {}", c.time);
+            unmet += usize::from(!c.unmet.is_empty());
             if c.left_out == 0 || c.mu < 0.0 {
                 assert_eq!(
                     c.mu.to_bits(),
@@ -800,6 +808,10 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
         assert!(
             culled.iter().any(|c| c.left_out > 0),
             "{filter}: no tick left a row out"
+        );
+        assert!(
+            !filter.is_empty() || unmet > 0,
+            "no (4.67) decision left a condition unmet"
         );
         // (Under (4.67) some tick's least condition is one left out: mu is then above it.)
         assert!(

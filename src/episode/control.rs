@@ -343,11 +343,12 @@ impl LawWorkspace {
             self.reach.note(self.nominal.iter().copied().enumerate());
             self.note_planned(filter);
             // A decision that corrects u0 plans inputs (the QP's other channels, γm's
-            // fictitious σ (4.60)) that are checked when the filter says what they are; else,
-            // and for an infeasible QP's fallback, it is made again with every row. One that
-            // keeps u0 is the full QP's (every left-out row holds there).
-            let corrected =
-                outcome.is_some_and(|o| (o.active && !self.says_planned) || o.infeasible || o.unmet.is_some());
+            // fictitious σ (4.60), and the real inputs its shortfall is of) that are checked
+            // when the filter says what they are; else, and for an infeasible QP's fallback, it
+            // is made again with every row. One that keeps u0 is the full QP's (every left-out
+            // row holds there), and so is the row a shortfall names (a left-out row holds at
+            // every admissible input, the planned real ones among them).
+            let corrected = outcome.is_some_and(|o| (o.active && !self.says_planned) || o.infeasible);
             let command = outcome.map_or(self.nominal[i], |o| if corrected { f64::NAN } else { o.input });
             self.reach.note(std::iter::once((i, command)));
             if !self.reach.again(attempt) {

@@ -66,7 +66,8 @@ pub trait SafetyFilter: Send {
 
     /// `largest[j]` ← the largest |u_j| the QPs of this filter's decisions and laws since the
     /// last call planned on channel j — the variables of a QP as inputs, fictitious ones
-    /// included (γm's u + σ (4.60)) — and true; false (the default) when the filter does not
+    /// included (γm's u + σ (4.60)), and the real inputs whose shortfall a decision reports —
+    /// and true; false (the default) when the filter does not
     /// say. A barrier condition left out of the filter's constraints (a road user out of
     /// reach, docs/actors.md) is checked against these; a decision of a filter that does not
     /// say and that corrects u0 is made again with every row.

@@ -218,6 +218,10 @@ impl ChannelQp {
             for j in 0..r {
                 let real = if j < used { u0[j] + scale * c.b[j] } else { omega[j] };
                 self.plan(j, real + scale / m * c.b[j]);
+                // (A decision's shortfall is of the real inputs: they are planned too.)
+                if report {
+                    self.plan(j, real);
+                }
             }
             if report && (out.active || out.infeasible) {
                 // ū_j = −ζ/ξ b_j (4.62) on the channels ≤ k (0 if infeasible).
@@ -253,6 +257,9 @@ impl ChannelQp {
         for j in 0..r {
             let real = if j < used { u0[j] + self.solution[j] } else { omega[j] };
             self.plan(j, real + self.solution[r + j] / root_m);
+            if report {
+                self.plan(j, real);
+            }
         }
         if report {
             for j in 0..r {
@@ -358,6 +365,31 @@ mod tests {
         let worst = if g[0] < g[1] { 0 } else { 1 };
         assert_eq!(d.unmet, Some(worst));
         assert!((d.shortfall + g[worst]).abs() < 1e-9, "{d:?} {g:?}");
+    }
+
+    /// A γm decision says the real inputs it plans (those its shortfall is of) as well as
+    /// the fictitious u + σ (4.60): here σ points against u0 + v, so only the real input is the
+    /// larger one. The law the predictors assume says u + σ alone.
+    #[test]
+    fn a_gamma_m_decision_plans_its_real_inputs_too() {
+        // u0 = 3 violates the first condition by 0.5: v is a small correction against it.
+        let cs = [constraint(2.55, &[-1.0, 0.5]), constraint(10.0, &[-0.2, 1.0])];
+        let (u0, omega) = (v(&[3.0, -0.1]), v(&[0.0, 0.2]));
+        let (m, gamma) = (50.0, 51.0 / 50.0);
+        let mut qp = ChannelQp::gamma_m(2, 2);
+        let mut largest = [0.0; 2];
+        qp.gamma_m_decision(&cs, &u0, &omega, 0, 0, m, gamma);
+        qp.take_planned(&mut largest);
+        let real = u0[0] + qp.solution[0];
+        let fictitious = real + qp.solution[2] / m.sqrt();
+        assert!(
+            fictitious.abs() < real.abs(),
+            "σ does not point against u: {real} {fictitious}"
+        );
+        assert_eq!(largest[0], real.abs());
+        qp.gamma_m_input(&cs, &u0, &omega, 0, 0, m, gamma);
+        qp.take_planned(&mut largest);
+        assert_eq!(largest[0], fictitious.abs());
     }
 
     /// The γm QP with two barriers, checked against its KKT conditions in w = (v, √m σ):
