@@ -32,6 +32,8 @@ struct Group {
     end: usize,
     spread: f64,
     cullable: bool,
+    /// Its range of [`Reach::gap_terms`].
+    terms: [usize; 2],
 }
 
 /// What one ego point does at the evaluation state (module docs).
@@ -83,6 +85,9 @@ pub(super) struct Reach {
     radius: Vec<f64>,
     /// Per known barrier: its circle's offset from its road user's centre.
     offsets: Vec<[f64; 2]>,
+    /// Per road user, per ego point its barriers measure from: the largest radius of those
+    /// barriers (the group's gap bound takes one distance per point).
+    gap_terms: Vec<(usize, f64)>,
     ego: EgoPoints,
     /// Per ego point, W and B for the current bound, and its distance to the road user tested.
     input_reach: Vec<[f64; 2]>,
@@ -133,6 +138,7 @@ impl Reach {
             point_of: Vec::new(),
             radius: Vec::new(),
             offsets: Vec::new(),
+            gap_terms: Vec::new(),
             ego: EgoPoints::new(model),
             input_reach: Vec::new(),
             distances: Vec::new(),
@@ -186,7 +192,20 @@ impl Reach {
                 end: index + 1,
                 spread,
                 cullable: point.is_some(),
+                terms: [self.gap_terms.len(); 2],
             }),
+        }
+        let (Some(group), Some(i)) = (self.groups.last_mut(), point) else {
+            self.refresh_active();
+            return;
+        };
+        let radius = self.radius[index];
+        match (self.gap_terms[group.terms[0]..group.terms[1]].iter_mut()).find(|(point, _)| *point == i) {
+            Some((_, largest)) => *largest = largest.max(radius),
+            None => {
+                self.gap_terms.push((i, radius));
+                group.terms[1] += 1;
+            }
         }
         self.refresh_active();
     }
@@ -287,6 +306,7 @@ impl Reach {
             point_of,
             radius,
             offsets,
+            gap_terms,
             ego,
             input_reach,
             distances,
@@ -296,7 +316,7 @@ impl Reach {
         for group in groups.iter().filter(|g| g.cullable) {
             let gap = mark_group(
                 group,
-                (point_of, radius, offsets),
+                (point_of, radius, offsets, gap_terms),
                 (&ego.points, input_reach, distances),
                 (form, rates),
                 &assumed,
@@ -462,7 +482,7 @@ impl Reach {
         self.distances.resize(node.points.len(), 0.0);
         mark_group(
             &group,
-            (&self.point_of, &self.radius, &self.offsets),
+            (&self.point_of, &self.radius, &self.offsets, &self.gap_terms),
             (&node.points, &node.input_reach, &mut self.distances),
             (form, rates),
             &assumed,
@@ -478,7 +498,7 @@ impl Reach {
 /// user at `assumed(k)`. Returns the group's gap bound D.
 fn mark_group(
     group: &Group,
-    (point_of, radius, offsets): (&[Option<usize>], &[f64], &[[f64; 2]]),
+    (point_of, radius, offsets, gap_terms): (&[Option<usize>], &[f64], &[[f64; 2]], &[(usize, f64)]),
     (points, input_reach, distances): (&[PointMotion], &[[f64; 2]], &mut [f64]),
     (form, rates): (BarrierForm, Option<(f64, f64)>),
     assumed: &impl Fn(usize) -> ActorState,
@@ -515,10 +535,9 @@ fn mark_group(
         bounds.input_speed = bounds.input_speed.max(input_reach[i][0]);
         bounds.input_acceleration = bounds.input_acceleration.max(input_reach[i][1]);
     }
-    for k in group.first..group.end {
-        if let Some(i) = point_of[k] {
-            bounds.gap = bounds.gap.min(distances[i] - rho - radius[k]);
-        }
+    // (The least of ‖q_i − o‖ − ρ − r_k over the barriers, one term per ego point.)
+    for &(i, largest_radius) in &gap_terms[group.terms[0]..group.terms[1]] {
+        bounds.gap = bounds.gap.min(distances[i] - rho - largest_radius);
     }
     if shared && rows_hold_given(&bounds, form, rates) {
         out[group.first..group.end].fill(true);

@@ -63,6 +63,7 @@ pub fn rows_hold(bounds: &ReachBounds, form: BarrierForm) -> bool {
 }
 
 /// [`rows_hold`] with the form's [`BarrierForm::real_rates`] already computed (`rates`).
+#[inline]
 pub fn rows_hold_given(bounds: &ReachBounds, form: BarrierForm, rates: Option<(f64, f64)>) -> bool {
     let ReachBounds {
         gap,
