@@ -316,7 +316,12 @@ impl Reach {
         for group in groups.iter().filter(|g| g.cullable) {
             let gap = mark_group(
                 group,
-                (point_of, radius, offsets, gap_terms),
+                BarrierGeometry {
+                    point_of,
+                    radius,
+                    offsets,
+                    gap_terms,
+                },
                 (&ego.points, input_reach, distances),
                 (form, rates),
                 &assumed,
@@ -482,7 +487,12 @@ impl Reach {
         self.distances.resize(node.points.len(), 0.0);
         mark_group(
             &group,
-            (&self.point_of, &self.radius, &self.offsets, &self.gap_terms),
+            BarrierGeometry {
+                point_of: &self.point_of,
+                radius: &self.radius,
+                offsets: &self.offsets,
+                gap_terms: &self.gap_terms,
+            },
             (&node.points, &node.input_reach, &mut self.distances),
             (form, rates),
             &assumed,
@@ -492,18 +502,33 @@ impl Reach {
     }
 }
 
+/// What [`mark_group`] reads of the known barriers ([`Reach`]'s fields of the same names).
+#[derive(Clone, Copy)]
+struct BarrierGeometry<'a> {
+    point_of: &'a [Option<usize>],
+    radius: &'a [f64],
+    offsets: &'a [[f64; 2]],
+    gap_terms: &'a [(usize, f64)],
+}
+
 /// Which of `group`'s barriers are out of reach, written into `out` (indexed by barrier): the
 /// road user as a whole from its centre and spread, else pair by pair (module docs), for the
 /// ego points `points` and their input bounds `input_reach` (W and B), with barrier k's road
 /// user at `assumed(k)`. Returns the group's gap bound D.
 fn mark_group(
     group: &Group,
-    (point_of, radius, offsets, gap_terms): (&[Option<usize>], &[f64], &[[f64; 2]], &[(usize, f64)]),
+    geometry: BarrierGeometry<'_>,
     (points, input_reach, distances): (&[PointMotion], &[[f64; 2]], &mut [f64]),
     (form, rates): (BarrierForm, Option<(f64, f64)>),
     assumed: &impl Fn(usize) -> ActorState,
     out: &mut [bool],
 ) -> f64 {
+    let BarrierGeometry {
+        point_of,
+        radius,
+        offsets,
+        gap_terms,
+    } = geometry;
     let actor = assumed(group.first);
     // Every barrier of a road user sees one state while it exists; one that does not
     // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
