@@ -267,6 +267,17 @@ pub struct FilterContext<'a> {
 }
 
 impl FilterContext<'_> {
+    /// The most constraint rows a decision in `form` can have: one per barrier, and the
+    /// first-order row ḣ + λ1 h of each mixed-relative-degree barrier when the form has real
+    /// rates (what a filter's QP workspace is sized for: solving then never allocates).
+    pub fn most_rows(&self, form: BarrierForm) -> usize {
+        let first_order = match form.real_rates() {
+            Some(_) => self.barriers.iter().filter(|b| b.mixed_relative_degree()).count(),
+            None => 0,
+        };
+        self.barriers.len() + first_order
+    }
+
     /// The error of a check that failed: the distinct-delay filters need constant delays in
     /// non-decreasing channel order D_1 ≤ … ≤ D_r.
     pub fn ordered_constant_delays(&self) -> Result<(), ParamError> {

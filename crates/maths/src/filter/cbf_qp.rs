@@ -109,12 +109,13 @@ pub fn build(p: &CbfQpParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilte
         }
         None => None,
     };
+    let form = barrier_form(p.alpha, p.l0, p.l1)?;
     Ok(Box::new(CbfQp {
-        form: barrier_form(p.alpha, p.l0, p.l1)?,
+        form,
         predicted: p.compensation == Compensation::Predictor,
         limits,
         input: DVector::zeros(r),
-        qp: QpWorkspace::with_capacity(r, ctx.barriers.len()),
+        qp: QpWorkspace::with_capacity(r, ctx.most_rows(form)),
         largest_planned: vec![0.0; r],
     }))
 }

@@ -155,7 +155,7 @@ pub fn build(p: &FixedChannelParams, ctx: &FilterContext) -> Result<Box<dyn Safe
         form,
         phi,
         omega: DVector::zeros(r),
-        qp: ChannelQp::fixed_channel(r, ctx.barriers.len()),
+        qp: ChannelQp::fixed_channel(r, ctx.most_rows(form)),
     }))
 }
 

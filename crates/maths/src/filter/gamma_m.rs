@@ -88,7 +88,7 @@ pub fn build(p: &GammaMParams, ctx: &FilterContext) -> Result<Box<dyn SafetyFilt
             .iter()
             .map(|q| q.constant_delay().unwrap_or(f64::NAN))
             .collect(),
-        qp: ChannelQp::gamma_m(ctx.queues.len(), ctx.barriers.len()),
+        qp: ChannelQp::gamma_m(ctx.queues.len(), ctx.most_rows(form)),
     }))
 }
 
