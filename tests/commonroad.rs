@@ -1012,7 +1012,7 @@ fn verdict(metrics: &serde_json::Value) -> (String, f64) {
 /// US101-4 with every second road user appearing at step 12. mjsafe runs it, says how many start
 /// late, and at every recorded step each road user is where commonroad-io's `state_at_time(k)`
 /// puts it and absent before its first step (tests/commonroad_check.py, with the contacts and the
-/// goal).
+/// goal). Observed every 0.07 s, a late road user is assumed nothing of until it is observed.
 #[test]
 fn road_users_appearing_after_the_start_exist_from_their_first_step() {
     let dir = tempfile::tempdir().unwrap();
@@ -1040,6 +1040,34 @@ fn road_users_appearing_after_the_start_exist_from_their_first_step() {
     }
     let first_after = actors.iter().find(|m| m.time > 1.25).unwrap();
     assert!(late.iter().all(|name| !absent(first_after).contains(name)));
+    // Observed every 0.07 s (at 1.19 and 1.26 s), a road user appearing at 1.2 s is unseen until
+    // 1.26 s: the predictions of the ticks between assume nothing of it (NaN, not the distance
+    // to where the controller held it parked), and every other assumption is within metres.
+    let log = dir.path().join("late-observed.mcap");
+    let o = mjsafe(&[
+        "run",
+        dir.path().join("late.xml").to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+        "--set",
+        "actor_knowledge.period=0.07",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (mut unseen, mut largest) = (0, 0.0_f64);
+    for p in common::read_topic::<mjsafe::log::proto::Prediction>(&log, "/prediction") {
+        for (i, name) in p.actors.iter().enumerate() {
+            let error = p.actor_error[i];
+            let between = (1.2..1.255).contains(&p.issued_at);
+            if late.contains(name) && between {
+                assert!(error.is_nan(), "{name} assumed at {} s: {error} m off", p.issued_at);
+                unseen += 1;
+            } else if !error.is_nan() {
+                largest = largest.max(error);
+            }
+        }
+    }
+    assert!(unseen >= late_count, "{unseen} predictions of unseen road users");
+    assert!(largest < 50.0, "an assumption {largest} m off");
 }
 
 /// mjsafe measures a scene, not the way its file writes it. Every committed file is written

@@ -1696,9 +1696,15 @@ fn keep_pending(
             // Where the controller assumes each moving actor at the target time.
             let mut assumed = spare_actor_positions.pop().unwrap_or_default();
             assumed.clear();
+            // (NaN for a road user that did not exist at the last observation: the controller
+            // held it parked, it assumed nothing of it.)
             for (k, m) in actors.motions.iter().enumerate() {
                 if let (Some(m), true) = (m, actors.primary[k]) {
-                    assumed.extend_from_slice(&actors.assumed(m, k, p.target_time).position);
+                    let position = match m.exists_at(actors.now) {
+                        true => actors.assumed(m, k, p.target_time).position,
+                        false => [f64::NAN; 2],
+                    };
+                    assumed.extend_from_slice(&position);
                 }
             }
             pending[p.channel].push_back(Pending {
