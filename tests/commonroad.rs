@@ -1068,6 +1068,33 @@ fn road_users_appearing_after_the_start_exist_from_their_first_step() {
     }
     assert!(unseen >= late_count, "{unseen} predictions of unseen road users");
     assert!(largest < 50.0, "an assumption {largest} m off");
+    // The 3D view draws no marker of an assumption not made: it deletes the road user's, and
+    // every drawn point is finite.
+    let (mut deleted, mut points) = (std::collections::BTreeSet::new(), 0);
+    for update in common::read_topic::<foxglove::messages::SceneUpdate>(&log, "/scene") {
+        for d in &update.deletions {
+            deleted.extend(
+                late.iter()
+                    .filter(|name| d.id.starts_with(&format!("actor_prediction/{name}/"))),
+            );
+        }
+        for e in &update.entities {
+            let poses = (e.cylinders.iter().filter_map(|c| c.pose.as_ref()))
+                .chain(e.cubes.iter().filter_map(|c| c.pose.as_ref()))
+                .filter_map(|p| p.position.as_ref());
+            let line_points = e.lines.iter().flat_map(|l| &l.points);
+            for [x, y, z] in poses
+                .map(|v| [v.x, v.y, v.z])
+                .chain(line_points.map(|p| [p.x, p.y, p.z]))
+            {
+                assert!(x.is_finite() && y.is_finite() && z.is_finite(), "{}: {x} {y} {z}", e.id);
+                assert!(x.abs() < 1e5 && y.abs() < 1e5, "{} drawn at {x}, {y}", e.id);
+                points += 1;
+            }
+        }
+    }
+    assert_eq!(deleted.len(), late_count, "{deleted:?}");
+    assert!(points > 1000);
 }
 
 /// mjsafe measures a scene, not the way its file writes it. Every committed file is written

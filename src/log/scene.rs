@@ -5,8 +5,8 @@
 //! the episode without any set-up. Messages use Foxglove's own protobuf schemas.
 
 use foxglove::messages::{
-    Color, CubePrimitive, CylinderPrimitive, FrameTransform, LinePrimitive, Point3, Pose, Quaternion, SceneEntity,
-    SceneUpdate, Timestamp, Vector3,
+    scene_entity_deletion, Color, CubePrimitive, CylinderPrimitive, FrameTransform, LinePrimitive, Point3, Pose,
+    Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate, Timestamp, Vector3,
 };
 
 /// The world frame every entity is drawn in.
@@ -299,7 +299,22 @@ pub fn prediction(time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius
 }
 
 /// `update` ← [`prediction`], reusing its buffers when it already holds entity `id`.
+/// Without a finite `to` (the controller assumes nothing of the road user: it has not observed
+/// it) the update deletes entity `id` instead.
 pub fn prediction_into(update: &mut SceneUpdate, time: f64, id: &str, from: [f64; 2], to: [f64; 2], hull_radius: f64) {
+    if !(to[0].is_finite() && to[1].is_finite()) {
+        update.entities.clear();
+        if !matches!(update.deletions.as_slice(), [d] if d.id == id) {
+            update.deletions.clear();
+            update.deletions.push(SceneEntityDeletion {
+                timestamp: None,
+                r#type: scene_entity_deletion::Type::MatchingId as i32,
+                id: id.into(),
+            });
+        }
+        update.deletions[0].timestamp = Some(timestamp(time));
+        return;
+    }
     let shaped = matches!(update.entities.as_slice(), [e] if e.id == id && e.cylinders.len() == 1 && e.lines.len() == 1 && e.lines[0].points.len() == 2);
     if !shaped {
         let mut e = entity(time, id);
