@@ -3,8 +3,10 @@
 # (data/commonroad/) with its defaults (delays 0.2 s steering, 0.5 s acceleration; road edges;
 # the goal region) under the nominal alone, the delay-free CBF-QP (2.16), the predictor CBF-QP
 # (4.34) and the gamma-m filter (4.67), the road users assumed at constant velocity; then (4.67)
-# with the road users assumed static, at constant acceleration and known exactly (oracle).
-# Two sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
+# with the road users assumed static, at constant acceleration and known exactly (oracle); then
+# (4.67) at constant velocity with the road users observed every 0.1 s (the recordings' own step)
+# and every 0.2 s (`actor_knowledge.period`).
+# Three sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
 # scene with (4.67), each file's defaults: the scene at the car's closest approach to any road user
 # (`analyze --plot`'s `-closest.png`) for the highway (US101-5, 25 cars), an urban intersection
 # (Peach) and the crossing pedestrian, written to docs/figures/commonroad-{highway,intersection,pedestrian}.png.
@@ -13,13 +15,15 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 mjsafe="${1:-target/release/mjsafe}"
 out="${2:-logs/commonroad-study}"
-rm -rf "$out/filters" "$out/knowledge"
+rm -rf "$out/filters" "$out/knowledge" "$out/observed"
 qp='kind="cbf_qp",l0=4.0,l1=4.0'
 "$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/filters" \
   --grid "filter={kind=\"none\"},{$qp},{$qp,compensation=\"predictor\"},{kind=\"gamma_m\",l0=4.0,l1=4.0,m=50.0}" \
   >/dev/null 2>&1
 "$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
   --grid 'actor_knowledge.kind=static,constant_acceleration,oracle' >/dev/null 2>&1
+"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
+  --grid 'actor_knowledge.period=0.1,0.2' >/dev/null 2>&1
 python3 - "$out" <<'PY'
 import csv, sys
 out = sys.argv[1]
@@ -31,9 +35,11 @@ label = {
     'static': "(4.67), static", '"static"': "(4.67), static",
     'constant_acceleration': "(4.67), const. accel.", '"constant_acceleration"': "(4.67), const. accel.",
     'oracle': "(4.67), oracle", '"oracle"': "(4.67), oracle",
+    '0.1': "(4.67), observed every 0.1 s", '0.2': "(4.67), observed every 0.2 s",
 }
 columns, cells = [], {}
-for sweep, key in (("filters", "filter"), ("knowledge", "actor_knowledge.kind")):
+sweeps = (("filters", "filter"), ("knowledge", "actor_knowledge.kind"), ("observed", "actor_knowledge.period"))
+for sweep, key in sweeps:
     for row in csv.DictReader(open(f"{out}/{sweep}/summary.csv")):
         column = label[row[key]]
         if column not in columns:
