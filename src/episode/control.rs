@@ -1599,7 +1599,10 @@ fn predict_stage(
     chain_audit: Option<&mut ChainAudit>,
 ) -> Result<(), FilterError> {
     let mut law_error = None;
+    // (The audit's laws are not the chain's: only the prediction's own are recorded.)
+    let recording = std::cell::Cell::new(law.recording);
     let mut kappa = |s: f64, z: &[f64], free: &[usize], u: &mut [f64]| {
+        law.recording = recording.get();
         if let Err(e) = law.issued_law(laws, filter, context.queues, nominal_predicts, (s, z, free), u) {
             law_error.get_or_insert(e);
         }
@@ -1611,6 +1614,7 @@ fn predict_stage(
             predictions: recomputed,
             ..
         } = audit;
+        recording.set(false);
         context.predict_into(structure, t, state.as_slice(), &mut kappa, workspace, recomputed)?;
         for (p, q) in predictions.iter().zip(recomputed.iter()) {
             if p.reused_chain {

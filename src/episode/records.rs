@@ -153,22 +153,20 @@ impl RecordBuffers {
         actor_realized.clear();
         actor_error.clear();
         let known = c.actors_predicted.len() / 2;
-        let (tick, target_time) = (c.prediction.issued_at, c.prediction.target_time);
+        let target_time = c.prediction.target_time;
         self.actor_slots.refresh(control, obstacles);
         for (i, o) in obstacles.iter().enumerate() {
             let Some(motion) = &o.motion else { continue };
             // A road user that does not exist at the target time has no true position, and one
-            // that did not exist at the tick was not predicted (the controller held it parked):
-            // NaN, not the distance to a parking place.
+            // that did not exist at the controller's last observation was not predicted (it
+            // held it parked: NaN already, not the distance to a parking place).
             let truth = match motion.exists_at(target_time) {
                 true => motion.state_at(target_time).position,
                 false => [f64::NAN; 2],
             };
-            let assumed = (self.actor_slots.slot(i, known))
-                .filter(|_| motion.exists_at(tick))
-                .map_or([f64::NAN; 2], |k| {
-                    [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
-                });
+            let assumed = (self.actor_slots.slot(i, known)).map_or([f64::NAN; 2], |k| {
+                [c.actors_predicted[2 * k], c.actors_predicted[2 * k + 1]]
+            });
             actor_predicted.extend_from_slice(&assumed);
             actor_realized.extend_from_slice(&truth);
             actor_error.push((assumed[0] - truth[0]).hypot(assumed[1] - truth[1]));
