@@ -173,7 +173,7 @@ pub static METRICS: &[Metric] = &[
         // A run that made no predictions (metadata `predicts = false`) has no /prediction to lack.
         applies: |run| run.predicts != Some(false),
         ..metric("max_actor_prediction_error", METRES, Shape::Number, &[Topic::Prediction, Topic::Actors], new::<MaxActorPredictionError>,
-        "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored: an obstacle unknown or not existing at the prediction's tick, or not existing at the target time); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions")
+        "max over `/prediction` messages and their moving obstacles of `actor_error` = ‖assumed − true position at the target time‖ (what `[actor_knowledge]` assumed over the delay; NaN ignored: an obstacle unknown at the prediction's tick or not existing at the controller's last observation (the tick, unless `actor_knowledge.period`), or not existing at the target time); absent without moving obstacles, and with a reason when the log has `/actors` but no actor predictions")
     },
     Metric {
         // Vehicles with a heading (a line's car following has no path to be ahead in).
