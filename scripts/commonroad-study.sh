@@ -4,8 +4,9 @@
 # the goal region) under the nominal alone, the delay-free CBF-QP (2.16), the predictor CBF-QP
 # (4.34) and the gamma-m filter (4.67), the road users assumed at constant velocity; then (4.67)
 # with the road users assumed static, at constant acceleration and known exactly (oracle); then
-# (4.67) at constant velocity with the road users observed every 0.1 s (the recordings' own step)
-# and every 0.2 s (`actor_knowledge.period`).
+# (4.67) at constant velocity with the road users observed at every 10 ms control tick and every
+# 0.2 s (`actor_knowledge.period`; the default observes them when they were recorded, at each
+# file's own time step, mostly 0.1 s).
 # Three sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
 # scene with (4.67), each file's defaults: the scene at the car's closest approach to any road user
 # (`analyze --plot`'s `-closest.png`) for the highway (US101-5, 25 cars), an urban intersection
@@ -23,7 +24,7 @@ qp='kind="cbf_qp",l0=4.0,l1=4.0'
 "$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
   --grid 'actor_knowledge.kind=static,constant_acceleration,oracle' >/dev/null 2>&1
 "$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
-  --grid 'actor_knowledge.period=0.1,0.2' >/dev/null 2>&1
+  --grid 'actor_knowledge.period=0.0,0.2' >/dev/null 2>&1
 python3 - "$out" <<'PY'
 import csv, sys
 out = sys.argv[1]
@@ -35,7 +36,7 @@ label = {
     'static': "(4.67), static", '"static"': "(4.67), static",
     'constant_acceleration': "(4.67), const. accel.", '"constant_acceleration"': "(4.67), const. accel.",
     'oracle': "(4.67), oracle", '"oracle"': "(4.67), oracle",
-    '0.1': "(4.67), observed every 0.1 s", '0.2': "(4.67), observed every 0.2 s",
+    '0.0': "(4.67), observed every tick", '0.2': "(4.67), observed every 0.2 s",
 }
 columns, cells = [], {}
 sweeps = (("filters", "filter"), ("knowledge", "actor_knowledge.kind"), ("observed", "actor_knowledge.period"))

@@ -30,7 +30,9 @@ no states after the initial one) are compared at their initial time step only.
 Every `/prediction` entry of a road user is checked against its recorded life span (first and
 last time step): `actor_realized` NaN exactly when it does not exist at the target time (and the
 recorded position at a recorded step), `actor_predicted` NaN when it did not exist at the
-prediction's tick, `actor_error` their distance (NaN when either is). The `road_user_entered`
+controller's last observation at or before the prediction's tick (every tick, or every
+`actor_knowledge.period` of the log's resolved scenario from t = 0; the oracle at every tick),
+`actor_error` their distance (NaN when either is). The `road_user_entered`
 and `road_user_left` events are checked against the same spans: one at the first logged step at
 or after a first recorded time later than 0, one at the first step after a last recorded time
 before the log's end, and no others.
@@ -79,6 +81,7 @@ import math
 import os
 import struct
 import sys
+import tomllib
 import warnings
 
 # A contact is decided within this much of touching (`check_contacts`), m.
@@ -505,10 +508,16 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
     """Every `/prediction` entry of a road user against its recorded life span [first, last]
     time step (× dt): its true position (`actor_realized`) is NaN exactly when it does not
     exist at the target time, and its recorded position at a recorded step otherwise; the
-    controller's assumption (`actor_predicted`) is NaN when it did not exist at the prediction's
-    tick; `actor_error` is the distance between the two, NaN when either is. Road users with a
+    controller's assumption (`actor_predicted`) is NaN when it did not exist at the controller's
+    last observation at or before the prediction's tick; `actor_error` is the distance between the two, NaN when either is. Road users with a
     set-based prediction are left out. Returns (entries checked, NaN errors, mismatches)."""
     span = life_spans(scenario, dt, ego_ids)
+    knowledge = tomllib.loads(run_metadata(log_path)["scenario_resolved"]).get("actor_knowledge", {})
+    period = 0.0 if knowledge.get("kind") == "oracle" else float(knowledge.get("period", 0.0))
+
+    def observed_at(tick):
+        """The time of the controller's last observation at or before `tick`."""
+        return tick if period <= 0.0 else math.floor(tick / period + 1e-6) * period
     checked = without = 0
     mismatches = []
     for m in read_messages(log_path, "/prediction", decode_prediction):
@@ -534,9 +543,9 @@ def check_predictions(scenario, log_path, dt, ego_ids=()):
             if exists(t) == any(math.isnan(v) for v in realized):
                 mismatches.append(f"{where}: true position {realized} while it "
                                   f"{'exists' if exists(t) else 'does not exist'}")
-            if not exists(tick) and not all(math.isnan(v) for v in predicted):
+            if not exists(observed_at(tick)) and not all(math.isnan(v) for v in predicted):
                 mismatches.append(f"{where}: assumed at {predicted} although it did not exist at "
-                                  "the tick")
+                                  f"the last observation ({observed_at(tick)!r})")
             expected = math.hypot(predicted[0] - realized[0], predicted[1] - realized[1])
             if math.isnan(expected) != math.isnan(error) or \
                     (not math.isnan(error) and abs(error - expected) > TOL * max(1.0, expected)):

@@ -50,6 +50,21 @@ pub const VEHICLE: VehicleParameters = VehicleParameters {
 /// The default delays (s) of a CommonRoad world: steering, acceleration.
 pub const DELAYS: (f64, f64) = (0.2, 0.5);
 
+/// The control period of a CommonRoad world (s).
+pub const CONTROL_PERIOD: f64 = 0.01;
+
+/// How often the controller observes the road users (`actor_knowledge.period`, s): when they were
+/// recorded, every time step `dt` of the file, so that it knows the recorded states and nothing
+/// between them (docs/commonroad.md); a step that is not a whole number of control periods is
+/// observed at the largest one below it (at least one period).
+pub fn observation_period(dt: f64) -> f64 {
+    let ticks = (dt / CONTROL_PERIOD + 1e-9).floor().max(1.0);
+    match (ticks * CONTROL_PERIOD - dt).abs() < 1e-12 {
+        true => dt,
+        false => ticks * CONTROL_PERIOD,
+    }
+}
+
 /// The model a CommonRoad world's ego runs on (built in: [`crate::models`]).
 pub const MODEL: &str = "mjsafe:commonroad_car.xml";
 
@@ -184,7 +199,7 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem, ego: Option<u64>) -> Re
         "initial_input".into(),
         table(&[("steering", v(0.0)), ("acceleration", v(0.0))]),
     );
-    t.insert("control".into(), table(&[("period", v(0.01))]));
+    t.insert("control".into(), table(&[("period", v(CONTROL_PERIOD))]));
     let path: Vec<toml::Value> = route.centre.iter().map(|p| point(*p)).collect();
     t.insert(
         "nominal".into(),
@@ -205,7 +220,10 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem, ego: Option<u64>) -> Re
     );
     t.insert(
         "actor_knowledge".into(),
-        table(&[("kind", toml::Value::String("constant_velocity".into()))]),
+        table(&[
+            ("kind", toml::Value::String("constant_velocity".into())),
+            ("period", v(observation_period(dt))),
+        ]),
     );
     if let Some(goal) = goal(cr, problem) {
         t.insert("goal".into(), toml::Value::Table(goal));
@@ -738,6 +756,25 @@ mod tests {
 
     fn data(name: &str) -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("data/commonroad").join(name)
+    }
+
+    /// The road users are observed at the file's own step when it is a whole number of control
+    /// periods (0.1, 0.2 and 0.04 s among the committed files), else at the largest such below.
+    #[test]
+    fn the_road_users_are_observed_when_they_were_recorded() {
+        for (dt, period) in [
+            (0.1, 0.1),
+            (0.2, 0.2),
+            (0.04, 0.04),
+            (0.025, 0.02),
+            (0.005, 0.01),
+            (1.0, 1.0),
+        ] {
+            assert_eq!(observation_period(dt), period, "dt {dt}");
+        }
+        let cr = read(&data("USA_US101-4_1_T-1.xml")).unwrap();
+        let t = world(&cr, cr.planning_problem(None).unwrap(), None).unwrap();
+        assert_eq!(t["actor_knowledge"]["period"].as_float(), Some(cr.time_step));
     }
 
     /// US101-4: the ego starts at the planning problem's centre (0, 0) less b along its
