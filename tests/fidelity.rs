@@ -124,21 +124,21 @@ fn unicycle_stays_within_5cm_of_the_kinematic_model_over_10s() {
     assert!(max_err <= 0.05, "position error {max_err}");
 }
 
-/// The CommonRoad car (models/commonroad_car.xml) moves, in every 2 ms step under a held input,
-/// as (4.78) does to second order: its speed is (4.78)'s x4 itself, it turns at the step's mean
-/// speed and advances along the step's mean heading. Accelerating, braking and steering at
-/// highway speed for 10 s, it stays within 0.1 mm of the exact model and its speed is the
-/// model's (a speed servo one step late, as before stop 68, strayed 2.8 cm with its speed 6 mm/s
-/// off).
+/// The CommonRoad car (models/commonroad_car.xml) moves, in every step under a held input (its
+/// step is the control period, 10 ms), as (4.78) does to second order: its speed is (4.78)'s x4
+/// itself, it turns at the step's mean speed and advances along the step's mean heading.
+/// Accelerating, braking and steering at highway speed for 10 s, it stays within 1 mm of the
+/// exact model (0.42 mm; 0.05 mm at 2 ms steps) and its speed is the model's (a speed servo one
+/// step late, as before stop 68, strayed 2.8 cm at 2 ms steps).
 #[test]
 fn the_commonroad_car_follows_the_kinematic_model_to_second_order() {
     let (max_err, last) = compare("bicycle", "commonroad_car.xml", &[0.0, 0.0, 0.3, 25.0], 10.0, |t| {
         vec![0.04 * (0.9 * t).sin(), if t < 5.0 { 1.5 } else { -3.0 }]
     });
     println!(
-        "fidelity commonroad car (implicit, h = 0.002, 10 s, v from 25 m/s): max position error = {max_err:.3e} m, final error = {:?}",
+        "fidelity commonroad car (implicit, h = 0.01, 10 s, v from 25 m/s): max position error = {max_err:.3e} m, final error = {:?}",
         last.as_slice()
     );
-    assert!(max_err <= 1e-4, "position error {max_err}");
+    assert!(max_err <= 1e-3, "position error {max_err}");
     assert!(last[3].abs() <= 1e-9, "speed error {}", last[3]);
 }

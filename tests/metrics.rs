@@ -317,22 +317,19 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
                 .map(|v| (v.x, v.y))
                 .unwrap()
         };
-        // Forward differences of the logged positions.
+        // Backward differences of the logged positions (over the step that ends at state k ≥ 1).
         let velocity = |k: usize| {
-            let dt = states[k + 1].time - states[k].time;
-            let (p, q) = (&states[k].values, &states[k + 1].values);
+            let dt = states[k].time - states[k - 1].time;
+            let (p, q) = (&states[k - 1].values, &states[k].values);
             ((q[0] - p[0]) / dt, (q[1] - p[1]) / dt)
         };
         let speed = |k: usize| velocity(k).0.hypot(velocity(k).1);
         let collision = events.iter().find(|e| e.kind == "collision_start").map(|e| e.time);
         assert_eq!(collision.is_some(), collides, "{name}: {collision:?}");
         let k_c = collision.map(|t| states.iter().position(|s| (s.time - t).abs() < 1e-9).unwrap());
-        let before = k_c.unwrap_or(states.len() - 1);
-        let min_speed = (0..before)
-            .map(speed)
-            .chain(k_c.map(speed))
-            .fold(f64::INFINITY, f64::min);
-        let reduction = speed(0) - k_c.map_or(min_speed, speed);
+        let last = k_c.unwrap_or(states.len() - 1);
+        let min_speed = (1..=last).map(speed).fold(f64::INFINITY, f64::min);
+        let reduction = speed(1) - k_c.map_or(min_speed, speed);
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
         assert!(close(m["speed_reduction"].as_f64().unwrap(), reduction), "{name}: {m}");
         assert_eq!(
@@ -342,8 +339,8 @@ fn per_actor_metrics_agree_with_the_raw_messages() {
         );
         match k_c {
             Some(k) => {
-                let (o0, o1) = (walker(&actors[k]), walker(&actors[k + 1]));
-                let dt = actors[k + 1].time - actors[k].time;
+                let (o0, o1) = (walker(&actors[k - 1]), walker(&actors[k]));
+                let dt = actors[k].time - actors[k - 1].time;
                 let (vx, vy) = velocity(k);
                 let relative = (vx - (o1.0 - o0.0) / dt).hypot(vy - (o1.1 - o0.1) / dt);
                 let logged = m["impact_speed_by_actor"]["walker"].as_f64().unwrap();
@@ -435,22 +432,25 @@ fn static_walker_run_edited_with(log: &std::path::Path, sets: &[&str], edit: imp
     episode.run(&mut [&mut sink]).unwrap();
 }
 
-/// A road user whose recording ends at its collision has no velocity after it: its impact speed
-/// is absent with that reason, not the vehicle's own speed (a forward difference of the road
-/// user's frozen last position), and the run is not said to have had no collision.
+/// The impact speed is the approach's: a road user whose recording ends at its collision (absent
+/// from the next step on, where it was last seen) still has one, the backward difference of
+/// its positions before the contact, equal to the run's unedited; one whose recording begins at
+/// its collision (absent at every step before it) has none, with that reason, and the run is
+/// not said to have had no collision.
 #[test]
-fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
+fn an_impact_speed_is_of_the_step_before_the_collision() {
     let dir = tempfile::tempdir().unwrap();
-    let log = dir.path().join("ends.mcap");
-    // From the step after the collision on, the walker is absent where it was last seen, as
-    // the episode logs a road user past its last recorded state.
-    let (mut collided, mut last_seen) = (false, None);
-    static_walker_run_edited(&log, |record| match record {
-        Record::Event(e) if e.kind == "collision_start" => {
-            collided = true;
-            vec![record.clone()]
-        }
-        Record::Actors(m) if collided => {
+    let plain = dir.path().join("plain.mcap");
+    static_walker_run_edited(&plain, |record| vec![record.clone()]);
+    let m = common::analyze_json(&plain);
+    let t_c = m["collision"]["time"].as_f64().expect("the static assumption collides");
+    let speed = m["impact_speed_by_actor"]["walker"].as_f64().unwrap();
+    // Ends at the collision: from the step after it on, absent where it was last seen, as the
+    // episode logs a road user past its last recorded state.
+    let ends = dir.path().join("ends.mcap");
+    let mut last_seen = None;
+    static_walker_run_edited(&ends, |record| match record {
+        Record::Actors(m) if m.time > t_c + 1e-9 => {
             let mut m = m.clone();
             for a in m.actors.iter_mut().filter(|a| a.name == "walker") {
                 let (x, y) = *last_seen.get_or_insert((a.x, a.y));
@@ -460,13 +460,26 @@ fn an_impact_with_a_road_user_that_then_ends_has_no_impact_speed() {
         }
         _ => vec![record.clone()],
     });
-    assert!(collided, "the static assumption collides");
-    let m = common::analyze_json(&log);
+    let m = common::analyze_json(&ends);
+    assert_eq!(m["impact_speed_by_actor"]["walker"].as_f64(), Some(speed), "{m}");
+    // Begins at the collision: absent (parked far away) at every step before it.
+    let begins = dir.path().join("begins.mcap");
+    static_walker_run_edited(&begins, |record| match record {
+        Record::Actors(m) if m.time < t_c - 1e-9 => {
+            let mut m = m.clone();
+            for a in m.actors.iter_mut().filter(|a| a.name == "walker") {
+                (a.x, a.y, a.vx, a.vy, a.absent) = (1e6, 1e6, 0.0, 0.0, true);
+            }
+            vec![Record::Actors(m)]
+        }
+        _ => vec![record.clone()],
+    });
+    let m = common::analyze_json(&begins);
     assert!(m["collision"].is_object(), "{m}");
     assert!(m["impact_speed_by_actor"].is_null(), "{m}");
     assert_eq!(
         m["missing"]["impact_speed_by_actor.walker"],
-        "it no longer exists at the step after its collision (its last recorded state): no forward difference"
+        "it did not exist at the step before its collision (its first recorded state): no backward difference"
     );
     assert!(m["missing"].get("impact_speed_by_actor").is_none(), "{m}");
 }

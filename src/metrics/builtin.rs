@@ -187,9 +187,9 @@ pub static METRICS: &[Metric] = &[
         "brake threat number BTN as CommonRoad-CriMe defines it (measure/index/btn.py, Åsljung et al. 2017, (9); accelerations signed and along the vehicle's heading, where CriMe 0.4.5's code takes magnitudes along the lanelet's world-frame direction: docs/studies.md, \"Against CriMe itself\"): at each `/state` time with a lead closing in (as for min_time_headway), a_req / (−a_max) with the required deceleration a_req = min(a_L − v_rel² / (2 HW), 0) (CriMe's a_long_req.py, constant acceleration: v_rel = v_L − v, HW the gap from the vehicle's front to the lead's rear, a_L the lead's acceleration, all along the vehicle's heading; v the state named `speed`) and a_max = A_LON_MAX = 11.5 m/s² (CriMe's default: CommonRoad's vehicle models); max over t; 0 when a lead was ahead but never closing in; absent without a lead ever ahead")
     },
     metric("impact_speed_by_actor", SPEED, Shape::PerBarrier, &[Topic::State, Topic::Actors, Topic::Event], new::<ImpactSpeedByActor>,
-        "per obstacle, at its first `collision_start` at time t: the relative speed of the vehicle and the obstacle, ‖Δ(p − o)‖ / Δt for a moving one (`/actors`: the vehicle's planar position p and the obstacle's position o, both differentiated forward from their logged positions at t to the next `/state` and `/actors` messages), ‖Δp‖ / Δt for a standing one (its velocity 0); absent without a collision (reason `no collision` when the log has moving obstacles), and for an obstacle absent at the next `/actors` message (a recorded road user at its last state; reason under `impact_speed_by_actor.<name>`)"),
+        "per obstacle, at its first `collision_start` at time t: the relative speed of the vehicle and the obstacle as they approached, ‖Δ(p − o)‖ / Δt for a moving one (`/actors`: the vehicle's planar position p and the obstacle's position o, both differentiated backward from their logged positions at the previous `/state` and `/actors` messages to t, so that the contact's push after t is not in it), ‖Δp‖ / Δt for a standing one (its velocity 0); absent without a collision (reason `no collision` when the log has moving obstacles), for an obstacle absent at the previous `/actors` message (a recorded road user at its first state) and for a collision at the log's first step (reasons under `impact_speed_by_actor.<name>`)"),
     metric("speed_reduction", SPEED, Shape::Number, &[Topic::State, Topic::Event], new::<SpeedReduction>,
-        "planar vehicles: v(0) − v(t_c), t_c the first `collision_start`, or v(0) − min v over the run without a collision; v at a `/state` message = distance to the next `/state` position / the time between them (forward difference); absent for vehicles without a planar position"),
+        "planar vehicles: v(t_1) − v(t_c), t_c the first `collision_start`, or v(t_1) − min v over the run without a collision; v at a `/state` message after the first = distance from the previous `/state` position / the time between them (backward difference: the speed over the step that ends there, without the contact's push at t_c); absent for vehicles without a planar position"),
     metric("vehicle_stopped", FRACTION, Shape::Count, &[Topic::State, Topic::Event], new::<VehicleStopped>,
         "planar vehicles: 1 if the speed v (as for speed_reduction) fell below STALL_SPEED = 0.05 m/s at some `/state` message before the first `collision_start` (or the end without one), else 0"),
     Metric {
@@ -1543,21 +1543,22 @@ impl Accumulate for MaxActorPredictionError {
     }
 }
 
-/// The vehicle's planar velocity at each `/state` message: the forward difference to the
-/// next one (the mean over the step that starts there), known when that next state arrives.
+/// The vehicle's planar velocity at each `/state` message but the first: the backward
+/// difference from the previous one (the mean over the step that ends there). What happens at
+/// that state, such as a contact's push, is not in it.
 #[derive(Default)]
-struct ForwardVelocity {
+struct StepVelocity {
     planar: Option<Option<[usize; 2]>>,
     last: Option<(f64, f64, f64)>,
 }
 
-impl ForwardVelocity {
-    /// Reads a `/state` message; returns (t, vx, vy) for the previous state's time t.
+impl StepVelocity {
+    /// Reads a `/state` message at time t; returns (t, vx, vy) over the step that ends at t.
     fn observe(&mut self, m: &proto::State, run: &RunFacts) -> Option<(f64, f64, f64)> {
         let here = planar_of(&mut self.planar, m, run)?;
         let (t, x, y) = self.last.replace(here)?;
         let dt = here.0 - t;
-        (dt > 0.0).then(|| (t, (here.1 - x) / dt, (here.2 - y) / dt))
+        (dt > 0.0).then(|| (here.0, (here.1 - x) / dt, (here.2 - y) / dt))
     }
 }
 
@@ -1566,15 +1567,17 @@ fn same_time(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(1.0)
 }
 
-/// The first collision and the vehicle's speed before it, for speed_reduction and
+/// The first collision and the vehicle's speed up to it, for speed_reduction and
 /// vehicle_stopped.
 #[derive(Default)]
 struct SpeedBeforeCollision {
-    velocity: ForwardVelocity,
+    velocity: StepVelocity,
     initial: Option<f64>,
     collision: Option<f64>,
+    /// The speed over the step that ends at the latest `/state` message, and that message's time.
+    latest: Option<(f64, f64)>,
     at_collision: Option<f64>,
-    /// The least speed before the first collision (the whole run without one).
+    /// The least speed up to the first collision (the whole run without one).
     min: Option<f64>,
 }
 
@@ -1583,6 +1586,10 @@ impl SpeedBeforeCollision {
         match record {
             Observed::Event(m) if m.kind == "collision_start" && self.collision.is_none() => {
                 self.collision = Some(m.time);
+                // (The collision's own `/state` may come before its event.)
+                if let Some((t, v)) = self.latest.filter(|(t, _)| same_time(*t, m.time)) {
+                    (self.at_collision, self.latest) = (Some(v), Some((t, v)));
+                }
             }
             Observed::State(m) => {
                 let Some((t, vx, vy)) = self.velocity.observe(m, run) else {
@@ -1595,6 +1602,7 @@ impl SpeedBeforeCollision {
                     Some(c) if t > c => return,
                     _ => {}
                 }
+                self.latest = Some((t, v));
                 self.min = lower(self.min, v);
             }
             _ => {}
@@ -1628,26 +1636,46 @@ impl Accumulate for VehicleStopped {
     }
 }
 
-/// A first collision with a moving obstacle, waiting for the positions that give its
-/// relative speed.
+/// A first collision with an obstacle, waiting for the velocities over the step that ends at
+/// it.
 struct Impact {
     actor: String,
     time: f64,
-    /// The obstacle's position at the collision, then its velocity over the next step.
-    actor_at: (f64, f64),
     actor_velocity: Option<(f64, f64)>,
     vehicle_velocity: Option<(f64, f64)>,
-    /// The obstacle no longer existed at the next `/actors` message (a recorded road user at
-    /// its last recorded state): no forward difference.
-    vanished: bool,
+    /// The obstacle did not exist at the step before the collision (a recorded road user at its
+    /// first recorded state): no backward difference.
+    appeared: bool,
 }
+
+/// A moving obstacle's last two logged positions (t, x, y, absent).
+type Track = [Option<(f64, f64, f64, bool)>; 2];
 
 #[derive(Default)]
 struct ImpactSpeedByActor {
-    velocity: ForwardVelocity,
-    /// Each moving obstacle's latest logged position (t, x, y).
-    latest: BTreeMap<String, (f64, f64, f64)>,
+    velocity: StepVelocity,
+    /// The vehicle's velocity over the step that ends at the latest `/state` message (t, vx, vy).
+    vehicle: Option<(f64, f64, f64)>,
+    /// Each moving obstacle's track.
+    tracks: BTreeMap<String, Track>,
     impacts: Vec<Impact>,
+}
+
+impl ImpactSpeedByActor {
+    /// Impact i's obstacle velocity over the step that ends at its collision, once its track
+    /// reaches the collision's time.
+    fn actor_velocity(i: &mut Impact, track: &Track) {
+        let [Some((t0, x0, y0, absent)), Some((t1, x1, y1, _))] = *track else {
+            return;
+        };
+        if i.actor_velocity.is_some() || i.appeared || !same_time(t1, i.time) {
+            return;
+        }
+        match absent || t1 <= t0 {
+            true => i.appeared = true,
+            false => i.actor_velocity = Some(((x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0))),
+        }
+    }
 }
 
 impl Accumulate for ImpactSpeedByActor {
@@ -1655,58 +1683,38 @@ impl Accumulate for ImpactSpeedByActor {
         match record {
             Observed::Actors(m) => {
                 for a in &m.actors {
+                    let track = self.tracks.entry(a.name.clone()).or_default();
+                    *track = [track[1], Some((m.time, a.x, a.y, a.absent))];
                     for i in self.impacts.iter_mut().filter(|i| i.actor == a.name) {
-                        let dt = m.time - i.time;
-                        if i.actor_velocity.is_none() && !i.vanished && dt > 0.0 {
-                            // Absent, it is logged where it was last seen: no velocity from that.
-                            match a.absent {
-                                true => i.vanished = true,
-                                false => {
-                                    i.actor_velocity = Some(((a.x - i.actor_at.0) / dt, (a.y - i.actor_at.1) / dt))
-                                }
-                            }
-                        }
-                    }
-                    match self.latest.get_mut(&a.name) {
-                        Some(p) => *p = (m.time, a.x, a.y),
-                        None => {
-                            self.latest.insert(a.name.clone(), (m.time, a.x, a.y));
-                        }
+                        Self::actor_velocity(i, track);
                     }
                 }
             }
             Observed::Event(m) if m.kind == "collision_start" => {
                 for p in m.participants.iter().filter(|p| *p != "vehicle") {
-                    let Some(&(t, x, y)) = self.latest.get(p) else {
-                        // A standing obstacle (never in `/actors`): its velocity is 0.
-                        if !self.impacts.iter().any(|i| &i.actor == p) {
-                            self.impacts.push(Impact {
-                                actor: p.clone(),
-                                time: m.time,
-                                actor_at: (f64::NAN, f64::NAN),
-                                actor_velocity: Some((0.0, 0.0)),
-                                vehicle_velocity: None,
-                                vanished: false,
-                            });
-                        }
+                    if self.impacts.iter().any(|i| &i.actor == p) {
                         continue;
-                    };
-                    if same_time(t, m.time) && !self.impacts.iter().any(|i| &i.actor == p) {
-                        self.impacts.push(Impact {
-                            actor: p.clone(),
-                            time: m.time,
-                            actor_at: (x, y),
-                            actor_velocity: None,
-                            vehicle_velocity: None,
-                            vanished: false,
-                        });
                     }
+                    let vehicle = self.vehicle.filter(|(t, ..)| same_time(*t, m.time));
+                    let mut impact = Impact {
+                        actor: p.clone(),
+                        time: m.time,
+                        // A standing obstacle (never in `/actors`): its velocity is 0.
+                        actor_velocity: (!self.tracks.contains_key(p)).then_some((0.0, 0.0)),
+                        vehicle_velocity: vehicle.map(|(_, vx, vy)| (vx, vy)),
+                        appeared: false,
+                    };
+                    if let Some(track) = self.tracks.get(p) {
+                        Self::actor_velocity(&mut impact, track);
+                    }
+                    self.impacts.push(impact);
                 }
             }
             Observed::State(m) => {
                 if let Some((t, vx, vy)) = self.velocity.observe(m, run) {
+                    self.vehicle = Some((t, vx, vy));
                     for i in self.impacts.iter_mut().filter(|i| same_time(i.time, t)) {
-                        i.vehicle_velocity = Some((vx, vy));
+                        i.vehicle_velocity.get_or_insert((vx, vy));
                     }
                 }
             }
@@ -1721,13 +1729,13 @@ impl Accumulate for ImpactSpeedByActor {
             })
             .collect();
         for i in self.impacts.iter().filter(|i| !speeds.contains_key(&i.actor)) {
-            let why = match i.vanished {
-                true => "it no longer exists at the step after its collision (its last recorded state): no forward difference",
-                false => "the log ends at its collision: no next step to difference over",
+            let why = match i.appeared {
+                true => "it did not exist at the step before its collision (its first recorded state): no backward difference",
+                false => "the collision is at the log's first step: no step before it to difference over",
             };
             missing.insert(format!("impact_speed_by_actor.{}", i.actor), why.into());
         }
-        if self.impacts.is_empty() && !self.latest.is_empty() {
+        if self.impacts.is_empty() && !self.tracks.is_empty() {
             missing.insert("impact_speed_by_actor".into(), "no collision".into());
         }
         Value::PerChannel((!speeds.is_empty()).then_some(speeds))
