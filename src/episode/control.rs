@@ -550,7 +550,15 @@ impl KnownActors {
     fn assumed(&self, motion: &ActorMotion, k: usize, at: f64) -> ActorState {
         let at = at.max(self.now);
         self.knowledge
-            .predict(&self.observed[k], self.now, at, |t| motion.where_at(t, k))
+            .predict(&self.observed[k], self.now, at, |t| motion.where_at(t, self.slot(k)))
+    }
+
+    /// Where known barrier k's road user is parked while it does not exist
+    /// ([`ActorMotion::where_at`]): its primary barrier's place, so that all its barriers see one
+    /// state and a reach test takes it whole.
+    #[inline]
+    fn slot(&self, k: usize) -> usize {
+        (0..=k).rev().find(|&j| self.primary[j]).unwrap_or(k)
     }
 
     /// For known barrier k of a moving actor, the state of its circle's centre where the
@@ -643,9 +651,9 @@ impl KnownActors {
             }
         };
         let now = self.now;
-        for (k, (o, m)) in (self.observed.iter_mut().zip(&self.motions).enumerate()).skip(from) {
-            if let Some(m) = m {
-                *o = m.where_at(now, k);
+        for k in from..self.observed.len() {
+            if let Some(m) = &self.motions[k] {
+                self.observed[k] = m.where_at(now, self.slot(k));
             }
         }
         self.observed_known = self.observed.len();
