@@ -107,6 +107,7 @@ impl SafetyFilter for GammaM {
         let i = input.channel;
         let k = last_of_equal_delay(&self.delays, i);
         input.later_commands(k + 1, &mut self.omega)?;
+        self.qp.key_rows(input.barriers.rows);
         Ok(Some(self.qp.gamma_m_decision(
             input.constraints,
             input.nominal,
@@ -134,6 +135,7 @@ impl SafetyFilter for GammaM {
             qp,
             ..
         } = self;
+        qp.key_rows(input.barriers.rows);
         input.per_free_channel(u, omega, |constraints, omega, j| {
             let k = last_of_equal_delay(delays, j);
             qp.gamma_m_input(constraints, input.nominal, omega, j, k, *m, *gamma)

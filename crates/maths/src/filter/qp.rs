@@ -88,6 +88,11 @@ enum Bound {
 pub struct QpHint {
     working: Vec<Bound>,
     soft: Vec<bool>,
+    /// The caller's key of each barrier row of the solve that wrote the hint, and of the next
+    /// solve's ([`QpHint::key_rows`]): with both, a row is found by its key, so the hint holds
+    /// while rows before it come and go (a road user's rows left out, say).
+    keys: Vec<usize>,
+    next_keys: Vec<usize>,
     /// Solves that the hint answered, and solves in all.
     hits: u64,
     solves: u64,
@@ -99,8 +104,17 @@ impl QpHint {
         QpHint {
             working: Vec::with_capacity(2 * r),
             soft: Vec::with_capacity(k),
+            keys: Vec::with_capacity(k),
+            next_keys: Vec::with_capacity(k),
             ..QpHint::default()
         }
+    }
+
+    /// The next solve's rows have these keys, one per row, distinct (the same key for the same
+    /// barrier row from one solve to the next).
+    pub fn key_rows(&mut self, keys: impl IntoIterator<Item = usize>) {
+        self.next_keys.clear();
+        self.next_keys.extend(keys);
     }
 
     /// (solves the hint answered, solves in all).
@@ -455,6 +469,8 @@ impl QpWorkspace {
         (hint.solves, hint.hits) = (hint.solves + 1, hint.hits + u64::from(hit));
         hint.working.clear();
         hint.soft.clear();
+        std::mem::swap(&mut hint.keys, &mut hint.next_keys);
+        hint.next_keys.clear();
         if solved {
             hint.working.extend_from_slice(&self.working);
             hint.soft.extend_from_slice(&self.soft);
@@ -469,20 +485,45 @@ impl QpWorkspace {
     /// v is the problem's unique solution; else the workspace is left for the cold start.
     fn hot_start(&mut self, constraints: &[Constraint], hint: &QpHint) -> bool {
         let (r, k) = (self.v.len(), constraints.len());
+        // Keyed: each of the hint's rows is where its key now is (None: gone).
+        let keyed = !hint.keys.is_empty() && hint.keys.len() == hint.soft.len() && hint.next_keys.len() == k;
+        let rows = if keyed { hint.keys.len() } else { k };
         let valid = |bound: &Bound| match *bound {
-            Bound::Barrier(j) => j < k,
+            Bound::Barrier(j) => j < rows,
             Bound::Upper(i) => i < r && self.upper[i].is_finite(),
             Bound::Lower(i) => i < r && self.lower[i].is_finite(),
         };
-        if hint.working.is_empty() || hint.soft.len() != k || !hint.working.iter().all(valid) {
+        let now = |row: usize| match keyed {
+            true => hint.next_keys.iter().position(|key| *key == hint.keys[row]),
+            false => Some(row),
+        };
+        if hint.working.is_empty() || !(keyed || hint.soft.len() == k) || !hint.working.iter().all(valid) {
             return false;
         }
         // (The cold start's penalised barriers kept aside, in a buffer that keeps its capacity.)
         std::mem::swap(&mut self.soft, &mut self.cold_soft);
         self.soft.clear();
-        self.soft.extend_from_slice(&hint.soft);
+        self.soft.resize(k, false);
+        for (row, _) in hint.soft.iter().enumerate().filter(|(_, soft)| **soft) {
+            if let Some(j) = now(row) {
+                self.soft[j] = true;
+            }
+        }
         self.working.clear();
-        self.working.extend_from_slice(&hint.working);
+        for bound in &hint.working {
+            self.working.push(match *bound {
+                Bound::Barrier(row) => match now(row) {
+                    Some(j) => Bound::Barrier(j),
+                    // (A row of the optimal working set is gone: the cold start's state again.)
+                    None => {
+                        std::mem::swap(&mut self.soft, &mut self.cold_soft);
+                        self.working.clear();
+                        return false;
+                    }
+                },
+                other => other,
+            });
+        }
         self.working.sort_unstable();
         for bound in &self.working {
             if let Bound::Barrier(j) = *bound {
@@ -1205,6 +1246,34 @@ mod tests {
         // Both barriers at equality: g_1 = g_2 = 0.
         for c in &constraints[..2] {
             assert!(c.value(&again).abs() < 1e-12, "{}", c.value(&again));
+        }
+    }
+
+    /// Keyed rows: a row that came in before the hint's rows (another barrier's, met) and one
+    /// that went leave the hint answering, with what the cold solve finds; unkeyed, the hint
+    /// cannot follow the rows and the solve is cold.
+    #[test]
+    fn a_keyed_hint_holds_while_other_rows_come_and_go() {
+        let (a, b) = (constraint(-3.0, &[1.0, 2.0]), constraint(-1.0, &[1.0, -1.0]));
+        let (met, gone) = (constraint(9.0, &[0.5, 1.0]), constraint(7.0, &[-1.0, 0.3]));
+        let u0 = DVector::from_column_slice(&[0.5, -0.2]);
+        let first = [a.clone(), gone.clone(), b.clone()];
+        let again = [met.clone(), a.clone(), b.clone()];
+        for keyed in [true, false] {
+            let (mut workspace, mut hint) = (QpWorkspace::default(), QpHint::default());
+            let mut u = DVector::zeros(2);
+            if keyed {
+                hint.key_rows([10, 11, 12]);
+            }
+            workspace.solve_hinted(&first, &u0, None, &mut u, &mut hint);
+            if keyed {
+                hint.key_rows([9, 10, 12]);
+            }
+            workspace.solve_hinted(&again, &u0, None, &mut u, &mut hint);
+            assert_eq!(hint.hits(), (u64::from(keyed), 2), "keyed {keyed}");
+            let mut cold = DVector::zeros(2);
+            QpWorkspace::default().solve(&again, &u0, None, &mut cold);
+            assert_eq!(u, cold, "keyed {keyed}");
         }
     }
 

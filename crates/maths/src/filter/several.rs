@@ -39,6 +39,8 @@ pub struct ChannelQp {
     /// Per channel, the largest |input| the solves since [`ChannelQp::take_planned`] planned,
     /// fictitious ones included (γm's (u0 + v or ω) + σ).
     largest_planned: Vec<f64>,
+    /// The rows' keys of the next solves ([`ChannelQp::key_rows`]).
+    keys: Vec<usize>,
 }
 
 impl ChannelQp {
@@ -52,7 +54,20 @@ impl ChannelQp {
             planned: DVector::zeros(r),
             hints: vec![QpHint::with_capacity(variables, barriers); 2 * r],
             largest_planned: vec![0.0; r],
+            keys: Vec::with_capacity(barriers),
         }
+    }
+
+    /// The next solves' rows are those of these barriers (`rows`: per row, its barrier's index,
+    /// as [`crate::filter::SeenBarriers::rows`]; a mixed-relative-degree barrier's first-order row
+    /// after every barrier's own): each row keyed by its barrier and which of its rows it is, so
+    /// that a channel's hint holds while other barriers' rows come and go.
+    pub fn key_rows(&mut self, rows: &[usize]) {
+        self.keys.clear();
+        // The first-order rows begin where the barrier indices stop increasing.
+        let second = (1..rows.len()).find(|&j| rows[j] <= rows[j - 1]).unwrap_or(rows.len());
+        let key = |(j, barrier): (usize, &usize)| 2 * barrier + usize::from(j >= second);
+        self.keys.extend(rows.iter().enumerate().map(key));
     }
 
     /// largest ← per channel, the largest |input| planned since the last call (then reset).
@@ -250,6 +265,9 @@ impl ChannelQp {
         };
         self.origin.fill(0.0);
         let hint = &mut self.hints[hint_index(i, report)];
+        if self.keys.len() == constraints.len() {
+            hint.key_rows(self.keys.iter().copied());
+        }
         let (active, infeasible, mu) =
             self.qp
                 .solve_hinted_rows(constraints.len(), reduced, &self.origin, None, &mut self.solution, hint);
