@@ -529,6 +529,9 @@ struct KnownActors {
     /// circles), and whether it is the actor's first barrier (the one that stands for it).
     offsets: Vec<[f64; 2]>,
     primary: Vec<bool>,
+    /// Per known barrier that is an actor's primary: the largest distance of the actor's
+    /// circles from its centre (0 for the others).
+    spread: Vec<f64>,
     knowledge: ActorKnowledge,
     /// The time of the last observation and, per known barrier, the actor state observed then
     /// (the first `observed_known` barriers were known then).
@@ -596,8 +599,7 @@ impl KnownActors {
         }
         let largest = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs().max((a[1] - b[1]).abs());
         // The road user's barriers: k and the ones after it up to the next primary.
-        let group = 1 + self.primary[k + 1..].iter().take_while(|p| !**p).count();
-        let spread = (self.offsets[k..k + group].iter()).fold(0.0_f64, |m, c| m.max(c[0].hypot(c[1])));
+        let spread = self.spread[k];
         let (now, then) = (&self.observed[k], &self.anchor[k]);
         let turned = spread * (now.turn - then.turn).abs();
         let mut times = [from, to, f64::NAN, f64::NAN];
@@ -907,6 +909,7 @@ impl LawStage {
             actors: KnownActors {
                 motions: Vec::new(),
                 offsets: Vec::new(),
+                spread: Vec::new(),
                 primary: Vec::new(),
                 knowledge: ActorKnowledge::default(),
                 now: 0.0,
@@ -1335,6 +1338,9 @@ impl ControlLoop {
         let actors = &mut self.laws.actors;
         *actors.offsets.last_mut().expect("just added") = offset;
         *actors.primary.last_mut().expect("just added") = primary;
+        // The actor's spread, at its primary barrier (this one, or the last before it).
+        let at = actors.slot(actors.primary.len() - 1);
+        actors.spread[at] = actors.spread[at].max(offset[0].hypot(offset[1]));
         // (len stays 0 outside a tick: reserve for every primary actor.)
         let primaries = actors.primary.iter().filter(|&&p| p).count();
         self.laws.work.seen.reserve(primaries);
@@ -1348,6 +1354,7 @@ impl ControlLoop {
         laws.actors.motions.push(motion);
         laws.actors.offsets.push([0.0; 2]);
         laws.actors.primary.push(false);
+        laws.actors.spread.push(0.0);
         laws.actors.observed.push(ActorState::default());
         // A mixed-relative-degree barrier has a second row, ḣ + λ1 h ≥ 0.
         let form = laws.filter.barrier_form();
