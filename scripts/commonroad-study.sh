@@ -17,14 +17,15 @@ cd "$(dirname "$0")/.."
 mjsafe="${1:-target/release/mjsafe}"
 out="${2:-logs/commonroad-study}"
 rm -rf "$out/filters" "$out/knowledge" "$out/observed"
+# A sweep with a failed run exits 3 (its row holds the error, shown in the table); anything else stops.
+sweep() { "$mjsafe" sweep "$@" >/dev/null 2>&1 || [ $? -eq 3 ]; }
 qp='kind="cbf_qp",l0=4.0,l1=4.0'
-"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/filters" \
-  --grid "filter={kind=\"none\"},{$qp},{$qp,compensation=\"predictor\"},{kind=\"gamma_m\",l0=4.0,l1=4.0,m=50.0}" \
-  >/dev/null 2>&1
-"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
-  --grid 'actor_knowledge.kind=static,constant_acceleration,oracle' >/dev/null 2>&1
-"$mjsafe" sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
-  --grid 'actor_knowledge.period=0.0,0.2' >/dev/null 2>&1
+sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/filters" \
+  --grid "filter={kind=\"none\"},{$qp},{$qp,compensation=\"predictor\"},{kind=\"gamma_m\",l0=4.0,l1=4.0,m=50.0}"
+sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
+  --grid 'actor_knowledge.kind=static,constant_acceleration,oracle'
+sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
+  --grid 'actor_knowledge.period=0.0,0.2'
 python3 - "$out" <<'PY'
 import csv, sys
 out = sys.argv[1]
@@ -45,9 +46,7 @@ for sweep, key in sweeps:
         column = label[row[key]]
         if column not in columns:
             columns.append(column)
-        if row["error"]:
-            cell = "error"
-        elif row["collision_with"]:
+        if row["collision_with"]:
             speed = row.get(f"impact_speed_by_actor.{row['collision_with']}", "")
             cell = f"**hit {row['collision_with']}** {float(row['collision_time']):.2f} s"
             if speed:
@@ -69,6 +68,9 @@ for sweep, key in sweeps:
         cell += f"; goal {float(goal):.1f} s" if goal else "; goal missed"
         if row.get("stall_time", ""):
             cell += f"; stall {float(row['stall_time']):.1f} s"
+        # A run that stopped with an error (its row has what happened before it).
+        if row["error"]:
+            cell += f"; **stopped at {float(row['simulated_time']):.2f} s: error**"
         # By file: two commonroad-crime files share a benchmark ID.
         cells[(row["commonroad.file"].strip('"').removesuffix(".xml"), column)] = cell
 scenarios = sorted({s for s, _ in cells})

@@ -322,3 +322,40 @@ fn compare_reports_what_got_worse_and_exits_6() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("expected a scorecard.json"), "{}", stderr(&o));
 }
+
+/// A run that collided and then stopped with an error has a clear item's verdict (it is not
+/// clear): the cell fails, with the error as its reason, rather than leaving the score. On
+/// Flensburg the delay-free CBF-QP is hit by cr_328 at 4.35 s while a road user drives through the
+/// car; MuJoCo then stops the run at 9.11 s (stop 74: the integration of a deep contact).
+#[test]
+fn a_run_that_collided_before_it_stopped_fails_its_clear_item() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = dir.path().join("suite.toml");
+    let scenario = root().join("data/commonroad/DEU_Flensburg-10_1_T-1.xml");
+    std::fs::write(
+        &suite,
+        format!(
+            "name = \"stopped\"\n[[item]]\nname = \"flensburg\"\nsection = \"CommonRoad\"\nscenario = {:?}\nscore = {{ kind = \"clear\" }}\n",
+            scenario.to_str().unwrap()
+        ),
+    )
+    .unwrap();
+    let (o, card) = scorecard(
+        dir.path(),
+        &[
+            "--suite",
+            suite.to_str().unwrap(),
+            "--filter",
+            "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let flensburg = cell(&card, "flensburg", 0);
+    assert_eq!(flensburg["status"], "fail", "{flensburg}");
+    assert_eq!(flensburg["score"], 0.0, "{flensburg}");
+    let reason = flensburg["reason"].as_str().unwrap_or("");
+    assert!(
+        reason.starts_with("a run stopped after its collision: MuJoCo"),
+        "{flensburg}"
+    );
+}

@@ -211,7 +211,18 @@ pub fn command(scenario: &str, overrides: &[String]) -> String {
 pub fn cell(item: &Item, runs: &[RunResult]) -> Cell {
     let scenario = &item.scenario.display().to_string();
     let first_command = runs.first().map_or(String::new(), |r| command(scenario, &r.overrides));
-    if let Some((run, why)) = runs.iter().find_map(|r| r.failure().map(|f| (r, f))) {
+    let failed = runs.iter().find_map(|r| r.failure().map(|f| (r, f)));
+    // A run that collided before it stopped is not clear, whatever stopped it: a clear item's
+    // verdict stands (an error must not take a failing run out of the score).
+    let collided_first = |r: &RunResult| r.failure().is_none() || r.collided() == Some(true);
+    if let (Some((_, why)), Scoring::Clear) = (&failed, &item.score) {
+        if runs.iter().all(collided_first) {
+            let mut cell = clear_cell(scenario, runs, first_command);
+            cell.reason = Some(format!("a run stopped after its collision: {why}"));
+            return cell;
+        }
+    }
+    if let Some((run, why)) = failed {
         let status = if run.not_run { Status::NotRun } else { Status::Error };
         return Cell::without_score(status, why, runs.len(), command(scenario, &run.overrides));
     }
