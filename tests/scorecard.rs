@@ -21,6 +21,19 @@ fn scorecard(dir: &Path, args: &[&str]) -> (std::process::Output, serde_json::Va
     (o, json)
 }
 
+/// The scorecard of a suite of one clear item, `name` on `scenario`, for one filter.
+fn one_clear_item(dir: &Path, name: &str, scenario: &Path, filter: &str) -> (std::process::Output, serde_json::Value) {
+    let suite = write(
+        dir,
+        "one.toml",
+        &format!(
+            "[[item]]\nname = \"{name}\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
+            scenario.display()
+        ),
+    );
+    scorecard(dir, &["--suite", suite.to_str().unwrap(), "--filter", filter])
+}
+
 fn ncap_check(card: &Path) -> String {
     let o = Command::new(python())
         .arg(root().join("tests/ncap_check.py"))
@@ -151,23 +164,8 @@ fn a_margin_is_clear_at_its_value_and_not_one_tolerance_beyond() {
 #[test]
 fn a_filter_the_scenario_refuses_is_not_applicable_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();
-    let suite = write(
-        dir.path(),
-        "na.toml",
-        &format!(
-            "[[item]]\nname = \"scalar\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
-            scenario("scalar_tv_delay.toml").display()
-        ),
-    );
-    let (o, card) = scorecard(
-        dir.path(),
-        &[
-            "--suite",
-            suite.to_str().unwrap(),
-            "--filter",
-            "{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }",
-        ],
-    );
+    let gamma_m = "{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }";
+    let (o, card) = one_clear_item(dir.path(), "scalar", &scenario("scalar_tv_delay.toml"), gamma_m);
     assert!(o.status.success(), "{}", text(&o));
     let c = cell(&card, "scalar", 0);
     assert_eq!(c["status"], "not_applicable", "{c}");
@@ -330,25 +328,9 @@ fn compare_reports_what_got_worse_and_exits_6() {
 #[test]
 fn a_run_that_collided_before_it_stopped_fails_its_clear_item() {
     let dir = tempfile::tempdir().unwrap();
-    let suite = dir.path().join("suite.toml");
     let scenario = root().join("data/commonroad/DEU_Flensburg-10_1_T-1.xml");
-    std::fs::write(
-        &suite,
-        format!(
-            "name = \"stopped\"\n[[item]]\nname = \"flensburg\"\nsection = \"CommonRoad\"\nscenario = {:?}\nscore = {{ kind = \"clear\" }}\n",
-            scenario.to_str().unwrap()
-        ),
-    )
-    .unwrap();
-    let (o, card) = scorecard(
-        dir.path(),
-        &[
-            "--suite",
-            suite.to_str().unwrap(),
-            "--filter",
-            "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }",
-        ],
-    );
+    let cbf_qp = "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }";
+    let (o, card) = one_clear_item(dir.path(), "flensburg", &scenario, cbf_qp);
     assert!(o.status.success(), "{}", text(&o));
     let flensburg = cell(&card, "flensburg", 0);
     assert_eq!(flensburg["status"], "fail", "{flensburg}");
