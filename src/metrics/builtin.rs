@@ -1587,8 +1587,8 @@ impl SpeedBeforeCollision {
             Observed::Event(m) if m.kind == "collision_start" && self.collision.is_none() => {
                 self.collision = Some(m.time);
                 // (The collision's own `/state` may come before its event.)
-                if let Some((t, v)) = self.latest.filter(|(t, _)| same_time(*t, m.time)) {
-                    (self.at_collision, self.latest) = (Some(v), Some((t, v)));
+                if let Some((_, v)) = self.latest.filter(|(t, _)| same_time(*t, m.time)) {
+                    self.at_collision = Some(v);
                 }
             }
             Observed::State(m) => {

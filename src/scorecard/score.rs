@@ -214,9 +214,9 @@ pub fn cell(item: &Item, runs: &[RunResult]) -> Cell {
     let failed = runs.iter().find_map(|r| r.failure().map(|f| (r, f)));
     // A run that collided before it stopped is not clear, whatever stopped it: a clear item's
     // verdict stands (an error must not take a failing run out of the score).
-    let collided_first = |r: &RunResult| r.failure().is_none() || r.collided() == Some(true);
+    let has_verdict = |r: &RunResult| r.failure().is_none() || r.collided() == Some(true);
     if let (Some((_, why)), Scoring::Clear) = (&failed, &item.score) {
-        if runs.iter().all(collided_first) {
+        if runs.iter().all(has_verdict) {
             let mut cell = clear_cell(scenario, runs, first_command);
             cell.reason = Some(format!("a run stopped after its collision: {why}"));
             return cell;

@@ -172,6 +172,7 @@ impl SafetyFilter for FixedChannel {
         }
         let s = self.phi.max(input.channel + 1);
         input.later_commands(s, &mut self.omega)?;
+        self.qp.key_rows(input.barriers.rows);
         Ok(Some(self.qp.fixed_channel_decision(
             input.constraints,
             input.nominal,
@@ -190,6 +191,7 @@ impl SafetyFilter for FixedChannel {
 
     fn issued_law(&mut self, input: &LawInput<'_>, u: &mut DVector<f64>) -> Result<(), FilterError> {
         let FixedChannel { phi, omega, qp, .. } = self;
+        qp.key_rows(input.barriers.rows);
         input.per_free_channel(u, omega, |constraints, omega, j| {
             qp.fixed_channel_input(constraints, input.nominal, omega, j, (*phi).max(j + 1))
         });

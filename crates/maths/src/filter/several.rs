@@ -20,6 +20,16 @@ fn hint_index(i: usize, report: bool) -> usize {
     2 * i + usize::from(report)
 }
 
+/// The hint of channel i's stream, its next solve's `count` rows keyed by `keys` when they are
+/// that solve's ([`ChannelQp::key_rows`]; else by position).
+fn keyed_hint<'a>(hints: &'a mut [QpHint], keys: &[usize], (i, report): (usize, bool), count: usize) -> &'a mut QpHint {
+    let hint = &mut hints[hint_index(i, report)];
+    if keys.len() == count {
+        hint.key_rows(keys.iter().copied());
+    }
+    hint
+}
+
 /// A shortfall below this fraction of the constraint's terms (|a| + Σ|b_j u_j|) is rounding.
 const SHORTFALL_TOLERANCE: f64 = 1e-9;
 
@@ -155,7 +165,7 @@ impl ChannelQp {
                 reduced.b[j] = if j < s { c.b[j] } else { 0.0 };
             }
         };
-        let hint = &mut self.hints[hint_index(i, report)];
+        let hint = keyed_hint(&mut self.hints, &self.keys, (i, report), constraints.len());
         let (active, infeasible, mu) =
             self.qp
                 .solve_hinted_rows(constraints.len(), reduced, u0, None, &mut self.solution, hint);
@@ -264,10 +274,7 @@ impl ChannelQp {
             }
         };
         self.origin.fill(0.0);
-        let hint = &mut self.hints[hint_index(i, report)];
-        if self.keys.len() == constraints.len() {
-            hint.key_rows(self.keys.iter().copied());
-        }
+        let hint = keyed_hint(&mut self.hints, &self.keys, (i, report), constraints.len());
         let (active, infeasible, mu) =
             self.qp
                 .solve_hinted_rows(constraints.len(), reduced, &self.origin, None, &mut self.solution, hint);
