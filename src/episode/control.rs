@@ -412,10 +412,7 @@ impl LawWorkspace {
                         pair_rows(form, mixed_rate, &point.kinematics(r), &actor, radius, c, first);
                         let first = first_order_rows.get(first_order).filter(|_| has_first);
                         // Rows that hold for every admissible input enter no QP either.
-                        if self
-                            .reach
-                            .holds_for_every_admissible_input(std::iter::once(&*c).chain(first))
-                        {
+                        if self.reach.holds_for_every_admissible_input(c, first) {
                             self.reach.leave_out(k, 1 + u64::from(has_first));
                             culled = true;
                             continue;

@@ -264,7 +264,7 @@ impl Record {
             Record::Scene(_, m) => wire::encode_scene_update(m, buffer),
             Record::Transform(_, m) => wire::encode_frame_transform(m, buffer),
             Record::Event(m) => m.encode(buffer).expect(FITS),
-            Record::Actors(m) => m.encode(buffer).expect(FITS),
+            Record::Actors(m) => wire::encode_actors(m, buffer),
             Record::Log(_, m) => m.encode(buffer).expect(FITS),
         }
     }

@@ -722,17 +722,58 @@ pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
         if *obstacle {
             out.extend_from_slice(&[(8 << 3) | VARINT as u8, 1]);
         }
-        let length = out.len() - length_at - 1;
-        if length < 0x80 {
-            out[length_at] = length as u8;
-        } else {
-            let (mut prefix, mut width, mut rest) = ([0u8; 10], 0, length as u64);
-            while rest >= 0x80 {
-                (prefix[width], width, rest) = ((rest as u8) | 0x80, width + 1, rest >> 7);
-            }
-            prefix[width] = rest as u8;
-            out.splice(length_at..=length_at, prefix[..=width].iter().copied());
+        patch_length(out, length_at);
+    }
+}
+
+/// `/actors` as prost writes it (each road user's value after a one-byte length, patched as in
+/// [`encode_barrier`]).
+pub(crate) fn encode_actors(m: &proto::Actors, out: &mut Vec<u8>) {
+    let proto::Actors { time, actors } = m;
+    out.reserve(9 + actors.iter().map(|v| 70 + v.name.len()).sum::<usize>());
+    push_f64(out, 1, *time);
+    for value in actors {
+        let proto::ActorValue {
+            name,
+            x,
+            y,
+            vx,
+            vy,
+            ax,
+            ay,
+            heading,
+            absent,
+        } = value;
+        out.push((2 << 3) | LEN as u8);
+        let length_at = out.len();
+        out.push(0);
+        if !name.is_empty() {
+            push_varint_key(out, 1, LEN, name.len() as u64);
+            out.extend_from_slice(name.as_bytes());
         }
+        for (field, value) in (2..).zip([x, y, vx, vy, ax, ay, heading]) {
+            push_f64(out, field, *value);
+        }
+        if *absent {
+            out.extend_from_slice(&[(9 << 3) | VARINT as u8, 1]);
+        }
+        patch_length(out, length_at);
+    }
+}
+
+/// The one-byte length at `length_at` ← the bytes after it (a longer varint spliced in for
+/// 128 bytes or more).
+fn patch_length(out: &mut Vec<u8>, length_at: usize) {
+    let length = out.len() - length_at - 1;
+    if length < 0x80 {
+        out[length_at] = length as u8;
+    } else {
+        let (mut prefix, mut width, mut rest) = ([0u8; 10], 0, length as u64);
+        while rest >= 0x80 {
+            (prefix[width], width, rest) = ((rest as u8) | 0x80, width + 1, rest >> 7);
+        }
+        prefix[width] = rest as u8;
+        out.splice(length_at..=length_at, prefix[..=width].iter().copied());
     }
 }
 
@@ -1373,6 +1414,35 @@ mod tests {
             let mut buffer = vec![7];
             encode_barrier(&barrier, &mut buffer);
             assert_eq!(buffer[1..], barrier.encode_to_vec(), "{count} values");
+        }
+    }
+
+    #[test]
+    fn actor_records_match_prost() {
+        for count in [0, 1, 3, 25] {
+            let actors = proto::Actors {
+                time: [0.0, 2.5, f64::NAN, -0.0][count % 4],
+                actors: (0..count)
+                    .map(|i| proto::ActorValue {
+                        name: match i {
+                            0 => String::new(),
+                            2 => "é".repeat(80),
+                            _ => format!("actor_{i}"),
+                        },
+                        x: VALUES[i % 8],
+                        y: VALUES[(i + 1) % 8],
+                        vx: VALUES[(i + 2) % 8],
+                        vy: VALUES[(i + 3) % 8],
+                        ax: VALUES[(i + 4) % 8],
+                        ay: VALUES[(i + 5) % 8],
+                        heading: VALUES[(i + 6) % 8],
+                        absent: i % 2 == 1,
+                    })
+                    .collect(),
+            };
+            let mut buffer = vec![7];
+            encode_actors(&actors, &mut buffer);
+            assert_eq!(buffer[1..], actors.encode_to_vec(), "{count} road users");
         }
     }
 
