@@ -283,13 +283,22 @@ impl QpWorkspace {
         // One pass forms the rows, μ and whether they are finite; only a correction scales them.
         let (r, finite_values) = (u0.len(), |v: &[f64]| v.iter().all(|x| x.is_finite()));
         let (mut mu, mut finite) = (f64::INFINITY, finite_values(u0.as_slice()));
-        for (k, s) in scaled[..count].iter_mut().enumerate() {
+        let origin = u0.as_slice();
+        for k in 0..count {
+            let s = &mut scaled[k];
             if s.b.len() != r {
                 s.b = DVector::zeros(r);
             }
             row(k, s);
-            mu = mu.min(s.value(u0));
-            finite &= s.a.is_finite() && finite_values(s.b.as_slice());
+            // (s.value(u0), and the finiteness of a and b, in one pass over b.)
+            let mut at_origin = 0.0;
+            let mut all_finite = s.a.is_finite();
+            for (b, u) in s.b.as_slice().iter().zip(origin) {
+                at_origin += b * u;
+                all_finite &= b.is_finite();
+            }
+            mu = mu.min(s.a + at_origin);
+            finite &= all_finite;
         }
         u.copy_from(u0);
         // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look

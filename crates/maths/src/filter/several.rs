@@ -268,9 +268,10 @@ impl ChannelQp {
             let c = &constraints[k];
             (reduced.h, reduced.a) = (0.0, gamma_m_zeta(c, u0, omega, used, gamma));
             let (real, slack) = reduced.b.as_mut_slice().split_at_mut(r);
-            for (j, ((real, slack), b)) in real.iter_mut().zip(slack).zip(c.b.as_slice()).enumerate() {
-                *real = if j < used { *b } else { 0.0 };
-                *slack = b / root_m;
+            let b = &c.b.as_slice()[..r];
+            for j in 0..r {
+                real[j] = if j < used { b[j] } else { 0.0 };
+                slack[j] = b[j] / root_m;
             }
         };
         self.origin.fill(0.0);
