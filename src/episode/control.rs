@@ -393,12 +393,18 @@ impl LawWorkspace {
         // points road users' circles measure from.
         let mut kinematics = false;
         let points = self.reach.measure_points(laws.model, z);
+        let rates = form.real_rates().is_some();
+        // (A run of barriers out of reach, a road user's, is passed over at once.)
+        let mut skip_to = 0;
         for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
-            let mixed = b.mixed_relative_degree() && form.real_rates().is_some();
-            if culled && self.reach.out[k] {
-                self.reach.count_rows(0, 1 + u64::from(mixed));
+            if k < skip_to {
                 continue;
             }
+            if culled && self.reach.out[k] {
+                skip_to = self.reach.leave_out_run(k, count, rates);
+                continue;
+            }
+            let mixed = rates && b.mixed_relative_degree();
             match (&laws.actors.motions[k], &mut self.moving[k]) {
                 (Some(motion), Some(moved)) => {
                     // The barrier's circle: the actor's centre plus its offset (a box's).
@@ -526,6 +532,9 @@ struct KnownActors {
     /// circles), and whether it is the actor's first barrier (the one that stands for it).
     offsets: Vec<[f64; 2]>,
     primary: Vec<bool>,
+    /// Per known barrier k: the last primary barrier up to k (k itself when there is none),
+    /// [`KnownActors::slot`].
+    slots: Vec<usize>,
     /// Per known barrier that is an actor's primary: the largest distance of the actor's
     /// circles from its centre (0 for the others).
     spread: Vec<f64>,
@@ -558,7 +567,15 @@ impl KnownActors {
     /// state and a reach test takes it whole.
     #[inline]
     fn slot(&self, k: usize) -> usize {
-        (0..=k).rev().find(|&j| self.primary[j]).unwrap_or(k)
+        self.slots[k]
+    }
+
+    /// slots ← for the last known barrier, the last primary barrier up to it.
+    fn place_last(&mut self) {
+        let k = self.primary.len() - 1;
+        let slot = (0..=k).rev().find(|&j| self.primary[j]).unwrap_or(k);
+        self.slots.resize(k + 1, k);
+        self.slots[k] = slot;
     }
 
     /// For known barrier k of a moving actor, the state of its circle's centre where the
@@ -908,6 +925,7 @@ impl LawStage {
                 offsets: Vec::new(),
                 spread: Vec::new(),
                 primary: Vec::new(),
+                slots: Vec::new(),
                 knowledge: ActorKnowledge::default(),
                 now: 0.0,
                 observed: Vec::new(),
@@ -1335,6 +1353,7 @@ impl ControlLoop {
         let actors = &mut self.laws.actors;
         *actors.offsets.last_mut().expect("just added") = offset;
         *actors.primary.last_mut().expect("just added") = primary;
+        actors.place_last();
         // The actor's spread, at its primary barrier (this one, or the last before it).
         let at = actors.slot(actors.primary.len() - 1);
         actors.spread[at] = actors.spread[at].max(offset[0].hypot(offset[1]));
@@ -1351,6 +1370,7 @@ impl ControlLoop {
         laws.actors.motions.push(motion);
         laws.actors.offsets.push([0.0; 2]);
         laws.actors.primary.push(false);
+        laws.actors.place_last();
         laws.actors.spread.push(0.0);
         laws.actors.observed.push(ActorState::default());
         // A mixed-relative-degree barrier has a second row, ḣ + λ1 h ≥ 0.

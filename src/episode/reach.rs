@@ -94,6 +94,9 @@ pub(super) struct Reach {
     distances: Vec<f64>,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
+    /// Per known barrier k: how many barriers before k have a mixed relative degree (and so a
+    /// first-order row in a form with real rates), and the count over all at the end.
+    mixed_before: Vec<u64>,
     /// Scratch space of [`Reach::still_out`].
     scratch_out: Vec<bool>,
     /// M_j per channel: the largest recent |u_j| of a command or nominal input.
@@ -143,6 +146,7 @@ impl Reach {
             input_reach: Vec::new(),
             distances: Vec::new(),
             out: Vec::new(),
+            mixed_before: vec![0],
             scratch_out: Vec::new(),
             bound: largest_input.clone(),
             largest_input,
@@ -167,6 +171,8 @@ impl Reach {
     pub(super) fn add(&mut self, barrier: &Barrier, road_user: Option<([f64; 2], bool)>) {
         let index = self.point_of.len();
         self.out.push(false);
+        let mixed = self.mixed_before[index] + u64::from(barrier.mixed_relative_degree());
+        self.mixed_before.push(mixed);
         let point = road_user.and_then(|_| self.ego.index_of(barrier));
         self.input_reach.resize(self.ego.len(), [0.0; 2]);
         self.distances.resize(self.ego.len(), 0.0);
@@ -247,6 +253,20 @@ impl Reach {
         self.out[k] = true;
         self.culled_last = true;
         self.count_rows(0, rows);
+    }
+
+    /// Counts the rows of the run of barriers left out by the last [`Reach::mark`] that
+    /// starts at barrier k (up to `count`) as left out, each with its first-order row when the
+    /// form has real rates (`rates`); returns the barrier after the run.
+    pub(super) fn leave_out_run(&mut self, k: usize, count: usize, rates: bool) -> usize {
+        let end = (self.out[k..count].iter().position(|&out| !out)).map_or(count, |n| k + n);
+        let first_order = if rates {
+            self.mixed_before[end] - self.mixed_before[k]
+        } else {
+            0
+        };
+        self.count_rows(0, (end - k) as u64 + first_order);
+        end
     }
 
     /// Whether rows may be left out at all (`control.leave_out_of_reach`).
