@@ -160,6 +160,17 @@ fn finite_limit(bound: f64) -> bool {
     bound.abs() < INFINITE_BOUND
 }
 
+/// Σ a_i b_i summed from 0 in order (the bits of `Constraint::value`'s and nalgebra's `norm`'s
+/// sums), written out for four entries (the per-channel QPs of the γm filter with two channels;
+/// a loop of unknown length costs as much again in its set-up).
+#[inline(always)]
+fn ordered_dot(a: &[f64], b: &[f64]) -> f64 {
+    if let (Ok(a), Ok(b)) = (<&[f64; 4]>::try_from(a), <&[f64; 4]>::try_from(b)) {
+        return 0.0 + a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    }
+    a.iter().zip(b).fold(0.0, |sum, (a, b)| sum + a * b)
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -290,15 +301,10 @@ impl QpWorkspace {
                 s.b = DVector::zeros(r);
             }
             row(k, s);
-            // (s.value(u0), and the finiteness of a and b, in one pass over b.)
-            let mut at_origin = 0.0;
-            let mut all_finite = s.a.is_finite();
-            for (b, u) in s.b.as_slice().iter().zip(origin) {
-                at_origin += b * u;
-                all_finite &= b.is_finite();
-            }
-            mu = mu.min(s.a + at_origin);
-            finite &= all_finite;
+            // (s.value(u0), and the finiteness of a and b.)
+            let b = s.b.as_slice();
+            mu = mu.min(s.a + ordered_dot(b, origin));
+            finite &= s.a.is_finite() && finite_values(b);
         }
         u.copy_from(u0);
         // A non-finite u0 or constraint (a state at NaN or ±1e300) has no solution to look
@@ -314,7 +320,7 @@ impl QpWorkspace {
             for s in &mut scaled[..count] {
                 let b = s.b.as_mut_slice();
                 // ‖b‖ summed in nalgebra's order (`norm`), so the same bits.
-                let norm = b.iter().fold(0.0, |sum, b| sum + b * b).sqrt();
+                let norm = ordered_dot(b, b).sqrt();
                 let scale = if norm > 0.0 && norm.is_finite() {
                     1.0 / norm
                 } else {
@@ -324,7 +330,7 @@ impl QpWorkspace {
                 for b in b.iter_mut() {
                     *b *= scale;
                 }
-                self.c.push(s.value(u0));
+                self.c.push(s.a + ordered_dot(s.b.as_slice(), origin));
             }
             self.solve_scaled(&scaled[..count], u0, limits, u, mu, hint)
         };
