@@ -295,8 +295,7 @@ impl QpWorkspace {
         let (r, finite_values) = (u0.len(), |v: &[f64]| v.iter().all(|x| x.is_finite()));
         let (mut mu, mut finite) = (f64::INFINITY, finite_values(u0.as_slice()));
         let origin = u0.as_slice();
-        for k in 0..count {
-            let s = &mut scaled[k];
+        for (k, s) in scaled[..count].iter_mut().enumerate() {
             if s.b.len() != r {
                 s.b = DVector::zeros(r);
             }
