@@ -687,76 +687,96 @@ pub(crate) fn encode_filter(m: &proto::Filter, out: &mut Vec<u8>) {
 
 pub(crate) fn encode_barrier(m: &proto::Barrier, out: &mut Vec<u8>) {
     let proto::Barrier { time, barriers } = m;
-    // One pass: each value is written after a one-byte length, patched once its size is
-    // known (a longer varint, for a value of 128 bytes or more, is spliced in).
-    out.reserve(9 + barriers.iter().map(|v| 48 + v.name.len()).sum::<usize>());
-    push_f64(out, 1, *time);
-    for value in barriers {
-        let proto::BarrierValue {
-            name,
-            h,
-            constraint,
-            known,
-            relative_degree,
-            clearance,
-            time_to_collision,
-            obstacle,
-        } = value;
-        out.push((2 << 3) | LEN as u8);
-        let length_at = out.len();
-        out.push(0);
-        if !name.is_empty() {
-            push_varint_key(out, 1, LEN, name.len() as u64);
-            out.extend_from_slice(name.as_bytes());
-        }
-        push_f64(out, 2, *h);
-        push_f64(out, 3, *constraint);
-        if *known {
-            out.extend_from_slice(&[(4 << 3) | VARINT as u8, 1]);
-        }
-        if *relative_degree != 0 {
-            push_varint_key(out, 5, VARINT, u64::from(*relative_degree));
-        }
-        push_f64(out, 6, *clearance);
-        push_f64(out, 7, *time_to_collision);
-        if *obstacle {
-            out.extend_from_slice(&[(8 << 3) | VARINT as u8, 1]);
-        }
-        patch_length(out, length_at);
-    }
+    encode_named_values(
+        out,
+        *time,
+        barriers,
+        48,
+        |v| &v.name,
+        |out, value| {
+            let proto::BarrierValue {
+                name: _,
+                h,
+                constraint,
+                known,
+                relative_degree,
+                clearance,
+                time_to_collision,
+                obstacle,
+            } = value;
+            push_f64(out, 2, *h);
+            push_f64(out, 3, *constraint);
+            if *known {
+                out.extend_from_slice(&[(4 << 3) | VARINT as u8, 1]);
+            }
+            if *relative_degree != 0 {
+                push_varint_key(out, 5, VARINT, u64::from(*relative_degree));
+            }
+            push_f64(out, 6, *clearance);
+            push_f64(out, 7, *time_to_collision);
+            if *obstacle {
+                out.extend_from_slice(&[(8 << 3) | VARINT as u8, 1]);
+            }
+        },
+    );
 }
 
-/// `/actors` as prost writes it (each road user's value after a one-byte length, patched as in
-/// [`encode_barrier`]).
+/// `/actors` as prost writes it.
 pub(crate) fn encode_actors(m: &proto::Actors, out: &mut Vec<u8>) {
     let proto::Actors { time, actors } = m;
-    out.reserve(9 + actors.iter().map(|v| 70 + v.name.len()).sum::<usize>());
-    push_f64(out, 1, *time);
-    for value in actors {
-        let proto::ActorValue {
-            name,
-            x,
-            y,
-            vx,
-            vy,
-            ax,
-            ay,
-            heading,
-            absent,
-        } = value;
+    encode_named_values(
+        out,
+        *time,
+        actors,
+        70,
+        |v| &v.name,
+        |out, value| {
+            let proto::ActorValue {
+                name: _,
+                x,
+                y,
+                vx,
+                vy,
+                ax,
+                ay,
+                heading,
+                absent,
+            } = value;
+            for (field, value) in (2..).zip([x, y, vx, vy, ax, ay, heading]) {
+                push_f64(out, field, *value);
+            }
+            if *absent {
+                out.extend_from_slice(&[(9 << 3) | VARINT as u8, 1]);
+            }
+        },
+    );
+}
+
+/// A message of a time (field 1) and repeated values (field 2) that each begin with their name
+/// (field 1), as prost writes it, in one pass: each value is written after a one-byte length,
+/// patched once its size is known (a longer varint, for a value of 128 bytes or more, is
+/// spliced in). `room`: a value's bytes besides its name, to reserve; `fields` writes the rest.
+#[inline(always)]
+fn encode_named_values<T>(
+    out: &mut Vec<u8>,
+    time: f64,
+    values: &[T],
+    room: usize,
+    name: impl Fn(&T) -> &String,
+    fields: impl Fn(&mut Vec<u8>, &T),
+) {
+    out.reserve(9 + values.iter().map(|v| room + name(v).len()).sum::<usize>());
+    push_f64(out, 1, time);
+    for value in values {
         out.push((2 << 3) | LEN as u8);
         let length_at = out.len();
         out.push(0);
+        let name = name(value);
         if !name.is_empty() {
             push_varint_key(out, 1, LEN, name.len() as u64);
             out.extend_from_slice(name.as_bytes());
         }
-        for (field, value) in (2..).zip([x, y, vx, vy, ax, ay, heading]) {
-            push_f64(out, field, *value);
-        }
-        if *absent {
-            out.extend_from_slice(&[(9 << 3) | VARINT as u8, 1]);
-        }
+        fields(out, value);
         patch_length(out, length_at);
     }
 }
