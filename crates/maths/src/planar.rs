@@ -87,14 +87,6 @@ pub fn resample(points: &[[f64; 2]], n: usize) -> Vec<[f64; 2]> {
 /// segment), and its distance from p.
 #[inline]
 pub fn project_on_segment(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, f64) {
-    let (f, [x, y]) = segment_offset(a, b, p);
-    (f, x.hypot(y))
-}
-
-/// [`project_on_segment`]'s fraction, and the offset of p from the nearest point (whose
-/// `hypot` is the distance).
-#[inline]
-pub fn segment_offset(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, [f64; 2]) {
     let d = [b[0] - a[0], b[1] - a[1]];
     let l2 = d[0] * d[0] + d[1] * d[1];
     let f = if l2 > 0.0 {
@@ -102,7 +94,7 @@ pub fn segment_offset(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, [f64; 2]) 
     } else {
         0.0
     };
-    (f, [p[0] - a[0] - f * d[0], p[1] - a[1] - f * d[1]])
+    (f, (p[0] - a[0] - f * d[0]).hypot(p[1] - a[1] - f * d[1]))
 }
 
 /// The distance from p to the polyline.

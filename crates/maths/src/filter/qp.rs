@@ -168,7 +168,7 @@ fn ordered_dot(a: &[f64], b: &[f64]) -> f64 {
     if let (Ok(a), Ok(b)) = (<&[f64; 4]>::try_from(a), <&[f64; 4]>::try_from(b)) {
         return 0.0 + a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
     }
-    a.iter().zip(b).fold(0.0, |sum, (a, b)| sum + a * b)
+    crate::barrier::dot(a, b)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

@@ -135,22 +135,9 @@ impl RouteFollowing {
     /// The arc length of the path point nearest to `p` (projected onto the nearest segment).
     fn nearest_arc(&self, p: [f64; 2]) -> f64 {
         let path = &self.params.path;
-        let segment = |k: usize| crate::planar::segment_offset(path[k], path[k + 1], p);
-        // x² + y² is within a few ulps of the distance squared: a first pass finds the least,
-        // and only the segments near it take their `hypot` (the nearest is still the first
-        // one hypot picks).
-        let mut least = f64::INFINITY;
-        for k in 0..path.len() - 1 {
-            let [x, y] = segment(k).1;
-            least = least.min(x * x + y * y);
-        }
         let (mut best, mut best_arc) = (f64::INFINITY, 0.0);
         for k in 0..path.len() - 1 {
-            let (f, [x, y]) = segment(k);
-            if x * x + y * y > least * (1.0 + 1e-9) {
-                continue;
-            }
-            let dist = x.hypot(y);
+            let (f, dist) = crate::planar::project_on_segment(path[k], path[k + 1], p);
             if dist < best {
                 (best, best_arc) = (dist, self.arc[k] + f * (self.arc[k + 1] - self.arc[k]));
             }
