@@ -179,7 +179,9 @@ impl RunVisitor for Series {
                     self.obstacle_barriers = !m.barriers.is_empty() && m.barriers.iter().all(|b| b.obstacle);
                 }
                 for b in m.barriers {
-                    if b.obstacle && self.closest.as_ref().is_none_or(|c| b.clearance < c.0) {
+                    // (NaN, a road user that does not exist, is never the closest.)
+                    let nearer = |c: &(f64, f64, String)| b.clearance < c.0;
+                    if b.obstacle && !b.clearance.is_nan() && self.closest.as_ref().is_none_or(nearer) {
                         let obstacle = b.name.split('/').next().unwrap_or_default().to_string();
                         self.closest = Some((b.clearance, m.time, obstacle));
                     }
@@ -267,6 +269,12 @@ const PALETTE: [RGBColor; 6] = [
     RGBColor(255, 127, 14),
     RGBColor(23, 190, 207),
 ];
+
+/// A series' runs of points with a value (a NaN, e.g. a road user's h while it does not exist,
+/// is a gap in its line, not a point).
+fn finite_runs(points: &[(f64, f64)]) -> impl Iterator<Item = &[(f64, f64)]> {
+    points.split(|p| p.1.is_nan()).filter(|run| !run.is_empty())
+}
 
 fn bounds(points: impl Iterator<Item = (f64, f64)> + Clone) -> ((f64, f64), (f64, f64)) {
     let fold = |f: fn(&(f64, f64)) -> f64| {
@@ -363,7 +371,9 @@ fn time_chart(area: &Area<'_>, title: &str, y_desc: &str, series: &[Line<'_>], e
         .axis_desc_style(("sans-serif", 15))
         .draw()?;
     for (_, points, style) in series {
-        chart.draw_series(LineSeries::new(points.iter().copied(), *style))?;
+        for run in finite_runs(points) {
+            chart.draw_series(LineSeries::new(run.iter().copied(), *style))?;
+        }
     }
     mark_events(&mut chart, events, (y0, y1), (x0, x1))?;
     Ok(())
@@ -442,7 +452,9 @@ fn symlog_chart(
     }
     chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.stroke_width(2)))?;
     for (_, points, style) in series {
-        chart.draw_series(LineSeries::new(points.iter().copied(), *style))?;
+        for run in finite_runs(points) {
+            chart.draw_series(LineSeries::new(run.iter().copied(), *style))?;
+        }
     }
     mark_events(&mut chart, events, (lo, hi), (x0, x1))?;
     Ok(())
@@ -1458,6 +1470,17 @@ pub fn plot_sweep(
 
 #[cfg(test)]
 mod tests {
+    /// A NaN is a gap: the runs around it are drawn, no point of it.
+    #[test]
+    fn a_series_is_drawn_in_its_runs_of_values() {
+        let nan = f64::NAN;
+        let points = [(0.0, nan), (1.0, 1.0), (2.0, 2.0), (3.0, nan), (4.0, nan), (5.0, 5.0)];
+        let runs: Vec<Vec<f64>> = super::finite_runs(&points)
+            .map(|r| r.iter().map(|p| p.0).collect())
+            .collect();
+        assert_eq!(runs, [vec![1.0, 2.0], vec![5.0]]);
+    }
+
     /// A 4 × 2 box turned by 90° spans 2 in x and 4 in y about its centre.
     #[test]
     fn box_corners_turn_with_the_heading() {

@@ -1046,6 +1046,45 @@ fn road_users_appearing_after_the_start_exist_from_their_first_step() {
     }
     let first_after = actors.iter().find(|m| m.time > 1.25).unwrap();
     assert!(late.iter().all(|name| !absent(first_after).contains(name)));
+    // While a road user does not exist its `/barrier` entry has no values (not those of where it
+    // is parked); once it does, they are finite. Both topics are written at each step's start.
+    let barriers = common::read_topic::<mjsafe::log::proto::Barrier>(&log, "/barrier");
+    assert!(barriers.len() + 1 >= actors.len(), "{} /barrier", barriers.len());
+    let mut absent_entries = 0;
+    for (b, a) in barriers.iter().zip(&actors) {
+        assert_eq!(b.time, a.time);
+        let gone = absent(a);
+        for v in b.barriers.iter().filter(|v| v.obstacle) {
+            let values = [v.h, v.constraint, v.clearance, v.time_to_collision];
+            if gone.contains(&v.name) {
+                assert!(
+                    values.iter().all(|x| x.is_nan()),
+                    "{} at {} s: {values:?}",
+                    v.name,
+                    b.time
+                );
+                assert_eq!(v.relative_degree, 0);
+                absent_entries += 1;
+            } else {
+                assert!(
+                    v.h.is_finite() && v.clearance.abs() < 1e4,
+                    "{} at {} s: {values:?}",
+                    v.name,
+                    b.time
+                );
+            }
+        }
+    }
+    assert!(absent_entries >= 11 * late_count, "{absent_entries}");
+    // The least clearance per road user is over the steps it exists: each one has a value.
+    let analysed = mjsafe(&["analyze", log.to_str().unwrap(), "--json"]);
+    let metrics: serde_json::Value = serde_json::from_slice(&analysed.stdout).unwrap();
+    let by_obstacle = metrics[0]["min_clearance_by_obstacle"].as_object().unwrap();
+    assert_eq!(by_obstacle.len(), actors[0].actors.len());
+    assert!(
+        by_obstacle.values().all(|v| v.as_f64().is_some_and(|c| c.abs() < 1e4)),
+        "{by_obstacle:?}"
+    );
     // Observed every 0.07 s (at 1.19 and 1.26 s), a road user appearing at 1.2 s is unseen until
     // 1.26 s: the predictions of the ticks between assume nothing of it (NaN, not the distance
     // to where the controller held it parked), and every other assumption is within metres.

@@ -680,6 +680,14 @@ impl Episode {
             let circle = |k: usize| actor.map(|a| a.shifted(o.offsets[k]));
             let points = &self.logged_points[first..first + o.barriers.len()];
             first += o.barriers.len();
+            if o.absent {
+                // A recorded road user that does not exist now has no values (`/actors` says
+                // why), not those of where it is parked.
+                for value in values.by_ref().take(if pairs { o.barriers.len() } else { 1 }) {
+                    BarrierSample::ABSENT.write(value, o.known, true);
+                }
+                continue;
+            }
             if pairs {
                 for ((k, b), value) in o.barriers.iter().enumerate().zip(&mut values) {
                     sampler
@@ -728,6 +736,15 @@ struct BarrierSample {
 }
 
 impl BarrierSample {
+    /// The entry of a road user that does not exist at the step: no values, no condition.
+    const ABSENT: BarrierSample = BarrierSample {
+        h: f64::NAN,
+        constraint: f64::NAN,
+        relative_degree: 0,
+        clearance: f64::NAN,
+        time_to_collision: f64::NAN,
+    };
+
     /// An obstacle's entry from two of its pairs: the nearer pair's h and condition (the first
     /// on a tie), the least clearance and the least time to collision (NaN only where both are).
     fn nearer(self, other: BarrierSample) -> BarrierSample {

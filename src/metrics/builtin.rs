@@ -464,9 +464,12 @@ impl Accumulate for MaxBrakeThreat {
     }
 }
 
-/// `Some(min(current, x))`.
+/// `Some(min(current, x))`; a NaN (no value) leaves `current`.
 fn lower(current: Option<f64>, x: f64) -> Option<f64> {
-    Some(current.map_or(x, |c| c.min(x)))
+    match x.is_nan() {
+        true => current,
+        false => Some(current.map_or(x, |c| c.min(x))),
+    }
 }
 
 /// `Some(max(current, x))`.
@@ -931,7 +934,12 @@ impl LeastByName {
     /// The values by name (emptied).
     fn take(&mut self) -> Option<BTreeMap<String, f64>> {
         self.index.clear();
-        (!self.slots.is_empty()).then(|| std::mem::take(&mut self.slots).into_iter().collect())
+        // A name whose every value was NaN (a road user that never existed in the run) has none.
+        let values: BTreeMap<_, _> = std::mem::take(&mut self.slots)
+            .into_iter()
+            .filter(|(_, least)| !least.is_nan())
+            .collect();
+        (!values.is_empty()).then_some(values)
     }
 }
 
