@@ -169,7 +169,9 @@ impl RecordBuffers {
             });
             actor_predicted.extend_from_slice(&assumed);
             actor_realized.extend_from_slice(&truth);
-            actor_error.push((assumed[0] - truth[0]).hypot(assumed[1] - truth[1]));
+            // (sqrt, not hypot: positions are bounded by ±1e9, the squares cannot overflow.)
+            let (dx, dy) = (assumed[0] - truth[0], assumed[1] - truth[1]);
+            actor_error.push((dx * dx + dy * dy).sqrt());
         }
         *time = c.prediction.target_time;
         *issued_at = c.prediction.issued_at;

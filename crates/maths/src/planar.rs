@@ -220,6 +220,24 @@ impl Blocks {
         (k, d2)
     }
 
+    /// The first segment k (from `points[k]` to `points[k + 1]`) of the polyline through the
+    /// indexed `points` at the least distance from q, with the fraction along it of its point
+    /// nearest q and that distance ([`project_on_segment`]): the linear scan's answer (0, 0, ∞
+    /// without a segment).
+    pub fn nearest_segment(&self, points: &[[f64; 2]], q: [f64; 2]) -> (usize, f64, f64) {
+        debug_assert_eq!(points.len(), self.points);
+        let scan = |range: std::ops::Range<usize>, mut best: (usize, f64, f64)| {
+            for k in range.filter(|&k| k + 1 < points.len()) {
+                let (f, d) = project_on_segment(points[k], points[k + 1], q);
+                if d < best.2 || (d == best.2 && k < best.0) {
+                    best = (k, f, d);
+                }
+            }
+            best
+        };
+        self.search(q, (0, 0.0, f64::INFINITY), |best| best.2, scan)
+    }
+
     /// The distance from q to the polyline through the indexed `points` ([`polyline_distance`]).
     pub fn polyline_distance(&self, points: &[[f64; 2]], q: [f64; 2]) -> f64 {
         debug_assert_eq!(points.len(), self.points);
@@ -280,6 +298,17 @@ mod tests {
             }
             (best.1, best.0)
         };
+        // The route nominal's scan: the first segment of the least distance.
+        let segment_scan = |points: &[[f64; 2]], q: [f64; 2]| {
+            let (mut best, mut k_best, mut f_best) = (f64::INFINITY, 0, 0.0_f64);
+            for k in 0..points.len().saturating_sub(1) {
+                let (f, d) = project_on_segment(points[k], points[k + 1], q);
+                if d < best {
+                    (best, k_best, f_best) = (d, k, f);
+                }
+            }
+            (k_best, f_best.to_bits(), best.to_bits())
+        };
         for n in [1, 2, 15, 16, 17, 33, 300] {
             let mut points = Vec::new();
             let (mut x, mut y, mut heading) = (1e5, -3e4, 0.0_f64);
@@ -301,6 +330,8 @@ mod tests {
                     centre[1] + spread * (uniform() - 0.5),
                 ];
                 assert_eq!(blocks.nearest_point(&points, q), scan(&points, q));
+                let (k, f, d) = blocks.nearest_segment(&points, q);
+                assert_eq!((k, f.to_bits(), d.to_bits()), segment_scan(&points, q));
                 assert_eq!(
                     blocks.polyline_distance(&points, q).to_bits(),
                     polyline_distance(&points, q).to_bits()

@@ -110,6 +110,8 @@ pub struct RouteFollowing {
     params: RouteParams,
     /// Arc length at each path point (m).
     arc: Vec<f64>,
+    /// The path's index for nearest-segment searches.
+    blocks: crate::planar::Blocks,
     wheelbase: f64,
 }
 
@@ -127,6 +129,7 @@ pub fn build(p: &RouteParams, ctx: &NominalContext) -> Result<Box<dyn NominalCon
     Ok(Box::new(RouteFollowing {
         params: p.clone(),
         arc,
+        blocks: crate::planar::Blocks::new(&p.path),
         wheelbase,
     }))
 }
@@ -134,15 +137,11 @@ pub fn build(p: &RouteParams, ctx: &NominalContext) -> Result<Box<dyn NominalCon
 impl RouteFollowing {
     /// The arc length of the path point nearest to `p` (projected onto the nearest segment).
     fn nearest_arc(&self, p: [f64; 2]) -> f64 {
-        let path = &self.params.path;
-        let (mut best, mut best_arc) = (f64::INFINITY, 0.0);
-        for k in 0..path.len() - 1 {
-            let (f, dist) = crate::planar::project_on_segment(path[k], path[k + 1], p);
-            if dist < best {
-                (best, best_arc) = (dist, self.arc[k] + f * (self.arc[k + 1] - self.arc[k]));
-            }
+        let (k, f, _) = self.blocks.nearest_segment(&self.params.path, p);
+        match k + 1 < self.arc.len() {
+            true => self.arc[k] + f * (self.arc[k + 1] - self.arc[k]),
+            false => 0.0,
         }
-        best_arc
     }
 
     /// The path point at arc length s (past the end: on along the last segment).
