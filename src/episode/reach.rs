@@ -741,8 +741,9 @@ impl EgoPoints {
                 let (jx, jy) = (axis[0].3[j] - v_k, axis[1].3[j] - v_k);
                 point_motion.velocity_columns[j] = [kx, ky];
                 point_motion.acceleration_columns[j] = [jx, jy];
-                point_motion.velocity_gains[j] = kx.hypot(ky);
-                point_motion.acceleration_gains[j] = jx.hypot(jy);
+                // (sqrt, not hypot: Lie derivatives of bounded states cannot overflow squared.)
+                point_motion.velocity_gains[j] = (kx * kx + ky * ky).sqrt();
+                point_motion.acceleration_gains[j] = (jx * jx + jy * jy).sqrt();
             }
             *point = point_motion;
         }

@@ -497,7 +497,7 @@ impl Episode {
             // A box's predicted position is drawn as the ring around it.
             let radius = match o.outline {
                 Outline::Circle { radius } => radius,
-                Outline::Box { length, width, .. } => 0.5 * length.hypot(width),
+                Outline::Box { length, width, .. } => 0.5 * (length * length + width * width).sqrt(),
             };
             if k > 0 {
                 if let Record::Scene(t, update) = &mut view.record {

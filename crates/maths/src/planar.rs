@@ -87,6 +87,14 @@ pub fn resample(points: &[[f64; 2]], n: usize) -> Vec<[f64; 2]> {
 /// segment), and its distance from p.
 #[inline]
 pub fn project_on_segment(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, f64) {
+    let (f, [dx, dy]) = segment_offset(a, b, p);
+    (f, dx.hypot(dy))
+}
+
+/// [`project_on_segment`]'s fraction and the offset from its nearest point to p (whose norm
+/// is the distance).
+#[inline]
+fn segment_offset(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, [f64; 2]) {
     let d = [b[0] - a[0], b[1] - a[1]];
     let l2 = d[0] * d[0] + d[1] * d[1];
     let f = if l2 > 0.0 {
@@ -94,7 +102,7 @@ pub fn project_on_segment(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, f64) {
     } else {
         0.0
     };
-    (f, (p[0] - a[0] - f * d[0]).hypot(p[1] - a[1] - f * d[1]))
+    (f, [p[0] - a[0] - f * d[0], p[1] - a[1] - f * d[1]])
 }
 
 /// The distance from p to the polyline.
@@ -227,10 +235,19 @@ impl Blocks {
     pub fn nearest_segment(&self, points: &[[f64; 2]], q: [f64; 2]) -> (usize, f64, f64) {
         debug_assert_eq!(points.len(), self.points);
         let scan = |range: std::ops::Range<usize>, mut best: (usize, f64, f64)| {
+            // A segment whose squared distance exceeds the best's square by more than rounding
+            // is not nearer: passed over without the (slow) hypot.
+            let mut beyond = best.2 * best.2 * (1.0 + 1e-9);
             for k in range.filter(|&k| k + 1 < points.len()) {
-                let (f, d) = project_on_segment(points[k], points[k + 1], q);
+                let (a, b) = (points[k], points[k + 1]);
+                let (f, [dx, dy]) = segment_offset(a, b, q);
+                if dx * dx + dy * dy > beyond {
+                    continue;
+                }
+                let d = dx.hypot(dy);
                 if d < best.2 || (d == best.2 && k < best.0) {
                     best = (k, f, d);
+                    beyond = d * d * (1.0 + 1e-9);
                 }
             }
             best
