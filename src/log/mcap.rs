@@ -33,6 +33,8 @@ pub struct McapSink {
     final_path: std::path::PathBuf,
     /// Time the writer thread spent compressing and writing chunks (known once finished).
     writer_busy: std::time::Duration,
+    /// Whether the last message written is a scene update holding entities.
+    scene_entities: bool,
 }
 
 /// Checks that `path` may receive a log, creating nothing: not an input of the run, not a
@@ -92,6 +94,7 @@ impl McapSink {
             output: Some(output),
             final_path: path.to_path_buf(),
             writer_busy: std::time::Duration::ZERO,
+            scene_entities: false,
         })
     }
 
@@ -127,8 +130,27 @@ impl Sink for McapSink {
             return Err(self.error("record after finish".into()));
         };
         let time = sim_time_ns(record.time());
-        self.sequence += 1;
         let topic = record.topic_index();
+        // The scene updates of one frame (one time, in a row) go into one message, which
+        // Foxglove applies at once: its deletions first, then its entities. So a deletion
+        // after an entity starts a new message (it could delete that entity).
+        if let Record::Scene(_, update) = record {
+            let channel = self.channel_ids[topic];
+            let joinable = update.deletions.is_empty() || !self.scene_entities;
+            let joined = joinable
+                && writer
+                    .extend_last_message(channel, time, |chunk| record.encode_append(chunk))
+                    .map_err(|e| LogError::Write {
+                        path: self.final_path.display().to_string(),
+                        message: e.to_string(),
+                    })?;
+            if joined {
+                self.scene_entities |= !update.entities.is_empty();
+                return Ok(());
+            }
+            self.scene_entities = !update.entities.is_empty();
+        }
+        self.sequence += 1;
         let mut channel = self.channel_ids[topic];
         if channel == 0 {
             channel = add_channel(writer, record.kind()).map_err(|e| LogError::Write {
@@ -243,6 +265,63 @@ mod tests {
         for t in times {
             assert_eq!(sim_time_ns(t), (t.max(0.0) * 1e9).round() as u64, "{t:e}");
         }
+    }
+
+    /// A frame's scene updates (one time, in a row) are one message holding their entities and
+    /// deletions in order; a deletion after an entity (which Foxglove would apply first), another
+    /// topic or another time starts a new message. The `mcap` crate reads every message.
+    #[test]
+    fn a_frames_scene_updates_are_one_message_where_foxglove_applies_them_alike() {
+        use crate::log::scene;
+        use foxglove::messages::SceneUpdate;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scene.mcap");
+        let mut sink = McapSink::create(&path, &info(), &[]).unwrap();
+        let entity =
+            |t: f64, id: &str| Record::Scene(t, scene::polyline(t, id, &[[0.0, 0.0], [1.0, 1.0]], scene::TRAIL, 0.1));
+        let mut deletion = SceneUpdate::default();
+        scene::prediction_into(&mut deletion, 1.0, "prediction/a", [0.0; 2], [f64::NAN; 2], 1.0);
+        let deletion = Record::Scene(1.0, deletion);
+        let state = Record::State(crate::log::proto::State {
+            time: 1.0,
+            ..Default::default()
+        });
+        let sent = [
+            deletion.clone(),
+            entity(1.0, "a"),
+            entity(1.0, "b"),
+            deletion.clone(),
+            entity(1.0, "c"),
+            state,
+            entity(1.0, "d"),
+            entity(2.0, "e"),
+        ];
+        for record in &sent {
+            sink.record(record).unwrap();
+        }
+        sink.finish(true).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let messages: Vec<_> = mcap::MessageStream::new(&bytes).unwrap().map(|m| m.unwrap()).collect();
+        let scenes: Vec<(u64, Vec<String>, Vec<String>)> = (messages.iter())
+            .filter(|m| m.channel.topic == "/scene")
+            .map(|m| {
+                let update = <SceneUpdate as prost::Message>::decode(&m.data[..]).unwrap();
+                let ids = |e: &[foxglove::messages::SceneEntity]| e.iter().map(|e| e.id.clone()).collect();
+                let deleted = update.deletions.iter().map(|d| d.id.clone()).collect();
+                (m.log_time, deleted, ids(&update.entities))
+            })
+            .collect();
+        let names = |ids: &[&str]| ids.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let expected = vec![
+            (1_000_000_000, names(&["prediction/a"]), names(&["a", "b"])),
+            (1_000_000_000, names(&["prediction/a"]), names(&["c"])),
+            (1_000_000_000, names(&[]), names(&["d"])),
+            (2_000_000_000, names(&[]), names(&["e"])),
+        ];
+        assert_eq!(scenes, expected);
+        // The sequence numbers count messages.
+        let sequences: Vec<u32> = messages.iter().map(|m| m.sequence).collect();
+        assert_eq!(sequences, (1..=sequences.len() as u32).collect::<Vec<_>>());
     }
 
     #[test]

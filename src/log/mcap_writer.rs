@@ -416,6 +416,8 @@ pub struct McapWriter<W: LogOutput> {
     chunk_size: usize,
     /// (earliest, latest) log time of the chunks handed on so far.
     bounds: Option<(u64, u64)>,
+    /// The open chunk's last message: channel, log time and where its record starts.
+    last: Option<(u16, u64, usize)>,
 }
 
 impl<W: LogOutput> McapWriter<W> {
@@ -455,6 +457,7 @@ impl<W: LogOutput> McapWriter<W> {
             chunk_bounds: None,
             chunk_size,
             bounds: None,
+            last: None,
         })
     }
 
@@ -542,14 +545,41 @@ impl<W: LogOutput> McapWriter<W> {
         *at = length.to_le_bytes();
         let (lo, hi) = self.chunk_bounds.unwrap_or((log_time, log_time));
         self.chunk_bounds = Some((lo.min(log_time), hi.max(log_time)));
+        self.last = Some((channel_id, log_time, start));
         if self.chunk.len() >= self.chunk_size {
             self.finish_chunk()?;
         }
         Ok(())
     }
 
+    /// Appends what `encode` appends to the payload of the open chunk's last message, when that
+    /// message is on `channel_id` at `log_time`; returns whether it did (else nothing happens).
+    /// For protobuf, the bytes of two messages one after the other are one message holding
+    /// both (the repeated fields' elements joined, in order).
+    pub fn extend_last_message(
+        &mut self,
+        channel_id: u16,
+        log_time: u64,
+        encode: impl FnOnce(&mut Vec<u8>),
+    ) -> io::Result<bool> {
+        let Some((channel, time, start)) = self.last else {
+            return Ok(false);
+        };
+        if channel != channel_id || time != log_time {
+            return Ok(false);
+        }
+        encode(&mut self.chunk);
+        let length = (self.chunk.len() - start - 9) as u64;
+        self.chunk[start + 1..start + 9].copy_from_slice(&length.to_le_bytes());
+        if self.chunk.len() >= self.chunk_size {
+            self.finish_chunk()?;
+        }
+        Ok(true)
+    }
+
     /// Hands the open chunk and its message indexes to the data section (nothing if empty).
     fn finish_chunk(&mut self) -> io::Result<()> {
+        self.last = None;
         let Some((start_time, end_time)) = self.chunk_bounds.take() else {
             return Ok(());
         };
