@@ -4,7 +4,7 @@ compression, chunk size and metadata position. No mjsafe code involved. DROP (op
 comma-separated) leaves topics (`/barrier`) or metadata records (`mjsafe_status`) out, as a
 topic filter would: a dropped topic has no channel and no messages in the copy. ORDER
 (optional) writes the messages out of log-time order, which MCAP allows: `halves` (the second
-half of the messages first), `by_topic` (each channel's messages in turn), `reverse` (last
+half of the messages first, split where the log time changes), `by_topic` (each channel's messages in turn), `reverse` (last
 first, the messages of one log time too); with `-noindex` (`halves-noindex`) the copy has no
 chunk or message indexes, so a reader cannot tell the order from them, and with `-nosummary`
 no summary section at all (no indexes, no statistics, no repeated schemas and channels).
@@ -25,7 +25,12 @@ def main(src, dst, compression, chunk_size, metadata_at, drop="", order="file"):
         messages = list(reader.iter_messages(log_time_order=False))
     order, _, index = order.partition("-")
     if order == "halves":
-        messages = messages[len(messages) // 2 :] + messages[: len(messages) // 2]
+        # Split at the first change of log time from the middle on: the messages of one log
+        # time stay together, in their order (which readers keep for messages of one time).
+        half = len(messages) // 2
+        while 0 < half < len(messages) and messages[half][2].log_time == messages[half - 1][2].log_time:
+            half += 1
+        messages = messages[half:] + messages[:half]
     elif order == "by_topic":
         messages.sort(key=lambda m: m[1].id)
     elif order == "reverse":
