@@ -338,24 +338,42 @@ impl Reach {
             out,
             ..
         } = self;
-        for group in groups.iter().filter(|g| g.cullable) {
-            let gap = mark_group(
-                group,
-                BarrierGeometry {
-                    point_of,
-                    radius,
-                    offsets,
-                    gap_terms,
-                },
-                (&ego.points, input_reach, distances),
-                (form, rates),
-                &assumed,
-                out,
-            );
-            any |= out[group.first..group.end].iter().any(|&out| out);
-            let all_out = out[group.first..group.end].iter().all(|&out| out);
-            if all_out && nearest.is_none_or(|(nearest, ..)| gap < nearest) {
-                nearest = Some((gap, group.first, group.end));
+        let geometry = BarrierGeometry {
+            point_of,
+            radius,
+            offsets,
+            gap_terms,
+        };
+        // Road users that do not exist where assumed (parked) are out without a test; only when
+        // every row is out and no road user that exists is, their gaps name the nearest (the
+        // one every road user's group test gave: parked ones are farther than any other).
+        let mut parked_any = false;
+        for skip_parked in [true, false] {
+            for group in groups.iter().filter(|g| g.cullable) {
+                let actor = assumed(group.first);
+                if !skip_parked && !actor.is_parked() {
+                    continue;
+                }
+                let parts = (&ego.points[..], &input_reach[..], &mut distances[..]);
+                let Some(gap) = mark_group(
+                    group,
+                    geometry,
+                    parts,
+                    (form, rates),
+                    (actor, &assumed, skip_parked),
+                    out,
+                ) else {
+                    (parked_any, any) = (true, any || group.end > group.first);
+                    continue;
+                };
+                any |= out[group.first..group.end].iter().any(|&out| out);
+                let all_out = out[group.first..group.end].iter().all(|&out| out);
+                if all_out && nearest.is_none_or(|(nearest, ..)| gap < nearest) {
+                    nearest = Some((gap, group.first, group.end));
+                }
+            }
+            if !(parked_any && nearest.is_none() && out.iter().all(|&out| out)) {
+                break;
             }
         }
         self.kept_nearest = false;
@@ -520,7 +538,7 @@ impl Reach {
             },
             (&node.points, &node.input_reach, &mut self.distances),
             (form, rates),
-            &assumed,
+            (assumed(group.first), &assumed, true),
             &mut self.scratch_out,
         );
         self.scratch_out[range].iter().all(|&out| out)
@@ -539,22 +557,27 @@ struct BarrierGeometry<'a> {
 /// Which of `group`'s barriers are out of reach, written into `out` (indexed by barrier): the
 /// road user as a whole from its centre and spread, else pair by pair (module docs), for the
 /// ego points `points` and their input bounds `input_reach` (W and B), with barrier k's road
-/// user at `assumed(k)`. Returns the group's gap bound D.
+/// user at `assumed(k)` (`actor` = `assumed(group.first)`). Returns the group's gap bound D;
+/// None, with every barrier out, for a road user parked at `actor` when `skip_parked` (it does
+/// not exist: no rows, no bounds formed).
 fn mark_group(
     group: &Group,
     geometry: BarrierGeometry<'_>,
     (points, input_reach, distances): (&[PointMotion], &[[f64; 2]], &mut [f64]),
     (form, rates): (BarrierForm, Option<(f64, f64)>),
-    assumed: &impl Fn(usize) -> ActorState,
+    (actor, assumed, skip_parked): (ActorState, &impl Fn(usize) -> ActorState, bool),
     out: &mut [bool],
-) -> f64 {
+) -> Option<f64> {
     let BarrierGeometry {
         point_of,
         radius,
         offsets,
         gap_terms,
     } = geometry;
-    let actor = assumed(group.first);
+    if skip_parked && actor.is_parked() {
+        out[group.first..group.end].fill(true);
+        return None;
+    }
     // Every barrier of a road user sees one state while it exists; one that does not
     // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
     let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
@@ -615,7 +638,7 @@ fn mark_group(
             out[k] = rows_hold_given(&pair, form, rates);
         }
     }
-    bounds.gap
+    Some(bounds.gap)
 }
 
 impl EgoPoints {
@@ -885,6 +908,63 @@ mod tests {
         }
         assert!(left_out > 50, "only {left_out} rows left out");
         assert!(checked > 200);
+    }
+
+    /// A road user parked where it does not exist is left out without a test; the one kept when
+    /// every row would go is the nearest that exists, and a parked one only when none exists
+    /// (the nearest of them, as their group tests name it). Moving on the parking line, it is
+    /// no longer parked and is tested.
+    #[test]
+    fn parked_road_users_are_out_and_kept_only_when_no_road_user_exists() {
+        use crate::actor::PARKED;
+        let (model, queues) = bicycle_with_delays();
+        let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
+        let mut reach = Reach::new(&model, &queues);
+        for user in 0..3 {
+            let barrier = Barrier::body_circle(&format!("u{user}"), ([0, 1], 2), [1.3, 0.0], [0.0; 2], 2.0);
+            reach.add(&barrier, Some(([0.0; 2], true)));
+        }
+        reach.largest_input = vec![0.1, 1.0];
+        reach.bound.clone_from(&reach.largest_input);
+        let x = [0.0, 0.0, 0.0, 10.0];
+        let parked = |slot: f64| ActorState {
+            position: [PARKED + 100.0 * slot, PARKED],
+            ..ActorState::default()
+        };
+        let at = |d: f64| ActorState {
+            position: [d, 0.0],
+            ..ActorState::default()
+        };
+        let cases: [([ActorState; 3], [bool; 3], bool); 4] = [
+            // Two far road users: the nearer kept.
+            ([parked(0.0), at(1000.0), at(500.0)], [true, true, false], true),
+            // One in reach: nothing kept.
+            ([parked(0.0), at(1000.0), at(5.0)], [true, true, false], false),
+            // None exists: the nearest parked one kept.
+            ([parked(2.0), parked(0.0), parked(1.0)], [true, false, true], true),
+            // Moving on the parking line: tested (far, so out), and nearer than the parked.
+            (
+                [
+                    parked(0.0),
+                    ActorState {
+                        velocity: [1.0, 0.0],
+                        ..parked(-1e3)
+                    },
+                    parked(1.0),
+                ],
+                [true, false, true],
+                true,
+            ),
+        ];
+        for (users, out, kept) in cases {
+            assert!(reach.mark(&model, form, &x, 2, |k| users[k]));
+            assert_eq!(
+                (reach.out.as_slice(), reach.kept_nearest),
+                (&out[..], kept),
+                "{users:?}"
+            );
+        }
+        assert!(parked(3.0).is_parked() && !at(PARKED).is_parked());
     }
 
     /// A formed row is left out only when it holds at every corner of the box of inputs

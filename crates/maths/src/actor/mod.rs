@@ -40,6 +40,14 @@ pub struct ActorState {
 }
 
 impl ActorState {
+    /// Whether this is the place a road user that does not exist is parked at
+    /// ([`ActorMotion::where_at`]): at rest on the line y = [`PARKED`], which no world reaches
+    /// (a state predicted from a real observation that comes to rest there started there).
+    #[inline]
+    pub fn is_parked(&self) -> bool {
+        self.position[1] == PARKED && self.velocity == [0.0; 2] && self.acceleration == [0.0; 2]
+    }
+
     /// The state of the point at `offset` from the actor's centre (the world-frame offset at the
     /// reference heading, e.g. a box's covering circle), turned with the actor: position
     /// o + R(turn) c, velocity ȯ + θ̇ J R c, acceleration ö + θ̈ J R c − θ̇² R c (J: a quarter turn).
@@ -95,8 +103,12 @@ pub fn motion_error(key: &'static str, message: impl Into<String>) -> MotionErro
     }
 }
 
-/// How far away an actor that does not exist is parked (m).
-pub const PARKED: f64 = 1e7;
+/// Where an actor that does not exist is parked (m, both coordinates): beyond every coordinate
+/// a world may hold (obstacles and states within ±1e9 m, `scenario::OBSTACLE_EXTENT` and
+/// `STATE_EXTENT`; CommonRoad's within ±1e7 m), so a parked road user is never near anything.
+/// (Until stop 77 it was 1e7 m, which a CommonRoad file's largest coordinates reach.) Its
+/// squares stay far from overflow and MuJoCo's geoms take it (a world geom's position).
+pub const PARKED: f64 = 4e9;
 
 /// A kind of actor motion (`[obstacles.motion] kind = …`, docs/actors.md): the actor's true
 /// state at any time of the run. Each kind is its own module, registered as filters are
