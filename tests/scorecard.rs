@@ -21,14 +21,21 @@ fn scorecard(dir: &Path, args: &[&str]) -> (std::process::Output, serde_json::Va
     (o, json)
 }
 
-/// The scorecard of a suite of one clear item, `name` on `scenario`, for one filter.
-fn one_clear_item(dir: &Path, name: &str, scenario: &Path, filter: &str) -> (std::process::Output, serde_json::Value) {
+/// The scorecard of a suite of one clear item, `name` on `scenario` with the overrides `set`,
+/// for one filter.
+fn one_clear_item(
+    dir: &Path,
+    (name, scenario, set): (&str, &Path, &[&str]),
+    filter: &str,
+) -> (std::process::Output, serde_json::Value) {
+    let set: Vec<String> = set.iter().map(|s| format!("{s:?}")).collect();
     let suite = write(
         dir,
         "one.toml",
         &format!(
-            "[[item]]\nname = \"{name}\"\nscenario = \"{}\"\nscore = {{ kind = \"clear\" }}\n",
-            scenario.display()
+            "[[item]]\nname = \"{name}\"\nscenario = \"{}\"\nset = [{}]\nscore = {{ kind = \"clear\" }}\n",
+            scenario.display(),
+            set.join(", ")
         ),
     );
     scorecard(dir, &["--suite", suite.to_str().unwrap(), "--filter", filter])
@@ -165,7 +172,7 @@ fn a_margin_is_clear_at_its_value_and_not_one_tolerance_beyond() {
 fn a_filter_the_scenario_refuses_is_not_applicable_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();
     let gamma_m = "{ kind = \"gamma_m\", l0 = 4.0, l1 = 4.0, m = 50.0 }";
-    let (o, card) = one_clear_item(dir.path(), "scalar", &scenario("scalar_tv_delay.toml"), gamma_m);
+    let (o, card) = one_clear_item(dir.path(), ("scalar", &scenario("scalar_tv_delay.toml"), &[]), gamma_m);
     assert!(o.status.success(), "{}", text(&o));
     let c = cell(&card, "scalar", 0);
     assert_eq!(c["status"], "not_applicable", "{c}");
@@ -331,16 +338,13 @@ fn compare_reports_what_got_worse_and_exits_6() {
 fn a_run_that_collided_before_it_stopped_fails_its_clear_item() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = root().join("data/commonroad/DEU_Flensburg-10_1_T-1.xml");
-    let suite = write(
-        dir.path(),
-        "one.toml",
-        &format!(
-            "[[item]]\nname = \"flensburg\"\nscenario = \"{}\"\nset = [\"actor_knowledge.kind=constant_acceleration\"]\nscore = {{ kind = \"clear\" }}\n",
-            scenario.display()
-        ),
-    );
     let cbf_qp = "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }";
-    let (o, card) = scorecard(dir.path(), &["--suite", suite.to_str().unwrap(), "--filter", cbf_qp]);
+    let item = (
+        "flensburg",
+        scenario.as_path(),
+        &["actor_knowledge.kind=constant_acceleration"][..],
+    );
+    let (o, card) = one_clear_item(dir.path(), item, cbf_qp);
     assert!(o.status.success(), "{}", text(&o));
     let flensburg = cell(&card, "flensburg", 0);
     assert_eq!(flensburg["status"], "fail", "{flensburg}");

@@ -578,8 +578,8 @@ fn mark_group(
         out[group.first..group.end].fill(true);
         return None;
     }
-    // Every barrier of a road user sees one state while it exists; one that does not
-    // exist yet is parked per barrier (`ActorMotion::where_at`): then pair by pair only.
+    // A road user whose barriers see one state (a parked one: its primary's place) is tested
+    // whole first; otherwise pair by pair only.
     let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
     // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
     let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
