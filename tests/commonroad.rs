@@ -117,6 +117,27 @@ fn every_committed_scenario_runs_and_its_road_users_follow_the_recording() {
     }
 }
 
+/// Two plant steps per control tick (`control.period = 0.02`) on Peach, whose car is pushed
+/// through two road users: every check of commonroad-io still holds, the contacts among them.
+/// A `collision_end` at t says the state at t has no contact (MuJoCo finds a step's contacts at
+/// the state it starts from): at t = 2.4 s the car is 0.09 m clear of cr_520 and the contact
+/// ended there (the check counted t = end as touching until stop 78).
+#[test]
+fn with_two_plant_steps_per_tick_the_contacts_are_commonroad_ios() {
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_Peach-4_8_T-1.xml");
+    let log = dir.path().join("peach-20ms.mcap");
+    run(&xml, &log, &["--set", "control.period=0.02"]);
+    let text = check_with_commonroad_io(&xml, &log);
+    // (The contacts compared include overlapping pairs: the check is not vacuous.)
+    let overlapping = text
+        .split(" overlapping")
+        .next()
+        .and_then(|head| head.rsplit(' ').next())
+        .and_then(|n| n.parse::<u32>().ok());
+    assert!(overlapping.is_some_and(|n| n > 10), "{text}");
+}
+
 /// The dissertation's outcome on recorded traffic (US-101, 25 cars in a jam), road edges on:
 /// with delays of 0.2 s and 0.5 s the nominal alone and the delay-free CBF-QP (4.9)–(4.11)
 /// collide; the predictor CBF-QP (4.34) and the γm filter (4.67) stay clear and on the road.

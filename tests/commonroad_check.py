@@ -613,17 +613,23 @@ def check_entries(scenario, log_path, dt, times, ego_ids=()):
 
 
 def contact_intervals(log_path):
-    """Per road user name, mjsafe's contact intervals [start, end] from the log's
-    `collision_start` / `collision_end` events (an interval still open at the end runs to +inf)."""
+    """Per road user name, mjsafe's contact intervals [start, end) from the log's
+    `collision_start` / `collision_end` events: MuJoCo finds a step's contacts at the state it
+    starts from, so a `collision_end` at t says the state at t has none. A contact the episode's
+    end (`episode_end`, `interrupted`, `error`) closed, or one left open, runs to +inf: no step
+    followed the last state to say."""
+    events = list(read_messages(log_path, "/event", decode_event))
+    ended = {e["time"] for e in events if e["kind"] in ("episode_end", "interrupted", "error")}
     intervals, open_at = {}, {}
-    for e in read_messages(log_path, "/event", decode_event):
+    for e in events:
         for name in e["participants"]:
             if name == "vehicle":
                 continue
             if e["kind"] == "collision_start":
                 open_at[name] = e["time"]
             elif e["kind"] == "collision_end" and name in open_at:
-                intervals.setdefault(name, []).append((open_at.pop(name), e["time"]))
+                end = math.inf if e["time"] in ended else e["time"]
+                intervals.setdefault(name, []).append((open_at.pop(name), end))
     for name, start in open_at.items():
         intervals.setdefault(name, []).append((start, math.inf))
     return intervals
@@ -699,7 +705,7 @@ def check_contacts(scenario, log_path, dt, ego_ids=(), margin=CONTACT_MARGIN):
             # (commonroad-io 2026.1's occupancy is the shape; older ones wrap it in `.shape`.)
             shape = shapely_shape(getattr(occupancy, "shape", occupancy))
             name = f"cr_{o.obstacle_id}"
-            touching = any(start <= t <= end for start, end in intervals.get(name, []))
+            touching = any(start <= t < end for start, end in intervals.get(name, []))
             compared += 1
             if shrunk.intersects(shape):
                 overlapping += 1
