@@ -331,9 +331,10 @@ fn compare_reports_what_got_worse_and_exits_6() {
 /// A run that collided and then stopped with an error has a clear item's verdict (it is not
 /// clear): the cell fails, with the error as its reason, rather than leaving the score. On
 /// Flensburg the delay-free CBF-QP assuming the road users at constant acceleration is hit at
-/// 4.88 s while a road user drives through the car; MuJoCo then stops the run at 9.0 s (the
-/// integration of a deep contact; at constant velocity, hit at 4.35 s, it stopped at 9.11 s
-/// from stop 74 until stop 77 moved the parked road users, which changed the contacts' order).
+/// 4.88 s while a road user drives through the car; MuJoCo then stops the run at 8.15 s (the
+/// integration of a deep contact; 9.0 s until stop 78, whose decisions made with every row have
+/// no rows of road users that do not exist; at constant velocity, hit at 4.35 s, it stopped at
+/// 9.11 s from stop 74 until stop 77 moved the parked road users, which those rows felt).
 #[test]
 fn a_run_that_collided_before_it_stopped_fails_its_clear_item() {
     let dir = tempfile::tempdir().unwrap();
