@@ -741,8 +741,8 @@ fn falsify_finds_and_writes_a_counterexample_of_a_commonroad_world() {
 
 /// Road users out of reach leave no row and change nothing (docs/actors.md, "Out of reach"):
 /// on US101-5 (25 recorded cars in a jam, road edges on) under (4.67) and under the CBF-QP, the
-/// run that leaves them out and the run that forms every row (`control.leave_out_of_reach =
-/// false`) issue the same commands bit for bit, drive the same states, log the same barriers
+/// run that leaves them out and the run that forms every row of the road users that exist
+/// (`control.leave_out_of_reach = false`) issue the same commands bit for bit, drive the same states, log the same barriers
 /// and the same conditions left unmet with the same shortfalls, while the first forms fewer
 /// rows.
 #[test]
@@ -773,10 +773,9 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
             })
             .collect();
         let count = |r: &serde_json::Value, key: &str| r[key].as_u64().unwrap();
-        assert!(
-            count(&rows[0], "left_out") > 0 && count(&rows[1], "left_out") == 0,
-            "{rows:?}"
-        );
+        // (The run with every row still leaves out the rows of road users that do not exist
+        // at the decision's time: docs/actors.md, "Road users that do not exist".)
+        assert!(count(&rows[0], "left_out") > count(&rows[1], "left_out"), "{rows:?}");
         assert!(
             count(&rows[0], "formed") < count(&rows[1], "formed"),
             "{filter}: {rows:?}"
@@ -807,7 +806,13 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
         let mut upper_bounds = 0;
         let mut unmet = 0;
         for (c, e) in culled.iter().zip(&every) {
-            assert_eq!(e.left_out, 0, "{filter}: the every-row run left rows out at {}", e.time);
+            // (The every-row run leaves out only the rows of road users that do not exist, which
+            // the other leaves out too.)
+            assert!(
+                e.left_out <= c.left_out,
+                "{filter}: the every-row run left more rows out at {}",
+                e.time
+            );
             // A left-out condition holds at the real inputs a decision plans: the unmet ones and
             // their shortfalls are the every-row run's.
             assert_eq!(c.unmet, e.unmet, "{filter}: unmet at {}", c.time);
