@@ -30,7 +30,8 @@ pub struct ControlSpec {
     #[serde(default = "default_chain_tolerance")]
     pub chain_tolerance: f64,
     /// Road users out of reach form no barrier row (docs/actors.md, "Out of reach"); `false`
-    /// forms every row at every evaluation (the same commands, at their full cost).
+    /// forms every row of the road users that exist at every evaluation (the same commands, at
+    /// their full cost).
     #[serde(default = "default_leave_out_of_reach", skip_serializing_if = "is_true")]
     pub leave_out_of_reach: bool,
 }
