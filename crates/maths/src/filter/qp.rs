@@ -80,6 +80,17 @@ enum Bound {
     Lower(usize),
 }
 
+impl Bound {
+    /// Component i of the bound's normal n.
+    fn normal(self, constraints: &[Constraint], i: usize) -> f64 {
+        match self {
+            Bound::Barrier(k) => constraints[k].b[i],
+            Bound::Upper(j) => -f64::from(u8::from(i == j)),
+            Bound::Lower(j) => f64::from(u8::from(i == j)),
+        }
+    }
+}
+
 /// Where the last solve of one stream of similar problems ended (a channel's decisions, say):
 /// its working set and which barriers paid the penalty. [`QpWorkspace::solve_hinted`] tries
 /// it first and keeps it only if it passes every optimality condition, so a hint changes how
@@ -154,6 +165,47 @@ pub struct QpWorkspace {
     is_considered: Vec<bool>,
     /// g_k at the start v.
     start: Vec<f64>,
+    /// A candidate's normal and its row of the working set's Cholesky factor
+    /// ([`Working::spans`]).
+    span: Vec<f64>,
+}
+
+/// The working set as the last equality step factored it: its bounds, their normals (row-major,
+/// |W| × r) and the Cholesky factor L of N Nᵀ (`gram`, row stride |W|).
+struct Working<'a> {
+    bounds: &'a [Bound],
+    normals: &'a [f64],
+    gram: &'a [f64],
+    r: usize,
+}
+
+impl Working<'_> {
+    /// Whether `bound`'s normal is numerically in the span of the working set's: the next
+    /// equality step, with it appended, would find N Nᵀ singular. The same operations in the
+    /// same order as [`QpWorkspace::equality_step`]'s last row, so the two agree bit for bit.
+    fn spans(&self, bound: Bound, constraints: &[Constraint], scratch: &mut Vec<f64>) -> bool {
+        let (r, m) = (self.r, self.bounds.len());
+        if m == 0 {
+            return false;
+        }
+        scratch.clear();
+        scratch.extend((0..r).map(|i| bound.normal(constraints, i)));
+        scratch.resize(r + m, 0.0);
+        let (candidate, row) = scratch.split_at_mut(r);
+        for b in 0..m {
+            let mut sum = dot(candidate, &self.normals[b * r..(b + 1) * r]);
+            for (j, value) in row[..b].iter().enumerate() {
+                sum -= value * self.gram[b * m + j];
+            }
+            row[b] = sum / self.gram[b * m + b];
+        }
+        let diagonal = dot(candidate, candidate);
+        let mut sum = diagonal;
+        for value in row.iter() {
+            sum -= value * value;
+        }
+        sum <= 1e-14 * diagonal
+    }
 }
 
 fn finite_limit(bound: f64) -> bool {
@@ -195,6 +247,8 @@ impl QpWorkspace {
         for buffer in [&mut workspace.normals, &mut workspace.gram] {
             buffer.resize(r * r, 0.0);
         }
+        // (A candidate's normal and its factor row: r + |W| ≤ 2r.)
+        workspace.span.reserve_exact(2 * r);
         workspace.c.reserve_exact(k);
         workspace.soft.reserve_exact(k);
         workspace.cold_soft.reserve_exact(k);
@@ -637,14 +691,6 @@ impl QpWorkspace {
         }
     }
 
-    fn normal(&self, bound: Bound, constraints: &[Constraint], i: usize) -> f64 {
-        match bound {
-            Bound::Barrier(k) => constraints[k].b[i],
-            Bound::Upper(j) => -f64::from(u8::from(i == j)),
-            Bound::Lower(j) => f64::from(u8::from(i == j)),
-        }
-    }
-
     /// The active-set iteration from [`QpWorkspace::prepare`]'s start; false if it did not
     /// converge (or the working set became numerically dependent).
     fn active_set(&mut self, constraints: &[Constraint]) -> bool {
@@ -698,14 +744,29 @@ impl QpWorkspace {
                 at_minimum = false;
                 continue;
             }
-            // Ratio test: the first constraint outside the working set that p reaches.
+            // Ratio test: the first constraint outside the working set that p reaches. A rate
+            // n·p within p's rounding (`noise`: ε times the size of 2v + d, which a penalised
+            // barrier makes ρ-sized) is no step, nor is that of a normal in the span of the
+            // working set's (the test the next equality step would fail, bit for bit): n·p = 0
+            // there in exact arithmetic, since p keeps the working set. Taking such a row at
+            // t = 0 made N Nᵀ singular or cycled, and handed the problem to Clarabel: γm's rows
+            // of two channels all lie in one plane ([b, b/√m]), and a footprint's three circles
+            // against one circle give three rows through one point (stop 79).
             let mut alpha = 1.0;
             let mut blocking = None;
+            let noise = 1e-15 * scale;
+            let mut span = std::mem::take(&mut self.span);
+            let working = Working {
+                bounds: &self.working,
+                normals: &self.normals,
+                gram: &self.gram,
+                r,
+            };
             let mut consider = |bound: Bound, value: f64, rate: f64, alpha: &mut f64| {
                 // value + t·rate reaches 0 at t = −value/rate (value has the sign of the side
                 // the point is on, rate the other).
                 let t = (-value / rate).max(0.0);
-                if t < *alpha {
+                if t < *alpha && rate.abs() > noise && !working.spans(bound, constraints, &mut span) {
                     *alpha = t;
                     blocking = Some(bound);
                 }
@@ -730,6 +791,7 @@ impl QpWorkspace {
                     consider(Bound::Lower(i), self.v[i] - self.lower[i], self.p[i], &mut alpha);
                 }
             }
+            self.span = span;
             for i in 0..r {
                 self.v[i] += alpha * self.p[i];
             }
@@ -757,7 +819,7 @@ impl QpWorkspace {
         let (r, m) = (self.v.len(), self.working.len());
         for w in 0..m {
             for i in 0..r {
-                self.normals[w * r + i] = self.normal(self.working[w], constraints, i);
+                self.normals[w * r + i] = self.working[w].normal(constraints, i);
             }
         }
         // Cholesky N Nᵀ = L Lᵀ in place (lower triangle of `gram`).
@@ -1353,6 +1415,122 @@ mod tests {
             "per solve: active set {:.2} µs, fresh Clarabel {:.1} µs",
             active_set * 1e6,
             clarabel * 1e6
+        );
+    }
+
+    /// The objective of the problem `solve` defines (rows scaled to ‖b_k‖ = 1), at u.
+    fn scaled_objective(constraints: &[Constraint], u0: &DVector<f64>, u: &DVector<f64>) -> f64 {
+        (u - u0).norm_squared()
+            + SLACK_PENALTY
+                * constraints
+                    .iter()
+                    .map(|c| (-(c.a + c.b.dot(u)) / c.b.norm()).max(0.0))
+                    .sum::<f64>()
+    }
+
+    /// γm's QP of two channels (several.rs: v = the real corrections and σ, each row
+    /// [b, b/√m]) has every normal in one plane of R⁴, and a footprint's three circles against
+    /// one circle of a road user give three rows through one point: with two of them in the
+    /// working set the third meets the ratio test at t = 0 with a rate that is 0 up to
+    /// rounding. Taking it made N Nᵀ singular or cycled, and handed the problem to Clarabel
+    /// (785 of these 4000 problems; 13 decisions of USA_Peach-4_8_T-1). The active set now
+    /// solves every one, no worse than Clarabel and optimal against every small move.
+    #[test]
+    fn rows_in_one_subspace_never_fall_back_to_clarabel() {
+        let mut rng = SplitMix64(23);
+        let mut workspace = QpWorkspace::default();
+        let root_m = 50.0_f64.sqrt();
+        let u0 = DVector::zeros(4);
+        let mut u = DVector::zeros(4);
+        let mut corrected = 0;
+        for trial in 0..4000 {
+            // Triples affine in one parameter, as a footprint's three circles along the body
+            // against one circle of a road user: the middle row is the mean of the outer two,
+            // so the three lines meet in one point.
+            let triples = 1 + trial % 12;
+            let mut constraints = Vec::with_capacity(3 * triples);
+            for _ in 0..triples {
+                let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+                let (a, da) = (uniform(-8.0, 4.0), uniform(-3.0, 3.0));
+                let (b0, db0, b1) = (uniform(-2.0, 2.0), uniform(-2.0, 2.0), uniform(-1.0, 1.0));
+                for j in 0..3 {
+                    let (a, b0) = (a + j as f64 * da, b0 + j as f64 * db0);
+                    constraints.push(Constraint {
+                        h: 0.0,
+                        a,
+                        b: DVector::from_column_slice(&[b0, b1, b0 / root_m, b1 / root_m]),
+                    });
+                }
+            }
+            let (active, ..) = workspace.solve(&constraints, &u0, None, &mut u);
+            corrected += usize::from(active);
+            let scaled: Vec<Constraint> = constraints
+                .iter()
+                .map(|c| Constraint {
+                    h: c.h,
+                    a: c.a / c.b.norm(),
+                    b: &c.b / c.b.norm(),
+                })
+                .collect();
+            let reference = clarabel_outcome(&scaled, &u0, None);
+            let (ours, theirs) = (
+                scaled_objective(&constraints, &u0, &u),
+                scaled_objective(&constraints, &u0, &reference.input),
+            );
+            assert!(
+                ours <= theirs + 1e-7 * (1.0 + theirs),
+                "trial {trial}: {ours} > Clarabel's {theirs}"
+            );
+            for _ in 0..8 {
+                let moved = DVector::from_iterator(4, (0..4).map(|i| u[i] + 1e-6 * (2.0 * rng.next_f64() - 1.0)));
+                let nearby = scaled_objective(&constraints, &u0, &moved);
+                assert!(
+                    ours <= nearby + 1e-9 * (1.0 + ours),
+                    "trial {trial}: {ours} > {nearby} nearby"
+                );
+            }
+        }
+        assert!(corrected > 3000, "{corrected} of 4000 corrected");
+        assert_eq!(workspace.fallbacks(), 0);
+    }
+
+    /// The first of Peach's 13 (above), as the episode formed it.
+    #[test]
+    fn peachs_degenerate_gamma_m_decision_is_solved_by_the_active_set() {
+        let rows: &[(f64, f64, Vec<f64>)] = include!("testdata/peach_gamma_m_rows.in");
+        let constraints: Vec<Constraint> = rows
+            .iter()
+            .map(|(h, a, b)| Constraint {
+                h: *h,
+                a: *a,
+                b: DVector::from_column_slice(b),
+            })
+            .collect();
+        let u0 = DVector::zeros(4);
+        let mut workspace = QpWorkspace::default();
+        let mut u = DVector::zeros(4);
+        let (active, ..) = workspace.solve(&constraints, &u0, None, &mut u);
+        assert_eq!(workspace.fallbacks(), 0);
+        assert!(active);
+        let scaled: Vec<Constraint> = constraints
+            .iter()
+            .map(|c| Constraint {
+                h: c.h,
+                a: c.a / c.b.norm(),
+                b: &c.b / c.b.norm(),
+            })
+            .collect();
+        let reference = clarabel_outcome(&scaled, &u0, None);
+        let (ours, theirs) = (
+            scaled_objective(&constraints, &u0, &u),
+            scaled_objective(&constraints, &u0, &reference.input),
+        );
+        assert!(ours <= theirs + 1e-9 * (1.0 + theirs), "{ours} > Clarabel's {theirs}");
+        // (Clarabel's answer is within its tolerance: 1.3e-6 here.)
+        assert!(
+            (&u - &reference.input).amax() < 1e-5 * (1.0 + u.amax()),
+            "{u} vs Clarabel's {}",
+            reference.input
         );
     }
 }
