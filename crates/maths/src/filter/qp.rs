@@ -1418,14 +1418,19 @@ mod tests {
         );
     }
 
-    /// The objective of the problem `solve` defines (rows scaled to ‖b_k‖ = 1), at u.
-    fn scaled_objective(constraints: &[Constraint], u0: &DVector<f64>, u: &DVector<f64>) -> f64 {
-        (u - u0).norm_squared()
-            + SLACK_PENALTY
-                * constraints
-                    .iter()
-                    .map(|c| (-(c.a + c.b.dot(u)) / c.b.norm()).max(0.0))
-                    .sum::<f64>()
+    /// The rows scaled to ‖b_k‖ = 1, as `solve` scales them (the problem it defines).
+    fn unit_rows(constraints: &[Constraint]) -> Vec<Constraint> {
+        let unit = |c: &Constraint| Constraint {
+            h: c.h,
+            a: c.a / c.b.norm(),
+            b: &c.b / c.b.norm(),
+        };
+        constraints.iter().map(unit).collect()
+    }
+
+    /// That problem's objective at u.
+    fn unit_objective(rows: &[Constraint], u0: &DVector<f64>, u: &DVector<f64>) -> f64 {
+        (u - u0).norm_squared() + SLACK_PENALTY * rows.iter().map(|c| (-c.value(u)).max(0.0)).sum::<f64>()
     }
 
     /// γm's QP of two channels (several.rs: v = the real corrections and σ, each row
@@ -1464,26 +1469,16 @@ mod tests {
             }
             let (active, ..) = workspace.solve(&constraints, &u0, None, &mut u);
             corrected += usize::from(active);
-            let scaled: Vec<Constraint> = constraints
-                .iter()
-                .map(|c| Constraint {
-                    h: c.h,
-                    a: c.a / c.b.norm(),
-                    b: &c.b / c.b.norm(),
-                })
-                .collect();
-            let reference = clarabel_outcome(&scaled, &u0, None);
-            let (ours, theirs) = (
-                scaled_objective(&constraints, &u0, &u),
-                scaled_objective(&constraints, &u0, &reference.input),
-            );
+            let rows = unit_rows(&constraints);
+            let reference = clarabel_outcome(&rows, &u0, None).input;
+            let (ours, theirs) = (unit_objective(&rows, &u0, &u), unit_objective(&rows, &u0, &reference));
             assert!(
                 ours <= theirs + 1e-7 * (1.0 + theirs),
                 "trial {trial}: {ours} > Clarabel's {theirs}"
             );
             for _ in 0..8 {
                 let moved = DVector::from_iterator(4, (0..4).map(|i| u[i] + 1e-6 * (2.0 * rng.next_f64() - 1.0)));
-                let nearby = scaled_objective(&constraints, &u0, &moved);
+                let nearby = unit_objective(&rows, &u0, &moved);
                 assert!(
                     ours <= nearby + 1e-9 * (1.0 + ours),
                     "trial {trial}: {ours} > {nearby} nearby"
@@ -1512,25 +1507,14 @@ mod tests {
         let (active, ..) = workspace.solve(&constraints, &u0, None, &mut u);
         assert_eq!(workspace.fallbacks(), 0);
         assert!(active);
-        let scaled: Vec<Constraint> = constraints
-            .iter()
-            .map(|c| Constraint {
-                h: c.h,
-                a: c.a / c.b.norm(),
-                b: &c.b / c.b.norm(),
-            })
-            .collect();
-        let reference = clarabel_outcome(&scaled, &u0, None);
-        let (ours, theirs) = (
-            scaled_objective(&constraints, &u0, &u),
-            scaled_objective(&constraints, &u0, &reference.input),
-        );
+        let rows = unit_rows(&constraints);
+        let reference = clarabel_outcome(&rows, &u0, None).input;
+        let (ours, theirs) = (unit_objective(&rows, &u0, &u), unit_objective(&rows, &u0, &reference));
         assert!(ours <= theirs + 1e-9 * (1.0 + theirs), "{ours} > Clarabel's {theirs}");
         // (Clarabel's answer is within its tolerance: 1.3e-6 here.)
         assert!(
-            (&u - &reference.input).amax() < 1e-5 * (1.0 + u.amax()),
-            "{u} vs Clarabel's {}",
-            reference.input
+            (&u - &reference).amax() < 1e-5 * (1.0 + u.amax()),
+            "{u} vs Clarabel's {reference}"
         );
     }
 }
