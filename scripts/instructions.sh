@@ -54,7 +54,7 @@ for part in "${parts[@]}"; do
       if (n > 0 && substr(line, n + 1) == f && substr(line, n, 1) == ":") {
         c = $1; gsub(",", "", c); if (c + 0 > best) best = c + 0
       }
-    } END { if (best > 0) printf "%d", best }' "$work/inclusive.txt")
+    } END { if (best > 0) printf "%.0f", best }' "$work/inclusive.txt")
   if [ -z "$count" ]; then
     printf '%-34s %15s %14s\n' "$name" "-" "-"
   else

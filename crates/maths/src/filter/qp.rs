@@ -37,8 +37,12 @@ const SLACK_PENALTY: f64 = 1e6;
 const SLACK_TOLERANCE: f64 = 1e-6;
 /// Input limits at or beyond this magnitude are no limits (as Clarabel's presolve treats them).
 const INFINITE_BOUND: f64 = 1e20;
-/// Active-set iterations before giving up on a problem (then Clarabel solves it).
+/// Active-set iterations before giving up on a problem (then Clarabel solves it): 200, or four
+/// per row for a larger one. An infeasible problem of many rows crosses one kink of the penalty
+/// per iteration (a row turns penalised or met): Flensburg's delay-free CBF-QP, 400–550 rows,
+/// took up to 750 (docs/performance.md, "Stop 79").
 const MAX_ITERATIONS: usize = 200;
+const ITERATIONS_PER_ROW: usize = 4;
 /// Multipliers within this fraction of the gradient's size of a bound count as on it.
 const MULTIPLIER_TOLERANCE: f64 = 1e-12;
 
@@ -697,7 +701,7 @@ impl QpWorkspace {
         let r = self.v.len();
         // After a full step the point minimises on the working set: p = 0 in exact arithmetic.
         let mut at_minimum = false;
-        for _ in 0..MAX_ITERATIONS {
+        for _ in 0..MAX_ITERATIONS.max(ITERATIONS_PER_ROW * constraints.len()) {
             self.considered_penalty_gradient(constraints);
             if !self.equality_step(constraints) {
                 return false;
@@ -1516,5 +1520,32 @@ mod tests {
             (&u - &reference).amax() < 1e-5 * (1.0 + u.amax()),
             "{u} vs Clarabel's {reference}"
         );
+    }
+
+    /// An infeasible problem of many rows crosses one kink of the penalty per iteration (a
+    /// row turns penalised or met): Flensburg's delay-free CBF-QP after its collision had 160
+    /// decisions of 400–550 rows that ran out of 200 iterations and went to Clarabel. This one,
+    /// as the episode formed it, is solved by the active set (four iterations per row at most).
+    #[test]
+    fn a_problem_of_many_violated_rows_is_solved_by_the_active_set() {
+        let rows: &[(f64, f64, Vec<f64>)] = include!("testdata/flensburg_cbf_qp_rows.in");
+        let constraints: Vec<Constraint> = rows
+            .iter()
+            .map(|(h, a, b)| Constraint {
+                h: *h,
+                a: *a,
+                b: DVector::from_column_slice(b),
+            })
+            .collect();
+        let u0 = DVector::from_column_slice(&[0.018839010037539412, 0.0767512734369955]);
+        let mut workspace = QpWorkspace::default();
+        let mut u = DVector::zeros(2);
+        let (_, infeasible, _) = workspace.solve(&constraints, &u0, None, &mut u);
+        assert_eq!(workspace.fallbacks(), 0);
+        assert!(infeasible);
+        let rows = unit_rows(&constraints);
+        let reference = clarabel_outcome(&rows, &u0, None).input;
+        let (ours, theirs) = (unit_objective(&rows, &u0, &u), unit_objective(&rows, &u0, &reference));
+        assert!(ours <= theirs + 1e-9 * (1.0 + theirs), "{ours} > Clarabel's {theirs}");
     }
 }
