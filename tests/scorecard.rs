@@ -329,30 +329,29 @@ fn compare_reports_what_got_worse_and_exits_6() {
 }
 
 /// A run that collided and then stopped with an error has a clear item's verdict (it is not
-/// clear): the cell fails, with the error as its reason, rather than leaving the score. On
-/// Flensburg the delay-free CBF-QP assuming the road users at constant acceleration is hit at
-/// 4.88 s while a road user drives through the car; MuJoCo then stops the run at 8.15 s (the
-/// integration of a deep contact; 9.0 s until stop 78, whose decisions made with every row have
-/// no rows of road users that do not exist; at constant velocity, hit at 4.35 s, it stopped at
-/// 9.11 s from stop 74 until stop 77 moved the parked road users, which those rows felt).
+/// clear): the cell fails, with the error as its reason, rather than leaving the score. On the
+/// crossing pedestrian the delay-free CBF-QP with a 1.0 s acceleration delay, assuming the road
+/// users static, hits cr_35 at 5.65 s; MuJoCo then stops the run at 7.98 s (the integration of
+/// a deep contact). Until stop 79 this was Flensburg's run at constant acceleration, which ran
+/// into MuJoCo's error after its collision only while Clarabel answered its largest QPs.
 #[test]
 fn a_run_that_collided_before_it_stopped_fails_its_clear_item() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = root().join("data/commonroad/DEU_Flensburg-10_1_T-1.xml");
+    let scenario = root().join("data/commonroad/OSC_PedestrianCollision-1_1_T-1.xml");
     let cbf_qp = "{ kind = \"cbf_qp\", l0 = 4.0, l1 = 4.0 }";
     let item = (
-        "flensburg",
+        "pedestrian",
         scenario.as_path(),
-        &["actor_knowledge.kind=constant_acceleration"][..],
+        &["delays.acceleration=1.0", "actor_knowledge.kind=static"][..],
     );
     let (o, card) = one_clear_item(dir.path(), item, cbf_qp);
     assert!(o.status.success(), "{}", text(&o));
-    let flensburg = cell(&card, "flensburg", 0);
-    assert_eq!(flensburg["status"], "fail", "{flensburg}");
-    assert_eq!(flensburg["score"], 0.0, "{flensburg}");
-    let reason = flensburg["reason"].as_str().unwrap_or("");
+    let pedestrian = cell(&card, "pedestrian", 0);
+    assert_eq!(pedestrian["status"], "fail", "{pedestrian}");
+    assert_eq!(pedestrian["score"], 0.0, "{pedestrian}");
+    let reason = pedestrian["reason"].as_str().unwrap_or("");
     assert!(
         reason.starts_with("a run stopped after its collision: MuJoCo"),
-        "{flensburg}"
+        "{pedestrian}"
     );
 }
