@@ -1493,28 +1493,33 @@ mod tests {
         assert_eq!(workspace.fallbacks(), 0);
     }
 
-    /// The first of Peach's 13 (above), as the episode formed it.
-    #[test]
-    fn peachs_degenerate_gamma_m_decision_is_solved_by_the_active_set() {
-        let rows: &[(f64, f64, Vec<f64>)] = include!("testdata/peach_gamma_m_rows.in");
-        let constraints: Vec<Constraint> = rows
-            .iter()
-            .map(|(h, a, b)| Constraint {
-                h: *h,
-                a: *a,
-                b: DVector::from_column_slice(b),
-            })
-            .collect();
-        let u0 = DVector::zeros(4);
+    /// A problem an episode formed (rows (h, a, b) from testdata/) solved from u0 without limits
+    /// by a fresh workspace, which must not fall back; (active, infeasible, u, Clarabel's
+    /// solution), with the objective checked against Clarabel's.
+    fn recorded_problem(rows: &[(f64, f64, Vec<f64>)], u0: &[f64]) -> (bool, bool, DVector<f64>, DVector<f64>) {
+        let to_row = |(h, a, b): &(f64, f64, Vec<f64>)| Constraint {
+            h: *h,
+            a: *a,
+            b: DVector::from_column_slice(b),
+        };
+        let constraints: Vec<Constraint> = rows.iter().map(to_row).collect();
+        let u0 = DVector::from_column_slice(u0);
         let mut workspace = QpWorkspace::default();
-        let mut u = DVector::zeros(4);
-        let (active, ..) = workspace.solve(&constraints, &u0, None, &mut u);
+        let mut u = DVector::zeros(u0.len());
+        let (active, infeasible, _) = workspace.solve(&constraints, &u0, None, &mut u);
         assert_eq!(workspace.fallbacks(), 0);
-        assert!(active);
         let rows = unit_rows(&constraints);
         let reference = clarabel_outcome(&rows, &u0, None).input;
         let (ours, theirs) = (unit_objective(&rows, &u0, &u), unit_objective(&rows, &u0, &reference));
         assert!(ours <= theirs + 1e-9 * (1.0 + theirs), "{ours} > Clarabel's {theirs}");
+        (active, infeasible, u, reference)
+    }
+
+    /// The first of Peach's 13 (above), as the episode formed it.
+    #[test]
+    fn peachs_degenerate_gamma_m_decision_is_solved_by_the_active_set() {
+        let (active, _, u, reference) = recorded_problem(include!("testdata/peach_gamma_m_rows.in"), &[0.0; 4]);
+        assert!(active);
         // (Clarabel's answer is within its tolerance: 1.3e-6 here.)
         assert!(
             (&u - &reference).amax() < 1e-5 * (1.0 + u.amax()),
@@ -1528,24 +1533,8 @@ mod tests {
     /// as the episode formed it, is solved by the active set (four iterations per row at most).
     #[test]
     fn a_problem_of_many_violated_rows_is_solved_by_the_active_set() {
-        let rows: &[(f64, f64, Vec<f64>)] = include!("testdata/flensburg_cbf_qp_rows.in");
-        let constraints: Vec<Constraint> = rows
-            .iter()
-            .map(|(h, a, b)| Constraint {
-                h: *h,
-                a: *a,
-                b: DVector::from_column_slice(b),
-            })
-            .collect();
-        let u0 = DVector::from_column_slice(&[0.018839010037539412, 0.0767512734369955]);
-        let mut workspace = QpWorkspace::default();
-        let mut u = DVector::zeros(2);
-        let (_, infeasible, _) = workspace.solve(&constraints, &u0, None, &mut u);
-        assert_eq!(workspace.fallbacks(), 0);
+        let u0 = [0.018839010037539412, 0.0767512734369955];
+        let (_, infeasible, ..) = recorded_problem(include!("testdata/flensburg_cbf_qp_rows.in"), &u0);
         assert!(infeasible);
-        let rows = unit_rows(&constraints);
-        let reference = clarabel_outcome(&rows, &u0, None).input;
-        let (ours, theirs) = (unit_objective(&rows, &u0, &u), unit_objective(&rows, &u0, &reference));
-        assert!(ours <= theirs + 1e-9 * (1.0 + theirs), "{ours} > Clarabel's {theirs}");
     }
 }
