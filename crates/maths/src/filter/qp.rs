@@ -174,10 +174,10 @@ pub struct QpWorkspace {
     span: Vec<f64>,
 }
 
-/// The working set as the last equality step factored it: its bounds, their normals (row-major,
+/// The working set as the last equality step factored it: its size, its normals (row-major,
 /// |W| × r) and the Cholesky factor L of N Nᵀ (`gram`, row stride |W|).
 struct Working<'a> {
-    bounds: &'a [Bound],
+    count: usize,
     normals: &'a [f64],
     gram: &'a [f64],
     r: usize,
@@ -185,31 +185,35 @@ struct Working<'a> {
 
 impl Working<'_> {
     /// Whether `bound`'s normal is numerically in the span of the working set's: the next
-    /// equality step, with it appended, would find N Nᵀ singular. The same operations in the
-    /// same order as [`QpWorkspace::equality_step`]'s last row, so the two agree bit for bit.
+    /// equality step, with it appended, would find N Nᵀ singular (the same [`cholesky_row`]).
     fn spans(&self, bound: Bound, constraints: &[Constraint], scratch: &mut Vec<f64>) -> bool {
-        let (r, m) = (self.r, self.bounds.len());
-        if m == 0 {
-            return false;
-        }
         scratch.clear();
-        scratch.extend((0..r).map(|i| bound.normal(constraints, i)));
-        scratch.resize(r + m, 0.0);
-        let (candidate, row) = scratch.split_at_mut(r);
-        for b in 0..m {
-            let mut sum = dot(candidate, &self.normals[b * r..(b + 1) * r]);
-            for (j, value) in row[..b].iter().enumerate() {
-                sum -= value * self.gram[b * m + j];
-            }
-            row[b] = sum / self.gram[b * m + b];
-        }
-        let diagonal = dot(candidate, candidate);
-        let mut sum = diagonal;
-        for value in row.iter() {
-            sum -= value * value;
-        }
-        sum <= 1e-14 * diagonal
+        scratch.extend((0..self.r).map(|i| bound.normal(constraints, i)));
+        scratch.resize(self.r + self.count, 0.0);
+        let (candidate, row) = scratch.split_at_mut(self.r);
+        cholesky_row(candidate, self.normals, self.gram, self.count, row).is_none()
     }
+}
+
+/// Row `row.len()` of the Cholesky factor of N Nᵀ with the normal `n` appended after the rows
+/// whose normals (`normals`, row-major) and factor rows (`factor`, row stride `stride`) are
+/// given: `row` ← its entries left of the diagonal; returns the diagonal entry, or None when
+/// `n` is numerically in the span of those rows (N Nᵀ singular).
+fn cholesky_row(n: &[f64], normals: &[f64], factor: &[f64], stride: usize, row: &mut [f64]) -> Option<f64> {
+    let r = n.len();
+    for b in 0..row.len() {
+        let mut sum = dot(n, &normals[b * r..(b + 1) * r]);
+        for (j, value) in row[..b].iter().enumerate() {
+            sum -= value * factor[b * stride + j];
+        }
+        row[b] = sum / factor[b * stride + b];
+    }
+    let diagonal = dot(n, n);
+    let mut sum = diagonal;
+    for value in row.iter() {
+        sum -= value * value;
+    }
+    (sum > 1e-14 * diagonal).then(|| sum.sqrt())
 }
 
 fn finite_limit(bound: f64) -> bool {
@@ -761,7 +765,7 @@ impl QpWorkspace {
             let noise = 1e-15 * scale;
             let mut span = std::mem::take(&mut self.span);
             let working = Working {
-                bounds: &self.working,
+                count: self.working.len(),
                 normals: &self.normals,
                 gram: &self.gram,
                 r,
@@ -826,23 +830,14 @@ impl QpWorkspace {
                 self.normals[w * r + i] = self.working[w].normal(constraints, i);
             }
         }
-        // Cholesky N Nᵀ = L Lᵀ in place (lower triangle of `gram`).
+        // Cholesky N Nᵀ = L Lᵀ in place (lower triangle of `gram`), a row at a time.
         for a in 0..m {
-            for b in 0..=a {
-                let mut sum = dot(&self.normals[a * r..(a + 1) * r], &self.normals[b * r..(b + 1) * r]);
-                for j in 0..b {
-                    sum -= self.gram[a * m + j] * self.gram[b * m + j];
-                }
-                if a == b {
-                    let diagonal = dot(&self.normals[a * r..(a + 1) * r], &self.normals[a * r..(a + 1) * r]);
-                    if sum <= 1e-14 * diagonal {
-                        return false;
-                    }
-                    self.gram[a * m + a] = sum.sqrt();
-                } else {
-                    self.gram[a * m + b] = sum / self.gram[b * m + b];
-                }
-            }
+            let (before, rest) = self.gram.split_at_mut(a * m);
+            let n = &self.normals[a * r..(a + 1) * r];
+            let Some(diagonal) = cholesky_row(n, &self.normals, before, m, &mut rest[..a]) else {
+                return false;
+            };
+            rest[a] = diagonal;
         }
         // λ = (L Lᵀ)⁻¹ (2β + N d).
         for a in 0..m {
