@@ -1,9 +1,11 @@
 //! Figures of a run, from its MCAP log alone (`mjsafe analyze --plot DIR [--plot-format svg]`):
-//! - `<name>-barriers.png|svg`: h(t) of every barrier on a symmetric-log axis (a margin of
-//!   0.02 m² and 250 m² read on one axis), the unsafe side shaded, events marked;
+//! - `<name>-barriers.png|svg`: h(t) of every barrier (of more than eight, the eight that came
+//!   closest) on a symmetric-log axis (a margin of 0.02 m² and 250 m² read on one axis), the
+//!   unsafe side shaded, events marked;
 //! - `<name>-inputs.png|svg`: issued vs applied input per channel, events marked;
 //! - `<name>-trajectory.png|svg`: the planar path with the obstacles, the road (edges solid, lane
-//!   markings dashed), the half-space barriers on the plane (where h = 0) and the reference path.
+//!   markings dashed), the half-space barriers on the plane (where h = 0), the reference path and
+//!   the road users' paths (more than six: grey, one legend entry).
 //!
 //! With several logs, also overlays of the runs (`overlay-trajectory`, `overlay-barriers`,
 //! `overlay-inputs`: one colour per run, named by its filter's equation number), and
@@ -126,8 +128,8 @@ struct Series {
     /// The vehicle's hull radius (from its `/scene` entity): the vehicle's share of the
     /// barrier radius r = obstacle + hull.
     hull_radius: Option<f64>,
-    /// Whether every barrier is an obstacle's (4.81): h in m².
-    obstacle_barriers: bool,
+    /// The `/barrier` entries that are obstacles' (4.81): h in m².
+    obstacle_barriers: std::collections::BTreeSet<String>,
     /// Per road user (`/actors`), its (t, x, y, heading, absent).
     poses: BTreeMap<String, Vec<ActorPose>>,
     /// The vehicle's closest approach to any obstacle: (clearance, time, obstacle name), from
@@ -135,15 +137,68 @@ struct Series {
     closest: Option<(f64, f64, String)>,
     /// The vehicle's footprint as `/scene` draws it (a cube, no hull cylinder), with its time.
     footprints: Vec<(f64, BoxOutline)>,
-    /// The events marked on time axes (`/event`): (time, what) of each collision, the stall and
-    /// each road user's appearance.
-    events: Vec<(f64, String)>,
+    /// The events marked on time axes (`/event`): (time, what, whose appearance) of each
+    /// collision, the stall and each road user's appearance.
+    events: Vec<(f64, String, Option<String>)>,
+    /// Per `/barrier` entry, its least clearance (m; NaN values passed over).
+    least_clearance: BTreeMap<String, f64>,
 }
 
+/// At most this many barriers in one h(t) chart: with more (a CommonRoad world's road users and
+/// road edges), the ones that came closest ([`Series::shown_barriers`]).
+const MAX_H_LINES: usize = 8;
+
+/// Runs with more barriers than this are drawn in an overlay of h(t) by the one that came
+/// closest; up to this many, each (in the run's colour).
+const OVERLAY_BARRIERS: usize = 3;
+
+/// More road users than this are drawn in a trajectory plot as grey paths under one legend
+/// entry; up to this many, each in its colour under its name.
+const NAMED_ROAD_USERS: usize = 6;
+
 impl Series {
-    /// The events as marks in `colour`.
-    fn marks(&self, colour: RGBColor) -> Vec<Event> {
-        self.events.iter().map(|(t, what)| (*t, what.clone(), colour)).collect()
+    /// The events as marks in `colour`: collisions and the stall, and the appearances after the
+    /// run's first sample of the barriers `shown` (an obstacle there from the start does not
+    /// appear; one not drawn is not marked).
+    fn marks(&self, colour: RGBColor, shown: &[&String]) -> Vec<Event> {
+        let start = (self.barriers.values())
+            .filter_map(|s| s.first().map(|p| p.0))
+            .fold(f64::INFINITY, f64::min);
+        let drawn = |who: &str| shown.iter().any(|name| name.split('/').next() == Some(who));
+        (self.events.iter())
+            .filter(|(t, _, appearance)| appearance.as_deref().is_none_or(|who| *t > start && drawn(who)))
+            .map(|(t, what, _)| (*t, what.clone(), colour))
+            .collect()
+    }
+
+    /// The barriers the h(t) chart draws, in name order: every one, or with more than
+    /// [`MAX_H_LINES`] the ones that came closest ([`Series::closest_barriers`]).
+    fn shown_barriers(&self) -> Vec<&String> {
+        let names: Vec<&String> = self.barriers.keys().collect();
+        if names.len() <= MAX_H_LINES {
+            return names;
+        }
+        let closest = self.closest_barriers(MAX_H_LINES);
+        names.into_iter().filter(|name| closest.contains(name)).collect()
+    }
+
+    /// The `count` barriers that came closest, closest first: by least clearance (m), then by
+    /// least h (a barrier without a clearance after every one with).
+    fn closest_barriers(&self, count: usize) -> Vec<&String> {
+        let least = |name: &String| {
+            let clearance = self.least_clearance.get(name).copied().filter(|c| c.is_finite());
+            let h = (self.barriers[name].iter().map(|p| p.1))
+                .filter(|h| h.is_finite())
+                .fold(f64::INFINITY, f64::min);
+            (clearance.unwrap_or(f64::INFINITY), h)
+        };
+        let mut ranked: Vec<&String> = self.barriers.keys().collect();
+        ranked.sort_by(|a, b| {
+            let ((ca, ha), (cb, hb)) = (least(a), least(b));
+            ca.total_cmp(&cb).then(ha.total_cmp(&hb))
+        });
+        ranked.truncate(count);
+        ranked
     }
 }
 
@@ -176,9 +231,12 @@ impl RunVisitor for Series {
             }
             Record::Barrier(m) => {
                 if self.barriers.is_empty() {
-                    self.obstacle_barriers = !m.barriers.is_empty() && m.barriers.iter().all(|b| b.obstacle);
+                    let obstacles = m.barriers.iter().filter(|b| b.obstacle);
+                    self.obstacle_barriers = obstacles.map(|b| b.name.clone()).collect();
                 }
                 for b in m.barriers {
+                    let least = self.least_clearance.entry(b.name.clone()).or_insert(f64::INFINITY);
+                    *least = least.min(b.clearance);
                     // (NaN, a road user that does not exist, is never the closest.)
                     let nearer = |c: &(f64, f64, String)| b.clearance < c.0;
                     if b.obstacle && !b.clearance.is_nan() && self.closest.as_ref().is_none_or(nearer) {
@@ -191,16 +249,19 @@ impl RunVisitor for Series {
             Record::Event(e) => {
                 let with = e.participants.iter().find(|p| p.as_str() != "vehicle").cloned();
                 let what = match e.kind.as_str() {
-                    "collision_start" => Some(format!(
-                        "collision{}",
-                        with.map_or(String::new(), |w| format!(" ({w})"))
+                    "collision_start" => Some((
+                        format!("collision{}", with.map_or(String::new(), |w| format!(" ({w})"))),
+                        None,
                     )),
-                    "stall" => Some("stall".to_string()),
-                    "obstacle_appeared" => Some(format!("{} appears", with.unwrap_or_else(|| "obstacle".into()))),
+                    "stall" => Some(("stall".to_string(), None)),
+                    "obstacle_appeared" => {
+                        let who = with.unwrap_or_else(|| "obstacle".into());
+                        Some((format!("{who} appears"), Some(who)))
+                    }
                     _ => None,
                 };
-                if let Some(what) = what {
-                    self.events.push((e.time, what));
+                if let Some((what, appearance)) = what {
+                    self.events.push((e.time, what, appearance));
                 }
             }
             Record::Issued(m) => {
@@ -261,14 +322,22 @@ impl RunVisitor for Series {
     }
 }
 
-const PALETTE: [RGBColor; 6] = [
+/// Line colours, in order (matplotlib's tab10 without its grey, which the road's lines use):
+/// [`MAX_H_LINES`] and [`NAMED_ROAD_USERS`] lines each get one of their own.
+const PALETTE: [RGBColor; 9] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
     RGBColor(148, 103, 189),
     RGBColor(255, 127, 14),
     RGBColor(23, 190, 207),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(188, 189, 34),
 ];
+
+/// The road users' paths when there are more than [`NAMED_ROAD_USERS`]: light grey.
+const ROAD_USER_GREY: RGBColor = RGBColor(175, 175, 175);
 
 /// A series' runs of points with a value (a NaN, e.g. a road user's h while it does not exist,
 /// is a gap in its line, not a point).
@@ -310,6 +379,20 @@ fn plot_aspect((width, height): (u32, u32), margin: u32, x_label: u32, y_label: 
     let w = f64::from(width - 2 * margin - y_label);
     let h = f64::from(height - 2 * margin - x_label) - 1.4 * f64::from(caption);
     h / w
+}
+
+/// A trajectory figure's size (px) for data spanning (x, y) metres: 1000 wide, and as tall as
+/// equal scales need (400–1000; 500 for a path with no extent).
+fn trajectory_size((span_x, span_y): (f64, f64)) -> (u32, u32) {
+    let width = 1000;
+    if !(span_x > 0.0 && span_y.is_finite()) {
+        return (width, 500);
+    }
+    // The plotting area: the width less the margins and the y labels; the height less the
+    // margins, the x labels and the caption (as `plot_aspect` counts them).
+    let plot_height = f64::from(width - 2 * 12 - 50) * span_y / span_x;
+    let height = plot_height + f64::from(2 * 12 + 36) + 1.4 * 22.0;
+    (width, height.round().clamp(400.0, 1000.0) as u32)
 }
 
 /// One line of a chart: legend label, (t, value) points, style.
@@ -719,29 +802,31 @@ pub fn plot_log(log: &Path, dir: &Path, format: Format) -> Result<Vec<PathBuf>, 
     })?;
     let stem = log.file_stem().and_then(|s| s.to_str()).unwrap_or("run").to_string();
     let mut written = Vec::new();
+    let shown = series.shown_barriers();
+    let marks = series.marks(BLACK, &shown);
 
     if !series.barriers.is_empty() {
         let path = dir.join(format!("{stem}-barriers.{ext}"));
-        let lines: Vec<Line<'_>> = series
-            .barriers
-            .iter()
-            .enumerate()
-            .map(|(i, (name, s))| {
+        let lines: Vec<Line<'_>> = (shown.iter().enumerate())
+            .map(|(i, name)| {
                 (
                     format!("h {name}"),
-                    s.as_slice(),
+                    series.barriers[*name].as_slice(),
                     PALETTE[i % PALETTE.len()].stroke_width(2),
                 )
             })
             .collect();
+        let title = match shown.len() < series.barriers.len() {
+            true => format!(
+                "barrier functions h(t) (safe: h ≥ 0): the {} of {} that came closest",
+                shown.len(),
+                series.barriers.len()
+            ),
+            false => "barrier functions h(t) (safe: h ≥ 0)".to_string(),
+        };
         let result = draw_figure(&path, (1000, 500), &[log], |root: &Area<'_>| -> DrawResult<()> {
-            h_chart(
-                root,
-                "barrier functions h(t) (safe: h ≥ 0)",
-                &h_unit(series.obstacle_barriers),
-                &lines,
-                &series.marks(BLACK),
-            )?;
+            let unit = h_unit(!shown.is_empty() && shown.iter().all(|n| series.obstacle_barriers.contains(*n)));
+            h_chart(root, &title, &unit, &lines, &marks)?;
             Ok(())
         });
         result.map_err(|e| draw_error(&path, e))?;
@@ -774,7 +859,7 @@ pub fn plot_log(log: &Path, dir: &Path, format: Format) -> Result<Vec<PathBuf>, 
                         &format!("{channel}: issued vs applied (delayed)"),
                         &channel_unit(channel),
                         &lines,
-                        &series.marks(BLACK),
+                        &marks,
                     )?;
                 }
                 Ok(())
@@ -786,66 +871,90 @@ pub fn plot_log(log: &Path, dir: &Path, format: Format) -> Result<Vec<PathBuf>, 
 
     if !series.path.is_empty() {
         let path = dir.join(format!("{stem}-trajectory.{ext}"));
-        let circles = series
-            .obstacles
-            .values()
-            .flat_map(|((x, y), r)| [(x - r, y - r), (x + r, y + r)]);
-        let lines = series.lines.values().flat_map(|l| l.points.iter().copied());
-        let actor_paths = series.actors.values().flatten().map(|&(_, x, y)| (x, y));
-        let boxes = series.boxes.values().flat_map(|b| box_corners(*b));
-        let ((x0, x1), (y0, y1)) = bounds(
-            (series.path.iter().copied())
-                .chain(circles)
-                .chain(lines)
-                .chain(actor_paths)
-                .chain(boxes),
-        );
-        // Equal axis scales: widen the shorter span to the plotting area's shape.
-        let aspect = plot_aspect((1000, 500), 12, 36, 50, 22);
-        let (cx, cy, half) = (
-            (x0 + x1) / 2.0,
-            (y0 + y1) / 2.0,
-            ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
-        );
-        let result = draw_figure(&path, (1000, 500), &[log], |root: &Area<'_>| -> DrawResult<()> {
-            let mut chart = ChartBuilder::on(root)
-                .caption("trajectory, obstacles, road and reference path", ("sans-serif", 22))
-                .margin(12)
-                .x_label_area_size(36)
-                .y_label_area_size(50)
-                .build_cartesian_2d((cx - half)..(cx + half), (cy - half * aspect)..(cy + half * aspect))?;
-            chart.configure_mesh().x_desc("x [m]").y_desc("y [m]").draw()?;
-            draw_scene_lines(&mut chart, &series.lines)?;
-            if let Some(reference) = series.reference {
-                chart.draw_series(LineSeries::new(reference, PALETTE[2].stroke_width(2)))?;
-            }
-            for ((x, y), r) in series.obstacles.values() {
-                let outline = (0..=72).map(|k| {
-                    let a = k as f64 * std::f64::consts::TAU / 72.0;
-                    (x + r * a.cos(), y + r * a.sin())
-                });
-                chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
-            }
-            for b in series.boxes.values() {
-                chart.draw_series(LineSeries::new(closed_box(*b), PALETTE[1].stroke_width(3)))?;
-            }
-            chart.draw_series(LineSeries::new(series.path.iter().copied(), PALETTE[0].stroke_width(2)))?;
-            draw_actor_paths(&mut chart, &series)?;
-            if !series.actors.is_empty() {
-                (chart.configure_series_labels())
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .draw()?;
-            }
-            Ok(())
-        });
-        result.map_err(|e| draw_error(&path, e))?;
+        plot_trajectory(&series, log, &path)?;
         written.push(path);
     }
     if let Some(path) = plot_closest_approach(&series, log, &dir.join(format!("{stem}-closest.{ext}")))? {
         written.push(path);
     }
     Ok(written)
+}
+
+/// The planar path with the obstacles, the road, the reference path and the road users' paths
+/// (each named, or with more than [`NAMED_ROAD_USERS`] grey under one entry), on equal scales.
+fn plot_trajectory(series: &Series, log: &Path, path: &Path) -> Result<(), PlotError> {
+    // A road user is drawn by its path; with many, not also where it was last.
+    let named = series.actors.len() <= NAMED_ROAD_USERS;
+    let drawn_last = |name: &String| named || !series.actors.contains_key(name);
+    let obstacles: Vec<_> = (series.obstacles.iter()).filter(|(n, _)| drawn_last(n)).collect();
+    let boxes: Vec<_> = (series.boxes.iter()).filter(|(n, _)| drawn_last(n)).collect();
+    let circles = obstacles
+        .iter()
+        .flat_map(|(_, ((x, y), r))| [(x - r, y - r), (x + r, y + r)]);
+    let lines = series.lines.values().flat_map(|l| l.points.iter().copied());
+    let actor_paths = series.actors.values().flatten().map(|&(_, x, y)| (x, y));
+    let corners = boxes.iter().flat_map(|(_, b)| box_corners(**b));
+    let ((x0, x1), (y0, y1)) = bounds(
+        (series.path.iter().copied())
+            .chain(circles)
+            .chain(lines)
+            .chain(actor_paths.clone())
+            .chain(corners),
+    );
+    // Equal axis scales: a figure of the data's shape, the shorter span widened to fit.
+    let size = trajectory_size((x1 - x0, y1 - y0));
+    let aspect = plot_aspect(size, 12, 36, 50, 22);
+    let (cx, cy, half) = (
+        (x0 + x1) / 2.0,
+        (y0 + y1) / 2.0,
+        ((x1 - x0).max((y1 - y0) / aspect)) / 2.0,
+    );
+    let (xs, ys) = ((cx - half, cx + half), (cy - half * aspect, cy + half * aspect));
+    let legend_corner = emptiest_corner(series.path.iter().copied().chain(actor_paths), xs, ys);
+    let result = draw_figure(path, size, &[log], |root: &Area<'_>| -> DrawResult<()> {
+        let mut chart = ChartBuilder::on(root)
+            .caption("trajectory, obstacles, road and reference path", ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(50)
+            .build_cartesian_2d(xs.0..xs.1, ys.0..ys.1)?;
+        chart.configure_mesh().x_desc("x [m]").y_desc("y [m]").draw()?;
+        draw_scene_lines(&mut chart, &series.lines)?;
+        if let Some(reference) = series.reference {
+            chart.draw_series(LineSeries::new(reference, PALETTE[2].stroke_width(2)))?;
+        }
+        // The vehicle's path first in the legend (and again over many road users' grey paths;
+        // a few named ones, each in its colour, are drawn over it).
+        let path_style = PALETTE[0].stroke_width(2);
+        let vehicle_path = || LineSeries::new(series.path.iter().copied(), path_style);
+        chart
+            .draw_series(vehicle_path())?
+            .label("vehicle's path")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], path_style));
+        for (_, ((x, y), r)) in &obstacles {
+            let outline = (0..=72).map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 72.0;
+                (x + r * a.cos(), y + r * a.sin())
+            });
+            chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
+        }
+        for (_, b) in &boxes {
+            chart.draw_series(LineSeries::new(closed_box(**b), PALETTE[1].stroke_width(3)))?;
+        }
+        draw_actor_paths(&mut chart, series)?;
+        if !named {
+            chart.draw_series(vehicle_path())?;
+        }
+        if !series.actors.is_empty() {
+            (chart.configure_series_labels())
+                .position(legend_corner.clone())
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()?;
+        }
+        Ok(())
+    });
+    result.map_err(|e| draw_error(path, e))
 }
 
 /// Half the side of the closest-approach plot's square window about the vehicle (m).
@@ -960,6 +1069,20 @@ fn draw_actor_paths<DB: DrawingBackend>(
     >,
     series: &Series,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    if series.actors.len() > NAMED_ROAD_USERS {
+        // Many (a CommonRoad world's traffic): grey under one legend entry, the vehicle's path
+        // over them.
+        let style = ROAD_USER_GREY.stroke_width(1);
+        for (k, samples) in series.actors.values().enumerate() {
+            let drawn = chart.draw_series(LineSeries::new(samples.iter().map(|&(_, x, y)| (x, y)), style))?;
+            if k == 0 {
+                drawn
+                    .label(format!("road users' paths ({})", series.actors.len()))
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], style));
+            }
+        }
+        return Ok(());
+    }
     for (k, (name, samples)) in series.actors.iter().enumerate() {
         let style = PALETTE[(3 + k) % PALETTE.len()].stroke_width(2);
         chart
@@ -992,7 +1115,8 @@ fn draw_actor_paths<DB: DrawingBackend>(
     Ok(())
 }
 
-/// The y axis of h(t): obstacle barriers (4.81) are in m².
+/// The y axis of h(t): obstacle barriers (4.81) are in m² (the label of a chart whose every
+/// line is an obstacle's).
 fn h_unit(obstacle_barriers: bool) -> String {
     if obstacle_barriers {
         "h = ‖p − c‖² − r²  [m²]".into()
@@ -1063,9 +1187,12 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path, format: Format) -> Result<Vec<
 
     // Every run's events in its colour (the legend's); one every run shares, once in black.
     let mut events: Vec<Event> = Vec::new();
-    for (i, run) in runs.iter().enumerate() {
-        for (t, what) in &run.series.events {
-            let shared = runs.iter().all(|r| r.series.events.contains(&(*t, what.clone())));
+    let marks: Vec<Vec<Event>> = (runs.iter())
+        .map(|r| r.series.marks(BLACK, &r.series.shown_barriers()))
+        .collect();
+    for (i, run_marks) in marks.iter().enumerate() {
+        for (t, what, _) in run_marks {
+            let shared = (marks.iter()).all(|m| m.iter().any(|e| e.0 == *t && &e.1 == what));
             match (shared, events.iter().any(|e| e.0 == *t && &e.1 == what)) {
                 (true, true) => {}
                 (true, false) => events.push((*t, what.clone(), BLACK)),
@@ -1085,18 +1212,26 @@ pub fn plot_overlay(logs: &[PathBuf], dir: &Path, format: Format) -> Result<Vec<
     if runs.iter().any(|r| !r.series.barriers.is_empty()) {
         let path = dir.join(format!("overlay-barriers.{ext}"));
         let mut lines: Vec<Line<'_>> = Vec::new();
+        let mut all_obstacles = true;
         for (i, run) in runs.iter().enumerate() {
-            let several = run.series.barriers.len() > 1;
-            for (name, points) in &run.series.barriers {
-                let label = if several {
-                    format!("{}: {name}", run.label)
-                } else {
-                    run.label.clone()
+            let count = run.series.barriers.len();
+            // A run of many barriers (road users) by the one that came closest.
+            let drawn = match count > OVERLAY_BARRIERS {
+                true => run.series.closest_barriers(1),
+                false => run.series.barriers.keys().collect(),
+            };
+            for name in drawn {
+                all_obstacles &= run.series.obstacle_barriers.contains(name);
+                let label = match count {
+                    1 => run.label.clone(),
+                    2..=OVERLAY_BARRIERS => format!("{}: {name}", run.label),
+                    _ => format!("{}: {name} (closest of {count})", run.label),
                 };
-                lines.push((label, points.as_slice(), color(i).stroke_width(3)));
+                let points = run.series.barriers[name].as_slice();
+                lines.push((label, points, color(i).stroke_width(3)));
             }
         }
-        let unit = h_unit(runs.iter().all(|r| r.series.obstacle_barriers));
+        let unit = h_unit(all_obstacles && !lines.is_empty());
         let result = draw_figure(&path, (1200, 600), &inputs, |root: &Area<'_>| -> DrawResult<()> {
             h_chart(root, "barrier function h(t) (safe: h ≥ 0)", &unit, &lines, &events)?;
             Ok(())
@@ -1470,6 +1605,74 @@ pub fn plot_sweep(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// A run's log as the plots read it: barrier `name{k}` with h = 100 k + 1 (m²) and
+    /// clearance 30 − k (m) at t = 0 and 1, and one appearance event per barrier at `appear`.
+    fn many_barriers(count: usize, appear: f64) -> Series {
+        let mut series = Series::default();
+        for k in 0..count {
+            let name = format!("cr_{k:02}");
+            let h = 100.0 * k as f64 + 1.0;
+            series.barriers.insert(name.clone(), vec![(0.0, h), (1.0, h)]);
+            series.least_clearance.insert(name.clone(), 30.0 - k as f64);
+            series.events.push((appear, format!("{name} appears"), Some(name)));
+        }
+        series
+    }
+
+    /// Up to eight barriers are all drawn; of more, the eight of least clearance (not of least
+    /// h: m² and m do not compare), in name order, and only their appearances are marked.
+    #[test]
+    fn an_h_chart_of_many_barriers_draws_the_eight_that_came_closest() {
+        let few = many_barriers(MAX_H_LINES, 0.5);
+        assert_eq!(few.shown_barriers().len(), MAX_H_LINES);
+        let many = many_barriers(28, 0.5);
+        let shown = many.shown_barriers();
+        let names: Vec<&str> = shown.iter().map(|s| s.as_str()).collect();
+        assert_eq!(
+            names,
+            ["cr_20", "cr_21", "cr_22", "cr_23", "cr_24", "cr_25", "cr_26", "cr_27"]
+        );
+        assert_eq!(many.closest_barriers(1), [&"cr_27".to_string()]);
+        let marks = many.marks(BLACK, &shown);
+        assert_eq!(marks.len(), MAX_H_LINES, "{marks:?}");
+        assert!(marks
+            .iter()
+            .all(|m| names.iter().any(|n| m.1 == format!("{n} appears"))));
+        // A barrier with no clearance (NaN throughout) comes after every one with.
+        let mut without = many_barriers(9, 0.5);
+        without.least_clearance.insert("cr_08".into(), f64::NAN);
+        let shown = without.shown_barriers();
+        assert!(!shown.iter().any(|s| s.as_str() == "cr_08"), "{shown:?}");
+    }
+
+    /// Road users there from the first sample do not appear; a collision is marked whoever it
+    /// is with.
+    #[test]
+    fn appearances_at_the_start_are_not_marked() {
+        let mut series = many_barriers(3, 0.0);
+        series.events.push((0.7, "collision (cr_01)".into(), None));
+        let shown = series.shown_barriers();
+        let marks = series.marks(BLACK, &shown);
+        assert_eq!(marks.len(), 1, "{marks:?}");
+        assert_eq!((marks[0].0, marks[0].1.as_str()), (0.7, "collision (cr_01)"));
+    }
+
+    /// A trajectory figure takes the data's shape (its plotting area that of the data, within
+    /// its least and largest height), a long scene the least height, one without extent the
+    /// default.
+    #[test]
+    fn a_trajectory_figure_is_as_tall_as_its_data_needs() {
+        let (w, h) = trajectory_size((100.0, 80.0));
+        assert_eq!(w, 1000);
+        let aspect = plot_aspect((w, h), 12, 36, 50, 22);
+        assert!((aspect - 0.8).abs() < 0.002, "{aspect}");
+        assert_eq!(trajectory_size((400.0, 10.0)), (1000, 400));
+        assert_eq!(trajectory_size((10.0, 400.0)), (1000, 1000));
+        assert_eq!(trajectory_size((0.0, 0.0)), (1000, 500));
+    }
+
     /// A NaN is a gap: the runs around it are drawn, no point of it.
     #[test]
     fn a_series_is_drawn_in_its_runs_of_values() {

@@ -2,14 +2,17 @@
 that drew it (xml.etree only):
 
     python tests/figure_check.py FIGURE.svg --legend LABEL [--legend LABEL …]
-        [--axis TEXT …] [--covers VALUE]
+        [--axis TEXT …] [--covers VALUE] [--legends-at-most N] [--distinct]
 
 - each --legend LABEL is a legend entry whose line sample's colour is a drawn curve (a
   polyline of that colour with at least 20 points);
 - each --axis TEXT appears in some text of the figure (an axis label with its unit);
 - --covers VALUE: the y axis (its tick labels fitted to their tick marks, linear or symlog as
   its label says) puts VALUE inside the axis, and the legend's curves reach it: their lowest
-  point is drawn where VALUE is (within 3 px).
+  point is drawn where VALUE is (within 3 px);
+- --legends-at-most N: the figure has at most N legend entries (texts with a line sample
+  beside them);
+- --distinct: no two legend entries share their line sample's colour.
 
 Prints "ok: …" or exits 1 with the reasons.
 """
@@ -40,6 +43,8 @@ def main() -> int:
     parser.add_argument("--legend", action="append", default=[])
     parser.add_argument("--axis", action="append", default=[])
     parser.add_argument("--covers", type=float)
+    parser.add_argument("--legends-at-most", type=int)
+    parser.add_argument("--distinct", action="store_true")
     args = parser.parse_args()
     root = ET.parse(args.svg).getroot()
     texts = [(float(t.get("x", 0)), float(t.get("y", 0)), t.get("text-anchor", "start"), "".join(t.itertext()).strip())
@@ -47,14 +52,26 @@ def main() -> int:
     lines = [(e.get("stroke"), points_of(e)) for e in root.iter(NS + "polyline")]
     problems = []
     curves = []
+
+    def samples_beside(x, y):
+        return [c for c, p in lines if len(p) == 2 and p[0][1] == p[1][1] and abs(p[0][1] - (y + 8)) <= 6
+                and p[1][0] < x <= p[1][0] + 14]
+
+    entries = [(t[3], samples_beside(t[0], t[1])[0]) for t in texts if t[3] and samples_beside(t[0], t[1])]
+    if args.legends_at_most is not None and len(entries) > args.legends_at_most:
+        problems.append(f"{len(entries)} legend entries, more than {args.legends_at_most}: {[e[0] for e in entries]}")
+    if args.distinct:
+        colours = [c for _, c in entries]
+        shared = sorted({c for c in colours if colours.count(c) > 1})
+        if shared:
+            problems.append(f"legend entries share colours {shared}: {entries}")
     for label in args.legend:
         found = [t for t in texts if t[3] == label]
         if not found:
             problems.append(f"no legend entry {label!r}")
             continue
         x, y = found[0][0], found[0][1]
-        samples = [c for c, p in lines if len(p) == 2 and p[0][1] == p[1][1] and abs(p[0][1] - (y + 8)) <= 6
-                   and p[1][0] < x <= p[1][0] + 14]
+        samples = samples_beside(x, y)
         if not samples:
             problems.append(f"legend entry {label!r} has no line sample beside it")
             continue

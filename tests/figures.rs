@@ -314,6 +314,80 @@ fn the_closest_approach_is_drawn_for_logs_with_road_users() {
     assert!(!plots.join("scalar-closest.png").exists());
 }
 
+/// A CommonRoad run (25 recorded cars, a road edge: 28 barriers) reads as a figure: h(t) of the eight
+/// barriers that came closest, the closest obstacle among them, each in its own colour, the
+/// title saying so, in m² (all obstacles); no appearance marked for road users there from the
+/// start (before: 28 legend entries in six colours, cut off at the figure's foot, and 25
+/// overprinted "appears" labels at t = 0); the trajectory with the vehicle's path and the road
+/// users' paths under one entry (before: 25 entries over the plot, the vehicle's path unnamed in
+/// the blue of four road users). Read back by tests/figure_check.py.
+#[test]
+fn a_commonroad_run_is_plotted_readably() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("us5.mcap");
+    let world = root().join("data/commonroad/USA_US101-5_1_T-1.xml");
+    run_ok(&world, &log, &["--set", "duration=3.0"]);
+    let svg = dir.path().join("svg");
+    let o = mjsafe(&[
+        "analyze",
+        "--plot",
+        svg.to_str().unwrap(),
+        "--plot-format",
+        "svg",
+        log.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let o = mjsafe(&["analyze", "--json", log.to_str().unwrap()]);
+    let metrics: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let by_obstacle = metrics[0]["min_clearance_by_obstacle"].as_object().unwrap();
+    assert_eq!(by_obstacle.len(), 25, "{by_obstacle:?}");
+    let (closest, _) = (by_obstacle.iter())
+        .filter_map(|(name, c)| Some((name, c.as_f64()?)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    let check = |file: &str, args: &[&str]| {
+        let o = Command::new(python())
+            .arg(root().join("tests/figure_check.py"))
+            .arg(svg.join(file))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{file}: {}", text(&o));
+    };
+    let closest_line = format!("h {closest}");
+    check(
+        "us5-barriers.svg",
+        &[
+            "--legend",
+            &closest_line,
+            "--legends-at-most",
+            "8",
+            "--distinct",
+            "--axis",
+            "the 8 of 28 that came closest",
+            "--axis",
+            "[m²]",
+        ],
+    );
+    check(
+        "us5-trajectory.svg",
+        &[
+            "--legend",
+            "vehicle's path",
+            "--legend",
+            "road users' paths (25)",
+            "--legends-at-most",
+            "2",
+            "--axis",
+            "x [m]",
+        ],
+    );
+    for file in ["us5-barriers.svg", "us5-inputs.svg"] {
+        let drawn = std::fs::read_to_string(svg.join(file)).unwrap();
+        assert!(!drawn.contains("appears"), "{file} marks appearances at the start");
+    }
+}
+
 /// The Foxglove layout (docs/foxglove-layout.json) follows the figures' rules: every panel the
 /// layout places has its configuration, every plotted path is a topic of the log format, and a
 /// plot of h zooms about the boundary so that the 0.024 m² margin of (4.67) reads apart from 0
