@@ -6,7 +6,11 @@
 # with the road users assumed static, at constant acceleration and known exactly (oracle); then
 # (4.67) at constant velocity with the road users observed at every 10 ms control tick and every
 # 0.2 s (`actor_knowledge.period`; the default observes them when they were recorded, at each
-# file's own time step, mostly 0.1 s).
+# file's own time step, mostly 0.1 s); then (4.67) on a car with CommonRoad vehicle 2's limits
+# as actuator dynamics it does not know of: the steering lock |delta| <= 1.066 rad (tan delta
+# within +-1.8245), its 0.4 rad/s steering rate as 0.4 /s on tan delta (its rate at delta = 0;
+# stricter than the car's at larger angles), |a| <= 11.5 m/s^2. A cell of a run without those
+# limits whose commands went past them says how far (`max_applied_input`).
 # Three sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
 # scene with (4.67), each file's defaults: the scene at the car's closest approach to any road user
 # (`analyze --plot`'s `-closest.png`) for the highway (US101-5, 25 cars), an urban intersection
@@ -16,7 +20,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 mjsafe="${1:-target/release/mjsafe}"
 out="${2:-logs/commonroad-study}"
-rm -rf "$out/filters" "$out/knowledge" "$out/observed"
+rm -rf "$out/filters" "$out/knowledge" "$out/observed" "$out/limits"
 # A sweep with a failed run exits 3 (its row holds the error, shown in the table); anything else stops.
 sweep() { "$mjsafe" sweep "$@" >/dev/null 2>&1 || [ $? -eq 3 ]; }
 qp='kind="cbf_qp",l0=4.0,l1=4.0'
@@ -26,9 +30,13 @@ sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
   --grid 'actor_knowledge.kind=static,constant_acceleration,oracle'
 sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
   --grid 'actor_knowledge.period=0.0,0.2'
+limits='{steering={min=-1.8245,max=1.8245,rate_limit=0.4},acceleration={min=-11.5,max=11.5}}'
+sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/limits" --grid "actuator_dynamics=$limits"
 python3 - "$out" <<'PY'
-import csv, sys
+import csv, math, sys
 out = sys.argv[1]
+# CommonRoad's vehicle 2 (BMW 320i): steering lock 1.066 rad, largest acceleration 11.5 m/s².
+LOCK, A_MAX = 1.066, 11.5
 label = {
     '{kind="none"}': "nominal alone",
     '{kind="cbf_qp",l0=4.0,l1=4.0}': "delay-free CBF-QP (2.16)",
@@ -40,10 +48,11 @@ label = {
     '0.0': "(4.67), observed every tick", '0.2': "(4.67), observed every 0.2 s",
 }
 columns, cells = [], {}
-sweeps = (("filters", "filter"), ("knowledge", "actor_knowledge.kind"), ("observed", "actor_knowledge.period"))
+sweeps = (("filters", "filter"), ("knowledge", "actor_knowledge.kind"), ("observed", "actor_knowledge.period"),
+          ("limits", "actuator_dynamics"))
 for sweep, key in sweeps:
     for row in csv.DictReader(open(f"{out}/{sweep}/summary.csv")):
-        column = label[row[key]]
+        column = "(4.67), vehicle 2's limits" if sweep == "limits" else label[row[key]]
         if column not in columns:
             columns.append(column)
         if row["collision_with"]:
@@ -68,6 +77,15 @@ for sweep, key in sweeps:
         cell += f"; goal {float(goal):.1f} s" if goal else "; goal missed"
         if row.get("stall_time", ""):
             cell += f"; stall {float(row['stall_time']):.1f} s"
+        # Commands past what vehicle 2 can do (a run with its limits has them clipped).
+        steer, accel = row.get("max_applied_input.steering", ""), row.get("max_applied_input.acceleration", "")
+        beyond = []
+        if sweep != "limits" and steer and math.atan(float(steer)) > LOCK:
+            beyond.append(f"δ {math.degrees(math.atan(float(steer))):.0f}°")
+        if sweep != "limits" and accel and float(accel) > A_MAX:
+            beyond.append(f"a {float(accel):.1f} m/s²")
+        if beyond:
+            cell += "; past vehicle 2: " + ", ".join(beyond)
         # A run that stopped with an error (its row has what happened before it).
         if row["error"]:
             cell += f"; **stopped at {float(row['simulated_time']):.2f} s: error**"

@@ -172,6 +172,44 @@ fn on_us101_the_delay_compensating_filters_stay_clear_where_the_others_collide()
     }
 }
 
+/// (4.67) on US101-5 commands more than CommonRoad's vehicle 2 can do (a steering angle past its
+/// 1.066 rad lock); on a car with vehicle 2's limits as actuator dynamics the filter does not know
+/// of (the lock, 0.4 /s on tan δ, |a| ≤ 11.5 m/s²: docs/studies.md), whose plant gets only
+/// commands within them, it still stays clear of every road user and on the road.
+#[test]
+fn on_us101_gamma_m_stays_clear_on_a_car_with_vehicle_2_s_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_US101-5_1_T-1.xml");
+    let lock = 1.066f64.tan();
+    let free = dir.path().join("free.mcap");
+    run(&xml, &free, &[]);
+    let m = common::analyze_json(&free);
+    assert!(m["max_applied_input"]["steering"].as_f64().unwrap() > lock, "{m}");
+    let limited = dir.path().join("limited.mcap");
+    let limits = format!(
+        "actuator_dynamics={{steering={{min={},max={lock},rate_limit=0.4}},acceleration={{min=-11.5,max=11.5}}}}",
+        -lock
+    );
+    run(&xml, &limited, &["--set", &limits]);
+    let m = common::analyze_json(&limited);
+    assert!(m["collision"].is_null(), "{m}");
+    let by_barrier = m["min_h_by_barrier"].as_object().unwrap();
+    assert!(by_barrier.values().all(|h| h.as_f64().unwrap() > 0.0), "{m}");
+    let actuated = common::read_topic::<mjsafe::log::proto::AppliedCommand>(&limited, "/command/actuated");
+    assert_eq!(actuated.len(), 1000);
+    let bounds = [("acceleration", 11.5), ("steering", lock)];
+    for command in &actuated {
+        for (channel, value) in command.channels.iter().zip(&command.values) {
+            let (_, bound) = bounds.iter().find(|(c, _)| c == channel).unwrap();
+            assert!(
+                value.abs() <= bound * (1.0 + 1e-12),
+                "{channel} {value} at {}",
+                command.time
+            );
+        }
+    }
+}
+
 /// A scenario TOML names the file and overrides what it likes; the planning problem that does
 /// not exist is one line naming the ids there are; the same inputs give the same bytes.
 #[test]

@@ -219,6 +219,50 @@ fn max_input_rate_is_per_channel_and_agrees_with_the_issued_commands() {
     }
 }
 
+/// The largest |u| that reached each channel's actuator, against the Python `mcap` reader's
+/// decoding of every `/command/applied` (tests/read_log.py): on US101-5 under (4.67), a steering
+/// tan δ far past what CommonRoad's vehicle 2 can steer (1.82) and an acceleration past its
+/// 11.5 m/s².
+#[test]
+fn max_applied_input_agrees_with_an_independent_reader_of_the_applied_commands() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("run.mcap");
+    run_ok(&root().join("data/commonroad/USA_US101-5_1_T-1.xml"), &log, &[]);
+    let script = "import sys, json\n\
+                  from mcap.reader import make_reader\n\
+                  from mcap_protobuf.decoder import DecoderFactory\n\
+                  f = open(sys.argv[1], 'rb')\n\
+                  reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])\n\
+                  channels, largest, count = None, None, 0\n\
+                  for _, channel, _, m in reader.iter_decoded_messages(topics=['/command/issued', '/command/applied']):\n\
+                  \x20   if channel.topic == '/command/issued' and channels is None: channels = list(m.channels)\n\
+                  \x20   if channel.topic == '/command/applied':\n\
+                  \x20       count += 1\n\
+                  \x20       values = [abs(v) for v in m.values]\n\
+                  \x20       largest = values if largest is None else [max(a, b) for a, b in zip(largest, values)]\n\
+                  print(json.dumps([channels, largest, count]))";
+    let o = std::process::Command::new(common::python())
+        .args(["-c", script])
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (channels, expected, count): (Vec<String>, Vec<f64>, usize) = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(count, 1000);
+    let m = common::analyze_json(&log);
+    assert_eq!(m["units"]["max_applied_input"], "u-units");
+    let got = m["max_applied_input"].as_object().unwrap();
+    assert_eq!(got.len(), channels.len());
+    for (channel, value) in channels.iter().zip(&expected) {
+        assert_eq!(got[channel].as_f64().unwrap(), *value, "{channel}");
+    }
+    let at = |channel: &str| expected[channels.iter().position(|c| c == channel).unwrap()];
+    assert!(
+        at("steering") > 1.066f64.tan() && at("acceleration") > 11.5,
+        "{expected:?}"
+    );
+}
+
 #[test]
 fn a_run_held_still_by_its_filter_is_a_stall_and_one_that_passes_is_not() {
     use mjsafe::log::proto;

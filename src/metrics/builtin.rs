@@ -127,6 +127,8 @@ pub static METRICS: &[Metric] = &[
         ..metric("max_correction", INPUT, Shape::PerChannel, &[Topic::Filter], new::<MaxCorrection>,
             "max over ticks of |u − u_nom| of the channel (`/filter` `correction`)")
     },
+    metric("max_applied_input", INPUT, Shape::PerChannel, &[Topic::Applied], new::<MaxAppliedInput>,
+        "max over `/command/applied` of |u| of the channel: the largest command that reached the actuator (the bicycle's: tan δ and m/s²), to hold against what the vehicle can do (CommonRoad's vehicle 2: |δ| ≤ 1.066 rad, tan δ ≤ 1.82; |a| ≤ 11.5 m/s²); `[actuator_dynamics]` may limit what the plant then gets (`/command/actuated`)"),
     Metric {
         parts: &[
             part("count", "prediction_count", "predictions", CellKind::Int,
@@ -712,6 +714,22 @@ impl Accumulate for MaxCorrection {
         if let Observed::Filter(m) = record {
             for (channel, c) in m.channels.iter().zip(&m.correction) {
                 raise_channel(&mut self.0, channel, c.abs());
+            }
+        }
+    }
+    fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        Value::PerChannel(Some(std::mem::take(&mut self.0)))
+    }
+}
+
+#[derive(Default)]
+struct MaxAppliedInput(BTreeMap<String, f64>);
+
+impl Accumulate for MaxAppliedInput {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        if let Observed::Applied(m) = record {
+            for (channel, u) in m.channels.iter().zip(&m.values) {
+                raise_channel(&mut self.0, channel, u.abs());
             }
         }
     }
