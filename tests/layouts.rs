@@ -284,7 +284,7 @@ fn a_topic_filtered_copy_names_what_is_missing_and_computes_nothing_from_default
             ][..],
         ),
         ("/prediction", &["max_actor_prediction_error", "prediction"][..]),
-        ("/command/applied", &[][..]),
+        ("/command/applied", &["max_applied_input"][..]),
     ] {
         let copy = filtered(drop);
         let m = metrics(&copy);
