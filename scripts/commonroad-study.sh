@@ -8,7 +8,7 @@
 # 0.2 s (`actor_knowledge.period`; the default observes them when they were recorded, at each
 # file's own time step, mostly 0.1 s); then (4.67) on a car with CommonRoad vehicle 2's limits
 # as actuator dynamics it does not know of: the steering lock |delta| <= 1.066 rad (tan delta
-# within +-1.8245), its 0.4 rad/s steering rate as 0.4 /s on tan delta (its rate at delta = 0;
+# within +-1.8098), its 0.4 rad/s steering rate as 0.4 /s on tan delta (its rate at delta = 0;
 # stricter than the car's at larger angles), |a| <= 11.5 m/s^2. A cell of a run without those
 # limits whose commands went past them says how far (`max_applied_input`).
 # Three sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
@@ -30,7 +30,7 @@ sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/knowledge" \
   --grid 'actor_knowledge.kind=static,constant_acceleration,oracle'
 sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/observed" \
   --grid 'actor_knowledge.period=0.0,0.2'
-limits='{steering={min=-1.8245,max=1.8245,rate_limit=0.4},acceleration={min=-11.5,max=11.5}}'
+limits='{steering={min=-1.8098,max=1.8098,rate_limit=0.4},acceleration={min=-11.5,max=11.5}}'
 sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/limits" --grid "actuator_dynamics=$limits"
 python3 - "$out" <<'PY'
 import csv, math, sys

@@ -221,7 +221,7 @@ fn max_input_rate_is_per_channel_and_agrees_with_the_issued_commands() {
 
 /// The largest |u| that reached each channel's actuator, against the Python `mcap` reader's
 /// decoding of every `/command/applied` (tests/read_log.py): on US101-5 under (4.67), a steering
-/// tan δ far past what CommonRoad's vehicle 2 can steer (1.82) and an acceleration past its
+/// tan δ far past what CommonRoad's vehicle 2 can steer (tan 1.066 = 1.8098) and an acceleration past its
 /// 11.5 m/s².
 #[test]
 fn max_applied_input_agrees_with_an_independent_reader_of_the_applied_commands() {

@@ -128,7 +128,7 @@ pub static METRICS: &[Metric] = &[
             "max over ticks of |u − u_nom| of the channel (`/filter` `correction`)")
     },
     metric("max_applied_input", INPUT, Shape::PerChannel, &[Topic::Applied], new::<MaxAppliedInput>,
-        "max over `/command/applied` of |u| of the channel: the largest command that reached the actuator (the bicycle's: tan δ and m/s²), to hold against what the vehicle can do (CommonRoad's vehicle 2: |δ| ≤ 1.066 rad, tan δ ≤ 1.82; |a| ≤ 11.5 m/s²); `[actuator_dynamics]` may limit what the plant then gets (`/command/actuated`)"),
+        "max over `/command/applied` of |u| of the channel: the largest command that reached the actuator (the bicycle's: tan δ and m/s²), to hold against what the vehicle can do (CommonRoad's vehicle 2: |δ| ≤ 1.066 rad, tan δ ≤ 1.8098; |a| ≤ 11.5 m/s²); `[actuator_dynamics]` may limit what the plant then gets (`/command/actuated`)"),
     Metric {
         parts: &[
             part("count", "prediction_count", "predictions", CellKind::Int,
