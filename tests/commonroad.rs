@@ -210,6 +210,47 @@ fn on_us101_gamma_m_stays_clear_on_a_car_with_vehicle_2_s_limits() {
     }
 }
 
+/// `mjsafe import commonroad` writes vehicle 2's limits commented out at the end; with the `# `
+/// removed the scenario runs on a car with them (`/command/actuated` within the lock's tan δ and
+/// 11.5 m/s²).
+#[test]
+fn the_imported_vehicle_limits_run_when_uncommented() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("us5.toml");
+    let xml = data("USA_US101-5_1_T-1.xml");
+    let o = mjsafe(&[
+        "import",
+        "commonroad",
+        xml.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&out).unwrap();
+    let marker = "remove the \"# \" before the lines below.\n";
+    let (body, limits) = text.split_once(marker).unwrap();
+    let uncommented: String = (limits.lines())
+        .map(|line| format!("{}\n", line.strip_prefix("# ").unwrap_or(line.trim_start_matches('#'))))
+        .collect();
+    let limited = dir.path().join("limited.toml");
+    std::fs::write(&limited, format!("{body}{marker}{uncommented}")).unwrap();
+    let log = dir.path().join("limited.mcap");
+    run(&limited, &log, &["--set", "duration=2.0"]);
+    let actuated = common::read_topic::<mjsafe::log::proto::AppliedCommand>(&log, "/command/actuated");
+    assert_eq!(actuated.len(), 200);
+    let lock = 1.066f64.tan();
+    for command in &actuated {
+        for (channel, value) in command.channels.iter().zip(&command.values) {
+            let bound = if channel == "steering" { lock } else { 11.5 };
+            assert!(value.abs() <= bound * (1.0 + 1e-12), "{channel} {value}");
+        }
+    }
+    // As written (commented), no actuator dynamics: no such topic.
+    let plain = dir.path().join("plain.mcap");
+    run(&out, &plain, &["--set", "duration=0.5"]);
+    assert!(common::read_topic::<mjsafe::log::proto::AppliedCommand>(&plain, "/command/actuated").is_empty());
+}
+
 /// A scenario TOML names the file and overrides what it likes; the planning problem that does
 /// not exist is one line naming the ids there are; the same inputs give the same bytes.
 #[test]

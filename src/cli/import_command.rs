@@ -53,6 +53,18 @@ impl ImportCommand {
             xml.display()
         ));
         text.push_str(&body);
+        // The car's limits, commented out: the defaults' car steers and accelerates without limit.
+        let vehicle = &crate::commonroad::VEHICLE;
+        text.push_str(&format!(
+            "\n# The car is a kinematic bicycle that steers and accelerates without limit, and the filters use\n\
+             # that (docs/studies.md, \"Real traffic\"). {} steers to {} rad at {} rad/s and\n\
+             # accelerates at up to {} m/s². To run on a car with those limits, which the filter does not\n\
+             # know of, remove the \"# \" before the lines below.\n",
+            vehicle.name, vehicle.steering_lock, vehicle.steering_rate, vehicle.max_acceleration
+        ));
+        for line in crate::commonroad::limits_toml(vehicle).lines() {
+            text.push_str(&format!("# {line}\n").replace("# \n", "#\n"));
+        }
         // Checked as a scenario before it is written: it loads and gives the same scenario.
         let reread = scenario::from_text(&out, text.clone(), &[])?;
         if reread.scenario != resolved {

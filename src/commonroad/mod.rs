@@ -28,7 +28,8 @@ pub struct CommonRoadSpec {
 }
 
 /// A vehicle parameter set of CommonRoad (commonroad-vehicle-models): the footprint L × W, the
-/// distances a, b from the centre of gravity to the front and rear axles (m).
+/// distances a, b from the centre of gravity to the front and rear axles (m), and its limits: the
+/// steering lock (rad), the steering rate (rad/s) and the largest acceleration (m/s²).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VehicleParameters {
     pub name: &'static str,
@@ -36,6 +37,9 @@ pub struct VehicleParameters {
     pub width: f64,
     pub a: f64,
     pub b: f64,
+    pub steering_lock: f64,
+    pub steering_rate: f64,
+    pub max_acceleration: f64,
 }
 
 /// The ego of a CommonRoad world: CommonRoad's vehicle parameter set 2 (BMW 320i).
@@ -45,7 +49,23 @@ pub const VEHICLE: VehicleParameters = VehicleParameters {
     width: 1.61,
     a: 1.1561957064,
     b: 1.4227170936,
+    steering_lock: 1.066,
+    steering_rate: 0.4,
+    max_acceleration: 11.5,
 };
+
+/// The `[actuator_dynamics]` tables that put `vehicle`'s limits on a CommonRoad world's car
+/// without its filter knowing of them (docs/studies.md, "Real traffic"): the lock on u1 = tan δ,
+/// the steering rate as a rate on tan δ (its rate at δ = 0, stricter than the car's at larger
+/// angles), |u2| within the largest acceleration.
+pub fn limits_toml(vehicle: &VehicleParameters) -> String {
+    let lock = vehicle.steering_lock.tan();
+    format!(
+        "[actuator_dynamics.steering]\nmin = {:?}\nmax = {lock:?}\nrate_limit = {:?}\n\n\
+         [actuator_dynamics.acceleration]\nmin = {:?}\nmax = {:?}\n",
+        -lock, vehicle.steering_rate, -vehicle.max_acceleration, vehicle.max_acceleration
+    )
+}
 
 /// The default delays (s) of a CommonRoad world: steering, acceleration.
 pub const DELAYS: (f64, f64) = (0.2, 0.5);
