@@ -47,6 +47,11 @@ fn committed_files() -> Vec<PathBuf> {
 fn imported(xml: &Path, dir: &Path) -> toml::Table {
     let out = dir.join(format!("{}.toml", xml.file_stem().unwrap().to_string_lossy()));
     let _ = std::fs::remove_file(&out);
+    import_to(xml, &out).parse().unwrap()
+}
+
+/// `mjsafe import commonroad xml --out out`, asserting it succeeded; the text written.
+fn import_to(xml: &Path, out: &Path) -> String {
     let o = mjsafe(&[
         "import",
         "commonroad",
@@ -55,7 +60,24 @@ fn imported(xml: &Path, dir: &Path) -> toml::Table {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    std::fs::read_to_string(&out).unwrap().parse().unwrap()
+    std::fs::read_to_string(out).unwrap()
+}
+
+/// Asserts that every `/command/actuated` value of `log` is within CommonRoad vehicle 2's
+/// limits (|tan δ| ≤ tan 1.066, |a| ≤ 11.5 m/s²); returns how many commands there are.
+fn actuated_within_vehicle_2(log: &Path) -> usize {
+    let actuated = common::read_topic::<mjsafe::log::proto::AppliedCommand>(log, "/command/actuated");
+    for command in &actuated {
+        for (channel, value) in command.channels.iter().zip(&command.values) {
+            let bound = if channel == "steering" { 1.066f64.tan() } else { 11.5 };
+            assert!(
+                value.abs() <= bound * (1.0 + 1e-12),
+                "{channel} {value} at {}",
+                command.time
+            );
+        }
+    }
+    actuated.len()
 }
 
 /// tests/commonroad_check.py on the run of `xml` logged in `log` (road users at every recorded
@@ -195,19 +217,7 @@ fn on_us101_gamma_m_stays_clear_on_a_car_with_vehicle_2_s_limits() {
     assert!(m["collision"].is_null(), "{m}");
     let by_barrier = m["min_h_by_barrier"].as_object().unwrap();
     assert!(by_barrier.values().all(|h| h.as_f64().unwrap() > 0.0), "{m}");
-    let actuated = common::read_topic::<mjsafe::log::proto::AppliedCommand>(&limited, "/command/actuated");
-    assert_eq!(actuated.len(), 1000);
-    let bounds = [("acceleration", 11.5), ("steering", lock)];
-    for command in &actuated {
-        for (channel, value) in command.channels.iter().zip(&command.values) {
-            let (_, bound) = bounds.iter().find(|(c, _)| c == channel).unwrap();
-            assert!(
-                value.abs() <= bound * (1.0 + 1e-12),
-                "{channel} {value} at {}",
-                command.time
-            );
-        }
-    }
+    assert_eq!(actuated_within_vehicle_2(&limited), 1000);
 }
 
 /// `mjsafe import commonroad` writes vehicle 2's limits commented out at the end; with the `# `
@@ -218,15 +228,7 @@ fn the_imported_vehicle_limits_run_when_uncommented() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("us5.toml");
     let xml = data("USA_US101-5_1_T-1.xml");
-    let o = mjsafe(&[
-        "import",
-        "commonroad",
-        xml.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let text = std::fs::read_to_string(&out).unwrap();
+    let text = import_to(&xml, &out);
     let marker = "remove the \"# \" before the lines below.\n";
     let (body, limits) = text.split_once(marker).unwrap();
     let uncommented: String = (limits.lines())
@@ -236,19 +238,11 @@ fn the_imported_vehicle_limits_run_when_uncommented() {
     std::fs::write(&limited, format!("{body}{marker}{uncommented}")).unwrap();
     let log = dir.path().join("limited.mcap");
     run(&limited, &log, &["--set", "duration=2.0"]);
-    let actuated = common::read_topic::<mjsafe::log::proto::AppliedCommand>(&log, "/command/actuated");
-    assert_eq!(actuated.len(), 200);
-    let lock = 1.066f64.tan();
-    for command in &actuated {
-        for (channel, value) in command.channels.iter().zip(&command.values) {
-            let bound = if channel == "steering" { lock } else { 11.5 };
-            assert!(value.abs() <= bound * (1.0 + 1e-12), "{channel} {value}");
-        }
-    }
+    assert_eq!(actuated_within_vehicle_2(&log), 200);
     // As written (commented), no actuator dynamics: no such topic.
     let plain = dir.path().join("plain.mcap");
     run(&out, &plain, &["--set", "duration=0.5"]);
-    assert!(common::read_topic::<mjsafe::log::proto::AppliedCommand>(&plain, "/command/actuated").is_empty());
+    assert_eq!(actuated_within_vehicle_2(&plain), 0);
 }
 
 /// A scenario TOML names the file and overrides what it likes; the planning problem that does
