@@ -192,13 +192,9 @@ impl Series {
                 .fold(f64::INFINITY, f64::min);
             (clearance.unwrap_or(f64::INFINITY), h)
         };
-        let mut ranked: Vec<&String> = self.barriers.keys().collect();
-        ranked.sort_by(|a, b| {
-            let ((ca, ha), (cb, hb)) = (least(a), least(b));
-            ca.total_cmp(&cb).then(ha.total_cmp(&hb))
-        });
-        ranked.truncate(count);
-        ranked
+        let mut ranked: Vec<((f64, f64), &String)> = self.barriers.keys().map(|name| (least(name), name)).collect();
+        ranked.sort_by(|((ca, ha), _), ((cb, hb), _)| ca.total_cmp(cb).then(ha.total_cmp(hb)));
+        ranked.into_iter().take(count).map(|(_, name)| name).collect()
     }
 }
 
@@ -235,8 +231,12 @@ impl RunVisitor for Series {
                     self.obstacle_barriers = obstacles.map(|b| b.name.clone()).collect();
                 }
                 for b in m.barriers {
-                    let least = self.least_clearance.entry(b.name.clone()).or_insert(f64::INFINITY);
-                    *least = least.min(b.clearance);
+                    match self.least_clearance.get_mut(&b.name) {
+                        Some(least) => *least = least.min(b.clearance),
+                        None => {
+                            self.least_clearance.insert(b.name.clone(), b.clearance);
+                        }
+                    }
                     // (NaN, a road user that does not exist, is never the closest.)
                     let nearer = |c: &(f64, f64, String)| b.clearance < c.0;
                     if b.obstacle && !b.clearance.is_nan() && self.closest.as_ref().is_none_or(nearer) {
@@ -931,12 +931,8 @@ fn plot_trajectory(series: &Series, log: &Path, path: &Path) -> Result<(), PlotE
             .draw_series(vehicle_path())?
             .label("vehicle's path")
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], path_style));
-        for (_, ((x, y), r)) in &obstacles {
-            let outline = (0..=72).map(|k| {
-                let a = k as f64 * std::f64::consts::TAU / 72.0;
-                (x + r * a.cos(), y + r * a.sin())
-            });
-            chart.draw_series(LineSeries::new(outline, PALETTE[1].stroke_width(3)))?;
+        for (_, (centre, r)) in &obstacles {
+            chart.draw_series(LineSeries::new(circle(*centre, *r), PALETTE[1].stroke_width(3)))?;
         }
         for (_, b) in &boxes {
             chart.draw_series(LineSeries::new(closed_box(**b), PALETTE[1].stroke_width(3)))?;

@@ -63,7 +63,9 @@ impl ImportCommand {
             vehicle.name, vehicle.steering_lock, vehicle.steering_rate, vehicle.max_acceleration
         ));
         for line in crate::commonroad::limits_toml(vehicle).lines() {
-            text.push_str(&format!("# {line}\n").replace("# \n", "#\n"));
+            text.push_str(if line.is_empty() { "#" } else { "# " });
+            text.push_str(line);
+            text.push('\n');
         }
         // Checked as a scenario before it is written: it loads and gives the same scenario.
         let reread = scenario::from_text(&out, text.clone(), &[])?;

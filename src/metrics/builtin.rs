@@ -706,15 +706,20 @@ fn raise_channel(map: &mut BTreeMap<String, f64>, channel: &str, x: f64) {
     }
 }
 
+/// [`raise_channel`] with |value| of each (channel, value) pair of a per-channel record.
+fn raise_channels_abs(map: &mut BTreeMap<String, f64>, channels: &[String], values: &[f64]) {
+    for (channel, value) in channels.iter().zip(values) {
+        raise_channel(map, channel, value.abs());
+    }
+}
+
 #[derive(Default)]
 struct MaxCorrection(BTreeMap<String, f64>);
 
 impl Accumulate for MaxCorrection {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Filter(m) = record {
-            for (channel, c) in m.channels.iter().zip(&m.correction) {
-                raise_channel(&mut self.0, channel, c.abs());
-            }
+            raise_channels_abs(&mut self.0, &m.channels, &m.correction);
         }
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
@@ -728,9 +733,7 @@ struct MaxAppliedInput(BTreeMap<String, f64>);
 impl Accumulate for MaxAppliedInput {
     fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
         if let Observed::Applied(m) = record {
-            for (channel, u) in m.channels.iter().zip(&m.values) {
-                raise_channel(&mut self.0, channel, u.abs());
-            }
+            raise_channels_abs(&mut self.0, &m.channels, &m.values);
         }
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
