@@ -85,6 +85,12 @@ scenario_tables! {
     /// a first-order lag between the delayed command and the plant.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     section actuator_dynamics: BTreeMap<String, ActuatorDynamicsSpec>,
+    /// What the real vehicle can take, per input channel: the largest |u| in the channel's units
+    /// (the bicycle's steering is tan δ). Declared for the analysis, which reports how far the
+    /// inputs that reached the vehicle went past them (`vehicle_limit_ratio`); nothing enforces
+    /// them (that is `[actuator_dynamics]`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    plain vehicle_limits: BTreeMap<String, f64>,
     /// What the controller reads instead of the true state: a late, biased, noisy measurement.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     section sensing: Option<SensingSpec>,
@@ -857,7 +863,7 @@ fn validate(s: &LoadedScenario) -> Result<(), ScenarioError> {
     validate_barriers_and_names(s)
 }
 
-/// `initial_input` and the initial perturbation.
+/// `initial_input`, `vehicle_limits` and the initial perturbation.
 fn validate_inputs(s: &LoadedScenario) -> Result<(), ScenarioError> {
     let sc = &s.scenario;
     for (channel, value) in &sc.initial_input {
@@ -865,6 +871,14 @@ fn validate_inputs(s: &LoadedScenario) -> Result<(), ScenarioError> {
             return Err(s.field_error(
                 &format!("initial_input.{channel}"),
                 format!("expected a finite number, found {value}"),
+            ));
+        }
+    }
+    for (channel, limit) in &sc.vehicle_limits {
+        if !(limit.is_finite() && *limit > 0.0 && *limit <= STATE_EXTENT) {
+            return Err(s.field_error(
+                &format!("vehicle_limits.{channel}"),
+                format!("expected the largest |u| the vehicle takes, a number > 0 and at most {STATE_EXTENT:e}, found {limit}"),
             ));
         }
     }

@@ -48,6 +48,9 @@ pub(super) fn analyze_files(
             eprintln!("warning: {}: metrics absent: {}", run.file, absent.join(", "));
         }
         for run in &runs {
+            if let Some(past) = run.past_vehicle_limits() {
+                eprintln!("warning: {}: {past}", run.file);
+            }
             for warning in &run.warnings {
                 eprintln!(
                     "warning: {}: MuJoCo: {warning}; the metrics describe that physics, not the model's",

@@ -210,6 +210,9 @@ pub(super) fn run_scenario(
             log_path.display()
         );
     }
+    if let Some(past) = metrics.past_vehicle_limits() {
+        eprintln!("warning: {past}");
+    }
     for warning in &metrics.warnings {
         eprintln!("warning: MuJoCo: {warning}; the run's metrics describe that physics, not the model's");
     }

@@ -67,6 +67,15 @@ pub fn limits_toml(vehicle: &VehicleParameters) -> String {
     )
 }
 
+/// `vehicle`'s limits as a `[vehicle_limits]` table (declared for the analysis, not enforced):
+/// the lock on u1 = tan δ and the largest acceleration.
+fn limits(vehicle: &VehicleParameters) -> toml::Value {
+    let mut t = toml::Table::new();
+    t.insert("steering".into(), toml::Value::Float(vehicle.steering_lock.tan()));
+    t.insert("acceleration".into(), toml::Value::Float(vehicle.max_acceleration));
+    toml::Value::Table(t)
+}
+
 /// The default delays (s) of a CommonRoad world: steering, acceleration.
 pub const DELAYS: (f64, f64) = (0.2, 0.5);
 
@@ -219,6 +228,7 @@ pub fn world(cr: &CommonRoad, problem: &PlanningProblem, ego: Option<u64>) -> Re
         "initial_input".into(),
         table(&[("steering", v(0.0)), ("acceleration", v(0.0))]),
     );
+    t.insert("vehicle_limits".into(), limits(&VEHICLE));
     t.insert("control".into(), table(&[("period", v(CONTROL_PERIOD))]));
     let path: Vec<toml::Value> = route.centre.iter().map(|p| point(*p)).collect();
     t.insert(

@@ -489,6 +489,7 @@ pub(super) fn check_state_and_channels(loaded: &LoadedScenario, model: &dyn Dyna
         ("actuation", sc.actuation.keys().collect()),
         ("actuator_dynamics", sc.actuator_dynamics.keys().collect()),
         ("initial_input", sc.initial_input.keys().collect()),
+        ("vehicle_limits", sc.vehicle_limits.keys().collect()),
     ] {
         for key in keys {
             if !channels.contains(key) {
@@ -1139,6 +1140,7 @@ pub(super) fn run_info(
         predicts: control.predicts(),
         kinds,
         goal: sc.goal.clone(),
+        vehicle_limits: sc.vehicle_limits.clone(),
         requirements: requirements(loaded, timestep)?,
         // Set by the episode, which holds the nominal and the obstacles.
         reference_path: None,

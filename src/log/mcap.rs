@@ -216,6 +216,7 @@ mod tests {
             predicts: false,
             kinds: Vec::new(),
             goal: None,
+            vehicle_limits: std::collections::BTreeMap::new(),
             requirements: Vec::new(),
             reference_path: None,
             extents: None,

@@ -344,6 +344,9 @@ pub struct RunInfo {
     /// `goal_after`, `goal_by`, `goal_offset`, `goal_speed`, `goal_heading` ("lo hi"), and
     /// `goal_states` (JSON: the goal states, any one of which reaches it).
     pub goal: Option<crate::scenario::GoalSpec>,
+    /// The scenario's `[vehicle_limits]`, the largest |u| per channel the vehicle takes:
+    /// metadata `vehicle_limits` (JSON, absent when none is declared).
+    pub vehicle_limits: BTreeMap<String, f64>,
     /// The scenario's `[[requirements]]` (name, formula): metadata `requirement.<name>`.
     pub requirements: Vec<(String, String)>,
     /// The nominal's straight reference path (point, heading): metadata `reference_path`
@@ -438,6 +441,10 @@ impl RunInfo {
                 let states = serde_json::to_string(&goal.states).unwrap_or_default();
                 metadata.insert("goal_states".to_string(), states);
             }
+        }
+        if !self.vehicle_limits.is_empty() {
+            let limits = serde_json::to_string(&self.vehicle_limits).unwrap_or_default();
+            metadata.insert("vehicle_limits".to_string(), limits);
         }
         if let Some(([x, y], heading)) = self.reference_path {
             metadata.insert("reference_path".to_string(), format!("{x} {y} {heading}"));

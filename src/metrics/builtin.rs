@@ -130,6 +130,11 @@ pub static METRICS: &[Metric] = &[
     metric("max_applied_input", INPUT, Shape::PerChannel, &[Topic::Applied], new::<MaxAppliedInput>,
         "max over `/command/applied` of |u| of the channel: the largest command that reached the actuator (the bicycle's: tan δ and m/s²), to hold against what the vehicle can do (CommonRoad's vehicle 2: |δ| ≤ 1.066 rad, tan δ ≤ 1.8098; |a| ≤ 11.5 m/s²); `[actuator_dynamics]` may limit what the plant then gets (`/command/actuated`)"),
     Metric {
+        applies: |run| !run.vehicle_limits.is_empty(),
+        ..metric("vehicle_limit_ratio", FRACTION, Shape::PerChannel, &[Topic::Applied, Topic::Actuated], new::<VehicleLimitRatio>,
+            "runs with `[vehicle_limits]` (metadata `vehicle_limits`, the largest |u| per channel the vehicle takes, declared and not enforced): max over the inputs that reached the vehicle of |u| / limit, per declared channel — `/command/actuated` when the log has it (`[actuator_dynamics]`), else `/command/applied`; above 1: the vehicle could not have followed its commands (`run` and `analyze` warn); 0 for a channel never commanded")
+    },
+    Metric {
         parts: &[
             part("count", "prediction_count", "predictions", CellKind::Int,
                 "`/prediction` messages of the channel (predictions whose target time was reached)"),
@@ -738,6 +743,36 @@ impl Accumulate for MaxAppliedInput {
     }
     fn value(&mut self, _: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
         Value::PerChannel(Some(std::mem::take(&mut self.0)))
+    }
+}
+
+/// The largest |u| that reached the vehicle per channel: actuated (when the log has them)
+/// and applied, each against the declared limits.
+#[derive(Default)]
+struct VehicleLimitRatio {
+    applied: BTreeMap<String, f64>,
+    actuated: BTreeMap<String, f64>,
+}
+
+impl Accumulate for VehicleLimitRatio {
+    fn observe(&mut self, record: Observed<'_>, _: &RunFacts) {
+        match record {
+            Observed::Applied(m) => raise_channels_abs(&mut self.applied, &m.channels, &m.values),
+            Observed::Actuated(m) => raise_channels_abs(&mut self.actuated, &m.channels, &m.values),
+            _ => {}
+        }
+    }
+    fn value(&mut self, run: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
+        let reached = match self.actuated.is_empty() {
+            true => &self.applied,
+            false => &self.actuated,
+        };
+        let ratios = run
+            .vehicle_limits
+            .iter()
+            .map(|(channel, limit)| (channel.clone(), reached.get(channel).copied().unwrap_or(0.0) / limit))
+            .collect();
+        Value::PerChannel(Some(ratios))
     }
 }
 

@@ -52,6 +52,9 @@ pub struct RunFacts {
     /// The requirements to evaluate, (name, formula): the run's (metadata
     /// `requirement.<name>`), then those an analysis adds (`analyze --require`).
     pub requirements: Vec<(String, String)>,
+    /// The largest |u| per channel the vehicle takes, as the scenario declared them (metadata
+    /// `vehicle_limits`; empty: none declared).
+    pub vehicle_limits: BTreeMap<String, f64>,
 }
 
 /// A goal as the run metadata records it: a region — the disc of centre `position` and
@@ -200,6 +203,11 @@ impl RunFacts {
                 .and_then(|p| serde_json::from_str(p).ok())
                 .unwrap_or_default(),
             requirements: requirements::from_metadata(metadata),
+            vehicle_limits: metadata
+                .get("vehicle_limits")
+                .and_then(|p| serde_json::from_str::<BTreeMap<String, f64>>(p).ok())
+                .map(|limits| limits.into_iter().filter(|(_, l)| l.is_finite() && *l > 0.0).collect())
+                .unwrap_or_default(),
         }
     }
 
@@ -493,6 +501,26 @@ impl RunMetrics {
             Value::Count(v) => v.map(|v| v as f64),
             _ => None,
         }
+    }
+
+    /// The warning a run whose inputs went past the vehicle's declared limits gets
+    /// (`vehicle_limit_ratio` above 1 on some channel), naming each such channel and its ratio;
+    /// None when they stayed within them or none were declared.
+    pub fn past_vehicle_limits(&self) -> Option<String> {
+        let Some(Value::PerChannel(Some(ratios))) = self.value("vehicle_limit_ratio") else {
+            return None;
+        };
+        let past: Vec<String> = ratios
+            .iter()
+            .filter(|(_, ratio)| **ratio > 1.0)
+            .map(|(channel, ratio)| format!("{channel} {ratio:.2}×"))
+            .collect();
+        (!past.is_empty()).then(|| {
+            format!(
+                "the inputs that reached the vehicle went past its declared [vehicle_limits] ({}: the largest |u| over the limit); a real vehicle could not have followed them (vehicle_limit_ratio)",
+                past.join(", ")
+            )
+        })
     }
 
     /// Time of the last `/state` record, s.
