@@ -10,7 +10,8 @@
 # as actuator dynamics it does not know of: the steering lock |delta| <= 1.066 rad (tan delta
 # within +-1.8098), its 0.4 rad/s steering rate as 0.4 /s on tan delta (its rate at delta = 0;
 # stricter than the car's at larger angles), |a| <= 11.5 m/s^2. A cell of a run without those
-# limits whose commands went past them says how far (`max_applied_input`).
+# limits whose commands went past them (`vehicle_limit_ratio` > 1: each world declares them as
+# `[vehicle_limits]`) says how far (`max_applied_input`).
 # Three sweeps with no logs (`sweep --scenarios`); prints a Markdown table. Then one figure per kind of
 # scene with (4.67), each file's defaults: the scene at the car's closest approach to any road user
 # (`analyze --plot`'s `-closest.png`) for the highway (US101-5, 25 cars), an urban intersection
@@ -35,8 +36,6 @@ sweep --scenarios 'data/commonroad/*.xml' --no-logs --out "$out/limits" --grid "
 python3 - "$out" <<'PY'
 import csv, math, sys
 out = sys.argv[1]
-# CommonRoad's vehicle 2 (BMW 320i): steering lock 1.066 rad, largest acceleration 11.5 m/s².
-LOCK, A_MAX = 1.066, 11.5
 label = {
     '{kind="none"}': "nominal alone",
     '{kind="cbf_qp",l0=4.0,l1=4.0}': "delay-free CBF-QP (2.16)",
@@ -77,12 +76,14 @@ for sweep, key in sweeps:
         cell += f"; goal {float(goal):.1f} s" if goal else "; goal missed"
         if row.get("stall_time", ""):
             cell += f"; stall {float(row['stall_time']):.1f} s"
-        # Commands past what vehicle 2 can do (a run with its limits has them clipped).
+        # Inputs that reached the car past what vehicle 2 can do, as each world declares it
+        # (`vehicle_limit_ratio` > 1; a run with the limits as actuator dynamics has them clipped).
         steer, accel = row.get("max_applied_input.steering", ""), row.get("max_applied_input.acceleration", "")
+        past = lambda channel: float(row.get(f"vehicle_limit_ratio.{channel}", "") or 0.0) > 1.0
         beyond = []
-        if sweep != "limits" and steer and math.atan(float(steer)) > LOCK:
+        if past("steering"):
             beyond.append(f"δ {math.degrees(math.atan(float(steer))):.0f}°")
-        if sweep != "limits" and accel and float(accel) > A_MAX:
+        if past("acceleration"):
             beyond.append(f"a {float(accel):.1f} m/s²")
         if beyond:
             cell += "; past vehicle 2: " + ", ".join(beyond)

@@ -195,25 +195,51 @@ fn on_us101_the_delay_compensating_filters_stay_clear_where_the_others_collide()
 }
 
 /// (4.67) on US101-5 commands more than CommonRoad's vehicle 2 can do (a steering angle past its
-/// 1.066 rad lock); on a car with vehicle 2's limits as actuator dynamics the filter does not know
-/// of (the lock, 0.4 /s on tan δ, |a| ≤ 11.5 m/s²: docs/studies.md), whose plant gets only
-/// commands within them, it still stays clear of every road user and on the road.
+/// 1.066 rad lock), which the world declares (`[vehicle_limits]`): `run` and `analyze` warn, and
+/// `vehicle_limit_ratio` is the largest applied |u| over each limit. On a car with vehicle 2's
+/// limits as actuator dynamics the filter does not know of (the lock, 0.4 /s on tan δ,
+/// |a| ≤ 11.5 m/s²: docs/studies.md), whose plant gets only commands within them, the ratio is
+/// the actuated inputs' (at most 1, no warning), and it still stays clear of every road user and
+/// on the road.
 #[test]
 fn on_us101_gamma_m_stays_clear_on_a_car_with_vehicle_2_s_limits() {
     let dir = tempfile::tempdir().unwrap();
     let xml = data("USA_US101-5_1_T-1.xml");
     let lock = 1.066f64.tan();
     let free = dir.path().join("free.mcap");
-    run(&xml, &free, &[]);
+    let o = mjsafe(&["run", xml.to_str().unwrap(), "--out", free.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let warning = "went past its declared [vehicle_limits] (acceleration ";
+    assert!(stderr(&o).contains(warning), "{}", stderr(&o));
     let m = common::analyze_json(&free);
-    assert!(m["max_applied_input"]["steering"].as_f64().unwrap() > lock, "{m}");
+    let applied = |channel: &str| m["max_applied_input"][channel].as_f64().unwrap();
+    let ratio = |m: &serde_json::Value, channel: &str| m["vehicle_limit_ratio"][channel].as_f64().unwrap();
+    assert!(applied("steering") > lock, "{m}");
+    assert_eq!(ratio(&m, "steering"), applied("steering") / lock);
+    assert_eq!(ratio(&m, "acceleration"), applied("acceleration") / 11.5);
+    let o = mjsafe(&["analyze", free.to_str().unwrap()]);
+    assert!(stderr(&o).contains(warning), "{}", stderr(&o));
     let limited = dir.path().join("limited.mcap");
     let limits = format!(
         "actuator_dynamics={{steering={{min={},max={lock},rate_limit=0.4}},acceleration={{min=-11.5,max=11.5}}}}",
         -lock
     );
-    run(&xml, &limited, &["--set", &limits]);
+    let o = mjsafe(&[
+        "run",
+        xml.to_str().unwrap(),
+        "--out",
+        limited.to_str().unwrap(),
+        "--set",
+        &limits,
+    ]);
+    assert!(
+        o.status.success() && !stderr(&o).contains("[vehicle_limits]"),
+        "{}",
+        stderr(&o)
+    );
     let m = common::analyze_json(&limited);
+    assert!(m["max_applied_input"]["steering"].as_f64().unwrap() > lock, "{m}");
+    assert!(ratio(&m, "steering") <= 1.0 && ratio(&m, "acceleration") <= 1.0, "{m}");
     assert!(m["collision"].is_null(), "{m}");
     let by_barrier = m["min_h_by_barrier"].as_object().unwrap();
     assert!(by_barrier.values().all(|h| h.as_f64().unwrap() > 0.0), "{m}");

@@ -12,8 +12,8 @@ use mjsafe::metrics::Shape;
 
 /// Logs that between them have every metric: predictions, obstacles and a planar vehicle
 /// ((4.67) on the bicycle), a prescribed time (the red light, Ch. 5), a collision ((4.9)
-/// with delays), a stall ((4.9) without delays), a collision with a moving obstacle (a walker
-/// the controller assumes static).
+/// with delays; with declared `[vehicle_limits]`), a stall ((4.9) without delays), a collision
+/// with a moving obstacle (a walker the controller assumes static).
 fn logs(dir: &std::path::Path) -> [String; 5] {
     let runs: [(&str, &str, &[&str]); 5] = [
         // A requirement (docs/requirements.md) met: the `req` metric.
@@ -23,11 +23,17 @@ fn logs(dir: &std::path::Path) -> [String; 5] {
             &["--require", "clear=always obstacle_0.h >= 0"],
         ),
         ("scenarios", "red_light", &[]),
-        // It collides: the requirement is violated (`req_violated_at`).
+        // It collides: the requirement is violated (`req_violated_at`). Declared limits:
+        // `vehicle_limit_ratio`.
         (
             "scenarios",
             "bicycle_obstacle",
-            &["--require", "clear=always obstacle_0.h >= 0"],
+            &[
+                "--require",
+                "clear=always obstacle_0.h >= 0",
+                "--set",
+                "vehicle_limits={steering=1.8,acceleration=11.5}",
+            ],
         ),
         ("scenarios", "bicycle_obstacle_nodelay", &[]),
         ("tests/data", "crossing_walker", STATIC_WALKER),
@@ -261,6 +267,65 @@ fn max_applied_input_agrees_with_an_independent_reader_of_the_applied_commands()
         at("steering") > 1.066f64.tan() && at("acceleration") > 11.5,
         "{expected:?}"
     );
+    // The world declares vehicle 2's limits: the ratio is the reader's largest |u| over them.
+    assert_eq!(m["units"]["vehicle_limit_ratio"], "1");
+    let ratio = |channel: &str| m["vehicle_limit_ratio"][channel].as_f64().unwrap();
+    assert_eq!(ratio("steering"), at("steering") / 1.066f64.tan());
+    assert_eq!(ratio("acceleration"), at("acceleration") / 11.5);
+}
+
+/// `vehicle_limit_ratio` is there only for a run whose scenario declares `[vehicle_limits]`, and
+/// only for the channels it declares; a limit that is not a positive number, or names no input
+/// channel, is refused with the key.
+#[test]
+fn vehicle_limits_are_declared_per_channel_and_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = root().join("scenarios/bicycle_obstacle_gamma_m.toml");
+    let plain = dir.path().join("plain.mcap");
+    run_ok(&scenario, &plain, &["--set", "duration=1.0"]);
+    let m = common::analyze_json(&plain);
+    assert!(m["vehicle_limit_ratio"].is_null(), "{m}");
+    let declared = dir.path().join("declared.mcap");
+    run_ok(
+        &scenario,
+        &declared,
+        &["--set", "duration=1.0", "--set", "vehicle_limits.steering=0.5"],
+    );
+    let m = common::analyze_json(&declared);
+    let ratios = m["vehicle_limit_ratio"].as_object().unwrap();
+    assert_eq!(ratios.keys().collect::<Vec<_>>(), ["steering"], "{m}");
+    let largest = m["max_applied_input"]["steering"].as_f64().unwrap();
+    assert_eq!(ratios["steering"].as_f64().unwrap(), largest / 0.5);
+    for (set, expected) in [
+        (
+            "vehicle_limits.steering=0.0",
+            "key `vehicle_limits.steering`: expected the largest |u|",
+        ),
+        (
+            "vehicle_limits.steering=nan",
+            "key `vehicle_limits.steering`: expected the largest |u|",
+        ),
+        (
+            "vehicle_limits.brake=1.0",
+            "key `vehicle_limits.brake`: unknown input channel",
+        ),
+    ] {
+        let out = dir.path().join("refused.mcap");
+        let o = common::mjsafe(&[
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--set",
+            set,
+        ]);
+        let err = common::stderr(&o);
+        assert!(
+            !o.status.success() && err.contains(expected) && err.lines().count() == 1,
+            "{set}: {err}"
+        );
+        assert!(!out.exists(), "{set}");
+    }
 }
 
 #[test]

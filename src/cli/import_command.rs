@@ -58,8 +58,9 @@ impl ImportCommand {
         text.push_str(&format!(
             "\n# The car is a kinematic bicycle that steers and accelerates without limit, and the filters use\n\
              # that (docs/studies.md, \"Real traffic\"). {} steers to {} rad at {} rad/s and\n\
-             # accelerates at up to {} m/s². To run on a car with those limits, which the filter does not\n\
-             # know of, remove the \"# \" before the lines below.\n",
+             # accelerates at up to {} m/s²: [vehicle_limits] above declares that, and the analysis warns\n\
+             # when the commands went past it (vehicle_limit_ratio). To run on a car with those limits,\n\
+             # which the filter does not know of, remove the \"# \" before the lines below.\n",
             vehicle.name, vehicle.steering_lock, vehicle.steering_rate, vehicle.max_acceleration
         ));
         for line in crate::commonroad::limits_toml(vehicle).lines() {

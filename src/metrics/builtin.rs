@@ -746,8 +746,8 @@ impl Accumulate for MaxAppliedInput {
     }
 }
 
-/// The largest |u| that reached the vehicle per channel: actuated (when the log has them)
-/// and applied, each against the declared limits.
+/// The largest |u| that reached the vehicle per channel: actuated (a channel `/command/actuated`
+/// has), else applied, each against the declared limits.
 #[derive(Default)]
 struct VehicleLimitRatio {
     applied: BTreeMap<String, f64>,
@@ -763,14 +763,14 @@ impl Accumulate for VehicleLimitRatio {
         }
     }
     fn value(&mut self, run: &RunFacts, _: &mut BTreeMap<String, String>) -> Value {
-        let reached = match self.actuated.is_empty() {
-            true => &self.applied,
-            false => &self.actuated,
-        };
+        if run.vehicle_limits.is_empty() {
+            return Value::PerChannel(None);
+        }
+        let reached = |channel: &str| self.actuated.get(channel).or(self.applied.get(channel)).copied();
         let ratios = run
             .vehicle_limits
             .iter()
-            .map(|(channel, limit)| (channel.clone(), reached.get(channel).copied().unwrap_or(0.0) / limit))
+            .map(|(channel, limit)| (channel.clone(), reached(channel).unwrap_or(0.0) / limit))
             .collect();
         Value::PerChannel(Some(ratios))
     }
