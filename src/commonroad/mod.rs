@@ -42,6 +42,13 @@ pub struct VehicleParameters {
     pub max_acceleration: f64,
 }
 
+impl VehicleParameters {
+    /// The steering lock on the bicycle's steering input u1 = tan δ: tan of the lock angle.
+    pub fn steering_input_lock(&self) -> f64 {
+        self.steering_lock.tan()
+    }
+}
+
 /// The ego of a CommonRoad world: CommonRoad's vehicle parameter set 2 (BMW 320i).
 pub const VEHICLE: VehicleParameters = VehicleParameters {
     name: "CommonRoad vehicle 2 (BMW 320i)",
@@ -59,7 +66,7 @@ pub const VEHICLE: VehicleParameters = VehicleParameters {
 /// the steering rate as a rate on tan δ (its rate at δ = 0, stricter than the car's at larger
 /// angles), |u2| within the largest acceleration.
 pub fn limits_toml(vehicle: &VehicleParameters) -> String {
-    let lock = vehicle.steering_lock.tan();
+    let lock = vehicle.steering_input_lock();
     format!(
         "[actuator_dynamics.steering]\nmin = {:?}\nmax = {lock:?}\nrate_limit = {:?}\n\n\
          [actuator_dynamics.acceleration]\nmin = {:?}\nmax = {:?}\n",
@@ -71,7 +78,7 @@ pub fn limits_toml(vehicle: &VehicleParameters) -> String {
 /// the lock on u1 = tan δ and the largest acceleration.
 fn limits(vehicle: &VehicleParameters) -> toml::Value {
     let mut t = toml::Table::new();
-    t.insert("steering".into(), toml::Value::Float(vehicle.steering_lock.tan()));
+    t.insert("steering".into(), toml::Value::Float(vehicle.steering_input_lock()));
     t.insert("acceleration".into(), toml::Value::Float(vehicle.max_acceleration));
     toml::Value::Table(t)
 }
