@@ -34,6 +34,11 @@ struct Group {
     cullable: bool,
     /// Its range of [`Reach::gap_terms`].
     terms: [usize; 2],
+    /// The largest radius of its barriers that measure from an ego point (the far test's).
+    largest_radius: f64,
+    /// Whether the last evaluation left it out whole: the far test is tried first only then
+    /// (a road user near the ego would fail it at every evaluation).
+    was_out: bool,
 }
 
 /// What one ego point does at the evaluation state (module docs).
@@ -89,9 +94,8 @@ pub(super) struct Reach {
     /// barriers (the group's gap bound takes one distance per point).
     gap_terms: Vec<(usize, f64)>,
     ego: EgoPoints,
-    /// Per ego point, W and B for the current bound, and its distance to the road user tested.
+    /// Per ego point, W and B for the current bound.
     input_reach: Vec<[f64; 2]>,
-    distances: Vec<f64>,
     /// Per known barrier: left out at the last evaluation.
     pub(super) out: Vec<bool>,
     /// Per known barrier k: how many barriers before k have a mixed relative degree (and so a
@@ -144,7 +148,6 @@ impl Reach {
             gap_terms: Vec::new(),
             ego: EgoPoints::new(model),
             input_reach: Vec::new(),
-            distances: Vec::new(),
             out: Vec::new(),
             mixed_before: vec![0],
             scratch_out: Vec::new(),
@@ -175,7 +178,6 @@ impl Reach {
         self.mixed_before.push(mixed);
         let point = road_user.and_then(|_| self.ego.index_of(barrier));
         self.input_reach.resize(self.ego.len(), [0.0; 2]);
-        self.distances.resize(self.ego.len(), 0.0);
         self.point_of.push(point);
         self.radius.push(match &barrier.shape {
             Shape::Ball { radius, .. } | Shape::BodyCircle { radius, .. } => *radius,
@@ -199,6 +201,8 @@ impl Reach {
                 spread,
                 cullable: point.is_some(),
                 terms: [self.gap_terms.len(); 2],
+                largest_radius: 0.0,
+                was_out: false,
             }),
         }
         let (Some(group), Some(i)) = (self.groups.last_mut(), point) else {
@@ -206,6 +210,7 @@ impl Reach {
             return;
         };
         let radius = self.radius[index];
+        group.largest_radius = group.largest_radius.max(radius);
         match (self.gap_terms[group.terms[0]..group.terms[1]].iter_mut()).find(|(point, _)| *point == i) {
             Some((_, largest)) => *largest = largest.max(radius),
             None => {
@@ -321,6 +326,7 @@ impl Reach {
         for (reach, p) in self.input_reach.iter_mut().zip(&self.ego.points) {
             *reach = [admissible(&p.velocity_gains), admissible(&p.acceleration_gains)];
         }
+        let envelope = EgoEnvelope::of(&self.ego.points, &self.input_reach);
         let rates = form.real_rates();
         let mut any = false;
         // The nearest road user left out: kept when every row would be (a filter with known
@@ -334,7 +340,6 @@ impl Reach {
             gap_terms,
             ego,
             input_reach,
-            distances,
             out,
             ..
         } = self;
@@ -348,35 +353,51 @@ impl Reach {
         // every row is out and no road user that exists is, their gaps name the nearest (the
         // one every road user's group test gave: parked ones are farther than any other).
         let mut parked_any = false;
+        // Whether a road user left out by the far test (its gap not measured) is all out.
+        let mut far_out = false;
         for skip_parked in [true, false] {
-            for group in groups.iter().filter(|g| g.cullable) {
+            for group in groups.iter_mut().filter(|g| g.cullable) {
                 let actor = assumed(group.first);
                 if !skip_parked && !actor.is_parked() {
                     continue;
                 }
-                let parts = (&ego.points[..], &input_reach[..], &mut distances[..]);
-                let Some(gap) = mark_group(
+                let parts = (&ego.points[..], &input_reach[..]);
+                let far = envelope.as_ref().filter(|_| skip_parked && group.was_out);
+                let gap = match mark_group(
                     group,
                     geometry,
                     parts,
-                    (form, rates),
+                    (form, rates, far),
                     (actor, &assumed, skip_parked),
                     out,
-                ) else {
-                    (parked_any, any) = (true, any || group.end > group.first);
-                    continue;
+                ) {
+                    GroupGap::Parked => {
+                        (parked_any, any) = (true, any || group.end > group.first);
+                        continue;
+                    }
+                    GroupGap::Far => {
+                        (far_out, any) = (true, any || group.end > group.first);
+                        continue;
+                    }
+                    GroupGap::Measured(gap) => gap,
                 };
                 any |= out[group.first..group.end].iter().any(|&out| out);
                 let all_out = out[group.first..group.end].iter().all(|&out| out);
+                group.was_out = all_out;
                 if all_out && nearest.is_none_or(|(nearest, ..)| gap < nearest) {
                     nearest = Some((gap, group.first, group.end));
                 }
             }
-            if !(parked_any && nearest.is_none() && out.iter().all(|&out| out)) {
+            if !(parked_any && nearest.is_none() && !far_out && out.iter().all(|&out| out)) {
                 break;
             }
         }
         self.kept_nearest = false;
+        if far_out && self.out.iter().all(|&out| out) {
+            // (Rare: every row out. The nearest as the loop above would have named it, every
+            // road user that exists measured.)
+            nearest = self.nearest_of_all(&assumed);
+        }
         if let (true, Some((_, first, end))) = (self.out.iter().all(|&out| out), nearest) {
             self.out[first..end].fill(false);
             any = self.out.iter().any(|&out| out);
@@ -384,6 +405,23 @@ impl Reach {
         }
         self.culled_last = any;
         any
+    }
+
+    /// The nearest road user that exists, as [`Reach::mark`]'s loop names it when every row is
+    /// out: the first cullable group of the least gap (its measured gap, [`group_gap`]).
+    fn nearest_of_all(&self, assumed: &impl Fn(usize) -> ActorState) -> Option<(f64, usize, usize)> {
+        let mut nearest: Option<(f64, usize, usize)> = None;
+        for group in self.groups.iter().filter(|g| g.cullable) {
+            let actor = assumed(group.first);
+            if actor.is_parked() {
+                continue;
+            }
+            let gap = group_gap(group, &self.gap_terms, &self.ego.points, &actor);
+            if nearest.is_none_or(|(nearest, ..)| gap < nearest) {
+                nearest = Some((gap, group.first, group.end));
+            }
+        }
+        nearest
     }
 
     /// Where no row may be left out for being out of reach (a decision made again with every
@@ -549,7 +587,6 @@ impl Reach {
         let range = group.first..group.end;
         self.scratch_out.clear();
         self.scratch_out.resize(self.out.len(), false);
-        self.distances.resize(node.points.len(), 0.0);
         mark_group(
             &group,
             BarrierGeometry {
@@ -558,8 +595,8 @@ impl Reach {
                 offsets: &self.offsets,
                 gap_terms: &self.gap_terms,
             },
-            (&node.points, &node.input_reach, &mut self.distances),
-            (form, rates),
+            (&node.points, &node.input_reach),
+            (form, rates, None),
             (assumed(group.first), &assumed, true),
             &mut self.scratch_out,
         );
@@ -576,20 +613,111 @@ struct BarrierGeometry<'a> {
     gap_terms: &'a [(usize, f64)],
 }
 
+/// What [`mark_group`] found of a road user's gap.
+enum GroupGap {
+    /// Parked where it does not exist (skipped: no rows, no bounds formed).
+    Parked,
+    /// Out as a whole by the far test ([`EgoEnvelope`]); its gap not measured.
+    Far,
+    /// The group's gap bound D (module docs).
+    Measured(f64),
+}
+
+/// Bounds of every ego point at one evaluation, for a test of a road user against all of them
+/// at once (the far test of [`mark_group`]): the points' centroid c and the largest ‖q_i − c‖,
+/// the largest ‖q̇₀_i‖ and ‖q̈₀_i‖, and the largest W and B.
+struct EgoEnvelope {
+    centre: [f64; 2],
+    spread: f64,
+    speed: f64,
+    acceleration: f64,
+    input_reach: [f64; 2],
+}
+
+/// Relative slack of the far test's bounds, far above the rounding of the sums they bound:
+/// what it leaves out the pair and group tests leave out too, bit for bit.
+const FAR_SLACK: f64 = 1e-9;
+
+impl EgoEnvelope {
+    /// The envelope of `points` with their input bounds (the same maxima as [`mark_group`]'s);
+    /// None without points or with any value not finite (then no far test).
+    fn of(points: &[PointMotion], input_reach: &[[f64; 2]]) -> Option<EgoEnvelope> {
+        let n = points.len() as f64;
+        let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
+        let sum = points
+            .iter()
+            .fold([0.0; 2], |s, p| [s[0] + p.position[0], s[1] + p.position[1]]);
+        let centre = [sum[0] / n, sum[1] / n];
+        let mut envelope = EgoEnvelope {
+            centre,
+            spread: 0.0,
+            speed: 0.0,
+            acceleration: 0.0,
+            input_reach: [f64::NEG_INFINITY; 2],
+        };
+        let mut finite = !points.is_empty();
+        for (p, reach) in points.iter().zip(input_reach) {
+            let values = [
+                norm([p.position[0] - centre[0], p.position[1] - centre[1]]),
+                norm(p.velocity),
+                norm(p.acceleration),
+            ];
+            finite &= values.iter().chain(reach).all(|v| v.is_finite());
+            envelope.spread = envelope.spread.max(values[0]);
+            envelope.speed = envelope.speed.max(values[1]);
+            envelope.acceleration = envelope.acceleration.max(values[2]);
+            envelope.input_reach[0] = envelope.input_reach[0].max(reach[0]);
+            envelope.input_reach[1] = envelope.input_reach[1].max(reach[1]);
+        }
+        finite.then_some(envelope)
+    }
+
+    /// Bounds of a road user (at `actor`, its circles within `rho` of its centre turning at
+    /// `turning` = (speed, acceleration) terms, radii up to `largest_radius`) against every ego
+    /// point: D from the centroid, V and A from the triangle inequality; no closing term. Each
+    /// is on the safe side of the group test's by the slack, so that a pass here is a pass there.
+    fn bounds(&self, actor: &ActorState, rho: f64, turning: (f64, f64), largest_radius: f64) -> ReachBounds {
+        let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
+        let distance = norm([self.centre[0] - actor.position[0], self.centre[1] - actor.position[1]]);
+        let reduce = self.spread + rho + largest_radius;
+        let up = 1.0 + FAR_SLACK;
+        ReachBounds {
+            gap: distance - reduce - FAR_SLACK * (distance + reduce + 1.0),
+            speed: (self.speed + norm(actor.velocity) + turning.0) * up,
+            acceleration: (self.acceleration + norm(actor.acceleration) + turning.1) * up,
+            closing: f64::MIN,
+            input_speed: self.input_reach[0],
+            input_acceleration: self.input_reach[1],
+        }
+    }
+}
+
+/// The group's gap bound D: the least ‖q_i − o‖ − ρ − r_k over its barriers, one term per ego
+/// point (`actor` its centre), as [`mark_group`] measures it.
+fn group_gap(group: &Group, gap_terms: &[(usize, f64)], points: &[PointMotion], actor: &ActorState) -> f64 {
+    let mut gap = f64::INFINITY;
+    for &(i, largest_radius) in &gap_terms[group.terms[0]..group.terms[1]] {
+        let p = &points[i];
+        let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
+        gap = gap.min((d[0] * d[0] + d[1] * d[1]).sqrt() - group.spread - largest_radius);
+    }
+    gap
+}
+
 /// Which of `group`'s barriers are out of reach, written into `out` (indexed by barrier): the
-/// road user as a whole from its centre and spread, else pair by pair (module docs), for the
-/// ego points `points` and their input bounds `input_reach` (W and B), with barrier k's road
-/// user at `assumed(k)` (`actor` = `assumed(group.first)`). Returns the group's gap bound D;
-/// None, with every barrier out, for a road user parked at `actor` when `skip_parked` (it does
-/// not exist: no rows, no bounds formed).
+/// road user as a whole against every ego point at once (`far`, when given), else from its
+/// centre and spread, else pair by pair (module docs), for the ego points `points` and their
+/// input bounds `input_reach` (W and B), with barrier k's road user at `assumed(k)` (`actor` =
+/// `assumed(group.first)`). Parked, with every barrier out, for a road user parked at `actor`
+/// when `skip_parked` (it does not exist).
 fn mark_group(
     group: &Group,
     geometry: BarrierGeometry<'_>,
-    (points, input_reach, distances): (&[PointMotion], &[[f64; 2]], &mut [f64]),
-    (form, rates): (BarrierForm, Option<(f64, f64)>),
+    (points, input_reach): (&[PointMotion], &[[f64; 2]]),
+    (form, rates, far): (BarrierForm, Option<(f64, f64)>, Option<&EgoEnvelope>),
     (actor, assumed, skip_parked): (ActorState, &impl Fn(usize) -> ActorState, bool),
     out: &mut [bool],
-) -> Option<f64> {
+) -> GroupGap {
     let BarrierGeometry {
         point_of,
         radius,
@@ -598,7 +726,7 @@ fn mark_group(
     } = geometry;
     if skip_parked && actor.is_parked() {
         out[group.first..group.end].fill(true);
-        return None;
+        return GroupGap::Parked;
     }
     // A road user whose barriers see one state (a parked one: its primary's place) is tested
     // whole first; otherwise pair by pair only.
@@ -609,6 +737,14 @@ fn mark_group(
     let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
     // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
     let (turning_speed, turning_acceleration) = (w * rho, (dw + w * w) * rho);
+    // Far: every bound below is within the envelope's (rows_hold_given is monotone in each).
+    if let (true, Some(envelope)) = (shared, far) {
+        let bounds = envelope.bounds(&actor, rho, (turning_speed, turning_acceleration), group.largest_radius);
+        if rows_hold_given(&bounds, form, rates) {
+            out[group.first..group.end].fill(true);
+            return GroupGap::Far;
+        }
+    }
     let relative = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
     let mut bounds = ReachBounds {
         gap: f64::INFINITY,
@@ -620,7 +756,6 @@ fn mark_group(
         let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
         let w = [p.velocity[0] - actor.velocity[0], p.velocity[1] - actor.velocity[1]];
         let distance = norm(d);
-        distances[i] = distance;
         // d·w for a circle at c: (d_c − Rc)·(w_c − θ̇ J R c) ≥ d_c·w_c − ‖d_c‖ θ̇ρ − ρ‖w_c‖ − θ̇ρ².
         let closing = d[0] * w[0] + d[1] * w[1] - (distance + rho) * turning_speed - rho * norm(w);
         bounds.closing = bounds.closing.min(closing);
@@ -631,9 +766,7 @@ fn mark_group(
         bounds.input_acceleration = bounds.input_acceleration.max(input_reach[i][1]);
     }
     // (The least of ‖q_i − o‖ − ρ − r_k over the barriers, one term per ego point.)
-    for &(i, largest_radius) in &gap_terms[group.terms[0]..group.terms[1]] {
-        bounds.gap = bounds.gap.min(distances[i] - rho - largest_radius);
-    }
+    bounds.gap = group_gap(group, gap_terms, points, &actor);
     if shared && rows_hold_given(&bounds, form, rates) {
         out[group.first..group.end].fill(true);
     } else {
@@ -660,7 +793,7 @@ fn mark_group(
             out[k] = rows_hold_given(&pair, form, rates);
         }
     }
-    Some(bounds.gap)
+    GroupGap::Measured(bounds.gap)
 }
 
 impl EgoPoints {
@@ -930,6 +1063,99 @@ mod tests {
         }
         assert!(left_out > 50, "only {left_out} rows left out");
         assert!(checked > 200);
+    }
+
+    /// The far test (a road user against every ego point at once, [`EgoEnvelope`]) leaves a
+    /// road user out only where the group and pair tests leave every one of its barriers out:
+    /// random bicycle states against two turning road users of three circles, each against
+    /// three ego circles, spread across the edge of reach, standing, turning or moving. And [`Reach::mark`] with the far
+    /// test (its second call, after a road user was out) decides as without it (its first),
+    /// the nearest road user kept included. Fails with the road user's turning, or the ego
+    /// points' spread about their centroid, left out of the far test's bounds (tried).
+    #[test]
+    fn the_far_test_leaves_out_only_what_the_group_and_pair_tests_leave_out() {
+        let (model, queues) = bicycle_with_delays();
+        let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
+        let rates = form.real_rates();
+        let ego_offsets = [[-1.0, 0.0], [0.5, 0.0], [2.0, 0.0]];
+        let circle_offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
+        let mut rng = SplitMix64(23);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let (mut far, mut out_not_far, mut in_reach, mut kept) = (0, 0, 0, 0);
+        for _ in 0..20000 {
+            let mut reach = Reach::new(&model, &queues);
+            for user in 0..2 {
+                for (c, offset) in circle_offsets.iter().enumerate() {
+                    for (e, ego) in ego_offsets.iter().enumerate() {
+                        let barrier =
+                            Barrier::body_circle(&format!("u{user}c{c}e{e}"), ([0, 1], 2), *ego, [0.0; 2], 1.0);
+                        reach.add(&barrier, Some((*offset, c == 0 && e == 0)));
+                    }
+                }
+            }
+            reach.largest_input = vec![uniform(0.0, 0.3), uniform(0.0, 2.0)];
+            reach.bound.clone_from(&reach.largest_input);
+            let x = [0.0, 0.0, uniform(-3.0, 3.0), uniform(0.0, 30.0)];
+            // A third standing, a third turning where they stand (the far test's V and A then as
+            // tight as the group test's), a third moving and turning.
+            let kind = uniform(0.0, 3.0);
+            let (moving, turning) = (f64::from(u8::from(kind >= 2.0)), f64::from(u8::from(kind >= 1.0)));
+            let users: Vec<ActorState> = (0..2)
+                .map(|_| ActorState {
+                    position: [uniform(-80.0, 80.0), uniform(-80.0, 80.0)],
+                    velocity: [uniform(-20.0, 20.0) * moving, uniform(-20.0, 20.0) * moving],
+                    acceleration: [uniform(-5.0, 5.0) * moving, uniform(-5.0, 5.0) * moving],
+                    turn: uniform(-1.0, 1.0),
+                    yaw_rate: uniform(-2.0, 2.0) * turning,
+                    yaw_acceleration: uniform(-4.0, 4.0) * turning,
+                    ..ActorState::default()
+                })
+                .collect();
+            let assumed = |k: usize| users[k / 9];
+            // Without the far test: no road user was out before.
+            reach.mark(&model, form, &x, 2, assumed);
+            let (out, nearest_kept) = (reach.out.clone(), reach.kept_nearest);
+            kept += usize::from(nearest_kept);
+            let envelope = EgoEnvelope::of(&reach.ego.points, &reach.input_reach).expect("finite points");
+            let parts = (&reach.ego.points[..], &reach.input_reach[..]);
+            for group in &reach.groups {
+                let geometry = BarrierGeometry {
+                    point_of: &reach.point_of,
+                    radius: &reach.radius,
+                    offsets: &reach.offsets,
+                    gap_terms: &reach.gap_terms,
+                };
+                let (mut with, mut without) = (vec![false; out.len()], vec![false; out.len()]);
+                let actor = (assumed(group.first), &assumed, true);
+                let tested = mark_group(group, geometry, parts, (form, rates, Some(&envelope)), actor, &mut with);
+                mark_group(group, geometry, parts, (form, rates, None), actor, &mut without);
+                let range = group.first..group.end;
+                let all_out = without[range.clone()].iter().all(|&o| o);
+                match tested {
+                    GroupGap::Far => {
+                        far += 1;
+                        assert!(
+                            all_out,
+                            "far, but the pair tests keep {without:?} of {:?}",
+                            users[group.first / 9]
+                        );
+                    }
+                    _ => {
+                        assert_eq!(with[range.clone()], without[range.clone()]);
+                        out_not_far += usize::from(all_out);
+                        in_reach += usize::from(!all_out);
+                    }
+                }
+            }
+            // With the far test first where the first call left a road user out.
+            reach.mark(&model, form, &x, 2, assumed);
+            assert_eq!((&reach.out, reach.kept_nearest), (&out, nearest_kept), "{users:?}");
+        }
+        assert!(
+            far > 500 && out_not_far > 300 && in_reach > 300,
+            "{far} far, {out_not_far} out, {in_reach} in reach"
+        );
+        assert!(kept > 100, "{kept} decisions kept the nearest");
     }
 
     /// A road user parked where it does not exist is left out without a test; the one kept when
