@@ -939,6 +939,48 @@ fn leaving_out_road_users_out_of_reach_changes_no_command_on_real_traffic() {
     }
 }
 
+/// Road users out of reach enter no QP and change nothing on a recorded urban scene
+/// (docs/actors.md, "Out of reach"): USA_Lanker-1_1 (24 recorded cars) run as committed and with
+/// only the road users whose least h over the run is under 100 m² (8 of them) issues the same
+/// commands, reaches the same states and forms the same rows; the 16 others only add rows left
+/// out. (What they still cost in time: docs/performance.md, "Stop 82".)
+#[test]
+fn road_users_out_of_reach_on_lankershim_change_nothing() {
+    use mjsafe::log::proto;
+    let dir = tempfile::tempdir().unwrap();
+    let xml = data("USA_Lanker-1_1_T-1.xml");
+    let whole = dir.path().join("whole.mcap");
+    let summary: serde_json::Value = serde_json::from_str(&run(&xml, &whole, &["--json"])).unwrap();
+    let near: Vec<&str> = (summary["min_h_by_barrier"].as_object().unwrap().iter())
+        .filter(|(name, h)| name.starts_with("cr_") && h.as_f64().is_some_and(|h| h < 100.0))
+        .map(|(name, _)| name.as_str())
+        .collect();
+    let mut scenario: toml::Table = import_to(&xml, &dir.path().join("lanker.toml")).parse().unwrap();
+    let obstacles = scenario["obstacles"].as_array().unwrap().clone();
+    let kept: Vec<toml::Value> = (obstacles.iter())
+        .filter(|o| near.contains(&o["name"].as_str().unwrap()))
+        .cloned()
+        .collect();
+    assert_eq!((obstacles.len(), kept.len()), (24, near.len()));
+    assert!((4..=12).contains(&near.len()), "{near:?}");
+    scenario.insert("obstacles".into(), toml::Value::Array(kept));
+    let near_toml = dir.path().join("near.toml");
+    std::fs::write(&near_toml, toml::to_string(&scenario).unwrap()).unwrap();
+    let near_log = dir.path().join("near.mcap");
+    let near_summary: serde_json::Value = serde_json::from_str(&run(&near_toml, &near_log, &["--json"])).unwrap();
+    let rows = |s: &serde_json::Value, key: &str| s["barrier_rows"][key].as_u64().unwrap();
+    assert_eq!(rows(&summary, "formed"), rows(&near_summary, "formed"));
+    assert!(
+        rows(&summary, "left_out") > 2 * rows(&near_summary, "left_out"),
+        "{summary} {near_summary}"
+    );
+    let issued = |log: &Path| common::read_topic::<proto::IssuedCommand>(log, "/command/issued");
+    let states = |log: &Path| common::read_topic::<proto::State>(log, "/state");
+    assert!(issued(&whole).len() >= 400);
+    assert!(issued(&whole) == issued(&near_log), "the issued commands differ");
+    assert!(states(&whole) == states(&near_log), "the states differ");
+}
+
 /// A reused prediction chain is the one the controller's present assumptions give: the
 /// recursive predictor's chain is continued only while what it assumes of the road users has
 /// not changed (observed at every tick, constant velocity and static knowledge re-anchor every
