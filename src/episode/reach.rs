@@ -6,7 +6,7 @@
 //! whose Lie derivatives give q̇₀, q̈₀ and the rows of K and J exactly); a road user's bounds then
 //! cost one distance per ego point (and, for one in reach as a whole, one test per circle). The
 //! admissible inputs are, per channel j, |u_j| ≤ U_j = 1.1 M_j with M_j the largest |u_j| of the
-//! channel's recent commands, nominal inputs and planned inputs (M_j forgets slowly); a decision
+//! channel's recent commands, nominal inputs and planned inputs (M_j forgets within a few ticks); a decision
 //! that used an input above U_j on some channel is made again, with the bound grown to it and
 //! then with every row (control.rs), so every left-out row is met by every input a decision
 //! plans: the decision is the one with every row.
@@ -17,8 +17,11 @@ use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace, Shape};
 use crate::delay::DelayQueue;
 use crate::dynamics::Dynamics;
 
-/// The factor M_j keeps of itself at each decision ([`Reach::begin_decision`]).
-const FORGET: f64 = 0.999;
+/// The factor M_j keeps of itself at each decision ([`Reach::begin_decision`]): halving over
+/// about 14 decisions, two or three ticks of a recursive predictor. 0.95 took the fewest
+/// instructions of 0.9, 0.95, 0.99 and 0.999 on the committed CommonRoad files (US101-5 −18 %,
+/// Flensburg −25 % against 0.999; docs/performance.md, "Stop 82").
+const FORGET: f64 = 0.95;
 /// U_j = BOUND_FACTOR · M_j, the admissible inputs' bound per channel (module docs). A wider box
 /// certifies fewer rows out of reach, a narrower one makes more decisions again; 1.1 took the
 /// fewest instructions on every CommonRoad file measured (docs/performance.md, "Stop 72").
@@ -470,8 +473,8 @@ impl Reach {
         self.bound.copy_from_slice(&self.largest_input);
         self.saved[..inputs.len()].copy_from_slice(inputs);
         self.note(inputs.iter().copied().enumerate());
-        // M_j forgets slowly (halving over about 700 decisions, a few tenths of a second of
-        // ticks): the bound follows the inputs now, and a decision above it is made again.
+        // M_j forgets ([`FORGET`]): the bound follows the inputs now, and a decision above it
+        // is made again.
         for m in &mut self.largest_input {
             *m *= FORGET;
         }
