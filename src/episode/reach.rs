@@ -616,6 +616,12 @@ struct BarrierGeometry<'a> {
     gap_terms: &'a [(usize, f64)],
 }
 
+/// ‖v‖ (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow).
+#[inline]
+fn norm(v: [f64; 2]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1]).sqrt()
+}
+
 /// What [`mark_group`] found of a road user's gap.
 enum GroupGap {
     /// Parked where it does not exist (skipped: no rows, no bounds formed).
@@ -646,7 +652,6 @@ impl EgoEnvelope {
     /// None without points or with any value not finite (then no far test).
     fn of(points: &[PointMotion], input_reach: &[[f64; 2]]) -> Option<EgoEnvelope> {
         let n = points.len() as f64;
-        let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
         let sum = points
             .iter()
             .fold([0.0; 2], |s, p| [s[0] + p.position[0], s[1] + p.position[1]]);
@@ -680,7 +685,6 @@ impl EgoEnvelope {
     /// point: D from the centroid, V and A from the triangle inequality; no closing term. Each
     /// is on the safe side of the group test's by the slack, so that a pass here is a pass there.
     fn bounds(&self, actor: &ActorState, rho: f64, turning: (f64, f64), largest_radius: f64) -> ReachBounds {
-        let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
         let distance = norm([self.centre[0] - actor.position[0], self.centre[1] - actor.position[1]]);
         let reduce = self.spread + rho + largest_radius;
         let up = 1.0 + FAR_SLACK;
@@ -702,7 +706,7 @@ fn group_gap(group: &Group, gap_terms: &[(usize, f64)], points: &[PointMotion], 
     for &(i, largest_radius) in &gap_terms[group.terms[0]..group.terms[1]] {
         let p = &points[i];
         let d = [p.position[0] - actor.position[0], p.position[1] - actor.position[1]];
-        gap = gap.min((d[0] * d[0] + d[1] * d[1]).sqrt() - group.spread - largest_radius);
+        gap = gap.min(norm(d) - group.spread - largest_radius);
     }
     gap
 }
@@ -734,8 +738,6 @@ fn mark_group(
     // A road user whose barriers see one state (a parked one: its primary's place) is tested
     // whole first; otherwise pair by pair only.
     let shared = group.end - group.first == 1 || assumed(group.end - 1) == actor;
-    // (sqrt, not hypot: the states are bounded by ±1e9, so the squares cannot overflow.)
-    let norm = |v: [f64; 2]| (v[0] * v[0] + v[1] * v[1]).sqrt();
     let rho = group.spread;
     let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
     // A circle at c from the centre: ȯ + θ̇ J R c and ö + θ̈ J R c − θ̇² R c (‖R c‖ ≤ ρ).
