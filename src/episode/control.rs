@@ -11,9 +11,11 @@ use std::sync::Arc;
 
 use nalgebra::DVector;
 
-use super::reach::{Reach, ReachAt};
+use super::reach::{Reach, ReachAt, SleepAt};
 use crate::actor::reach::pair_rows;
-use crate::actor::{add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState};
+use crate::actor::{
+    add_headway_motion_terms, add_point_motion_terms, ActorKnowledge, ActorMotion, ActorState, AssumedWindow,
+};
 use crate::actuator::Actuator;
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace};
 use crate::delay::{DelayError, DelayQueue};
@@ -384,9 +386,17 @@ impl LawWorkspace {
         // degree barriers, in barrier order; then those of road users out of reach are left
         // out ([`LawWorkspace::compact_rows`]).
         let r = self.nominal.len();
+        let actors = laws.actors;
+        let window = |first, end, from, to| actors.assumed_window(first, end, from, to);
+        let sleep = SleepAt {
+            now: actors.now,
+            at,
+            span: actors.sleep_span,
+            window: &window,
+        };
         let mut culled = self
             .reach
-            .mark(laws.model, form, z, r, |k| laws.actors.assumed_centre(k, at));
+            .mark(laws.model, form, z, r, |k| actors.assumed_centre(k, at), Some(sleep));
         let (rows, first_order_rows) = self.constraints.split_at_mut(count);
         let mut first_order = 0;
         // ẋ(z, 0) and G(z)'s columns, the same for every moving actor's barrier at z; the ego
@@ -547,6 +557,9 @@ struct KnownActors {
     /// Observations every this many ticks (`actor_knowledge.period`), and ticks since the last.
     observe_every: u64,
     ticks_since_observation: u64,
+    /// The look-ahead at − now of every evaluation until the next observation: its period, the
+    /// largest delay and a tick (an epoch of sleeping road users covers it; [`SleepAt`]).
+    sleep_span: f64,
     /// The observation the recursive chain's laws were first formed with (its tick time, NaN
     /// for none): [`KnownActors::assumption_change`] compares what it assumes with now.
     anchor_time: f64,
@@ -643,6 +656,18 @@ impl KnownActors {
 
     /// Where the controller now assumes the road user of known barrier k at `at` (its centre;
     /// the default state for a barrier that does not move), as its reach tests read it.
+    /// Bounds on where the controller assumes the road user of barriers `first..end` over the
+    /// look-aheads [from, to] from its observation ([`ActorKnowledge::window`]); None unless
+    /// it moves, its barriers were all observed in one state, and the assumption is bounded.
+    fn assumed_window(&self, first: usize, end: usize, from: f64, to: f64) -> Option<AssumedWindow> {
+        self.motions.get(first)?.as_ref()?;
+        let observed = self.observed.get(first)?;
+        if self.observed.get(first..end)?.iter().any(|o| o != observed) {
+            return None;
+        }
+        self.knowledge.window(observed, from, to)
+    }
+
     fn assumed_centre(&self, k: usize, at: f64) -> ActorState {
         match &self.motions[k] {
             Some(motion) => self.assumed(motion, k, at),
@@ -932,6 +957,7 @@ impl LawStage {
                 observed_known: 0,
                 observe_every: 1,
                 ticks_since_observation: 0,
+                sleep_span: 0.0,
                 anchor_time: f64::NAN,
                 anchor: Vec::new(),
             },
@@ -1470,6 +1496,8 @@ impl ControlLoop {
             ..
         } = self;
         laws.actors.observe(t);
+        let largest_delay = (queues.assumed.iter()).fold(0.0, |d: f64, q| d.max(q.constant_delay().unwrap_or(0.0)));
+        laws.actors.sleep_span = (laws.actors.observe_every + 1) as f64 * timing.control_period + largest_delay;
         let predicts = laws.predicts();
         predict.keep_chain_for(&laws.actors, &mut laws.work, t, timing.control_period);
         laws.work.recording = true;

@@ -12,7 +12,7 @@
 //! plans: the decision is the one with every row.
 
 use crate::actor::reach::{rows_hold_given, ReachBounds};
-use crate::actor::ActorState;
+use crate::actor::{ActorState, AssumedWindow};
 use crate::barrier::{Barrier, BarrierForm, Constraint, LieWorkspace, Shape};
 use crate::delay::DelayQueue;
 use crate::dynamics::Dynamics;
@@ -42,6 +42,63 @@ struct Group {
     /// Whether the last evaluation left it out whole: the far test is tried first only then
     /// (a road user near the ego would fail it at every evaluation).
     was_out: bool,
+    /// Asleep for the current [`Epoch`] (tested with one distance), and whether it was tried.
+    asleep: Option<Asleep>,
+    sleep_tried: bool,
+}
+
+/// A road user asleep for the current [`Epoch`] (docs/actors.md, "Asleep"): wherever the
+/// assumption puts it over the epoch's look-aheads it is within `reach` of `centre` (its
+/// assumed centre at the window's middle, plus its displacement over the window, its circles'
+/// spread and largest radius), and its rows hold for every admissible input at any gap of at
+/// least `threshold` with the epoch's speed, acceleration and input bounds. At an evaluation
+/// within the epoch's bounds it is left out when the ego envelope is far enough from `centre`:
+/// then the far test would leave it out too ([`Asleep::sleeps`]).
+#[derive(Clone, Copy)]
+struct Asleep {
+    centre: [f64; 2],
+    reach: f64,
+    threshold: f64,
+}
+
+/// The bounds one observation epoch (from one observation of the road users to the next) holds
+/// its evaluations to, so that a road user asleep in it needs one distance per evaluation: the
+/// observation time, the look-ahead at − now its windows cover, the barrier form, the ego
+/// envelope's mean velocity v̄ and acceleration ā at its first evaluation with bounds on how far
+/// any ego point's q̇₀ and q̈₀ are from them at its evaluations, and bounds on W and B (those
+/// of its first evaluation grown by [`EPOCH_GROWTH`]). An evaluation outside them tests every
+/// road user as before, and one of another observation or beyond the ego bounds begins a new
+/// epoch.
+#[derive(Clone, Copy)]
+struct Epoch {
+    now: f64,
+    span: f64,
+    form: BarrierForm,
+    velocity: [f64; 2],
+    velocity_deviation: f64,
+    acceleration: [f64; 2],
+    acceleration_deviation: f64,
+    input_reach: [f64; 2],
+}
+
+/// How an epoch's ego bounds grow from its first evaluation's: (factor, added) for the points'
+/// velocity deviation from the mean (m/s), their acceleration deviation (m/s²), and W, B. Wider
+/// bounds let fewer road users sleep, narrower ones begin more epochs (docs/performance.md,
+/// "Stop 83").
+const EPOCH_GROWTH: [(f64, f64); 3] = [(1.0, 1.0), (1.0, 1.0), (1.5, 0.5)];
+
+/// The largest gap (m) a road user may need to sleep: beyond it, it stays awake.
+const MOST_SLEEP_GAP: f64 = 1e6;
+
+/// What [`Reach::mark`] needs to let road users sleep through an epoch: the observation time
+/// the assumptions start from, the evaluation's time, the look-ahead an epoch covers, and the
+/// bounds of a road user's assumed states over look-aheads [from, to] (its barriers
+/// `first..end`; None when they are not bounded or its barriers see different states).
+pub(super) struct SleepAt<'a> {
+    pub(super) now: f64,
+    pub(super) at: f64,
+    pub(super) span: f64,
+    pub(super) window: &'a dyn Fn(usize, usize, f64, f64) -> Option<AssumedWindow>,
 }
 
 /// What one ego point does at the evaluation state (module docs).
@@ -134,6 +191,11 @@ pub(super) struct Reach {
     /// Whether the current decision used an input it does not say (noted as NaN).
     unknown: bool,
     saved: Vec<f64>,
+    /// The current epoch, if one has begun ([`Epoch`]), and how many have.
+    epoch: Option<Epoch>,
+    pub(super) epochs: u64,
+    /// Road-user tests an asleep road user's one distance stood for.
+    pub(super) slept: u64,
 }
 
 impl Reach {
@@ -165,6 +227,9 @@ impl Reach {
             exceeded: false,
             unknown: false,
             saved: vec![0.0; queues.len()],
+            epoch: None,
+            epochs: 0,
+            slept: 0,
             rows_left_out: 0,
             rows_formed: 0,
             attempt_rows: [0; 2],
@@ -176,6 +241,7 @@ impl Reach {
     /// `primary` for its first) or not (`None`).
     pub(super) fn add(&mut self, barrier: &Barrier, road_user: Option<([f64; 2], bool)>) {
         let index = self.point_of.len();
+        self.epoch = None;
         self.out.push(false);
         let mixed = self.mixed_before[index] + u64::from(barrier.mixed_relative_degree());
         self.mixed_before.push(mixed);
@@ -206,6 +272,8 @@ impl Reach {
                 terms: [self.gap_terms.len(); 2],
                 largest_radius: 0.0,
                 was_out: false,
+                asleep: None,
+                sleep_tried: false,
             }),
         }
         let (Some(group), Some(i)) = (self.groups.last_mut(), point) else {
@@ -310,6 +378,7 @@ impl Reach {
         z: &[f64],
         r: usize,
         assumed: impl Fn(usize) -> ActorState,
+        sleep: Option<SleepAt<'_>>,
     ) -> bool {
         self.out.fill(false);
         self.culled_last = false;
@@ -331,6 +400,9 @@ impl Reach {
         }
         let envelope = EgoEnvelope::of(&self.ego.points, &self.input_reach);
         let rates = form.real_rates();
+        // Whether this evaluation keeps within an epoch's bounds: then asleep road users are
+        // tested with one distance, and road users the far test leaves out may fall asleep.
+        let epoch = self.enter_epoch(envelope.as_ref(), form, sleep.as_ref());
         let mut any = false;
         // The nearest road user left out: kept when every row would be (a filter with known
         // barriers always decides).
@@ -360,6 +432,17 @@ impl Reach {
         let mut far_out = false;
         for skip_parked in [true, false] {
             for group in groups.iter_mut().filter(|g| g.cullable) {
+                if let (Some(asleep), Some(envelope)) = (group.asleep.filter(|_| epoch.is_some()), &envelope) {
+                    // (Asleep: not parked, so the second pass passes it over too.)
+                    if !skip_parked || asleep.sleeps(envelope) {
+                        if skip_parked {
+                            self.slept += 1;
+                            out[group.first..group.end].fill(true);
+                            (far_out, any, group.was_out) = (true, any || group.end > group.first, true);
+                        }
+                        continue;
+                    }
+                }
                 let actor = assumed(group.first);
                 if !skip_parked && !actor.is_parked() {
                     continue;
@@ -380,6 +463,7 @@ impl Reach {
                     }
                     GroupGap::Far => {
                         (far_out, any) = (true, any || group.end > group.first);
+                        fall_asleep(group, epoch.as_ref(), sleep.as_ref(), rates);
                         continue;
                     }
                     GroupGap::Measured(gap) => gap,
@@ -408,6 +492,55 @@ impl Reach {
         }
         self.culled_last = any;
         any
+    }
+
+    /// The epoch this evaluation (at `sleep.at`, with the ego `envelope`, in `form`) keeps
+    /// within: the current one, or a new one begun here (every road user awake) when the
+    /// observation changed or the ego left the current one's bounds; None (no road user
+    /// sleeps at this evaluation) without an envelope or `sleep`, or beyond the look-ahead.
+    fn enter_epoch(
+        &mut self,
+        envelope: Option<&EgoEnvelope>,
+        form: BarrierForm,
+        sleep: Option<&SleepAt<'_>>,
+    ) -> Option<Epoch> {
+        let (Some(e), Some(sleep)) = (envelope, sleep) else {
+            return None;
+        };
+        let ahead = (sleep.at - sleep.now).max(0.0);
+        if ahead > sleep.span || sleep.span.is_nan() {
+            return None;
+        }
+        let off = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
+        let within = |epoch: &Epoch| {
+            epoch.now == sleep.now
+                && ahead <= epoch.span
+                && epoch.form == form
+                && off(e.velocity, epoch.velocity) + e.velocity_spread <= epoch.velocity_deviation
+                && off(e.mean_acceleration, epoch.acceleration) + e.acceleration_spread <= epoch.acceleration_deviation
+                && e.input_reach[0] <= epoch.input_reach[0]
+                && e.input_reach[1] <= epoch.input_reach[1]
+        };
+        if let Some(epoch) = self.epoch.filter(within) {
+            return Some(epoch);
+        }
+        let grow = |value: f64, (factor, added): (f64, f64)| value * factor + added;
+        let epoch = Epoch {
+            now: sleep.now,
+            span: sleep.span,
+            form,
+            velocity: e.velocity,
+            velocity_deviation: grow(e.velocity_spread, EPOCH_GROWTH[0]),
+            acceleration: e.mean_acceleration,
+            acceleration_deviation: grow(e.acceleration_spread, EPOCH_GROWTH[1]),
+            input_reach: e.input_reach.map(|w| grow(w, EPOCH_GROWTH[2])),
+        };
+        for group in &mut self.groups {
+            (group.asleep, group.sleep_tried) = (None, false);
+        }
+        self.epochs += 1;
+        self.epoch = Some(epoch);
+        self.epoch
     }
 
     /// The nearest road user that exists, as [`Reach::mark`]'s loop names it when every row is
@@ -622,6 +755,85 @@ fn norm(v: [f64; 2]) -> f64 {
     (v[0] * v[0] + v[1] * v[1]).sqrt()
 }
 
+/// A road user the far test left out may fall asleep for the rest of `epoch`: tried once per
+/// epoch ([`Asleep::of`]; after the group test, a road user only just out would be tried too
+/// early: fewer slept on the CommonRoad files).
+fn fall_asleep(group: &mut Group, epoch: Option<&Epoch>, sleep: Option<&SleepAt<'_>>, rates: Option<(f64, f64)>) {
+    if let (Some(epoch), Some(sleep)) = (epoch, sleep) {
+        if !std::mem::replace(&mut group.sleep_tried, true) {
+            let window = (sleep.window)(group.first, group.end, 0.0, epoch.span);
+            group.asleep = window.and_then(|w| Asleep::of(group, epoch, &w, rates));
+        }
+    }
+}
+
+impl Asleep {
+    /// `group` asleep for `epoch`, its assumed states over the epoch's look-aheads bounded by
+    /// `window`: the least gap (to a relative 2⁻¹⁶, on the passing side) at which its rows hold
+    /// with V = ‖v̄ − ȯ‖ + its velocity change over the window + the epoch's velocity deviation,
+    /// and A likewise (v̄, ā the epoch's, ȯ, ö the road user's at the window's middle; each
+    /// grown by twice the far test's slack), and the epoch's W and B; None when parked or when
+    /// no gap up to [`MOST_SLEEP_GAP`] does.
+    fn of(group: &Group, epoch: &Epoch, window: &AssumedWindow, rates: Option<(f64, f64)>) -> Option<Asleep> {
+        let actor = &window.middle;
+        if actor.is_parked() || !(window.displacement.is_finite() && window.velocity_change.is_finite()) {
+            return None;
+        }
+        let rho = group.spread;
+        let (w, dw) = (actor.yaw_rate.abs(), actor.yaw_acceleration.abs());
+        let up = 1.0 + 2.0 * FAR_SLACK;
+        let off = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
+        let speed = off(epoch.velocity, actor.velocity) + window.velocity_change + epoch.velocity_deviation;
+        let acceleration = off(epoch.acceleration, actor.acceleration) + epoch.acceleration_deviation;
+        let holds = |gap: f64| {
+            let bounds = ReachBounds {
+                gap,
+                speed: (speed + w * rho) * up,
+                acceleration: (acceleration + (dw + w * w) * rho) * up,
+                closing: f64::MIN,
+                input_speed: epoch.input_reach[0],
+                input_acceleration: epoch.input_reach[1],
+            };
+            rows_hold_given(&bounds, epoch.form, rates)
+        };
+        // rows_hold_given is monotone in the gap: double up to a passing gap, then halve the
+        // interval (the threshold stays on the passing side).
+        let mut high = 1.0;
+        while !holds(high) {
+            high *= 2.0;
+            if high > MOST_SLEEP_GAP {
+                return None;
+            }
+        }
+        let mut low = 0.0;
+        for _ in 0..16 {
+            let middle = 0.5 * (low + high);
+            match holds(middle) {
+                true => high = middle,
+                false => low = middle,
+            }
+        }
+        Some(Asleep {
+            centre: actor.position,
+            reach: window.displacement + rho + group.largest_radius,
+            threshold: high,
+        })
+    }
+
+    /// Whether it sleeps through an evaluation of its epoch with the ego `envelope`: the far
+    /// test's gap there, at least m − reach − s − ε(m + reach + s + 1) (m the distance from the
+    /// envelope's centre to `centre`, s its spread, ε the far test's slack), is above the
+    /// threshold with a margin of ε(m + reach + s + 1), and its other bounds are within those
+    /// the threshold was found for (‖v̄_now − ȯ(at)‖ + the spread ≤ ‖v̄ − ȯ_middle‖ + the
+    /// velocity change + the deviation, and likewise A): the far test leaves it out.
+    #[inline]
+    fn sleeps(&self, envelope: &EgoEnvelope) -> bool {
+        let m = norm([envelope.centre[0] - self.centre[0], envelope.centre[1] - self.centre[1]]);
+        let reduce = self.reach + envelope.spread;
+        m - reduce - 2.0 * FAR_SLACK * (m + reduce + 1.0) >= self.threshold
+    }
+}
+
 /// What [`mark_group`] found of a road user's gap.
 enum GroupGap {
     /// Parked where it does not exist (skipped: no rows, no bounds formed).
@@ -634,12 +846,17 @@ enum GroupGap {
 
 /// Bounds of every ego point at one evaluation, for a test of a road user against all of them
 /// at once (the far test of [`mark_group`]): the points' centroid c and the largest ‖q_i − c‖,
-/// the largest ‖q̇₀_i‖ and ‖q̈₀_i‖, and the largest W and B.
+/// the largest ‖q̇₀_i‖ and ‖q̈₀_i‖, the mean q̇₀ and q̈₀ with the largest distance of a point's
+/// from them, and the largest W and B.
 struct EgoEnvelope {
     centre: [f64; 2],
     spread: f64,
     speed: f64,
     acceleration: f64,
+    velocity: [f64; 2],
+    velocity_spread: f64,
+    mean_acceleration: [f64; 2],
+    acceleration_spread: f64,
     input_reach: [f64; 2],
 }
 
@@ -652,28 +869,38 @@ impl EgoEnvelope {
     /// None without points or with any value not finite (then no far test).
     fn of(points: &[PointMotion], input_reach: &[[f64; 2]]) -> Option<EgoEnvelope> {
         let n = points.len() as f64;
-        let sum = points
-            .iter()
-            .fold([0.0; 2], |s, p| [s[0] + p.position[0], s[1] + p.position[1]]);
-        let centre = [sum[0] / n, sum[1] / n];
+        let mean = |of: fn(&PointMotion) -> [f64; 2]| {
+            let sum = points.iter().map(of).fold([0.0; 2], |s, v| [s[0] + v[0], s[1] + v[1]]);
+            [sum[0] / n, sum[1] / n]
+        };
+        let (centre, velocity) = (mean(|p| p.position), mean(|p| p.velocity));
         let mut envelope = EgoEnvelope {
             centre,
             spread: 0.0,
             speed: 0.0,
             acceleration: 0.0,
+            velocity,
+            velocity_spread: 0.0,
+            mean_acceleration: mean(|p| p.acceleration),
+            acceleration_spread: 0.0,
             input_reach: [f64::NEG_INFINITY; 2],
         };
         let mut finite = !points.is_empty();
+        let from = |v: [f64; 2], mean: [f64; 2]| norm([v[0] - mean[0], v[1] - mean[1]]);
         for (p, reach) in points.iter().zip(input_reach) {
             let values = [
-                norm([p.position[0] - centre[0], p.position[1] - centre[1]]),
+                from(p.position, centre),
                 norm(p.velocity),
                 norm(p.acceleration),
+                from(p.velocity, velocity),
+                from(p.acceleration, envelope.mean_acceleration),
             ];
             finite &= values.iter().chain(reach).all(|v| v.is_finite());
             envelope.spread = envelope.spread.max(values[0]);
             envelope.speed = envelope.speed.max(values[1]);
             envelope.acceleration = envelope.acceleration.max(values[2]);
+            envelope.velocity_spread = envelope.velocity_spread.max(values[3]);
+            envelope.acceleration_spread = envelope.acceleration_spread.max(values[4]);
             envelope.input_reach[0] = envelope.input_reach[0].max(reach[0]);
             envelope.input_reach[1] = envelope.input_reach[1].max(reach[1]);
         }
@@ -682,16 +909,23 @@ impl EgoEnvelope {
 
     /// Bounds of a road user (at `actor`, its circles within `rho` of its centre turning at
     /// `turning` = (speed, acceleration) terms, radii up to `largest_radius`) against every ego
-    /// point: D from the centroid, V and A from the triangle inequality; no closing term. Each
-    /// is on the safe side of the group test's by the slack, so that a pass here is a pass there.
+    /// point: D from the centroid; V and A by the triangle inequality, the lesser of
+    /// ‖q̇₀_i‖ + ‖ȯ‖ and ‖v̄ − ȯ‖ + ‖q̇₀_i − v̄‖ (v̄ the points' mean; the second is the
+    /// smaller for a road user moving with the ego); no closing term. Each is on the safe side
+    /// of the group test's by the slack, so that a pass here is a pass there.
     fn bounds(&self, actor: &ActorState, rho: f64, turning: (f64, f64), largest_radius: f64) -> ReachBounds {
         let distance = norm([self.centre[0] - actor.position[0], self.centre[1] - actor.position[1]]);
         let reduce = self.spread + rho + largest_radius;
         let up = 1.0 + FAR_SLACK;
+        let relative = |mean: [f64; 2], of: [f64; 2]| norm([mean[0] - of[0], mean[1] - of[1]]);
+        let speed =
+            (self.speed + norm(actor.velocity)).min(relative(self.velocity, actor.velocity) + self.velocity_spread);
+        let acceleration = (self.acceleration + norm(actor.acceleration))
+            .min(relative(self.mean_acceleration, actor.acceleration) + self.acceleration_spread);
         ReachBounds {
             gap: distance - reduce - FAR_SLACK * (distance + reduce + 1.0),
-            speed: (self.speed + norm(actor.velocity) + turning.0) * up,
-            acceleration: (self.acceleration + norm(actor.acceleration) + turning.1) * up,
+            speed: (speed + turning.0) * up,
+            acceleration: (acceleration + turning.1) * up,
             closing: f64::MIN,
             input_speed: self.input_reach[0],
             input_acceleration: self.input_reach[1],
@@ -936,7 +1170,7 @@ impl EgoPoints {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::actor::add_point_motion_terms;
+    use crate::actor::{add_point_motion_terms, ActorKnowledge};
     use crate::barrier::Constraint;
     use crate::dynamics::BicycleModel;
     use crate::random::SplitMix64;
@@ -1018,7 +1252,7 @@ mod tests {
                     ..ActorState::default()
                 })
                 .collect();
-            if !reach.mark(&model, form, &x, 2, |k| users[k / 3]) {
+            if !reach.mark(&model, form, &x, 2, |k| users[k / 3], None) {
                 continue;
             }
             // The largest |u_j| `note` accepts on each channel (bisection on its flag; each
@@ -1118,7 +1352,7 @@ mod tests {
                 .collect();
             let assumed = |k: usize| users[k / 9];
             // Without the far test: no road user was out before.
-            reach.mark(&model, form, &x, 2, assumed);
+            reach.mark(&model, form, &x, 2, assumed, None);
             let (out, nearest_kept) = (reach.out.clone(), reach.kept_nearest);
             kept += usize::from(nearest_kept);
             let envelope = EgoEnvelope::of(&reach.ego.points, &reach.input_reach).expect("finite points");
@@ -1153,7 +1387,7 @@ mod tests {
                 }
             }
             // With the far test first where the first call left a road user out.
-            reach.mark(&model, form, &x, 2, assumed);
+            reach.mark(&model, form, &x, 2, assumed, None);
             assert_eq!((&reach.out, reach.kept_nearest), (&out, nearest_kept), "{users:?}");
         }
         assert!(
@@ -1161,6 +1395,142 @@ mod tests {
             "{far} far, {out_not_far} out, {in_reach} in reach"
         );
         assert!(kept > 100, "{kept} decisions kept the nearest");
+    }
+
+    /// Road users asleep through an epoch ([`Asleep`]) are left out only where the far test
+    /// leaves them out (so exactly as the group and pair tests do): at every evaluation, each
+    /// road user that sleeps through it passes the far test there; and two [`Reach`]es seeing
+    /// the same evaluations, one letting road users sleep and one not, leave the same barriers
+    /// out and keep the same nearest road user. Random epochs: four road users of three circles
+    /// against three ego circles, 10–80 m away, observed moving with the ego, crossing or
+    /// braking, assumed static, at constant velocity or at constant acceleration; 40 evaluations
+    /// each at look-aheads across the window along the ego's path, its heading and speed
+    /// perturbed (some beyond the epoch's bounds, which begins another). Fails with a sleeping
+    /// road user's displacement over the window, or the epoch's velocity deviation, left out
+    /// of its bounds (tried).
+    #[test]
+    fn asleep_road_users_pass_the_far_test_wherever_they_sleep() {
+        let (model, queues) = bicycle_with_delays();
+        let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
+        let rates = form.real_rates();
+        let ego_offsets = [[-1.0, 0.0], [0.5, 0.0], [2.0, 0.0]];
+        let circle_offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
+        let mut rng = SplitMix64(41);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
+        let build = || {
+            let mut reach = Reach::new(&model, &queues);
+            for user in 0..4 {
+                for (c, offset) in circle_offsets.iter().enumerate() {
+                    for (e, ego) in ego_offsets.iter().enumerate() {
+                        let barrier =
+                            Barrier::body_circle(&format!("u{user}c{c}e{e}"), ([0, 1], 2), *ego, [0.0; 2], 1.0);
+                        reach.add(&barrier, Some((*offset, c == 0 && e == 0)));
+                    }
+                }
+            }
+            reach
+        };
+        let (mut sleeping, mut awake) = (build(), build());
+        let (mut evaluations, mut slept_checked) = (0, 0);
+        let span = 0.6;
+        for epoch in 0..1500 {
+            let now = epoch as f64;
+            let knowledge = [
+                ActorKnowledge::Static,
+                ActorKnowledge::ConstantVelocity,
+                ActorKnowledge::ConstantAcceleration,
+            ][(uniform(0.0, 3.0) as usize).min(2)];
+            let (heading, speed) = (uniform(-3.0, 3.0), uniform(0.0, 30.0));
+            let ahead = [heading.cos(), heading.sin()];
+            let observed: Vec<ActorState> = (0..4)
+                .map(|_| {
+                    let (distance, bearing) = (uniform(10.0, 80.0), uniform(-3.2, 3.2));
+                    let velocity = match uniform(0.0, 1.0) < 0.5 {
+                        true => [
+                            ahead[0] * speed + uniform(-3.0, 3.0),
+                            ahead[1] * speed + uniform(-3.0, 3.0),
+                        ],
+                        false => [uniform(-20.0, 20.0), uniform(-20.0, 20.0)],
+                    };
+                    ActorState {
+                        position: [distance * bearing.cos(), distance * bearing.sin()],
+                        velocity,
+                        acceleration: [uniform(-6.0, 6.0), uniform(-6.0, 6.0)],
+                        turn: uniform(-1.0, 1.0),
+                        ..ActorState::default()
+                    }
+                })
+                .collect();
+            let window =
+                |first: usize, _end: usize, from: f64, to: f64| knowledge.window(&observed[first / 9], from, to);
+            let bound = vec![uniform(0.0, 0.3), uniform(0.0, 2.0)];
+            for k in 0..40 {
+                let at = now + span * (k as f64 + uniform(-2.0, 2.0)) / 40.0;
+                let d = (at - now).max(0.0);
+                // The first evaluation at the epoch's heading and speed, the others 0.3–0.95 m/s
+                // faster (within the epoch's velocity deviation), one in 20 far beyond.
+                let scale = [0.0, 1.0, 10.0][usize::from(k > 0) + usize::from(k > 0 && uniform(0.0, 1.0) < 0.05)];
+                let (h, v) = (
+                    heading + scale * uniform(-0.002, 0.002),
+                    speed + scale * uniform(0.3, 0.95),
+                );
+                let x = [ahead[0] * speed * d, ahead[1] * speed * d, h, v];
+                let assumed = |k: usize| knowledge.predict(&observed[k / 9], now, at.max(now), |_| unreachable!());
+                for reach in [&mut sleeping, &mut awake] {
+                    reach.largest_input.clone_from(&bound);
+                    reach.bound.clone_from(&bound);
+                }
+                let sleep = SleepAt {
+                    now,
+                    at,
+                    span,
+                    window: &window,
+                };
+                sleeping.mark(&model, form, &x, 2, assumed, Some(sleep));
+                awake.mark(&model, form, &x, 2, assumed, None);
+                assert_eq!(
+                    (&sleeping.out, sleeping.kept_nearest),
+                    (&awake.out, awake.kept_nearest),
+                    "epoch {epoch}, {knowledge:?}, at {at}: {observed:?}"
+                );
+                evaluations += 1;
+                // Each road user that slept through this evaluation (one within the epoch's
+                // look-ahead) passes the far test here.
+                if d > span {
+                    continue;
+                }
+                let envelope = EgoEnvelope::of(&sleeping.ego.points, &sleeping.input_reach).expect("finite");
+                let geometry = BarrierGeometry {
+                    point_of: &sleeping.point_of,
+                    radius: &sleeping.radius,
+                    offsets: &sleeping.offsets,
+                    gap_terms: &sleeping.gap_terms,
+                };
+                let parts = (&sleeping.ego.points[..], &sleeping.input_reach[..]);
+                let asleep = sleeping
+                    .groups
+                    .iter()
+                    .filter(|g| g.asleep.is_some_and(|a| a.sleeps(&envelope)));
+                for group in asleep {
+                    let mut out = vec![false; sleeping.out.len()];
+                    let actor = (assumed(group.first), &assumed, true);
+                    let tested = mark_group(group, geometry, parts, (form, rates, Some(&envelope)), actor, &mut out);
+                    assert!(
+                        matches!(tested, GroupGap::Far),
+                        "asleep but not far: epoch {epoch}, {knowledge:?}, look-ahead {d}, {:?}",
+                        observed[group.first / 9]
+                    );
+                    slept_checked += 1;
+                }
+            }
+        }
+        assert_eq!(evaluations, 60000);
+        assert!(
+            slept_checked > 20000 && sleeping.slept > 20000 && sleeping.epochs > 1800,
+            "{slept_checked} checked, {} slept, {} epochs",
+            sleeping.slept,
+            sleeping.epochs
+        );
     }
 
     /// A road user parked where it does not exist is left out without a test; the one kept when
@@ -1205,7 +1575,7 @@ mod tests {
             ),
         ];
         for (users, out, kept) in cases {
-            assert!(reach.mark(&model, form, &x, 2, |k| users[k]));
+            assert!(reach.mark(&model, form, &x, 2, |k| users[k], None));
             assert_eq!(
                 (reach.out.as_slice(), reach.kept_nearest),
                 (&out[..], kept),
@@ -1242,10 +1612,10 @@ mod tests {
                 }
             }
             let users = [parked, near, parked];
-            assert!(reach.mark(&model, form, &x, 2, |k| users[k]), "{every_row:?}");
+            assert!(reach.mark(&model, form, &x, 2, |k| users[k], None), "{every_row:?}");
             assert_eq!(reach.out, [true, false, true], "{every_row:?}");
             assert!(!reach.culled_last, "{every_row:?}: nothing to make again");
-            assert!(!reach.mark(&model, form, &x, 2, |_| parked), "{every_row:?}");
+            assert!(!reach.mark(&model, form, &x, 2, |_| parked, None), "{every_row:?}");
             assert_eq!(reach.out, [false; 3], "{every_row:?}");
         }
     }

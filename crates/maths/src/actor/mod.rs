@@ -272,6 +272,50 @@ impl ActorKnowledge {
             ActorKnowledge::Oracle => truth(at),
         }
     }
+
+    /// Bounds on every state [`ActorKnowledge::predict`] gives from `observed` for the look-ahead
+    /// times d = at − now in [`from`, `to`] (0 ≤ from ≤ to): the state at the middle time, and
+    /// the largest distance of the position, the velocity and the acceleration from its (the
+    /// assumed heading and turning do not change). Each bound is grown by a relative 1e-9 (and
+    /// the displacement by 1e-9 of the position's size) above the rounding of the predictions.
+    /// None for the oracle (the recording's future is not bounded here) and for an empty or
+    /// negative window.
+    pub fn window(self, observed: &ActorState, from: f64, to: f64) -> Option<AssumedWindow> {
+        if !(0.0 <= from && from <= to && to.is_finite()) || self == ActorKnowledge::Oracle {
+            return None;
+        }
+        let middle = self.predict(observed, 0.0, 0.5 * (from + to), |_| *observed);
+        let half = 0.5 * (to - from);
+        let norm = |v: [f64; 2]| v[0].hypot(v[1]);
+        let (v, a) = (norm(observed.velocity), norm(observed.acceleration));
+        // o(d) − o(m) = (d − m)(v + a (d + m)/2) and ȯ(d) − ȯ(m) = a (d − m) for a constant
+        // acceleration (v alone at constant velocity), with |d − m| ≤ half and d + m ≤ 2 to.
+        let (displacement, velocity_change) = match self {
+            ActorKnowledge::Static => (0.0, 0.0),
+            ActorKnowledge::ConstantVelocity => (half * v, 0.0),
+            ActorKnowledge::ConstantAcceleration => (half * (v + a * to), half * a),
+            ActorKnowledge::Oracle => return None,
+        };
+        let grow = 1.0 + 1e-9;
+        let size = |v: [f64; 2]| 1e-9 * (norm(v) + 1.0);
+        Some(AssumedWindow {
+            middle,
+            displacement: displacement * grow + size(middle.position),
+            velocity_change: velocity_change * grow + size(middle.velocity),
+        })
+    }
+}
+
+/// What [`ActorKnowledge::window`] bounds: every state an assumption gives over a window of
+/// look-ahead times.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AssumedWindow {
+    /// The assumed state at the window's middle time.
+    pub middle: ActorState,
+    /// The largest distance (m) of the assumed position from `middle`'s.
+    pub displacement: f64,
+    /// The largest ‖ȯ − ȯ_middle‖ (m/s); the assumed acceleration does not change.
+    pub velocity_change: f64,
 }
 
 /// Adds to `c` — the constraint of the ball h = ‖p − o‖² − r² frozen at the actor's position o,
@@ -330,6 +374,59 @@ pub fn add_headway_motion_terms(c: &mut Constraint, form: BarrierForm, actor: &A
 #[cfg(test)]
 mod tests {
     use nalgebra::DVector;
+
+    /// Every state an assumption predicts over a window lies within the window's bounds
+    /// (sampled densely, each assumption, moving and turning observations); the bounds are
+    /// tight to within their slack at the window's ends (constant velocity).
+    #[test]
+    fn an_assumption_stays_within_its_window() {
+        let observed = ActorState {
+            position: [1.0e4, -3.0e3],
+            velocity: [7.0, -2.0],
+            acceleration: [-1.5, 0.8],
+            heading: 0.3,
+            turn: 0.2,
+            yaw_rate: 0.4,
+            yaw_acceleration: -0.1,
+        };
+        let mut checked = 0;
+        for knowledge in [
+            ActorKnowledge::Static,
+            ActorKnowledge::ConstantVelocity,
+            ActorKnowledge::ConstantAcceleration,
+        ] {
+            for (from, to) in [(0.0, 0.6), (0.2, 0.5), (0.0, 0.0), (1.0, 7.0)] {
+                let w = knowledge.window(&observed, from, to).unwrap();
+                for k in 0..=1000 {
+                    let d = from + (to - from) * k as f64 / 1000.0;
+                    let s = knowledge.predict(&observed, 100.0, 100.0 + d, |_| unreachable!());
+                    let moved = (s.position[0] - w.middle.position[0]).hypot(s.position[1] - w.middle.position[1]);
+                    assert!(
+                        moved <= w.displacement,
+                        "{knowledge:?} d {d}: {moved} > {}",
+                        w.displacement
+                    );
+                    let changed = (s.velocity[0] - w.middle.velocity[0]).hypot(s.velocity[1] - w.middle.velocity[1]);
+                    assert!(
+                        changed <= w.velocity_change,
+                        "{knowledge:?} d {d}: {changed} > {}",
+                        w.velocity_change
+                    );
+                    assert_eq!(s.acceleration, w.middle.acceleration);
+                    assert_eq!((s.yaw_rate, s.yaw_acceleration, s.turn), (0.0, 0.0, observed.turn));
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 3 * 4 * 1001);
+        let w = ActorKnowledge::ConstantVelocity.window(&observed, 0.0, 0.6).unwrap();
+        let end = ActorKnowledge::ConstantVelocity.predict(&observed, 0.0, 0.6, |_| unreachable!());
+        let moved = (end.position[0] - w.middle.position[0]).hypot(end.position[1] - w.middle.position[1]);
+        assert!(w.displacement - moved < 1e-4, "{} against {moved}", w.displacement);
+        assert!(ActorKnowledge::Oracle.window(&observed, 0.0, 0.6).is_none());
+        assert!(ActorKnowledge::ConstantVelocity.window(&observed, 0.5, 0.2).is_none());
+        assert!(ActorKnowledge::ConstantVelocity.window(&observed, -0.1, 0.2).is_none());
+    }
 
     use super::*;
     use crate::barrier::{self, Barrier};
