@@ -524,16 +524,24 @@ impl Reach {
         if let Some(epoch) = self.epoch.filter(within) {
             return Some(epoch);
         }
-        let grow = |value: f64, (factor, added): (f64, f64)| value * factor + added;
+        // The ego left the bounds of an epoch of this observation: the next holds it to what
+        // its accelerations allow over the look-ahead (braking by (4.67) moves v̄ by metres per
+        // second), so that it does not begin again at every evaluation.
+        let widen = self.epoch.is_some_and(|epoch| epoch.now == sleep.now);
+        let change = (norm(e.mean_acceleration) + e.acceleration_spread + e.input_reach[1]) * sleep.span;
+        let grow = |value: f64, (factor, added): (f64, f64), wide: f64| match widen {
+            true => 2.0 * value * factor + added.max(wide),
+            false => value * factor + added,
+        };
         let epoch = Epoch {
             now: sleep.now,
             span: sleep.span,
             form,
             velocity: e.velocity,
-            velocity_deviation: grow(e.velocity_spread, EPOCH_GROWTH[0]),
+            velocity_deviation: grow(e.velocity_spread, EPOCH_GROWTH[0], change),
             acceleration: e.mean_acceleration,
-            acceleration_deviation: grow(e.acceleration_spread, EPOCH_GROWTH[1]),
-            input_reach: e.input_reach.map(|w| grow(w, EPOCH_GROWTH[2])),
+            acceleration_deviation: grow(e.acceleration_spread, EPOCH_GROWTH[1], e.input_reach[1]),
+            input_reach: e.input_reach.map(|w| grow(w, EPOCH_GROWTH[2], w)),
         };
         for group in &mut self.groups {
             (group.asleep, group.sleep_tried) = (None, false);
@@ -755,6 +763,32 @@ fn norm(v: [f64; 2]) -> f64 {
     (v[0] * v[0] + v[1] * v[1]).sqrt()
 }
 
+/// The least gap at which a road user's rows hold with no closing term, speed V, acceleration
+/// A and the epoch's W and B (the bracket conditions of [`rows_hold_given`]: l0 D ≥ 2K and
+/// l0 D² − 2K D ≥ 2VW with K = A + |l1| V + B + λ1 W, and λ1 D ≥ 2(V + W) for a first-order
+/// row; α D ≥ 2(V + W) at relative degree 1), grown by a relative 1e-12 so that it passes;
+/// None when the form gives no margin.
+fn least_far_gap(epoch: &Epoch, speed: f64, acceleration: f64, rates: Option<(f64, f64)>) -> Option<f64> {
+    let [w, b] = epoch.input_reach;
+    let first_order = |rate: f64| (rate > 0.0).then(|| 2.0 * (speed + w) / rate);
+    let gap = match epoch.form {
+        BarrierForm::RelativeDegree1 { alpha } => first_order(alpha)?,
+        BarrierForm::RelativeDegree2 { l0, l1 } => {
+            let lambda1 = rates.map_or(0.0, |(lambda1, _)| lambda1);
+            let k = acceleration + l1.abs() * speed + b + lambda1 * w;
+            if l0 <= 0.0 || l0.is_nan() {
+                return None;
+            }
+            let quadratic = (k + (k * k + 2.0 * l0 * speed * w).sqrt()) / l0;
+            match rates {
+                Some((lambda1, _)) => quadratic.max(first_order(lambda1)?),
+                None => quadratic,
+            }
+        }
+    };
+    (gap.is_finite() && gap <= MOST_SLEEP_GAP).then(|| gap.max(f64::MIN_POSITIVE) * (1.0 + 1e-12) + 1e-12)
+}
+
 /// A road user the far test left out may fall asleep for the rest of `epoch`: tried once per
 /// epoch ([`Asleep::of`]; after the group test, a road user only just out would be tried too
 /// early: fewer slept on the CommonRoad files).
@@ -796,8 +830,17 @@ impl Asleep {
             };
             rows_hold_given(&bounds, epoch.form, rates)
         };
-        // rows_hold_given is monotone in the gap: double up to a passing gap, then halve the
-        // interval (the threshold stays on the passing side).
+        // With no closing term only the bracket rows can hold ((4.85)–(4.86) with every bound
+        // at its worst): the least gap in closed form, checked; else (a form it does not
+        // cover) by halving, rows_hold_given being monotone in the gap.
+        let (speed, acceleration) = ((speed + w * rho) * up, (acceleration + (dw + w * w) * rho) * up);
+        if let Some(gap) = least_far_gap(epoch, speed, acceleration, rates).filter(|&gap| holds(gap)) {
+            return Some(Asleep {
+                centre: actor.position,
+                reach: window.displacement + rho + group.largest_radius,
+                threshold: gap,
+            });
+        }
         let mut high = 1.0;
         while !holds(high) {
             high *= 2.0;
