@@ -1347,6 +1347,23 @@ mod tests {
         assert!(checked > 200);
     }
 
+    /// A [`Reach`] of `users` road users of three circles along their length (the first the
+    /// primary), each against three ego circles along the car: barriers 9u + 3c + e.
+    fn road_users_of_three_circles(model: &BicycleModel, queues: &[DelayQueue], users: usize) -> Reach {
+        let ego_offsets = [[-1.0, 0.0], [0.5, 0.0], [2.0, 0.0]];
+        let circle_offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
+        let mut reach = Reach::new(model, queues);
+        for user in 0..users {
+            for (c, offset) in circle_offsets.iter().enumerate() {
+                for (e, ego) in ego_offsets.iter().enumerate() {
+                    let barrier = Barrier::body_circle(&format!("u{user}c{c}e{e}"), ([0, 1], 2), *ego, [0.0; 2], 1.0);
+                    reach.add(&barrier, Some((*offset, c == 0 && e == 0)));
+                }
+            }
+        }
+        reach
+    }
+
     /// The far test (a road user against every ego point at once, [`EgoEnvelope`]) leaves a
     /// road user out only where the group and pair tests leave every one of its barriers out:
     /// random bicycle states against two turning road users of three circles, each against
@@ -1359,22 +1376,11 @@ mod tests {
         let (model, queues) = bicycle_with_delays();
         let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
         let rates = form.real_rates();
-        let ego_offsets = [[-1.0, 0.0], [0.5, 0.0], [2.0, 0.0]];
-        let circle_offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
         let mut rng = SplitMix64(23);
         let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
         let (mut far, mut out_not_far, mut in_reach, mut kept) = (0, 0, 0, 0);
         for _ in 0..20000 {
-            let mut reach = Reach::new(&model, &queues);
-            for user in 0..2 {
-                for (c, offset) in circle_offsets.iter().enumerate() {
-                    for (e, ego) in ego_offsets.iter().enumerate() {
-                        let barrier =
-                            Barrier::body_circle(&format!("u{user}c{c}e{e}"), ([0, 1], 2), *ego, [0.0; 2], 1.0);
-                        reach.add(&barrier, Some((*offset, c == 0 && e == 0)));
-                    }
-                }
-            }
+            let mut reach = road_users_of_three_circles(&model, &queues, 2);
             reach.largest_input = vec![uniform(0.0, 0.3), uniform(0.0, 2.0)];
             reach.bound.clone_from(&reach.largest_input);
             let x = [0.0, 0.0, uniform(-3.0, 3.0), uniform(0.0, 30.0)];
@@ -1456,23 +1462,9 @@ mod tests {
         let (model, queues) = bicycle_with_delays();
         let form = BarrierForm::RelativeDegree2 { l0: 4.0, l1: 4.0 };
         let rates = form.real_rates();
-        let ego_offsets = [[-1.0, 0.0], [0.5, 0.0], [2.0, 0.0]];
-        let circle_offsets = [[-1.5, 0.0], [0.0, 0.0], [1.5, 0.0]];
         let mut rng = SplitMix64(41);
         let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_f64();
-        let build = || {
-            let mut reach = Reach::new(&model, &queues);
-            for user in 0..4 {
-                for (c, offset) in circle_offsets.iter().enumerate() {
-                    for (e, ego) in ego_offsets.iter().enumerate() {
-                        let barrier =
-                            Barrier::body_circle(&format!("u{user}c{c}e{e}"), ([0, 1], 2), *ego, [0.0; 2], 1.0);
-                        reach.add(&barrier, Some((*offset, c == 0 && e == 0)));
-                    }
-                }
-            }
-            reach
-        };
+        let build = || road_users_of_three_circles(&model, &queues, 4);
         let (mut sleeping, mut awake) = (build(), build());
         let (mut evaluations, mut slept_checked) = (0, 0);
         let span = 0.6;
