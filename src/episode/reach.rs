@@ -47,7 +47,7 @@ struct Group {
     sleep_tried: bool,
 }
 
-/// A road user asleep for the current [`Epoch`] (docs/actors.md, "Asleep"): wherever the
+/// A road user asleep for the current [`Epoch`] (docs/actors.md, "Asleep through an epoch"): wherever the
 /// assumption puts it over the epoch's look-aheads it is within `reach` of `centre` (its
 /// assumed centre at the window's middle, plus its displacement over the window, its circles'
 /// spread and largest radius), and its rows hold for every admissible input at any gap of at
@@ -193,9 +193,9 @@ pub(super) struct Reach {
     saved: Vec<f64>,
     /// The current epoch, if one has begun ([`Epoch`]), and how many have.
     epoch: Option<Epoch>,
-    pub(super) epochs: u64,
+    epochs: u64,
     /// Road-user tests an asleep road user's one distance stood for.
-    pub(super) slept: u64,
+    slept: u64,
 }
 
 impl Reach {
@@ -789,6 +789,28 @@ fn least_far_gap(epoch: &Epoch, speed: f64, acceleration: f64, rates: Option<(f6
     (gap.is_finite() && gap <= MOST_SLEEP_GAP).then(|| gap.max(f64::MIN_POSITIVE) * (1.0 + 1e-12) + 1e-12)
 }
 
+/// The least gap for which `holds` (monotone in the gap) does, to a relative 2⁻¹⁶ on the
+/// passing side: doubled from 1 m up to a passing gap, then the interval halved; None above
+/// [`MOST_SLEEP_GAP`].
+fn least_gap_by_halving(holds: impl Fn(f64) -> bool) -> Option<f64> {
+    let mut high = 1.0;
+    while !holds(high) {
+        high *= 2.0;
+        if high > MOST_SLEEP_GAP {
+            return None;
+        }
+    }
+    let mut low = 0.0;
+    for _ in 0..16 {
+        let middle = 0.5 * (low + high);
+        match holds(middle) {
+            true => high = middle,
+            false => low = middle,
+        }
+    }
+    Some(high)
+}
+
 /// A road user the far test left out may fall asleep for the rest of `epoch`: tried once per
 /// epoch ([`Asleep::of`]; after the group test, a road user only just out would be tried too
 /// early: fewer slept on the CommonRoad files).
@@ -819,11 +841,12 @@ impl Asleep {
         let off = |a: [f64; 2], b: [f64; 2]| norm([a[0] - b[0], a[1] - b[1]]);
         let speed = off(epoch.velocity, actor.velocity) + window.velocity_change + epoch.velocity_deviation;
         let acceleration = off(epoch.acceleration, actor.acceleration) + epoch.acceleration_deviation;
+        let (speed, acceleration) = ((speed + w * rho) * up, (acceleration + (dw + w * w) * rho) * up);
         let holds = |gap: f64| {
             let bounds = ReachBounds {
                 gap,
-                speed: (speed + w * rho) * up,
-                acceleration: (acceleration + (dw + w * w) * rho) * up,
+                speed,
+                acceleration,
                 closing: f64::MIN,
                 input_speed: epoch.input_reach[0],
                 input_acceleration: epoch.input_reach[1],
@@ -831,35 +854,15 @@ impl Asleep {
             rows_hold_given(&bounds, epoch.form, rates)
         };
         // With no closing term only the bracket rows can hold ((4.85)–(4.86) with every bound
-        // at its worst): the least gap in closed form, checked; else (a form it does not
-        // cover) by halving, rows_hold_given being monotone in the gap.
-        let (speed, acceleration) = ((speed + w * rho) * up, (acceleration + (dw + w * w) * rho) * up);
-        if let Some(gap) = least_far_gap(epoch, speed, acceleration, rates).filter(|&gap| holds(gap)) {
-            return Some(Asleep {
-                centre: actor.position,
-                reach: window.displacement + rho + group.largest_radius,
-                threshold: gap,
-            });
-        }
-        let mut high = 1.0;
-        while !holds(high) {
-            high *= 2.0;
-            if high > MOST_SLEEP_GAP {
-                return None;
-            }
-        }
-        let mut low = 0.0;
-        for _ in 0..16 {
-            let middle = 0.5 * (low + high);
-            match holds(middle) {
-                true => high = middle,
-                false => low = middle,
-            }
-        }
+        // at its worst): the least gap in closed form, checked; else (rounding at the root) by
+        // halving, rows_hold_given being monotone in the gap.
+        let threshold = least_far_gap(epoch, speed, acceleration, rates)
+            .filter(|&gap| holds(gap))
+            .or_else(|| least_gap_by_halving(holds))?;
         Some(Asleep {
             centre: actor.position,
             reach: window.displacement + rho + group.largest_radius,
-            threshold: high,
+            threshold,
         })
     }
 

@@ -274,7 +274,7 @@ impl ActorKnowledge {
     }
 
     /// Bounds on every state [`ActorKnowledge::predict`] gives from `observed` for the look-ahead
-    /// times d = at − now in [`from`, `to`] (0 ≤ from ≤ to): the state at the middle time, and
+    /// times d = at − now in [from, to] (0 ≤ from ≤ to): the state at the middle time, and
     /// the largest distance of the position, the velocity and the acceleration from its (the
     /// assumed heading and turning do not change). Each bound is grown by a relative 1e-9 (and
     /// the displacement by 1e-9 of the position's size) above the rounding of the predictions.
