@@ -604,6 +604,15 @@ impl KnownActors {
         self.anchor.clone_from(&self.observed);
     }
 
+    /// Whether what the controller assumes of every road user is the anchor's: the oracle's,
+    /// or the anchor is the present observation (kept at [`KnownActors::anchor_here`], since
+    /// when neither a new observation nor a new barrier came). Every
+    /// [`KnownActors::assumption_change`] is then 0.
+    fn assumes_the_anchor(&self) -> bool {
+        self.knowledge == ActorKnowledge::Oracle
+            || (self.anchor_time.to_bits() == self.now.to_bits() && self.anchor.len() == self.observed.len())
+    }
+
     /// The moving road users, by their primary barrier.
     fn road_users(&self) -> impl Iterator<Item = usize> + '_ {
         (self.motions.iter().zip(&self.primary).enumerate()).filter_map(|(k, (m, &p))| (m.is_some() && p).then_some(k))
@@ -996,6 +1005,37 @@ struct PredictStage {
     predictions: Vec<Prediction>,
     /// When auditing chain reuse: the whole-window recomputation next to every reused chain.
     audit: Option<ChainAudit>,
+    /// The chain's laws [`PredictStage::keep_chain_for`] has already tested each road user at.
+    tested: TestedLaws,
+}
+
+/// Per road user (by its primary barrier), the time of the chain's last law at which the
+/// reach test, made again with the present assumption, left it out, for one pair of
+/// observations (the anchor's and the present one, with as many known barriers). The test's
+/// outcome at a law does not change while that pair stays (the law's state and input bounds are
+/// kept with it, and the assumption is the same), so each tick tests only the laws added since
+/// (one, at the chain's new end) instead of every law of the chain again.
+#[derive(Default)]
+struct TestedLaws {
+    observations: (u64, u64, usize),
+    until: Vec<f64>,
+}
+
+impl TestedLaws {
+    /// Forgets every road user's tested laws when the observations compared are not the last
+    /// call's.
+    fn compare(&mut self, actors: &KnownActors) {
+        let observations = (
+            actors.anchor_time.to_bits(),
+            actors.now.to_bits(),
+            actors.observed.len(),
+        );
+        if self.observations != observations {
+            self.observations = observations;
+            self.until.clear();
+        }
+        self.until.resize(actors.observed.len(), f64::NEG_INFINITY);
+    }
 }
 
 impl PredictStage {
@@ -1018,6 +1058,7 @@ impl PredictStage {
             predictions: workspace.predictions(),
             workspace,
             audit: None,
+            tested: TestedLaws::default(),
         }
     }
 
@@ -1039,9 +1080,14 @@ impl PredictStage {
         let last = delays.iter().copied().fold(0.0, f64::max);
         let nodes = ((last - first) / period).round().max(0.0) as usize;
         let window = (t + first, t + first + nodes as f64 * period);
+        if actors.assumes_the_anchor() {
+            return;
+        }
         let LawWorkspace { reach, reach_chain, .. } = work;
+        self.tested.compare(actors);
         // Road users some law of the chain formed rows of first (no reach test to make again),
-        // then the others, each tested again at every law's state with the new assumption.
+        // then the others, each tested again at every law's state with the new assumption
+        // (but the laws it was already tested at, [`TestedLaws`]).
         for formed in [true, false] {
             for k in actors.road_users() {
                 if actors.assumption_change(k, window) <= tolerance
@@ -1049,13 +1095,15 @@ impl PredictStage {
                 {
                     continue;
                 }
+                let tested = self.tested.until[k];
                 let left_out = |reach: &mut Reach, node: &ReachAt| {
-                    reach.still_out(node, k, |j| actors.assumed_centre(j, node.time))
+                    node.time <= tested || reach.still_out(node, k, |j| actors.assumed_centre(j, node.time))
                 };
                 if formed || reach_chain.is_empty() || !reach_chain.iter().all(|node| left_out(reach, node)) {
                     self.workspace.invalidate_chain();
                     return;
                 }
+                self.tested.until[k] = reach_chain.last().map_or(tested, |node| node.time);
             }
         }
     }
