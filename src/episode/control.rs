@@ -405,13 +405,13 @@ impl LawWorkspace {
         let points = self.reach.measure_points(laws.model, z);
         let rates = form.real_rates().is_some();
         // (A run of barriers out of reach, a road user's, is passed over at once.)
-        let mut skip_to = 0;
-        for (k, (b, c)) in laws.barriers.iter().zip(rows.iter_mut()).enumerate() {
-            if k < skip_to {
-                continue;
-            }
+        let mut next = 0;
+        while next < count {
+            let k = next;
+            next += 1;
+            let (b, c) = (&laws.barriers[k], &mut rows[k]);
             if culled && self.reach.out[k] {
-                skip_to = self.reach.leave_out_run(k, count, rates);
+                next = next.max(self.reach.leave_out_run(k, count, rates));
                 continue;
             }
             let mixed = rates && b.mixed_relative_degree();
