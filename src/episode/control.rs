@@ -604,9 +604,9 @@ impl KnownActors {
         self.anchor.clone_from(&self.observed);
     }
 
-    /// Whether what the controller assumes of every road user is the anchor's: the oracle's,
-    /// or the anchor is the present observation (kept at [`KnownActors::anchor_here`], since
-    /// when neither a new observation nor a new barrier came). Every
+    /// Whether what the controller assumes of every road user is the anchor's: the road users
+    /// are known exactly (the oracle), or the anchor is the present observation (taken by
+    /// [`KnownActors::anchor_here`], and no observation and no new barrier since). Every
     /// [`KnownActors::assumption_change`] is then 0.
     fn assumes_the_anchor(&self) -> bool {
         self.knowledge == ActorKnowledge::Oracle
