@@ -1019,6 +1019,8 @@ struct PredictStage {
 struct TestedLaws {
     observations: (u64, u64, usize),
     until: Vec<f64>,
+    /// Scratch: the changed road users no law of the chain formed rows of.
+    changed: Vec<usize>,
 }
 
 impl TestedLaws {
@@ -1076,35 +1078,40 @@ impl PredictStage {
         else {
             return;
         };
+        if actors.assumes_the_anchor() {
+            return;
+        }
         let first = delays.iter().copied().fold(f64::INFINITY, f64::min);
         let last = delays.iter().copied().fold(0.0, f64::max);
         let nodes = ((last - first) / period).round().max(0.0) as usize;
         let window = (t + first, t + first + nodes as f64 * period);
-        if actors.assumes_the_anchor() {
-            return;
-        }
         let LawWorkspace { reach, reach_chain, .. } = work;
         self.tested.compare(actors);
-        // Road users some law of the chain formed rows of first (no reach test to make again),
-        // then the others, each tested again at every law's state with the new assumption
-        // (but the laws it was already tested at, [`TestedLaws`]).
-        for formed in [true, false] {
-            for k in actors.road_users() {
-                if actors.assumption_change(k, window) <= tolerance
-                    || reach_chain.iter().any(|node| reach.formed_in(node, k)) != formed
-                {
-                    continue;
-                }
-                let tested = self.tested.until[k];
-                let left_out = |reach: &mut Reach, node: &ReachAt| {
-                    node.time <= tested || reach.still_out(node, k, |j| actors.assumed_centre(j, node.time))
-                };
-                if formed || reach_chain.is_empty() || !reach_chain.iter().all(|node| left_out(reach, node)) {
-                    self.workspace.invalidate_chain();
-                    return;
-                }
-                self.tested.until[k] = reach_chain.last().map_or(tested, |node| node.time);
+        let TestedLaws { until, changed, .. } = &mut self.tested;
+        // A changed road user some law of the chain formed rows of ends it (no reach test to
+        // make again); the other changed ones are then tested again at every law's state with
+        // the new assumption (but at the laws already tested, [`TestedLaws`]).
+        changed.clear();
+        for k in actors.road_users() {
+            if actors.assumption_change(k, window) <= tolerance {
+                continue;
             }
+            if reach_chain.is_empty() || reach_chain.iter().any(|node| reach.formed_in(node, k)) {
+                self.workspace.invalidate_chain();
+                return;
+            }
+            changed.push(k);
+        }
+        for &k in changed.iter() {
+            let tested = until[k];
+            let left_out = |reach: &mut Reach, node: &ReachAt| {
+                node.time <= tested || reach.still_out(node, k, |j| actors.assumed_centre(j, node.time))
+            };
+            if !reach_chain.iter().all(|node| left_out(reach, node)) {
+                self.workspace.invalidate_chain();
+                return;
+            }
+            until[k] = reach_chain.last().map_or(tested, |node| node.time);
         }
     }
 
